@@ -1,0 +1,142 @@
+"""Input checks shared by every estimator. Never ``assert``: these must survive ``python -O``."""
+
+from __future__ import annotations
+
+import numbers
+from typing import Any
+
+import numpy as np
+
+from .exceptions import (
+    DimensionMismatchError,
+    InvalidDescriptorsError,
+    InvalidParameterError,
+    NotEnoughPlacesError,
+    NotFittedError,
+)
+
+
+def check_descriptors(
+    X: Any,
+    *,
+    name: str = "X",
+    n_features: int | None = None,
+    min_rows: int = 1,
+    dtype: type = np.float32,
+) -> np.ndarray:
+    """Validate a descriptor matrix and return it as a C-contiguous 2-D float array.
+
+    Parameters
+    ----------
+    X : array-like of shape (n_samples, n_features)
+        Descriptors, one row per image.
+    name : str
+        What to call the array in error messages.
+    n_features : int, optional
+        The dimension the array must have (the one the model was fitted on).
+    min_rows : int
+        Fewest rows accepted.
+    dtype : numpy dtype
+        Result dtype (float32 unless the caller needs float64).
+
+    Returns
+    -------
+    X : ndarray of shape (n_samples, n_features), dtype ``dtype``
+
+    Raises
+    ------
+    InvalidDescriptorsError
+        Not numeric, not 2-D, empty, or with NaN/inf values.
+    DimensionMismatchError
+        ``n_features`` is given and differs from ``X.shape[1]``.
+    """
+    if hasattr(X, "toarray") and not isinstance(X, np.ndarray):
+        raise InvalidDescriptorsError(
+            f"{name} is a sparse matrix; btel needs dense descriptors. Convert it with {name}.toarray()."
+        )
+    try:
+        arr = np.asarray(X)
+    except Exception as exc:  # ragged lists and the like
+        raise InvalidDescriptorsError(f"{name} could not be read as a numeric array: {exc}") from exc
+    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool):
+        raise InvalidDescriptorsError(
+            f"{name} has dtype {arr.dtype}; descriptors must be numbers (float32 preferred)."
+        )
+    if np.issubdtype(arr.dtype, np.complexfloating):
+        raise InvalidDescriptorsError(f"{name} is complex; descriptors must be real numbers.")
+    if arr.ndim != 2:
+        hint = " Use X.reshape(1, -1) for a single descriptor." if arr.ndim == 1 else ""
+        raise InvalidDescriptorsError(
+            f"{name} must be 2-D (n_samples, n_features); got shape {arr.shape}.{hint}"
+        )
+    if arr.shape[0] < max(1, min_rows) or arr.shape[1] == 0:
+        raise InvalidDescriptorsError(
+            f"{name} has shape {arr.shape}; it needs at least {max(1, min_rows)} row(s) and one column."
+        )
+    if n_features is not None and arr.shape[1] != n_features:
+        raise DimensionMismatchError(
+            f"{name} has {arr.shape[1]} features but the model was fitted on {n_features}. "
+            "Use descriptors from the same extractor (and settings) as the map."
+        )
+    # No copy when X already has the right dtype and layout (memory-mapped maps stay mapped).
+    arr = np.ascontiguousarray(arr, dtype=dtype)
+    if not np.isfinite(arr).all():
+        bad = np.argwhere(~np.isfinite(arr))[0]
+        raise InvalidDescriptorsError(
+            f"{name} contains NaN or infinite values (first at row {bad[0]}, column {bad[1]}). "
+            "Remove or repair those rows before fitting or predicting."
+        )
+    return arr
+
+
+def check_places(places: Any, n_samples: int) -> tuple[np.ndarray, int]:
+    """Validate place labels: integers in ``[0, N)`` covering every place at least once.
+
+    Returns
+    -------
+    places : ndarray of shape (n_samples,), dtype int64
+    n_places : int
+        N = ``places.max() + 1``.
+    """
+    arr = np.asarray(places)
+    if arr.ndim != 1 or arr.shape[0] != n_samples:
+        raise InvalidParameterError(
+            f"places must be 1-D with one label per descriptor row ({n_samples}); got shape {arr.shape}."
+        )
+    if arr.dtype.kind == "f":
+        if not np.all(np.isfinite(arr)) or not np.all(arr == np.round(arr)):
+            raise InvalidParameterError("places must be whole numbers (place indices).")
+    elif arr.dtype.kind not in "iu":
+        raise InvalidParameterError(f"places must be integer place indices; got dtype {arr.dtype}.")
+    arr = arr.astype(np.int64)
+    if arr.min() < 0:
+        raise InvalidParameterError("places must be non-negative place indices.")
+    n_places = int(arr.max()) + 1
+    counts = np.bincount(arr, minlength=n_places)
+    missing = np.flatnonzero(counts == 0)
+    if missing.size:
+        raise InvalidParameterError(
+            f"places must cover every index 0..{n_places - 1}; {missing.size} are missing "
+            f"(first: {missing[0]}). Renumber the places contiguously in route order."
+        )
+    if n_places < 2:
+        raise NotEnoughPlacesError(
+            f"N = {n_places} place(s): an index needs at least 2 places. Fit on a longer route."
+        )
+    return arr, n_places
+
+
+def check_positive_int(value: Any, name: str, *, minimum: int = 1) -> int:
+    """Return ``value`` as an int ≥ ``minimum`` or raise :class:`InvalidParameterError`."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
+        raise InvalidParameterError(f"{name} must be an integer ≥ {minimum}; got {value!r}.")
+    return int(value)
+
+
+def check_is_fitted(estimator: Any, attribute: str) -> None:
+    """Raise :class:`NotFittedError` unless ``estimator`` has ``attribute``."""
+    if not hasattr(estimator, attribute):
+        raise NotFittedError(
+            f"This {type(estimator).__name__} is not fitted yet. Call fit(X) on map descriptors first, "
+            "or load a saved model with btel.load(path)."
+        )

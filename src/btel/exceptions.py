@@ -1,0 +1,76 @@
+"""Every failure btel names, in one place.
+
+Each error derives from :class:`BTELError` and from the built-in exception a user would
+catch anyway (``ValueError``, ``OSError``), so ``except ValueError`` keeps working.
+Messages say what is wrong and what to do about it.
+"""
+
+from __future__ import annotations
+
+from sklearn.exceptions import NotFittedError as _SklearnNotFittedError
+
+__all__ = [
+    "BTELError",
+    "InvalidDescriptorsError",
+    "DimensionMismatchError",
+    "NotEnoughPlacesError",
+    "InvalidParameterError",
+    "BudgetTooSmallError",
+    "ModelFileError",
+    "UnsupportedModelVersionError",
+    "NotFittedError",
+    "DataNotFoundError",
+]
+
+
+class BTELError(Exception):
+    """Base class of every error raised by btel."""
+
+
+class InvalidDescriptorsError(BTELError, ValueError):
+    """Descriptors are empty, not 2-D, not numeric, or contain NaN/inf."""
+
+
+class DimensionMismatchError(BTELError, ValueError):
+    """Query descriptors have a different dimension from the map the model was fitted on."""
+
+
+class NotEnoughPlacesError(BTELError, ValueError):
+    """Fewer than two places (or a region too short) to build an index over."""
+
+
+class InvalidParameterError(BTELError, ValueError):
+    """A parameter has a value outside its valid range."""
+
+
+class BudgetTooSmallError(BTELError, ValueError):
+    """No configuration of the method fits in the requested number of bytes.
+
+    Attributes
+    ----------
+    budget : int
+        The requested budget in bytes.
+    minimum : int
+        The smallest number of bytes any configuration needs.
+    """
+
+    def __init__(self, message: str, *, budget: int, minimum: int) -> None:
+        super().__init__(message)
+        self.budget = budget
+        self.minimum = minimum
+
+
+class ModelFileError(BTELError, OSError):
+    """A model file is missing, truncated, corrupt, or not a btel model."""
+
+
+class UnsupportedModelVersionError(ModelFileError):
+    """A model file was written by a newer btel (a format version this one cannot read)."""
+
+
+class NotFittedError(BTELError, _SklearnNotFittedError):
+    """A model was used before ``fit`` (also a scikit-learn ``NotFittedError``)."""
+
+
+class DataNotFoundError(BTELError, FileNotFoundError):
+    """A data folder or file does not exist or holds nothing btel can read."""

@@ -1,0 +1,225 @@
+"""Linear classifiers on selected, standardised columns, with the scaling folded in (SPEC §3).
+
+Descriptors are standardised with training statistics (μ, σ) before a classifier is trained,
+and the scaling is folded into the hyperplane so it costs no storage:
+``w' = w/σ`` and ``c' = c − Σ w'·μ``. The bias is computed from the *stored* (possibly float16)
+weights, so rounding the weights does not shift the decision boundary by ``Σ (w' − w16)·μ``.
+
+:class:`Hyperplanes` is a stack of K such classifiers, each on its own d' columns; it computes
+all K margins of a batch of queries with one matrix product.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+from sklearn.exceptions import ConvergenceWarning
+from sklearn.linear_model import LogisticRegression
+from sklearn.svm import LinearSVC
+
+from .exceptions import InvalidParameterError
+
+__all__ = ["ColumnStats", "fit_linear", "Hyperplanes", "CLASSIFIERS", "default_C"]
+
+CLASSIFIERS = ("svm", "logistic")
+
+
+def default_C(classifier: str) -> float:
+    """C when the user gives none: 1.0 for the SVM, 4.0 for logistic (the authors' earlier code)."""
+    return 4.0 if classifier == "logistic" else 1.0
+
+
+@dataclass(frozen=True)
+class ColumnStats:
+    """Training mean and standard deviation of every column (float64, shape (d,))."""
+
+    mean: np.ndarray
+    scale: np.ndarray
+
+    @classmethod
+    def of(cls, X: np.ndarray, chunk_rows: int = 65536) -> "ColumnStats":
+        """Column statistics of X, accumulated in float64 over row chunks (memory-mapped X is fine)."""
+        n, d = X.shape
+        total = np.zeros(d)
+        total_sq = np.zeros(d)
+        for start in range(0, n, chunk_rows):
+            block = np.asarray(X[start : start + chunk_rows], dtype=np.float64)
+            total += block.sum(axis=0)
+            total_sq += (block**2).sum(axis=0)
+        mean = total / n
+        var = np.maximum(total_sq / n - mean**2, 0.0)
+        scale = np.sqrt(var)
+        # A constant column carries no information; σ = 1 keeps it finite (its BCSS is 0, so it is
+        # only ever selected when d' exceeds the number of informative columns).
+        floor = 1e-6 * max(float(np.median(scale)), 1e-12)
+        scale[scale < floor] = 1.0
+        return cls(mean=mean, scale=scale)
+
+
+def _make_classifier(classifier: str, C: float, max_iter: int, random_state: int | None):
+    if classifier == "svm":
+        return LinearSVC(C=C, loss="squared_hinge", dual="auto", max_iter=max_iter, random_state=random_state)
+    if classifier == "logistic":
+        return LogisticRegression(C=C, solver="liblinear", tol=0.01, max_iter=max_iter, random_state=random_state)
+    raise InvalidParameterError(f"classifier must be one of {CLASSIFIERS}; got {classifier!r}.")
+
+
+def fit_linear(
+    X: np.ndarray,
+    labels: np.ndarray,
+    columns: np.ndarray,
+    stats: ColumnStats,
+    *,
+    classifier: str = "svm",
+    C: float = 1.0,
+    max_iter: int = 1000,
+    random_state: int | None = None,
+    dtype: np.dtype = np.dtype(np.float32),
+) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Train one (binary or one-vs-rest) linear classifier on ``X[:, columns]``, standardised.
+
+    Parameters
+    ----------
+    X : ndarray of shape (n_samples, n_features_in)
+    labels : ndarray of shape (n_samples,), int
+        Two classes give one hyperplane (positive margin = the larger label); more give one per
+        class (one-vs-rest), in sorted class order.
+    columns : ndarray of shape (d',), int
+    stats : ColumnStats
+        Training statistics of all n_features_in columns.
+    dtype : numpy dtype
+        Stored weight dtype (float32 or float16).
+
+    Returns
+    -------
+    weights : ndarray of shape (n_hyperplanes, d'), dtype ``dtype`` — scaling folded in
+    bias : ndarray of shape (n_hyperplanes,), float32
+    converged : bool
+        False when liblinear stopped at ``max_iter``.
+    """
+    cols = np.asarray(columns, dtype=np.intp)
+    mu = stats.mean[cols]
+    sigma = stats.scale[cols]
+    Xs = (np.asarray(X[:, cols], dtype=np.float64) - mu) / sigma
+    model = _make_classifier(classifier, C, max_iter, random_state)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ConvergenceWarning)
+        model.fit(Xs, labels)
+    converged = not any(issubclass(w.category, ConvergenceWarning) for w in caught)
+    coef = np.atleast_2d(model.coef_)
+    weights = (coef / sigma).astype(dtype)
+    # Bias from the stored weights: c' = c − Σ w_stored·μ.
+    bias = (np.asarray(model.intercept_, dtype=np.float64) - weights.astype(np.float64) @ mu).astype(np.float32)
+    return weights, np.atleast_1d(bias), converged
+
+
+@dataclass
+class Hyperplanes:
+    """A stack of K linear classifiers, classifier k reading columns ``columns[k]``.
+
+    Attributes
+    ----------
+    weights : ndarray of shape (K, d'), float32 or float16
+    bias : ndarray of shape (K,), float32
+    columns : ndarray of shape (K, d') or (1, d'), uint16/uint32, or None
+        Columns read by each classifier; one shared row when all K read the same columns (the
+        one-vs-rest region classifier); None when every classifier reads all d columns
+        (d' = d: no indices stored).
+    n_features_in : int
+        d, the descriptor dimension.
+    """
+
+    weights: np.ndarray
+    bias: np.ndarray
+    columns: np.ndarray | None
+    n_features_in: int
+    _dense: np.ndarray | None = field(default=None, repr=False, compare=False)
+
+    @classmethod
+    def empty(cls, n_selected: int, n_features_in: int, dtype: np.dtype, index_dtype: np.dtype | None):
+        return cls(
+            weights=np.zeros((0, n_selected), dtype=dtype),
+            bias=np.zeros(0, dtype=np.float32),
+            columns=None if index_dtype is None else np.zeros((0, n_selected), dtype=index_dtype),
+            n_features_in=n_features_in,
+        )
+
+    @classmethod
+    def stack(cls, parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]], n_features_in: int,
+              n_selected: int, dtype: np.dtype, index_dtype: np.dtype | None,
+              *, shared_columns: bool = False) -> "Hyperplanes":
+        """Stack (weights (k, d'), bias (k,), columns (d',)) triples, one per fitted classifier.
+
+        ``index_dtype`` None means d' = d and no columns are stored. With ``shared_columns``
+        (every part reads the same columns: the one-vs-rest region classifier) the columns are
+        stored once, as one row.
+        """
+        if not parts:
+            return cls.empty(n_selected, n_features_in, dtype, index_dtype)
+        weights = np.concatenate([w for w, _, _ in parts]).astype(dtype)
+        bias = np.concatenate([b for _, b, _ in parts]).astype(np.float32)
+        columns = None
+        if index_dtype is not None:
+            if shared_columns or len(parts) == 1:
+                columns = parts[0][2].reshape(1, -1).astype(index_dtype)
+            else:
+                columns = np.concatenate(
+                    [np.broadcast_to(c, (w.shape[0], c.shape[0])) for w, _, c in parts]
+                ).astype(index_dtype)
+        return cls(weights=weights, bias=bias, columns=columns, n_features_in=n_features_in)
+
+    def __len__(self) -> int:
+        return int(self.weights.shape[0])
+
+    def arrays(self, prefix: str) -> dict[str, np.ndarray]:
+        """The stored arrays, named ``{prefix}weights`` etc."""
+        out = {f"{prefix}weights": self.weights, f"{prefix}bias": self.bias}
+        if self.columns is not None:
+            out[f"{prefix}columns"] = self.columns
+        return out
+
+    def dense(self) -> np.ndarray:
+        """All K hyperplanes scattered into one (d, K) float32 matrix (a runtime cache, not stored).
+
+        One BLAS product ``Q @ dense`` then gives every margin: faster than K gathers.
+        """
+        if self._dense is None:
+            K, d_sel = self.weights.shape
+            dense = np.zeros((self.n_features_in, K), dtype=np.float32)
+            if self.columns is None:
+                dense[:, :] = self.weights.T
+            else:
+                rows = np.broadcast_to(self.columns, (K, d_sel)).astype(np.intp)
+                dense[rows, np.repeat(np.arange(K), d_sel).reshape(K, d_sel)] = self.weights
+            self._dense = dense
+        return self._dense
+
+    def margins(self, Q: np.ndarray, rows: slice | np.ndarray | None = None) -> np.ndarray:
+        """Margins of the queries under classifiers ``rows`` (all by default).
+
+        Returns
+        -------
+        ndarray of shape (n_queries, n_rows), float32
+        """
+        dense = self.dense()
+        bias = self.bias
+        if rows is not None:
+            dense = dense[:, rows]
+            bias = bias[rows]
+        return Q @ dense + bias
+
+    def margins_per_row(self, Q: np.ndarray, row_of_query: np.ndarray) -> np.ndarray:
+        """Margin of query i under its own classifier ``row_of_query[i]`` (shape (n,), float32).
+
+        Gathers only that classifier's d' columns: O(n·d'), for when K is large (BTE-F).
+        """
+        rows = np.asarray(row_of_query, dtype=np.intp)
+        w = self.weights[rows].astype(np.float32)
+        if self.columns is None:
+            q = Q
+        else:
+            cols = self.columns[rows if self.columns.shape[0] > 1 else np.zeros_like(rows)]
+            q = np.take_along_axis(Q, cols.astype(np.intp), axis=1)
+        return np.einsum("ij,ij->i", q, w) + self.bias[rows]

@@ -1,0 +1,84 @@
+"""Shared fixtures. Real-data tests read ../shared/data beside the project.
+
+When ../shared is absent the real-data tests are skipped with a reason, except under CI
+(``CI`` or ``BTEL_REQUIRE_SHARED`` set), where a missing data folder fails the run: CI always
+has ../shared, so a skip there would hide untested capabilities.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+PROJECT_ROOT = Path(__file__).resolve().parents[1]
+SHARED_DATA = Path(os.environ.get("BTEL_SHARED_DATA", PROJECT_ROOT.parent / "shared" / "data"))
+
+
+def _require_shared(sub: str) -> Path:
+    path = SHARED_DATA / sub
+    if not path.exists():
+        message = f"real data not found at {path} (expected ../shared/data beside the project)"
+        if os.environ.get("CI") or os.environ.get("BTEL_REQUIRE_SHARED"):
+            pytest.fail(message + "; CI must run the real-data tests")
+        pytest.skip(message)
+    return path
+
+
+@pytest.fixture(scope="session")
+def shared_data() -> Path:
+    """Path to ../shared/data (skips, or fails under CI, when absent)."""
+    return _require_shared("")
+
+
+@pytest.fixture(scope="session")
+def nordland_dir() -> Path:
+    """Path to ../shared/data/nordland64 (folders summer/ and winter/)."""
+    return _require_shared("nordland64")
+
+
+@pytest.fixture(scope="session")
+def gardenspoint_sample_dir() -> Path:
+    """Path to ../shared/data/gardenspoint_sample (folders ref/ and query/)."""
+    return _require_shared("gardenspoint_sample")
+
+
+@pytest.fixture(scope="session")
+def gardenspoint_netvlad() -> tuple[np.ndarray, np.ndarray]:
+    """(map, queries) 500-D descriptors for 200 Gardens Point places, float32."""
+    path = _require_shared("gardenspoint_netvlad") / "hiddenRepr-GardensPoint.npz"
+    with np.load(path, allow_pickle=False) as data:
+        return data["hlrTrain"].astype(np.float32), data["hlrTest"].astype(np.float32)
+
+
+def _read_grey_pixels(folder: Path, step: int) -> np.ndarray:
+    import cv2
+
+    files = sorted(folder.glob("images-*.png"))[::step]
+    rows = [cv2.imread(str(f), cv2.IMREAD_GRAYSCALE).astype(np.float32).ravel() / 255.0 for f in files]
+    return np.stack(rows)
+
+
+@pytest.fixture(scope="session")
+def nordland_pixels(nordland_dir: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(summer, winter) flattened 64×32 grey pixels of every Nordland frame, float32 in [0, 1]."""
+    return _read_grey_pixels(nordland_dir / "summer", 1), _read_grey_pixels(nordland_dir / "winter", 1)
+
+
+# --- CI guard: a real-data test that was skipped under CI fails the run -----------------------
+_skipped_realdata: list[str] = []
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    if report.skipped and "realdata" in report.keywords:
+        _skipped_realdata.append(report.nodeid)
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    if _skipped_realdata and (os.environ.get("CI") or os.environ.get("BTEL_REQUIRE_SHARED")):
+        print(f"\nCI: {len(_skipped_realdata)} real-data test(s) were skipped; CI must run them all:")
+        for nodeid in _skipped_realdata:
+            print(f"  {nodeid}")
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
