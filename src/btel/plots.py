@@ -1,0 +1,213 @@
+"""Figures of a run, as in the paper: recall vs tolerance, vs storage, vs number of places.
+
+Figures are drawn on matplotlib's Agg canvas (no display, no pyplot state: safe in scripts,
+tests and threads) and saved as PNG; each function returns the :class:`~matplotlib.figure.Figure`.
+
+Rows for :func:`plot_recall_vs_storage` and :func:`plot_recall_vs_n` are dicts::
+
+    {"method": "BTE-C",           # series name
+     "bytes": 492240,             # storage in bytes (SPEC §7)
+     "n_places": 3576,            # N, map places
+     "recall": {0: 0.31, 10: 0.38}}  # tolerance (frames) → recall; keys int or str (from JSON)
+
+:meth:`btel.evaluation.EvaluationResult.to_row` builds one. Rows of one method form one series,
+sorted by x.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.ticker import FuncFormatter
+
+from .exceptions import InvalidParameterError
+from .storage import format_bytes
+
+__all__ = ["plot_recall_vs_tolerance", "plot_recall_vs_storage", "plot_recall_vs_n"]
+
+_FIGSIZE = (6.4, 4.4)
+_DPI = 120
+
+
+def _new_figure() -> tuple[Figure, Any]:
+    fig = Figure(figsize=_FIGSIZE, dpi=_DPI)
+    FigureCanvasAgg(fig)  # attach the Agg canvas: savefig then needs no GUI backend
+    return fig, fig.add_subplot(1, 1, 1)
+
+
+def _save(fig: Figure, path: str | os.PathLike) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path, format="png")
+
+
+def _field(item: Any, key: str, default: Any = None) -> Any:
+    """Read ``key`` from an EvaluationResult-like object or a dict (e.g. from metrics.json)."""
+    if isinstance(item, Mapping):
+        return item.get(key, default)
+    return getattr(item, key, default)
+
+
+def _recall_at(recall: Mapping[Any, float] | None, tolerance: int, who: str) -> float:
+    if recall:
+        for key in (tolerance, str(tolerance)):
+            if key in recall:
+                return float(recall[key])
+    available = sorted(int(k) for k in (recall or {}))
+    raise InvalidParameterError(
+        f"{who} has no recall at tolerance {tolerance} (available: {available}); "
+        "evaluate with that tolerance or plot another one."
+    )
+
+
+def plot_recall_vs_tolerance(
+    results: Sequence[Any],
+    path: str | os.PathLike,
+    *,
+    max_tolerance: int | None = None,
+    title: str | None = None,
+) -> Figure:
+    """One line per method: recall (y) against tolerance in frames (x), legend with the bytes.
+
+    Parameters
+    ----------
+    results : sequence of EvaluationResult or dict
+        Each needs ``name`` and ``recall_curve`` (recall at t = 0, 1, …) or, failing that,
+        ``recall`` (tolerance → recall, drawn as points); ``nbytes`` labels the legend.
+        Dicts as in ``metrics.json["results"]`` work too.
+    path : path
+        PNG file to write.
+    max_tolerance : int, optional
+        Right end of the x axis (default: the longest curve).
+    title : str, optional
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    if not results:
+        raise InvalidParameterError("nothing to plot: results is empty.")
+    fig, ax = _new_figure()
+    for r in results:
+        name = str(_field(r, "name", "method"))
+        nbytes = _field(r, "nbytes")
+        label = name if nbytes is None else f"{name} ({format_bytes(nbytes)})"
+        curve = _field(r, "recall_curve")
+        if curve is not None and len(curve):
+            y = np.asarray(curve, dtype=float)
+            x = np.arange(y.shape[0])
+            marker, drawstyle = None, "steps-post"  # recall is defined at whole frames only
+        else:
+            recall = _field(r, "recall") or {}
+            if not recall:
+                raise InvalidParameterError(f"result {name!r} has neither a recall curve nor recall points.")
+            pairs = sorted((int(t), float(v)) for t, v in recall.items())
+            x, y = np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs])
+            marker, drawstyle = "o", "default"
+        if max_tolerance is not None:
+            keep = x <= max_tolerance
+            x, y = x[keep], y[keep]
+        ax.plot(x, y, marker=marker, drawstyle=drawstyle, label=label)
+    ax.set_xlabel("tolerance (frames)")
+    ax.set_ylabel("recall")
+    ax.set_ylim(0.0, 1.02)
+    ax.set_xlim(left=0)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize="small", loc="lower right")  # recall rises with t: the lower right is free
+    if title:
+        ax.set_title(title)
+    _save(fig, path)
+    return fig
+
+
+def _plot_rows(
+    rows: Sequence[Mapping[str, Any]],
+    path: str | os.PathLike,
+    *,
+    x_key: str,
+    xlabel: str,
+    tolerance: int,
+    title: str | None,
+    x_formatter: Any = None,
+) -> Figure:
+    if not rows:
+        raise InvalidParameterError("nothing to plot: rows is empty.")
+    series: dict[str, list[tuple[float, float]]] = {}
+    for i, row in enumerate(rows):
+        missing = [k for k in ("method", x_key, "recall") if k not in row]
+        if missing:
+            raise InvalidParameterError(
+                f"row {i} lacks {missing}; rows are dicts with keys method, bytes, n_places, recall."
+            )
+        x = row[x_key]
+        if x is None or not np.isfinite(float(x)) or float(x) <= 0:
+            raise InvalidParameterError(f"row {i} ({row['method']}) has {x_key}={x!r}; a log axis needs a value > 0.")
+        y = _recall_at(row["recall"], tolerance, f"row {i} ({row['method']})")
+        series.setdefault(str(row["method"]), []).append((float(x), y))
+    fig, ax = _new_figure()
+    for method, points in series.items():
+        points.sort()
+        ax.plot([p[0] for p in points], [p[1] for p in points], marker="o", label=method)
+    ax.set_xscale("log")
+    if x_formatter is not None:
+        ax.xaxis.set_major_formatter(x_formatter)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(f"recall (tolerance {tolerance} frames)")
+    ax.set_ylim(0.0, 1.02)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize="small")
+    if title:
+        ax.set_title(title)
+    _save(fig, path)
+    return fig
+
+
+def plot_recall_vs_storage(
+    rows: Sequence[Mapping[str, Any]], path: str | os.PathLike, tolerance: int = 10, *, title: str | None = None
+) -> Figure:
+    """Recall at ``tolerance`` (y) against storage in bytes (x, log scale), one series per method.
+
+    Parameters
+    ----------
+    rows : sequence of dict
+        Keys ``method``, ``bytes``, ``recall`` (and ``n_places``); see the module docstring.
+    path : path
+        PNG file to write.
+    tolerance : int, default 10
+        Which recall point to plot; every row must have it.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    return _plot_rows(
+        rows, path, x_key="bytes", xlabel="storage (bytes)", tolerance=tolerance, title=title,
+        x_formatter=FuncFormatter(lambda value, _pos: format_bytes(value)),
+    )
+
+
+def plot_recall_vs_n(
+    rows: Sequence[Mapping[str, Any]], path: str | os.PathLike, tolerance: int = 10, *, title: str | None = None
+) -> Figure:
+    """Recall at ``tolerance`` (y) against the number of map places N (x, log scale), one series per method.
+
+    Parameters
+    ----------
+    rows : sequence of dict
+        Keys ``method``, ``n_places``, ``recall`` (and ``bytes``); see the module docstring.
+    path : path
+        PNG file to write.
+    tolerance : int, default 10
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    return _plot_rows(rows, path, x_key="n_places", xlabel="N (map places)", tolerance=tolerance, title=title)

@@ -1,0 +1,272 @@
+"""Recall at a tolerance, R@K, evaluate() and run folders."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from sklearn.neighbors import NearestNeighbors
+
+from btel._validation import check_descriptors
+from btel.base import PlaceLocalizer
+from btel.datasets.groundtruth import GroundTruth
+from btel.evaluation import (
+    DEFAULT_TOLERANCES,
+    evaluate,
+    recall_at_k,
+    recall_at_tolerance,
+    recall_curve,
+    recompute_recall_from_csv,
+    write_run,
+)
+from btel.exceptions import DimensionMismatchError, InvalidParameterError
+
+
+class _NearestNeighbour(PlaceLocalizer):
+    """Tiny brute-force localizer for these tests (the real baselines are written elsewhere)."""
+
+    supports_ranking = True
+
+    def __init__(self, *, metric: str = "euclidean") -> None:
+        self.metric = metric
+
+    def fit(self, X: Any, places: Any = None) -> "_NearestNeighbour":
+        self.map_ = check_descriptors(X)
+        self.n_places_ = self.map_.shape[0]
+        self.index_ = NearestNeighbors(metric=self.metric).fit(self.map_)
+        return self
+
+    def predict(self, Q: Any) -> np.ndarray:
+        return self.index_.kneighbors(check_descriptors(Q), 1, return_distance=False)[:, 0].astype(np.int64)
+
+    def rank(self, Q: Any, k: int = 10) -> np.ndarray:
+        return self.index_.kneighbors(check_descriptors(Q), k, return_distance=False).astype(np.int64)
+
+    def _stored_arrays(self) -> dict[str, np.ndarray]:
+        return {"map": self.map_}
+
+
+class _PlainPredictor:
+    """An object with only fit/predict (no storage, no params): evaluate must still work."""
+
+    def fit(self, X: Any) -> "_PlainPredictor":
+        self.n_ = len(X)
+        return self
+
+    def predict(self, Q: Any) -> np.ndarray:
+        return np.minimum(np.arange(len(Q)) + 1, self.n_ - 1)  # always one frame ahead
+
+
+def _route(n: int = 60, d: int = 16, noise: float = 0.3, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    X = rng.normal(size=(n, d)).astype(np.float32)
+    return X, (X + noise * rng.normal(size=X.shape)).astype(np.float32)
+
+
+# -- recall --------------------------------------------------------------------------------------
+def test_recall_at_tolerance_exact_values() -> None:
+    pred = np.array([0, 2, 5, 3, 0, 9])  # errors vs j: 0, 1, 3, 0, 4, 4
+    got = recall_at_tolerance(pred)
+    assert list(got) == list(DEFAULT_TOLERANCES)
+    assert got == {0: 2 / 6, 1: 3 / 6, 2: 3 / 6, 5: 1.0, 10: 1.0, 20: 1.0}
+    assert recall_at_tolerance(pred, [0, 2, 2, 3, 4, 5], tolerances=(0, 3)) == {0: 3 / 6, 3: 4 / 6}
+
+
+def test_recall_curve_matches_points() -> None:
+    rng = np.random.default_rng(3)
+    pred = rng.integers(0, 200, size=150)
+    curve = recall_curve(pred, max_tolerance=80)
+    assert curve.shape == (81,)
+    assert np.all(np.diff(curve) >= 0)
+    points = recall_at_tolerance(pred, tolerances=range(81))
+    np.testing.assert_allclose(curve, [points[t] for t in range(81)])
+
+
+def test_recall_with_ground_truth_object() -> None:
+    gt = GroundTruth.from_positives([[0, 1], [5], [], [3]])
+    pred = np.array([1, 4, 0, 3])
+    # Explicit positives: no tolerance, the empty row is always wrong.
+    assert recall_at_tolerance(pred, gt, (0, 1, 10)) == {0: 0.5, 1: 0.5, 10: 0.5}
+    np.testing.assert_allclose(recall_curve(pred, gt, 5), np.full(6, 0.5))
+    ranked = np.array([[9, 1], [5, 0], [0, 1], [2, 3]])
+    assert recall_at_k(ranked, gt, ks=(1, 2)) == {1: 0.25, 2: 0.75}
+
+
+def test_recall_at_k_exact_values_and_tolerance() -> None:
+    ranked = np.array(
+        [
+            [0, 7, 8],  # query 0: hit at rank 1
+            [4, 1, 9],  # query 1: hit at rank 2
+            [9, 8, 3],  # query 2: ranks 1..3 miss at t=0; rank 3 within 1 frame
+            [6, 5, 3],  # query 3: hit at rank 3
+        ]
+    )
+    assert recall_at_k(ranked, ks=(1, 2, 3)) == {1: 0.25, 2: 0.5, 3: 0.75}
+    assert recall_at_k(ranked, ks=(1, 3), tolerance=1) == {1: 0.25, 3: 1.0}
+    with pytest.raises(InvalidParameterError, match="R@5 needs at least 5"):
+        recall_at_k(ranked, ks=(1, 5))
+
+
+def test_recall_input_errors() -> None:
+    with pytest.raises(InvalidParameterError, match="1-D"):
+        recall_at_tolerance(np.zeros((3, 2), dtype=int))
+    with pytest.raises(InvalidParameterError, match="covers 2 queries but there are 3"):
+        recall_at_tolerance([0, 1, 2], GroundTruth.frame_aligned(2))
+    with pytest.raises(InvalidParameterError, match="tolerances"):
+        recall_at_tolerance([0, 1], tolerances=(-1,))
+
+
+# -- evaluate --------------------------------------------------------------------------------------
+def test_evaluate_localizer_with_ranking_and_storage() -> None:
+    X, Q = _route(noise=1.0)
+    method = _NearestNeighbour()
+    result = evaluate(method, X, Q, name="nn", curve_max=30)
+    assert result.name == "nn" and result.n_map == 60 and result.n_queries == 60
+    assert result.params == {"metric": "euclidean"}
+    np.testing.assert_array_equal(result.predictions, method.predict(Q))
+    assert result.recall == recall_at_tolerance(result.predictions)
+    assert result.recall_curve.shape == (31,)
+    assert 0.5 < result.recall[0] < 1.0  # noisy queries: mostly but not always the right place
+    # The best-ranked candidate is the prediction, so R@1 equals recall@0; R@K grows with K.
+    assert result.recall_at_k is not None
+    assert result.recall_at_k[1] == result.recall[0]
+    values = [result.recall_at_k[k] for k in (1, 5, 10, 20)]
+    assert values == sorted(values)
+    assert result.ranked.shape == (60, 20)
+    assert result.nbytes == X.nbytes == 60 * 16 * 4
+    assert result.storage_breakdown == {"map": X.nbytes}
+    assert result.fit_time_s is not None and result.fit_time_s >= 0
+    assert result.query_time_s_per_query > 0 and result.rank_time_s_per_query > 0
+    json.dumps(result.to_dict(), allow_nan=False)  # strictly JSON-safe
+
+
+def test_evaluate_plain_object_and_explicit_truth() -> None:
+    X, Q = _route(n=20)
+    result = evaluate(_PlainPredictor(), X, Q[:10], ground_truth=np.arange(10) + 1, ks=(1, 5))
+    assert result.nbytes is None and result.storage_breakdown is None and result.recall_at_k is None
+    assert result.params == {}
+    assert result.name == "_PlainPredictor"
+    assert result.recall[0] == 1.0  # the predictor is always one frame ahead, and so is this truth
+    frame_aligned = evaluate(_PlainPredictor(), X, Q[:10])
+    assert frame_aligned.recall[0] == 0.0 and frame_aligned.recall[1] == 1.0
+
+
+def test_evaluate_caps_k_at_the_map_size() -> None:
+    X, Q = _route(n=8)
+    result = evaluate(_NearestNeighbour(), X, Q)
+    assert set(result.recall_at_k) == {1, 5}
+    assert result.ranked.shape == (8, 8)
+
+
+def test_evaluate_prefitted_method() -> None:
+    X, Q = _route()
+    method = _NearestNeighbour().fit(X)
+    result = evaluate(method, None, Q, fit=False)
+    assert result.fit_time_s is None and result.n_map == 60
+    assert result.recall == evaluate(_NearestNeighbour(), X, Q).recall
+
+
+def test_evaluate_input_errors() -> None:
+    X, Q = _route(n=10)
+    with pytest.raises(DimensionMismatchError, match="Q has 8 features"):
+        evaluate(_NearestNeighbour(), X, Q[:, :8])
+    with pytest.raises(InvalidParameterError, match="12 queries but only 10 map places"):
+        evaluate(_NearestNeighbour(), X, np.vstack([Q, Q[:2]]))
+    with pytest.raises(InvalidParameterError, match="fit=True"):
+        evaluate(_NearestNeighbour(), None, Q)
+
+
+# -- run folders -------------------------------------------------------------------------------------
+def _two_results() -> list[Any]:
+    X, Q = _route(n=80, noise=1.0)
+    return [
+        evaluate(_NearestNeighbour(), X, Q, name="NN euclid"),
+        evaluate(_NearestNeighbour(metric="cosine"), X, Q, name="NN cosine"),
+        evaluate(_PlainPredictor(), X, Q, name="ahead"),
+    ]
+
+
+def test_write_run_files_and_recomputed_recall(tmp_path: Path) -> None:
+    results = _two_results()
+    out = tmp_path / "run"
+    report = write_run(results, out, command=["btel", "evaluate", "--out", str(out)], extra={"data": "toy"})
+    names = sorted(p.name for p in out.iterdir())
+    assert names == sorted(
+        ["metrics.json", "metrics.csv", "predictions_NN_euclid.csv", "predictions_NN_cosine.csv",
+         "predictions_ahead.csv", "recall_vs_tolerance.png", "recall_vs_storage.png"]
+    )
+    metrics = json.loads(report.metrics_json.read_text())
+    run = metrics["run"]
+    assert run["command"] == f"btel evaluate --out {out}"
+    assert run["extra"] == {"data": "toy"}
+    assert {"btel", "numpy", "scikit-learn", "faiss", "python"} <= set(run["versions"])
+    assert run["date_utc"] and run["platform"]
+    assert [r["name"] for r in metrics["results"]] == ["NN euclid", "NN cosine", "ahead"]
+
+    for entry, result in zip(metrics["results"], results):
+        recomputed = recompute_recall_from_csv(report.predictions[result.name])
+        assert {int(t): v for t, v in entry["recall"].items()} == recomputed
+        assert entry["nbytes"] == result.nbytes
+        assert len(entry["recall_curve"]) == 81
+    # The noise makes the two metrics disagree somewhere, so this comparison is not vacuous.
+    assert results[0].recall != results[2].recall
+
+    with open(report.metrics_csv, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["method"] for r in rows] == ["NN euclid", "NN cosine", "ahead"]
+    assert float(rows[0]["recall@10"]) == results[0].recall[10]
+    assert int(rows[0]["nbytes"]) == results[0].nbytes and rows[2]["nbytes"] == ""
+    assert float(rows[1]["R@5"]) == results[1].recall_at_k[5] and rows[2]["R@5"] == ""
+    with open(report.predictions["ahead"], newline="") as fh:
+        first = next(csv.DictReader(fh))
+    assert first == {"query": "0", "prediction": "1", "true": "0"}
+
+
+def test_write_run_refuses_to_overwrite(tmp_path: Path) -> None:
+    results = _two_results()
+    out = tmp_path / "run"
+    write_run(results, out, plots=False)
+    with pytest.raises(FileExistsError, match=str(out)):
+        write_run(results[:1], out, plots=False)
+    (out / "notes.txt").write_text("keep me")
+    write_run(results[:1], out, overwrite=True, plots=False)
+    # Stale files of the earlier run are gone; the user's own file is kept.
+    assert not (out / "predictions_ahead.csv").exists()
+    assert (out / "predictions_NN_euclid.csv").exists() and (out / "notes.txt").exists()
+    # An existing empty folder is fine.
+    (tmp_path / "empty").mkdir()
+    write_run(results[:1], tmp_path / "empty", plots=False)
+
+
+def test_write_run_rejects_clashing_names(tmp_path: Path) -> None:
+    results = _two_results()
+    results[1].name = "NN/euclid"  # same file name as "NN euclid" once made file-safe
+    with pytest.raises(InvalidParameterError, match="not distinct"):
+        write_run(results, tmp_path / "run")
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.realdata
+def test_evaluate_on_nordland_pixels(nordland_pixels: tuple[np.ndarray, np.ndarray], tmp_path: Path) -> None:
+    summer, winter = nordland_pixels
+    X, Q = summer[::4], winter[::4]  # every 4th frame: 894 places
+    result = evaluate(_NearestNeighbour(), X, Q, name="pixel NN")
+    chance_at_10 = 21 / X.shape[0]
+    print(f"pixel NN, summer→winter, every 4th frame (N={X.shape[0]}): "
+          + ", ".join(f"R@t={t}: {r:.3f}" for t, r in result.recall.items())
+          + f"; R@K: {result.recall_at_k}; {result.query_time_s_per_query * 1e3:.2f} ms/query")
+    assert result.n_map == 894 and result.nbytes == X.nbytes
+    # Frame alignment is right if matching beats chance by far (a shifted truth would sit at chance).
+    assert result.recall[10] > 3 * chance_at_10
+    assert result.recall[0] <= result.recall[10] <= result.recall[20]
+    shifted = recall_at_tolerance(result.predictions, np.roll(np.arange(X.shape[0]), 200), (10,))
+    assert shifted[10] < result.recall[10] / 2
+
+    report = write_run([result], tmp_path / "run", command="pytest")
+    metrics = json.loads(report.metrics_json.read_text())
+    recomputed = recompute_recall_from_csv(report.predictions["pixel NN"])
+    assert {int(t): v for t, v in metrics["results"][0]["recall"].items()} == recomputed

@@ -1,0 +1,115 @@
+"""Plots: PNG files with one series per method, axes as in the paper's figures."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from btel.evaluation import EvaluationResult, recall_at_tolerance, recall_curve
+from btel.exceptions import InvalidParameterError
+from btel.plots import plot_recall_vs_n, plot_recall_vs_storage, plot_recall_vs_tolerance
+
+# matplotlib's first two default colours (C0 blue, C1 orange) in OpenCV's BGR order.
+_C0_BGR = (180, 119, 31)
+_C1_BGR = (14, 127, 255)
+
+
+def _has_colour(png: Path, bgr: tuple[int, int, int]) -> bool:
+    image = cv2.imread(str(png), cv2.IMREAD_COLOR)
+    assert image is not None, f"{png} is not a readable PNG"
+    return bool(np.any(np.all(np.abs(image.astype(int) - bgr) <= 8, axis=2)))
+
+
+def _result(name: str, predictions: np.ndarray, nbytes: int | None) -> EvaluationResult:
+    return EvaluationResult(
+        name=name, params={}, n_map=predictions.size, n_queries=predictions.size,
+        recall=recall_at_tolerance(predictions), recall_curve=recall_curve(predictions, max_tolerance=40),
+        recall_at_k=None, nbytes=nbytes, storage_breakdown=None, fit_time_s=0.1,
+        query_time_s_per_query=1e-4, predictions=predictions,
+    )
+
+
+def _rows() -> list[dict]:
+    return [
+        {"method": "BTE-C", "bytes": 50_000, "n_places": 3576, "recall": {0: 0.01, 10: 0.02}},
+        {"method": "BTE-C", "bytes": 5_000, "n_places": 64, "recall": {0: 0.05, 10: 0.3}},
+        {"method": "PQ", "bytes": 500_000, "n_places": 1000, "recall": {"0": 0.3, "10": 0.38}},  # keys as in JSON
+        {"method": "PQ", "bytes": 292_000, "n_places": 3576, "recall": {"0": 0.2, "10": 0.24}},
+    ]
+
+
+def test_recall_vs_tolerance_png_and_legend(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    n = 200
+    good = np.clip(np.arange(n) + rng.integers(-3, 4, size=n), 0, n - 1)
+    bad = rng.integers(0, n, size=n)
+    path = tmp_path / "sub" / "tol.png"
+    fig = plot_recall_vs_tolerance([_result("good", good, 492_240), _result("random", bad, None)], path)
+    assert path.is_file() and path.stat().st_size > 1000
+    assert _has_colour(path, _C0_BGR) and _has_colour(path, _C1_BGR)
+    ax = fig.axes[0]
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["good (492.2 KB)", "random"]
+    assert ax.get_xlabel() == "tolerance (frames)" and ax.get_ylabel() == "recall"
+    line = ax.get_lines()[0]
+    np.testing.assert_allclose(line.get_ydata(), recall_curve(good, max_tolerance=40))
+
+
+def test_recall_vs_tolerance_from_json_dicts_and_points(tmp_path: Path) -> None:
+    # Results as read back from metrics.json: string keys; one without a curve is drawn as points.
+    results = [
+        {"name": "a", "nbytes": 1000, "recall_curve": [0.1, 0.2, 0.4], "recall": {"0": 0.1}},
+        {"name": "b", "nbytes": None, "recall": {"0": 0.3, "5": 0.5, "10": 0.9}},
+    ]
+    fig = plot_recall_vs_tolerance(json.loads(json.dumps(results)), tmp_path / "p.png", max_tolerance=5)
+    lines = fig.axes[0].get_lines()
+    np.testing.assert_array_equal(lines[1].get_xdata(), [0, 5])
+    np.testing.assert_allclose(lines[1].get_ydata(), [0.3, 0.5])
+    with pytest.raises(InvalidParameterError, match="empty"):
+        plot_recall_vs_tolerance([], tmp_path / "none.png")
+
+
+@pytest.mark.parametrize(
+    ("plot", "x_key", "xlabel"),
+    [(plot_recall_vs_storage, "bytes", "storage (bytes)"), (plot_recall_vs_n, "n_places", "N (map places)")],
+)
+def test_rows_plots_series_sorted_on_log_axis(tmp_path: Path, plot, x_key: str, xlabel: str) -> None:
+    path = tmp_path / f"{x_key}.png"
+    fig = plot(_rows(), path, tolerance=10)
+    assert path.is_file() and _has_colour(path, _C0_BGR) and _has_colour(path, _C1_BGR)
+    ax = fig.axes[0]
+    assert ax.get_xscale() == "log" and ax.get_xlabel() == xlabel
+    series = {line.get_label(): line for line in ax.get_lines()}
+    assert set(series) == {"BTE-C", "PQ"}
+    for method, line in series.items():
+        rows = sorted((r for r in _rows() if r["method"] == method), key=lambda r: r[x_key])
+        np.testing.assert_array_equal(line.get_xdata(), [r[x_key] for r in rows])
+        np.testing.assert_allclose(line.get_ydata(), [r["recall"].get(10, r["recall"].get("10")) for r in rows])
+
+
+def test_rows_errors(tmp_path: Path) -> None:
+    with pytest.raises(InvalidParameterError, match=r"no recall at tolerance 5 \(available: \[0, 10\]\)"):
+        plot_recall_vs_storage(_rows(), tmp_path / "x.png", tolerance=5)
+    with pytest.raises(InvalidParameterError, match="lacks \\['bytes'\\]"):
+        plot_recall_vs_storage([{"method": "a", "recall": {10: 0.1}}], tmp_path / "x.png")
+    with pytest.raises(InvalidParameterError, match="log axis"):
+        plot_recall_vs_n([{"method": "a", "n_places": 0, "recall": {10: 0.1}}], tmp_path / "x.png")
+    assert not (tmp_path / "x.png").exists()
+
+
+@pytest.mark.realdata
+def test_plot_real_gardenspoint_curve(gardenspoint_netvlad: tuple[np.ndarray, np.ndarray], tmp_path: Path) -> None:
+    from sklearn.neighbors import NearestNeighbors
+
+    X, Q = gardenspoint_netvlad
+    pred = NearestNeighbors(n_neighbors=1).fit(X).kneighbors(Q, return_distance=False)[:, 0]
+    result = _result("NetVLAD NN", pred, X.nbytes)
+    path = tmp_path / "gp.png"
+    fig = plot_recall_vs_tolerance([result], path)
+    assert path.is_file() and _has_colour(path, _C0_BGR)
+    y = fig.axes[0].get_lines()[0].get_ydata()
+    assert 0 < y[0] < y[-1] <= 1  # real descriptors: imperfect at t=0, better with slack
+    assert fig.axes[0].get_legend().get_texts()[0].get_text() == "NetVLAD NN (400.0 KB)"
