@@ -104,10 +104,13 @@ def fit_linear(
     sigma = stats.scale[cols]
     Xs = (np.asarray(X[:, cols], dtype=np.float64) - mu) / sigma
     model = _make_classifier(classifier, C, max_iter, random_state)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", ConvergenceWarning)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
         model.fit(Xs, labels)
-    converged = not any(issubclass(w.category, ConvergenceWarning) for w in caught)
+    # liblinear's own test (it warns when n_iter_ ≥ max_iter). Not recorded warnings: the warning
+    # registry is process-global, so threads fitting at once lost each other's warnings and
+    # n_unconverged_ changed with n_jobs.
+    converged = int(np.max(model.n_iter_)) < max_iter
     coef = np.atleast_2d(model.coef_)
     weights = (coef / sigma).astype(dtype)
     # Bias from the stored weights: c' = c − Σ w_stored·μ.

@@ -13,13 +13,13 @@ from ._validation import check_descriptors, check_is_fitted, check_places, check
 from .base import PlaceLocalizer, register_model
 from .compressed import DECODERS, compressed_n_classifiers, compressed_tasks, decode_margins
 from .encoding import n_bits_for
-from .exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError
-from .feature_selection import column_index_dtype, select_features
+from .exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError, NotEnoughPlacesError
+from .feature_selection import column_index_dtype
 from .full import full_n_classifiers, full_tasks, predict_full
 from .linear import CLASSIFIERS, ColumnStats, Hyperplanes, default_C
 from .segmentation import kts_penalised_costs, kts_regions, kts_segmentations, region_of
 from .storage import format_bytes, parse_budget
-from .training import Task, fit_tasks
+from .training import Task, fit_tasks, one_vs_rest_tasks
 
 __all__ = ["BTELocalizer", "planned_bytes"]
 
@@ -264,8 +264,13 @@ class BTELocalizer(PlaceLocalizer):
         """
         start_time = time.perf_counter()
         params = self._checked_params()
-        X = check_descriptors(X, name="X", min_rows=2)
+        X = check_descriptors(X, name="X")
         if places is None:
+            if X.shape[0] < 2:  # one row is one place: the same error as places=[0] gives
+                raise NotEnoughPlacesError(
+                    f"X has {X.shape[0]} row (N = 1 place): an index needs at least 2 places. "
+                    "Fit on a longer route."
+                )
             places_arr = np.arange(X.shape[0], dtype=np.int64)
             n_places = X.shape[0]
         else:
@@ -292,7 +297,9 @@ class BTELocalizer(PlaceLocalizer):
         region_of_row = region_of(places_arr, starts)
         tasks: list[Task] = []
         if len(starts) >= 2:
-            tasks.extend(self._region_tasks(X, region_of_row, len(starts), n_selected, stats))
+            # The region classifier R: one hyperplane for r = 2, else one-vs-rest, own feature selection.
+            tasks.extend(one_vs_rest_tasks(X, region_of_row, len(starts), n_selected, stats,
+                                           sparsity=float(self.sparsity)))
         first_tree_task = len(tasks)
         make_tasks = compressed_tasks if self.scheme == "compressed" else full_tasks
         for k, (s, n_k) in enumerate(zip(starts, sizes)):
@@ -321,17 +328,6 @@ class BTELocalizer(PlaceLocalizer):
         self.n_unconverged_ = int(n_unconverged)
         self.fit_time_ = time.perf_counter() - start_time
         return self
-
-    def _region_tasks(self, X, region_of_row, n_regions, n_selected, stats) -> list[Task]:
-        """The region classifier R as binary tasks: one hyperplane for r = 2, else one-vs-rest.
-
-        The columns are chosen once with the r-cluster BCSS (SPEC §4) and shared; the r
-        one-vs-rest problems are the ones liblinear would solve, split so they run in parallel.
-        """
-        columns = select_features(X, region_of_row, n_selected, sparsity=float(self.sparsity), scale=stats.scale)
-        if n_regions == 2:
-            return [Task(labels=region_of_row, columns=columns)]
-        return [Task(labels=(region_of_row == k).astype(np.int64), columns=columns) for k in range(n_regions)]
 
     def _segment(self, X, places, n_places, budget, cap, dtype) -> np.ndarray:
         """Region starts: fixed r, or r by the KTS penalty (lowered while nothing fits the budget)."""

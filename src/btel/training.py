@@ -19,7 +19,7 @@ from threadpoolctl import threadpool_limits
 from .feature_selection import select_features
 from .linear import ColumnStats, fit_linear
 
-__all__ = ["Task", "fit_tasks"]
+__all__ = ["Task", "fit_tasks", "one_vs_rest_tasks"]
 
 
 @dataclass(frozen=True)
@@ -40,6 +40,31 @@ class Task:
     labels: np.ndarray
     rows: np.ndarray | None = None
     columns: np.ndarray | None = None
+
+
+def one_vs_rest_tasks(
+    X: np.ndarray,
+    labels: np.ndarray,
+    n_classes: int,
+    n_selected: int,
+    stats: ColumnStats,
+    *,
+    sparsity: float,
+) -> list[Task]:
+    """A multiclass linear classifier as binary tasks sharing one column selection.
+
+    The d' columns are chosen once with the n_classes-cluster BCSS (SPEC §4); two classes give one
+    hyperplane (positive = class 1), more give one-vs-rest hyperplanes in class order — the
+    problems liblinear's one-vs-rest would solve, split so that they run in parallel.
+
+    Parameters
+    ----------
+    labels : ndarray of shape (n_samples,), int in [0, n_classes)
+    """
+    columns = select_features(X, labels, n_selected, sparsity=sparsity, scale=stats.scale)
+    if n_classes == 2:
+        return [Task(labels=labels, columns=columns)]
+    return [Task(labels=(labels == k).astype(np.int64), columns=columns) for k in range(n_classes)]
 
 
 def _fit_task(X, task: Task, n_selected, stats, sparsity, fit_kwargs):
