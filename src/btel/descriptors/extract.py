@@ -1,0 +1,91 @@
+"""One call from images to a descriptor matrix: what ``btel extract`` wraps."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._validation import check_is_fitted
+from ..exceptions import InvalidParameterError, NotFittedError
+from .base import DESCRIPTORS, ImageDescriptor, get_descriptor
+from .images import ImageInput
+
+__all__ = ["extract_descriptors"]
+
+
+def _resolve(descriptor: Any) -> ImageDescriptor:
+    if isinstance(descriptor, ImageDescriptor):
+        return descriptor
+    if isinstance(descriptor, str) and descriptor.lower().replace("-", "").replace("_", "") in DESCRIPTORS:
+        return get_descriptor(descriptor)
+    if isinstance(descriptor, (str, os.PathLike)) and Path(descriptor).is_file():
+        return ImageDescriptor.load(descriptor)
+    raise InvalidParameterError(
+        f"descriptor must be a name ({', '.join(sorted(DESCRIPTORS))}), a saved descriptor file, or an "
+        f"ImageDescriptor; got {descriptor!r}."
+    )
+
+
+def _same_source(a: Any, b: Any) -> bool:
+    if a is b:
+        return True
+    if isinstance(a, (str, os.PathLike)) and isinstance(b, (str, os.PathLike)):
+        return Path(a).resolve() == Path(b).resolve()
+    return False
+
+
+def extract_descriptors(
+    images: ImageInput,
+    descriptor: str | os.PathLike | ImageDescriptor = "hog",
+    *,
+    fit_on: ImageInput | None = None,
+    progress: bool = True,
+) -> np.ndarray:
+    """Describe images with one of btel's front ends.
+
+    Parameters
+    ----------
+    images : folder, sequence of image paths or arrays
+        The images to describe, in route order (a folder is read in natural file-name order).
+    descriptor : str, path-like or ImageDescriptor
+        A registry name (``"hog"``, ``"patchnorm"``, ``"densevlad"``) with default parameters, a
+        file written by :meth:`ImageDescriptor.save` (e.g. the map's DenseVLAD vocabulary), or a
+        descriptor object. An object passed here is fitted in place when ``fit_on`` is given, so
+        it can be saved afterwards for the queries.
+    fit_on : folder, sequence of image paths or arrays, optional
+        Map images to learn from (DenseVLAD's vocabulary and PCA). It may be the same folder as
+        ``images`` (then the work is shared). Never fit on query images: map and queries must be
+        described by the same fitted descriptor.
+    progress : bool
+        Show progress bars (only on a terminal).
+
+    Returns
+    -------
+    X : ndarray of shape (n_images, dim), dtype float32
+
+    Raises
+    ------
+    NotFittedError
+        A descriptor that learns state, with neither ``fit_on`` nor a fitted/loaded descriptor.
+    InvalidParameterError
+        An unknown descriptor name or bad parameter.
+    DataNotFoundError
+        A missing folder, a folder without images, or an unreadable image file.
+    """
+    model = _resolve(descriptor)
+    if fit_on is not None:
+        if _same_source(fit_on, images):
+            return model.fit_transform(images, progress=progress)
+        model.fit(fit_on, progress=progress)
+    elif model.requires_fit:
+        try:
+            check_is_fitted(model, "dim_")
+        except NotFittedError:
+            raise NotFittedError(
+                f"descriptor {model.name!r} learns from map images: pass fit_on=<map images> (they may be the "
+                "same as the images to describe), or a descriptor fitted on the map / loaded from its file."
+            ) from None
+    return model.transform(images, progress=progress)
