@@ -101,6 +101,11 @@ def load(path: str | os.PathLike) -> PlaceLocalizer:
         A file from a newer btel.
     """
     arrays, header = load_arrays(path)
+    if header.get("kind") == "image-descriptor":
+        raise ModelFileError(
+            f"{str(path)!r} is a saved image descriptor, not a localization model; "
+            "load it with btel.descriptors.load_descriptor(path)."
+        )
     name = header.get("model")
     if name not in MODEL_CLASSES:
         # Baselines register themselves on import; import them before giving up.

@@ -12,6 +12,7 @@ from typing import Any, Callable
 from .base import PlaceLocalizer
 from .exceptions import InvalidParameterError
 from .localizer import BTELocalizer
+from .ryth import RYTHLocalizer
 
 __all__ = ["METHODS", "make_method", "method_names"]
 
@@ -19,6 +20,8 @@ METHODS: dict[str, Callable[..., PlaceLocalizer]] = {
     "btel-c": partial(BTELocalizer, scheme="compressed", n_regions=1),
     "btel-f": partial(BTELocalizer, scheme="full", n_regions=1),
     "btel-r": partial(BTELocalizer, scheme="compressed", n_regions=20),
+    "btel-auto": partial(BTELocalizer, scheme="compressed", n_regions="auto"),
+    "ryth": RYTHLocalizer,
 }
 
 
