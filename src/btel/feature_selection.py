@@ -90,6 +90,10 @@ def sparse_weights(bcss: np.ndarray, sparsity: float, *, n_iter: int = 60) -> np
     top = a.max(initial=0.0)
     if top <= 0:
         return np.zeros_like(a)
+    # w does not change when a is scaled; scaling to max 1 keeps a² from under/overflowing in the
+    # norm (scores of 1e-200 or 1e200 gave NaN weights).
+    a = a / top
+    top = 1.0
 
     def normalised(delta: float) -> np.ndarray:
         w = _soft_threshold(a, delta)

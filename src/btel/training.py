@@ -9,11 +9,13 @@ the default backend: liblinear releases the GIL and threads share X without copy
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 import numpy as np
 from joblib import Parallel, delayed
+from sklearn.exceptions import ConvergenceWarning
 from threadpoolctl import threadpool_limits
 
 from .feature_selection import select_features
@@ -118,7 +120,11 @@ def fit_tasks(
     # Parallel fits each get one BLAS thread: BLAS's own threads on top of ours oversubscribe the
     # cores and made two workers slower than one in measurements on a 2-core machine.
     blas_threads = None if n_jobs in (None, 1) else 1
-    with threadpool_limits(limits=blas_threads, user_api="blas"):
+    # ConvergenceWarning is silenced here, in the calling thread, for all workers: fit_linear's own
+    # catch_warnings is not thread-safe (the filter list is process-global), so with threads it
+    # let warnings through. Unconverged fits are counted from n_iter_ instead.
+    with threadpool_limits(limits=blas_threads, user_api="blas"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
         for weights, bias, columns, converged in Parallel(
             n_jobs=n_jobs, prefer="threads", return_as="generator"
         )(calls):
