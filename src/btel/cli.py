@@ -7,6 +7,7 @@ non-zero code (1 for bad data or models, 2 for bad usage); no traceback unless `
 from __future__ import annotations
 
 import csv
+import json
 import os
 import shlex
 import sys
@@ -107,6 +108,64 @@ def demo(n_places: int, dim: int, budget: str, methods: str, seed: int, out_dir:
 
 
 @main.command()
+@click.argument("images_dir", type=click.Path(file_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Descriptor matrix to write (.npy).")
+@click.option("--descriptor", default="hog", show_default=True,
+              help="hog | patchnorm | densevlad, or a descriptor file saved with --save-descriptor.")
+@click.option("--fit-on", type=click.Path(file_okay=False), default=None,
+              help="Map image folder to learn from (DenseVLAD vocabulary + PCA). Never the queries.")
+@click.option("--save-descriptor", type=click.Path(dir_okay=False), default=None,
+              help="Write the fitted descriptor (e.g. the DenseVLAD vocabulary) to describe the queries with it.")
+@click.option("--force", is_flag=True, help="Recompute even if OUTPUT is up to date.")
+@click.option("--no-progress", is_flag=True, help="No progress bar.")
+def extract(images_dir: str, output: str, descriptor: str, fit_on: str | None, save_descriptor: str | None,
+            force: bool, no_progress: bool) -> None:
+    """Describe every image in IMAGES_DIR (natural file-name order = route order) into one .npy matrix.
+
+    Row i of OUTPUT is the i-th image. A JSON file beside OUTPUT records the descriptor and the
+    images; when nothing changed, the existing OUTPUT is reused (a cache) unless --force.
+    """
+    from .descriptors import get_descriptor, list_images
+    from .descriptors.base import load_descriptor
+    from .descriptors.extract import extract_descriptors
+
+    paths = list_images(images_dir)
+    if Path(descriptor).is_file():
+        model = load_descriptor(descriptor)
+    else:
+        model = get_descriptor(descriptor)
+    key = _extract_key(paths, model, fit_on)
+    sidecar = Path(str(output) + ".json")
+    if not force and Path(output).is_file() and sidecar.is_file():
+        try:
+            cached = json.loads(sidecar.read_text())
+        except (OSError, json.JSONDecodeError):
+            cached = None
+        if cached == key:
+            click.echo(f"{output} is up to date ({len(paths)} images, {descriptor}); use --force to recompute")
+            return
+    X = extract_descriptors(paths, model, fit_on=fit_on, progress=not no_progress)
+    Path(output).parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(str(output) + ".part.npy")
+    np.save(tmp, X)
+    os.replace(tmp, output)
+    sidecar.write_text(json.dumps(key, indent=1))
+    click.echo(f"{X.shape[0]} images → {X.shape[1]}-D {type(model).__name__} descriptors written to {output}")
+    if save_descriptor:
+        model.save(save_descriptor)
+        click.echo(f"fitted descriptor written to {save_descriptor}")
+
+
+def _extract_key(paths: list[Path], model: Any, fit_on: str | None) -> dict[str, Any]:
+    """What determines an extraction's output: images (name, size, mtime), descriptor, fit source."""
+    params = {k: (list(v) if isinstance(v, tuple) else v) for k, v in model.get_params().items()}
+    files = [[p.name, p.stat().st_size, int(p.stat().st_mtime_ns)] for p in paths]
+    fitted = bool(getattr(model, "dim_", None)) and getattr(model, "requires_fit", False)
+    return {"descriptor": type(model).__name__, "params": json.loads(json.dumps(params, default=str)),
+            "fit_on": str(Path(fit_on).resolve()) if fit_on else None, "prefitted": fitted, "images": files}
+
+
+@main.command()
 @click.argument("db", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Model file to write (.npz).")
 @click.option("--method", default="btel-c", show_default=True, help="Method name (see `btel methods`).")
@@ -141,7 +200,9 @@ def train(db: str, output: str, method: str, budget: str | None, regions: str | 
     model = make_method(method, **_method_params(params))
     start = time.perf_counter()
     model.fit(X)
-    click.echo(f"fitted {method} on {X.shape[0]} places × {X.shape[1]} dims in {time.perf_counter() - start:.1f} s")
+    regions = f", r = {model.n_regions_} regions" if getattr(model, "n_regions_", 1) > 1 else ""
+    click.echo(f"fitted {method}{regions} on {X.shape[0]} places × {X.shape[1]} dims "
+               f"in {time.perf_counter() - start:.1f} s")
     _echo_storage(model)
     path = model.save(output)
     click.echo(f"model written to {path} ({path.stat().st_size:,d} B on disk)")
@@ -172,35 +233,48 @@ def localize(model_path: str, queries: str, output: str, window: int | None) -> 
 
 
 @main.command(name="evaluate")
-@click.option("--db", required=True, type=click.Path(dir_okay=False), help="Map descriptors (.npy).")
-@click.option("--queries", required=True, type=click.Path(dir_okay=False), help="Query descriptors (.npy).")
-@click.option("--methods", default="btel-c", show_default=True, help="Comma-separated method names.")
+@click.option("--db", type=click.Path(dir_okay=False), default=None, help="Map descriptors (.npy) to fit --methods on.")
+@click.option("--model", "model_paths", multiple=True, type=click.Path(dir_okay=False),
+              help="A saved model to evaluate instead of fitting (repeatable).")
+@click.option("--queries", required=True, type=click.Path(dir_okay=False), help="Query descriptors (.npy), one query per row.")
+@click.option("--methods", default="btel-c", show_default=True, help="Comma-separated method names (with --db).")
 @click.option("--budget", default=None, help="Byte budget for every method.")
 @click.option("--ground-truth", type=click.Path(dir_okay=False), default=None,
               help="Ground-truth file (.npz/.npy/.mat); default: frame-aligned (query j is place j).")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Run folder.")
 @click.option("--overwrite", is_flag=True, help="Replace the run files in an existing run folder.")
-def evaluate_cmd(db: str, queries: str, methods: str, budget: str | None, ground_truth: str | None,
-                 out_dir: str, overwrite: bool) -> None:
-    """Fit each method on DB, localize QUERIES, and write metrics.json, metrics.csv and plots to --out."""
+def evaluate_cmd(db: str | None, model_paths: tuple[str, ...], queries: str, methods: str, budget: str | None,
+                 ground_truth: str | None, out_dir: str, overwrite: bool) -> None:
+    """Localize QUERIES with each method and write metrics.json, metrics.csv, predictions and plots to --out.
+
+    Methods are fitted on --db (by name, --methods), or loaded from saved --model files.
+    """
+    from .base import load
     from .datasets import GroundTruth
     from .evaluation import evaluate, write_run
     from .methods import make_method
 
-    X = _load_matrix(db, "map descriptors")
+    if db is None and not model_paths:
+        raise click.UsageError("give --db (to fit --methods) or at least one --model.")
     Q = _load_matrix(queries, "query descriptors")
-    if X.shape[1] != Q.shape[1]:
-        raise click.ClickException(f"--db has {X.shape[1]} dims but --queries has {Q.shape[1]}; use the same descriptor.")
     gt = GroundTruth.from_file(ground_truth) if ground_truth else None
     results = []
-    for name in _split(methods):
-        method = make_method(name, **({"budget": budget} if budget else {}))
-        click.echo(f"evaluating {name} …")
-        results.append(evaluate(method, X, Q, name=name, ground_truth=gt))
+    for path in model_paths:
+        click.echo(f"evaluating saved model {path} …")
+        results.append(evaluate(load(path), None, Q, name=Path(path).name.split(".")[0], ground_truth=gt, fit=False))
+    if db is not None:
+        X = _load_matrix(db, "map descriptors")
+        if X.shape[1] != Q.shape[1]:
+            raise click.ClickException(
+                f"--db has {X.shape[1]} dims but --queries has {Q.shape[1]}; describe both with the same descriptor.")
+        for name in _split(methods):
+            method = make_method(name, **({"budget": budget} if budget else {}))
+            click.echo(f"evaluating {name} …")
+            results.append(evaluate(method, X, Q, name=name, ground_truth=gt))
     _print_table(results)
     report = write_run(results, out_dir, command=_command_line(), overwrite=overwrite,
-                       extra={"db": str(Path(db).resolve()), "queries": str(Path(queries).resolve()),
-                              "budget": budget})
+                       extra={"db": str(Path(db).resolve()) if db else None, "models": list(model_paths),
+                              "queries": str(Path(queries).resolve()), "budget": budget})
     click.echo(f"run folder: {report.out_dir}")
 
 

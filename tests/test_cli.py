@@ -1,0 +1,122 @@
+"""The `btel` command line, end to end, through click's runner (same code path as the console script)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from btel.cli import main
+from btel.evaluation import recompute_recall_from_csv
+
+
+def run(*args: str) -> "click.testing.Result":  # noqa: F821
+    result = CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+    return result
+
+
+@pytest.fixture()
+def small_pair(tmp_path: Path) -> tuple[Path, Path]:
+    rng = np.random.default_rng(0)
+    X = rng.standard_normal((300, 64)).astype(np.float32)
+    Q = X + 0.05 * rng.standard_normal(X.shape).astype(np.float32)
+    np.save(tmp_path / "db.npy", X)
+    np.save(tmp_path / "q.npy", Q)
+    return tmp_path / "db.npy", tmp_path / "q.npy"
+
+
+@pytest.mark.parametrize("command", [[], ["demo"], ["extract"], ["train"], ["localize"], ["evaluate"], ["info"]])
+def test_help_everywhere(command: list[str]) -> None:
+    result = run(*command, "--help")
+    assert result.exit_code == 0
+    assert "Usage:" in result.output
+
+
+def test_train_localize_info(small_pair, tmp_path: Path) -> None:
+    db, q = small_pair
+    model = tmp_path / "m.btel.npz"
+    result = run("train", db, "-o", model, "--budget", "5KB", "--n-features", "16")
+    assert result.exit_code == 0, result.output
+    assert "storage breakdown" in result.output and "total" in result.output
+    preds = tmp_path / "p.csv"
+    result = run("localize", model, q, "-o", preds, "--sequence-filter", "3")
+    assert result.exit_code == 0, result.output
+    rows = preds.read_text().splitlines()
+    assert rows[0] == "query,prediction" and len(rows) == 301
+    values = np.array([int(r.split(",")[1]) for r in rows[1:]])
+    assert values.min() >= 0 and values.max() < 300
+    result = run("info", model)
+    assert result.exit_code == 0 and "N = 300" in result.output
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["train", "missing.npy", "-o", "m.npz"], "missing.npy"),
+        (["localize", "missing.npz", "q.npy", "-o", "p.csv"], "does not exist"),
+        (["train", "DB", "-o", "m.npz", "--budget", "10B"], "too small"),
+        (["train", "DB", "-o", "m.npz", "--budget", "lots"], "not understood"),
+        (["localize", "DB", "Q", "-o", "p.csv"], "not an .npz"),
+        (["extract", "no-such-folder", "-o", "x.npy"], "no-such-folder"),
+        (["evaluate", "--queries", "Q", "--out", "run"], "--db"),
+    ],
+)
+def test_errors_are_one_line_with_nonzero_exit(args, message, small_pair, tmp_path: Path, monkeypatch) -> None:
+    db, q = small_pair
+    monkeypatch.chdir(tmp_path)
+    args = [str(db) if a == "DB" else str(q) if a == "Q" else a for a in args]
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code != 0
+    assert "Traceback" not in result.output
+    assert message in result.output
+    assert result.output.strip().count("\n") <= 4  # a usage line at most, then the error
+
+
+def test_demo_runs_and_writes_a_run_folder(tmp_path: Path) -> None:
+    out = tmp_path / "demo"
+    result = run("demo", "--places", "300", "--dim", "64", "--methods", "btel-c,btel-r", "--budget", "20KB",
+                 "--out", out)
+    assert result.exit_code == 0, result.output
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert [r["name"] for r in metrics["results"]] == ["btel-c", "btel-r"]
+    assert all(r["nbytes"] <= 20_000 for r in metrics["results"])
+    assert (out / "recall_vs_tolerance.png").stat().st_size > 0
+
+
+@pytest.mark.realdata
+def test_nordland_extract_train_localize_evaluate(nordland_dir: Path, tmp_path: Path) -> None:
+    """extract → train → localize → evaluate on real Nordland frames (every 8th, to stay fast)."""
+    for season in ("summer", "winter"):
+        folder = tmp_path / season
+        folder.mkdir()
+        for image in sorted((nordland_dir / season).glob("images-*.png"))[::8]:
+            (folder / image.name).symlink_to(image)
+    db, q, model = tmp_path / "db.npy", tmp_path / "q.npy", tmp_path / "map.btel.npz"
+    for folder, out in ((tmp_path / "summer", db), (tmp_path / "winter", q)):
+        result = run("extract", folder, "-o", out, "--descriptor", "patchnorm", "--no-progress")
+        assert result.exit_code == 0, result.output
+    again = run("extract", tmp_path / "summer", "-o", db, "--descriptor", "patchnorm")
+    assert "up to date" in again.output  # the cache
+    X = np.load(db)
+    assert X.shape == (447, 2048) and np.isfinite(X).all()
+
+    result = run("train", db, "-o", model, "--budget", "100KB", "--regions", "4", "--seed", "0")
+    assert result.exit_code == 0, result.output
+    preds = tmp_path / "predictions.csv"
+    assert run("localize", model, q, "-o", preds).exit_code == 0
+    run_dir = tmp_path / "run"
+    result = run("evaluate", "--model", model, "--queries", q, "--out", run_dir)
+    assert result.exit_code == 0, result.output
+
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    (entry,) = metrics["results"]
+    assert entry["nbytes"] <= 100_000
+    recorded = {int(t): v for t, v in entry["recall"].items()}
+    # The recall in metrics.json equals a recomputation from the predictions — both the run
+    # folder's CSV and the one `btel localize` wrote with the same model.
+    assert recompute_recall_from_csv(run_dir / "predictions_map.csv", recorded) == pytest.approx(recorded)
+    assert recompute_recall_from_csv(preds, recorded) == pytest.approx(recorded)
+    assert metrics["run"]["command"].startswith("btel ")
