@@ -125,44 +125,19 @@ def extract(images_dir: str, output: str, descriptor: str, fit_on: str | None, s
     Row i of OUTPUT is the i-th image. A JSON file beside OUTPUT records the descriptor and the
     images; when nothing changed, the existing OUTPUT is reused (a cache) unless --force.
     """
-    from .descriptors import get_descriptor, list_images
+    from .descriptors import get_descriptor
     from .descriptors.base import load_descriptor
-    from .descriptors.extract import extract_descriptors
+    from .descriptors.extract import extract_cached
 
-    paths = list_images(images_dir)
-    if Path(descriptor).is_file():
-        model = load_descriptor(descriptor)
-    else:
-        model = get_descriptor(descriptor)
-    key = _extract_key(paths, model, fit_on)
-    sidecar = Path(str(output) + ".json")
-    if not force and Path(output).is_file() and sidecar.is_file():
-        try:
-            cached = json.loads(sidecar.read_text())
-        except (OSError, json.JSONDecodeError):
-            cached = None
-        if cached == key:
-            click.echo(f"{output} is up to date ({len(paths)} images, {descriptor}); use --force to recompute")
-            return
-    X = extract_descriptors(paths, model, fit_on=fit_on, progress=not no_progress)
-    Path(output).parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(str(output) + ".part.npy")
-    np.save(tmp, X)
-    os.replace(tmp, output)
-    sidecar.write_text(json.dumps(key, indent=1))
+    model = load_descriptor(descriptor) if Path(descriptor).is_file() else get_descriptor(descriptor)
+    X, reused = extract_cached(images_dir, output, model, fit_on=fit_on, progress=not no_progress, force=force)
+    if reused:
+        click.echo(f"{output} is up to date ({X.shape[0]} images, {descriptor}); use --force to recompute")
+        return
     click.echo(f"{X.shape[0]} images → {X.shape[1]}-D {type(model).__name__} descriptors written to {output}")
     if save_descriptor:
         model.save(save_descriptor)
         click.echo(f"fitted descriptor written to {save_descriptor}")
-
-
-def _extract_key(paths: list[Path], model: Any, fit_on: str | None) -> dict[str, Any]:
-    """What determines an extraction's output: images (name, size, mtime), descriptor, fit source."""
-    params = {k: (list(v) if isinstance(v, tuple) else v) for k, v in model.get_params().items()}
-    files = [[p.name, p.stat().st_size, int(p.stat().st_mtime_ns)] for p in paths]
-    fitted = bool(getattr(model, "dim_", None)) and getattr(model, "requires_fit", False)
-    return {"descriptor": type(model).__name__, "params": json.loads(json.dumps(params, default=str)),
-            "fit_on": str(Path(fit_on).resolve()) if fit_on else None, "prefitted": fitted, "images": files}
 
 
 @main.command()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 from typing import Any
@@ -89,3 +90,62 @@ def extract_descriptors(
                 "same as the images to describe), or a descriptor fitted on the map / loaded from its file."
             ) from None
     return model.transform(images, progress=progress)
+
+
+def extraction_key(paths: list[Path], model: ImageDescriptor, fit_on: Any = None) -> dict[str, Any]:
+    """What determines an extraction's output: the images (name, size, mtime), the descriptor and
+    its parameters, and where it was fitted. Two extractions with equal keys give equal matrices."""
+    params = {k: (list(v) if isinstance(v, tuple) else v) for k, v in model.get_params().items()}
+    files = [[p.name, p.stat().st_size, int(p.stat().st_mtime_ns)] for p in paths]
+    prefitted = bool(getattr(model, "dim_", None)) and bool(getattr(model, "requires_fit", False))
+    return {
+        "descriptor": type(model).__name__,
+        "params": json.loads(json.dumps(params, default=str)),
+        "fit_on": str(Path(fit_on).resolve()) if isinstance(fit_on, (str, os.PathLike)) else None,
+        "prefitted": prefitted,
+        "images": files,
+    }
+
+
+def extract_cached(
+    images: str | os.PathLike | list[Path],
+    output: str | os.PathLike,
+    descriptor: str | os.PathLike | ImageDescriptor = "hog",
+    *,
+    fit_on: Any = None,
+    progress: bool = True,
+    force: bool = False,
+) -> tuple[np.ndarray, bool]:
+    """:func:`extract_descriptors` into ``output`` (.npy), reusing it when nothing changed.
+
+    A JSON file beside ``output`` (``output + ".json"``) records :func:`extraction_key`; when it
+    matches, the stored matrix is loaded instead of recomputed. Writing is atomic (temp file and
+    rename), so an interrupted run never leaves a partial matrix under ``output``.
+
+    Returns
+    -------
+    X : ndarray of shape (n_images, dim), float32
+    reused : bool
+        True when the cached matrix was used.
+    """
+    from .images import list_images
+
+    paths = list_images(images) if isinstance(images, (str, os.PathLike)) else [Path(p) for p in images]
+    model = _resolve(descriptor)
+    key = extraction_key(paths, model, fit_on)
+    output = Path(output)
+    sidecar = Path(str(output) + ".json")
+    if not force and output.is_file() and sidecar.is_file():
+        try:
+            cached = json.loads(sidecar.read_text())
+        except (OSError, json.JSONDecodeError):
+            cached = None
+        if cached == key:
+            return np.load(output, allow_pickle=False), True
+    X = extract_descriptors(paths, model, fit_on=fit_on, progress=progress)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(str(output) + ".part.npy")
+    np.save(tmp, X)
+    os.replace(tmp, output)
+    sidecar.write_text(json.dumps(key, indent=1))
+    return X, False
