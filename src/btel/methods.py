@@ -9,6 +9,7 @@ from __future__ import annotations
 from functools import partial
 from typing import Any, Callable
 
+from .baselines import BASELINES
 from .base import PlaceLocalizer
 from .exceptions import InvalidParameterError
 from .localizer import BTELocalizer
@@ -22,6 +23,7 @@ METHODS: dict[str, Callable[..., PlaceLocalizer]] = {
     "btel-r": partial(BTELocalizer, scheme="compressed", n_regions=20),
     "btel-auto": partial(BTELocalizer, scheme="compressed", n_regions="auto"),
     "ryth": RYTHLocalizer,
+    **BASELINES,
 }
 
 

@@ -1,0 +1,223 @@
+"""The PlaceLocalizer contract for every baseline: recall sanity, budgets, files, ranking, places."""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+from sklearn.base import clone
+
+from btel.base import MODEL_CLASSES, load
+from btel.baselines import BASELINES, BruteForceNN, ITQLocalizer, OPQLocalizer, PQLocalizer, SeqSLAM
+from btel.baselines._common import rank_unique_places
+from btel.exceptions import (
+    BudgetTooSmallError,
+    DimensionMismatchError,
+    InvalidParameterError,
+    NotEnoughPlacesError,
+    NotFittedError,
+)
+from btel.storage import parse_budget
+
+N_PLACES, DIM = 300, 32
+
+
+def make(name: str, **params):
+    """A baseline on one faiss thread (small indexes: threads only add overhead in tests)."""
+    return BASELINES[name](n_jobs=1, **params)
+
+
+@pytest.fixture(scope="module")
+def route() -> tuple[np.ndarray, np.ndarray]:
+    """A map of well-separated places and queries = map + small noise (query j is at place j)."""
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(N_PLACES, DIM)).astype(np.float32)
+    Q = (X + 0.05 * rng.normal(size=X.shape)).astype(np.float32)
+    return X, Q
+
+
+@pytest.fixture(scope="module")
+def fitted(route) -> dict[str, object]:
+    X, _ = route
+    return {name: make(name).fit(X) for name in BASELINES}
+
+
+def test_registry_lists_every_baseline_and_registers_it_for_load():
+    assert set(BASELINES) == {"bruteforce", "pq", "opq", "itq", "seqslam"}
+    for cls in BASELINES.values():
+        assert MODEL_CLASSES[cls.__name__] is cls
+        assert cls.supports_ranking
+
+
+@pytest.mark.parametrize("name", list(BASELINES))
+def test_recall_on_noisy_copies_of_the_map(name, route, fitted):
+    X, Q = route
+    pred = fitted[name].predict(Q)
+    assert pred.dtype == np.int64 and pred.shape == (N_PLACES,)
+    assert pred.min() >= 0 and pred.max() < N_PLACES
+    # Noise (σ = 0.05) is tiny next to the spacing of the places (σ = 1 per dimension).
+    assert np.mean(pred == np.arange(N_PLACES)) >= 0.9
+
+
+@pytest.mark.parametrize("name", list(BASELINES))
+def test_fitted_attributes(name, route, fitted):
+    model = fitted[name]
+    assert model.n_places_ == N_PLACES
+    assert model.n_features_in_ == DIM
+    assert model.fit_time_ >= 0
+    assert model.row_places_ is None
+    assert model.nbytes == sum(model.storage_breakdown().values())
+    assert model.nbytes == sum(a.nbytes for a in model._stored_arrays().values())
+
+
+@pytest.mark.parametrize("name", list(BASELINES))
+@pytest.mark.parametrize("budget", [3_000, 12_000, "20KB", "40KB", 10**6])
+def test_bytes_never_exceed_the_budget_and_the_stated_minimum_fits(name, budget, route):
+    X, Q = route
+    limit = parse_budget(budget)
+    try:
+        model = make(name, budget=budget).fit(X)
+    except BudgetTooSmallError as err:
+        assert err.budget == limit and err.minimum > limit
+        assert str(err.minimum) in str(err)
+        # The minimum the error names is achievable: a budget of exactly that many bytes fits.
+        model = make(name, budget=err.minimum).fit(X)
+        assert model.nbytes <= err.minimum
+    else:
+        assert model.nbytes <= limit
+    pred = model.predict(Q)
+    assert pred.min() >= 0 and pred.max() < N_PLACES
+
+
+@pytest.mark.parametrize(
+    "name, expected",
+    [("bruteforce", N_PLACES * DIM * 4), ("seqslam", N_PLACES * DIM + 8)],
+)
+def test_single_configuration_methods_state_their_exact_size(name, expected, route):
+    X, _ = route
+    with pytest.raises(BudgetTooSmallError, match=str(expected)) as info:
+        make(name, budget=expected - 1).fit(X)
+    assert info.value.minimum == expected
+    assert make(name, budget=expected).fit(X).nbytes == expected
+
+
+@pytest.mark.parametrize("name", list(BASELINES))
+def test_tiny_budget_raises_with_the_minimum(name, route):
+    X, _ = route
+    with pytest.raises(BudgetTooSmallError) as info:
+        make(name, budget=100).fit(X)
+    assert info.value.budget == 100
+    assert f"{info.value.minimum} B" in str(info.value)
+
+
+@pytest.mark.parametrize("name", list(BASELINES))
+def test_save_load_round_trip(name, route, fitted, tmp_path):
+    _, Q = route
+    model = fitted[name]
+    path = model.save(tmp_path / f"{name}.btel.npz")
+    loaded = load(path)
+    assert type(loaded) is type(model)
+    assert loaded.get_params() == model.get_params()
+    np.testing.assert_array_equal(loaded.predict(Q), model.predict(Q))
+    np.testing.assert_array_equal(loaded.rank(Q, 5), model.rank(Q, 5))
+    assert loaded.storage_breakdown() == model.storage_breakdown()
+    # The file holds the stored arrays plus a small header and container overhead only.
+    assert 0 <= path.stat().st_size - model.nbytes < 4096
+
+
+@pytest.mark.parametrize("name", list(BASELINES))
+def test_pickle_round_trip(name, route, fitted):
+    _, Q = route
+    model = fitted[name]
+    model.predict(Q[:2])  # make sure any faiss index exists before pickling
+    copy = pickle.loads(pickle.dumps(model))
+    np.testing.assert_array_equal(copy.predict(Q), model.predict(Q))
+
+
+@pytest.mark.parametrize("name", list(BASELINES))
+def test_rank_shape_order_and_agreement_with_predict(name, route, fitted):
+    _, Q = route
+    model = fitted[name]
+    ranked = model.rank(Q, 7)
+    assert ranked.shape == (N_PLACES, 7) and ranked.dtype == np.int64
+    assert ranked.min() >= 0 and ranked.max() < N_PLACES
+    assert all(len(set(row)) == 7 for row in ranked)
+    np.testing.assert_array_equal(ranked[:, 0], model.predict(Q))
+    # k is capped at the number of places.
+    assert model.rank(Q[:3], N_PLACES + 5).shape == (3, N_PLACES)
+
+
+def test_bruteforce_rank_is_sorted_by_true_distance(route, fitted):
+    X, Q = route
+    ranked = fitted["bruteforce"].rank(Q[:20], 10)
+    dist = ((Q[:20, None, :] - X[None, :, :]) ** 2).sum(-1)
+    got = np.take_along_axis(dist, ranked, axis=1)
+    assert np.all(np.diff(got, axis=1) >= -1e-4)
+    np.testing.assert_allclose(got[:, 0], dist.min(axis=1), rtol=1e-4)
+
+
+@pytest.mark.parametrize("name", list(BASELINES))
+def test_several_descriptors_per_place_map_back_to_place_labels(name):
+    # Two descriptors per place, interleaved in route order; queries are noisy copies of the
+    # second descriptor of each place, so the predicted *row* is odd but the answer is the place.
+    rng = np.random.default_rng(1)
+    n = 150
+    X = rng.normal(size=(2 * n, DIM)).astype(np.float32)
+    places = np.repeat(np.arange(n), 2)
+    Q = (X[1::2] + 0.05 * rng.normal(size=(n, DIM))).astype(np.float32)
+    # SeqSLAM would see two map rows per query (velocity 2); judge its row → place step alone.
+    params = {"ds": 1} if name == "seqslam" else {}
+    model = make(name, **params).fit(X, places=places)
+    assert model.n_places_ == n
+    assert "row_places" in model.storage_breakdown()
+    assert model.row_places_.dtype == np.uint8
+    pred = model.predict(Q)
+    assert pred.max() < n and np.mean(pred == np.arange(n)) >= 0.9
+    ranked = model.rank(Q, 5)
+    assert ranked.shape == (n, 5) and all(len(set(row)) == 5 for row in ranked)
+    np.testing.assert_array_equal(ranked[:, 0], pred)
+
+
+def test_identity_places_store_no_table(route):
+    X, _ = route
+    model = make("bruteforce").fit(X, places=np.arange(N_PLACES))
+    assert model.row_places_ is None and "row_places" not in model.storage_breakdown()
+
+
+def test_rank_unique_places_keeps_first_occurrences_in_order():
+    rows = np.array([[4, 5, 0, 1, 2, 3], [0, 2, 1, 5, 3, 4]])
+    places = np.array([0, 0, 1, 1, 2, 2])
+    np.testing.assert_array_equal(rank_unique_places(rows, places, 3), [[2, 0, 1], [0, 1, 2]])
+
+
+@pytest.mark.parametrize("name", list(BASELINES))
+def test_errors_before_fit_and_on_bad_queries(name, route, fitted):
+    X, Q = route
+    with pytest.raises(NotFittedError):
+        make(name).predict(Q)
+    with pytest.raises(DimensionMismatchError, match=f"fitted on {DIM}"):
+        fitted[name].predict(Q[:, :-1])
+    with pytest.raises(InvalidParameterError, match="k must be"):
+        fitted[name].rank(Q, 0)
+    with pytest.raises(NotEnoughPlacesError):
+        make(name).fit(X[:1])
+
+
+@pytest.mark.parametrize("name", list(BASELINES))
+def test_bad_budget_and_n_jobs_are_rejected_in_fit(name, route):
+    X, _ = route
+    with pytest.raises(InvalidParameterError, match="budget"):
+        make(name, budget="lots").fit(X)
+    with pytest.raises(InvalidParameterError, match="n_jobs"):
+        BASELINES[name](n_jobs=0).fit(X)
+
+
+@pytest.mark.parametrize("cls", [BruteForceNN, PQLocalizer, OPQLocalizer, ITQLocalizer, SeqSLAM])
+def test_sklearn_params_and_clone(cls):
+    model = cls(budget="1MB")
+    params = model.get_params()
+    assert params["budget"] == "1MB" and "n_jobs" in params
+    assert clone(model).get_params() == params
+    with pytest.raises(TypeError):
+        cls("1MB")  # keyword-only

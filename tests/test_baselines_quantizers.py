@@ -1,0 +1,212 @@
+"""PQ, OPQ and ITQ: the budget rule, what is stored, and that the search is an exact scan over codes."""
+
+from __future__ import annotations
+
+import os
+
+import faiss
+import numpy as np
+import pytest
+
+from btel.baselines import ITQLocalizer, OPQLocalizer, PQConfig, PQLocalizer, quiet_faiss
+from btel.baselines._common import faiss_threads
+from btel.exceptions import BudgetTooSmallError, InvalidParameterError, NotEnoughPlacesError
+
+
+@pytest.fixture(scope="module")
+def data() -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(3)
+    # Correlated descriptors (low-rank + noise), as real ones are: PCA has something to find.
+    X = (rng.normal(size=(400, 12)) @ rng.normal(size=(12, 48)) + 0.3 * rng.normal(size=(400, 48))).astype(np.float32)
+    Q = (X[:100] + 0.1 * rng.normal(size=(100, 48))).astype(np.float32)
+    return X, Q
+
+
+# -- the budget rule (pure arithmetic) ------------------------------------------------------------
+def test_rule_reproduces_the_spec_reference_configuration():
+    # SPEC §10: raw 3780-D HOG of 3576 frames, 500 KB → 140 sub-quantisers × 4 bits, no PCA, 492 KB.
+    pq = PQLocalizer(budget="500KB")
+    config = pq.choose_config(3576, 3780, 500_000)
+    assert config == PQConfig(3780, 140, 4)
+    assert pq.planned_bytes(config, 3576, 3780) == 492_240
+    # And the 28 × 4-bit point of the same paragraph (292 KB).
+    pinned = PQLocalizer(n_subquantizers=28, nbits=4, pca_dim=3780)
+    assert pinned.planned_bytes(pinned.choose_config(3576, 3780, 292_000), 3576, 3780) == 291_984
+
+
+@pytest.mark.parametrize("cls", [PQLocalizer, OPQLocalizer])
+@pytest.mark.parametrize("budget", [2_000, 20_000, 100_000, 2_000_000])
+def test_rule_takes_the_most_code_bits_that_fit(cls, budget):
+    model = cls()
+    n_rows, d = 400, 48
+    chosen = model.choose_config(n_rows, d, budget)
+    chosen_bytes = model.planned_bytes(chosen, n_rows, d)
+    assert chosen_bytes <= budget
+    fitting = [c for c in model.candidates(n_rows, d) if model.planned_bytes(c, n_rows, d) <= budget]
+    assert chosen in fitting
+    assert chosen.code_bits == max(c.code_bits for c in fitting)
+    ties = [c for c in fitting if c.code_bits == chosen.code_bits]
+    assert chosen_bytes == min(model.planned_bytes(c, n_rows, d) for c in ties)
+    for c in model.candidates(n_rows, d):
+        assert c.dim % c.n_subquantizers == 0 and (1 << c.nbits) <= n_rows
+        assert c.dim == d or c.dim <= n_rows
+
+
+def test_opq_counts_its_rotation_even_without_reduction():
+    config = PQConfig(48, 8, 4)
+    assert OPQLocalizer().planned_bytes(config, 400, 48) == PQLocalizer().planned_bytes(config, 400, 48) + 48 * 48 * 4
+
+
+def test_rule_is_deterministic_and_monotone_in_budget():
+    pq = PQLocalizer()
+    bits = [pq.choose_config(400, 48, b).code_bits for b in (3_000, 10_000, 30_000, 100_000, 300_000)]
+    assert bits == sorted(bits)
+    assert pq.choose_config(400, 48, 30_000) == pq.choose_config(400, 48, 30_000)
+
+
+def test_budget_error_names_the_smallest_configuration():
+    with pytest.raises(BudgetTooSmallError) as info:
+        PQLocalizer().choose_config(400, 48, 500)
+    minimum = info.value.minimum
+    assert minimum == min(PQLocalizer().planned_bytes(c, 400, 48) for c in PQLocalizer().candidates(400, 48))
+    assert f"{minimum} B" in str(info.value) and "p = " in str(info.value)
+
+
+def test_defaults_without_budget():
+    assert PQLocalizer().choose_config(3576, 3780, None) == PQConfig(256, 32, 8)
+    assert PQLocalizer().choose_config(3576, 100, None) == PQConfig(100, 25, 8)
+    # Fewer rows than 256 centroids: 4-bit codes (k-means needs a point per centroid).
+    assert PQLocalizer().choose_config(64, 48, None) == PQConfig(48, 24, 4)
+    assert PQLocalizer(pca_dim=16, n_subquantizers=4).choose_config(400, 48, None) == PQConfig(16, 4, 8)
+
+
+def test_explicit_parameters_are_honoured_and_validated(data):
+    X, Q = data
+    model = PQLocalizer(n_subquantizers=8, nbits=4, pca_dim=16, n_jobs=1).fit(X)
+    assert model.config_ == PQConfig(16, 8, 4)
+    assert model.projection_.shape == (48, 16) and model.projection_.dtype == np.float32
+    assert model.codebooks_.shape == (8, 16, 2) and model.codes_.shape == (400, 4)
+    assert model.storage_breakdown() == {"codes": 1600, "codebooks": 16 * 16 * 4, "projection": 48 * 16 * 4}
+    with pytest.raises(InvalidParameterError, match="must divide"):
+        PQLocalizer(n_subquantizers=5, pca_dim=16).fit(X)
+    with pytest.raises(InvalidParameterError, match="nbits=8 needs at least 256"):
+        PQLocalizer(nbits=8).fit(X[:100])
+    with pytest.raises(InvalidParameterError, match="pca_dim=64 exceeds"):
+        PQLocalizer(pca_dim=64).fit(X)
+    with pytest.raises(InvalidParameterError, match="nbits must be between"):
+        PQLocalizer(nbits=9).fit(X)
+    with pytest.raises(NotEnoughPlacesError, match="at least 16"):
+        PQLocalizer().fit(X[:10])
+    # An explicit configuration that does not fit the budget: the error names its size.
+    with pytest.raises(BudgetTooSmallError):
+        PQLocalizer(budget=1_000, n_subquantizers=48, nbits=8, pca_dim=48).fit(X)
+
+
+def test_small_map_falls_back_to_4_bit_codes(data):
+    X, Q = data
+    model = PQLocalizer(n_jobs=1).fit(X[:64])
+    assert model.config_.nbits == 4
+    assert np.mean(model.predict(Q[:64]) == np.arange(64)) >= 0.9
+
+
+def test_pq_search_is_an_exact_scan_of_asymmetric_distances(data):
+    X, Q = data
+    model = PQLocalizer(n_subquantizers=8, nbits=4, pca_dim=16, n_jobs=1).fit(X)
+    # Decode every code with numpy and compare the query (projected, not quantised) with each.
+    M, ksub, dsub = model.codebooks_.shape
+    packed = model.codes_
+    nibbles = np.stack([packed & 0x0F, packed >> 4], axis=2).reshape(len(packed), -1)[:, :M]
+    recon = np.concatenate([model.codebooks_[m][nibbles[:, m]] for m in range(M)], axis=1)
+    dist = (((Q @ model.projection_)[:, None, :] - recon[None]) ** 2).sum(-1)
+    ranked = model.rank(Q, 5)
+    np.testing.assert_allclose(np.take_along_axis(dist, ranked[:, :1], 1)[:, 0], dist.min(1), rtol=1e-4, atol=1e-4)
+
+
+def test_no_pca_means_no_projection_stored(data):
+    X, _ = data
+    model = PQLocalizer(budget="20KB", n_jobs=1).fit(X)
+    assert model.config_.dim == 48 and model.projection_ is None
+    assert set(model.storage_breakdown()) == {"codes", "codebooks"}
+
+
+def test_opq_projection_has_orthonormal_columns(data):
+    X, Q = data
+    model = OPQLocalizer(pca_dim=16, n_subquantizers=4, nbits=4, n_iter=5, n_jobs=1).fit(X)
+    P = model.projection_
+    assert P.shape == (48, 16)
+    np.testing.assert_allclose(P.T @ P, np.eye(16), atol=1e-4)
+    assert set(model.storage_breakdown()) == {"codes", "codebooks", "projection"}
+    with pytest.raises(InvalidParameterError, match="n_iter"):
+        OPQLocalizer(n_iter=0).fit(X)
+
+
+def test_opq_quantises_better_than_pq_at_the_same_configuration(data):
+    # OPQ's rotation exists to lower the quantisation error of the same code (Ge et al. 2014).
+    X, _ = data
+    errors = []
+    for cls in (PQLocalizer, OPQLocalizer):
+        model = cls(pca_dim=16, n_subquantizers=4, nbits=4, n_jobs=1).fit(X)
+        index = model._get_index()
+        Y = X @ model.projection_
+        errors.append(float(((index.sa_decode(model.codes_) - Y) ** 2).sum()))
+    assert errors[1] < errors[0]
+
+
+# -- ITQ -----------------------------------------------------------------------------------------
+def test_itq_code_length_rule(data):
+    X, _ = data
+    itq = ITQLocalizer()
+    assert itq.choose_code_bits(400, 48, None) == 48
+    assert itq.planned_bytes(16, 400, 48) == 400 * 2 + (48 * 16 + 48) * 4
+    budget = itq.planned_bytes(24, 400, 48) + 10
+    assert itq.choose_code_bits(400, 48, budget) == 24
+    with pytest.raises(BudgetTooSmallError) as info:
+        itq.choose_code_bits(400, 48, 100)
+    assert info.value.minimum == itq.planned_bytes(8, 400, 48)
+    with pytest.raises(InvalidParameterError, match="multiple of 8"):
+        ITQLocalizer(code_bits=12).fit(X)
+    with pytest.raises(NotEnoughPlacesError):
+        ITQLocalizer().fit(X[:, :4])
+
+
+def test_itq_codes_are_signs_and_search_is_exact_hamming(data):
+    X, Q = data
+    model = ITQLocalizer(code_bits=32, n_jobs=1).fit(X)
+    assert model.codes_.shape == (400, 4) and model.codes_.dtype == np.uint8
+    bits = np.unpackbits(model.codes_, axis=1).astype(bool)
+    np.testing.assert_array_equal(bits, (X - model.mean_) @ model.projection_ > 0)
+    # The rotation keeps the PCA directions orthonormal.
+    P = model.projection_
+    np.testing.assert_allclose(P.T @ P, np.eye(32), atol=1e-4)
+    qbits = (Q - model.mean_) @ model.projection_ > 0
+    hamming = (qbits[:, None, :] != bits[None]).sum(-1)
+    pred = model.predict(Q)
+    np.testing.assert_array_equal(hamming[np.arange(len(Q)), pred], hamming.min(1))
+    assert np.mean(pred == np.arange(100)) >= 0.9
+
+
+# -- faiss plumbing ------------------------------------------------------------------------------
+def test_quiet_faiss_hides_only_the_clustering_warning(capfd):
+    x = np.random.default_rng(0).normal(size=(300, 8)).astype(np.float32)
+    # Precondition: faiss does print the warning (300 points for 256 centroids).
+    faiss.ProductQuantizer(8, 1, 8).train(x)
+    assert "WARNING clustering" in capfd.readouterr().err
+    with quiet_faiss():
+        faiss.ProductQuantizer(8, 1, 8).train(x)
+        os.write(2, b"something else\n")
+    err = capfd.readouterr().err
+    assert "WARNING clustering" not in err
+    assert "something else" in err
+
+
+def test_fit_prints_nothing(data, capfd):
+    X, _ = data
+    PQLocalizer(nbits=8, n_jobs=1).fit(X)
+    assert capfd.readouterr().err == ""
+
+
+def test_faiss_threads_restores_the_setting():
+    before = faiss.omp_get_max_threads()
+    with faiss_threads(1):
+        assert faiss.omp_get_max_threads() == 1
+    assert faiss.omp_get_max_threads() == before

@@ -1,0 +1,61 @@
+"""Every registered method honours the one interface and its byte budget (parametrised over the registry)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from btel import load
+from btel.exceptions import BudgetTooSmallError, InvalidParameterError
+from btel.methods import METHODS, make_method
+
+
+@pytest.fixture(scope="module")
+def route() -> tuple[np.ndarray, np.ndarray]:
+    from btel.datasets import synthetic_route
+
+    r = synthetic_route(200, 48, n_regions=4, noise=0.05, condition_shift=0.05, seed=3)
+    return r.map, r.queries
+
+
+@pytest.mark.parametrize("name", list(METHODS))
+@pytest.mark.parametrize("budget", [3_000, 40_000])
+def test_budget_is_honoured_or_refused_with_the_minimum(name: str, budget: int, route) -> None:
+    X, Q = route
+    method = make_method(name, budget=budget)
+    try:
+        method.fit(X)
+    except BudgetTooSmallError as exc:
+        assert exc.minimum > budget
+        assert str(exc.minimum) in str(exc)
+        return
+    assert method.nbytes <= budget
+    assert sum(method.storage_breakdown().values()) == method.nbytes
+    pred = method.predict(Q)
+    assert pred.dtype == np.int64 and pred.shape == (200,)
+    assert pred.min() >= 0 and pred.max() < 200
+
+
+@pytest.mark.parametrize("name", list(METHODS))
+def test_a_budget_of_ten_bytes_is_refused(name: str, route) -> None:
+    with pytest.raises(BudgetTooSmallError, match="B"):
+        make_method(name, budget=10).fit(route[0])
+
+
+@pytest.mark.parametrize("name", list(METHODS))
+def test_save_load_and_ranking(name: str, route, tmp_path) -> None:
+    X, Q = route
+    method = make_method(name).fit(X)
+    path = method.save(tmp_path / f"{name}.npz")
+    again = load(path)
+    np.testing.assert_array_equal(again.predict(Q), method.predict(Q))
+    assert path.stat().st_size - method.nbytes <= 4096
+    if method.supports_ranking:
+        ranked = method.rank(Q, 5)
+        assert ranked.shape == (200, 5)
+        assert len(np.unique(ranked[0])) == 5
+
+
+def test_unknown_method_names_the_choices() -> None:
+    with pytest.raises(InvalidParameterError, match="btel-c"):
+        make_method("nope")
