@@ -7,7 +7,9 @@ has ../shared, so a skip there would hide untested capabilities.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import tempfile
 from pathlib import Path
 
 # OpenMP threads that spin while waiting made faiss k-means 6× slower when two test workers share
@@ -86,3 +88,34 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
         for nodeid in _skipped_realdata:
             print(f"  {nodeid}")
         session.exitstatus = pytest.ExitCode.TESTS_FAILED
+
+
+@contextlib.contextmanager
+def _file_lock(path: Path):
+    """An exclusive lock across pytest-xdist workers (so a shared cache is computed once)."""
+    with open(path, "w") as fh:
+        try:
+            import fcntl
+
+            fcntl.flock(fh, fcntl.LOCK_EX)
+        except ImportError:  # pragma: no cover - non-POSIX: no lock, at worst computed twice
+            pass
+        yield
+
+
+@pytest.fixture(scope="session")
+def nordland_hog(nordland_dir: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(summer, winter) HOG descriptors (3576 × 3780) of every Nordland frame, through btel's pipeline.
+
+    Extracted once with btel.descriptors.extract.extract_cached into a cache shared by the test
+    workers (``BTEL_TEST_CACHE``, default <tmp>/btel-test-cache); the cache is keyed on the image
+    files and descriptor parameters, so a changed pipeline or data set is recomputed.
+    """
+    from btel.descriptors.extract import extract_cached
+
+    cache = Path(os.environ.get("BTEL_TEST_CACHE", Path(tempfile.gettempdir()) / "btel-test-cache"))
+    cache.mkdir(parents=True, exist_ok=True)
+    with _file_lock(cache / "nordland-hog.lock"):
+        out = [extract_cached(nordland_dir / s, cache / f"nordland64-{s}-hog.npy", "hog", progress=False)[0]
+               for s in ("summer", "winter")]
+    return out[0], out[1]

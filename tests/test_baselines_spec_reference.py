@@ -2,8 +2,9 @@
 
 Summer (3576 frames) is the map, winter the queries. With a 500 KB budget the PQ rule selects
 140 sub-quantisers × 4 bits without PCA, 492 240 B including codebooks, and its recall@10 matches
-brute force (SPEC: 0.38 for both). HOG is scikit-image's (9 orientations, 4×4-pixel cells,
-2×2-cell blocks, L2-Hys), the descriptor SPEC §10 names. Slow (≈ 20 s): HOG of 7152 frames.
+brute force (SPEC: 0.38 for both). HOG is btel's HOGDescriptor (scikit-image; 9 orientations,
+4×4-pixel cells, 2×2-cell blocks, L2-Hys), the descriptor SPEC §10 names, from the shared cached
+``nordland_hog`` fixture.
 """
 
 from __future__ import annotations
@@ -15,28 +16,14 @@ from btel.baselines import BruteForceNN, PQConfig, PQLocalizer
 
 pytestmark = pytest.mark.realdata
 
-HEIGHT, WIDTH = 32, 64
-
-
 def recall(pred: np.ndarray, tolerance: int) -> float:
     return float(np.mean(np.abs(pred - np.arange(len(pred))) <= tolerance))
 
 
 @pytest.mark.slow
-def test_pq_reproduces_the_spec_reference_on_hog(nordland_pixels):
+def test_pq_reproduces_the_spec_reference_on_hog(nordland_hog):
     """SPEC §10: faiss IndexPQ on raw 3780-D HOG, 140 × 4 bits: 492 KB, recall@10 as brute force."""
-    from joblib import Parallel, delayed
-    from skimage.feature import hog
-
-    def hog_rows(block: np.ndarray) -> np.ndarray:
-        images = np.rint(block.reshape(-1, HEIGHT, WIDTH) * 255).astype(np.uint8)
-        return np.stack([hog(im, orientations=9, pixels_per_cell=(4, 4), cells_per_block=(2, 2)) for im in images])
-
-    def describe(pixels: np.ndarray) -> np.ndarray:
-        blocks = Parallel(n_jobs=2)(delayed(hog_rows)(b) for b in np.array_split(pixels, 8))
-        return np.concatenate(blocks).astype(np.float32)
-
-    summer, winter = describe(nordland_pixels[0]), describe(nordland_pixels[1])
+    summer, winter = nordland_hog
     assert summer.shape == (3576, 3780)
     pq = PQLocalizer(budget="500KB", n_jobs=1).fit(summer)
     assert pq.config_ == PQConfig(3780, 140, 4) and pq.projection_ is None
