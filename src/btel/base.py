@@ -25,7 +25,7 @@ from typing import Any, ClassVar
 import numpy as np
 from sklearn.base import BaseEstimator
 
-from ._validation import check_is_fitted
+from ._validation import check_descriptors, check_is_fitted
 from .exceptions import ModelFileError
 from .storage import load_arrays, save_arrays, storage_breakdown
 
@@ -59,6 +59,11 @@ class PlaceLocalizer(BaseEstimator):
         raise NotImplementedError(f"{type(self).__name__} cannot be loaded from a file.")
 
     # -- shared -------------------------------------------------------------------------------
+    def _check_queries(self, Q: Any) -> np.ndarray:
+        """Validated query matrix (float32, 2-D, finite, the fitted dimension); raises if unfitted."""
+        check_is_fitted(self, self._fitted_marker)
+        return check_descriptors(Q, name="Q", n_features=self.n_features_in_)
+
     def rank(self, Q: Any, k: int = 10) -> np.ndarray:
         """Return the ``k`` most likely places per query, best first (shape (n_queries, k), int64)."""
         raise NotImplementedError(f"{type(self).__name__} does not rank candidates; use predict().")

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from ._validation import check_descriptors, check_is_fitted, check_places, check_positive_int
+from ._validation import check_descriptors, check_places, check_positive_int
 from .base import PlaceLocalizer, register_model
 from .exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError
 from .feature_selection import column_index_dtype
@@ -230,9 +230,7 @@ class RYTHLocalizer(PlaceLocalizer):
         -------
         ndarray of shape (n_queries, Σ p_k), float32
         """
-        check_is_fitted(self, "n_places_")
-        Q = check_descriptors(Q, name="Q", n_features=self.n_features_in_)
-        margins = self._expanded().margins(Q)
+        margins = self._expanded().margins(self._check_queries(Q))
         out, col = [], 0
         for p in self.periods_:
             if p == 2:

@@ -21,7 +21,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from .._validation import check_descriptors, check_is_fitted, check_places, check_positive_int
+from .._validation import check_descriptors, check_places, check_positive_int
 from ..base import PlaceLocalizer
 from ..exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError, NotEnoughPlacesError
 from ..storage import format_bytes, parse_budget
@@ -201,10 +201,6 @@ class _RowLocalizer(PlaceLocalizer):
         self.fit_time_ = time.perf_counter() - start
         self.n_places_ = int(n_places)  # the fitted marker: set last
         return self
-
-    def _check_queries(self, Q: Any) -> np.ndarray:
-        check_is_fitted(self, self._fitted_marker)
-        return check_descriptors(Q, name="Q", n_features=self.n_features_in_)
 
     def predict(self, Q: Any) -> np.ndarray:
         """Place of each query.
