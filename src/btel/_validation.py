@@ -50,20 +50,14 @@ def check_descriptors(
     DimensionMismatchError
         ``n_features`` is given and differs from ``X.shape[1]``.
     """
-    if hasattr(X, "toarray") and not isinstance(X, np.ndarray):
-        raise InvalidDescriptorsError(
-            f"{name} is a sparse matrix; btel needs dense descriptors. Convert it with {name}.toarray()."
-        )
-    try:
-        arr = np.asarray(X)
-    except Exception as exc:  # ragged lists and the like
-        raise InvalidDescriptorsError(f"{name} could not be read as a numeric array: {exc}") from exc
-    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool):
-        raise InvalidDescriptorsError(
-            f"{name} has dtype {arr.dtype}; descriptors must be numbers (float32 preferred)."
-        )
-    if np.issubdtype(arr.dtype, np.complexfloating):
-        raise InvalidDescriptorsError(f"{name} is complex; descriptors must be real numbers.")
+    if isinstance(X, np.ndarray) and X.dtype == dtype and X.ndim == 2 and X.flags.c_contiguous:
+        # Fast path: already the result's dtype and layout, so there is nothing to convert. The
+        # shape and finiteness checks below still run. A memory-mapped map is returned as is.
+        arr = X
+        fast = True
+    else:
+        arr = _as_numeric_array(X, name)
+        fast = False
     if arr.ndim != 2:
         hint = " Use X.reshape(1, -1) for a single descriptor." if arr.ndim == 1 else ""
         raise InvalidDescriptorsError(
@@ -79,14 +73,54 @@ def check_descriptors(
             "Use descriptors from the same extractor (and settings) as the map."
         )
     # No copy when X already has the right dtype and layout (memory-mapped maps stay mapped).
-    arr = np.ascontiguousarray(arr, dtype=dtype)
-    if not np.isfinite(arr).all():
-        bad = np.argwhere(~np.isfinite(arr))[0]
+    if not fast:
+        arr = np.ascontiguousarray(arr, dtype=dtype)
+    bad = _first_non_finite(arr)
+    if bad is not None:
         raise InvalidDescriptorsError(
             f"{name} contains NaN or infinite values (first at row {bad[0]}, column {bad[1]}). "
             "Remove or repair those rows before fitting or predicting."
         )
     return arr
+
+
+def _as_numeric_array(X: Any, name: str) -> np.ndarray:
+    """``np.asarray(X)`` with the errors of :func:`check_descriptors` for what is not real numbers."""
+    if hasattr(X, "toarray") and not isinstance(X, np.ndarray):
+        raise InvalidDescriptorsError(
+            f"{name} is a sparse matrix; btel needs dense descriptors. Convert it with {name}.toarray()."
+        )
+    try:
+        arr = np.asarray(X)
+    except Exception as exc:  # ragged lists and the like
+        raise InvalidDescriptorsError(f"{name} could not be read as a numeric array: {exc}") from exc
+    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool):
+        raise InvalidDescriptorsError(
+            f"{name} has dtype {arr.dtype}; descriptors must be numbers (float32 preferred)."
+        )
+    if np.issubdtype(arr.dtype, np.complexfloating):
+        raise InvalidDescriptorsError(f"{name} is complex; descriptors must be real numbers.")
+    return arr
+
+
+def _first_non_finite(arr: np.ndarray, chunk_elements: int = 1 << 22) -> tuple[int, int] | None:
+    """(row, column) of the first NaN/inf in a 2-D float array, or None.
+
+    Checked in row chunks of about ``chunk_elements`` values, so a 1 GB memory-mapped map needs a
+    4 MB mask at a time instead of an N×d one.
+    """
+    if arr.size <= chunk_elements:
+        if np.isfinite(arr).all():
+            return None
+        row, col = np.argwhere(~np.isfinite(arr))[0]
+        return int(row), int(col)
+    rows = max(1, chunk_elements // max(arr.shape[1], 1))
+    for start in range(0, arr.shape[0], rows):
+        block = arr[start : start + rows]
+        if not np.isfinite(block).all():
+            row, col = np.argwhere(~np.isfinite(block))[0]
+            return start + int(row), int(col)
+    return None
 
 
 def check_places(places: Any, n_samples: int) -> tuple[np.ndarray, int]:

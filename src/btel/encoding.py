@@ -85,6 +85,9 @@ def decode_constrained(margins: np.ndarray, n_places: int) -> np.ndarray:
     indices : ndarray of shape (n_queries,), dtype int64, every value in [0, N)
     """
     m, n = _check_margins(margins, n_places)
+    if m.shape[0] == 1:
+        # One query (streaming): the same rule on Python ints, without a dozen tiny numpy calls.
+        return np.array([_constrained_one(m[0], n - 1)], dtype=np.int64)
     weights = 1 << np.arange(m.shape[1] - 1, -1, -1, dtype=np.int64)
     raw = (m > 0).astype(np.int64) @ weights
     # Reading MSB first, the walk stays "tight" (prefix equal to N−1's) while it copies N−1's bits:
@@ -100,6 +103,18 @@ def decode_constrained(margins: np.ndarray, n_places: int) -> np.ndarray:
         high = (limit >> (p + 1)) << (p + 1)
         out[has] = high | (raw[has] & ((np.int64(1) << p) - 1))
     return out
+
+
+def _constrained_one(margins: np.ndarray, limit: int) -> int:
+    """:func:`decode_constrained` of one query's margins (shape (b,)) with N − 1 = ``limit``."""
+    raw = 0
+    for value in margins.tolist():
+        raw = (raw << 1) | (value > 0)
+    release = limit & ~raw
+    if not release:
+        return limit
+    p = release.bit_length() - 1
+    return ((limit >> (p + 1)) << (p + 1)) | (raw & ((1 << p) - 1))
 
 
 def bit_codes(n_places: int) -> np.ndarray:

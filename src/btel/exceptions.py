@@ -16,10 +16,12 @@ __all__ = [
     "NotEnoughPlacesError",
     "InvalidParameterError",
     "BudgetTooSmallError",
+    "BudgetExceededError",
     "ModelFileError",
     "UnsupportedModelVersionError",
     "NotFittedError",
     "DataNotFoundError",
+    "MissingDependencyError",
 ]
 
 
@@ -74,3 +76,11 @@ class NotFittedError(BTELError, _SklearnNotFittedError):
 
 class DataNotFoundError(BTELError, FileNotFoundError):
     """A data folder or file does not exist or holds nothing btel can read."""
+
+
+class MissingDependencyError(BTELError, ImportError):
+    """An optional dependency (e.g. Dask for ``backend='dask'``) is not installed."""
+
+
+class BudgetExceededError(BTELError, RuntimeError):
+    """A fitted model stores more bytes than its budget (a bug in that method's budget fitting)."""

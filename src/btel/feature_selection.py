@@ -35,6 +35,7 @@ def between_cluster_ss(
     labels: np.ndarray,
     *,
     scale: np.ndarray | None = None,
+    chunk_rows: int = 65536,
 ) -> np.ndarray:
     """Between-cluster sum of squares of every column.
 
@@ -45,6 +46,9 @@ def between_cluster_ss(
         Cluster of each row (any integers; 2 clusters for a bit, r for regions).
     scale : ndarray of shape (n_features,), optional
         Column standard deviations; the scores are those of ``X / scale``.
+    chunk_rows : int
+        Rows converted to float64 at a time (bounds the extra memory at ``chunk_rows × d``
+        doubles; X may be memory-mapped).
 
     Returns
     -------
@@ -52,8 +56,15 @@ def between_cluster_ss(
     """
     _, inverse, counts = np.unique(labels, return_inverse=True, return_counts=True)
     n = X.shape[0]
-    onehot = sp.csr_matrix((np.ones(n), (inverse, np.arange(n))), shape=(counts.size, n))
-    sums = np.asarray(onehot @ X, dtype=np.float64)  # (n_clusters, n_features)
+    # Cluster sums by a sparse one-hot product, over row chunks: the product upcasts X to float64,
+    # and doing it at once held an N×d float64 copy (2 GB at N = 1M, d = 256) per concurrent fit.
+    sums = np.zeros((counts.size, X.shape[1]))  # (n_clusters, n_features), float64
+    for start in range(0, n, chunk_rows):
+        stop = min(n, start + chunk_rows)
+        onehot = sp.csr_matrix(
+            (np.ones(stop - start), (inverse[start:stop], np.arange(stop - start))), shape=(counts.size, stop - start)
+        )
+        sums += onehot @ np.asarray(X[start:stop], dtype=np.float64)
     total = sums.sum(axis=0)
     # Σ_k n_k (μ_k − μ)² = Σ_k sums_k² / n_k − total² / n
     bcss = (sums**2 / counts[:, None]).sum(axis=0) - total**2 / n

@@ -12,6 +12,7 @@ from tqdm.auto import tqdm
 from ._validation import check_descriptors, check_is_fitted, check_places, check_positive_int
 from .base import PlaceLocalizer, register_model
 from .compressed import DECODERS, compressed_n_classifiers, compressed_tasks, decode_margins
+from .distributed import check_backend
 from .encoding import n_bits_for
 from .exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError, NotEnoughPlacesError
 from .feature_selection import column_index_dtype
@@ -125,11 +126,24 @@ class BTELocalizer(PlaceLocalizer):
         v of the KTS penalty for ``n_regions='auto'``.
     kts_pca_dims : int or None
         PCA dimension before KTS (None: none).
+    kts_max_points : int
+        Longest route KTS segments exactly (O(N²·r)); longer routes are averaged in blocks of
+        ⌈N / kts_max_points⌉ places first (:func:`btel.segmentation.kts_regions`).
     max_iter : int
         liblinear iteration cap per classifier.
     n_jobs : int, optional
-        Parallel classifier fits (joblib; −1 = all cores). Any joblib backend works through
-        ``joblib.parallel_config`` (e.g. Dask).
+        Parallel classifier fits (joblib; −1 = all cores; with ``backend='dask'`` None means every
+        worker of the cluster).
+    backend : {None, 'threads', 'loky', 'dask'}
+        Where the classifier fits run (:mod:`btel.distributed`). None: threads, or whatever
+        ``joblib.parallel_config`` the caller set. 'dask': the workers of a Dask cluster (X is
+        sent to each worker once); needs ``pip install btel[dask]``. The model does not depend
+        on the backend — bitwise so when no worker process runs two fits at once: liblinear's
+        dual solver draws from one random generator per process, so fits sharing a process in
+        threads (``n_jobs`` ≥ 2 with threads) can differ in the last bits of their weights.
+    scheduler : str, optional
+        Dask scheduler address for ``backend='dask'`` (e.g. ``'tcp://10.0.0.5:8786'``); None uses
+        the ``distributed.Client`` already running in this process.
     random_state : int, optional
         Seed for liblinear and the randomized PCA of KTS.
     progress : bool
@@ -183,8 +197,11 @@ class BTELocalizer(PlaceLocalizer):
         max_regions: int = 50,
         kts_penalty: float = 1.0,
         kts_pca_dims: int | None = 128,
+        kts_max_points: int = 4096,
         max_iter: int = 1000,
         n_jobs: int | None = None,
+        backend: str | None = None,
+        scheduler: str | None = None,
         random_state: int | None = None,
         progress: bool = True,
     ) -> None:
@@ -201,8 +218,11 @@ class BTELocalizer(PlaceLocalizer):
         self.max_regions = max_regions
         self.kts_penalty = kts_penalty
         self.kts_pca_dims = kts_pca_dims
+        self.kts_max_points = kts_max_points
         self.max_iter = max_iter
         self.n_jobs = n_jobs
+        self.backend = backend
+        self.scheduler = scheduler
         self.random_state = random_state
         self.progress = progress
 
@@ -237,6 +257,8 @@ class BTELocalizer(PlaceLocalizer):
             check_positive_int(self.n_regions, "n_regions ('auto' or an integer)")
         check_positive_int(self.max_regions, "max_regions")
         check_positive_int(self.max_iter, "max_iter")
+        check_positive_int(self.kts_max_points, "kts_max_points", minimum=4)
+        check_backend(self.backend, self.scheduler)
         return {"C": float(C), "dtype": dtype, "budget": parse_budget(self.budget)}
 
     def _cap(self, d: int, budget: int | None) -> int:
@@ -311,8 +333,9 @@ class BTELocalizer(PlaceLocalizer):
                   leave=False) as bar:
             parts, n_unconverged = fit_tasks(
                 X, tasks, n_selected, stats, sparsity=float(self.sparsity), n_jobs=self.n_jobs,
-                progress=bar.update, classifier=self.classifier, C=params["C"], max_iter=int(self.max_iter),
-                random_state=self.random_state, dtype=np.dtype(params["dtype"]),
+                backend=self.backend, scheduler=self.scheduler, progress=bar.update, classifier=self.classifier,
+                C=params["C"], max_iter=int(self.max_iter), random_state=self.random_state,
+                dtype=np.dtype(params["dtype"]),
             )
 
         index_dtype = None if n_selected >= d else column_index_dtype(d)
@@ -343,9 +366,9 @@ class BTELocalizer(PlaceLocalizer):
             per_place /= counts[:, None]
         if self.n_regions != "auto":
             return kts_regions(per_place, int(self.n_regions), pca_dims=self.kts_pca_dims,
-                               random_state=self.random_state)
+                               random_state=self.random_state, max_points=int(self.kts_max_points))
         starts_by_r, costs = kts_segmentations(per_place, int(self.max_regions), pca_dims=self.kts_pca_dims,
-                                               random_state=self.random_state)
+                                               random_state=self.random_state, max_points=int(self.kts_max_points))
         r = int(np.argmin(kts_penalised_costs(costs, n_places, float(self.kts_penalty)))) + 1
         if budget is not None:
             d = X.shape[1]
@@ -399,6 +422,8 @@ class BTELocalizer(PlaceLocalizer):
         return decode_margins(margins, n_k, self.decode), margins
 
     def _predict_with_margins(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if self.n_regions_ == 1:  # one tree over all N places: its local indices are global
+            return self._tree_margins(Q, 0)
         regions = self._regions(Q)
         indices = np.empty(Q.shape[0], dtype=np.int64)
         margins = np.full((Q.shape[0], self.n_bits_), np.nan, dtype=np.float32)

@@ -3,8 +3,8 @@
 A :class:`Task` is one classifier to learn: which rows of X it sees and their labels. BTE-C makes
 b tasks per tree, BTE-F one per internal node, the region classifier one multiclass task. All of
 a model's tasks go through a single ``joblib.Parallel`` so that both cores (or every worker of a
-Dask cluster, via ``joblib.parallel_config(backend="dask")``) stay busy across regions. Threads are
-the default backend: liblinear releases the GIL and threads share X without copying it.
+Dask cluster: ``backend="dask"``, see :mod:`btel.distributed`) stay busy across regions. Threads
+are the default backend: liblinear releases the GIL and threads share X without copying it.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from joblib import Parallel, delayed
 from sklearn.exceptions import ConvergenceWarning
 from threadpoolctl import threadpool_limits
 
+from .distributed import fit_backend
 from .feature_selection import select_features
 from .linear import ColumnStats, fit_linear
 
@@ -86,6 +87,8 @@ def fit_tasks(
     *,
     sparsity: float,
     n_jobs: int | None = None,
+    backend: str | None = None,
+    scheduler: str | None = None,
     progress: Callable[[int], Any] | None = None,
     **fit_kwargs: Any,
 ) -> tuple[list[tuple[np.ndarray, np.ndarray, np.ndarray]], int]:
@@ -102,7 +105,13 @@ def fit_tasks(
     sparsity : float
         W–T L1 bound s.
     n_jobs : int, optional
-        joblib workers (None: 1 unless inside ``joblib.parallel_config``; −1: all cores).
+        joblib workers (None: 1 unless inside ``joblib.parallel_config``; −1: all cores; with
+        ``backend='dask'`` None means every worker of the cluster).
+    backend : {None, 'threads', 'loky', 'dask'}
+        Where the fits run (:func:`btel.distributed.fit_backend`); None keeps the caller's joblib
+        configuration (threads by default).
+    scheduler : str, optional
+        Dask scheduler address for ``backend='dask'`` (None: the current Client).
     progress : callable, optional
         Called with 1 after each fitted task (e.g. ``tqdm.update``).
     **fit_kwargs
@@ -123,7 +132,9 @@ def fit_tasks(
     # ConvergenceWarning is silenced here, in the calling thread, for all workers: fit_linear's own
     # catch_warnings is not thread-safe (the filter list is process-global), so with threads it
     # let warnings through. Unconverged fits are counted from n_iter_ instead.
-    with threadpool_limits(limits=blas_threads, user_api="blas"), warnings.catch_warnings():
+    # With Dask, X is broadcast to the workers once (scatter) and every task refers to that copy.
+    with fit_backend(backend, scheduler, scatter=[X]), threadpool_limits(limits=blas_threads, user_api="blas"), \
+            warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         for weights, bias, columns, converged in Parallel(
             n_jobs=n_jobs, prefer="threads", return_as="generator"

@@ -5,6 +5,7 @@ frame-aligned traverses, or given by a :class:`GroundTruth`.
 """
 
 from .groundtruth import GroundTruth, load_positives, save_positives
+from .shards import list_shards, load_shards
 from .synthetic import SyntheticRoute, synthetic_route
 from .traverses import (
     DARK_THRESHOLD,
@@ -25,9 +26,11 @@ __all__ = [
     "SyntheticRoute",
     "aligned_pairs",
     "dark_frames",
+    "list_shards",
     "list_traverses",
     "load_pair",
     "load_positives",
+    "load_shards",
     "mean_brightness",
     "natural_key",
     "save_positives",

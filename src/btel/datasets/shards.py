@@ -1,0 +1,135 @@
+"""Maps stored as a folder of descriptor shards, read without holding them in memory.
+
+A large map is often written in pieces: ``shard_0.npy``, ``shard_1.npy``, … each an ``(n_i, d)``
+matrix, rows in route order, shards in natural file-name order (``shard_2`` before ``shard_10``).
+:func:`load_shards` returns them as **one ordinary read-only ndarray** backed by a memory-mapped
+file, so every part of btel (fancy indexing, chunked statistics, liblinear's column blocks) works
+on it unchanged and only the pages being read occupy memory:
+
+- one shard: that file itself, memory-mapped (no copy when it is float32 and C-ordered);
+- several shards: their rows are copied, shard by shard and in chunks, into one float32 file
+  that is then memory-mapped read-only. This costs one sequential write of N·d·4 bytes of disk
+  (1 GB at N = 10⁶, d = 256) and a chunk of RAM at a time. A lazily concatenated view object
+  would avoid the copy but would not be an ndarray, and every consumer (scikit-learn included)
+  would need to handle it; the one-off copy is the simple, honest choice.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from ..exceptions import DataNotFoundError, DimensionMismatchError
+from .traverses import natural_key
+
+__all__ = ["list_shards", "load_shards"]
+
+_CHUNK_ROWS = 65536
+
+
+def list_shards(folder: str | os.PathLike) -> list[Path]:
+    """The ``.npy`` shards in ``folder``, in natural file-name order (hidden files skipped).
+
+    Raises
+    ------
+    DataNotFoundError
+        ``folder`` is not a folder or holds no ``.npy`` file.
+    """
+    root = Path(folder)
+    if not root.is_dir():
+        raise DataNotFoundError(f"shard folder {str(root)!r} does not exist or is not a folder.")
+    shards = sorted(
+        (p for p in root.iterdir() if p.is_file() and p.suffix.lower() == ".npy" and not p.name.startswith(".")),
+        key=lambda p: natural_key(p.name),
+    )
+    if not shards:
+        raise DataNotFoundError(
+            f"{str(root)!r} holds no .npy shards; write the map as shard_0.npy, shard_1.npy, … (rows in route order)."
+        )
+    return shards
+
+
+def load_shards(
+    folder: str | os.PathLike,
+    *,
+    out: str | os.PathLike | None = None,
+    tmp_dir: str | os.PathLike | None = None,
+) -> np.ndarray:
+    """Read a folder of ``.npy`` descriptor shards as one read-only, memory-mapped (N, d) matrix.
+
+    Parameters
+    ----------
+    folder : str or path-like
+        Folder of ``.npy`` files, each ``(n_i, d)``; rows in route order within a shard, shards in
+        natural file-name order. Every shard is checked like :func:`btel.descriptors.load_descriptor_matrix`
+        (numeric, 2-D, finite; never unpickled).
+    out : str or path-like, optional
+        Several shards only: where to write the concatenated float32 ``.npy`` (kept, and usable
+        later with ``load_descriptor_matrix(out, mmap_mode="r")``). By default a temporary file in
+        ``tmp_dir`` is used and unlinked as soon as it is mapped: on POSIX systems its space is
+        freed when the returned array is garbage-collected (elsewhere it stays in ``tmp_dir``).
+    tmp_dir : str or path-like, optional
+        Folder for the temporary file (default: the system's temporary folder).
+
+    Returns
+    -------
+    X : ndarray of shape (N, d), float32, read-only
+        ``N = Σ n_i``. A ``numpy.memmap``: pages are read from disk when used.
+
+    Raises
+    ------
+    DataNotFoundError
+        The folder does not exist or holds no ``.npy`` file.
+    DimensionMismatchError
+        Shards with different numbers of columns.
+    InvalidDescriptorsError
+        A shard that is not a valid descriptor matrix (names the shard).
+    """
+    # Imported here: btel.descriptors pulls in OpenCV, which btel.datasets does not otherwise need.
+    from ..descriptors.npy import load_descriptor_matrix
+
+    shards = list_shards(folder)
+    if len(shards) == 1:
+        return load_descriptor_matrix(shards[0], mmap_mode="r")
+    parts = [load_descriptor_matrix(p, mmap_mode="r") for p in shards]
+    d = parts[0].shape[1]
+    for path, part in zip(shards, parts):
+        if part.shape[1] != d:
+            raise DimensionMismatchError(
+                f"shard {path.name} has {part.shape[1]} columns but {shards[0].name} has {d}; "
+                "every shard must hold descriptors of the same dimension."
+            )
+    n = sum(part.shape[0] for part in parts)
+    if out is not None:
+        target = Path(out)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        temporary = False
+    else:
+        handle, name = tempfile.mkstemp(prefix="btel-shards-", suffix=".npy", dir=tmp_dir)
+        os.close(handle)
+        target = Path(name)
+        temporary = True
+    try:
+        merged = np.lib.format.open_memmap(target, mode="w+", dtype=np.float32, shape=(n, d))
+        row = 0
+        for part in parts:
+            for start in range(0, part.shape[0], _CHUNK_ROWS):
+                block = part[start : start + _CHUNK_ROWS]
+                merged[row : row + block.shape[0]] = block
+                row += block.shape[0]
+        merged.flush()
+        del merged
+        X = np.load(target, mmap_mode="r", allow_pickle=False)
+    except BaseException:
+        if temporary:
+            target.unlink(missing_ok=True)
+        raise
+    if temporary:
+        try:
+            target.unlink()  # the mapping keeps the data alive until X is released (POSIX)
+        except OSError:  # pragma: no cover - Windows cannot unlink a mapped file
+            pass
+    return X

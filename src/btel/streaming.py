@@ -1,0 +1,166 @@
+"""Streaming localization: descriptors arrive one per text line, predictions leave one per line.
+
+This is what a robot runs: a camera pipeline writes each frame's global descriptor as a line of
+numbers (separated by commas and/or whitespace) to a pipe or an append-only file, and every line
+is localized as soon as it is complete, with the paper's sequence filter (SPEC §6) applied across
+the stream. A malformed line — a wrong number of values, something that is not a number, NaN or
+infinity — is reported with its line number and skipped; it does not stop the stream and does
+not enter the filter's history.
+
+>>> import io
+>>> for line_number, place in localize_stream(model, io.StringIO("0.1,0.2,...\\n")):  # doctest: +SKIP
+...     print(place)
+
+``btel localize MODEL --stream [--input FILE [--follow]] [--sequence-filter A]`` is the command-line
+front end.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from typing import Any, Callable, Iterator, TextIO
+
+import numpy as np
+
+from .exceptions import DimensionMismatchError, InvalidDescriptorsError
+from .sequence import SequenceFilter
+
+__all__ = ["parse_descriptor_line", "read_lines", "localize_stream"]
+
+_SEPARATORS = re.compile(r"[,\s]+")
+
+
+def parse_descriptor_line(line: str, n_features: int | None = None) -> np.ndarray:
+    """One descriptor from a line of numbers separated by commas and/or whitespace.
+
+    Parameters
+    ----------
+    line : str
+    n_features : int, optional
+        Number of values the line must hold (the model's d).
+
+    Returns
+    -------
+    ndarray of shape (1, n_features), float32
+
+    Raises
+    ------
+    InvalidDescriptorsError
+        Empty line, a value that is not a number, NaN/inf, or the wrong number of values.
+    """
+    tokens = [t for t in _SEPARATORS.split(line.strip()) if t]
+    if not tokens:
+        raise InvalidDescriptorsError("empty line (expected one descriptor).")
+    if n_features is not None and len(tokens) != n_features:
+        raise InvalidDescriptorsError(f"expected {n_features} values, got {len(tokens)}.")
+    try:
+        values = np.array([float(t) for t in tokens], dtype=np.float64)
+    except ValueError:
+        bad = next(t for t in tokens if not _is_float(t))
+        raise InvalidDescriptorsError(f"{bad[:40]!r} is not a number.") from None
+    finite = np.isfinite(values)
+    if not finite.all():
+        column = int(np.flatnonzero(~finite)[0])
+        raise InvalidDescriptorsError(f"value {column + 1} is {tokens[column]!r}; descriptors must be finite.")
+    return values.astype(np.float32).reshape(1, -1)
+
+
+def _is_float(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def read_lines(
+    stream: TextIO,
+    *,
+    follow: bool = False,
+    poll_interval: float = 0.1,
+    idle_timeout: float | None = None,
+) -> Iterator[str]:
+    """Yield complete lines from ``stream`` as they arrive.
+
+    Parameters
+    ----------
+    stream : text file
+        A pipe (stdin) or a file. A pipe blocks until its next line; a file ends at EOF.
+    follow : bool
+        Keep reading a file as it grows (``tail -f``): at EOF, wait ``poll_interval`` seconds and
+        try again. A line without its newline yet is held back until it is complete.
+    idle_timeout : float, optional
+        With ``follow``, stop after this many seconds without new data (default: never; stop
+        with Ctrl-C).
+    """
+    pending = ""
+    last_data = time.monotonic()
+    while True:
+        chunk = stream.readline()
+        if chunk:
+            last_data = time.monotonic()
+            pending += chunk
+            if pending.endswith("\n"):
+                yield pending
+                pending = ""
+            continue
+        if not follow:
+            break
+        if idle_timeout is not None and time.monotonic() - last_data >= idle_timeout:
+            break
+        time.sleep(poll_interval)
+    if pending:
+        yield pending  # the last line of a finished file may lack its newline
+
+
+def localize_stream(
+    model: Any,
+    lines: TextIO | Iterator[str],
+    *,
+    window: int | None = None,
+    on_error: Callable[[int, str], Any] | None = None,
+    follow: bool = False,
+    idle_timeout: float | None = None,
+) -> Iterator[tuple[int, int]]:
+    """Localize each descriptor line as it arrives.
+
+    Parameters
+    ----------
+    model : fitted PlaceLocalizer
+        Anything with ``predict`` (and ``n_features_in_``, ``n_places_``).
+    lines : text file or iterable of str
+        One descriptor per line; blank lines are ignored.
+    window : int, optional
+        Sequence-filter window a (SPEC §6); None: raw predictions.
+    on_error : callable, optional
+        Called as ``on_error(line_number, message)`` for each malformed line (which is skipped).
+        Default: ignore.
+    follow, idle_timeout
+        For a file being appended to: see :func:`read_lines`.
+
+    Yields
+    ------
+    (line_number, place) : (int, int)
+        1-based line number of the input and the (filtered) place index.
+    """
+    if hasattr(lines, "readline"):
+        lines = read_lines(lines, follow=follow, idle_timeout=idle_timeout)  # type: ignore[arg-type]
+    n_features = getattr(model, "n_features_in_", None)
+    filt = SequenceFilter(window, n_places=getattr(model, "n_places_", None)) if window is not None else None
+    for number, line in enumerate(lines, start=1):
+        if not line.strip():
+            continue
+        try:
+            q = parse_descriptor_line(line, n_features)
+        except InvalidDescriptorsError as exc:
+            if on_error is not None:
+                on_error(number, str(exc))
+            continue
+        try:
+            place = int(model.predict(q)[0])
+        except (InvalidDescriptorsError, DimensionMismatchError) as exc:  # a model without n_features_in_
+            if on_error is not None:
+                on_error(number, str(exc))
+            continue
+        yield number, (filt.update(place) if filt is not None else place)
