@@ -45,6 +45,18 @@ def _load_matrix(path: str, what: str) -> np.ndarray:
     return load_descriptor_matrix(path)
 
 
+def _load_map(path: str) -> np.ndarray:
+    """Map descriptors for training: a folder of .npy shards, a memory-mapped .npy, or an .npz."""
+    if Path(path).is_dir():
+        from .datasets.shards import load_shards
+
+        return load_shards(path)
+    from .descriptors.npy import load_descriptor_matrix
+
+    # A .npy map is memory-mapped: pages are read as the fit needs them, never copied whole.
+    return load_descriptor_matrix(path, mmap_mode="r" if Path(path).suffix.lower() == ".npy" else None)
+
+
 def _echo_storage(model: Any) -> None:
     from .storage import format_bytes
 
@@ -141,7 +153,7 @@ def extract(images_dir: str, output: str, descriptor: str, fit_on: str | None, s
 
 
 @main.command()
-@click.argument("db", type=click.Path(dir_okay=False))
+@click.argument("db", type=click.Path())
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Model file to write (.npz).")
 @click.option("--method", default="btel-c", show_default=True, help="Method name (see `btel methods`).")
 @click.option("--budget", default=None, help="Byte budget, e.g. 500KB, 2MB, 64KiB.")
@@ -151,24 +163,36 @@ def extract(images_dir: str, output: str, descriptor: str, fit_on: str | None, s
 @click.option("--classifier", type=click.Choice(["svm", "logistic"]), default=None, help="BTEL classifier.")
 @click.option("--dtype", type=click.Choice(["float32", "float16"]), default=None, help="BTEL stored weight dtype.")
 @click.option("--n-jobs", type=int, default=None, help="Parallel fits (-1 = all cores).")
+@click.option("--backend", type=click.Choice(["threads", "loky", "dask"]), default=None,
+              help="BTEL: where the classifier fits run — threads (default), loky processes, or a Dask cluster "
+                   "(pip install btel[dask]).")
+@click.option("--scheduler", default=None, help="With --backend dask: the scheduler address, e.g. tcp://10.0.0.5:8786.")
+@click.option("--no-progress", is_flag=True, help="BTEL: no progress bar.")
 @click.option("--seed", "random_state", type=int, default=None, help="Random seed.")
 def train(db: str, output: str, method: str, budget: str | None, regions: str | None, feature_ratio: float | None,
           n_features: int | None, classifier: str | None, dtype: str | None, n_jobs: int | None,
-          random_state: int | None) -> None:
-    """Fit a model on map descriptors DB (.npy, row i = place i) and save it; prints the storage breakdown."""
+          backend: str | None, scheduler: str | None, no_progress: bool, random_state: int | None) -> None:
+    """Fit a model on map descriptors DB and save it; prints the storage breakdown.
+
+    DB is a .npy matrix (row i = place i; memory-mapped, so maps larger than RAM work), an .npz,
+    or a folder of .npy shards taken in natural file-name order (shard_2 before shard_10).
+    """
     from .methods import make_method
 
-    X = _load_matrix(db, "map descriptors")
+    if scheduler is not None and backend != "dask":
+        raise click.UsageError("--scheduler only applies with --backend dask.")
+    X = _load_map(db)
     params: dict[str, Any] = {"budget": budget}
     if method.startswith("btel"):
         n_regions: Any = None
         if regions is not None:
             n_regions = regions if regions == "auto" else _int(regions, "--regions")
         params.update(n_regions=n_regions, feature_ratio=feature_ratio, n_features=n_features,
-                      classifier=classifier, dtype=dtype, n_jobs=n_jobs, random_state=random_state)
+                      classifier=classifier, dtype=dtype, n_jobs=n_jobs, random_state=random_state,
+                      backend=backend, scheduler=scheduler, progress=False if no_progress else None)
     else:
         unsupported = {"--regions": regions, "--feature-ratio": feature_ratio, "--n-features": n_features,
-                       "--classifier": classifier, "--dtype": dtype}
+                       "--classifier": classifier, "--dtype": dtype, "--backend": backend}
         used = [k for k, v in unsupported.items() if v is not None]
         if used:
             raise click.UsageError(f"{', '.join(used)} only apply to BTEL methods, not {method!r}.")
@@ -185,15 +209,42 @@ def train(db: str, output: str, method: str, budget: str | None, regions: str | 
 
 @main.command()
 @click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
-@click.argument("queries", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Predictions CSV to write.")
+@click.argument("queries", required=False, type=click.Path(dir_okay=False))
+@click.option("-o", "--output", type=click.Path(dir_okay=False), help="Predictions CSV to write (not with --stream).")
 @click.option("--sequence-filter", "window", type=int, default=None,
               help="Apply the paper's sequence filter with window a (queries must be consecutive frames).")
-def localize(model_path: str, queries: str, output: str, window: int | None) -> None:
-    """Predict the place of every query row with a saved MODEL; writes query,prediction CSV."""
+@click.option("--stream", is_flag=True,
+              help="Read one descriptor per line (numbers separated by commas/spaces) from stdin or --input and "
+                   "print one prediction per line as each arrives.")
+@click.option("--input", "input_path", type=click.Path(dir_okay=False), default=None,
+              help="With --stream: read this text file instead of stdin.")
+@click.option("--follow", is_flag=True, help="With --stream --input: keep reading as the file grows (like tail -f).")
+@click.option("--idle-timeout", type=float, default=None,
+              help="With --follow: stop after this many seconds without a new line (default: run until Ctrl-C).")
+def localize(model_path: str, queries: str | None, output: str | None, window: int | None, stream: bool,
+             input_path: str | None, follow: bool, idle_timeout: float | None) -> None:
+    """Predict the place of every query with a saved MODEL.
+
+    \b
+    Batch:  btel localize MODEL QUERIES.npy -o predictions.csv   (writes query,prediction CSV)
+    Stream: producer | btel localize MODEL --stream --sequence-filter 5
+            btel localize MODEL --stream --input frames.txt --follow
+    In stream mode each line of input is one descriptor; each output line is the place index of the
+    next well-formed input line. A malformed line (wrong count, not a number, NaN) gets a one-line
+    error naming its line number on stderr, produces no output line, and the stream goes on.
+    """
     from .base import load
     from .sequence import filter_sequence
 
+    if stream:
+        if queries is not None or output is not None:
+            raise click.UsageError("--stream reads stdin (or --input) and writes stdout; drop QUERIES and -o.")
+        _localize_stream(load(model_path), input_path, follow, idle_timeout, window)
+        return
+    if input_path is not None or follow or idle_timeout is not None:
+        raise click.UsageError("--input, --follow and --idle-timeout only apply with --stream.")
+    if queries is None or output is None:
+        raise click.UsageError("give QUERIES and -o/--output (or use --stream).")
     model = load(model_path)
     Q = _load_matrix(queries, "query descriptors")
     predictions = model.predict(Q)
@@ -205,6 +256,37 @@ def localize(model_path: str, queries: str, output: str, window: int | None) -> 
         writer.writerow(["query", "prediction"])
         writer.writerows(zip(range(len(predictions)), predictions.tolist()))
     click.echo(f"{len(predictions)} predictions written to {output}")
+
+
+def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_timeout: float | None,
+                     window: int | None) -> None:
+    """The --stream loop: one flushed output line per well-formed input line."""
+    from .streaming import localize_stream
+
+    if follow and input_path is None:
+        raise click.UsageError("--follow needs --input FILE (stdin already waits for new lines).")
+    if idle_timeout is not None and not follow:
+        raise click.UsageError("--idle-timeout only applies with --follow.")
+    n_bad = n_out = 0
+
+    def report(line_number: int, message: str) -> None:
+        nonlocal n_bad
+        n_bad += 1
+        click.echo(f"error: line {line_number}: {message} (skipped)", err=True)
+
+    source = open(input_path) if input_path is not None else sys.stdin
+    try:
+        for _, place in localize_stream(model, source, window=window, on_error=report, follow=follow,
+                                        idle_timeout=idle_timeout):
+            click.echo(place)  # click.echo flushes: a reader of the pipe sees each line at once
+            n_out += 1
+    except KeyboardInterrupt:  # stopping a --follow stream is the normal way to end it
+        pass
+    finally:
+        if input_path is not None:
+            source.close()
+    if n_bad:
+        click.echo(f"{n_out} predictions; {n_bad} malformed line(s) skipped", err=True)
 
 
 @main.command(name="evaluate")
@@ -273,6 +355,46 @@ def info(model_path: str) -> None:
     _echo_storage(model)
     size = Path(model_path).stat().st_size
     click.echo(f"file size {size:,d} B (container overhead {size - model.nbytes:,d} B)")
+
+
+@main.command()
+@click.argument("name", metavar="NAME")
+@click.option("--data", "data_root", type=click.Path(file_okay=False), default=None,
+              help="Folder with summer/ and winter/ (default ../shared/data/nordland64).")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default="runs/experiments", show_default=True,
+              help="Runs folder; results go to OUT/NAME/.")
+@click.option("--cache", "cache_dir", type=click.Path(file_okay=False), default=None,
+              help="Descriptor cache (default OUT/cache).")
+@click.option("--quick", is_flag=True, help="Small version (first 300 frames, few points): for tests and smoke runs.")
+def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | None, quick: bool) -> None:
+    """Run one of the paper's experiments on Nordland (or 'all').
+
+    \b
+    NAME: accuracy | vs-n | vs-budget | feature-ratio | regions | sequence-filter | all
+    Each writes results.csv, results.json and PNG plots into OUT/NAME/; `btel report` turns the
+    latest runs into docs/results.md.
+    """
+    from .experiments import EXPERIMENTS, describe_row, run_experiment
+
+    names = list(EXPERIMENTS) if name == "all" else [name]
+    for n in names:
+        click.echo(f"experiment {n}{' (quick)' if quick else ''} …")
+        run = run_experiment(n, data_root=data_root, out_dir=out_dir, cache_dir=cache_dir, quick=quick,
+                             command=_command_line())
+        for row in run.rows:
+            click.echo("  " + describe_row(row))
+        click.echo(f"  written to {run.out_dir}")
+
+
+@main.command()
+@click.option("--runs", "runs_dir", type=click.Path(file_okay=False), default="runs/experiments", show_default=True)
+@click.option("--docs", "docs_dir", type=click.Path(file_okay=False), default="docs", show_default=True)
+def report(runs_dir: str, docs_dir: str) -> None:
+    """Write docs/results.md and docs/results.json (plus figures) from the latest experiment runs."""
+    from .report import write_report
+
+    path = write_report(runs_dir, docs_dir)
+    click.echo(f"written {path} and {path.with_suffix('.json')}")
 
 
 def _split(methods: str) -> list[str]:

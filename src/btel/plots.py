@@ -29,7 +29,14 @@ from matplotlib.ticker import FuncFormatter
 from .exceptions import InvalidParameterError
 from .storage import format_bytes
 
-__all__ = ["plot_recall_vs_tolerance", "plot_recall_vs_storage", "plot_recall_vs_n"]
+__all__ = [
+    "plot_recall_vs_tolerance",
+    "plot_recall_vs_storage",
+    "plot_recall_vs_n",
+    "plot_curves",
+    "plot_parameter_sweep",
+    "plot_experiment",
+]
 
 _FIGSIZE = (6.4, 4.4)
 _DPI = 120
@@ -211,3 +218,106 @@ def plot_recall_vs_n(
     matplotlib.figure.Figure
     """
     return _plot_rows(rows, path, x_key="n_places", xlabel="N (map places)", tolerance=tolerance, title=title)
+
+
+def plot_curves(
+    curves: Mapping[str, Sequence[float]], path: str | os.PathLike, *, title: str | None = None,
+    credit: str | None = None,
+) -> Figure:
+    """Recall (y) against tolerance t = 0, 1, … (x), one line per named curve."""
+    if not curves:
+        raise InvalidParameterError("nothing to plot: no curves.")
+    fig, ax = _new_figure()
+    for label, values in curves.items():
+        ax.step(np.arange(len(values)), values, where="post", label=label)
+    ax.set_xlabel("tolerance (frames)")
+    ax.set_ylabel("recall")
+    ax.set_ylim(0.0, 1.02)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize="x-small")
+    if title:
+        ax.set_title(title)
+    if credit:
+        fig.text(0.99, 0.005, credit, ha="right", va="bottom", fontsize="xx-small", color="grey")
+    _save(fig, path)
+    return fig
+
+
+def plot_parameter_sweep(
+    rows: Sequence[Mapping[str, Any]], path: str | os.PathLike, *, x_key: str, xlabel: str,
+    tolerances: Sequence[int] = (0, 5, 10, 20), title: str | None = None, credit: str | None = None,
+) -> Figure:
+    """Recall@t (y) against a parameter (x, linear axis), one line per tolerance t.
+
+    Rows are flat dicts with ``x_key`` and ``recall@<t>`` keys (the experiments' result rows).
+    """
+    ok = [r for r in rows if r.get("status", "ok") == "ok"]
+    if not ok:
+        raise InvalidParameterError("nothing to plot: no successful rows.")
+    ok.sort(key=lambda r: float(r[x_key]))
+    fig, ax = _new_figure()
+    xs = [float(r[x_key]) for r in ok]
+    for t in tolerances:
+        ax.plot(xs, [float(r[f"recall@{t}"]) for r in ok], marker="o", label=f"recall@{t}")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("recall")
+    ax.set_ylim(0.0, 1.02)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize="small")
+    if title:
+        ax.set_title(title)
+    if credit:
+        fig.text(0.99, 0.005, credit, ha="right", va="bottom", fontsize="xx-small", color="grey")
+    _save(fig, path)
+    return fig
+
+
+NORDLAND_CREDIT = "Nordland footage: NRK, CC BY 3.0"
+
+
+def _as_plot_rows(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Experiment rows (flat ``recall@t`` keys) → the row format of :func:`plot_recall_vs_n`."""
+    out = []
+    for r in rows:
+        if r.get("status", "ok") != "ok":
+            continue
+        recall = {int(k.split("@")[1]): v for k, v in r.items() if k.startswith("recall@")}
+        out.append({"method": r["method"], "bytes": r.get("nbytes"), "n_places": r["n_places"], "recall": recall})
+    return out
+
+
+def plot_experiment(run: Any, out_dir: str | os.PathLike) -> list[Path]:
+    """The plot(s) of one :class:`btel.experiments.ExperimentRun`, written as PNG into ``out_dir``."""
+    out_dir = Path(out_dir)
+    written: list[Path] = []
+    name = run.name
+    if name == "accuracy":
+        for direction in sorted({k.split(" ", 1)[1] for k in run.curves}):
+            curves = {k.split(" ", 1)[0]: v for k, v in run.curves.items() if k.endswith(direction)}
+            path = out_dir / f"recall_vs_tolerance_{direction.replace('→', '_to_')}.png"
+            plot_curves(curves, path, title=f"Nordland {direction}, ≤ 2 MB (brute force: no budget)",
+                        credit=NORDLAND_CREDIT)
+            written.append(path)
+    elif name == "sequence-filter":
+        path = out_dir / "sequence_filter.png"
+        plot_curves(run.curves, path, title="Sequence filter (a = 0, 5, 20)", credit=NORDLAND_CREDIT)
+        written.append(path)
+    elif name == "vs-n":
+        path = out_dir / "recall_vs_n.png"
+        plot_recall_vs_n(_as_plot_rows(run.rows), path, tolerance=10, title="recall@10 vs N")
+        written.append(path)
+    elif name == "vs-budget":
+        path = out_dir / "recall_vs_storage.png"
+        plot_recall_vs_storage(_as_plot_rows(run.rows), path, tolerance=10, title="recall@10 vs stored bytes")
+        written.append(path)
+    elif name == "feature-ratio":
+        path = out_dir / "recall_vs_feature_ratio.png"
+        plot_parameter_sweep(run.rows, path, x_key="feature_ratio", xlabel="feature ratio c = d'/d",
+                             title="BTE-C, r = 1", credit=NORDLAND_CREDIT)
+        written.append(path)
+    elif name == "regions":
+        path = out_dir / "recall_vs_regions.png"
+        plot_parameter_sweep(run.rows, path, x_key="n_regions", xlabel="regions r",
+                             title="BTEL, c = 0.1", credit=NORDLAND_CREDIT)
+        written.append(path)
+    return written

@@ -1,0 +1,90 @@
+"""The experiment harness (quick mode) on real Nordland frames, and the report built from it."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from btel.cli import main
+from btel.exceptions import BudgetExceededError, DataNotFoundError, InvalidParameterError
+from btel.experiments import EXPERIMENTS, NordlandData, _fit_row, run_experiment
+from btel.report import write_report
+
+
+@pytest.fixture(scope="module")
+def quick_runs(nordland_dir: Path, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("experiments")
+    for name in EXPERIMENTS:
+        run_experiment(name, data_root=nordland_dir, out_dir=out, cache_dir=out / "cache", quick=True, progress=False)
+    return out
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("name", list(EXPERIMENTS))
+def test_every_experiment_writes_rows_csv_and_plots(name: str, quick_runs: Path) -> None:
+    folder = quick_runs / name
+    payload = json.loads((folder / "results.json").read_text())
+    rows = payload["rows"]
+    assert rows, name
+    assert (folder / "results.csv").read_text().count("\n") == len(rows) + 1
+    assert list(folder.glob("*.png")), f"{name} wrote no plot"
+    for row in rows:
+        assert "nbytes" in row  # every row carries the method's bytes
+        if row["status"] == "ok":
+            if row["budget"] is not None:
+                assert row["nbytes"] <= row["budget"]
+            assert 0.0 <= row["recall@0"] <= row["recall@10"] <= row["recall@20"] <= 1.0
+        else:
+            assert row["minimum_bytes"] > row["budget"]
+    assert payload["run"]["descriptor"].startswith("HOG")
+
+
+@pytest.mark.realdata
+def test_report_has_every_section_and_keeps_marked_blocks(quick_runs: Path, tmp_path: Path) -> None:
+    docs = tmp_path / "docs"
+    docs.mkdir()
+    (docs / "results.md").write_text("old\n<!-- scale:start -->\nSCALE TABLE\n<!-- scale:end -->\n")
+    md = write_report(quick_runs, docs).read_text()
+    for name in EXPERIMENTS:
+        assert f"btel experiment {name} --quick" in md
+    assert "SCALE TABLE" in md and "old" not in md.splitlines()[0]
+    summary = json.loads((docs / "results.json").read_text())
+    assert set(summary) == set(EXPERIMENTS)
+    row = summary["vs-budget"]["rows"][0]
+    assert f"{row['recall@10']:.3f}" in md  # the markdown shows the same numbers as the JSON
+    assert all((docs / "figures").iterdir())
+
+
+@pytest.mark.realdata
+def test_a_method_over_its_budget_fails_the_run(nordland_dir: Path, tmp_path: Path, monkeypatch) -> None:
+    from btel.localizer import BTELocalizer
+
+    data = NordlandData(nordland_dir, tmp_path / "cache", progress=False, max_frames=100)
+    monkeypatch.setattr(BTELocalizer, "nbytes", property(lambda self: 10**9))
+    with pytest.raises(BudgetExceededError, match="over its budget"):
+        _fit_row("btel-c", data, budget="50KB", n_places=100)
+
+
+def test_bad_names_and_folders(tmp_path: Path) -> None:
+    with pytest.raises(InvalidParameterError, match="accuracy"):
+        run_experiment("nope", data_root=tmp_path)
+    with pytest.raises(DataNotFoundError, match="summer"):
+        run_experiment("regions", data_root=tmp_path / "missing")
+    result = CliRunner().invoke(main, ["report", "--runs", str(tmp_path / "none"), "--docs", str(tmp_path)])
+    assert result.exit_code != 0 and "btel experiment all" in result.output
+
+
+@pytest.mark.realdata
+def test_cli_experiment_quick(nordland_dir: Path, quick_runs: Path, tmp_path: Path) -> None:
+    out = tmp_path / "runs"
+    result = CliRunner().invoke(main, ["experiment", "feature-ratio", "--quick", "--data", str(nordland_dir),
+                                       "--out", str(out), "--cache", str(quick_runs / "cache")])
+    assert result.exit_code == 0, result.output
+    assert "BTE-C c=0.1" in result.output
+    rows = json.loads((out / "feature-ratio" / "results.json").read_text())["rows"]
+    assert [r["feature_ratio"] for r in rows] == [0.1, 0.3]
+    assert np.all(np.diff([r["nbytes"] for r in rows]) > 0)  # more columns, more bytes
