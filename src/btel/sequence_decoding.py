@@ -1,0 +1,303 @@
+"""Sequence decoding over places: an online HMM filter for any per-place score matrix.
+
+The robot moves forward along the mapped route; a query stream is decoded by a hidden Markov model
+whose states are the N places:
+
+- **emissions**: ``log p(query_t | place i) = score_t[i] / T`` for any method's per-place scores
+  (higher = more likely): BTEL's ``−place_costs`` (:func:`btel.ranking.place_costs`), negative
+  ADC distances of PQ/OPQ, negative Hamming distances of ITQ, negative L2 of brute force —
+  :func:`method_scores` builds them — so every method gets the same decoding (equal terms);
+- **transitions**: from place i to i + v, v ∈ {vmin … vmax} equally likely (forward motion), plus
+  an optional ``backward`` probability spread over i − 1 … i − vmax, plus a ``teleport``
+  probability spread over all N places (relocalisation after a wrong turn or a kidnapping).
+  Probability that would leave the route past its end is dropped (the belief is renormalised).
+
+:class:`HMMDecoder` is causal and streaming — ``update(scores) -> place`` — with O(N·V) work and
+O(N) memory per query (V = number of offsets) and no stored bytes. ``mode='forward'`` outputs the
+argmax of the filtered posterior p(place_t | queries_≤t); ``mode='viterbi'`` the end of the most
+likely path so far (max-product). :func:`decode_sequence` runs it over a whole score matrix.
+
+Compare with the paper's median filter (:func:`btel.sequence.filter_sequence`), which sees only
+each frame's single prediction, and with SeqSLAM's straight-line search
+(:func:`btel.baselines.seqslam_match`), which needs the whole difference matrix of the last ds
+frames (O(N·ds) memory).
+"""
+
+from __future__ import annotations
+
+import numbers
+from typing import Any
+
+import numpy as np
+
+from ._validation import check_descriptors, check_is_fitted, check_positive_int
+from .exceptions import InvalidParameterError
+
+__all__ = ["HMMDecoder", "decode_sequence", "zscore_rows", "method_scores", "transition_kernel", "MODES"]
+
+MODES = ("forward", "viterbi")
+
+
+def _check_probability(value: Any, name: str, *, upper_open: bool = True) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not np.isfinite(value):
+        raise InvalidParameterError(f"{name} must be a number in [0, 1); got {value!r}.")
+    if not 0 <= value < 1:
+        raise InvalidParameterError(f"{name} must be in [0, 1); got {value!r}.")
+    return float(value)
+
+
+def transition_kernel(vmin: int = 0, vmax: int = 2, backward: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Place offsets a step can make and their probabilities (before the teleport share).
+
+    Parameters
+    ----------
+    vmin, vmax : int
+        Forward offsets vmin … vmax (0 ≤ vmin ≤ vmax), equally likely.
+    backward : float in [0, 1)
+        Probability of a backward offset −1 … −max(vmax, 1), equally likely.
+
+    Returns
+    -------
+    offsets : ndarray of shape (V,), int64
+    weights : ndarray of shape (V,), float64, summing to 1
+    """
+    vmin = check_positive_int(vmin, "vmin", minimum=0)
+    vmax = check_positive_int(vmax, "vmax", minimum=0)
+    if vmax < vmin:
+        raise InvalidParameterError(f"vmax must be ≥ vmin; got vmin={vmin}, vmax={vmax}.")
+    backward = _check_probability(backward, "backward")
+    forward = np.arange(vmin, vmax + 1, dtype=np.int64)
+    weights = np.full(forward.size, (1.0 - backward) / forward.size)
+    if backward > 0:
+        back = -np.arange(1, max(vmax, 1) + 1, dtype=np.int64)
+        forward = np.concatenate([forward, back])
+        weights = np.concatenate([weights, np.full(back.size, backward / back.size)])
+    return forward, weights
+
+
+class HMMDecoder:
+    """Streaming HMM filter over N places: feed one per-place score vector per query.
+
+    Parameters
+    ----------
+    n_places : int
+        N.
+    temperature : float > 0
+        T: emission log-likelihood = score / T. Smaller trusts each frame more.
+    vmin, vmax : int
+        Forward motion per query, in places.
+    backward : float in [0, 1)
+        Probability of moving back 1 … vmax places.
+    teleport : float in [0, 1)
+        Probability of jumping anywhere (uniform); > 0 lets the filter recover from a wrong lock.
+    mode : {'forward', 'viterbi'}
+        Filtered posterior (sum-product) or the best path's end (max-product).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> dec = HMMDecoder(5, temperature=1.0, vmax=1)
+    >>> [dec.update(np.eye(5)[i] * 3) for i in range(5)]
+    [0, 1, 2, 3, 4]
+    """
+
+    def __init__(
+        self,
+        n_places: int,
+        *,
+        temperature: float = 1.0,
+        vmin: int = 0,
+        vmax: int = 2,
+        backward: float = 0.0,
+        teleport: float = 1e-3,
+        mode: str = "forward",
+    ) -> None:
+        self.n_places = check_positive_int(n_places, "n_places")
+        if isinstance(temperature, bool) or not isinstance(temperature, numbers.Real) \
+                or not np.isfinite(temperature) or temperature <= 0:
+            raise InvalidParameterError(f"temperature must be a positive number; got {temperature!r}.")
+        if mode not in MODES:
+            raise InvalidParameterError(f"mode must be one of {MODES}; got {mode!r}.")
+        self.temperature = float(temperature)
+        self.teleport = _check_probability(teleport, "teleport")
+        self.offsets, self.weights = transition_kernel(vmin, vmax, backward)
+        self.mode = mode
+        # Max-product: the exact log transition probability of an offset move includes the
+        # teleport share that also lands there.
+        self._log_weights = np.log((1.0 - self.teleport) * self.weights + self.teleport / self.n_places)
+        self._belief: np.ndarray | None = None
+
+    def reset(self) -> None:
+        """Forget the past (start of a new run, or after the robot was moved)."""
+        self._belief = None
+
+    @property
+    def belief(self) -> np.ndarray | None:
+        """Current state over places, shape (N,), float64: the posterior (forward mode, sums to 1)
+        or the best path's log-score minus its maximum (Viterbi); None before the first update."""
+        return None if self._belief is None else self._belief.copy()
+
+    def _check_scores(self, scores: Any) -> np.ndarray:
+        s = np.asarray(scores, dtype=np.float64)
+        if s.shape != (self.n_places,):
+            raise InvalidParameterError(f"scores must have shape ({self.n_places},) (one per place); got {s.shape}.")
+        if not np.isfinite(s).all():
+            raise InvalidParameterError("scores contain NaN or infinite values.")
+        return s
+
+    def _shifted(self, values: np.ndarray, combine: str) -> np.ndarray:
+        """Σ_o w_o·values[i − o] (forward) or max_o (values[i − o] + log w_o) (Viterbi), per place i."""
+        n = self.n_places
+        viterbi = combine == "max"
+        out = np.full(n, -np.inf) if viterbi else np.zeros(n)
+        weights = self._log_weights if viterbi else self.weights
+        for o, w in zip(self.offsets.tolist(), weights.tolist()):
+            if abs(o) >= n:  # a step longer than the route lands nowhere
+                continue
+            dst = out[o:] if o >= 0 else out[: n + o]
+            src = values[: n - o] if o >= 0 else values[-o:]
+            if viterbi:
+                np.maximum(dst, src + w, out=dst)
+            else:
+                dst += w * src
+        return out
+
+    def update(self, scores: Any) -> int:
+        """Take one query's per-place scores (shape (N,), higher = better); return the place."""
+        s = self._check_scores(scores)
+        log_e = (s - s.max()) / self.temperature
+        if self.mode == "forward":
+            if self._belief is None:
+                prior = np.full(self.n_places, 1.0 / self.n_places)
+            else:
+                moved = self._shifted(self._belief, "sum")
+                total = moved.sum()
+                moved = moved / total if total > 0 else np.full(self.n_places, 1.0 / self.n_places)
+                prior = (1.0 - self.teleport) * moved + self.teleport / self.n_places
+            post = prior * np.exp(log_e)
+            total = post.sum()
+            # Every place impossible (no teleport, a belief that left the route): start afresh.
+            self._belief = post / total if total > 0 else np.exp(log_e) / np.exp(log_e).sum()
+        else:
+            if self._belief is None:
+                delta = log_e
+            else:
+                moved = self._shifted(self._belief, "max")
+                if self.teleport > 0:
+                    moved = np.maximum(moved, np.log(self.teleport / self.n_places) + self._belief.max())
+                delta = moved + log_e
+                if not np.isfinite(delta.max()):
+                    delta = log_e
+            self._belief = delta - delta.max()
+        return int(np.argmax(self._belief))
+
+
+def decode_sequence(
+    scores: Any,
+    *,
+    temperature: float = 1.0,
+    vmin: int = 0,
+    vmax: int = 2,
+    backward: float = 0.0,
+    teleport: float = 1e-3,
+    mode: str = "forward",
+    resets: Any = None,
+) -> np.ndarray:
+    """Run :class:`HMMDecoder` over consecutive queries (rows of ``scores``, in travel order).
+
+    Parameters
+    ----------
+    scores : array-like of shape (n_queries, N)
+        Per-place scores, higher = more likely (e.g. ``-btel.ranking.place_costs(model, Q)``).
+    temperature, vmin, vmax, backward, teleport, mode
+        As in :class:`HMMDecoder`.
+    resets : array-like of int, optional
+        Query rows at which the decoder forgets its past (the start of separate runs).
+
+    Returns
+    -------
+    ndarray of shape (n_queries,), int64, values in [0, N)
+    """
+    S = np.asarray(scores)
+    if S.ndim != 2 or S.shape[0] == 0:
+        raise InvalidParameterError(f"scores must be a non-empty 2-D array (n_queries, N); got shape {S.shape}.")
+    decoder = HMMDecoder(S.shape[1], temperature=temperature, vmin=vmin, vmax=vmax, backward=backward,
+                         teleport=teleport, mode=mode)
+    reset_rows = set() if resets is None else {int(r) for r in np.asarray(resets).ravel()}
+    out = np.empty(S.shape[0], dtype=np.int64)
+    for j in range(S.shape[0]):
+        if j in reset_rows:
+            decoder.reset()
+        out[j] = decoder.update(S[j])
+    return out
+
+
+def zscore_rows(scores: Any) -> np.ndarray:
+    """Each row minus its mean, divided by its standard deviation (1 where constant).
+
+    Makes one temperature comparable across methods whose scores live on different scales.
+
+    Returns
+    -------
+    ndarray of the same shape, float64
+    """
+    S = np.asarray(scores, dtype=np.float64)
+    if S.ndim != 2:
+        raise InvalidParameterError(f"scores must be 2-D (n_queries, N); got shape {S.shape}.")
+    std = S.std(axis=1, keepdims=True)
+    return (S - S.mean(axis=1, keepdims=True)) / np.where(std > 0, std, 1.0)
+
+
+def method_scores(model: Any, Q: Any, *, region_weight: float = 1.0) -> np.ndarray:
+    """Per-place scores (higher = more likely) of any fitted method, for :func:`decode_sequence`.
+
+    - compressed BTEL: ``−place_costs`` (:mod:`btel.ranking`);
+    - RYTH: its soft-decode score ``Σ_k score_k[i mod p_k]``;
+    - an object with its own ``place_scores(Q)`` (e.g. :class:`btel.tolerant.TolerantLocalizer`);
+    - PQ / OPQ: negative asymmetric (ADC) squared distances; ITQ: negative Hamming distances;
+      brute force: negative squared L2 — one faiss search with k = number of map rows;
+    - anything else that ranks: minus the rank position (a place's score is −its rank).
+
+    With several map rows per place, a place scores its best row.
+
+    Returns
+    -------
+    ndarray of shape (n_queries, N), float64
+    """
+    from .localizer import BTELocalizer
+    from .ryth import RYTHLocalizer
+
+    check_is_fitted(model, "n_places_")
+    if hasattr(model, "place_scores"):
+        return np.asarray(model.place_scores(Q), dtype=np.float64)
+    if isinstance(model, BTELocalizer):
+        from .ranking import place_costs
+
+        return -place_costs(model, Q, region_weight=region_weight)
+    if isinstance(model, RYTHLocalizer):  # its soft-decode score: Σ_k score_k[i mod p_k]
+        blocks = [total for _, total in model._place_scores(model.decision_function(Q))]
+        return np.concatenate(blocks).astype(np.float64)
+    Qc = check_descriptors(Q, name="Q", n_features=model.n_features_in_)
+    n = int(model.n_places_)
+    index = getattr(model, "_get_index", None)
+    if index is not None:
+        if hasattr(model, "encode_centred"):  # ITQ: binary codes, Hamming distance
+            queries = model.encode_centred(Qc - model.mean_)
+        elif hasattr(model, "transform"):  # PQ / OPQ: the (projected) query stays in float
+            queries = model.transform(Qc)
+        else:  # brute force
+            queries = Qc
+        idx = index()
+        dist, rows = idx.search(queries, idx.ntotal)
+        values = -dist.astype(np.float64)
+    else:
+        rows = model.rank(Qc, k=n)
+        values = -np.broadcast_to(np.arange(rows.shape[1], dtype=np.float64), rows.shape)
+    row_places = getattr(model, "row_places_", None)
+    places = rows if row_places is None else np.asarray(row_places, dtype=np.int64)[rows]
+    out = np.full((Qc.shape[0], n), -np.inf)
+    # Rows come best first, so the first write per place is its best row: write in reverse.
+    q_idx = np.repeat(np.arange(Qc.shape[0]), rows.shape[1]).reshape(rows.shape)
+    out[q_idx[:, ::-1], places[:, ::-1]] = values[:, ::-1]
+    out[~np.isfinite(out)] = values.min() if values.size else 0.0
+    return out
