@@ -137,6 +137,11 @@ def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path
         reading = _reading(name, rows)
         if reading:
             lines += ["Reading (computed from the table):", ""] + [f"- {s}" for s in reading] + [""]
+    missing = [name for name in EXPERIMENTS if name not in found]
+    if missing:
+        lines += ["## Not yet run", "",
+                  "No results yet for: " + ", ".join(f"{_TITLES[n]} (`btel experiment {n}`)" for n in missing)
+                  + ". Run them and `btel report` again.", ""]
     reading_path = Path(reading_file) if reading_file else docs_dir / "reading.md"
     if reading_path.is_file():
         lines += ["## Reading", "", reading_path.read_text().strip(), ""]
