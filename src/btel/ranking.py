@@ -37,25 +37,18 @@ from typing import Any
 import numpy as np
 
 from ._validation import check_descriptors, check_is_fitted, check_positive_int
+from .encoding import _check_margins as _check_decode_margins
 from .encoding import bit_codes, n_bits_for
-from .exceptions import InvalidParameterError, NotEnoughPlacesError
+from .exceptions import InvalidParameterError
 
 __all__ = ["kbest_codes", "soft_scores", "tree_layout", "region_deficits", "place_costs", "rank_places"]
 
 
 def _check_margins(margins: Any, n_places: int) -> tuple[np.ndarray, int, int]:
-    m = np.asarray(margins, dtype=np.float64)
-    if m.ndim != 2:
-        raise InvalidParameterError(f"margins must be 2-D (n_queries, n_bits); got shape {m.shape}.")
-    n = check_positive_int(n_places, "n_places")
-    if n < 2:
-        raise NotEnoughPlacesError("N must be at least 2 to rank place indices.")
-    b = n_bits_for(n)
-    if m.shape[1] != b:
-        raise InvalidParameterError(f"N = {n} needs {b} bit margins per query; got {m.shape[1]}.")
+    m, n = _check_decode_margins(margins, n_places)  # the decoders' shape and N checks
     if not np.isfinite(m).all():
         raise InvalidParameterError("margins contain NaN or infinite values; rank the margins of one tree only.")
-    return m, n, b
+    return m, n, m.shape[1]
 
 
 def _kbest_one(margins: list[float], n_places: int, k: int) -> tuple[list[int], list[float]]:
