@@ -404,7 +404,12 @@ def results_section(payload: dict[str, Any]) -> str:
         f"Target shape b = {shape['n_bits']}, d' = {shape['n_selected']}, d = {shape['dim']} (random weights; see the "
         f"script's docstring): single query {shape['single_us']:.1f} µs (median), batch "
         f"{shape['batch_qps']:,.0f} queries/s; with BLAS limited to one thread {shape['single_us_1_blas_thread']:.1f} µs "
-        f"and {shape['batch_qps_1_blas_thread']:,.0f} queries/s.",
+        f"and {shape['batch_qps_1_blas_thread']:,.0f} queries/s."
+        + (f" Re-measured on its own ({shape['command']}, {shape['remeasured']}, load average "
+           f"{shape['load_before'][0]:.1f}) after the finiteness check of the queries was made cheaper "
+           "(a BLAS row-sum screen instead of a boolean mask: it had been 16 of 58 ms per 20,000-query batch); "
+           "the first full run, on a machine at load 4–7, measured 123,161 queries/s."
+           if "remeasured" in shape else ""),
         "",
         f"KTS at N = {kts['n_places']:,d} (block path, blocks of {kts['block_size']} places, exact DP on the block "
         f"means, boundaries refined within one block): r = 20 in {kts['r20_s']:.1f} s, finding "
@@ -446,6 +451,37 @@ def write_docs_section(text: str) -> Path:
 
 
 # ----------------------------------------------------------------------------- main
+def shape_targets(shape: dict[str, Any]) -> list[dict[str, Any]]:
+    """The two targets measured on the synthetic b = 20, d' = 410, d = 4096 model."""
+    return [
+        {"target": "BTE-C single query ≤ 20 µs at b = 20, d' = 410", "measured": f"{shape['single_us']:.1f} µs",
+         "met": shape["single_us"] <= 20},
+        {"target": "batch predict ≥ 200k queries/s (b = 20, d' = 410, d = 4096)",
+         "measured": f"{shape['batch_qps']:,.0f} q/s ({shape['batch_qps_1_blas_thread']:,.0f} q/s with one BLAS thread)",
+         "met": shape["batch_qps"] >= 200_000},
+    ]
+
+
+def remeasure_target_shape(model_dir: Path) -> None:
+    """Measure the target shape again and replace its rows in the stored full run (load recorded)."""
+    path = RESULTS_DIR / "bench_scale.json"
+    payload = json.loads(path.read_text())
+    model_dir.mkdir(parents=True, exist_ok=True)
+    load_before = os.getloadavg()
+    shape = target_shape(model_dir)
+    shape.update(remeasured=time.strftime("%Y-%m-%d %H:%M"), load_before=list(load_before),
+                 load_after=list(os.getloadavg()),
+                 command="python benchmarks/bench_scale.py --target-shape-only")
+    payload["target_shape"] = shape
+    new = shape_targets(shape)
+    names = {t["target"] for t in new}
+    payload["targets"] = new + [t for t in payload["targets"] if t["target"] not in names]
+    path.write_text(json.dumps(payload, indent=1) + "\n")
+    for t in new:
+        print(f"{'MET   ' if t['met'] else 'MISSED'} {t['target']}: {t['measured']}")
+    print(f"updated {path}; run with --docs-only to refresh docs/results.md")
+
+
 def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "_fit":
         child = argparse.ArgumentParser()
@@ -462,12 +498,18 @@ def main() -> None:
     parser.add_argument("--data-dir", type=Path, default=Path(tempfile.gettempdir()) / "btel-bench-scale")
     parser.add_argument("--quick", action="store_true", help="N ≤ 30k; results go to bench_scale_quick.*")
     parser.add_argument("--no-docs", action="store_true", help="do not rewrite docs/results.md")
+    parser.add_argument("--target-shape-only", action="store_true",
+                        help="re-measure only the b = 20, d' = 410, d = 4096 shape (a few seconds) and update its rows in "
+                             "benchmarks/results/bench_scale.json; the fits and fitted-model throughput stay as measured")
     parser.add_argument("--docs-only", action="store_true",
                         help="rewrite the docs/results.md section from benchmarks/results/bench_scale.json; measure nothing")
     args = parser.parse_args()
     if args.docs_only:
         payload = json.loads((RESULTS_DIR / "bench_scale.json").read_text())
         print(f"section written to {write_docs_section(results_section(payload))}")
+        return
+    if args.target_shape_only:
+        remeasure_target_shape(args.data_dir / "models")
         return
     if args.quick:
         args.sizes, args.speed_sizes = [1_000, 3_000, 10_000, 30_000], [30_000]
@@ -509,12 +551,7 @@ def main() -> None:
           f"{kts['auto_r_le_50_s']:.1f} s", flush=True)
 
     big = [f for f in fits if f["regions_requested"] == 1 and f["n_places"] == max(args.sizes)][0]
-    targets = [
-        {"target": "BTE-C single query ≤ 20 µs at b = 20, d' = 410", "measured": f"{shape['single_us']:.1f} µs",
-         "met": shape["single_us"] <= 20},
-        {"target": "batch predict ≥ 200k queries/s (b = 20, d' = 410, d = 4096)",
-         "measured": f"{shape['batch_qps']:,.0f} q/s ({shape['batch_qps_1_blas_thread']:,.0f} q/s with one BLAS thread)",
-         "met": shape["batch_qps"] >= 200_000},
+    targets = shape_targets(shape) + [
         {"target": f"batch predict ≥ 200k queries/s (fitted BTE-C, N = {speed[0]['n_places']:,d}…, d = {DIM})",
           "measured": ", ".join(f"{s['batch_qps']:,.0f} q/s at N = {s['n_places']:,d} ({s['threads']} thr)"
                                for s in speed if s["method"] == "BTE-C"),

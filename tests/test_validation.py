@@ -294,3 +294,26 @@ def test_budget_too_small_names_the_minimum(X, scheme: str, dtype: str) -> None:
     assert model.n_selected_ == 1 and model.nbytes == err.minimum
     with pytest.raises(BudgetTooSmallError):
         BTELocalizer(budget=err.minimum - 1, scheme=scheme, dtype=dtype, progress=False).fit(X)
+
+
+# The finiteness screen sums rows with BLAS and only falls back to the exact element check when a
+# sum is not finite; these cases pin both branches.
+def test_huge_finite_values_are_not_mistaken_for_inf() -> None:
+    X = np.full((6, 8), 3e38, dtype=np.float32)  # every row sum overflows float32
+    assert check_descriptors(X) is X
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+@pytest.mark.parametrize("shape,where", [((5, 3), (4, 2)), ((3000, 2048), (2999, 0)), ((3000, 2048), (1500, 7))])
+def test_first_non_finite_value_is_located(bad: float, shape: tuple[int, int], where: tuple[int, int]) -> None:
+    X = np.zeros(shape, dtype=np.float32)
+    X[where] = bad
+    with pytest.raises(InvalidDescriptorsError, match=f"row {where[0]}, column {where[1]}"):
+        check_descriptors(X)
+
+
+def test_opposite_infinities_in_one_row_are_caught() -> None:
+    X = np.ones((4, 4), dtype=np.float32)
+    X[2, 0], X[2, 3] = np.inf, -np.inf
+    with pytest.raises(InvalidDescriptorsError, match="row 2, column 0"):
+        check_descriptors(X)
