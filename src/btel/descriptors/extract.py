@@ -144,8 +144,12 @@ def extract_cached(
             return np.load(output, allow_pickle=False), True
     X = extract_descriptors(paths, model, fit_on=fit_on, progress=progress)
     output.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(str(output) + ".part.npy")
+    # One temporary name per process: two runs filling the same cache at once (two experiments
+    # started together) each write their own file, and the last atomic rename wins.
+    tmp = output.with_name(f"{output.name}.{os.getpid()}.part.npy")
     np.save(tmp, X)
     os.replace(tmp, output)
-    sidecar.write_text(json.dumps(key, indent=1))
+    tmp_sidecar = sidecar.with_name(f"{sidecar.name}.{os.getpid()}.part")
+    tmp_sidecar.write_text(json.dumps(key, indent=1))
+    os.replace(tmp_sidecar, sidecar)
     return X, False
