@@ -59,7 +59,6 @@ from btel.ranking import rank_places  # noqa: E402
 from btel.sequence import filter_sequence  # noqa: E402
 from btel.sequence_decoding import decode_sequence, method_scores, zscore_rows  # noqa: E402
 from btel.storage import format_bytes, parse_budget  # noqa: E402
-from btel.tolerant import TolerantLocalizer  # noqa: E402
 
 SEASONS = ("summer", "winter")
 STRETCH = 200
@@ -159,7 +158,8 @@ def load(cache: Path, season: str, descriptor: str, quick: int | None) -> np.nda
 
 
 def evaluate_method(label: str, model: Any, X: np.ndarray, Q: np.ndarray, val: np.ndarray, rep: np.ndarray,
-                    base: dict, *, ranker: Callable | None = None, scores: bool = True) -> dict[str, Any]:
+                    base: dict, *, ranker: Callable | None = None, scores: bool = True,
+                    region_weight: float = 1.0) -> dict[str, Any]:
     """Fit (if needed), then single-frame recall and R@K on validation and reported queries."""
     t0 = time.perf_counter()
     if not hasattr(model, "n_places_"):
@@ -174,8 +174,8 @@ def evaluate_method(label: str, model: Any, X: np.ndarray, Q: np.ndarray, val: n
         row.update(r_at_k(ranked, rep))
     extra = {"model": model, "pred_val": pred_val, "pred_rep": pred_rep}
     if scores:
-        extra["S_val"] = zscore_rows(method_scores(model, Q[val])).astype(np.float32)
-        extra["S_rep"] = zscore_rows(method_scores(model, Q[rep])).astype(np.float32)
+        extra["S_val"] = zscore_rows(method_scores(model, Q[val], region_weight=region_weight)).astype(np.float32)
+        extra["S_rep"] = zscore_rows(method_scores(model, Q[rep], region_weight=region_weight)).astype(np.float32)
     return {"row": row, **extra}
 
 
@@ -224,7 +224,7 @@ def run_direction(map_season: str, budget: int, args: argparse.Namespace) -> dic
             label = f"BTE-C soft+ranked C={C:g}"
             ranker = lambda q, m=model: rank_places(m, q, max(KS))[0]  # noqa: E731
         else:
-            model = TolerantLocalizer(btel(C=C), block_size=B)
+            model = btel(C=C, block_size=B)
             label = f"BTE-C tolerant B={B} C={C:g}"
             ranker = None
         res = evaluate_method(label, model, X, Q, val, rep, {**base, "family": "btel", "C": C, "block_size": B},
@@ -236,9 +236,10 @@ def run_direction(map_season: str, budget: int, args: argparse.Namespace) -> dic
     for alpha in REGION_WEIGHTS:
         model = btel(C=best_C, n_regions=20, decode="soft")
         label = f"BTEL r=20 C={best_C:g} α={alpha:g}"
-        tol = TolerantLocalizer(model, block_size=1, region_weight=alpha)  # B = 1: scores with weight α
-        res = evaluate_method(label, tol, X, Q, val, rep, {**base, "family": "btel", "C": best_C, "block_size": 1,
-                                                            "n_regions": 20, "region_weight": alpha})
+        ranker = lambda q, m=model, a=alpha: rank_places(m, q, max(KS), region_weight=a)[0]  # noqa: E731
+        res = evaluate_method(label, model, X, Q, val, rep, {**base, "family": "btel", "C": best_C, "block_size": 1,
+                                                              "n_regions": 20, "region_weight": alpha},
+                              ranker=ranker, region_weight=alpha)
         variants.append(res)
         log(label, f"val {res['row']['val_recall@10']:.3f} rep {res['row']['recall@10']:.3f}")
     for res in variants:

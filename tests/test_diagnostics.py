@@ -10,7 +10,6 @@ from btel.datasets import synthetic_route
 from btel.diagnostics import bit_accuracy, localizer_bit_accuracy, plot_bit_accuracy
 from btel.encoding import encode
 from btel.exceptions import InvalidParameterError
-from btel.tolerant import TolerantLocalizer
 
 
 def test_bit_accuracy_counts():
@@ -71,10 +70,16 @@ def test_regions_use_the_true_regions_tree(route):
 
 
 def test_tolerant_model_uses_block_bits(route):
-    tol = TolerantLocalizer(BTELocalizer(feature_ratio=0.5, progress=False, random_state=0), block_size=4)
-    tol.fit(route.map)
+    tol = BTELocalizer(feature_ratio=0.5, progress=False, random_state=0, block_size=4).fit(route.map)
     d = localizer_bit_accuracy(tol, route.queries, np.arange(300))
     expected = ((tol.decision_function(route.queries) > 0) == encode(np.arange(300) // 4, 7)).mean(axis=0)
+    np.testing.assert_allclose(d.accuracy, expected)
+
+
+def test_offset_code_model_scores_its_plain_bits(route):
+    model = BTELocalizer(feature_ratio=0.5, progress=False, random_state=0, code_copies=2).fit(route.map)
+    d = localizer_bit_accuracy(model, route.queries, np.arange(300))
+    expected = ((model.decision_function(route.queries)[:, :9] > 0) == encode(np.arange(300), 9)).mean(axis=0)
     np.testing.assert_allclose(d.accuracy, expected)
 
 

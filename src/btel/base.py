@@ -68,6 +68,42 @@ class PlaceLocalizer(BaseEstimator):
         """Return the ``k`` most likely places per query, best first (shape (n_queries, k), int64)."""
         raise NotImplementedError(f"{type(self).__name__} does not rank candidates; use predict().")
 
+    def predict_sequence(self, Q: Any, decoder: str = "hmm", **options: Any) -> np.ndarray:
+        """Place of each query of one ordered sequence (a traverse), decoded over time.
+
+        No extra stored bytes: the decoders read only this model's per-query output.
+
+        Parameters
+        ----------
+        Q : array-like of shape (n_queries, n_features)
+            Consecutive frames of one traverse, in order.
+        decoder : {'hmm', 'median'}
+            'hmm': online forward filtering over places with the per-place scores
+            (:func:`btel.sequence_decoding.method_scores`, z-scored per frame) as emissions and
+            forward motion as transitions (:class:`btel.sequence_decoding.HMMDecoder`; options
+            ``temperature``, ``vmin``, ``vmax``, ``backward``, ``teleport``). 'median': the
+            paper's filter on single-frame predictions (:func:`btel.sequence.filter_sequence`;
+            option ``window``, default 5).
+
+        Returns
+        -------
+        ndarray of shape (n_queries,), int64 in [0, N)
+        """
+        from .exceptions import InvalidParameterError
+
+        if decoder == "median":
+            from .sequence import filter_sequence
+
+            unknown = set(options) - {"window"}
+            if unknown:
+                raise InvalidParameterError(f"decoder='median' takes only window; got {sorted(unknown)}.")
+            return filter_sequence(self.predict(Q), int(options.get("window", 5)), n_places=int(self.n_places_))
+        if decoder == "hmm":
+            from .sequence_decoding import decode_sequence, method_scores, zscore_rows
+
+            return decode_sequence(zscore_rows(method_scores(self, Q)), **options)
+        raise InvalidParameterError(f"decoder must be 'hmm' or 'median'; got {decoder!r}.")
+
     def storage_breakdown(self) -> dict[str, int]:
         """Bytes of each stored array that inference reads (SPEC §7).
 

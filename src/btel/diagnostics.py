@@ -15,7 +15,7 @@ whose margin has the sign of their true place's bit, next to two references:
 
 :func:`localizer_bit_accuracy` measures a fitted BTEL model (each query on its *true* region's
 tree, so that region errors do not mix in; the region accuracy is reported on its own), or a
-:class:`~btel.tolerant.TolerantLocalizer` (bits of the true block). :func:`plot_bit_accuracy`
+ ``block_size > 1`` (bits of the true block). :func:`plot_bit_accuracy`
 draws the curves (matplotlib Agg, like :mod:`btel.plots`).
 """
 
@@ -129,7 +129,7 @@ def bit_accuracy(margins: Any, true_bits: Any) -> BitDiagnostics:
 
 
 def localizer_bit_accuracy(model: Any, Q: Any, true_places: Any) -> BitDiagnostics:
-    """Per-level bit accuracy of a fitted compressed BTEL model (or TolerantLocalizer) on queries.
+    """Per-level bit accuracy of a fitted compressed BTEL model on queries.
 
     Each query is read by its true region's tree (levels are that tree's own, MSB = 1; a tree with
     fewer bits leaves NaN at the deeper levels), so the figure isolates the bit classifiers; the
@@ -137,8 +137,9 @@ def localizer_bit_accuracy(model: Any, Q: Any, true_places: Any) -> BitDiagnosti
 
     Parameters
     ----------
-    model : BTELocalizer or TolerantLocalizer
-        Fitted, ``scheme='compressed'``.
+    model : BTELocalizer
+        Fitted, ``scheme='compressed'``. With ``block_size > 1`` the bits are the true block's;
+        with ``code_copies > 1`` only the b plain bits are scored.
     Q : array-like of shape (n_queries, n_features)
     true_places : array-like of int, shape (n_queries,)
         True place of each query (frame-aligned: ``np.arange(n_queries)`` for the first rows).
@@ -149,14 +150,12 @@ def localizer_bit_accuracy(model: Any, Q: Any, true_places: Any) -> BitDiagnosti
     """
     check_is_fitted(model, "n_places_")
     truth = np.asarray(true_places, dtype=np.int64)
-    if hasattr(model, "localizer_"):  # a TolerantLocalizer: the tree's places are blocks
-        truth = truth // int(model.block_size_)
-        model = model.localizer_
     Qc = check_descriptors(Q, name="Q", n_features=model.n_features_in_)
     if truth.shape != (Qc.shape[0],) or truth.min(initial=0) < 0 or truth.max(initial=0) >= model.n_places_:
         raise InvalidParameterError(
             f"true_places must hold one place in [0, {model.n_places_}) per query row ({Qc.shape[0]})."
         )
+    truth = truth // int(getattr(model, "block_size_", 1))  # the trees index blocks
     starts, sizes, offsets = tree_layout(model)
     region = np.searchsorted(starts, truth, side="right") - 1
     all_margins = model.hyperplanes_.margins(Qc).astype(np.float64)
@@ -169,7 +168,7 @@ def localizer_bit_accuracy(model: Any, Q: Any, true_places: Any) -> BitDiagnosti
         if n_k < 2:
             continue
         b_k = n_bits_for(n_k)
-        margins[rows, :b_k] = all_margins[rows, offsets[k] : offsets[k + 1]]
+        margins[rows, :b_k] = all_margins[rows, offsets[k] : offsets[k] + b_k]
         bits[rows, :b_k] = encode(truth[rows] - starts[k], b_k)
     out = bit_accuracy(margins, bits)
     if int(model.n_regions_) > 1:

@@ -107,6 +107,7 @@ def fit_linear(
     max_iter: int = 1000,
     random_state: int | None = None,
     dtype: np.dtype = np.dtype(np.float32),
+    sample_weight: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, bool]:
     """Train one (binary or one-vs-rest) linear classifier on ``X[:, columns]``, standardised.
 
@@ -121,6 +122,8 @@ def fit_linear(
         Training statistics of all n_features_in columns.
     dtype : numpy dtype
         Stored weight dtype (float32 or float16).
+    sample_weight : ndarray of shape (n_samples,), optional
+        Per-row weight in liblinear's loss (multi-exemplar training).
 
     Returns
     -------
@@ -136,7 +139,7 @@ def fit_linear(
     model = _make_classifier(classifier, C, max_iter, random_state, _use_dual(*Xs.shape))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
-        model.fit(Xs, labels)
+        model.fit(Xs, labels, sample_weight=sample_weight)
     # liblinear's own test (it warns when n_iter_ ≥ max_iter). Not recorded warnings: the warning
     # registry is process-global, so threads fitting at once lost each other's warnings and
     # n_unconverged_ changed with n_jobs.

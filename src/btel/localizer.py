@@ -11,7 +11,14 @@ from tqdm.auto import tqdm
 
 from ._validation import check_descriptors, check_is_fitted, check_places, check_positive_int
 from .base import PlaceLocalizer, register_model
-from .compressed import DECODERS, compressed_n_classifiers, compressed_tasks, decode_margins
+from .compressed import (
+    DECODERS,
+    code_signs,
+    compressed_n_classifiers,
+    compressed_tasks,
+    decode_code,
+    decode_margins,
+)
 from .distributed import check_backend
 from .encoding import n_bits_for
 from .exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError, NotEnoughPlacesError
@@ -22,14 +29,34 @@ from .segmentation import kts_penalised_costs, kts_regions, kts_segmentations, r
 from .storage import format_bytes, parse_budget
 from .training import Task, fit_tasks, one_vs_rest_tasks
 
-__all__ = ["BTELocalizer", "planned_bytes"]
+__all__ = ["BTELocalizer", "planned_bytes", "block_centres", "block_size_for_tolerance"]
 
 SCHEMES = ("compressed", "full")
 WEIGHT_DTYPES = ("float32", "float16")
 
 
-def _n_classifiers(scheme: str, n_places: int) -> int:
-    return compressed_n_classifiers(n_places) if scheme == "compressed" else full_n_classifiers(n_places)
+def _n_classifiers(scheme: str, n_places: int, code_copies: int = 1) -> int:
+    if scheme == "compressed":
+        return compressed_n_classifiers(n_places, code_copies)
+    return full_n_classifiers(n_places)
+
+
+def block_centres(codes: np.ndarray, block_size: int, n_places: int) -> np.ndarray:
+    """Centre place of each block of ``block_size`` consecutive places (the last may be shorter).
+
+    Returns
+    -------
+    ndarray of the shape of ``codes``, int64, in [0, N)
+    """
+    first = np.asarray(codes, dtype=np.int64) * int(block_size)
+    last = np.minimum(first + int(block_size), int(n_places)) - 1
+    return (first + last) // 2
+
+
+def block_size_for_tolerance(tolerance: int) -> int:
+    """B = 2^L, the largest power of two ≤ t (1 for t = 0): "drop the L low bits with 2^L ≤ t"."""
+    t = check_positive_int(tolerance, "tolerance", minimum=0)
+    return 1 if t == 0 else 1 << (t.bit_length() - 1)
 
 
 def _starts_dtype(n_places: int) -> np.dtype:
@@ -43,6 +70,7 @@ def planned_bytes(
     *,
     scheme: str = "compressed",
     dtype: str = "float32",
+    code_copies: int = 1,
 ) -> int:
     """Bytes a BTEL model will store, computed before fitting (equals the fitted ``nbytes``).
 
@@ -62,7 +90,7 @@ def planned_bytes(
     w = np.dtype(dtype).itemsize
     idx = 0 if n_selected >= n_features_in else column_index_dtype(n_features_in).itemsize
     per_classifier = n_selected * (w + idx) + 4
-    total = sum(_n_classifiers(scheme, int(n)) for n in region_sizes) * per_classifier
+    total = sum(_n_classifiers(scheme, int(n), code_copies) for n in region_sizes) * per_classifier
     r = len(region_sizes)
     if r >= 2:
         n_region_planes = 1 if r == 2 else r
@@ -71,15 +99,16 @@ def planned_bytes(
     return int(total)
 
 
-def _largest_fitting(sizes, d: int, cap: int, budget: int, scheme: str, dtype: str) -> int:
+def _largest_fitting(sizes, d: int, cap: int, budget: int, scheme: str, dtype: str, code_copies: int = 1) -> int:
     """Largest d' ≤ cap whose planned bytes fit the budget (0 when even d' = 1 does not)."""
-    if planned_bytes(sizes, cap, d, scheme=scheme, dtype=dtype) <= budget:
+    kw = dict(scheme=scheme, dtype=dtype, code_copies=code_copies)
+    if planned_bytes(sizes, cap, d, **kw) <= budget:
         return cap
     # Below d the bytes are affine in d': solve, then step down past rounding.
-    b1 = planned_bytes(sizes, 1, d, scheme=scheme, dtype=dtype)
-    slope = planned_bytes(sizes, 2, d, scheme=scheme, dtype=dtype) - b1 if d > 2 else b1
+    b1 = planned_bytes(sizes, 1, d, **kw)
+    slope = planned_bytes(sizes, 2, d, **kw) - b1 if d > 2 else b1
     guess = min(cap, d - 1, 1 + (budget - b1) // max(slope, 1)) if budget >= b1 else 0
-    while guess >= 1 and planned_bytes(sizes, guess, d, scheme=scheme, dtype=dtype) > budget:
+    while guess >= 1 and planned_bytes(sizes, guess, d, **kw) > budget:
         guess -= 1
     return int(max(guess, 0))
 
@@ -148,11 +177,30 @@ class BTELocalizer(PlaceLocalizer):
         Seed for liblinear and the randomized PCA of KTS.
     progress : bool
         Show a progress bar while fitting (only on a terminal).
+    block_size : int
+        B ≥ 1, tolerance-aware codes: the trees index blocks of B consecutive places
+        (``place // B``) and predict a block's centre place, which is within ⌊B/2⌋ of every place
+        of the block. ⌈log2 ⌈N/B⌉⌉ bits instead of ⌈log2 N⌉, so under a budget each classifier
+        keeps more columns. :func:`block_size_for_tolerance` gives the power of two for a
+        tolerance t (B ≤ t, so the worst in-block error is ≤ t/2). 1: plain BTEL.
+    code_copies : int
+        m ≥ 1, error-correcting offset codes (``scheme='compressed'``): m − 1 shifted copies of
+        each bit's contiguous-block split are learnt as extra classifiers and every tree is
+        decoded softly over its whole code (:mod:`btel.compressed`). 1: the plain b bits.
+    exemplar_radius : int
+        e ≥ 0, multi-exemplar labels (``scheme='compressed'``): each row also stands for the
+        places within ±e of it that share the column's high bits, i.e. rows next to a block
+        boundary weigh less (:func:`btel.compressed.exemplar_weights`). 0: all rows weigh 1.
+        Several exemplars per place from extra traverses or augmented images go through
+        ``fit(X, places)``.
 
     Attributes
     ----------
     n_places_ : int
         N.
+    n_codes_ : int
+        Places the trees index: ⌈N / block_size⌉ (N when block_size = 1); region starts and
+        sizes count these.
     n_features_in_ : int
         d.
     n_selected_ : int
@@ -204,6 +252,9 @@ class BTELocalizer(PlaceLocalizer):
         scheduler: str | None = None,
         random_state: int | None = None,
         progress: bool = True,
+        block_size: int = 1,
+        code_copies: int = 1,
+        exemplar_radius: int = 0,
     ) -> None:
         self.scheme = scheme
         self.classifier = classifier
@@ -225,6 +276,9 @@ class BTELocalizer(PlaceLocalizer):
         self.scheduler = scheduler
         self.random_state = random_state
         self.progress = progress
+        self.block_size = block_size
+        self.code_copies = code_copies
+        self.exemplar_radius = exemplar_radius
 
     # ------------------------------------------------------------------ parameters
     def _checked_params(self) -> dict[str, Any]:
@@ -259,7 +313,16 @@ class BTELocalizer(PlaceLocalizer):
         check_positive_int(self.max_iter, "max_iter")
         check_positive_int(self.kts_max_points, "kts_max_points", minimum=4)
         check_backend(self.backend, self.scheduler)
-        return {"C": float(C), "dtype": dtype, "budget": parse_budget(self.budget)}
+        block_size = check_positive_int(self.block_size, "block_size")
+        copies = check_positive_int(self.code_copies, "code_copies")
+        radius = check_positive_int(self.exemplar_radius, "exemplar_radius", minimum=0)
+        if self.scheme == "full" and (copies > 1 or radius > 0):
+            raise InvalidParameterError(
+                "code_copies > 1 and exemplar_radius > 0 extend the per-bit classifiers of scheme='compressed'; "
+                "BTE-F ('full') has one classifier per node instead."
+            )
+        return {"C": float(C), "dtype": dtype, "budget": parse_budget(self.budget), "block_size": block_size,
+                "code_copies": copies, "exemplar_radius": radius}
 
     def _cap(self, d: int, budget: int | None) -> int:
         """Upper bound on d' from n_features / feature_ratio (d itself under a budget)."""
@@ -297,16 +360,26 @@ class BTELocalizer(PlaceLocalizer):
             n_places = X.shape[0]
         else:
             places_arr, n_places = check_places(places, X.shape[0])
+        # Tolerance-aware codes: everything below works on block indices ("codes").
+        block_size, copies = params["block_size"], params["code_copies"]
+        n_codes = -(-n_places // block_size)
+        if n_codes < 2:
+            raise InvalidParameterError(
+                f"block_size = {block_size} leaves {n_codes} block of N = {n_places} places; an index needs at "
+                f"least 2. Use block_size ≤ {max(1, (n_places - 1))}."
+            )
+        codes_arr = places_arr // block_size if block_size > 1 else places_arr
         d = X.shape[1]
         budget = params["budget"]
         cap = self._cap(d, budget)
-        starts = self._segment(X, places_arr, n_places, budget, cap, params["dtype"])
-        sizes = np.diff(np.append(starts, n_places))
+        starts = self._segment(X, codes_arr, n_codes, budget, cap, params["dtype"], copies)
+        sizes = np.diff(np.append(starts, n_codes))
         n_selected = cap
         if budget is not None:
-            n_selected = _largest_fitting(list(sizes), d, cap, budget, self.scheme, params["dtype"])
+            n_selected = _largest_fitting(list(sizes), d, cap, budget, self.scheme, params["dtype"], copies)
             if n_selected < 1:
-                minimum = planned_bytes(list(sizes), 1, d, scheme=self.scheme, dtype=params["dtype"])
+                minimum = planned_bytes(list(sizes), 1, d, scheme=self.scheme, dtype=params["dtype"],
+                                        code_copies=copies)
                 raise BudgetTooSmallError(
                     f"budget {format_bytes(budget)} ({budget} B) is too small for BTEL ({self.scheme}, "
                     f"N = {n_places}, r = {len(sizes)}): the smallest model (d' = 1) needs {minimum} B. "
@@ -316,18 +389,21 @@ class BTELocalizer(PlaceLocalizer):
                 )
 
         stats = ColumnStats.of(X)
-        region_of_row = region_of(places_arr, starts)
+        region_of_row = region_of(codes_arr, starts)
         tasks: list[Task] = []
         if len(starts) >= 2:
             # The region classifier R: one hyperplane for r = 2, else one-vs-rest, own feature selection.
             tasks.extend(one_vs_rest_tasks(X, region_of_row, len(starts), n_selected, stats,
                                            sparsity=float(self.sparsity)))
         first_tree_task = len(tasks)
-        make_tasks = compressed_tasks if self.scheme == "compressed" else full_tasks
         for k, (s, n_k) in enumerate(zip(starts, sizes)):
             rows = np.flatnonzero(region_of_row == k) if len(starts) >= 2 else None
-            local = places_arr[rows] - s if rows is not None else places_arr
-            tasks.extend(make_tasks(local, int(n_k), rows))
+            local = codes_arr[rows] - s if rows is not None else codes_arr
+            if self.scheme == "compressed":
+                tasks.extend(compressed_tasks(local, int(n_k), rows, code_copies=copies,
+                                              exemplar_radius=params["exemplar_radius"]))
+            else:
+                tasks.extend(full_tasks(local, int(n_k), rows))
 
         with tqdm(total=len(tasks), desc="BTEL fit", unit="clf", disable=None if self.progress else True,
                   leave=False) as bar:
@@ -352,7 +428,7 @@ class BTELocalizer(PlaceLocalizer):
         self.fit_time_ = time.perf_counter() - start_time
         return self
 
-    def _segment(self, X, places, n_places, budget, cap, dtype) -> np.ndarray:
+    def _segment(self, X, places, n_places, budget, cap, dtype, code_copies=1) -> np.ndarray:
         """Region starts: fixed r, or r by the KTS penalty (lowered while nothing fits the budget)."""
         if self.n_regions == 1:
             return np.zeros(1, dtype=np.int64)
@@ -374,23 +450,28 @@ class BTELocalizer(PlaceLocalizer):
             d = X.shape[1]
             while r > 1:
                 sizes = list(np.diff(np.append(starts_by_r[r], n_places)))
-                if _largest_fitting(sizes, d, cap, budget, self.scheme, dtype) >= 1:
+                if _largest_fitting(sizes, d, cap, budget, self.scheme, dtype, code_copies) >= 1:
                     break
                 r -= 1
         return starts_by_r[r]
 
     def _set_structure(self, n_places: int, d: int, n_selected: int, starts: np.ndarray) -> None:
-        """Derived attributes that follow from N, d, d' and the region starts alone."""
+        """Derived attributes that follow from N, d, d', the code options and the region starts."""
         starts = np.asarray(starts, dtype=np.int64)
-        sizes = np.diff(np.append(starts, n_places))
-        n_classifiers = [_n_classifiers(self.scheme, int(n)) for n in sizes]
+        self.block_size_ = int(self.block_size)
+        self.code_copies_ = int(self.code_copies)
+        n_codes = -(-int(n_places) // self.block_size_)
+        sizes = np.diff(np.append(starts, n_codes))
+        n_classifiers = [_n_classifiers(self.scheme, int(n), self.code_copies_) for n in sizes]
         self.n_places_ = int(n_places)
+        self.n_codes_ = int(n_codes)
         self.n_features_in_ = int(d)
         self.n_selected_ = int(n_selected)
         self.n_regions_ = int(starts.size)
         self.region_starts_ = starts
         self.region_sizes_ = sizes.astype(np.int64)
-        self.n_bits_ = n_bits_for(n_places)
+        self.n_bits_ = n_bits_for(n_codes)
+        self._tree_width = max(self.n_bits_, int(max(n_classifiers))) if self.scheme == "compressed" else self.n_bits_
         self._tree_offsets = np.concatenate([[0], np.cumsum(n_classifiers)]).astype(np.int64)
 
     # ------------------------------------------------------------------ inference
@@ -419,21 +500,30 @@ class BTELocalizer(PlaceLocalizer):
             return predict_full(Q, self.hyperplanes_, first, n_k)
         rows = slice(first, int(self._tree_offsets[region + 1]))
         margins = self.hyperplanes_.margins(Q, rows if self.n_regions_ > 1 else None)
+        if self.code_copies_ > 1:
+            return decode_code(margins, n_k, self.code_copies_), margins
         return decode_margins(margins, n_k, self.decode), margins
 
     def _predict_with_margins(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        if self.n_regions_ == 1:  # one tree over all N places: its local indices are global
-            return self._tree_margins(Q, 0)
+        if self.n_regions_ == 1:  # one tree over all codes: its local indices are global
+            codes, margins = self._tree_margins(Q, 0)
+            return self._places_of_codes(codes), margins
         regions = self._regions(Q)
         indices = np.empty(Q.shape[0], dtype=np.int64)
-        margins = np.full((Q.shape[0], self.n_bits_), np.nan, dtype=np.float32)
+        margins = np.full((Q.shape[0], self._tree_width), np.nan, dtype=np.float32)
         present = np.unique(regions) if Q.shape[0] > 1 else regions
         for k in present:
             rows = slice(None) if present.size == 1 else np.flatnonzero(regions == k)
             local, m = self._tree_margins(Q[rows], int(k))
             indices[rows] = self.region_starts_[k] + local
             margins[rows, : m.shape[1]] = m
-        return indices, margins
+        return self._places_of_codes(indices), margins
+
+    def _places_of_codes(self, codes: np.ndarray) -> np.ndarray:
+        """Place answered for each code: the code itself, or its block's centre (block_size > 1)."""
+        if self.block_size_ == 1:
+            return codes
+        return block_centres(codes, self.block_size_, self.n_places_)
 
     def predict(self, Q: Any) -> np.ndarray:
         """Place index of each query.
@@ -453,19 +543,59 @@ class BTELocalizer(PlaceLocalizer):
 
         Returns
         -------
-        ndarray of shape (n_queries, b), float32
-            With regions, the margins of the predicted region's tree, left-aligned and padded
-            with NaN where that tree has fewer than b bits. With ``scheme='full'``, the margin of
+        ndarray of shape (n_queries, K), float32
+            K = b, or with ``code_copies > 1`` the b bits then the offset columns. With regions,
+            the margins of the predicted region's tree, left-aligned and padded with NaN where
+            that tree has fewer columns. With ``scheme='full'``, the margin of
             the node visited at each level (−inf where the node is constant).
         """
         return self._predict_with_margins(self._check_queries(Q))[1]
+
+    @property
+    def supports_ranking(self) -> bool:  # type: ignore[override]
+        """Ranking needs a margin per bit: ``scheme='compressed'``."""
+        return self.scheme == "compressed"
+
+    def rank(self, Q: Any, k: int = 10) -> np.ndarray:
+        """The ``k`` most likely places per query, best first (ranked output, R@K).
+
+        Best-first search over bit flips of the predicted region's tree (more regions when it
+        holds fewer than k codes), merged across regions by the region classifier's score
+        (:func:`btel.ranking.rank_places`); with ``code_copies > 1`` every code is scored
+        (O(N·K)); with ``block_size > 1`` blocks are ranked and their centres returned.
+
+        Returns
+        -------
+        ndarray of shape (n_queries, min(k, number of codes)), int64
+        """
+        from .ranking import rank_places
+
+        if self.scheme != "compressed":
+            raise InvalidParameterError("rank needs scheme='compressed' (BTE-F reads one node per level).")
+        return rank_places(self, self._check_queries(Q), k)[0]
+
+    def place_scores(self, Q: Any, *, region_weight: float = 1.0) -> np.ndarray:
+        """Score of every place for every query, higher = more likely (``−`` flip cost).
+
+        The emission scores of :meth:`predict_sequence` and of
+        :func:`btel.sequence_decoding.decode_sequence`. O(N·K) per query.
+
+        Returns
+        -------
+        ndarray of shape (n_queries, N), float64
+        """
+        from .ranking import place_costs
+
+        if self.scheme != "compressed":
+            raise InvalidParameterError("place_scores needs scheme='compressed'.")
+        return -place_costs(self, self._check_queries(Q), region_weight=region_weight)
 
     # ------------------------------------------------------------------ storage and files
     def _stored_arrays(self) -> dict[str, np.ndarray]:
         arrays = self.hyperplanes_.arrays("")
         if self.region_hyperplanes_ is not None:
             arrays.update(self.region_hyperplanes_.arrays("region_"))
-            arrays["region_starts"] = self.region_starts_.astype(_starts_dtype(self.n_places_))
+            arrays["region_starts"] = self.region_starts_.astype(_starts_dtype(self.n_codes_))
         return arrays
 
     def _fitted_state(self) -> dict[str, Any]:
@@ -482,8 +612,14 @@ class BTELocalizer(PlaceLocalizer):
         d = int(state["n_features_in"])
         n_selected = int(state["n_selected"])
         starts = arrays.get("region_starts", np.zeros(1, dtype=np.int64)).astype(np.int64)
-        if n_places < 2 or not 1 <= n_selected <= d or starts[0] != 0 or np.any(np.diff(starts) < 1) \
-                or starts[-1] >= n_places:
+        try:
+            block_size = check_positive_int(self.block_size, "block_size")
+            check_positive_int(self.code_copies, "code_copies")
+        except InvalidParameterError as exc:
+            raise ModelFileError(f"model header holds invalid parameters: {exc}") from exc
+        n_codes = -(-n_places // block_size) if n_places >= 1 else 0
+        if n_places < 2 or n_codes < 2 or not 1 <= n_selected <= d or starts[0] != 0 \
+                or np.any(np.diff(starts) < 1) or starts[-1] >= n_codes:
             raise ModelFileError("model header and arrays disagree (places, features or regions).")
         self._set_structure(n_places, d, n_selected, starts)
         self.hyperplanes_ = Hyperplanes(arrays["weights"], arrays["bias"], arrays.get("columns"), d)

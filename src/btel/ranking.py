@@ -131,8 +131,10 @@ def tree_layout(model: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     sizes : ndarray of shape (r,), int64
         N_k (``region_sizes_``).
     offsets : ndarray of shape (r + 1,), int64
-        Region k's bit classifiers are rows ``offsets[k]:offsets[k+1]`` of ``hyperplanes_``
-        (b_k = ⌈log2 N_k⌉ each, MSB first).
+        Region k's column classifiers are rows ``offsets[k]:offsets[k+1]`` of ``hyperplanes_``
+        (b_k = ⌈log2 N_k⌉ bits MSB first, then any offset-code columns).
+
+    Starts and sizes count the trees' codes: blocks of ``block_size_`` places when > 1.
     """
     check_is_fitted(model, "n_places_")
     if getattr(model, "scheme", "compressed") != "compressed":
@@ -141,8 +143,27 @@ def tree_layout(model: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         )
     starts = np.asarray(model.region_starts_, dtype=np.int64)
     sizes = np.asarray(model.region_sizes_, dtype=np.int64)
-    offsets = np.concatenate([[0], np.cumsum([n_bits_for(int(s)) for s in sizes])]).astype(np.int64)
-    return starts, sizes, offsets
+    offsets = getattr(model, "_tree_offsets", None)
+    if offsets is None:
+        offsets = np.concatenate([[0], np.cumsum([n_bits_for(int(s)) for s in sizes])])
+    return starts, sizes, np.asarray(offsets, dtype=np.int64)
+
+
+def _copies(model: Any) -> int:
+    return int(getattr(model, "code_copies_", 1))
+
+
+def _block(model: Any) -> int:
+    return int(getattr(model, "block_size_", 1))
+
+
+def _tree_costs(m: np.ndarray, n_k: int, copies: int) -> np.ndarray:
+    """Flip cost ``Σ|m| − Σ m·sign`` of every code of one tree (all its columns), (n, n_k)."""
+    if copies == 1:
+        return np.abs(m).sum(axis=1, keepdims=True) - soft_scores(m, n_k)
+    from .compressed import code_signs
+
+    return np.abs(m).sum(axis=1, keepdims=True) - m @ code_signs(n_k, copies).astype(np.float64).T
 
 
 def _check_weight(region_weight: Any) -> float:
@@ -197,14 +218,17 @@ def place_costs(model: Any, Q: Any, *, region_weight: float = 1.0) -> np.ndarray
     """
     alpha = _check_weight(region_weight)
     margins, deficits, (starts, sizes, offsets) = _margins_and_deficits(model, Q)
-    out = np.empty((margins.shape[0], int(model.n_places_)))
+    n_codes = int(getattr(model, "n_codes_", model.n_places_))
+    out = np.empty((margins.shape[0], n_codes))
     for k, (s, n_k) in enumerate(zip(starts.tolist(), sizes.tolist())):
         m = margins[:, offsets[k] : offsets[k + 1]]
         if n_k == 1:  # a one-place region has no bits: its one place costs nothing in the tree
             tree = np.zeros((m.shape[0], 1))
         else:
-            tree = np.abs(m).sum(axis=1, keepdims=True) - soft_scores(m, n_k)
+            tree = _tree_costs(m, n_k, _copies(model))
         out[:, s : s + n_k] = tree + alpha * deficits[:, k : k + 1]
+    if _block(model) > 1:  # every place costs what its block costs
+        out = out[:, np.arange(int(model.n_places_)) // _block(model)]
     return out
 
 
@@ -240,8 +264,11 @@ def rank_places(
     """
     alpha = _check_weight(region_weight)
     searched = check_positive_int(n_regions_searched, "n_regions_searched")
+    if _copies(model) > 1:
+        # Offset codes: no best-first search over flips of independent bits; rank every code.
+        return _rank_by_costs(model, Q, k, alpha)
     margins, deficits, (starts, sizes, offsets) = _margins_and_deficits(model, Q)
-    n = int(model.n_places_)
+    n = int(getattr(model, "n_codes_", model.n_places_))
     k = min(check_positive_int(k, "k"), n)
     places = np.empty((margins.shape[0], k), dtype=np.int64)
     costs = np.empty((margins.shape[0], k))
@@ -265,4 +292,27 @@ def rank_places(
         order = np.argsort(np.asarray(cand_costs), kind="stable")[:k]
         places[q] = np.asarray(cand_places, dtype=np.int64)[order]
         costs[q] = np.asarray(cand_costs)[order]
+    if _block(model) > 1:  # distinct blocks → their distinct centre places
+        from .localizer import block_centres
+
+        places = block_centres(places, _block(model), int(model.n_places_))
     return places, costs
+
+
+def _rank_by_costs(model: Any, Q: Any, k: int, alpha: float) -> tuple[np.ndarray, np.ndarray]:
+    """Top-k codes by :func:`place_costs` over every code (O(N·K) per query), as places."""
+    block = _block(model)
+    costs = place_costs(model, Q, region_weight=alpha)
+    if block > 1:
+        costs = costs[:, ::block]  # one column per block (its first place), block order
+    k = min(check_positive_int(k, "k"), costs.shape[1])
+    top = np.argpartition(costs, k - 1, axis=1)[:, :k] if k < costs.shape[1] else \
+        np.broadcast_to(np.arange(costs.shape[1]), costs.shape).copy()
+    order = np.argsort(np.take_along_axis(costs, top, axis=1), axis=1, kind="stable")
+    codes = np.take_along_axis(top, order, axis=1).astype(np.int64)
+    top_costs = np.take_along_axis(costs, codes, axis=1)
+    if block > 1:
+        from .localizer import block_centres
+
+        codes = block_centres(codes, block, int(model.n_places_))
+    return codes, top_costs

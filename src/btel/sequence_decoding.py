@@ -253,7 +253,7 @@ def method_scores(model: Any, Q: Any, *, region_weight: float = 1.0) -> np.ndarr
 
     - compressed BTEL: ``−place_costs`` (:mod:`btel.ranking`);
     - RYTH: its soft-decode score ``Σ_k score_k[i mod p_k]``;
-    - an object with its own ``place_scores(Q)`` (e.g. :class:`btel.tolerant.TolerantLocalizer`);
+    - an object with its own ``place_scores(Q)`` (compressed BTEL: ``−place_costs``);
     - PQ / OPQ: negative asymmetric (ADC) squared distances; ITQ: negative Hamming distances;
       brute force: negative squared L2 — one faiss search with k = number of map rows;
     - anything else that ranks: minus the rank position (a place's score is −its rank).
@@ -268,12 +268,10 @@ def method_scores(model: Any, Q: Any, *, region_weight: float = 1.0) -> np.ndarr
     from .ryth import RYTHLocalizer
 
     check_is_fitted(model, "n_places_")
+    if isinstance(model, BTELocalizer):
+        return model.place_scores(Q, region_weight=region_weight)
     if hasattr(model, "place_scores"):
         return np.asarray(model.place_scores(Q), dtype=np.float64)
-    if isinstance(model, BTELocalizer):
-        from .ranking import place_costs
-
-        return -place_costs(model, Q, region_weight=region_weight)
     if isinstance(model, RYTHLocalizer):  # its soft-decode score: Σ_k score_k[i mod p_k]
         blocks = [total for _, total in model._place_scores(model.decision_function(Q))]
         return np.concatenate(blocks).astype(np.float64)

@@ -43,6 +43,7 @@ class Task:
     labels: np.ndarray
     rows: np.ndarray | None = None
     columns: np.ndarray | None = None
+    sample_weight: np.ndarray | None = None
 
 
 def one_vs_rest_tasks(
@@ -75,7 +76,8 @@ def _fit_task(X, task: Task, n_selected, stats, sparsity, fit_kwargs):
     columns = task.columns
     if columns is None:
         columns = select_features(Xt, task.labels, n_selected, sparsity=sparsity, scale=stats.scale)
-    weights, bias, converged = fit_linear(Xt, task.labels, columns, stats, **fit_kwargs)
+    weights, bias, converged = fit_linear(Xt, task.labels, columns, stats, sample_weight=task.sample_weight,
+                                          **fit_kwargs)
     return weights, bias, columns, converged
 
 
