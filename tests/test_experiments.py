@@ -88,3 +88,48 @@ def test_cli_experiment_quick(nordland_dir: Path, quick_runs: Path, tmp_path: Pa
     rows = json.loads((out / "feature-ratio" / "results.json").read_text())["rows"]
     assert [r["feature_ratio"] for r in rows] == [0.1, 0.3]
     assert np.all(np.diff([r["nbytes"] for r in rows]) > 0)  # more columns, more bytes
+
+
+def test_stretch_split_keeps_validation_and_reported_queries_apart() -> None:
+    from btel.beyond import stretch_split
+
+    val, rep, starts = stretch_split(3576)
+    assert np.intersect1d(val, rep).size == 0 and val.size + rep.size == 3576
+    np.testing.assert_array_equal(starts[:3], [0, 200, 400])
+    stretches = set((val // 200).tolist())
+    assert stretches == {0, 5, 10, 15}  # 800 validation queries, 2776 reported
+
+
+@pytest.mark.realdata
+def test_beyond_ladder_diagnostics_and_report(quick_runs: Path, tmp_path: Path) -> None:
+    payload = json.loads((quick_runs / "beyond" / "results.json").read_text())
+    assert set(payload["ladder"]) == {"summer→winter", "winter→summer"}
+    for measures in payload["ladder"].values():
+        assert set(measures) == {"single frame recall@10", "ranked R@10 (10 candidates, t = 10)",
+                                 "HMM sequence decoding recall@10"}
+        for pick in measures.values():
+            assert "btel" in pick and 0.0 <= pick["btel"]["value"] <= 1.0
+            assert pick["btel"]["nbytes"] <= payload["budget"]
+    rows = payload["rows"]
+    parts = {r["part"] for r in rows}
+    assert parts == {"nordland", "gardens-point", "synthetic"}
+    # Every Nordland method is read four ways on equal terms (single, ranked, median, HMM).
+    fitted = {(r["direction"], r["method"]) for r in rows if r["part"] == "nordland" and r["status"] == "ok"}
+    for direction, method in fitted:
+        decoders = {r["decoder"] for r in rows if r.get("direction") == direction and r["method"] == method}
+        assert decoders == {"single", "median a=20", "HMM"}
+    hmm = [r for r in rows if r.get("decoder") == "HMM"]
+    assert all(r["hmm"]["temperature"] > 0 for r in hmm)
+    assert set(payload["diagnostics"]) >= {"Nordland HOG summer→winter", "Nordland patch-normalised summer→winter"}
+    for curves in payload["diagnostics"].values():
+        for diag in curves.values():
+            assert all(0.0 <= a <= 1.0 for a in diag["accuracy"] if a is not None and a == a)  # NaN: no query
+    pngs = {p.name for p in (quick_runs / "beyond").glob("*.png")}
+    assert {"synthetic_crossover.png", "gardens_point_recall_vs_bytes.png"} <= pngs
+    assert any(name.startswith("bits_") for name in pngs)
+    docs = tmp_path / "docs"
+    docs.mkdir()
+    md = write_report(quick_runs, docs).read_text()
+    assert "### Ladder" in md and "Validation protocol" in md
+    summary = json.loads((docs / "results.json").read_text())
+    assert summary["beyond"]["ladder"] == payload["ladder"]

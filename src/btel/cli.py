@@ -370,7 +370,7 @@ def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | 
     """Run one of the paper's experiments on Nordland (or 'all').
 
     \b
-    NAME: accuracy | vs-n | vs-budget | feature-ratio | regions | sequence-filter | all
+    NAME: accuracy | vs-n | vs-budget | feature-ratio | regions | sequence-filter | beyond | all
     Each writes results.csv, results.json and PNG plots into OUT/NAME/; `btel report` turns the
     latest runs into docs/results.md.
     """

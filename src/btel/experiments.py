@@ -114,6 +114,8 @@ class ExperimentRun:
     rows: list[dict[str, Any]]
     out_dir: Path
     curves: dict[str, list[float]] = field(default_factory=dict)
+    #: Anything else an experiment reports (the "beyond" ladder, diagnostics, protocol).
+    extra: dict[str, Any] = field(default_factory=dict)
 
 
 def _fit_row(name: str, data: NordlandData, *, budget: Any, n_places: int | None, map_season: str = "summer",
@@ -228,6 +230,8 @@ def exp_sequence_filter(data: NordlandData, out: Path, quick: bool) -> Experimen
     return ExperimentRun("sequence-filter", rows, out, curves)
 
 
+from .beyond import exp_beyond  # noqa: E402  (it imports this module's helpers lazily)
+
 EXPERIMENTS: dict[str, Callable[[NordlandData, Path, bool], ExperimentRun]] = {
     "accuracy": exp_accuracy,
     "vs-n": exp_vs_n,
@@ -235,6 +239,7 @@ EXPERIMENTS: dict[str, Callable[[NordlandData, Path, bool], ExperimentRun]] = {
     "feature-ratio": exp_feature_ratio,
     "regions": exp_regions,
     "sequence-filter": exp_sequence_filter,
+    "beyond": exp_beyond,
 }
 
 
@@ -264,7 +269,7 @@ def run_experiment(name: str, *, data_root: str | Path | None = None, out_dir: s
     meta = {**run_metadata(command or f"btel experiment {name}{' --quick' if quick else ''}"), "experiment": name, "quick": quick, "data": str(root.resolve()),
             "descriptor": "HOG 3780-D (SeqSLAM: 64×32 patch-normalised, 2048-D)",
             "seconds": time.perf_counter() - start}
-    (out / "results.json").write_text(json.dumps({"run": meta, "rows": run.rows, "curves": run.curves},
+    (out / "results.json").write_text(json.dumps({"run": meta, "rows": run.rows, "curves": run.curves, **run.extra},
                                                  indent=1, default=_json_default) + "\n")
     _write_csv(out / "results.csv", run.rows)
     from .plots import plot_experiment
@@ -295,6 +300,12 @@ def describe_row(row: dict[str, Any]) -> str:
     """One human line for a result row (used by the CLI)."""
     if row.get("status", "ok") != "ok":
         return f"{row['method']:<26} {row['status']}"
+    if "decoder" in row or "part" in row:  # the "beyond" experiment: say which read-out and where
+        where = row.get("direction") or f"shift {row.get('condition_shift')}"
+        label = f"{row['method']} [{row.get('decoder', 'single')}, {where}]"
+        ranked = f" R@10(ranked)={row['R@10']:.3f}" if row.get("R@10") is not None else ""
+        return (f"{label:<52} N={row['n_places']:<5} {format_bytes(row['nbytes']):>10}  "
+                f"R@10={row['recall@10']:.3f}{ranked}")
     size = format_bytes(row["nbytes"]) if row.get("nbytes") is not None else "-"
     return (f"{row['method']:<26} N={row['n_places']:<5} {size:>10}  R@0={row['recall@0']:.3f} "
             f"R@10={row['recall@10']:.3f} R@20={row['recall@20']:.3f}")

@@ -315,9 +315,83 @@ def plot_experiment(run: Any, out_dir: str | os.PathLike) -> list[Path]:
         plot_parameter_sweep(run.rows, path, x_key="feature_ratio", xlabel="feature ratio c = d'/d",
                              title="BTE-C, r = 1", credit=NORDLAND_CREDIT)
         written.append(path)
+    elif name == "beyond":
+        written += _plot_beyond(run.rows, out_dir)
     elif name == "regions":
         path = out_dir / "recall_vs_regions.png"
         plot_parameter_sweep(run.rows, path, x_key="n_regions", xlabel="regions r",
                              title="BTEL, c = 0.1", credit=NORDLAND_CREDIT)
+        written.append(path)
+    return written
+
+
+def plot_method_bars(
+    rows: Sequence[Mapping[str, Any]], path: str | os.PathLike, *, group_key: str, value_key: str = "recall@10",
+    title: str | None = None, credit: str | None = None,
+) -> Figure:
+    """Grouped horizontal bars: one bar group per method, one bar per ``group_key`` value.
+
+    Rows are flat dicts with ``method``, ``group_key`` and ``value_key``; rows without the value
+    (a budget the method could not meet) are left out.
+    """
+    ok = [r for r in rows if r.get("status", "ok") == "ok" and r.get(value_key) is not None]
+    if not ok:
+        raise InvalidParameterError("nothing to plot: no successful rows.")
+    methods = list(dict.fromkeys(str(r["method"]) for r in ok))
+    groups = list(dict.fromkeys(str(r[group_key]) for r in ok))
+    fig = Figure(figsize=(7.2, 0.5 + 0.42 * len(methods) * max(1, len(groups)) ** 0.5), dpi=120)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    height = 0.8 / len(groups)
+    for g, group in enumerate(groups):
+        values = {str(r["method"]): float(r[value_key]) for r in ok if str(r[group_key]) == group}
+        ys = [i + g * height for i, m in enumerate(methods) if m in values]
+        ax.barh(ys, [values[m] for m in methods if m in values], height=height, label=group)
+    ax.set_yticks([i + 0.4 - height / 2 for i in range(len(methods))], methods, fontsize="small")
+    ax.invert_yaxis()
+    ax.set_xlabel(value_key)
+    ax.set_xlim(0.0, 1.0)
+    ax.grid(True, axis="x", alpha=0.3)
+    ax.legend(fontsize="x-small", loc="lower right")
+    if title:
+        ax.set_title(title, fontsize="medium")
+    if credit:
+        fig.text(0.99, 0.005, credit, ha="right", va="bottom", fontsize="xx-small", color="grey")
+    fig.tight_layout()
+    _save(fig, path)
+    return fig
+
+
+def _plot_beyond(rows: Sequence[Mapping[str, Any]], out_dir: Path) -> list[Path]:
+    """The "beyond" experiment: Nordland read-outs per method, Gardens Point vs bytes, synthetic crossover."""
+    written = []
+    for direction in sorted({r["direction"] for r in rows if r.get("part") == "nordland"}):
+        part = [r for r in rows if r.get("part") == "nordland" and r["direction"] == direction]
+        path = out_dir / f"nordland_{direction.replace('→', '_to_')}.png"
+        plot_method_bars(part, path, group_key="decoder",
+                         title=f"Nordland {direction}, HOG, same budget: recall@10 (reported stretches)",
+                         credit=NORDLAND_CREDIT)
+        written.append(path)
+    gp = [r for r in rows if r.get("part") == "gardens-point" and r.get("status") == "ok" and r.get("budget")]
+    if gp:
+        path = out_dir / "gardens_point_recall_vs_bytes.png"
+        plot_recall_vs_storage(_as_plot_rows(gp), path, tolerance=5,
+                               title="Gardens Point day→night, NetVLAD 500-D: recall@5 vs stored bytes")
+        written.append(path)
+    synth = [r for r in rows if r.get("part") == "synthetic" and r.get("status") == "ok"]
+    if synth:
+        fig, ax = _new_figure()
+        for method in dict.fromkeys(r["method"] for r in synth):
+            pts = sorted((float(r["condition_shift"]), float(r["recall@10"])) for r in synth if r["method"] == method)
+            ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=method)
+        ax.set_xlabel("appearance change between map and query traverse (condition_shift)")
+        ax.set_ylabel("recall@10")
+        ax.set_ylim(0.0, 1.02)
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize="small")
+        budget = synth[0].get("budget")
+        ax.set_title(f"Synthetic route, N = {synth[0]['n_places']}, ≤ {format_bytes(budget) if budget else '?'}")
+        path = out_dir / "synthetic_crossover.png"
+        _save(fig, path)
         written.append(path)
     return written

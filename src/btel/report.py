@@ -28,6 +28,7 @@ _TITLES = {
     "feature-ratio": "(d) BTE-C, feature ratio c = 0.1 … 1, r = 1 (summer → winter, N = 3576)",
     "regions": "(e) BTEL, regions r = 1 … 20, c = 0.1 (summer → winter, N = 3576)",
     "sequence-filter": "(f) Sequence filter a = 5, 20 at N = 3576, ≤ 1 MB (summer → winter)",
+    "beyond": "Beyond the paper: BTEL variants vs quantisers at the same bytes (the ladder)",
 }
 _TOLERANCES = (0, 1, 2, 5, 10, 20)
 _MARKER = re.compile(r"<!-- (?P<name>[\w-]+):start -->.*?<!-- (?P=name):end -->", re.S)
@@ -88,6 +89,37 @@ def _reading(name: str, rows: list[dict[str, Any]]) -> list[str]:
     return out
 
 
+def _beyond_lines(payload: dict[str, Any]) -> list[str]:
+    """The "beyond" experiment: ladder, then one table per part (Nordland, Gardens Point, synthetic)."""
+    budget = payload.get("budget")
+    n = next((r["n_places"] for r in payload["rows"] if r.get("part") == "nordland"), "?")
+    lines = [f"Validation protocol {' '.join(payload.get('protocol', {}).get('text', '').split())}", "",
+             f"### Ladder (Nordland, N = {n}, HOG, ≤ {format_bytes(budget) if budget else '?'})", "",
+             "| direction | measure | best BTEL variant (by validation) | its value | best of PQ / OPQ / ITQ | its value "
+             "| BTEL ≥ quantiser | chance |", "|---|---|---|---|---|---|---|---|"]
+    for direction, measures in payload.get("ladder", {}).items():
+        for measure, pick in measures.items():
+            ours, theirs = pick.get("btel"), pick.get("quantiser")
+            cell = (lambda p: (f"{p['method']} ({format_bytes(p['nbytes'])})", f"{p['value']:.3f}")
+                    if p else ("does not fit", "–"))
+            a, b = cell(ours), cell(theirs)
+            verdict = {True: "yes", False: "no"}.get(pick.get("btel_at_least_quantiser"), "–")
+            if "btel_reaches_0.5" in pick:
+                verdict += f"; BTEL ≥ 0.5: {'yes' if pick['btel_reaches_0.5'] else 'no'}"
+            lines.append(f"| {direction} | {measure} | {a[0]} | {a[1]} | {b[0]} | {b[1]} | {verdict} | "
+                         f"{pick.get('chance', float('nan')):.3f} |")
+    lines.append("")
+    parts = [("nordland", "Nordland, every method and read-out (reported stretches)", ["direction", "decoder"]),
+             ("gardens-point", "Gardens Point day → night (NetVLAD 500-D, N = 200), no tuning", []),
+             ("synthetic", "Synthetic routes: appearance change between traverses, no tuning", ["condition_shift"])]
+    for key, title, extra in parts:
+        rows = [dict(r, **{"R@10 ranked": f"{r['R@10']:.3f}" if r.get("R@10") is not None else ""})
+                for r in payload["rows"] if r.get("part") == key]
+        if rows:
+            lines += [f"### {title}", ""] + _table(rows, extra + (["R@10 ranked"] if key == "nordland" else [])) + [""]
+    return lines
+
+
 def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path = "docs",
                  reading_file: str | Path | None = None) -> Path:
     """Write ``docs/results.md`` and ``docs/results.json`` from every experiment found in ``runs_dir``.
@@ -123,18 +155,22 @@ def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path
     for name, path in found.items():
         payload = json.loads(path.read_text())
         rows, run = payload["rows"], payload["run"]
-        summary[name] = {"run": run, "rows": rows}
+        summary[name] = {"run": run, "rows": rows, **{k: v for k, v in payload.items()
+                                                     if k not in ("run", "rows", "curves")}}
         lines += [f"## {_TITLES[name]}", "",
                   f"Command: `{run.get('command') or 'btel experiment ' + name}`"
                   f"{' (quick mode)' if run.get('quick') else ''} — {run.get('date_utc', '')}, "
                   f"{run.get('seconds', 0):.0f} s, btel {run.get('versions', {}).get('btel', '?')}.", ""]
-        extra = {"accuracy": ["direction"], "sequence-filter": ["window"]}.get(name, [])
-        lines += _table(rows, extra) + [""]
+        if name == "beyond":
+            lines += _beyond_lines(payload)
+        else:
+            extra = {"accuracy": ["direction"], "sequence-filter": ["window"]}.get(name, [])
+            lines += _table(rows, extra) + [""]
         for png in sorted((path.parent).glob("*.png")):
             target = figures / f"{name}-{png.name}"
             shutil.copyfile(png, target)
             lines += [f"![{name} {png.stem}](figures/{target.name})", ""]
-        reading = _reading(name, rows)
+        reading = [] if name == "beyond" else _reading(name, rows)
         if reading:
             lines += ["Reading (computed from the table):", ""] + [f"- {s}" for s in reading] + [""]
     missing = [name for name in EXPERIMENTS if name not in found]
