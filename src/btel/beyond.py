@@ -12,7 +12,8 @@
 2. **Gardens Point** (500-D NetVLAD, day → night, N = 200) over budgets 1 KB … 64 KB: where
    sub-linear storage meets a descriptor whose bits transfer across conditions.
 3. **Synthetic routes** (N = 2048, d = 256) at 16 KB over the appearance change between map and
-   query traverse: where the crossover between BTEL and PQ lies.
+   query traverse: where the crossover between BTEL and PQ lies; and several map traverses with
+   shared labels (variant 6: BTE-C fitted on two traverses under different conditions).
 4. **Diagnostics**: per-bit accuracy on the queries against bit level, per descriptor (HOG and
    patch-normalised thumbnails on Nordland, NetVLAD on Gardens Point) and per variant.
 
@@ -252,13 +253,20 @@ def _synthetic_rows(quick: bool, log: Any) -> list[dict[str, Any]]:
     b = parse_budget(budget)
     rows = []
     for shift in shifts:
-        route = synthetic_route(n, dim, condition_shift=shift, seed=0)
+        # Traverse 0 is the map, 1 the queries, 2 a second map traverse under its own conditions.
+        route = synthetic_route(n, dim, n_traverses=3, condition_shift=shift, seed=0)
         truth = np.arange(n)
-        for label, name in (("BTE-C", "btel-c"), ("PQ", "pq"), ("OPQ", "opq")):
+        for label, name in (("BTE-C", "btel-c"), ("PQ", "pq"), ("OPQ", "opq"), ("BTE-C, 2 map traverses", "btel-c")):
             base = {"part": "synthetic", "descriptor": f"synthetic {dim}-D", "condition_shift": shift,
                     "method": label, "registry_name": name, "family": "btel" if name == "btel-c" else "quantiser",
                     "n_places": n, "budget": b, "decoder": "single"}
-            fitted = _fit(name, {}, route.map, b)
+            if "traverses" in label:  # variant 6: shared labels across traverses (fit(X, places))
+                model = make_method(name, budget=b)
+                start = time.perf_counter()
+                model.fit(np.concatenate([route.map, route.traverses[2]]), np.concatenate([truth, truth]))
+                fitted = (model, time.perf_counter() - start)
+            else:
+                fitted = _fit(name, {}, route.map, b)
             if isinstance(fitted, int):
                 rows.append({**base, "status": f"does not fit (needs ≥ {fitted} B)", "nbytes": None,
                          "minimum_bytes": fitted})
