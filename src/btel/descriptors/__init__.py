@@ -19,6 +19,7 @@ Descriptors computed elsewhere (NetVLAD, ...) are read with :func:`load_descript
 
 from __future__ import annotations
 
+from .augment import augmented_views
 from .base import DESCRIPTORS, ImageDescriptor, get_descriptor, load_descriptor, register_descriptor
 from .densevlad import DenseVLADDescriptor, dense_rootsift, vlad_encode
 from .extract import extract_descriptors
@@ -28,6 +29,7 @@ from .npy import load_descriptor_matrix
 from .patchnorm import PatchNormDescriptor, patch_normalise
 
 __all__ = [
+    "augmented_views",
     "DESCRIPTORS",
     "IMAGE_EXTENSIONS",
     "DenseVLADDescriptor",
