@@ -15,7 +15,11 @@
    query traverse: where the crossover between BTEL and PQ lies; and several map traverses with
    shared labels (variant 6: BTE-C fitted on two traverses under different conditions).
 4. **Diagnostics**: per-bit accuracy on the queries against bit level, per descriptor (HOG and
-   patch-normalised thumbnails on Nordland, NetVLAD on Gardens Point) and per variant.
+   patch-normalised thumbnails on Nordland, NetVLAD on Gardens Point) and per variant, beside two
+   references that locate the loss: the bits of the unbudgeted nearest neighbour's place (what
+   the descriptor itself carries across the condition change) and, for HOG, BTE-C's bits on the
+   *next summer frame* when fitted on every other summer frame (generalisation within the map's
+   own season, no condition change at all).
 
 Validation protocol (nothing is tuned on reported queries): the Nordland query traverse is cut
 into stretches of 200 frames; every fifth stretch (0, 5, 10, 15) holds the validation queries,
@@ -282,7 +286,14 @@ def _synthetic_rows(quick: bool, log: Any) -> list[dict[str, Any]]:
 def _diagnostics(data: "NordlandData", root: Path, budget: int, out: Path,
                  hog_models: dict[str, Any]) -> dict[str, Any]:
     """Part 4: per-bit accuracy plots, one per descriptor, one line per variant; returns their numbers."""
-    from .diagnostics import localizer_bit_accuracy, plot_bit_accuracy
+    from .diagnostics import bit_accuracy, localizer_bit_accuracy, plot_bit_accuracy
+    from .encoding import encode, n_bits_for
+
+    def nearest_neighbour_bits(X: np.ndarray, Q: np.ndarray) -> Any:
+        """Bits of the brute-force nearest neighbour's place against the true place's bits."""
+        nn = make_method("bruteforce").fit(X).predict(Q)
+        b = n_bits_for(len(X))
+        return bit_accuracy(2.0 * encode(nn, b) - 1.0, encode(np.arange(len(Q)), b))
 
     summary: dict[str, Any] = {}
     per_descriptor: dict[str, dict[str, Any]] = {}
@@ -293,10 +304,17 @@ def _diagnostics(data: "NordlandData", root: Path, budget: int, out: Path,
         if descriptor == "hog":  # the models of part 1 (summer map), not refitted
             for name, model in hog_models.items():
                 curves[name] = localizer_bit_accuracy(model, Q[:n], np.arange(n))
+            # Within-season generalisation: place k = summer frames 2k (fitted) and 2k + 1 (queried).
+            half = n // 2
+            fitted = _fit("btel-c", {}, X[0 : 2 * half : 2], budget)
+            if not isinstance(fitted, int):
+                curves["BTE-C, next summer frame (held out)"] = localizer_bit_accuracy(
+                    fitted[0], X[1 : 2 * half : 2], np.arange(half))
         else:
             fitted = _fit("btel-c", {}, X[:n], budget)
             if not isinstance(fitted, int):
                 curves["BTE-C"] = localizer_bit_accuracy(fitted[0], Q[:n], np.arange(n))
+        curves["nearest neighbour's place (unbudgeted)"] = nearest_neighbour_bits(X[:n], Q[:n])
         per_descriptor[label + " summer→winter"] = curves
     gp = root.parent / "gardenspoint_netvlad" / "hiddenRepr-GardensPoint.npz"
     if gp.is_file():
@@ -307,6 +325,7 @@ def _diagnostics(data: "NordlandData", root: Path, budget: int, out: Path,
             fitted = _fit("btel-c", opts, X, parse_budget("16KB"))
             if not isinstance(fitted, int):
                 curves[name] = localizer_bit_accuracy(fitted[0], Q, np.arange(len(Q)))
+        curves["nearest neighbour's place (unbudgeted)"] = nearest_neighbour_bits(X, Q)
         per_descriptor["Gardens Point NetVLAD day→night (16 KB)"] = curves
     for title, curves in per_descriptor.items():
         if not curves:
