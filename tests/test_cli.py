@@ -120,3 +120,29 @@ def test_nordland_extract_train_localize_evaluate(nordland_dir: Path, tmp_path: 
     assert recompute_recall_from_csv(run_dir / "predictions_map.csv", recorded) == pytest.approx(recorded)
     assert recompute_recall_from_csv(preds, recorded) == pytest.approx(recorded)
     assert metrics["run"]["command"]  # the command line is recorded with the run
+
+
+def test_train_with_code_options_and_localize_with_hmm_and_top_k(small_pair, tmp_path: Path) -> None:
+    db, q = small_pair
+    model = tmp_path / "m.btel.npz"
+    result = run("train", db, "-o", model, "--budget", "8KB", "--tolerance", "5", "--code-copies", "2",
+                 "--exemplar-radius", "1")
+    assert result.exit_code == 0, result.output
+    from btel import load
+
+    fitted = load(model)
+    assert fitted.block_size == 4 and fitted.code_copies == 2 and fitted.exemplar_radius == 1
+    preds = tmp_path / "p.csv"
+    result = run("localize", model, q, "-o", preds, "--hmm", "--top-k", "3")
+    assert result.exit_code == 0, result.output
+    rows = [r.split(",") for r in preds.read_text().splitlines()]
+    assert rows[0] == ["query", "prediction", "rank_1", "rank_2", "rank_3"] and len(rows) == 301
+    ranked = np.array([[int(v) for v in r[2:]] for r in rows[1:]])
+    np.testing.assert_array_equal(ranked, fitted.rank(np.load(q), 3))
+    for args, message in ((["--hmm", "--sequence-filter", "3"], "not both"), (["--top-k", "0"], "k")):
+        result = run("localize", model, q, "-o", preds, *args)
+        assert result.exit_code != 0 and message in result.output
+    result = run("train", db, "-o", model, "--block-size", "4", "--tolerance", "4")
+    assert result.exit_code != 0 and "not both" in result.output
+    result = run("train", db, "-o", model, "--method", "pq", "--code-copies", "2")
+    assert result.exit_code != 0 and "only apply to BTEL" in result.output

@@ -169,9 +169,17 @@ def extract(images_dir: str, output: str, descriptor: str, fit_on: str | None, s
 @click.option("--scheduler", default=None, help="With --backend dask: the scheduler address, e.g. tcp://10.0.0.5:8786.")
 @click.option("--no-progress", is_flag=True, help="BTEL: no progress bar.")
 @click.option("--seed", "random_state", type=int, default=None, help="Random seed.")
+@click.option("--block-size", type=int, default=None,
+              help="BTEL: tolerance-aware codes, index blocks of B places and answer the block centre.")
+@click.option("--tolerance", type=int, default=None,
+              help="BTEL: the tolerance t you need (frames); sets --block-size to the largest power of two ≤ t.")
+@click.option("--code-copies", type=int, default=None, help="BTEL: offset (error-correcting) codes, m copies.")
+@click.option("--exemplar-radius", type=int, default=None, help="BTEL: multi-exemplar weights within ±e places.")
 def train(db: str, output: str, method: str, budget: str | None, regions: str | None, feature_ratio: float | None,
           n_features: int | None, classifier: str | None, dtype: str | None, n_jobs: int | None,
-          backend: str | None, scheduler: str | None, no_progress: bool, random_state: int | None) -> None:
+          backend: str | None, scheduler: str | None, no_progress: bool, random_state: int | None,
+          block_size: int | None, tolerance: int | None, code_copies: int | None,
+          exemplar_radius: int | None) -> None:
     """Fit a model on map descriptors DB and save it; prints the storage breakdown.
 
     DB is a .npy matrix (row i = place i; memory-mapped, so maps larger than RAM work), an .npz,
@@ -181,6 +189,12 @@ def train(db: str, output: str, method: str, budget: str | None, regions: str | 
 
     if scheduler is not None and backend != "dask":
         raise click.UsageError("--scheduler only applies with --backend dask.")
+    if block_size is not None and tolerance is not None:
+        raise click.UsageError("give --block-size or --tolerance, not both.")
+    if tolerance is not None:
+        from .localizer import block_size_for_tolerance
+
+        block_size = block_size_for_tolerance(tolerance)
     X = _load_map(db)
     params: dict[str, Any] = {"budget": budget}
     if method.startswith("btel"):
@@ -189,10 +203,13 @@ def train(db: str, output: str, method: str, budget: str | None, regions: str | 
             n_regions = regions if regions == "auto" else _int(regions, "--regions")
         params.update(n_regions=n_regions, feature_ratio=feature_ratio, n_features=n_features,
                       classifier=classifier, dtype=dtype, n_jobs=n_jobs, random_state=random_state,
-                      backend=backend, scheduler=scheduler, progress=False if no_progress else None)
+                      backend=backend, scheduler=scheduler, progress=False if no_progress else None,
+                      block_size=block_size, code_copies=code_copies, exemplar_radius=exemplar_radius)
     else:
         unsupported = {"--regions": regions, "--feature-ratio": feature_ratio, "--n-features": n_features,
-                       "--classifier": classifier, "--dtype": dtype, "--backend": backend}
+                       "--classifier": classifier, "--dtype": dtype, "--backend": backend,
+                       "--block-size/--tolerance": block_size, "--code-copies": code_copies,
+                       "--exemplar-radius": exemplar_radius}
         used = [k for k, v in unsupported.items() if v is not None]
         if used:
             raise click.UsageError(f"{', '.join(used)} only apply to BTEL methods, not {method!r}.")
@@ -218,11 +235,16 @@ def train(db: str, output: str, method: str, budget: str | None, regions: str | 
                    "print one prediction per line as each arrives.")
 @click.option("--input", "input_path", type=click.Path(dir_okay=False), default=None,
               help="With --stream: read this text file instead of stdin.")
+@click.option("--hmm", is_flag=True,
+              help="Batch: decode the queries as one ordered traverse with the HMM over places (forward motion; "
+                   "no extra stored bytes) instead of frame by frame.")
+@click.option("--top-k", type=int, default=None,
+              help="Batch: also write the K most likely places per query (ranked output) as columns rank_1…rank_K.")
 @click.option("--follow", is_flag=True, help="With --stream --input: keep reading as the file grows (like tail -f).")
 @click.option("--idle-timeout", type=float, default=None,
               help="With --follow: stop after this many seconds without a new line (default: run until Ctrl-C).")
 def localize(model_path: str, queries: str | None, output: str | None, window: int | None, stream: bool,
-             input_path: str | None, follow: bool, idle_timeout: float | None) -> None:
+             input_path: str | None, hmm: bool, top_k: int | None, follow: bool, idle_timeout: float | None) -> None:
     """Predict the place of every query with a saved MODEL.
 
     \b
@@ -237,6 +259,8 @@ def localize(model_path: str, queries: str | None, output: str | None, window: i
     from .sequence import filter_sequence
 
     if stream:
+        if hmm or top_k is not None:
+            raise click.UsageError("--hmm and --top-k apply to batch localization, not --stream.")
         if queries is not None or output is not None:
             raise click.UsageError("--stream reads stdin (or --input) and writes stdout; drop QUERIES and -o.")
         _localize_stream(load(model_path), input_path, follow, idle_timeout, window)
@@ -245,16 +269,25 @@ def localize(model_path: str, queries: str | None, output: str | None, window: i
         raise click.UsageError("--input, --follow and --idle-timeout only apply with --stream.")
     if queries is None or output is None:
         raise click.UsageError("give QUERIES and -o/--output (or use --stream).")
+    if hmm and window is not None:
+        raise click.UsageError("choose --hmm or --sequence-filter, not both.")
     model = load(model_path)
     Q = _load_matrix(queries, "query descriptors")
-    predictions = model.predict(Q)
+    if top_k is not None and not getattr(model, "supports_ranking", False):
+        raise click.UsageError(f"{type(model).__name__} does not rank candidates; drop --top-k.")
+    predictions = model.predict_sequence(Q, "hmm") if hmm else model.predict(Q)
     if window is not None:
         predictions = filter_sequence(predictions, window, n_places=model.n_places_)
+    ranked = model.rank(Q, top_k) if top_k is not None else None
     Path(output).parent.mkdir(parents=True, exist_ok=True)
     with open(output, "w", newline="") as fh:
         writer = csv.writer(fh)
-        writer.writerow(["query", "prediction"])
-        writer.writerows(zip(range(len(predictions)), predictions.tolist()))
+        head = ["query", "prediction"]
+        if ranked is not None:
+            head += [f"rank_{j + 1}" for j in range(ranked.shape[1])]
+        writer.writerow(head)
+        for i, p in enumerate(predictions.tolist()):
+            writer.writerow([i, p, *(ranked[i].tolist() if ranked is not None else [])])
     click.echo(f"{len(predictions)} predictions written to {output}")
 
 
