@@ -88,12 +88,24 @@ def _check_budget(label: str, model: Any, budget: int | None) -> None:
 def _fit(name: str, params: dict[str, Any], X: np.ndarray, budget: int | None) -> tuple[Any, float] | int:
     """(fitted model, seconds), or the minimum bytes when the budget is too small."""
     model = make_method(name, **({"budget": budget} if budget is not None else {}), **params)
+    if "random_state" in model.get_params():  # the same numbers on every run
+        model.set_params(random_state=0)
     start = time.perf_counter()
     try:
         model.fit(X)
     except BudgetTooSmallError as exc:
         return int(exc.minimum or 0)
     return model, time.perf_counter() - start
+
+
+def _single_frame_row(base: dict[str, Any], fitted: tuple[Any, float] | int, Q: np.ndarray,
+                      truth: np.ndarray) -> dict[str, Any]:
+    """The result row of one fitted method read frame by frame (or its "does not fit" row)."""
+    if isinstance(fitted, int):
+        return {**base, "status": f"does not fit (needs ≥ {fitted} B)", "nbytes": None, "minimum_bytes": fitted}
+    model, fit_s = fitted
+    _check_budget(base["method"], model, base["budget"])
+    return {**base, "status": "ok", "nbytes": int(model.nbytes), "fit_s": fit_s, **_recalls(model.predict(Q), truth)}
 
 
 def _nordland_rows(data: "NordlandData", budget: int, quick: bool, log: Any,
@@ -230,15 +242,7 @@ def _gardens_point_rows(root: Path, quick: bool, log: Any) -> list[dict[str, Any
             base = {"part": "gardens-point", "descriptor": "NetVLAD 500-D", "direction": "day→night",
                     "method": label, "registry_name": name, "family": "btel" if name.startswith("btel") else "quantiser",
                     "n_places": int(X.shape[0]), "budget": b, "decoder": "single"}
-            fitted = _fit(name, opts, X, b)
-            if isinstance(fitted, int):
-                rows.append({**base, "status": f"does not fit (needs ≥ {fitted} B)", "nbytes": None,
-                         "minimum_bytes": fitted})
-                continue
-            model, fit_s = fitted
-            _check_budget(label, model, b)
-            rows.append({**base, "status": "ok", "nbytes": int(model.nbytes), "fit_s": fit_s,
-                         **_recalls(model.predict(Q), truth)})
+            rows.append(_single_frame_row(base, _fit(name, opts, X, b), Q, truth))
         log(f"Gardens Point {budget} done")
     bf = make_method("bruteforce").fit(X)
     rows.append({"part": "gardens-point", "descriptor": "NetVLAD 500-D", "direction": "day→night",
@@ -265,20 +269,13 @@ def _synthetic_rows(quick: bool, log: Any) -> list[dict[str, Any]]:
                     "method": label, "registry_name": name, "family": "btel" if name == "btel-c" else "quantiser",
                     "n_places": n, "budget": b, "decoder": "single"}
             if "traverses" in label:  # variant 6: shared labels across traverses (fit(X, places))
-                model = make_method(name, budget=b)
+                model = make_method(name, budget=b, random_state=0)
                 start = time.perf_counter()
                 model.fit(np.concatenate([route.map, route.traverses[2]]), np.concatenate([truth, truth]))
                 fitted = (model, time.perf_counter() - start)
             else:
                 fitted = _fit(name, {}, route.map, b)
-            if isinstance(fitted, int):
-                rows.append({**base, "status": f"does not fit (needs ≥ {fitted} B)", "nbytes": None,
-                         "minimum_bytes": fitted})
-                continue
-            model, fit_s = fitted
-            _check_budget(label, model, b)
-            rows.append({**base, "status": "ok", "nbytes": int(model.nbytes), "fit_s": fit_s,
-                         **_recalls(model.predict(route.queries), truth)})
+            rows.append(_single_frame_row(base, fitted, route.queries, truth))
         log(f"synthetic shift {shift} done")
     return rows
 
