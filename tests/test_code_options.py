@@ -158,7 +158,8 @@ def test_several_traverses_share_labels():
 
 
 # -- ranking, scores, sequences ------------------------------------------------------------------
-@pytest.mark.parametrize("kw", [{}, {"block_size": 5}, {"code_copies": 2}, {"n_regions": 3}])
+@pytest.mark.parametrize("kw", [{}, {"block_size": 5}, {"code_copies": 2}, {"n_regions": 3},
+                                {"block_size": 5, "code_copies": 2, "n_regions": 3, "exemplar_radius": 1}])
 def test_rank_agrees_with_scores(route, kw):
     model = _fit(route.map, feature_ratio=0.5, **kw)
     ranked = model.rank(route.queries, 6)
