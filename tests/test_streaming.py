@@ -18,7 +18,7 @@ from btel import BTELocalizer, filter_sequence, load
 from btel.cli import main
 from btel.datasets import synthetic_route
 from btel.encoding import decode_constrained, n_bits_for
-from btel.exceptions import InvalidDescriptorsError
+from btel.exceptions import InvalidDescriptorsError, InvalidParameterError
 from btel.streaming import localize_stream, parse_descriptor_line, read_lines
 
 
@@ -95,6 +95,21 @@ def test_stream_equals_batch_predict_plus_filter(route, model_path: Path) -> Non
     np.testing.assert_array_equal([p for _, p in out], expected)
 
 
+def test_stream_hmm_equals_batch_hmm(route, model_path: Path) -> None:
+    # Online forward filtering, one line at a time, is the batch decode of the same traverse.
+    model = load(model_path)
+    Q = route.queries[:80]
+    lines = as_lines(Q)
+    lines.insert(10, "not, numbers\n")
+    errors: list[tuple[int, str]] = []
+    out = list(localize_stream(model, io.StringIO("".join(lines)), hmm=True,
+                               on_error=lambda n, m: errors.append((n, m))))
+    assert [n for n, _ in errors] == [11] and len(out) == 80
+    np.testing.assert_array_equal([p for _, p in out], model.predict_sequence(Q, "hmm"))
+    with pytest.raises(InvalidParameterError, match="not both"):
+        list(localize_stream(model, io.StringIO(lines[0]), hmm=True, window=5))
+
+
 def test_one_query_at_a_time_equals_batch(route, model_path: Path) -> None:
     # The single-query fast paths (decode on Python ints, per-region weight blocks) agree with batch.
     model = load(model_path)
@@ -147,6 +162,8 @@ def test_cli_stream_skips_malformed_lines_and_goes_on(route, model_path: Path) -
         (["--stream", "--follow"], "--follow needs --input"),
         (["QUERIES", "-o", "p.csv", "--follow"], "only apply with --stream"),
         ([], "give QUERIES"),
+        (["--stream", "--hmm", "--sequence-filter", "5"], "not both"),
+        (["--stream", "--top-k", "3"], "batch"),
     ],
 )
 def test_cli_stream_usage_errors(model_path: Path, args: list[str], message: str) -> None:

@@ -236,8 +236,8 @@ def train(db: str, output: str, method: str, budget: str | None, regions: str | 
 @click.option("--input", "input_path", type=click.Path(dir_okay=False), default=None,
               help="With --stream: read this text file instead of stdin.")
 @click.option("--hmm", is_flag=True,
-              help="Batch: decode the queries as one ordered traverse with the HMM over places (forward motion; "
-                   "no extra stored bytes) instead of frame by frame.")
+              help="Decode the queries as one ordered traverse with the HMM over places (forward motion; no extra "
+                   "stored bytes) instead of frame by frame; online (one update per frame) with --stream.")
 @click.option("--top-k", type=int, default=None,
               help="Batch: also write the K most likely places per query (ranked output) as columns rank_1…rank_K.")
 @click.option("--follow", is_flag=True, help="With --stream --input: keep reading as the file grows (like tail -f).")
@@ -249,7 +249,7 @@ def localize(model_path: str, queries: str | None, output: str | None, window: i
 
     \b
     Batch:  btel localize MODEL QUERIES.npy -o predictions.csv   (writes query,prediction CSV)
-    Stream: producer | btel localize MODEL --stream --sequence-filter 5
+    Stream: producer | btel localize MODEL --stream --sequence-filter 5   (or --hmm)
             btel localize MODEL --stream --input frames.txt --follow
     In stream mode each line of input is one descriptor; each output line is the place index of the
     next well-formed input line. A malformed line (wrong count, not a number, NaN) gets a one-line
@@ -259,11 +259,13 @@ def localize(model_path: str, queries: str | None, output: str | None, window: i
     from .sequence import filter_sequence
 
     if stream:
-        if hmm or top_k is not None:
-            raise click.UsageError("--hmm and --top-k apply to batch localization, not --stream.")
+        if top_k is not None:
+            raise click.UsageError("--top-k applies to batch localization, not --stream.")
+        if hmm and window is not None:
+            raise click.UsageError("choose --hmm or --sequence-filter, not both.")
         if queries is not None or output is not None:
             raise click.UsageError("--stream reads stdin (or --input) and writes stdout; drop QUERIES and -o.")
-        _localize_stream(load(model_path), input_path, follow, idle_timeout, window)
+        _localize_stream(load(model_path), input_path, follow, idle_timeout, window, hmm)
         return
     if input_path is not None or follow or idle_timeout is not None:
         raise click.UsageError("--input, --follow and --idle-timeout only apply with --stream.")
@@ -292,7 +294,7 @@ def localize(model_path: str, queries: str | None, output: str | None, window: i
 
 
 def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_timeout: float | None,
-                     window: int | None) -> None:
+                     window: int | None, hmm: bool = False) -> None:
     """The --stream loop: one flushed output line per well-formed input line."""
     from .streaming import localize_stream
 
@@ -310,7 +312,7 @@ def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_time
     source = open(input_path) if input_path is not None else sys.stdin
     try:
         for _, place in localize_stream(model, source, window=window, on_error=report, follow=follow,
-                                        idle_timeout=idle_timeout):
+                                        idle_timeout=idle_timeout, hmm=hmm):
             click.echo(place)  # click.echo flushes: a reader of the pipe sees each line at once
             n_out += 1
     except KeyboardInterrupt:  # stopping a --follow stream is the normal way to end it

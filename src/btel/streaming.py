@@ -23,7 +23,7 @@ from typing import Any, Callable, Iterator, TextIO
 
 import numpy as np
 
-from .exceptions import DimensionMismatchError, InvalidDescriptorsError
+from .exceptions import DimensionMismatchError, InvalidDescriptorsError, InvalidParameterError
 from .sequence import SequenceFilter
 
 __all__ = ["parse_descriptor_line", "read_lines", "localize_stream"]
@@ -122,6 +122,7 @@ def localize_stream(
     on_error: Callable[[int, str], Any] | None = None,
     follow: bool = False,
     idle_timeout: float | None = None,
+    hmm: bool = False,
 ) -> Iterator[tuple[int, int]]:
     """Localize each descriptor line as it arrives.
 
@@ -138,6 +139,10 @@ def localize_stream(
         Default: ignore.
     follow, idle_timeout
         For a file being appended to: see :func:`read_lines`.
+    hmm : bool
+        Decode with the online HMM over places (:class:`btel.sequence_decoding.HMMDecoder`, default
+        options) on each frame's per-place scores instead of frame by frame; costs O(N·b) per frame
+        for BTEL. Not combined with ``window``.
 
     Yields
     ------
@@ -147,7 +152,14 @@ def localize_stream(
     if hasattr(lines, "readline"):
         lines = read_lines(lines, follow=follow, idle_timeout=idle_timeout)  # type: ignore[arg-type]
     n_features = getattr(model, "n_features_in_", None)
+    if hmm and window is not None:
+        raise InvalidParameterError("choose the HMM or the sequence filter (window), not both.")
     filt = SequenceFilter(window, n_places=getattr(model, "n_places_", None)) if window is not None else None
+    decoder = None
+    if hmm:
+        from .sequence_decoding import HMMDecoder, method_scores, zscore_rows
+
+        decoder = HMMDecoder(int(model.n_places_))
     for number, line in enumerate(lines, start=1):
         if not line.strip():
             continue
@@ -158,7 +170,10 @@ def localize_stream(
                 on_error(number, str(exc))
             continue
         try:
-            place = int(model.predict(q)[0])
+            if decoder is not None:
+                place = decoder.update(zscore_rows(method_scores(model, q))[0])
+            else:
+                place = int(model.predict(q)[0])
         except (InvalidDescriptorsError, DimensionMismatchError) as exc:  # a model without n_features_in_
             if on_error is not None:
                 on_error(number, str(exc))
