@@ -57,7 +57,7 @@ from btel.exceptions import BudgetTooSmallError  # noqa: E402
 from btel.methods import make_method  # noqa: E402
 from btel.ranking import rank_places  # noqa: E402
 from btel.sequence import filter_sequence  # noqa: E402
-from btel.sequence_decoding import decode_sequence, method_scores, zscore_rows  # noqa: E402
+from btel.sequence_decoding import decode_sequence, emission_scores  # noqa: E402
 from btel.storage import format_bytes, parse_budget  # noqa: E402
 
 SEASONS = ("summer", "winter")
@@ -174,8 +174,8 @@ def evaluate_method(label: str, model: Any, X: np.ndarray, Q: np.ndarray, val: n
         row.update(r_at_k(ranked, rep))
     extra = {"model": model, "pred_val": pred_val, "pred_rep": pred_rep}
     if scores:
-        extra["S_val"] = zscore_rows(method_scores(model, Q[val], region_weight=region_weight)).astype(np.float32)
-        extra["S_rep"] = zscore_rows(method_scores(model, Q[rep], region_weight=region_weight)).astype(np.float32)
+        extra["S_val"] = emission_scores(model, Q[val], region_weight=region_weight).astype(np.float32)
+        extra["S_rep"] = emission_scores(model, Q[rep], region_weight=region_weight).astype(np.float32)
     return {"row": row, **extra}
 
 

@@ -99,9 +99,9 @@ class PlaceLocalizer(BaseEstimator):
                 raise InvalidParameterError(f"decoder='median' takes only window; got {sorted(unknown)}.")
             return filter_sequence(self.predict(Q), int(options.get("window", 5)), n_places=int(self.n_places_))
         if decoder == "hmm":
-            from .sequence_decoding import decode_sequence, method_scores, zscore_rows
+            from .sequence_decoding import decode_sequence, emission_scores
 
-            return decode_sequence(zscore_rows(method_scores(self, Q)), **options)
+            return decode_sequence(emission_scores(self, Q), **options)
         raise InvalidParameterError(f"decoder must be 'hmm' or 'median'; got {decoder!r}.")
 
     def storage_breakdown(self) -> dict[str, int]:

@@ -41,9 +41,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .evaluation import DEFAULT_TOLERANCES, recall_at_k, recall_at_tolerance
-from .exceptions import BudgetExceededError, BudgetTooSmallError
+from .exceptions import BudgetTooSmallError
 from .methods import make_method
-from .storage import parse_budget
+from .storage import check_within_budget, parse_budget
 
 if TYPE_CHECKING:  # pragma: no cover
     from .experiments import ExperimentRun, NordlandData
@@ -80,11 +80,6 @@ def _recalls(pred: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     return {f"recall@{t}": v for t, v in recall_at_tolerance(pred, truth, DEFAULT_TOLERANCES).items()}
 
 
-def _check_budget(label: str, model: Any, budget: int | None) -> None:
-    if budget is not None and model.nbytes > budget:
-        raise BudgetExceededError(f"{label} stores {model.nbytes} B, over its budget of {budget} B.")
-
-
 def _fit(name: str, params: dict[str, Any], X: np.ndarray, budget: int | None) -> tuple[Any, float] | int:
     """(fitted model, seconds), or the minimum bytes when the budget is too small."""
     model = make_method(name, **({"budget": budget} if budget is not None else {}), **params)
@@ -104,7 +99,7 @@ def _single_frame_row(base: dict[str, Any], fitted: tuple[Any, float] | int, Q: 
     if isinstance(fitted, int):
         return {**base, "status": f"does not fit (needs ≥ {fitted} B)", "nbytes": None, "minimum_bytes": fitted}
     model, fit_s = fitted
-    _check_budget(base["method"], model, base["budget"])
+    check_within_budget(base["method"], model.nbytes, base["budget"])
     return {**base, "status": "ok", "nbytes": int(model.nbytes), "fit_s": fit_s, **_recalls(model.predict(Q), truth)}
 
 
@@ -142,7 +137,7 @@ def _nordland_rows(data: "NordlandData", budget: int, quick: bool, log: Any,
                              "nbytes": None, "minimum_bytes": fitted})
                 continue
             model, fit_s = fitted
-            _check_budget(label, model, budget)
+            check_within_budget(label, model.nbytes, budget)
             if family == "btel" and map_season == "summer":
                 keep[label] = model
             common = {**base, "nbytes": int(model.nbytes), "fit_s": fit_s, "status": "ok"}
@@ -177,9 +172,9 @@ def _median_by_stretch(single: np.ndarray, resets: np.ndarray, n: int) -> np.nda
 def _hmm(model: Any, Q: np.ndarray, truth: np.ndarray, val: np.ndarray, rep: np.ndarray,
          resets: np.ndarray) -> dict[str, Any]:
     """HMM decoding with temperature and vmax chosen on the validation rows."""
-    from .sequence_decoding import decode_sequence, method_scores, zscore_rows
+    from .sequence_decoding import decode_sequence, emission_scores
 
-    S = zscore_rows(method_scores(model, Q))
+    S = emission_scores(model, Q)
     best: tuple[float, dict[str, Any], np.ndarray] | None = None
     for temperature, vmax in itertools.product(HMM_GRID["temperature"], HMM_GRID["vmax"]):
         pred = decode_sequence(S, temperature=temperature, vmax=vmax, resets=resets)

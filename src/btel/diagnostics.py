@@ -155,7 +155,7 @@ def localizer_bit_accuracy(model: Any, Q: Any, true_places: Any) -> BitDiagnosti
         raise InvalidParameterError(
             f"true_places must hold one place in [0, {model.n_places_}) per query row ({Qc.shape[0]})."
         )
-    truth = truth // int(getattr(model, "block_size_", 1))  # the trees index blocks
+    truth = truth // model.block_size_  # the trees index blocks
     starts, sizes, offsets = tree_layout(model)
     region = np.searchsorted(starts, truth, side="right") - 1
     all_margins = model.hyperplanes_.margins(Qc).astype(np.float64)

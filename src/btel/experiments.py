@@ -34,10 +34,10 @@ from typing import Any, Callable
 import numpy as np
 
 from .evaluation import DEFAULT_TOLERANCES, EvaluationResult, evaluate, recall_at_tolerance, recall_curve, run_metadata
-from .exceptions import BudgetExceededError, BudgetTooSmallError, DataNotFoundError, InvalidParameterError
+from .exceptions import BudgetTooSmallError, DataNotFoundError, InvalidParameterError
 from .methods import make_method
 from .sequence import filter_sequence
-from .storage import format_bytes, parse_budget
+from .storage import check_within_budget, format_bytes, parse_budget
 
 __all__ = ["EXPERIMENTS", "NordlandData", "ExperimentRun", "run_experiment", "default_nordland_root"]
 
@@ -135,10 +135,7 @@ def _fit_row(name: str, data: NordlandData, *, budget: Any, n_places: int | None
     except BudgetTooSmallError as exc:
         row.update(status=f"does not fit (needs ≥ {exc.minimum} B)", nbytes=None, minimum_bytes=exc.minimum)
         return row, None
-    if budget_bytes is not None and result.nbytes is not None and result.nbytes > budget_bytes:
-        raise BudgetExceededError(
-            f"{label or name} stores {result.nbytes} B, over its budget of {budget_bytes} B: a bug in its budget fitting."
-        )
+    check_within_budget(label or name, result.nbytes, budget_bytes)
     row.update(status="ok", nbytes=result.nbytes, fit_s=result.fit_time_s,
                query_us=result.query_time_s_per_query * 1e6,
                **{f"recall@{t}": result.recall[t] for t in result.recall})

@@ -55,6 +55,21 @@ def _save(fig: Figure, path: str | os.PathLike) -> None:
     fig.savefig(path, format="png")
 
 
+def _finish_recall_plot(fig: Figure, ax: Any, path: str | os.PathLike, *, xlabel: str, ylabel: str = "recall",
+                        title: str | None = None, credit: str | None = None, legend_size: str = "small") -> None:
+    """Labels, the [0, 1] recall axis, grid, legend, title and credit line; then save."""
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_ylim(0.0, 1.02)
+    ax.grid(True, which="both", alpha=0.3)  # minor lines only show on log axes
+    ax.legend(fontsize=legend_size)
+    if title:
+        ax.set_title(title)
+    if credit:
+        fig.text(0.99, 0.005, credit, ha="right", va="bottom", fontsize="xx-small", color="grey")
+    _save(fig, path)
+
+
 def _field(item: Any, key: str, default: Any = None) -> Any:
     """Read ``key`` from an EvaluationResult-like object or a dict (e.g. from metrics.json)."""
     if isinstance(item, Mapping):
@@ -165,14 +180,7 @@ def _plot_rows(
     ax.set_xscale("log")
     if x_formatter is not None:
         ax.xaxis.set_major_formatter(x_formatter)
-    ax.set_xlabel(xlabel)
-    ax.set_ylabel(f"recall (tolerance {tolerance} frames)")
-    ax.set_ylim(0.0, 1.02)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize="small")
-    if title:
-        ax.set_title(title)
-    _save(fig, path)
+    _finish_recall_plot(fig, ax, path, xlabel=xlabel, ylabel=f"recall (tolerance {tolerance} frames)", title=title)
     return fig
 
 
@@ -230,16 +238,7 @@ def plot_curves(
     fig, ax = _new_figure()
     for label, values in curves.items():
         ax.step(np.arange(len(values)), values, where="post", label=label)
-    ax.set_xlabel("tolerance (frames)")
-    ax.set_ylabel("recall")
-    ax.set_ylim(0.0, 1.02)
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize="x-small")
-    if title:
-        ax.set_title(title)
-    if credit:
-        fig.text(0.99, 0.005, credit, ha="right", va="bottom", fontsize="xx-small", color="grey")
-    _save(fig, path)
+    _finish_recall_plot(fig, ax, path, xlabel="tolerance (frames)", title=title, credit=credit, legend_size="x-small")
     return fig
 
 
@@ -259,16 +258,7 @@ def plot_parameter_sweep(
     xs = [float(r[x_key]) for r in ok]
     for t in tolerances:
         ax.plot(xs, [float(r[f"recall@{t}"]) for r in ok], marker="o", label=f"recall@{t}")
-    ax.set_xlabel(xlabel)
-    ax.set_ylabel("recall")
-    ax.set_ylim(0.0, 1.02)
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize="small")
-    if title:
-        ax.set_title(title)
-    if credit:
-        fig.text(0.99, 0.005, credit, ha="right", va="bottom", fontsize="xx-small", color="grey")
-    _save(fig, path)
+    _finish_recall_plot(fig, ax, path, xlabel=xlabel, title=title, credit=credit)
     return fig
 
 
@@ -384,14 +374,10 @@ def _plot_beyond(rows: Sequence[Mapping[str, Any]], out_dir: Path) -> list[Path]
         for method in dict.fromkeys(r["method"] for r in synth):
             pts = sorted((float(r["condition_shift"]), float(r["recall@10"])) for r in synth if r["method"] == method)
             ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=method)
-        ax.set_xlabel("appearance change between map and query traverse (condition_shift)")
-        ax.set_ylabel("recall@10")
-        ax.set_ylim(0.0, 1.02)
-        ax.grid(True, alpha=0.3)
-        ax.legend(fontsize="small")
         budget = synth[0].get("budget")
-        ax.set_title(f"Synthetic route, N = {synth[0]['n_places']}, ≤ {format_bytes(budget) if budget else '?'}")
         path = out_dir / "synthetic_crossover.png"
-        _save(fig, path)
+        _finish_recall_plot(fig, ax, path, xlabel="appearance change between map and query traverse (condition_shift)",
+                            ylabel="recall@10",
+                            title=f"Synthetic route, N = {synth[0]['n_places']}, ≤ {format_bytes(budget) if budget else '?'}")
         written.append(path)
     return written

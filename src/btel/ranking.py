@@ -38,7 +38,7 @@ import numpy as np
 
 from ._validation import check_descriptors, check_is_fitted, check_positive_int
 from .encoding import _check_margins as _check_decode_margins
-from .encoding import bit_codes, n_bits_for
+from .encoding import bit_codes
 from .exceptions import InvalidParameterError
 
 __all__ = ["kbest_codes", "soft_scores", "tree_layout", "region_deficits", "place_costs", "rank_places"]
@@ -143,18 +143,7 @@ def tree_layout(model: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         )
     starts = np.asarray(model.region_starts_, dtype=np.int64)
     sizes = np.asarray(model.region_sizes_, dtype=np.int64)
-    offsets = getattr(model, "_tree_offsets", None)
-    if offsets is None:
-        offsets = np.concatenate([[0], np.cumsum([n_bits_for(int(s)) for s in sizes])])
-    return starts, sizes, np.asarray(offsets, dtype=np.int64)
-
-
-def _copies(model: Any) -> int:
-    return int(getattr(model, "code_copies_", 1))
-
-
-def _block(model: Any) -> int:
-    return int(getattr(model, "block_size_", 1))
+    return starts, sizes, np.asarray(model._tree_offsets, dtype=np.int64)
 
 
 def _tree_costs(m: np.ndarray, n_k: int, copies: int) -> np.ndarray:
@@ -218,17 +207,16 @@ def place_costs(model: Any, Q: Any, *, region_weight: float = 1.0) -> np.ndarray
     """
     alpha = _check_weight(region_weight)
     margins, deficits, (starts, sizes, offsets) = _margins_and_deficits(model, Q)
-    n_codes = int(getattr(model, "n_codes_", model.n_places_))
-    out = np.empty((margins.shape[0], n_codes))
+    out = np.empty((margins.shape[0], int(model.n_codes_)))
     for k, (s, n_k) in enumerate(zip(starts.tolist(), sizes.tolist())):
         m = margins[:, offsets[k] : offsets[k + 1]]
         if n_k == 1:  # a one-place region has no bits: its one place costs nothing in the tree
             tree = np.zeros((m.shape[0], 1))
         else:
-            tree = _tree_costs(m, n_k, _copies(model))
+            tree = _tree_costs(m, n_k, model.code_copies_)
         out[:, s : s + n_k] = tree + alpha * deficits[:, k : k + 1]
-    if _block(model) > 1:  # every place costs what its block costs
-        out = out[:, np.arange(int(model.n_places_)) // _block(model)]
+    if model.block_size_ > 1:  # every place costs what its block costs
+        out = out[:, np.arange(int(model.n_places_)) // model.block_size_]
     return out
 
 
@@ -264,11 +252,12 @@ def rank_places(
     """
     alpha = _check_weight(region_weight)
     searched = check_positive_int(n_regions_searched, "n_regions_searched")
-    if _copies(model) > 1:
+    tree_layout(model)  # fitted, compressed: checked before reading the code options
+    if model.code_copies_ > 1:
         # Offset codes: no best-first search over flips of independent bits; rank every code.
         return _rank_by_costs(model, Q, k, alpha)
     margins, deficits, (starts, sizes, offsets) = _margins_and_deficits(model, Q)
-    n = int(getattr(model, "n_codes_", model.n_places_))
+    n = int(model.n_codes_)
     k = min(check_positive_int(k, "k"), n)
     places = np.empty((margins.shape[0], k), dtype=np.int64)
     costs = np.empty((margins.shape[0], k))
@@ -292,16 +281,12 @@ def rank_places(
         order = np.argsort(np.asarray(cand_costs), kind="stable")[:k]
         places[q] = np.asarray(cand_places, dtype=np.int64)[order]
         costs[q] = np.asarray(cand_costs)[order]
-    if _block(model) > 1:  # distinct blocks → their distinct centre places
-        from .localizer import block_centres
-
-        places = block_centres(places, _block(model), int(model.n_places_))
-    return places, costs
+    return model._places_of_codes(places), costs  # distinct blocks → distinct centre places
 
 
 def _rank_by_costs(model: Any, Q: Any, k: int, alpha: float) -> tuple[np.ndarray, np.ndarray]:
     """Top-k codes by :func:`place_costs` over every code (O(N·K) per query), as places."""
-    block = _block(model)
+    block = model.block_size_
     costs = place_costs(model, Q, region_weight=alpha)
     if block > 1:
         costs = costs[:, ::block]  # one column per block (its first place), block order
@@ -310,9 +295,4 @@ def _rank_by_costs(model: Any, Q: Any, k: int, alpha: float) -> tuple[np.ndarray
         np.broadcast_to(np.arange(costs.shape[1]), costs.shape).copy()
     order = np.argsort(np.take_along_axis(costs, top, axis=1), axis=1, kind="stable")
     codes = np.take_along_axis(top, order, axis=1).astype(np.int64)
-    top_costs = np.take_along_axis(costs, codes, axis=1)
-    if block > 1:
-        from .localizer import block_centres
-
-        codes = block_centres(codes, block, int(model.n_places_))
-    return codes, top_costs
+    return model._places_of_codes(codes), np.take_along_axis(costs, codes, axis=1)

@@ -33,7 +33,8 @@ import numpy as np
 from ._validation import check_descriptors, check_is_fitted, check_positive_int
 from .exceptions import InvalidParameterError
 
-__all__ = ["HMMDecoder", "decode_sequence", "zscore_rows", "method_scores", "transition_kernel", "MODES"]
+__all__ = ["HMMDecoder", "decode_sequence", "zscore_rows", "method_scores", "emission_scores", "transition_kernel",
+           "MODES"]
 
 MODES = ("forward", "viterbi")
 
@@ -246,6 +247,16 @@ def zscore_rows(scores: Any) -> np.ndarray:
         raise InvalidParameterError(f"scores must be 2-D (n_queries, N); got shape {S.shape}.")
     std = S.std(axis=1, keepdims=True)
     return (S - S.mean(axis=1, keepdims=True)) / np.where(std > 0, std, 1.0)
+
+
+def emission_scores(model: Any, Q: Any, *, region_weight: float = 1.0) -> np.ndarray:
+    """HMM emissions of any fitted method: :func:`method_scores` z-scored per query row.
+
+    Returns
+    -------
+    ndarray of shape (n_queries, N), float64
+    """
+    return zscore_rows(method_scores(model, Q, region_weight=region_weight))
 
 
 def method_scores(model: Any, Q: Any, *, region_weight: float = 1.0) -> np.ndarray:

@@ -21,9 +21,10 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .exceptions import InvalidParameterError, ModelFileError, UnsupportedModelVersionError
+from .exceptions import BudgetExceededError, InvalidParameterError, ModelFileError, UnsupportedModelVersionError
 
 __all__ = [
+    "check_within_budget",
     "FORMAT_NAME",
     "FORMAT_VERSION",
     "parse_budget",
@@ -203,3 +204,11 @@ def load_arrays(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[st
             f"(≤ {FORMAT_VERSION}). Upgrade btel (pip install -U btel) to load it."
         )
     return arrays, header
+
+
+def check_within_budget(label: str, nbytes: int | None, budget: int | None) -> None:
+    """Fail the run when a method stored more than its budget: a bug in its budget fitting."""
+    if budget is not None and nbytes is not None and nbytes > budget:
+        raise BudgetExceededError(
+            f"{label} stores {nbytes} B, over its budget of {budget} B: a bug in its budget fitting."
+        )

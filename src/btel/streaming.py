@@ -157,7 +157,7 @@ def localize_stream(
     filt = SequenceFilter(window, n_places=getattr(model, "n_places_", None)) if window is not None else None
     decoder = None
     if hmm:
-        from .sequence_decoding import HMMDecoder, method_scores, zscore_rows
+        from .sequence_decoding import HMMDecoder, emission_scores
 
         decoder = HMMDecoder(int(model.n_places_))
     for number, line in enumerate(lines, start=1):
@@ -171,7 +171,7 @@ def localize_stream(
             continue
         try:
             if decoder is not None:
-                place = decoder.update(zscore_rows(method_scores(model, q))[0])
+                place = decoder.update(emission_scores(model, q)[0])
             else:
                 place = int(model.predict(q)[0])
         except (InvalidDescriptorsError, DimensionMismatchError) as exc:  # a model without n_features_in_

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from ..exceptions import InvalidParameterError
-from .images import ImageInput, as_image_list, iter_grey
+from .images import ImageInput, as_float_grey, as_image_list, iter_grey
 
 __all__ = ["augmented_views"]
 
@@ -74,7 +74,7 @@ def augmented_views(
     views: list[np.ndarray] = []
     places: list[int] = []
     for i, grey in enumerate(iter_grey(items, progress=progress, desc="augment")):
-        g = grey.astype(np.float32) / 255.0 if grey.dtype == np.uint8 else grey.astype(np.float32)
+        g = as_float_grey(grey)
         own: list[np.ndarray] = [g]
         own += [np.clip(g * k, 0.0, 1.0) for k in gains]
         mean = float(g.mean())

@@ -286,6 +286,11 @@ def resize_grey(grey: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     if grey.shape != (height, width):
         shrink = width * height <= grey.shape[0] * grey.shape[1]
         grey = cv2.resize(grey, (width, height), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+    return as_float_grey(grey)
+
+
+def as_float_grey(grey: np.ndarray) -> np.ndarray:
+    """A grey image (from :func:`to_grey`) as float32 in [0, 1]: uint8 is divided by 255."""
     if grey.dtype == np.uint8:
         return grey.astype(np.float32) / np.float32(255.0)
     return grey.astype(np.float32, copy=False)
