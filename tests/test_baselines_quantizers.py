@@ -34,19 +34,23 @@ def test_rule_reproduces_the_spec_reference_configuration():
     assert pinned.planned_bytes(pinned.choose_config(3576, 3780, 292_000), 3576, 3780) == 291_984
 
 
-@pytest.mark.parametrize("cls", [PQLocalizer, OPQLocalizer])
+@pytest.mark.parametrize("always_project", [False, True], ids=["pq", "opq-rotation"])
 @pytest.mark.parametrize("budget", [2_000, 20_000, 100_000, 2_000_000])
-def test_rule_takes_the_most_code_bits_that_fit(cls, budget):
-    model = cls()
+def test_rule_takes_the_most_code_bits_that_fit(always_project, budget):
+    model = PQLocalizer()
     n_rows, d = 400, 48
-    chosen = model.choose_config(n_rows, d, budget)
-    chosen_bytes = model.planned_bytes(chosen, n_rows, d)
+
+    def planned(c):
+        return model.planned_bytes(c, n_rows, d, always_project=always_project)
+
+    chosen = model.choose_config(n_rows, d, budget, always_project=always_project)
+    chosen_bytes = planned(chosen)
     assert chosen_bytes <= budget
-    fitting = [c for c in model.candidates(n_rows, d) if model.planned_bytes(c, n_rows, d) <= budget]
+    fitting = [c for c in model.candidates(n_rows, d) if planned(c) <= budget]
     assert chosen in fitting
     assert chosen.code_bits == max(c.code_bits for c in fitting)
     ties = [c for c in fitting if c.code_bits == chosen.code_bits]
-    assert chosen_bytes == min(model.planned_bytes(c, n_rows, d) for c in ties)
+    assert chosen_bytes == min(planned(c) for c in ties)
     for c in model.candidates(n_rows, d):
         assert c.dim % c.n_subquantizers == 0 and (1 << c.nbits) <= n_rows
         assert c.dim == d or c.dim <= n_rows
@@ -54,7 +58,8 @@ def test_rule_takes_the_most_code_bits_that_fit(cls, budget):
 
 def test_opq_counts_its_rotation_even_without_reduction():
     config = PQConfig(48, 8, 4)
-    assert OPQLocalizer().planned_bytes(config, 400, 48) == PQLocalizer().planned_bytes(config, 400, 48) + 48 * 48 * 4
+    assert PQLocalizer().planned_bytes(config, 400, 48, always_project=True) == \
+        PQLocalizer().planned_bytes(config, 400, 48) + 48 * 48 * 4
 
 
 def test_rule_is_deterministic_and_monotone_in_budget():
@@ -93,7 +98,7 @@ def test_explicit_parameters_are_honoured_and_validated(data):
         PQLocalizer(nbits=8).fit(X[:100])
     with pytest.raises(InvalidParameterError, match="pca_dim=64 exceeds"):
         PQLocalizer(pca_dim=64).fit(X)
-    with pytest.raises(InvalidParameterError, match="nbits must be between"):
+    with pytest.raises(InvalidParameterError, match="nbits must be None or an integer ≥ 1 and ≤ 8; got 9"):
         PQLocalizer(nbits=9).fit(X)
     with pytest.raises(NotEnoughPlacesError, match="at least 16"):
         PQLocalizer().fit(X[:10])
@@ -131,7 +136,7 @@ def test_no_pca_means_no_projection_stored(data):
 
 def test_opq_projection_has_orthonormal_columns(data):
     X, Q = data
-    model = OPQLocalizer(pca_dim=16, n_subquantizers=4, nbits=4, n_iter=5, n_jobs=1).fit(X)
+    model = OPQLocalizer(pq=PQLocalizer(pca_dim=16, n_subquantizers=4, nbits=4), n_iter=5, n_jobs=1).fit(X)
     P = model.projection_
     assert P.shape == (48, 16)
     np.testing.assert_allclose(P.T @ P, np.eye(16), atol=1e-4)
@@ -144,11 +149,12 @@ def test_opq_quantises_better_than_pq_at_the_same_configuration(data):
     # OPQ's rotation exists to lower the quantisation error of the same code (Ge et al. 2014).
     X, _ = data
     errors = []
-    for cls in (PQLocalizer, OPQLocalizer):
-        model = cls(pca_dim=16, n_subquantizers=4, nbits=4, n_jobs=1).fit(X)
-        index = model._get_index()
+    pq = PQLocalizer(pca_dim=16, n_subquantizers=4, nbits=4, n_jobs=1)
+    for model in (pq, OPQLocalizer(pq=pq, n_jobs=1)):
+        model.fit(X)
+        quantiser = model if isinstance(model, PQLocalizer) else model.pq_
         Y = X @ model.projection_
-        errors.append(float(((index.sa_decode(model.codes_) - Y) ** 2).sum()))
+        errors.append(float(((quantiser._index.sa_decode(quantiser.codes_) - Y) ** 2).sum()))
     assert errors[1] < errors[0]
 
 

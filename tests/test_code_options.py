@@ -228,8 +228,9 @@ def test_errors(route):
         _fit(route.map, exemplar_radius=-1)
     with pytest.raises(InvalidParameterError, match="decoder"):
         _fit(route.map, feature_ratio=0.2).predict_sequence(route.queries, "viterbi")
-    with pytest.raises(InvalidParameterError, match="compressed"):
-        _fit(route.map, scheme="full", feature_ratio=0.2).rank(route.queries, 3)
+    # BTE-F ranks too (by the flip cost along each place's path), starting with its greedy descent.
+    full = _fit(route.map, scheme="full", feature_ratio=0.2)
+    np.testing.assert_array_equal(full.rank(route.queries, 3)[:, 0], full.predict(route.queries))
 
 
 @pytest.mark.realdata

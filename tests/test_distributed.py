@@ -115,7 +115,7 @@ def test_cli_missing_dask_is_a_one_line_error(route, monkeypatch, tmp_path: Path
     "backend, scheduler, message",
     [
         ("spark", None, "backend must be"),
-        ("threads", "tcp://127.0.0.1:8786", "only applies to backend='dask'"),
+        ("threads", "tcp://127.0.0.1:8786", "only applies with backend='dask'"),
         ("dask", "", "scheduler must be"),
     ],
 )

@@ -12,7 +12,7 @@ from btel.datasets import synthetic_route
 from btel.encoding import decode_constrained, decode_soft, n_bits_for
 from btel.evaluation import recall_at_k
 from btel.exceptions import InvalidParameterError, NotEnoughPlacesError, NotFittedError
-from btel.ranking import kbest_codes, place_costs, rank_places, soft_scores
+from btel.ranking import code_costs, kbest_codes, merge_region_kbest, soft_scores
 
 
 def brute_force_top(margins: np.ndarray, n: int, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -119,40 +119,59 @@ def regional(route):
     return BTELocalizer(feature_ratio=0.5, n_regions=4, progress=False, random_state=0).fit(route.map)
 
 
-def test_rank_places_r1_matches_kbest_of_decision_function(plain, route):
-    places, costs = rank_places(plain, route.queries, 7)
+def _layout(model, Q):
+    """(column margins, region deficits) of a fitted BTEL model, what the pure functions take."""
+    from btel.ranking import deficits_from_scores
+
+    Qt = model.front_end_.transform(Q)
+    scores = None if model.n_regions_ == 1 else model.region_hyperplanes_.margins(Qt)
+    return model.column_margins(Q).astype(np.float64), deficits_from_scores(scores, model.n_regions_, Q.shape[0])
+
+
+def test_search_r1_matches_kbest_of_decision_function(plain, route):
+    scores, places = plain.search(route.queries, 7)
     idx, cost = kbest_codes(plain.decision_function(route.queries), 300, 7)
     np.testing.assert_array_equal(places, idx)
-    np.testing.assert_allclose(costs, cost, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(-scores, cost, rtol=1e-6, atol=1e-6)
 
 
 @pytest.mark.parametrize("searched", [1, 2, 4])
 @pytest.mark.parametrize("alpha", [0.0, 1.0, 5.0])
-def test_rank_places_with_regions_matches_sorted_place_costs(regional, route, searched, alpha):
+def test_merged_region_kbest_matches_sorted_code_costs(regional, route, searched, alpha):
     Q = route.queries[:40]
-    places, costs = rank_places(regional, Q, 10, n_regions_searched=searched, region_weight=alpha)
-    full = place_costs(regional, Q, region_weight=alpha)
-    # The returned costs are the places' costs under the documented rule.
-    np.testing.assert_allclose(np.take_along_axis(full, places, axis=1), costs, rtol=1e-6, atol=1e-6)
+    margins, deficits = _layout(regional, Q)
+    layout = (regional.region_starts_, regional.region_sizes_, regional.tree_offsets_)
+    codes, costs = merge_region_kbest(margins, deficits, *layout, 10, n_regions_searched=searched,
+                                      region_weight=alpha)
+    full = code_costs(margins, deficits, *layout, region_weight=alpha)
+    # The returned costs are the codes' costs under the documented rule.
+    np.testing.assert_allclose(np.take_along_axis(full, codes, axis=1), costs, rtol=1e-6, atol=1e-6)
     assert np.all(np.diff(costs, axis=1) >= -1e-9)
     if searched == 4:  # every region searched: the k best places overall
         np.testing.assert_allclose(costs, np.sort(full, axis=1)[:, :10], rtol=1e-6, atol=1e-6)
 
 
+def test_search_scores_are_minus_the_place_costs(regional, route):
+    Q = route.queries[:40]
+    scores, places = regional.search(Q, 10)
+    np.testing.assert_allclose(np.take_along_axis(regional.place_scores(Q), places, axis=1), scores,
+                               rtol=1e-6, atol=1e-6)
+
+
 def test_predicted_region_comes_first_and_matches_predict(regional, route):
     Q = route.queries
-    places, _ = rank_places(regional, Q, 5, n_regions_searched=1)
+    places = regional.rank(Q, 5)
     starts = regional.region_starts_
     region_of = np.searchsorted(starts, places, side="right") - 1
     np.testing.assert_array_equal(region_of[:, 0], regional.predict_region(Q))
     # With the soft decode, the top candidate is the localizer's own prediction.
     soft = BTELocalizer(feature_ratio=0.5, n_regions=4, decode="soft", progress=False, random_state=0)
     soft.fit(route.map)
-    np.testing.assert_array_equal(rank_places(soft, Q, 1)[0][:, 0], soft.predict(Q))
+    np.testing.assert_array_equal(soft.rank(Q, 5)[:, 0], soft.predict(Q))
 
 
 def test_r_at_k_grows_with_k_and_top1_is_soft_decode(plain, route):
-    places, _ = rank_places(plain, route.queries, 20)
+    places = plain.rank(route.queries, 20)
     r = recall_at_k(places, None, ks=(1, 5, 10, 20))
     assert r[1] <= r[5] <= r[10] <= r[20]
     soft_top1 = np.mean(decode_soft(plain.decision_function(route.queries), 300) == np.arange(300))
@@ -160,16 +179,15 @@ def test_r_at_k_grows_with_k_and_top1_is_soft_decode(plain, route):
 
 
 def test_ranking_errors(route):
-    full = BTELocalizer(scheme="full", feature_ratio=0.5, progress=False).fit(route.map[:64])
-    with pytest.raises(InvalidParameterError, match="compressed"):
-        rank_places(full, route.queries[:3], 2)
     with pytest.raises(NotFittedError):
-        rank_places(BTELocalizer(), route.queries[:3], 2)
+        BTELocalizer().rank(route.queries[:3], 2)
 
 
 def test_bad_region_weight(plain, route):
+    margins, deficits = _layout(plain, route.queries[:2])
     with pytest.raises(InvalidParameterError, match="region_weight"):
-        place_costs(plain, route.queries[:2], region_weight=-1)
+        code_costs(margins, deficits, plain.region_starts_, plain.region_sizes_, plain.tree_offsets_,
+                   region_weight=-1)
 
 
 # ------------------------------------------------------------------------- real data
@@ -177,7 +195,8 @@ def test_bad_region_weight(plain, route):
 def test_ranking_on_gardens_point(gardenspoint_netvlad):
     X, Q = gardenspoint_netvlad
     model = BTELocalizer(feature_ratio=0.3, progress=False, random_state=0).fit(X)
-    places, costs = rank_places(model, Q, 10)
+    scores, places = model.search(Q, 10)
+    costs = -scores
     n = X.shape[0]
     ref_idx, ref_scores = brute_force_top(model.decision_function(Q).astype(np.float64), n, 10)
     np.testing.assert_allclose(np.abs(model.decision_function(Q).astype(np.float64)).sum(1, keepdims=True) - costs,

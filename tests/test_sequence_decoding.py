@@ -12,9 +12,9 @@ from btel.baselines import BruteForceNN, ITQLocalizer, PQLocalizer
 from btel.datasets import synthetic_route
 from btel.encoding import decode_soft
 from btel.exceptions import InvalidParameterError, NotFittedError
-from btel.ranking import place_costs
+from btel.ranking import soft_scores
 from btel.sequence import filter_sequence
-from btel.sequence_decoding import HMMDecoder, decode_sequence, method_scores, transition_kernel, zscore_rows
+from btel.sequence_decoding import HMMDecoder, decode_sequence, transition_kernel, zscore_rows
 
 
 def transition_matrix(n, vmin, vmax, backward, teleport):
@@ -180,35 +180,36 @@ def route():
     return synthetic_route(256, 32, seed=5)
 
 
-def test_method_scores_argmax_is_each_methods_prediction(route):
+def test_place_scores_argmax_is_each_methods_prediction(route):
     X, Q = route.map, route.queries
     for model in (BruteForceNN(), PQLocalizer(n_subquantizers=8, nbits=4), ITQLocalizer(code_bits=16)):
         model.fit(X)
-        S = method_scores(model, Q)
+        S = model.place_scores(Q)
         assert S.shape == (Q.shape[0], X.shape[0])
         best = S[np.arange(Q.shape[0]), model.predict(Q)]
         np.testing.assert_allclose(best, S.max(axis=1), rtol=1e-5)  # ties allowed (ITQ)
     bf = BruteForceNN().fit(X)
     sq = ((Q[:, None, :].astype(np.float64) - X[None, :, :]) ** 2).sum(-1)
-    np.testing.assert_allclose(-method_scores(bf, Q), sq, rtol=1e-4, atol=1e-3)
+    np.testing.assert_allclose(-bf.place_scores(Q), sq, rtol=1e-4, atol=1e-3)
 
 
-def test_method_scores_of_ryth_are_its_soft_decode_scores(route):
+def test_place_scores_of_ryth_are_its_soft_decode_scores(route):
     from btel.ryth import RYTHLocalizer
 
     model = RYTHLocalizer(decode="soft", feature_ratio=0.5, random_state=0).fit(route.map)
-    S = method_scores(model, route.queries)
+    S = model.place_scores(route.queries)
     assert S.shape == (256, 256)
     np.testing.assert_array_equal(np.argmax(S, axis=1), model.predict(route.queries))
 
 
-def test_method_scores_of_btel_are_minus_place_costs(route):
+def test_place_scores_of_btel_are_minus_flip_costs(route):
     model = BTELocalizer(feature_ratio=0.5, progress=False, random_state=0).fit(route.map)
-    S = method_scores(model, route.queries)
-    np.testing.assert_allclose(S, -place_costs(model, route.queries))
+    S = model.place_scores(route.queries)
+    margins = model.decision_function(route.queries).astype(np.float64)
+    np.testing.assert_allclose(S, soft_scores(margins, 256) - np.abs(margins).sum(axis=1, keepdims=True), atol=1e-9)
     np.testing.assert_array_equal(np.argmax(S, axis=1), decode_soft(model.decision_function(route.queries), 256))
     with pytest.raises(NotFittedError):
-        method_scores(BTELocalizer(), route.queries)
+        BTELocalizer().place_scores(route.queries)
 
 
 # ------------------------------------------------------------------------- real data
@@ -216,7 +217,7 @@ def test_method_scores_of_btel_are_minus_place_costs(route):
 def test_hmm_on_gardens_point_beats_single_frames(gardenspoint_netvlad):
     X, Q = gardenspoint_netvlad
     n = X.shape[0]
-    S = zscore_rows(method_scores(BruteForceNN().fit(X), Q))
+    S = zscore_rows(BruteForceNN().fit(X).place_scores(Q))
     single = np.mean(np.abs(np.argmax(S, axis=1) - np.arange(n)) <= 2)
     hmm = np.mean(np.abs(decode_sequence(S, temperature=1.0, vmax=2) - np.arange(n)) <= 2)
     assert hmm > single

@@ -144,12 +144,16 @@ def test_save_load_gives_identical_predictions(params, route, tmp_path: Path) ->
     loaded = btel.load(path)
     assert_same_model(model, loaded, route.queries)
     assert 0 <= path.stat().st_size - model.nbytes <= MAX_OVERHEAD
-    # Parameters survive (dtype given as a numpy type is stored by name).
-    expected = {k: (np.dtype(v).name if k == "dtype" else v) for k, v in model.get_params().items()}
+    # Parameters survive (dtype given as a numpy type is stored by name); runtime settings (n_jobs,
+    # backend, scheduler, progress) are not model content and come back at their defaults.
+    defaults = BTELocalizer().get_params()
+    expected = {k: (np.dtype(v).name if k == "dtype" else defaults[k] if k in BTELocalizer._runtime_params else v)
+                for k, v in model.get_params().items()}
     assert loaded.get_params() == expected
     # The file holds exactly the stored arrays, nothing else.
     arrays, header = load_arrays(path)
     assert set(arrays) == set(model.storage_breakdown())
+    assert "n_jobs" not in header["params"] and "progress" not in header["params"]
     assert header["model"] == "BTELocalizer" and header["format_version"] == FORMAT_VERSION
 
 
@@ -303,11 +307,11 @@ def test_newer_format_version(model_file: Path, tmp_path: Path) -> None:
         (lambda h: h.update(format_version="1"), "no valid format version"),
         (lambda h: h.update(model="NotAModel"), "unknown type 'NotAModel'"),
         (lambda h: h.update(params=[1, 2]), "params/state are not objects"),
-        (lambda h: h.update(params={"bogus": 1}), "inconsistent with a BTELocalizer"),
-        (lambda h: h["state"].update(n_places=1), "header and arrays disagree"),
-        (lambda h: h["state"].update(n_places=10_000), "header implies"),
-        (lambda h: h["state"].update(n_selected=0), "header and arrays disagree"),
-        (lambda h: h["state"].pop("n_features_in"), "inconsistent with a BTELocalizer"),
+        (lambda h: h.update(params={"bogus": 1}), "parameters \\['bogus'\\] that BTELocalizer does not take"),
+        (lambda h: h["state"].update(n_places=1), r"n_places = 1 is not an integer in \[2, "),
+        (lambda h: h["state"].update(n_places=10_000), "classifiers; its regions imply"),
+        (lambda h: h["state"].update(n_selected=0), "n_selected = 0 is not an integer in"),
+        (lambda h: h["state"].pop("n_features_in"), "n_features_in = None is not an integer"),
     ],
 )
 def test_edited_headers(model_file: Path, tmp_path: Path, edit, message: str) -> None:
@@ -323,13 +327,13 @@ def _set(key, value):
 @pytest.mark.parametrize(
     ("edit", "message"),
     [
-        (lambda a: a.pop("bias"), "inconsistent with a BTELocalizer"),
-        (lambda a: a.pop("region_weights"), "inconsistent with a BTELocalizer"),
-        (_set("weights", lambda a: a["weights"][:-1]), "header implies"),
-        (_set("columns", lambda a: np.full_like(a["columns"], 60000)), "column indices in the model file"),
-        (lambda a: a.pop("columns"), "column indices in the model file"),
-        (_set("region_starts", lambda a: a["region_starts"][::-1].copy()), "header and arrays disagree"),
-        (_set("region_weights", lambda a: a["region_weights"][:1]), "region classifier size"),
+        (lambda a: a.pop("bias"), "lacks the array 'bias'"),
+        (lambda a: a.pop("region_weights"), "lacks the array 'region_weights'"),
+        (_set("weights", lambda a: a["weights"][:-1]), "classifiers; its regions imply"),
+        (_set("columns", lambda a: np.full_like(a["columns"], 60000)), "columns index past d"),
+        (lambda a: a.pop("columns"), "lacks the array 'columns'"),
+        (_set("region_starts", lambda a: a["region_starts"][::-1].copy()), "region starts are not increasing"),
+        (_set("region_weights", lambda a: a["region_weights"][:1]), "array 'region_weights' has shape"),
     ],
 )
 def test_edited_arrays(model_file: Path, tmp_path: Path, edit, message: str) -> None:

@@ -6,11 +6,13 @@
 
 from __future__ import annotations
 
-from .base import PlaceLocalizer, load
+from .base import PlaceLocalizer
 from .localizer import BTELocalizer
+from .methods import load, make_method
 from .sequence import SequenceFilter, filter_sequence
 from .storage import parse_budget
 
 __version__ = "0.1.0"
 
-__all__ = ["BTELocalizer", "PlaceLocalizer", "SequenceFilter", "filter_sequence", "load", "parse_budget", "__version__"]
+__all__ = ["BTELocalizer", "PlaceLocalizer", "SequenceFilter", "filter_sequence", "load", "make_method", "parse_budget",
+           "__version__"]

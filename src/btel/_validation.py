@@ -11,6 +11,7 @@ from .exceptions import (
     DimensionMismatchError,
     InvalidDescriptorsError,
     InvalidParameterError,
+    ModelFileError,
     NotEnoughPlacesError,
     NotFittedError,
 )
@@ -184,3 +185,181 @@ def check_is_fitted(estimator: Any, attribute: str) -> None:
             f"This {type(estimator).__name__} is not fitted yet. Call fit(X) on map descriptors first, "
             "or load a saved model with btel.load(path)."
         )
+
+
+# -- declared parameter constraints ---------------------------------------------------------------
+# Each estimator declares ``_parameter_constraints = {name: [constraint, ...]}`` once (the value must
+# satisfy at least one), in the style of scikit-learn. The same table validates parameters in
+# ``fit``, in :func:`btel.methods.make_method` (CLI ``--param``) and in the header of a model file.
+
+
+class Interval:
+    """Numbers of one kind in a range: ``Interval(int, 1, None)`` is an integer ≥ 1.
+
+    Parameters
+    ----------
+    kind : {int, float}
+        ``int`` accepts integers only (not bool); ``float`` accepts any real number (ints too).
+    low, high : float or None
+        Bounds (None: unbounded on that side). Infinite and NaN values are never accepted.
+    closed : {'both', 'left', 'right', 'neither'}
+        Which bounds are included.
+    """
+
+    def __init__(self, kind: type, low: float | None, high: float | None, closed: str = "both") -> None:
+        self.kind, self.low, self.high, self.closed = kind, low, high, closed
+
+    def accepts(self, value: Any) -> bool:
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
+            return False
+        if self.kind is int and not isinstance(value, numbers.Integral):
+            return False
+        if not np.isfinite(float(value)):
+            return False
+        left = self.closed in ("both", "left")
+        right = self.closed in ("both", "right")
+        if self.low is not None and (value < self.low or (value == self.low and not left)):
+            return False
+        if self.high is not None and (value > self.high or (value == self.high and not right)):
+            return False
+        return True
+
+    def describe(self) -> str:
+        what = "an integer" if self.kind is int else "a number"
+        lo = "" if self.low is None else f"{'≥' if self.closed in ('both', 'left') else '>'} {self.low:g}"
+        hi = "" if self.high is None else f"{'≤' if self.closed in ('both', 'right') else '<'} {self.high:g}"
+        bounds = " and ".join(b for b in (lo, hi) if b)
+        return f"{what} {bounds}".strip()
+
+
+class Options:
+    """One of a fixed set of values (strings, usually)."""
+
+    def __init__(self, *values: Any) -> None:
+        self.values = tuple(values)
+
+    def accepts(self, value: Any) -> bool:
+        try:
+            return any(value == v and type(value) is type(v) for v in self.values)
+        except Exception:  # unhashable or odd comparisons: not one of ours
+            return False
+
+    def describe(self) -> str:
+        return f"one of {self.values!r}"
+
+
+class String:
+    """Any string (e.g. an address)."""
+
+    def accepts(self, value: Any) -> bool:
+        return isinstance(value, str)
+
+    def describe(self) -> str:
+        return "a string"
+
+
+class DType:
+    """A dtype given by name or as a numpy type (``'float16'``, ``np.float16``) among the allowed names."""
+
+    def __init__(self, *names: str) -> None:
+        self.names = tuple(names)
+
+    def accepts(self, value: Any) -> bool:
+        if isinstance(value, bool) or value is None:
+            return False
+        try:
+            return np.dtype(value).name in self.names
+        except (TypeError, ValueError, AttributeError):
+            return False
+
+    def describe(self) -> str:
+        return f"one of {self.names!r}"
+
+
+class Budget:
+    """A byte budget as :func:`btel.storage.parse_budget` reads it (None = no budget)."""
+
+    def explain(self, value: Any) -> None:
+        """Raise parse_budget's own message (it says how to write a budget)."""
+        from .storage import parse_budget
+
+        parse_budget(value)
+
+    def accepts(self, value: Any) -> bool:
+        from .storage import parse_budget
+
+        if value is None:
+            return True
+        try:
+            parse_budget(value)
+        except InvalidParameterError:
+            return False
+        return True
+
+    def describe(self) -> str:
+        return "a byte budget such as 500000, '500KB' or '2MB' (or None)"
+
+
+#: A seed: None or an integer in [0, 2**32 − 1] (what numpy, liblinear and faiss accept).
+RANDOM_STATE = [None, Interval(int, 0, 2**32 - 1)]
+#: joblib / faiss worker counts: None, −1 (every core) or a positive integer.
+N_JOBS = [None, Interval(int, -1, -1), Interval(int, 1, 4096)]
+BOOLEAN = [Options(True, False)]
+
+
+def _describe(constraint: Any) -> str:
+    return "None" if constraint is None else constraint.describe()
+
+
+def check_param(owner: str, name: str, value: Any, constraints: list[Any]) -> None:
+    """Raise :class:`InvalidParameterError` unless ``value`` satisfies one of ``constraints``."""
+    for constraint in constraints:
+        if constraint is None:
+            if value is None:
+                return
+        elif constraint.accepts(value):
+            return
+    for constraint in constraints:
+        if hasattr(constraint, "explain"):
+            constraint.explain(value)
+    allowed = " or ".join(_describe(c) for c in constraints)
+    text = repr(value)
+    if len(text) > 80:
+        text = text[:77] + "..."
+    raise InvalidParameterError(f"{owner}: {name} must be {allowed}; got {text}.")
+
+
+def check_params(estimator: Any, params: dict[str, Any] | None = None) -> None:
+    """Validate ``params`` (default: ``estimator.get_params()``) against its declared constraints."""
+    table = getattr(estimator, "_parameter_constraints", {})
+    values = estimator.get_params(deep=False) if params is None else params
+    owner = type(estimator).__name__
+    for name, value in values.items():
+        if name in table:
+            check_param(owner, name, value, table[name])
+
+
+# -- fitted state read from a model file ---------------------------------------------------------
+def read_state_int(state: Any, key: str, minimum: int, maximum: int) -> int:
+    """``state[key]`` as an int in [minimum, maximum], or :class:`ModelFileError` (a file is untrusted)."""
+    value = state.get(key) if isinstance(state, dict) else None
+    if isinstance(value, bool) or not isinstance(value, int) or not minimum <= value <= maximum:
+        text = repr(value)
+        raise ModelFileError(
+            f"the model file's {key} = {text[:40]} is not an integer in [{minimum}, {maximum}]; "
+            "the file is corrupt or was edited."
+        )
+    return int(value)
+
+
+class Instance:
+    """An instance of a given class (a nested estimator, e.g. OPQ's ``pq``)."""
+
+    def __init__(self, cls: type) -> None:
+        self.cls = cls
+
+    def accepts(self, value: Any) -> bool:
+        return isinstance(value, self.cls)
+
+    def describe(self) -> str:
+        return f"a {self.cls.__name__}"

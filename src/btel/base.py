@@ -1,72 +1,307 @@
 """The one interface every localization method implements (BTEL and each baseline).
 
-A method is a scikit-learn estimator:
+A method is a scikit-learn estimator with **one required primitive** (faiss-style)::
 
-- ``__init__`` only stores its keyword arguments; ``budget`` (bytes or ``"500KB"``) is one of them
-  for every method, and ``fit`` picks the largest configuration of the method that fits it;
-- ``fit(X, places=None)`` learns from map descriptors (row i = place i when ``places`` is None)
-  and returns ``self``;
-- ``predict(Q)`` returns int64 place indices, one per query row;
-- ``rank(Q, k)`` (only where ``supports_ranking``) returns the k best places per query, best first;
-- :meth:`storage_breakdown` and :attr:`nbytes` report storage by the one rule in
-  :func:`btel.storage.storage_breakdown`: the bytes of the arrays inference reads.
+    search(Q, k) -> (scores, places)     # (n_queries, k) each, best first; higher score = more likely
 
-Subclasses implement ``_stored_arrays()`` (name → array, exactly what inference reads) and, to be
-saved and loaded, ``_fitted_state()`` (JSON-serialisable scalars learned by fit) and
-``_restore(arrays, state)``. Register a class for :func:`btel.load` with :func:`register_model`.
+implemented in the method's own file — either ``_search`` directly, or ``_place_scores`` (a score
+for every place) from which the base class derives ``_search``; each one derives the other.
+Everything else is built here on that primitive alone, so it behaves the same for every method:
+
+- ``predict(Q)`` — the best place per query (``search(Q, 1)``), int64 in [0, N);
+- ``rank(Q, k)`` — the k best places, best first (R@K); ``rank(Q, 1)[:, 0] == predict(Q)``;
+- ``place_scores(Q)`` — (n_queries, N) scores, higher = more likely;
+- ``predict_sequence(Q, 'hmm' | 'median')`` — decoding over an ordered traverse
+  (:mod:`btel.sequence_decoding`, :mod:`btel.sequence`), in blocks of queries (O(block × N) memory);
+- :meth:`storage_breakdown` / :attr:`nbytes` — the storage rule (:func:`btel.storage.storage_breakdown`);
+- :meth:`save` — plain arrays + a JSON header (``btel.load`` reads it back, :mod:`btel.methods`).
+
+``fit(X, places=None)`` is a template: it validates the parameters against the class's declared
+``_parameter_constraints``, validates the descriptors and place labels, fits the front end
+(:mod:`btel.frontend`: normalisation, delta descriptors, whitening — every method has one and stores
+it) and calls the method's ``_fit(X, places, n_places, budget, reserved)`` on the transformed map,
+with ``reserved`` bytes of the budget already taken by the front end and the row → place table.
+
+A subclass implements ``_fit``, ``_search`` or ``_place_scores``, ``_stored_arrays`` (name → array,
+exactly what inference reads), ``_fitted_state`` (JSON scalars), ``_array_specs(state)`` (the
+shape and dtype of every stored array implied by the state, checked on load) and
+``_restore(arrays, state)``.
 """
 
 from __future__ import annotations
 
-import os
-from pathlib import Path
+import inspect
+import time
+from abc import ABC, abstractmethod
 from typing import Any, ClassVar
 
 import numpy as np
 from sklearn.base import BaseEstimator
 
-from ._validation import check_descriptors, check_is_fitted
-from .exceptions import ModelFileError
-from .storage import load_arrays, save_arrays, storage_breakdown
+from ._validation import check_descriptors, check_is_fitted, check_params, check_places, check_positive_int
+from .exceptions import BudgetTooSmallError, InvalidParameterError, NotEnoughPlacesError
+from .frontend import FrontEnd, traverse_starts
+from .storage import format_bytes, parse_budget, save_arrays, storage_breakdown
 
-__all__ = ["PlaceLocalizer", "register_model", "load", "MODEL_CLASSES"]
+__all__ = ["PlaceLocalizer", "ArraySpec", "QueryStream", "top_k"]
 
-MODEL_CLASSES: dict[str, type["PlaceLocalizer"]] = {}
-
-
-def register_model(cls: type["PlaceLocalizer"]) -> type["PlaceLocalizer"]:
-    """Class decorator: make ``cls`` loadable by :func:`load` under its class name."""
-    MODEL_CLASSES[cls.__name__] = cls
-    return cls
+#: Queries scored at a time when a (block × N) score matrix is built (about 32 MB of float64).
+_SCORE_BLOCK_VALUES = 1 << 22
 
 
-class PlaceLocalizer(BaseEstimator):
-    """Mixin with the storage and model-file behaviour shared by every method."""
+class ArraySpec:
+    """Shape and dtype a stored array must have (``None`` in the shape: any length on that axis).
 
-    #: True when the method can return a ranked list of candidate places (R@K).
-    supports_ranking: ClassVar[bool] = False
-    #: The fitted attribute whose presence means "fitted".
+    ``dtype`` may be a tuple of allowed dtypes (e.g. the smallest unsigned integer of a table).
+    """
+
+    def __init__(self, shape: tuple[int | None, ...], dtype: Any, *, required: bool = True) -> None:
+        self.shape = tuple(shape)
+        self.dtypes = tuple(np.dtype(t) for t in (dtype if isinstance(dtype, tuple) else (dtype,)))
+        self.required = required
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of an array of this spec (all axes known; the first allowed dtype)."""
+        return int(np.prod(self.shape, dtype=np.int64)) * self.dtypes[0].itemsize
+
+    def matches(self, array: np.ndarray) -> bool:
+        return array.dtype in self.dtypes and array.ndim == len(self.shape) and all(
+            want is None or want == got for want, got in zip(self.shape, array.shape))
+
+    def describe(self) -> str:
+        dims = ", ".join("n" if s is None else str(s) for s in self.shape)
+        return f"({dims}){',' if len(self.shape) == 1 else ''} {'/'.join(t.name for t in self.dtypes)}"
+
+
+def top_k(scores: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The k highest scores per row and their columns, best first (ties: lowest column first).
+
+    Returns
+    -------
+    values : ndarray of shape (n, k), float64
+    columns : ndarray of shape (n, k), int64
+    """
+    n_cols = scores.shape[1]
+    if k < n_cols:
+        part = np.argpartition(-scores, k - 1, axis=1)[:, :k]
+    else:
+        part = np.broadcast_to(np.arange(n_cols), scores.shape).copy()
+    values = np.take_along_axis(scores, part, axis=1)
+    order = np.lexsort((part, -values), axis=1)
+    columns = np.take_along_axis(part, order, axis=1).astype(np.int64)
+    return np.take_along_axis(values, order, axis=1).astype(np.float64), columns
+
+
+class PlaceLocalizer(BaseEstimator, ABC):
+    """Base class of every localization method (module docstring)."""
+
+    #: True when a query's answer depends on the queries before it (SeqSLAM's sequence search). A
+    #: delta front end makes any method sequence-based too: see :attr:`uses_query_sequence`.
+    uses_sequence: ClassVar[bool] = False
+    #: Declared parameter constraints: name → list of accepted constraints (:mod:`btel._validation`).
+    _parameter_constraints: ClassVar[dict[str, list[Any]]] = {}
+    #: Parameters that say how a model runs, not what it learned: never restored from a model file.
+    _runtime_params: ClassVar[tuple[str, ...]] = ()
+    #: The fitted attribute whose presence means "fitted" (set last by fit and load).
     _fitted_marker: ClassVar[str] = "n_places_"
+    #: Fewest map rows the method can index.
+    _min_rows: ClassVar[int] = 2
 
-    # -- to implement -------------------------------------------------------------------------
-    def _stored_arrays(self) -> dict[str, np.ndarray]:  # pragma: no cover - abstract
-        raise NotImplementedError
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if not inspect.isabstract(cls) and cls._search is PlaceLocalizer._search \
+                and cls._place_scores is PlaceLocalizer._place_scores:
+            raise TypeError(f"{cls.__name__} must implement _search or _place_scores (the method's primitive).")
+
+    # -- to implement ---------------------------------------------------------------------------
+    @abstractmethod
+    def _fit(self, X: np.ndarray, places: np.ndarray | None, n_places: int, budget: int | None,
+             reserved: int) -> None:
+        """Learn from the front-end-transformed map.
+
+        Parameters
+        ----------
+        X : ndarray of shape (n_rows, n_features_out), float32
+            Validated, transformed map (may be memory-mapped: do not copy it whole needlessly).
+        places : ndarray of shape (n_rows,), int64, or None
+            Place of each row; None means row i is place i.
+        n_places : int
+            N ≥ 2.
+        budget : int or None
+            The whole byte budget (None: none).
+        reserved : int
+            Bytes of the budget already taken (front end); the method must fit in ``budget − reserved``.
+        """
+
+    def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """(scores, places) of the k best places for transformed queries; default: from _place_scores."""
+        scores = np.empty((Q.shape[0], k))
+        places = np.empty((Q.shape[0], k), dtype=np.int64)
+        for start, stop, block in self._score_blocks(Q):
+            scores[start:stop], places[start:stop] = top_k(block, k)
+        return scores, places
+
+    def _sequence_context(self) -> int:
+        """Earlier query rows a query's scores depend on (0: single frames; SeqSLAM: ds − 1)."""
+        return 0
+
+    def _score_blocks(self, Q: np.ndarray):
+        """Yield (start, stop, place scores of rows start:stop) over blocks of about 32 MB.
+
+        A sequence method gets the :meth:`_sequence_context` rows before each block too, so a
+        block's scores equal those of the whole sequence.
+        """
+        rows = max(1, _SCORE_BLOCK_VALUES // max(int(self.n_places_), 1))
+        context = self._sequence_context()
+        for start in range(0, Q.shape[0], rows):
+            stop = min(start + rows, Q.shape[0])
+            first = max(0, start - context)
+            yield start, stop, self._place_scores(Q[first:stop])[start - first :]
+
+    def _place_scores(self, Q: np.ndarray) -> np.ndarray:
+        """(n_queries, N) float64 scores of transformed queries; default: every place from _search."""
+        n = int(self.n_places_)
+        scores, places = self._search(Q, n)
+        out = np.empty((Q.shape[0], n))
+        np.put_along_axis(out, places, scores, axis=1)
+        return out
+
+    @abstractmethod
+    def _stored_arrays(self) -> dict[str, np.ndarray]:
+        """Every array inference reads (besides the front end's), at its stored dtype."""
 
     def _fitted_state(self) -> dict[str, Any]:
+        """JSON-serialisable scalars learned by fit (besides N, d and the front end)."""
         return {}
 
-    def _restore(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:  # pragma: no cover
-        raise NotImplementedError(f"{type(self).__name__} cannot be loaded from a file.")
+    @abstractmethod
+    def _array_specs(self, state: dict[str, Any]) -> dict[str, ArraySpec]:
+        """Shape and dtype of every stored array implied by a (validated) fitted state."""
 
-    # -- shared -------------------------------------------------------------------------------
+    @abstractmethod
+    def _restore(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
+        """Set the fitted attributes from checked arrays and state (see :mod:`btel.methods`)."""
+
+    # -- fit ------------------------------------------------------------------------------------
+    def fit(self, X: Any, places: Any = None) -> "PlaceLocalizer":
+        """Learn the map.
+
+        Parameters
+        ----------
+        X : array-like of shape (n_rows, n_features)
+            Map descriptors in route order. Row i is place i unless ``places`` is given.
+        places : array-like of shape (n_rows,), int, optional
+            Place index of each row (several rows may share a place: several traverses, augmented
+            views). Must cover 0..N−1.
+
+        Returns
+        -------
+        self
+        """
+        start = time.perf_counter()
+        check_params(self)
+        X = check_descriptors(X, name="X")
+        labels, n_places = self._check_places(places, X.shape[0])
+        if X.shape[0] < self._min_rows:
+            raise NotEnoughPlacesError(
+                f"{type(self).__name__} needs at least {self._min_rows} map descriptors; got {X.shape[0]}."
+            )
+        budget = parse_budget(self.budget)
+        front = FrontEnd.of(self)
+        reserved = front.planned_bytes(X.shape[1])
+        if budget is not None and reserved >= budget:
+            raise BudgetTooSmallError(
+                f"budget {format_bytes(budget)} ({budget} B) is too small for {type(self).__name__} with "
+                f"whiten = {front.whiten}: the whitening matrix alone needs {reserved} B. Raise the budget or "
+                "whiten to fewer dimensions.", budget=budget, minimum=reserved + 1,
+            )
+        Z = front.fit_transform(X, traverse_starts(labels))
+        self._fit(Z, labels, n_places, budget, reserved)
+        self.front_end_ = front
+        self.n_features_in_ = int(X.shape[1])
+        self.fit_time_ = time.perf_counter() - start
+        setattr(self, self._fitted_marker, int(n_places))  # the fitted marker: set last
+        return self
+
+    @staticmethod
+    def _check_places(places: Any, n_rows: int) -> tuple[np.ndarray | None, int]:
+        """(labels or None for row i = place i, N)."""
+        if places is None:
+            if n_rows < 2:
+                raise NotEnoughPlacesError(
+                    f"X has {n_rows} row (N = 1 place): an index needs at least 2 places. Fit on a longer route."
+                )
+            return None, n_rows
+        labels, n_places = check_places(places, n_rows)
+        if n_places == n_rows and np.array_equal(labels, np.arange(n_rows)):
+            return None, n_places
+        return labels, n_places
+
+    # -- inference --------------------------------------------------------------------------------
+    @property
+    def uses_query_sequence(self) -> bool:
+        """True when answers depend on the query sequence (SeqSLAM, or a delta front end)."""
+        return bool(self.uses_sequence or getattr(self, "delta", None))
+
     def _check_queries(self, Q: Any) -> np.ndarray:
-        """Validated query matrix (float32, 2-D, finite, the fitted dimension); raises if unfitted."""
+        """Validated queries (float32, 2-D, finite, the fitted dimension) through the front end."""
         check_is_fitted(self, self._fitted_marker)
-        return check_descriptors(Q, name="Q", n_features=self.n_features_in_)
+        Q = check_descriptors(Q, name="Q", n_features=self.n_features_in_)
+        return self.front_end_.transform(Q)
+
+    def _check_k(self, k: Any) -> int:
+        return min(check_positive_int(k, "k"), int(self.n_places_))
+
+    def search(self, Q: Any, k: int = 10) -> tuple[np.ndarray, np.ndarray]:
+        """The ``k`` most likely places per query, best first, with their scores (the primitive).
+
+        Parameters
+        ----------
+        Q : array-like of shape (n_queries, n_features)
+        k : int
+            Candidates per query (capped at N).
+
+        Returns
+        -------
+        scores : ndarray of shape (n_queries, min(k, N)), float64
+            The method's score of each candidate (higher = more likely; e.g. −distance).
+        places : ndarray of shape (n_queries, min(k, N)), int64
+            Distinct places in [0, N), best first. ``places[:, 0]`` is :meth:`predict`.
+        """
+        Q = self._check_queries(Q)
+        return self._search(Q, self._check_k(k))
+
+    def predict(self, Q: Any) -> np.ndarray:
+        """Place index of each query.
+
+        Parameters
+        ----------
+        Q : array-like of shape (n_queries, n_features)
+
+        Returns
+        -------
+        ndarray of shape (n_queries,), int64, every value in [0, N)
+        """
+        return self.search(Q, 1)[1][:, 0]
 
     def rank(self, Q: Any, k: int = 10) -> np.ndarray:
-        """Return the ``k`` most likely places per query, best first (shape (n_queries, k), int64)."""
-        raise NotImplementedError(f"{type(self).__name__} does not rank candidates; use predict().")
+        """The ``k`` most likely places per query, best first (shape (n_queries, min(k, N)), int64)."""
+        return self.search(Q, k)[1]
+
+    def place_scores(self, Q: Any) -> np.ndarray:
+        """Score of every place for every query, higher = more likely.
+
+        Returns
+        -------
+        ndarray of shape (n_queries, N), float64
+        """
+        return self._place_scores(self._check_queries(Q))
+
+    def stream(self) -> "QueryStream":
+        """A query stream: one descriptor at a time, with the state a sequence needs (:class:`QueryStream`)."""
+        check_is_fitted(self, self._fitted_marker)
+        return QueryStream(self)
 
     def predict_sequence(self, Q: Any, decoder: str = "hmm", **options: Any) -> np.ndarray:
         """Place of each query of one ordered sequence (a traverse), decoded over time.
@@ -78,34 +313,45 @@ class PlaceLocalizer(BaseEstimator):
         Q : array-like of shape (n_queries, n_features)
             Consecutive frames of one traverse, in order.
         decoder : {'hmm', 'median'}
-            'hmm': online forward filtering over places with the per-place scores
-            (:func:`btel.sequence_decoding.method_scores`, z-scored per frame) as emissions and
-            forward motion as transitions (:class:`btel.sequence_decoding.HMMDecoder`; options
-            ``temperature``, ``vmin``, ``vmax``, ``backward``, ``teleport``). 'median': the
-            paper's filter on single-frame predictions (:func:`btel.sequence.filter_sequence`;
-            option ``window``, default 5).
+            'hmm': online forward filtering over places with the per-place scores (z-scored per
+            frame) as emissions and forward motion as transitions
+            (:class:`btel.sequence_decoding.HMMDecoder`; options ``temperature``, ``vmin``,
+            ``vmax``, ``backward``, ``teleport``, ``mode``). Scores are computed in blocks of
+            queries, so memory is O(block × N) however long the traverse. 'median': the paper's
+            filter on single-frame predictions (:func:`btel.sequence.filter_sequence`; option
+            ``window``, default 5).
 
         Returns
         -------
         ndarray of shape (n_queries,), int64 in [0, N)
         """
-        from .exceptions import InvalidParameterError
-
         if decoder == "median":
             from .sequence import filter_sequence
 
             unknown = set(options) - {"window"}
             if unknown:
                 raise InvalidParameterError(f"decoder='median' takes only window; got {sorted(unknown)}.")
-            return filter_sequence(self.predict(Q), int(options.get("window", 5)), n_places=int(self.n_places_))
+            return filter_sequence(self.predict(Q), options.get("window", 5), n_places=int(self.n_places_))
         if decoder == "hmm":
-            from .sequence_decoding import decode_sequence, emission_scores
+            from .sequence_decoding import HMM_OPTIONS, HMMDecoder, zscore_rows
 
-            return decode_sequence(emission_scores(self, Q), **options)
+            unknown = set(options) - set(HMM_OPTIONS)
+            if unknown:
+                raise InvalidParameterError(
+                    f"decoder='hmm' takes {', '.join(HMM_OPTIONS)}; got {', '.join(sorted(unknown))}.")
+            check_is_fitted(self, self._fitted_marker)
+            decoder_ = HMMDecoder(int(self.n_places_), **options)
+            Qt = self._check_queries(Q)
+            out = np.empty(Qt.shape[0], dtype=np.int64)
+            for start, _, block in self._score_blocks(Qt):
+                for j, scores in enumerate(zscore_rows(block)):
+                    out[start + j] = decoder_.update(scores)
+            return out
         raise InvalidParameterError(f"decoder must be 'hmm' or 'median'; got {decoder!r}.")
 
+    # -- storage and files --------------------------------------------------------------------------
     def storage_breakdown(self) -> dict[str, int]:
-        """Bytes of each stored array that inference reads (SPEC §7).
+        """Bytes of each stored array that inference reads (SPEC §7), front end included.
 
         Returns
         -------
@@ -113,66 +359,82 @@ class PlaceLocalizer(BaseEstimator):
             Part name → bytes. ``sum(values) == nbytes``.
         """
         check_is_fitted(self, self._fitted_marker)
-        return storage_breakdown(self._stored_arrays())
+        return storage_breakdown({**self.front_end_.arrays(), **self._stored_arrays()})
 
     @property
     def nbytes(self) -> int:
         """Total storage in bytes: the sum of :meth:`storage_breakdown`."""
         return int(sum(self.storage_breakdown().values()))
 
-    def save(self, path: str | os.PathLike) -> Path:
+    def save(self, path: Any) -> Any:
         """Save the fitted model: its stored arrays plus a JSON header (no pickles).
 
-        The file size exceeds :attr:`nbytes` only by the container overhead (a few KiB).
+        The file size exceeds :attr:`nbytes` only by the container overhead (a few KiB). Runtime
+        settings (``n_jobs``, backends, progress bars) are not model content and are not saved.
+
+        Returns
+        -------
+        pathlib.Path
         """
         check_is_fitted(self, self._fitted_marker)
-        params = {k: _jsonable(v) for k, v in self.get_params(deep=False).items()}
-        header = {"model": type(self).__name__, "params": params, "state": self._fitted_state()}
-        return save_arrays(path, self._stored_arrays(), header)
+        params = {k: _jsonable(v) for k, v in self.get_params(deep=False).items() if k not in self._runtime_params}
+        state = {"n_places": int(self.n_places_), "n_features_in": int(self.n_features_in_),
+                 "fit_time": float(self.fit_time_), "front_end": self.front_end_.to_header(),
+                 **self._fitted_state()}
+        header = {"model": type(self).__name__, "params": params, "state": state}
+        return save_arrays(path, {**self.front_end_.arrays(), **self._stored_arrays()}, header)
+
+    def __sklearn_tags__(self) -> Any:
+        tags = super().__sklearn_tags__()
+        tags.requires_fit = True
+        return tags
 
 
-def load(path: str | os.PathLike) -> PlaceLocalizer:
-    """Load a model saved by ``save``; the class is read from the file's header.
+class QueryStream:
+    """One query at a time through a fitted model (what a robot runs; ``btel localize --stream``).
 
-    Raises
-    ------
-    ModelFileError
-        Missing, corrupt, truncated or foreign file, or an unknown model class.
-    UnsupportedModelVersionError
-        A file from a newer btel.
+    Keeps what answering the next frame needs from the frames before it: the front end's delta
+    history (the last 2w frames) and a sequence method's context (SeqSLAM's last ds − 1 frames).
+    ``search(x)`` on each frame of a traverse gives what ``model.search(Q)`` gives on the whole
+    traverse, row by row. :meth:`reset` starts a new traverse (the robot was moved, a new run).
     """
-    arrays, header = load_arrays(path)
-    if header.get("kind") == "image-descriptor":
-        raise ModelFileError(
-            f"{str(path)!r} is a saved image descriptor, not a localization model; "
-            "load it with btel.descriptors.load_descriptor(path)."
-        )
-    name = header.get("model")
-    if name not in MODEL_CLASSES:
-        # Baselines register themselves on import; import them before giving up.
-        from . import methods  # noqa: F401  (registers every method)
 
-    cls = MODEL_CLASSES.get(name)
-    if cls is None:
-        raise ModelFileError(f"{str(path)!r} holds a model of unknown type {name!r}; it was not written by this btel.")
-    params = header.get("params", {})
-    state = header.get("state", {})
-    if not isinstance(params, dict) or not isinstance(state, dict):
-        raise ModelFileError(f"{str(path)!r} has a corrupt header (params/state are not objects).")
-    try:
-        model = cls(**params)
-        model._restore(arrays, state)
-    except ModelFileError:
-        raise
-    except (KeyError, TypeError, ValueError, IndexError) as exc:
-        raise ModelFileError(
-            f"{str(path)!r} is inconsistent with a {name} model ({type(exc).__name__}: {exc}); "
-            "the file is corrupt or was edited."
-        ) from exc
-    return model
+    def __init__(self, model: PlaceLocalizer) -> None:
+        self.model = model
+        self._front = model.front_end_.stream()
+        self._context = model._sequence_context()
+        self._past: list[np.ndarray] = []
+
+    def reset(self) -> None:
+        self._front.reset()
+        self._past = []
+
+    def _rows(self, x: Any) -> np.ndarray:
+        q = check_descriptors(np.asarray(x).reshape(1, -1) if np.ndim(x) == 1 else x, name="query",
+                              n_features=self.model.n_features_in_)
+        if q.shape[0] != 1:
+            raise InvalidParameterError(f"a stream takes one descriptor at a time; got {q.shape[0]} rows.")
+        z = self._front.update(q)
+        if not self._context:
+            return z
+        self._past = (self._past + [z[0]])[-(self._context + 1):]
+        return np.asarray(self._past, dtype=np.float32)
+
+    def search(self, x: Any, k: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """(scores, places) of the k best places for the next frame, shapes (k,), best first."""
+        scores, places = self.model._search(self._rows(x), self.model._check_k(k))
+        return scores[-1], places[-1]
+
+    def place_scores(self, x: Any) -> np.ndarray:
+        """Scores of every place for the next frame, shape (N,), float64."""
+        return self.model._place_scores(self._rows(x))[-1]
 
 
 def _jsonable(value: Any) -> Any:
+    if isinstance(value, PlaceLocalizer):  # a nested estimator (OPQ's pq): its class and parameters
+        return {"estimator": type(value).__name__,
+                "params": {k: _jsonable(v) for k, v in value.get_params(deep=False).items()
+                           if k not in value._runtime_params}}
     if isinstance(value, (np.integer,)):
         return int(value)
     if isinstance(value, (np.floating,)):

@@ -28,6 +28,8 @@ accuracy rests on the high bits (long contiguous blocks of the route) being lear
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from .encoding import decode_constrained, decode_soft, n_bits_for
@@ -39,7 +41,8 @@ __all__ = ["compressed_tasks", "compressed_n_classifiers", "compressed_code", "c
 DECODERS = ("constrained", "soft")
 
 
-def compressed_code(n_places: int, code_copies: int = 1) -> tuple[np.ndarray, np.ndarray]:
+@functools.lru_cache(maxsize=64)
+def _compressed_code(n_places: int, code_copies: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Levels and shifts of every column of a BTE-C code (plain bits first, then offset copies).
 
     Parameters
@@ -60,14 +63,22 @@ def compressed_code(n_places: int, code_copies: int = 1) -> tuple[np.ndarray, np
     b = n_bits_for(n_places)
     levels = list(range(b))
     shifts = [0] * b
+    seen = {(j, 0) for j in range(b)}
     for k in range(1, int(code_copies)):
         for j in range(b):
             block = 1 << (b - 1 - j)
             s = (k * block) // int(code_copies)
-            if s and not any(lv == j and sh == s for lv, sh in zip(levels, shifts)):
+            if s and (j, s) not in seen:
+                seen.add((j, s))
                 levels.append(j)
                 shifts.append(s)
     return np.asarray(levels, dtype=np.int64), np.asarray(shifts, dtype=np.int64)
+
+
+def compressed_code(n_places: int, code_copies: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Levels and shifts of every column of a BTE-C code (cached; see :func:`_compressed_code`)."""
+    levels, shifts = _compressed_code(int(n_places), int(code_copies))
+    return levels.copy(), shifts.copy()
 
 
 def compressed_n_classifiers(n_places: int, code_copies: int = 1) -> int:

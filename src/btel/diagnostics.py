@@ -34,7 +34,6 @@ from matplotlib.figure import Figure
 from ._validation import check_descriptors, check_is_fitted
 from .encoding import encode, n_bits_for
 from .exceptions import InvalidParameterError
-from .ranking import tree_layout
 
 __all__ = ["BitDiagnostics", "bit_accuracy", "localizer_bit_accuracy", "plot_bit_accuracy"]
 
@@ -149,6 +148,8 @@ def localizer_bit_accuracy(model: Any, Q: Any, true_places: Any) -> BitDiagnosti
     BitDiagnostics
     """
     check_is_fitted(model, "n_places_")
+    if getattr(model, "scheme", None) != "compressed":
+        raise InvalidParameterError("per-bit accuracy needs one classifier per bit (scheme='compressed').")
     truth = np.asarray(true_places, dtype=np.int64)
     Qc = check_descriptors(Q, name="Q", n_features=model.n_features_in_)
     if truth.shape != (Qc.shape[0],) or truth.min(initial=0) < 0 or truth.max(initial=0) >= model.n_places_:
@@ -156,9 +157,9 @@ def localizer_bit_accuracy(model: Any, Q: Any, true_places: Any) -> BitDiagnosti
             f"true_places must hold one place in [0, {model.n_places_}) per query row ({Qc.shape[0]})."
         )
     truth = truth // model.block_size_  # the trees index blocks
-    starts, sizes, offsets = tree_layout(model)
+    starts, sizes, offsets = model.region_starts_, model.region_sizes_, model.tree_offsets_
     region = np.searchsorted(starts, truth, side="right") - 1
-    all_margins = model.hyperplanes_.margins(Qc).astype(np.float64)
+    all_margins = model.column_margins(Qc).astype(np.float64)
     b = n_bits_for(int(sizes.max())) if sizes.max() >= 2 else 1
     margins = np.full((Qc.shape[0], b), np.nan)
     bits = np.zeros((Qc.shape[0], b), dtype=np.uint8)

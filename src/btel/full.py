@@ -11,13 +11,16 @@ BTE-F is the paper's foil for BTE-C.
 
 from __future__ import annotations
 
+import functools
+from typing import Any
+
 import numpy as np
 
 from .encoding import encode, n_bits_for
 from .linear import Hyperplanes
 from .training import Task
 
-__all__ = ["full_nodes", "full_n_classifiers", "full_tasks", "predict_full"]
+__all__ = ["full_nodes", "full_n_classifiers", "full_tasks", "predict_full", "full_path_matrices", "full_costs"]
 
 
 def full_nodes(n_places: int) -> tuple[np.ndarray, np.ndarray]:
@@ -93,3 +96,56 @@ def predict_full(
             bit[has] = m > 0
         prefix = (prefix << 1) | bit
     return prefix, margins
+
+
+@functools.lru_cache(maxsize=32)
+def full_path_matrices(n_places: int) -> tuple[Any, Any]:
+    """Which stored nodes lie on each place's root-to-leaf path, and the side the path takes.
+
+    Returns
+    -------
+    on_path : scipy.sparse.csr_matrix of shape (K, N), float64
+        1 where node (row, heap order of :func:`full_nodes`) is on place i's path.
+    signed : scipy.sparse.csr_matrix of shape (K, N), float64
+        +1 / −1 where the path goes to the node's bit-1 / bit-0 child.
+    """
+    import scipy.sparse as sp
+
+    b = n_bits_for(n_places)
+    levels, prefixes = full_nodes(n_places)
+    row_of_heap = np.full((1 << b) - 1, -1, dtype=np.int64)
+    row_of_heap[(1 << levels) - 1 + prefixes] = np.arange(levels.size)
+    places = np.arange(n_places, dtype=np.int64)
+    bits = encode(places, b)
+    rows, cols, signs = [], [], []
+    for level in range(b):
+        node = row_of_heap[(1 << level) - 1 + (places >> (b - level))]
+        stored = node >= 0
+        rows.append(node[stored])
+        cols.append(places[stored])
+        signs.append(2.0 * bits[stored, level] - 1.0)
+    rows, cols, signs = np.concatenate(rows), np.concatenate(cols), np.concatenate(signs)
+    shape = (levels.size, n_places)
+    on_path = sp.csr_matrix((np.ones(rows.size), (rows, cols)), shape=shape)
+    signed = sp.csr_matrix((signs, (rows, cols)), shape=shape)
+    return on_path, signed
+
+
+def full_costs(margins: np.ndarray, n_places: int) -> np.ndarray:
+    """Cost of every place of one BTE-F tree: Σ over the stored nodes on its path of ``|m| − m·side``.
+
+    The greedy descent's leaf costs 0 (it follows every node's sign), so ranking by this cost
+    starts with :func:`predict_full`'s answer (up to exact ties).
+
+    Parameters
+    ----------
+    margins : ndarray of shape (n_queries, K)
+        Margins of every stored node of the tree, heap order.
+
+    Returns
+    -------
+    ndarray of shape (n_queries, N), float64, ≥ 0
+    """
+    on_path, signed = full_path_matrices(n_places)
+    m = np.asarray(margins, dtype=np.float64)
+    return np.asarray((on_path.T @ np.abs(m).T).T - (signed.T @ m.T).T)

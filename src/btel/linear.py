@@ -19,7 +19,7 @@ from sklearn.exceptions import ConvergenceWarning
 from sklearn.linear_model import LogisticRegression
 from sklearn.svm import LinearSVC
 
-from .exceptions import InvalidParameterError
+from .exceptions import InvalidParameterError, ModelFileError
 
 __all__ = ["ColumnStats", "fit_linear", "standardised_columns", "Hyperplanes", "CLASSIFIERS", "default_C"]
 
@@ -206,6 +206,21 @@ class Hyperplanes:
                     [np.broadcast_to(c, (w.shape[0], c.shape[0])) for w, _, c in parts]
                 ).astype(index_dtype)
         return cls(weights=weights, bias=bias, columns=columns, n_features_in=n_features_in)
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray], prefix: str, n_features_in: int) -> "Hyperplanes":
+        """Hyperplanes read from a model file's (shape-checked) arrays ``{prefix}weights`` etc.
+
+        Raises :class:`~btel.exceptions.ModelFileError` for NaN/inf weights or biases and for
+        column indices outside [0, d).
+        """
+        weights, bias = arrays[f"{prefix}weights"], arrays[f"{prefix}bias"]
+        columns = arrays.get(f"{prefix}columns")
+        if not (np.isfinite(weights).all() and np.isfinite(bias).all()):
+            raise ModelFileError(f"the model file's {prefix}weights or {prefix}bias contain NaN or infinite values.")
+        if columns is not None and columns.size and int(columns.max()) >= n_features_in:
+            raise ModelFileError(f"the model file's {prefix}columns index past d = {n_features_in}.")
+        return cls(weights, bias, columns, n_features_in)
 
     def __len__(self) -> int:
         return int(self.weights.shape[0])

@@ -1,44 +1,47 @@
-"""The BTEL localizer: regions, one binary tree per region, and the storage budget (SPEC §2–§7)."""
+"""The BTEL estimator (SPEC §2–§7): regions, one binary tree per region, under a byte budget.
+
+The ideas live in their own modules — the codes and their decoding (:mod:`btel.compressed`,
+:mod:`btel.full`, :mod:`btel.encoding`), ranking over bit flips (:mod:`btel.ranking`), the storage
+layout and budget planner (:mod:`btel.planning`), the regions (:mod:`btel.regions`) and the
+classifier fits (:mod:`btel.training`); this file wires them into one scikit-learn estimator.
+"""
 
 from __future__ import annotations
 
-import numbers
-import time
 from typing import Any
 
 import numpy as np
 from tqdm.auto import tqdm
 
-from ._validation import check_descriptors, check_is_fitted, check_places, check_positive_int
-from .base import PlaceLocalizer, register_model
-from .compressed import (
-    DECODERS,
-    code_signs,
-    compressed_n_classifiers,
-    compressed_tasks,
-    decode_code,
-    decode_margins,
-)
-from .distributed import check_backend
-from .encoding import n_bits_for
-from .exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError, NotEnoughPlacesError
+from ._validation import BOOLEAN, N_JOBS, RANDOM_STATE, Budget, DType, Interval, Options, String, check_positive_int, read_state_int
+from .base import ArraySpec, PlaceLocalizer
+from .compressed import DECODERS, compressed_tasks, decode_code, decode_margins
+from .distributed import BACKENDS
+from .encoding import encode, n_bits_for
+from .exceptions import InvalidParameterError, ModelFileError
 from .feature_selection import column_index_dtype
-from .full import full_n_classifiers, full_tasks, predict_full
+from .frontend import FRONT_END_CONSTRAINTS
+from .full import full_costs, full_tasks, predict_full
 from .linear import CLASSIFIERS, ColumnStats, Hyperplanes, default_C
-from .segmentation import kts_penalised_costs, kts_regions, kts_segmentations, region_of
-from .storage import format_bytes, parse_budget
+from .planning import (
+    SCHEMES,
+    WEIGHT_DTYPES,
+    array_specs,
+    largest_fitting,
+    n_tree_classifiers,
+    planned_bytes,
+    raise_budget_too_small,
+    tree_sizes,
+)
+from .ranking import code_costs, deficits_from_scores, merge_region_kbest
+from .regions import predict_regions, segment_route
+from .segmentation import region_of
 from .training import Task, fit_tasks, one_vs_rest_tasks
 
 __all__ = ["BTELocalizer", "planned_bytes", "block_centres", "block_size_for_tolerance"]
 
-SCHEMES = ("compressed", "full")
-WEIGHT_DTYPES = ("float32", "float16")
-
-
-def _n_classifiers(scheme: str, n_places: int, code_copies: int = 1) -> int:
-    if scheme == "compressed":
-        return compressed_n_classifiers(n_places, code_copies)
-    return full_n_classifiers(n_places)
+#: Most offset-code copies accepted (beyond ~log2 of the block sizes extra copies repeat shifts).
+MAX_CODE_COPIES = 256
 
 
 def block_centres(codes: np.ndarray, block_size: int, n_places: int) -> np.ndarray:
@@ -59,61 +62,6 @@ def block_size_for_tolerance(tolerance: int) -> int:
     return 1 if t == 0 else 1 << (t.bit_length() - 1)
 
 
-def _starts_dtype(n_places: int) -> np.dtype:
-    return np.dtype(np.uint16) if n_places <= np.iinfo(np.uint16).max else np.dtype(np.uint32)
-
-
-def planned_bytes(
-    region_sizes: list[int] | np.ndarray,
-    n_selected: int,
-    n_features_in: int,
-    *,
-    scheme: str = "compressed",
-    dtype: str = "float32",
-    code_copies: int = 1,
-) -> int:
-    """Bytes a BTEL model will store, computed before fitting (equals the fitted ``nbytes``).
-
-    Per tree classifier: d' weights + 1 float32 bias + d' column indices (none when d' = d).
-    With r ≥ 2 regions add the region classifier (1 hyperplane for r = 2, else r, sharing one set
-    of d' columns) and the r region starts.
-
-    Parameters
-    ----------
-    region_sizes : sequence of int
-        N_k of each region (one entry, N, when r = 1).
-    n_selected : int
-        d'.
-    n_features_in : int
-        d.
-    """
-    w = np.dtype(dtype).itemsize
-    idx = 0 if n_selected >= n_features_in else column_index_dtype(n_features_in).itemsize
-    per_classifier = n_selected * (w + idx) + 4
-    total = sum(_n_classifiers(scheme, int(n), code_copies) for n in region_sizes) * per_classifier
-    r = len(region_sizes)
-    if r >= 2:
-        n_region_planes = 1 if r == 2 else r
-        total += n_region_planes * (n_selected * w + 4) + n_selected * idx
-        total += r * _starts_dtype(int(np.sum(region_sizes))).itemsize
-    return int(total)
-
-
-def _largest_fitting(sizes, d: int, cap: int, budget: int, scheme: str, dtype: str, code_copies: int = 1) -> int:
-    """Largest d' ≤ cap whose planned bytes fit the budget (0 when even d' = 1 does not)."""
-    kw = dict(scheme=scheme, dtype=dtype, code_copies=code_copies)
-    if planned_bytes(sizes, cap, d, **kw) <= budget:
-        return cap
-    # Below d the bytes are affine in d': solve, then step down past rounding.
-    b1 = planned_bytes(sizes, 1, d, **kw)
-    slope = planned_bytes(sizes, 2, d, **kw) - b1 if d > 2 else b1
-    guess = min(cap, d - 1, 1 + (budget - b1) // max(slope, 1)) if budget >= b1 else 0
-    while guess >= 1 and planned_bytes(sizes, guess, d, **kw) > budget:
-        guess -= 1
-    return int(max(guess, 0))
-
-
-@register_model
 class BTELocalizer(PlaceLocalizer):
     """Binary tree encoding for visual localization (BTEL; Le, Hoang & Milford).
 
@@ -162,7 +110,7 @@ class BTELocalizer(PlaceLocalizer):
         liblinear iteration cap per classifier.
     n_jobs : int, optional
         Parallel classifier fits (joblib; −1 = all cores; with ``backend='dask'`` None means every
-        worker of the cluster).
+        worker of the cluster). A runtime setting: not saved in model files.
     backend : {None, 'threads', 'loky', 'dask'}
         Where the classifier fits run (:mod:`btel.distributed`). None: threads, or whatever
         ``joblib.parallel_config`` the caller set. 'dask': the workers of a Dask cluster (X is
@@ -184,15 +132,19 @@ class BTELocalizer(PlaceLocalizer):
         keeps more columns. :func:`block_size_for_tolerance` gives the power of two for a
         tolerance t (B ≤ t, so the worst in-block error is ≤ t/2). 1: plain BTEL.
     code_copies : int
-        m ≥ 1, error-correcting offset codes (``scheme='compressed'``): m − 1 shifted copies of
-        each bit's contiguous-block split are learnt as extra classifiers and every tree is
-        decoded softly over its whole code (:mod:`btel.compressed`). 1: the plain b bits.
+        m in [1, 256], error-correcting offset codes (``scheme='compressed'``): m − 1 shifted
+        copies of each bit's contiguous-block split are learnt as extra classifiers and every tree
+        is decoded softly over its whole code (:mod:`btel.compressed`). 1: the plain b bits.
     exemplar_radius : int
         e ≥ 0, multi-exemplar labels (``scheme='compressed'``): each row also stands for the
         places within ±e of it that share the column's high bits, i.e. rows next to a block
         boundary weigh less (:func:`btel.compressed.exemplar_weights`). 0: all rows weigh 1.
         Several exemplars per place from extra traverses or augmented images go through
         ``fit(X, places)``.
+    normalize, whiten, delta
+        The front end (:mod:`btel.frontend`): row normalisation ('none', 'l2', 'power'), PCA
+        whitening to that many dimensions (stored and counted), delta descriptors over a window
+        of that many frames (queries are then one ordered traverse).
 
     Attributes
     ----------
@@ -202,18 +154,21 @@ class BTELocalizer(PlaceLocalizer):
         Places the trees index: ⌈N / block_size⌉ (N when block_size = 1); region starts and
         sizes count these.
     n_features_in_ : int
-        d.
+        d, the dimension of the descriptors given to fit and predict.
     n_selected_ : int
         d', columns per classifier.
     n_regions_ : int
         r.
     region_starts_ : ndarray of shape (r,), int64
-        First place of each region.
+        First code of each region.
     region_sizes_ : ndarray of shape (r,), int64
+    tree_offsets_ : ndarray of shape (r + 1,), int64
+        Region k's classifiers are rows ``tree_offsets_[k]:tree_offsets_[k+1]`` of ``hyperplanes_``.
     hyperplanes_ : Hyperplanes
         Every tree classifier, region by region (bits MSB first, or nodes in heap order).
     region_hyperplanes_ : Hyperplanes or None
         The region classifier (None when r = 1).
+    front_end_ : FrontEnd
     n_unconverged_ : int
         Classifiers whose liblinear solver stopped at ``max_iter``.
     fit_time_ : float
@@ -228,6 +183,34 @@ class BTELocalizer(PlaceLocalizer):
     >>> model.predict(route.queries).shape
     (500,)
     """
+
+    _parameter_constraints = {
+        "scheme": [Options(*SCHEMES)],
+        "classifier": [Options(*CLASSIFIERS)],
+        "C": [None, Interval(float, 0, None, closed="neither")],
+        "feature_ratio": [None, Interval(float, 0, 1, closed="right")],
+        "n_features": [None, Interval(int, 1, None)],
+        "sparsity": [Interval(float, 0, None, closed="neither")],
+        "n_regions": [Options("auto"), Interval(int, 1, None)],
+        "budget": [Budget()],
+        "dtype": [DType(*WEIGHT_DTYPES)],
+        "decode": [Options(*DECODERS)],
+        "max_regions": [Interval(int, 1, None)],
+        "kts_penalty": [Interval(float, 0, None)],
+        "kts_pca_dims": [None, Interval(int, 1, None)],
+        "kts_max_points": [Interval(int, 4, None)],
+        "max_iter": [Interval(int, 1, None)],
+        "n_jobs": N_JOBS,
+        "backend": [None, Options(*BACKENDS)],
+        "scheduler": [None, String()],
+        "random_state": RANDOM_STATE,
+        "progress": BOOLEAN,
+        "block_size": [Interval(int, 1, None)],
+        "code_copies": [Interval(int, 1, MAX_CODE_COPIES)],
+        "exemplar_radius": [Interval(int, 0, None)],
+        **FRONT_END_CONSTRAINTS,
+    }
+    _runtime_params = ("n_jobs", "backend", "scheduler", "progress")
 
     def __init__(
         self,
@@ -255,6 +238,9 @@ class BTELocalizer(PlaceLocalizer):
         block_size: int = 1,
         code_copies: int = 1,
         exemplar_radius: int = 0,
+        normalize: str = "none",
+        whiten: int | None = None,
+        delta: int | None = None,
     ) -> None:
         self.scheme = scheme
         self.classifier = classifier
@@ -279,50 +265,22 @@ class BTELocalizer(PlaceLocalizer):
         self.block_size = block_size
         self.code_copies = code_copies
         self.exemplar_radius = exemplar_radius
+        self.normalize = normalize
+        self.whiten = whiten
+        self.delta = delta
 
     # ------------------------------------------------------------------ parameters
-    def _checked_params(self) -> dict[str, Any]:
-        if self.scheme not in SCHEMES:
-            raise InvalidParameterError(f"scheme must be one of {SCHEMES}; got {self.scheme!r}.")
-        if self.classifier not in CLASSIFIERS:
-            raise InvalidParameterError(f"classifier must be one of {CLASSIFIERS}; got {self.classifier!r}.")
-        if self.decode not in DECODERS:
-            raise InvalidParameterError(f"decode must be one of {DECODERS}; got {self.decode!r}.")
+    def _check_combinations(self) -> None:
+        """Rules between parameters (each parameter alone is checked by its declared constraints)."""
         if self.decode == "soft" and self.scheme == "full":
             raise InvalidParameterError("decode='soft' needs every bit margin: use it with scheme='compressed'.")
-        C = default_C(self.classifier) if self.C is None else self.C
-        if not isinstance(C, numbers.Real) or not C > 0:
-            raise InvalidParameterError(f"C must be a positive number; got {self.C!r}.")
-        try:
-            dtype = np.dtype(self.dtype).name
-        except TypeError as exc:
-            raise InvalidParameterError(f"dtype must be one of {WEIGHT_DTYPES}; got {self.dtype!r}.") from exc
-        if dtype not in WEIGHT_DTYPES:
-            raise InvalidParameterError(f"dtype must be one of {WEIGHT_DTYPES}; got {self.dtype!r}.")
-        if self.feature_ratio is not None and not (
-            isinstance(self.feature_ratio, numbers.Real) and 0 < self.feature_ratio <= 1
-        ):
-            raise InvalidParameterError(f"feature_ratio must be in (0, 1]; got {self.feature_ratio!r}.")
-        if self.n_features is not None:
-            check_positive_int(self.n_features, "n_features")
-        if not isinstance(self.sparsity, numbers.Real) or not self.sparsity > 0:
-            raise InvalidParameterError(f"sparsity must be a positive number; got {self.sparsity!r}.")
-        if self.n_regions != "auto":
-            check_positive_int(self.n_regions, "n_regions ('auto' or an integer)")
-        check_positive_int(self.max_regions, "max_regions")
-        check_positive_int(self.max_iter, "max_iter")
-        check_positive_int(self.kts_max_points, "kts_max_points", minimum=4)
-        check_backend(self.backend, self.scheduler)
-        block_size = check_positive_int(self.block_size, "block_size")
-        copies = check_positive_int(self.code_copies, "code_copies")
-        radius = check_positive_int(self.exemplar_radius, "exemplar_radius", minimum=0)
-        if self.scheme == "full" and (copies > 1 or radius > 0):
+        if self.scheme == "full" and (self.code_copies > 1 or self.exemplar_radius > 0):
             raise InvalidParameterError(
                 "code_copies > 1 and exemplar_radius > 0 extend the per-bit classifiers of scheme='compressed'; "
                 "BTE-F ('full') has one classifier per node instead."
             )
-        return {"C": float(C), "dtype": dtype, "budget": parse_budget(self.budget), "block_size": block_size,
-                "code_copies": copies, "exemplar_radius": radius}
+        if self.scheduler is not None and self.backend != "dask":
+            raise InvalidParameterError("scheduler only applies with backend='dask'.")
 
     def _cap(self, d: int, budget: int | None) -> int:
         """Upper bound on d' from n_features / feature_ratio (d itself under a budget)."""
@@ -332,36 +290,14 @@ class BTELocalizer(PlaceLocalizer):
         return d if ratio is None else int(min(d, max(1, round(ratio * d))))
 
     # ------------------------------------------------------------------ fit
-    def fit(self, X: Any, places: Any = None) -> "BTELocalizer":
-        """Learn the map.
-
-        Parameters
-        ----------
-        X : array-like of shape (n_samples, n_features)
-            Map descriptors. Row i is place i unless ``places`` is given.
-        places : array-like of shape (n_samples,), int, optional
-            Place index of each row (several rows may share a place, e.g. several traverses).
-            Must cover 0..N−1.
-
-        Returns
-        -------
-        self : BTELocalizer
-        """
-        start_time = time.perf_counter()
-        params = self._checked_params()
-        X = check_descriptors(X, name="X")
-        if places is None:
-            if X.shape[0] < 2:  # one row is one place: the same error as places=[0] gives
-                raise NotEnoughPlacesError(
-                    f"X has {X.shape[0]} row (N = 1 place): an index needs at least 2 places. "
-                    "Fit on a longer route."
-                )
-            places_arr = np.arange(X.shape[0], dtype=np.int64)
-            n_places = X.shape[0]
-        else:
-            places_arr, n_places = check_places(places, X.shape[0])
+    def _fit(self, X: np.ndarray, places: np.ndarray | None, n_places: int, budget: int | None,
+             reserved: int) -> None:
+        self._check_combinations()
+        C = float(default_C(self.classifier) if self.C is None else self.C)
+        dtype = np.dtype(self.dtype).name
+        places_arr = np.arange(n_places, dtype=np.int64) if places is None else places
         # Tolerance-aware codes: everything below works on block indices ("codes").
-        block_size, copies = params["block_size"], params["code_copies"]
+        block_size, copies = int(self.block_size), int(self.code_copies)
         n_codes = -(-n_places // block_size)
         if n_codes < 2:
             raise InvalidParameterError(
@@ -370,23 +306,26 @@ class BTELocalizer(PlaceLocalizer):
             )
         codes_arr = places_arr // block_size if block_size > 1 else places_arr
         d = X.shape[1]
-        budget = params["budget"]
         cap = self._cap(d, budget)
-        starts = self._segment(X, codes_arr, n_codes, budget, cap, params["dtype"], copies)
-        sizes = np.diff(np.append(starts, n_codes))
+        available = None if budget is None else budget - reserved
+        kw = dict(scheme=self.scheme, dtype=dtype, code_copies=copies)
+
+        def fits(sizes: list[int]) -> bool:
+            return largest_fitting(sizes, d, cap, available, self.scheme, dtype, copies) >= 1
+
+        starts = segment_route(X, codes_arr, n_codes, self.n_regions, max_regions=int(self.max_regions),
+                               penalty=float(self.kts_penalty), pca_dims=self.kts_pca_dims,
+                               random_state=self.random_state, max_points=int(self.kts_max_points),
+                               fits=None if available is None else fits)
+        sizes = tree_sizes(starts, n_codes)
         n_selected = cap
-        if budget is not None:
-            n_selected = _largest_fitting(list(sizes), d, cap, budget, self.scheme, params["dtype"], copies)
+        if available is not None:
+            n_selected = largest_fitting(list(sizes), d, cap, available, self.scheme, dtype, copies)
             if n_selected < 1:
-                minimum = planned_bytes(list(sizes), 1, d, scheme=self.scheme, dtype=params["dtype"],
-                                        code_copies=copies)
-                raise BudgetTooSmallError(
-                    f"budget {format_bytes(budget)} ({budget} B) is too small for BTEL ({self.scheme}, "
-                    f"N = {n_places}, r = {len(sizes)}): the smallest model (d' = 1) needs {minimum} B. "
-                    "Raise the budget, use dtype='float16', or fewer regions.",
-                    budget=budget,
-                    minimum=minimum,
-                )
+                raise_budget_too_small(
+                    f"BTEL ({self.scheme}, N = {n_places}, r = {len(sizes)})", budget,
+                    planned_bytes(list(sizes), 1, d, **kw) + reserved,
+                    "Raise the budget, use dtype='float16', or fewer regions.")
 
         stats = ColumnStats.of(X)
         region_of_row = region_of(codes_arr, starts)
@@ -401,7 +340,7 @@ class BTELocalizer(PlaceLocalizer):
             local = codes_arr[rows] - s if rows is not None else codes_arr
             if self.scheme == "compressed":
                 tasks.extend(compressed_tasks(local, int(n_k), rows, code_copies=copies,
-                                              exemplar_radius=params["exemplar_radius"]))
+                                              exemplar_radius=int(self.exemplar_radius)))
             else:
                 tasks.extend(full_tasks(local, int(n_k), rows))
 
@@ -410,133 +349,96 @@ class BTELocalizer(PlaceLocalizer):
             parts, n_unconverged = fit_tasks(
                 X, tasks, n_selected, stats, sparsity=float(self.sparsity), n_jobs=self.n_jobs,
                 backend=self.backend, scheduler=self.scheduler, progress=bar.update, classifier=self.classifier,
-                C=params["C"], max_iter=int(self.max_iter), random_state=self.random_state,
-                dtype=np.dtype(params["dtype"]),
+                C=C, max_iter=int(self.max_iter), random_state=self.random_state, dtype=np.dtype(dtype),
             )
 
         index_dtype = None if n_selected >= d else column_index_dtype(d)
         self.region_hyperplanes_ = (
-            Hyperplanes.stack(parts[:first_tree_task], d, n_selected, np.dtype(params["dtype"]), index_dtype,
+            Hyperplanes.stack(parts[:first_tree_task], d, n_selected, np.dtype(dtype), index_dtype,
                               shared_columns=True)
             if first_tree_task else None
         )
-        self.hyperplanes_ = Hyperplanes.stack(
-            parts[first_tree_task:], d, n_selected, np.dtype(params["dtype"]), index_dtype
-        )
-        self._set_structure(n_places, d, n_selected, starts)
+        self.hyperplanes_ = Hyperplanes.stack(parts[first_tree_task:], d, n_selected, np.dtype(dtype), index_dtype)
         self.n_unconverged_ = int(n_unconverged)
-        self.fit_time_ = time.perf_counter() - start_time
-        return self
+        self._set_structure(n_places, n_selected, starts)
 
-    def _segment(self, X, places, n_places, budget, cap, dtype, code_copies=1) -> np.ndarray:
-        """Region starts: fixed r, or r by the KTS penalty (lowered while nothing fits the budget)."""
-        if self.n_regions == 1:
-            return np.zeros(1, dtype=np.int64)
-        # KTS runs on one descriptor per place, in route order (the mean when a place has several).
-        if places.size == n_places and np.array_equal(places, np.arange(n_places)):
-            per_place = X
-        else:
-            counts = np.bincount(places, minlength=n_places)
-            per_place = np.zeros((n_places, X.shape[1]))
-            np.add.at(per_place, places, X)
-            per_place /= counts[:, None]
-        if self.n_regions != "auto":
-            return kts_regions(per_place, int(self.n_regions), pca_dims=self.kts_pca_dims,
-                               random_state=self.random_state, max_points=int(self.kts_max_points))
-        starts_by_r, costs = kts_segmentations(per_place, int(self.max_regions), pca_dims=self.kts_pca_dims,
-                                               random_state=self.random_state, max_points=int(self.kts_max_points))
-        r = int(np.argmin(kts_penalised_costs(costs, n_places, float(self.kts_penalty)))) + 1
-        if budget is not None:
-            d = X.shape[1]
-            while r > 1:
-                sizes = list(np.diff(np.append(starts_by_r[r], n_places)))
-                if _largest_fitting(sizes, d, cap, budget, self.scheme, dtype, code_copies) >= 1:
-                    break
-                r -= 1
-        return starts_by_r[r]
-
-    def _set_structure(self, n_places: int, d: int, n_selected: int, starts: np.ndarray) -> None:
-        """Derived attributes that follow from N, d, d', the code options and the region starts."""
+    def _set_structure(self, n_places: int, n_selected: int, starts: np.ndarray) -> None:
+        """Derived attributes that follow from N, d', the code options and the region starts."""
         starts = np.asarray(starts, dtype=np.int64)
         self.block_size_ = int(self.block_size)
         self.code_copies_ = int(self.code_copies)
         n_codes = -(-int(n_places) // self.block_size_)
-        sizes = np.diff(np.append(starts, n_codes))
-        n_classifiers = [_n_classifiers(self.scheme, int(n), self.code_copies_) for n in sizes]
-        self.n_places_ = int(n_places)
+        sizes = tree_sizes(starts, n_codes)
+        n_classifiers = [n_tree_classifiers(self.scheme, int(n), self.code_copies_) for n in sizes]
         self.n_codes_ = int(n_codes)
-        self.n_features_in_ = int(d)
         self.n_selected_ = int(n_selected)
         self.n_regions_ = int(starts.size)
         self.region_starts_ = starts
-        self.region_sizes_ = sizes.astype(np.int64)
+        self.region_sizes_ = sizes
         self.n_bits_ = n_bits_for(n_codes)
-        self._tree_width = max(self.n_bits_, int(max(n_classifiers))) if self.scheme == "compressed" else self.n_bits_
-        self._tree_offsets = np.concatenate([[0], np.cumsum(n_classifiers)]).astype(np.int64)
+        self.tree_offsets_ = np.concatenate([[0], np.cumsum(n_classifiers)]).astype(np.int64)
+        self._tree_width = max(self.n_bits_, int(max(n_classifiers))) if self.scheme == "compressed" \
+            else self.n_bits_
 
     # ------------------------------------------------------------------ inference
-    def _check_queries(self, Q: Any) -> np.ndarray:
-        check_is_fitted(self, "n_places_")
-        return check_descriptors(Q, name="Q", n_features=self.n_features_in_)
-
-    def _regions(self, Q: np.ndarray) -> np.ndarray:
-        """Region of each (validated) query: the sign of R for r = 2, its argmax for r > 2."""
-        if self.n_regions_ == 1:
-            return np.zeros(Q.shape[0], dtype=np.int64)
-        scores = self.region_hyperplanes_.margins(Q)
-        if self.n_regions_ == 2:
-            return (scores[:, 0] > 0).astype(np.int64)
-        return np.argmax(scores, axis=1).astype(np.int64)
+    def _region_scores(self, Q: np.ndarray) -> np.ndarray | None:
+        return None if self.n_regions_ == 1 else self.region_hyperplanes_.margins(Q)
 
     def predict_region(self, Q: Any) -> np.ndarray:
         """Region of each query (int64, shape (n_queries,); all 0 when r = 1)."""
-        return self._regions(self._check_queries(Q))
+        Q = self._check_queries(Q)
+        return predict_regions(self._region_scores(Q), self.n_regions_, Q.shape[0])
 
-    def _tree_margins(self, Q: np.ndarray, region: int) -> tuple[np.ndarray, np.ndarray]:
-        """(local indices, bit margins) of queries Q under region ``region``'s tree."""
+    def _tree_decode(self, Q: np.ndarray, region: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(local codes, column margins, tree costs of those codes) of queries Q under one region's tree."""
         n_k = int(self.region_sizes_[region])
-        first = int(self._tree_offsets[region])
+        first = int(self.tree_offsets_[region])
         if self.scheme == "full":
-            return predict_full(Q, self.hyperplanes_, first, n_k)
-        rows = slice(first, int(self._tree_offsets[region + 1]))
+            codes, margins = predict_full(Q, self.hyperplanes_, first, n_k)
+            return codes, margins, np.zeros(Q.shape[0])  # the greedy leaf follows every sign: cost 0
+        rows = slice(first, int(self.tree_offsets_[region + 1]))
         margins = self.hyperplanes_.margins(Q, rows if self.n_regions_ > 1 else None)
         if self.code_copies_ > 1:
-            return decode_code(margins, n_k, self.code_copies_), margins
-        return decode_margins(margins, n_k, self.decode), margins
+            codes = decode_code(margins, n_k, self.code_copies_)
+        else:
+            codes = decode_margins(margins, n_k, self.decode)
+        return codes, margins, self._flip_costs(margins, codes, n_k)
 
-    def _predict_with_margins(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        if self.n_regions_ == 1:  # one tree over all codes: its local indices are global
-            codes, margins = self._tree_margins(Q, 0)
-            return self._places_of_codes(codes), margins
-        regions = self._regions(Q)
-        indices = np.empty(Q.shape[0], dtype=np.int64)
+    def _flip_costs(self, margins: np.ndarray, codes: np.ndarray, n_k: int) -> np.ndarray:
+        """Cost ``Σ|m| − Σ m·sign(code)`` of one code per query (0 for the hard code)."""
+        if n_k == 1:
+            return np.zeros(margins.shape[0])
+        from .compressed import compressed_code
+
+        levels, shifts = compressed_code(n_k, self.code_copies_)
+        b = n_bits_for(n_k)
+        shifted = (codes[:, None] + shifts[None, :]) & ((1 << b) - 1)
+        signs = 2.0 * ((shifted >> (b - 1 - levels)[None, :]) & 1) - 1.0
+        m = margins.astype(np.float64)
+        return np.abs(m).sum(axis=1) - np.einsum("ij,ij->i", m, signs)
+
+    def _decode(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(codes, margins padded to the widest tree, cost) of each query: region, then its tree."""
+        if self.n_regions_ == 1:  # one tree over all codes: its local codes are global
+            return self._tree_decode(Q, 0)
+        regions = predict_regions(self._region_scores(Q), self.n_regions_, Q.shape[0])
+        codes = np.empty(Q.shape[0], dtype=np.int64)
+        costs = np.empty(Q.shape[0])
         margins = np.full((Q.shape[0], self._tree_width), np.nan, dtype=np.float32)
         present = np.unique(regions) if Q.shape[0] > 1 else regions
         for k in present:
             rows = slice(None) if present.size == 1 else np.flatnonzero(regions == k)
-            local, m = self._tree_margins(Q[rows], int(k))
-            indices[rows] = self.region_starts_[k] + local
+            local, m, cost = self._tree_decode(Q[rows], int(k))
+            codes[rows] = self.region_starts_[k] + local
             margins[rows, : m.shape[1]] = m
-        return self._places_of_codes(indices), margins
+            costs[rows] = cost  # the predicted region's deficit is 0
+        return codes, margins, costs
 
     def _places_of_codes(self, codes: np.ndarray) -> np.ndarray:
         """Place answered for each code: the code itself, or its block's centre (block_size > 1)."""
         if self.block_size_ == 1:
             return codes
         return block_centres(codes, self.block_size_, self.n_places_)
-
-    def predict(self, Q: Any) -> np.ndarray:
-        """Place index of each query.
-
-        Parameters
-        ----------
-        Q : array-like of shape (n_queries, n_features)
-
-        Returns
-        -------
-        ndarray of shape (n_queries,), int64, every value in [0, N)
-        """
-        return self._predict_with_margins(self._check_queries(Q))[0]
 
     def decision_function(self, Q: Any) -> np.ndarray:
         """Bit margins of each query's tree (positive = bit 1), MSB first.
@@ -549,95 +451,109 @@ class BTELocalizer(PlaceLocalizer):
             that tree has fewer columns. With ``scheme='full'``, the margin of
             the node visited at each level (−inf where the node is constant).
         """
-        return self._predict_with_margins(self._check_queries(Q))[1]
+        return self._decode(self._check_queries(Q))[1]
 
-    @property
-    def supports_ranking(self) -> bool:  # type: ignore[override]
-        """Ranking needs a margin per bit: ``scheme='compressed'``."""
-        return self.scheme == "compressed"
-
-    def rank(self, Q: Any, k: int = 10) -> np.ndarray:
-        """The ``k`` most likely places per query, best first (ranked output, R@K).
-
-        Best-first search over bit flips of the predicted region's tree (more regions when it
-        holds fewer than k codes), merged across regions by the region classifier's score
-        (:func:`btel.ranking.rank_places`); with ``code_copies > 1`` every code is scored
-        (O(N·K)); with ``block_size > 1`` blocks are ranked and their centres returned.
+    def column_margins(self, Q: Any) -> np.ndarray:
+        """Margins of every tree classifier (all regions side by side, ``tree_offsets_`` apart).
 
         Returns
         -------
-        ndarray of shape (n_queries, min(k, number of codes)), int64
+        ndarray of shape (n_queries, tree_offsets_[-1]), float32
         """
-        from .ranking import rank_places
+        return self.hyperplanes_.margins(self._check_queries(Q))
 
-        if self.scheme != "compressed":
-            raise InvalidParameterError("rank needs scheme='compressed' (BTE-F reads one node per level).")
-        return rank_places(self, self._check_queries(Q), k)[0]
+    def _code_costs(self, Q: np.ndarray, region_weight: float = 1.0) -> np.ndarray:
+        """Cost of every code (n_queries, n_codes): tree cost + region_weight × region deficit."""
+        margins = self.hyperplanes_.margins(Q).astype(np.float64)  # every tree's columns: one product
+        deficits = deficits_from_scores(self._region_scores(Q), self.n_regions_, Q.shape[0])
+        if self.scheme == "full":
+            out = np.empty((Q.shape[0], self.n_codes_))
+            for k, (s, n_k) in enumerate(zip(self.region_starts_.tolist(), self.region_sizes_.tolist())):
+                tree = full_costs(margins[:, self.tree_offsets_[k] : self.tree_offsets_[k + 1]], n_k)
+                out[:, s : s + n_k] = tree + region_weight * deficits[:, k : k + 1]
+            return out
+        return code_costs(margins, deficits, self.region_starts_, self.region_sizes_, self.tree_offsets_,
+                          code_copies=self.code_copies_, region_weight=region_weight)
 
-    def place_scores(self, Q: Any, *, region_weight: float = 1.0) -> np.ndarray:
-        """Score of every place for every query, higher = more likely (``−`` flip cost).
+    def _place_scores(self, Q: np.ndarray) -> np.ndarray:
+        """−cost of every place (tree flip cost + region deficit; a block's places share its cost)."""
+        scores = -self._code_costs(Q)
+        if self.block_size_ > 1:  # every place scores what its block scores
+            scores = scores[:, np.arange(int(self.n_places_)) // self.block_size_]
+        return scores
 
-        The emission scores of :meth:`predict_sequence` and of
-        :func:`btel.sequence_decoding.decode_sequence`. O(N·K) per query.
+    def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """The decode (k = 1) or the k best codes by cost, as places (distinct block centres)."""
+        if k == 1:
+            codes, _, costs = self._decode(Q)
+            return -costs[:, None], self._places_of_codes(codes)[:, None]
+        k_codes = min(k, self.n_codes_)
+        if self.scheme == "compressed" and self.code_copies_ == 1:
+            margins = self.hyperplanes_.margins(Q).astype(np.float64)
+            deficits = deficits_from_scores(self._region_scores(Q), self.n_regions_, Q.shape[0])
+            codes, costs = merge_region_kbest(margins, deficits, self.region_starts_, self.region_sizes_,
+                                              self.tree_offsets_, k_codes)
+        else:  # offset codes and BTE-F: every code's cost (O(N·K) per query)
+            from .base import top_k
 
-        Returns
-        -------
-        ndarray of shape (n_queries, N), float64
-        """
-        from .ranking import place_costs
-
-        if self.scheme != "compressed":
-            raise InvalidParameterError("place_scores needs scheme='compressed'.")
-        return -place_costs(self, self._check_queries(Q), region_weight=region_weight)
+            neg, codes = top_k(-self._code_costs(Q), k_codes)
+            costs = -neg
+        return -costs, self._places_of_codes(codes)
 
     # ------------------------------------------------------------------ storage and files
     def _stored_arrays(self) -> dict[str, np.ndarray]:
         arrays = self.hyperplanes_.arrays("")
         if self.region_hyperplanes_ is not None:
+            from .planning import starts_dtype
+
             arrays.update(self.region_hyperplanes_.arrays("region_"))
-            arrays["region_starts"] = self.region_starts_.astype(_starts_dtype(self.n_codes_))
+            arrays["region_starts"] = self.region_starts_.astype(starts_dtype(self.n_codes_))
         return arrays
 
     def _fitted_state(self) -> dict[str, Any]:
-        return {
-            "n_places": self.n_places_,
-            "n_features_in": self.n_features_in_,
-            "n_selected": self.n_selected_,
-            "n_unconverged": self.n_unconverged_,
-            "fit_time": self.fit_time_,
-        }
+        return {"n_selected": self.n_selected_, "n_regions": self.n_regions_, "n_unconverged": self.n_unconverged_}
+
+    def _array_specs(self, state: dict[str, Any]) -> dict[str, ArraySpec]:
+        n_places = int(state["n_places"])
+        d = self.front_end_.n_features_out(int(state["n_features_in"]))
+        n_codes = -(-n_places // int(self.block_size))
+        if n_codes < 2:
+            raise ModelFileError(f"the model file's N = {n_places} and block_size = {self.block_size} leave "
+                                 f"{n_codes} code; an index needs at least 2.")
+        n_selected = read_state_int(state, "n_selected", 1, d)
+        r = read_state_int(state, "n_regions", 1, n_codes)
+        self._check_combinations_from_file()
+        # The region sizes are read from region_starts; the specs need only their count and total,
+        # except for the number of tree classifiers, checked in _restore once the starts are known.
+        specs = array_specs([n_codes] if r == 1 else [1] * (r - 1) + [n_codes - r + 1], n_selected, d,
+                            scheme=self.scheme, dtype=np.dtype(self.dtype).name, code_copies=int(self.code_copies))
+        for name in ("weights", "bias", "columns"):
+            if name in specs:
+                specs[name].shape = (None,) + specs[name].shape[1:]
+        return specs
+
+    def _check_combinations_from_file(self) -> None:
+        try:
+            self._check_combinations()
+        except InvalidParameterError as exc:
+            raise ModelFileError(f"the model file's parameters contradict each other: {exc}") from exc
 
     def _restore(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
         n_places = int(state["n_places"])
-        d = int(state["n_features_in"])
+        d = self.front_end_.n_features_out(int(state["n_features_in"]))
         n_selected = int(state["n_selected"])
+        n_codes = -(-n_places // int(self.block_size))
         starts = arrays.get("region_starts", np.zeros(1, dtype=np.int64)).astype(np.int64)
-        try:
-            block_size = check_positive_int(self.block_size, "block_size")
-            check_positive_int(self.code_copies, "code_copies")
-        except InvalidParameterError as exc:
-            raise ModelFileError(f"model header holds invalid parameters: {exc}") from exc
-        n_codes = -(-n_places // block_size) if n_places >= 1 else 0
-        if n_places < 2 or n_codes < 2 or not 1 <= n_selected <= d or starts[0] != 0 \
-                or np.any(np.diff(starts) < 1) or starts[-1] >= n_codes:
-            raise ModelFileError("model header and arrays disagree (places, features or regions).")
-        self._set_structure(n_places, d, n_selected, starts)
-        self.hyperplanes_ = Hyperplanes(arrays["weights"], arrays["bias"], arrays.get("columns"), d)
-        self.region_hyperplanes_ = None
-        if self.n_regions_ >= 2:
-            self.region_hyperplanes_ = Hyperplanes(
-                arrays["region_weights"], arrays["region_bias"], arrays.get("region_columns"), d
-            )
-            expected = 1 if self.n_regions_ == 2 else self.n_regions_
-            if len(self.region_hyperplanes_) != expected:
-                raise ModelFileError("region classifier size does not match the number of regions.")
-        if len(self.hyperplanes_) != self._tree_offsets[-1] or self.hyperplanes_.weights.shape[1] != n_selected:
+        if starts[0] != 0 or np.any(np.diff(starts) < 1) or starts[-1] >= n_codes:
+            raise ModelFileError("the model file's region starts are not increasing within the route's codes.")
+        self._set_structure(n_places, n_selected, starts)
+        if arrays["weights"].shape[0] != self.tree_offsets_[-1]:
             raise ModelFileError(
-                f"model file holds {len(self.hyperplanes_)} classifiers of width "
-                f"{self.hyperplanes_.weights.shape[1]}; the header implies {self._tree_offsets[-1]} of width {n_selected}."
+                f"model file holds {arrays['weights'].shape[0]} classifiers; its regions imply {self.tree_offsets_[-1]}."
             )
-        cols = self.hyperplanes_.columns
-        if (cols is None) != (n_selected == d) or (cols is not None and cols.size and int(cols.max()) >= d):
-            raise ModelFileError("column indices in the model file are missing or out of range.")
-        self.n_unconverged_ = int(state.get("n_unconverged", 0))
-        self.fit_time_ = float(state.get("fit_time", float("nan")))
+        k = int(self.tree_offsets_[-1])
+        if arrays["bias"].shape[0] != k or ("columns" in arrays and arrays["columns"].shape[0] != k):
+            raise ModelFileError(f"the model file's bias or columns do not hold one row per classifier ({k}).")
+        self.hyperplanes_ = Hyperplanes.from_arrays(arrays, "", d)
+        self.region_hyperplanes_ = Hyperplanes.from_arrays(arrays, "region_", d) if self.n_regions_ >= 2 else None
+        self.n_unconverged_ = read_state_int(state, "n_unconverged", 0, int(self.tree_offsets_[-1]) + self.n_regions_)

@@ -20,12 +20,14 @@ With regions (SPEC §5) a place i in region k has the cost
     cost(i) = flip cost of its local code in region k's tree + α·(s_max − s_k),
 
 where s_k is the region classifier's score of region k, s_max the best region's score (its
-predicted region) and α = ``region_weight``. For r = 2 the one hyperplane h gives the scores
+predicted region) and α the region weight. For r = 2 the one hyperplane h gives the scores
 (−h, +h), so the other region's deficit is 2|h|: exactly the flip cost of one more bit, as if the
-region classifier were the tree's top bit. :func:`rank_places` merges the per-region k-best lists
-of the ``n_regions_searched`` best regions (more when those hold fewer than K places);
-:func:`place_costs` gives every place's cost, the brute-force reference of that rule and the
-emission scores for :mod:`btel.sequence_decoding`.
+region classifier were the tree's top bit. :func:`merge_region_kbest` merges the per-region k-best
+lists of the ``n_regions_searched`` best regions (more when those hold fewer than K places);
+:func:`code_costs` gives every code's cost, the brute-force reference of that rule.
+
+These functions read arrays only (margins, region deficits, the trees' layout); the localizer
+(:mod:`btel.localizer`) calls them with its own.
 """
 
 from __future__ import annotations
@@ -36,12 +38,13 @@ from typing import Any
 
 import numpy as np
 
-from ._validation import check_descriptors, check_is_fitted, check_positive_int
+from ._validation import check_positive_int
 from .encoding import _check_margins as _check_decode_margins
+from .compressed import code_signs
 from .encoding import bit_codes
 from .exceptions import InvalidParameterError
 
-__all__ = ["kbest_codes", "soft_scores", "tree_layout", "region_deficits", "place_costs", "rank_places"]
+__all__ = ["kbest_codes", "soft_scores", "deficits_from_scores", "code_costs", "merge_region_kbest"]
 
 
 def _check_margins(margins: Any, n_places: int) -> tuple[np.ndarray, int, int]:
@@ -120,38 +123,34 @@ def soft_scores(margins: Any, n_places: int) -> np.ndarray:
     return m @ bit_codes(n).astype(np.float64).T
 
 
-# -- BTEL models ---------------------------------------------------------------------------------
-def tree_layout(model: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Where each region's tree lives in a fitted compressed ``BTELocalizer``.
+# -- several trees (regions) ----------------------------------------------------------------------
+def deficits_from_scores(region_scores: np.ndarray | None, n_regions: int, n_queries: int) -> np.ndarray:
+    """``s_max − s_k`` of every region from the region classifier's margins (zeros when r = 1).
+
+    r = 2 reads the one hyperplane h as the scores (−h, +h); r > 2 the one-vs-rest scores.
+
+    Parameters
+    ----------
+    region_scores : ndarray of shape (n_queries, 1 or r), or None when r = 1
 
     Returns
     -------
-    starts : ndarray of shape (r,), int64
-        First global place of each region (``region_starts_``).
-    sizes : ndarray of shape (r,), int64
-        N_k (``region_sizes_``).
-    offsets : ndarray of shape (r + 1,), int64
-        Region k's column classifiers are rows ``offsets[k]:offsets[k+1]`` of ``hyperplanes_``
-        (b_k = ⌈log2 N_k⌉ bits MSB first, then any offset-code columns).
-
-    Starts and sizes count the trees' codes: blocks of ``block_size_`` places when > 1.
+    ndarray of shape (n_queries, r), float64, ≥ 0, 0 at the predicted region
     """
-    check_is_fitted(model, "n_places_")
-    if getattr(model, "scheme", "compressed") != "compressed":
-        raise InvalidParameterError(
-            "ranking needs one classifier per bit (scheme='compressed'); BTE-F visits one node per level."
-        )
-    starts = np.asarray(model.region_starts_, dtype=np.int64)
-    sizes = np.asarray(model.region_sizes_, dtype=np.int64)
-    return starts, sizes, np.asarray(model._tree_offsets, dtype=np.int64)
+    if n_regions == 1 or region_scores is None:
+        return np.zeros((n_queries, 1))
+    s = np.asarray(region_scores, dtype=np.float64)
+    if n_regions == 2:
+        s = np.concatenate([-s, s], axis=1)
+    return s.max(axis=1, keepdims=True) - s
 
 
 def _tree_costs(m: np.ndarray, n_k: int, copies: int) -> np.ndarray:
     """Flip cost ``Σ|m| − Σ m·sign`` of every code of one tree (all its columns), (n, n_k)."""
+    if n_k == 1:  # a one-code region has no bits: its one code costs nothing in the tree
+        return np.zeros((m.shape[0], 1))
     if copies == 1:
         return np.abs(m).sum(axis=1, keepdims=True) - soft_scores(m, n_k)
-    from .compressed import code_signs
-
     return np.abs(m).sum(axis=1, keepdims=True) - m @ code_signs(n_k, copies).astype(np.float64).T
 
 
@@ -162,108 +161,61 @@ def _check_weight(region_weight: Any) -> float:
     return float(region_weight)
 
 
-def region_deficits(model: Any, Q: np.ndarray) -> np.ndarray:
-    """``s_max − s_k`` of every region for validated queries (zeros when r = 1).
+def code_costs(margins: np.ndarray, deficits: np.ndarray, starts: np.ndarray, sizes: np.ndarray,
+               offsets: np.ndarray, *, code_copies: int = 1, region_weight: float = 1.0) -> np.ndarray:
+    """Cost of every code (lower = more likely) under several trees: the rule of :func:`merge_region_kbest`.
 
-    r = 2 reads the one hyperplane h as the scores (−h, +h); r > 2 the one-vs-rest scores.
-
-    Returns
-    -------
-    ndarray of shape (n_queries, r), float64, ≥ 0, 0 at the predicted region
-    """
-    r = int(model.n_regions_)
-    if r == 1:
-        return np.zeros((Q.shape[0], 1))
-    s = model.region_hyperplanes_.margins(Q).astype(np.float64)
-    if r == 2:
-        s = np.concatenate([-s, s], axis=1)
-    return s.max(axis=1, keepdims=True) - s
-
-
-def _margins_and_deficits(model: Any, Q: Any) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, ...]]:
-    layout = tree_layout(model)
-    Q = check_descriptors(Q, name="Q", n_features=model.n_features_in_)
-    margins = model.hyperplanes_.margins(Q).astype(np.float64)  # every tree's bits: one product
-    return margins, region_deficits(model, Q), layout
-
-
-def place_costs(model: Any, Q: Any, *, region_weight: float = 1.0) -> np.ndarray:
-    """Cost of every place for every query (lower = more likely): the rule of :func:`rank_places`.
-
-    O(N·b) per query. ``-place_costs`` is a per-place score matrix for
-    :func:`btel.sequence_decoding.decode_sequence`.
+    O(N·b) per query.
 
     Parameters
     ----------
-    model : BTELocalizer
-        Fitted, ``scheme='compressed'``.
-    Q : array-like of shape (n_queries, n_features)
-    region_weight : float ≥ 0
-        α, the weight of the region classifier's score deficit.
+    margins : ndarray of shape (n_queries, K)
+        Every tree's column margins side by side (region k's are ``offsets[k]:offsets[k+1]``).
+    deficits : ndarray of shape (n_queries, r)
+        :func:`deficits_from_scores`.
+    starts, sizes : ndarray of shape (r,), int
+        First code and number of codes of each region.
+    offsets : ndarray of shape (r + 1,), int
 
     Returns
     -------
-    ndarray of shape (n_queries, N), float64, ≥ 0
+    ndarray of shape (n_queries, Σ sizes), float64, ≥ 0
     """
     alpha = _check_weight(region_weight)
-    margins, deficits, (starts, sizes, offsets) = _margins_and_deficits(model, Q)
-    out = np.empty((margins.shape[0], int(model.n_codes_)))
-    for k, (s, n_k) in enumerate(zip(starts.tolist(), sizes.tolist())):
-        m = margins[:, offsets[k] : offsets[k + 1]]
-        if n_k == 1:  # a one-place region has no bits: its one place costs nothing in the tree
-            tree = np.zeros((m.shape[0], 1))
-        else:
-            tree = _tree_costs(m, n_k, model.code_copies_)
+    out = np.empty((margins.shape[0], int(np.sum(sizes))))
+    for k, (s, n_k) in enumerate(zip(np.asarray(starts).tolist(), np.asarray(sizes).tolist())):
+        tree = _tree_costs(margins[:, offsets[k] : offsets[k + 1]], n_k, code_copies)
         out[:, s : s + n_k] = tree + alpha * deficits[:, k : k + 1]
-    if model.block_size_ > 1:  # every place costs what its block costs
-        out = out[:, np.arange(int(model.n_places_)) // model.block_size_]
     return out
 
 
-def rank_places(
-    model: Any, Q: Any, k: int = 10, *, n_regions_searched: int = 1, region_weight: float = 1.0
-) -> tuple[np.ndarray, np.ndarray]:
-    """The ``k`` most likely places per query from a fitted compressed BTEL model, best first.
+def merge_region_kbest(margins: np.ndarray, deficits: np.ndarray, starts: np.ndarray, sizes: np.ndarray,
+                       offsets: np.ndarray, k: int, *, n_regions_searched: int = 1,
+                       region_weight: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """The ``k`` lowest-cost codes per query over several plain-bit trees, best first.
 
     Within a region the candidates come from :func:`kbest_codes` on that region's tree. Across
     regions, the ``n_regions_searched`` best regions by region score are searched (more, in
-    order of score, while they hold fewer than ``k`` places), and candidates are merged by
+    order of score, while they hold fewer than ``k`` codes), and candidates are merged by
     ``cost = flip cost + region_weight·(s_max − s_k)`` (module docstring). With r = 1 this is
-    :func:`kbest_codes` of ``decision_function``.
-
-    Parameters
-    ----------
-    model : BTELocalizer
-        Fitted with ``scheme='compressed'``.
-    Q : array-like of shape (n_queries, n_features)
-    k : int
-        Candidates per query (capped at N).
-    n_regions_searched : int
-        Regions searched per query (1: the predicted region only, unless it is smaller than k).
-    region_weight : float ≥ 0
-        α. 0 ranks purely by tree flip cost across the searched regions.
+    :func:`kbest_codes`.
 
     Returns
     -------
-    places : ndarray of shape (n_queries, min(k, N)), int64
-        Distinct places, best first.
+    codes : ndarray of shape (n_queries, min(k, N)), int64
+        Distinct codes, best first.
     costs : ndarray of shape (n_queries, min(k, N)), float64
-        Their costs (non-decreasing along each row); equal to :func:`place_costs` at those places.
+        Non-decreasing along each row; equal to :func:`code_costs` at those codes.
     """
     alpha = _check_weight(region_weight)
     searched = check_positive_int(n_regions_searched, "n_regions_searched")
-    tree_layout(model)  # fitted, compressed: checked before reading the code options
-    if model.code_copies_ > 1:
-        # Offset codes: no best-first search over flips of independent bits; rank every code.
-        return _rank_by_costs(model, Q, k, alpha)
-    margins, deficits, (starts, sizes, offsets) = _margins_and_deficits(model, Q)
-    n = int(model.n_codes_)
+    n = int(np.sum(sizes))
     k = min(check_positive_int(k, "k"), n)
-    places = np.empty((margins.shape[0], k), dtype=np.int64)
+    codes = np.empty((margins.shape[0], k), dtype=np.int64)
     costs = np.empty((margins.shape[0], k))
     region_order = np.argsort(deficits, axis=1, kind="stable")
     for q in range(margins.shape[0]):
-        cand_places: list[int] = []
+        cand_codes: list[int] = []
         cand_costs: list[float] = []
         held = 0
         for rank_r, reg in enumerate(region_order[q].tolist()):
@@ -275,24 +227,10 @@ def rank_places(
                 local, local_cost = [0], [0.0]
             else:
                 local, local_cost = _kbest_one(margins[q, offsets[reg] : offsets[reg + 1]].tolist(), n_k, k)
-            cand_places.extend(int(starts[reg]) + i for i in local)
+            cand_codes.extend(int(starts[reg]) + i for i in local)
             cand_costs.extend(c + offset for c in local_cost)
             held += min(n_k, k)
         order = np.argsort(np.asarray(cand_costs), kind="stable")[:k]
-        places[q] = np.asarray(cand_places, dtype=np.int64)[order]
+        codes[q] = np.asarray(cand_codes, dtype=np.int64)[order]
         costs[q] = np.asarray(cand_costs)[order]
-    return model._places_of_codes(places), costs  # distinct blocks → distinct centre places
-
-
-def _rank_by_costs(model: Any, Q: Any, k: int, alpha: float) -> tuple[np.ndarray, np.ndarray]:
-    """Top-k codes by :func:`place_costs` over every code (O(N·K) per query), as places."""
-    block = model.block_size_
-    costs = place_costs(model, Q, region_weight=alpha)
-    if block > 1:
-        costs = costs[:, ::block]  # one column per block (its first place), block order
-    k = min(check_positive_int(k, "k"), costs.shape[1])
-    top = np.argpartition(costs, k - 1, axis=1)[:, :k] if k < costs.shape[1] else \
-        np.broadcast_to(np.arange(costs.shape[1]), costs.shape).copy()
-    order = np.argsort(np.take_along_axis(costs, top, axis=1), axis=1, kind="stable")
-    codes = np.take_along_axis(top, order, axis=1).astype(np.int64)
-    return model._places_of_codes(codes), np.take_along_axis(costs, codes, axis=1)
+    return codes, costs

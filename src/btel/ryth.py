@@ -14,18 +14,17 @@ Storage: Σ_k p_k hyperplanes of d' weights plus one bias, and K sets of d' colu
 from __future__ import annotations
 
 import math
-import numbers
-import time
 from typing import Any
 
 import numpy as np
 
-from ._validation import check_descriptors, check_places, check_positive_int
-from .base import PlaceLocalizer, register_model
-from .exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError
+from ._validation import N_JOBS, RANDOM_STATE, Budget, DType, Interval, Options, check_positive_int, read_state_int
+from .base import ArraySpec, PlaceLocalizer
+from .exceptions import BudgetTooSmallError, ModelFileError, NotEnoughPlacesError
 from .feature_selection import column_index_dtype
+from .frontend import FRONT_END_CONSTRAINTS
 from .linear import CLASSIFIERS, ColumnStats, Hyperplanes, default_C
-from .storage import format_bytes, parse_budget
+from .storage import format_bytes
 from .training import fit_tasks, one_vs_rest_tasks
 
 __all__ = ["RYTHLocalizer", "coprime_periods", "crt"]
@@ -72,14 +71,13 @@ def crt(residues: np.ndarray, periods: list[int]) -> np.ndarray:
     return np.asarray(out % total, dtype=np.int64)
 
 
-@register_model
 class RYTHLocalizer(PlaceLocalizer):
     """Rhythmic representation localizer (RYTH), with the same storage accounting as BTEL.
 
     Parameters
     ----------
     n_periods : int
-        K, the number of co-prime periods (classifiers).
+        K, the number of co-prime periods (classifiers), 1 … 16.
     classifier : {'svm', 'logistic'}
     C : float, optional
     feature_ratio : float in (0, 1], optional
@@ -94,16 +92,34 @@ class RYTHLocalizer(PlaceLocalizer):
     decode : {'soft', 'crt'}
     max_iter, n_jobs, random_state
         As in :class:`btel.BTELocalizer`.
+    normalize, whiten, delta
+        The front end (:mod:`btel.frontend`).
 
     Attributes
     ----------
     periods_ : list of int
     n_places_, n_features_in_, n_selected_ : int
     hyperplanes_ : Hyperplanes
-        Σ p_k rows, period by period, class order within a period.
+        Σ p_k rows (one for a period of 2), period by period, class order within a period.
+    front_end_ : FrontEnd
     """
 
-    supports_ranking = True
+    _parameter_constraints = {
+        "n_periods": [Interval(int, 1, 16)],
+        "classifier": [Options(*CLASSIFIERS)],
+        "C": [None, Interval(float, 0, None, closed="neither")],
+        "feature_ratio": [None, Interval(float, 0, 1, closed="right")],
+        "n_features": [None, Interval(int, 1, None)],
+        "sparsity": [Interval(float, 0, None, closed="neither")],
+        "budget": [Budget()],
+        "dtype": [DType("float32", "float16")],
+        "decode": [Options("soft", "crt")],
+        "max_iter": [Interval(int, 1, None)],
+        "n_jobs": N_JOBS,
+        "random_state": RANDOM_STATE,
+        **FRONT_END_CONSTRAINTS,
+    }
+    _runtime_params = ("n_jobs",)
 
     def __init__(
         self,
@@ -120,6 +136,9 @@ class RYTHLocalizer(PlaceLocalizer):
         max_iter: int = 1000,
         n_jobs: int | None = None,
         random_state: int | None = None,
+        normalize: str = "none",
+        whiten: int | None = None,
+        delta: int | None = None,
     ) -> None:
         self.n_periods = n_periods
         self.classifier = classifier
@@ -133,48 +152,36 @@ class RYTHLocalizer(PlaceLocalizer):
         self.max_iter = max_iter
         self.n_jobs = n_jobs
         self.random_state = random_state
+        self.normalize = normalize
+        self.whiten = whiten
+        self.delta = delta
 
     @staticmethod
     def planned_bytes(periods: list[int], n_selected: int, n_features_in: int, dtype: str = "float32") -> int:
-        """Bytes for these periods and d': Σ p_k·(d'·w + 4) + K·d' column indices (none when d' = d)."""
-        w = np.dtype(dtype).itemsize
-        idx = 0 if n_selected >= n_features_in else column_index_dtype(n_features_in).itemsize
-        return int(sum(periods) * (n_selected * w + 4) + len(periods) * n_selected * idx)
+        """Bytes for these periods and d': the sum of :func:`ryth_specs`."""
+        return int(sum(s.nbytes for s in ryth_specs(periods, n_selected, n_features_in, dtype).values()))
 
-    def fit(self, X: Any, places: Any = None) -> "RYTHLocalizer":
-        """Fit the K residue classifiers on map descriptors (row i = place i unless ``places``)."""
-        start_time = time.perf_counter()
-        if self.classifier not in CLASSIFIERS:
-            raise InvalidParameterError(f"classifier must be one of {CLASSIFIERS}; got {self.classifier!r}.")
-        if self.decode not in ("soft", "crt"):
-            raise InvalidParameterError(f"decode must be 'soft' or 'crt'; got {self.decode!r}.")
-        if np.dtype(self.dtype).name not in ("float32", "float16"):
-            raise InvalidParameterError(f"dtype must be 'float32' or 'float16'; got {self.dtype!r}.")
-        if self.feature_ratio is not None and not (isinstance(self.feature_ratio, numbers.Real) and 0 < self.feature_ratio <= 1):
-            raise InvalidParameterError(f"feature_ratio must be in (0, 1]; got {self.feature_ratio!r}.")
+    def _fit(self, X: np.ndarray, places: np.ndarray | None, n_places: int, budget: int | None,
+             reserved: int) -> None:
+        """Fit the K residue classifiers on the (front-end) map."""
         C = default_C(self.classifier) if self.C is None else float(self.C)
-        if not C > 0:
-            raise InvalidParameterError(f"C must be positive; got {self.C!r}.")
-        X = check_descriptors(X, name="X", min_rows=2)
-        if places is None:
-            places_arr, n_places = np.arange(X.shape[0], dtype=np.int64), X.shape[0]
-        else:
-            places_arr, n_places = check_places(places, X.shape[0])
+        places_arr = np.arange(n_places, dtype=np.int64) if places is None else places
         d = X.shape[1]
         periods = coprime_periods(n_places, self.n_periods)
-        budget = parse_budget(self.budget)
+        if min(np.bincount(places_arr % p, minlength=p).min() for p in periods) < 1:  # pragma: no cover
+            raise NotEnoughPlacesError(f"N = {n_places} places leave a residue class empty for periods {periods}.")
         dtype = np.dtype(self.dtype).name
         if self.n_features is not None:
-            cap = min(check_positive_int(self.n_features, "n_features"), d)
+            cap = min(int(self.n_features), d)
         else:
             ratio = self.feature_ratio if self.feature_ratio is not None else (None if budget else 0.1)
             cap = d if ratio is None else int(min(d, max(1, round(ratio * d))))
         n_selected = cap
         if budget is not None:
             n_selected = next((m for m in range(cap, 0, -1)
-                               if self.planned_bytes(periods, m, d, dtype) <= budget), 0)
+                               if self.planned_bytes(periods, m, d, dtype) + reserved <= budget), 0)
             if n_selected == 0:
-                minimum = self.planned_bytes(periods, 1, d, dtype)
+                minimum = self.planned_bytes(periods, 1, d, dtype) + reserved
                 raise BudgetTooSmallError(
                     f"budget {format_bytes(budget)} ({budget} B) is too small for RYTH with periods {periods}: "
                     f"the smallest model (d' = 1) needs {minimum} B. Raise the budget or use fewer periods.",
@@ -205,12 +212,9 @@ class RYTHLocalizer(PlaceLocalizer):
             n_features_in=d,
         )
         self.periods_ = periods
-        self.n_places_ = int(n_places)
-        self.n_features_in_ = int(d)
         self.n_selected_ = int(n_selected)
         self.n_unconverged_ = int(n_unconverged)
-        self.fit_time_ = time.perf_counter() - start_time
-        return self
+        self._expanded_cache = None
 
     # The column sets are one row per period; expand them to one per hyperplane for the margins.
     def _expanded(self) -> Hyperplanes:
@@ -230,7 +234,10 @@ class RYTHLocalizer(PlaceLocalizer):
         -------
         ndarray of shape (n_queries, Σ p_k), float32
         """
-        margins = self._expanded().margins(self._check_queries(Q))
+        return self._residue_scores(self._check_queries(Q))
+
+    def _residue_scores(self, Q: np.ndarray) -> np.ndarray:
+        margins = self._expanded().margins(Q)
         out, col = [], 0
         for p in self.periods_:
             if p == 2:
@@ -241,56 +248,68 @@ class RYTHLocalizer(PlaceLocalizer):
                 col += p
         return np.hstack(out).astype(np.float32)
 
-    def _place_scores(self, scores: np.ndarray, chunk: int = 2048):
+    def _summed(self, scores: np.ndarray) -> np.ndarray:
+        """Soft-decode score ``Σ_k score_k[i mod p_k]`` of every place (n_queries, N), float64."""
         places = np.arange(self.n_places_)
         offsets = np.concatenate([[0], np.cumsum(self.periods_)[:-1]])
-        columns = [off + places % p for off, p in zip(offsets, self.periods_)]
-        for start in range(0, scores.shape[0], chunk):
-            block = scores[start : start + chunk]
-            yield start, sum(block[:, c] for c in columns)
+        return sum(scores[:, off + places % p].astype(np.float64) for off, p in zip(offsets, self.periods_))
 
-    def rank(self, Q: Any, k: int = 10) -> np.ndarray:
-        """The k places with the highest summed residue scores, best first (int64, (n_queries, k))."""
-        k = min(check_positive_int(k, "k"), self.n_places_ if hasattr(self, "n_places_") else k)
-        scores = self.decision_function(Q)
-        out = np.empty((scores.shape[0], k), dtype=np.int64)
-        for start, total in self._place_scores(scores):
-            top = np.argpartition(-total, k - 1, axis=1)[:, :k]
-            order = np.argsort(-np.take_along_axis(total, top, axis=1), axis=1, kind="stable")
-            out[start : start + total.shape[0]] = np.take_along_axis(top, order, axis=1)
-        return out
+    def _place_scores(self, Q: np.ndarray) -> np.ndarray:
+        return self._summed(self._residue_scores(Q))
 
-    def predict(self, Q: Any) -> np.ndarray:
-        """Place index of each query (int64, shape (n_queries,), values in [0, N))."""
-        scores = self.decision_function(Q)
-        soft = np.empty(scores.shape[0], dtype=np.int64)
-        for start, total in self._place_scores(scores):
-            soft[start : start + total.shape[0]] = np.argmax(total, axis=1)
-        if self.decode == "soft":
-            return soft
-        offsets = np.concatenate([[0], np.cumsum(self.periods_)[:-1]])
-        residues = np.stack([np.argmax(scores[:, o : o + p], axis=1) for o, p in zip(offsets, self.periods_)], axis=1)
-        exact = crt(residues, self.periods_)
-        return np.where(exact < self.n_places_, exact, soft)
+    def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        from .base import top_k
+
+        n = int(self.n_places_)
+        rows = max(1, (1 << 22) // n)
+        values = np.empty((Q.shape[0], k))
+        places = np.empty((Q.shape[0], k), dtype=np.int64)
+        for start in range(0, Q.shape[0], rows):
+            scores = self._residue_scores(Q[start : start + rows])
+            total = self._summed(scores)
+            if k == 1:
+                best = np.argmax(total, axis=1)
+                if self.decode == "crt":  # the CRT answer when it is a valid place, else the soft one
+                    offsets = np.concatenate([[0], np.cumsum(self.periods_)[:-1]])
+                    residues = np.stack([np.argmax(scores[:, o : o + p], axis=1)
+                                         for o, p in zip(offsets, self.periods_)], axis=1)
+                    exact = crt(residues, self.periods_)
+                    best = np.where(exact < n, exact, best)
+                values[start : start + rows, 0] = np.take_along_axis(total, best[:, None], axis=1)[:, 0]
+                places[start : start + rows, 0] = best
+            else:
+                values[start : start + rows], places[start : start + rows] = top_k(total, k)
+        return values, places
 
     def _stored_arrays(self) -> dict[str, np.ndarray]:
         return self.hyperplanes_.arrays("")
 
     def _fitted_state(self) -> dict[str, Any]:
-        return {"n_places": self.n_places_, "n_features_in": self.n_features_in_, "n_selected": self.n_selected_,
-                "periods": list(self.periods_), "fit_time": self.fit_time_}
+        return {"n_selected": self.n_selected_, "periods": list(self.periods_)}
+
+    def _array_specs(self, state: dict[str, Any]) -> dict[str, ArraySpec]:
+        n_places = int(state["n_places"])
+        d = self.front_end_.n_features_out(int(state["n_features_in"]))
+        n_selected = read_state_int(state, "n_selected", 1, d)
+        periods = coprime_periods(n_places, self.n_periods)
+        if state.get("periods") != periods:
+            raise ModelFileError(f"the RYTH model file's periods {str(state.get('periods'))[:60]} are not the "
+                                 f"co-prime periods {periods} of N = {n_places}, K = {self.n_periods}.")
+        return ryth_specs(periods, n_selected, d, np.dtype(self.dtype).name)
 
     def _restore(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
-        periods = [int(p) for p in state["periods"]]
-        d, n_selected = int(state["n_features_in"]), int(state["n_selected"])
-        rows = sum(1 if p == 2 else p for p in periods)
-        if arrays["weights"].shape != (rows, n_selected):
-            raise ModelFileError(f"RYTH model file holds weights of shape {arrays['weights'].shape}; "
-                                 f"periods {periods} and d' = {n_selected} need ({rows}, {n_selected}).")
-        self.hyperplanes_ = Hyperplanes(arrays["weights"], arrays["bias"], arrays.get("columns"), d)
-        self.periods_ = periods
-        self.n_places_ = int(state["n_places"])
-        self.n_features_in_ = d
-        self.n_selected_ = n_selected
+        d = self.front_end_.n_features_out(int(state["n_features_in"]))
+        self.hyperplanes_ = Hyperplanes.from_arrays(arrays, "", d)
+        self.periods_ = [int(p) for p in state["periods"]]
+        self.n_selected_ = int(state["n_selected"])
         self.n_unconverged_ = 0
-        self.fit_time_ = float(state.get("fit_time", float("nan")))
+        self._expanded_cache = None
+
+
+def ryth_specs(periods: list[int], n_selected: int, n_features: int, dtype: str = "float32") -> dict[str, ArraySpec]:
+    """Arrays of a RYTH model: Σ p_k hyperplanes (one for p = 2), their biases, and K column sets."""
+    rows = sum(1 if p == 2 else p for p in periods)
+    specs = {"weights": ArraySpec((rows, n_selected), np.dtype(dtype)), "bias": ArraySpec((rows,), np.float32)}
+    if n_selected < n_features:
+        specs["columns"] = ArraySpec((len(periods), n_selected), column_index_dtype(n_features))
+    return specs

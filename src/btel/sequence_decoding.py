@@ -4,9 +4,9 @@ The robot moves forward along the mapped route; a query stream is decoded by a h
 whose states are the N places:
 
 - **emissions**: ``log p(query_t | place i) = score_t[i] / T`` for any method's per-place scores
-  (higher = more likely): BTEL's ``−place_costs`` (:func:`btel.ranking.place_costs`), negative
-  ADC distances of PQ/OPQ, negative Hamming distances of ITQ, negative L2 of brute force —
-  :func:`method_scores` builds them — so every method gets the same decoding (equal terms);
+  (higher = more likely; :meth:`btel.base.PlaceLocalizer.place_scores`): BTEL's minus flip costs,
+  negative ADC distances of PQ/OPQ, negative Hamming distances of ITQ, negative squared L2 of brute
+  force, z-scored per frame (:func:`emission_scores`) — so every method gets the same decoding;
 - **transitions**: from place i to i + v, v ∈ {vmin … vmax} equally likely (forward motion), plus
   an optional ``backward`` probability spread over i − 1 … i − vmax, plus a ``teleport``
   probability spread over all N places (relocalisation after a wrong turn or a kidnapping).
@@ -30,13 +30,15 @@ from typing import Any
 
 import numpy as np
 
-from ._validation import check_descriptors, check_is_fitted, check_positive_int
+from ._validation import check_positive_int
 from .exceptions import InvalidParameterError
 
-__all__ = ["HMMDecoder", "decode_sequence", "zscore_rows", "method_scores", "emission_scores", "transition_kernel",
+__all__ = ["HMMDecoder", "HMM_OPTIONS", "decode_sequence", "zscore_rows", "emission_scores", "transition_kernel",
            "MODES"]
 
 MODES = ("forward", "viterbi")
+#: Options of :class:`HMMDecoder` besides N (what ``predict_sequence(Q, "hmm", **options)`` takes).
+HMM_OPTIONS = ("temperature", "vmin", "vmax", "backward", "teleport", "mode")
 
 
 def _check_probability(value: Any, name: str, *, upper_open: bool = True) -> float:
@@ -249,64 +251,11 @@ def zscore_rows(scores: Any) -> np.ndarray:
     return (S - S.mean(axis=1, keepdims=True)) / np.where(std > 0, std, 1.0)
 
 
-def emission_scores(model: Any, Q: Any, *, region_weight: float = 1.0) -> np.ndarray:
-    """HMM emissions of any fitted method: :func:`method_scores` z-scored per query row.
+def emission_scores(model: Any, Q: Any) -> np.ndarray:
+    """HMM emissions of any fitted method: its ``place_scores(Q)`` z-scored per query row.
 
     Returns
     -------
     ndarray of shape (n_queries, N), float64
     """
-    return zscore_rows(method_scores(model, Q, region_weight=region_weight))
-
-
-def method_scores(model: Any, Q: Any, *, region_weight: float = 1.0) -> np.ndarray:
-    """Per-place scores (higher = more likely) of any fitted method, for :func:`decode_sequence`.
-
-    - compressed BTEL: ``−place_costs`` (:mod:`btel.ranking`);
-    - RYTH: its soft-decode score ``Σ_k score_k[i mod p_k]``;
-    - an object with its own ``place_scores(Q)`` (compressed BTEL: ``−place_costs``);
-    - PQ / OPQ: negative asymmetric (ADC) squared distances; ITQ: negative Hamming distances;
-      brute force: negative squared L2 — one faiss search with k = number of map rows;
-    - anything else that ranks: minus the rank position (a place's score is −its rank).
-
-    With several map rows per place, a place scores its best row.
-
-    Returns
-    -------
-    ndarray of shape (n_queries, N), float64
-    """
-    from .localizer import BTELocalizer
-    from .ryth import RYTHLocalizer
-
-    check_is_fitted(model, "n_places_")
-    if isinstance(model, BTELocalizer):
-        return model.place_scores(Q, region_weight=region_weight)
-    if hasattr(model, "place_scores"):
-        return np.asarray(model.place_scores(Q), dtype=np.float64)
-    if isinstance(model, RYTHLocalizer):  # its soft-decode score: Σ_k score_k[i mod p_k]
-        blocks = [total for _, total in model._place_scores(model.decision_function(Q))]
-        return np.concatenate(blocks).astype(np.float64)
-    Qc = check_descriptors(Q, name="Q", n_features=model.n_features_in_)
-    n = int(model.n_places_)
-    index = getattr(model, "_get_index", None)
-    if index is not None:
-        if hasattr(model, "encode_centred"):  # ITQ: binary codes, Hamming distance
-            queries = model.encode_centred(Qc - model.mean_)
-        elif hasattr(model, "transform"):  # PQ / OPQ: the (projected) query stays in float
-            queries = model.transform(Qc)
-        else:  # brute force
-            queries = Qc
-        idx = index()
-        dist, rows = idx.search(queries, idx.ntotal)
-        values = -dist.astype(np.float64)
-    else:
-        rows = model.rank(Qc, k=n)
-        values = -np.broadcast_to(np.arange(rows.shape[1], dtype=np.float64), rows.shape)
-    row_places = getattr(model, "row_places_", None)
-    places = rows if row_places is None else np.asarray(row_places, dtype=np.int64)[rows]
-    out = np.full((Qc.shape[0], n), -np.inf)
-    # Rows come best first, so the first write per place is its best row: write in reverse.
-    q_idx = np.repeat(np.arange(Qc.shape[0]), rows.shape[1]).reshape(rows.shape)
-    out[q_idx[:, ::-1], places[:, ::-1]] = values[:, ::-1]
-    out[~np.isfinite(out)] = values.min() if values.size else 0.0
-    return out
+    return zscore_rows(model.place_scores(Q))

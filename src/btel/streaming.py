@@ -3,7 +3,10 @@
 This is what a robot runs: a camera pipeline writes each frame's global descriptor as a line of
 numbers (separated by commas and/or whitespace) to a pipe or an append-only file, and every line
 is localized as soon as it is complete, with the paper's sequence filter (SPEC §6) applied across
-the stream. A malformed line — a wrong number of values, something that is not a number, NaN or
+the stream. The model's front end runs online too (:class:`btel.base.QueryStream`): with delta
+descriptors it keeps the last 2w frames and answers from the first frame on (before 2w frames the
+missing ones count as copies of the first, so the first answers carry little information). A line
+``reset`` starts a new traverse: the filter, the HMM and the delta history forget the past. A malformed line — a wrong number of values, something that is not a number, NaN or
 infinity — is reported with its line number and skipped; it does not stop the stream and does
 not enter the filter's history.
 
@@ -26,7 +29,11 @@ import numpy as np
 from .exceptions import DimensionMismatchError, InvalidDescriptorsError, InvalidParameterError
 from .sequence import SequenceFilter
 
-__all__ = ["parse_descriptor_line", "read_lines", "localize_stream"]
+__all__ = ["parse_descriptor_line", "read_lines", "localize_stream", "RESET_LINE"]
+
+#: An input line that starts a new traverse: the sequence filter, the HMM and the front end's
+#: delta history forget the past (e.g. the robot was carried to another place).
+RESET_LINE = "reset"
 
 _SEPARATORS = re.compile(r"[,\s]+")
 
@@ -155,13 +162,21 @@ def localize_stream(
     if hmm and window is not None:
         raise InvalidParameterError("choose the HMM or the sequence filter (window), not both.")
     filt = SequenceFilter(window, n_places=getattr(model, "n_places_", None)) if window is not None else None
+    stream = model.stream()
     decoder = None
     if hmm:
-        from .sequence_decoding import HMMDecoder, emission_scores
+        from .sequence_decoding import HMMDecoder, zscore_rows
 
         decoder = HMMDecoder(int(model.n_places_))
     for number, line in enumerate(lines, start=1):
         if not line.strip():
+            continue
+        if line.strip().lower() == RESET_LINE:  # a new traverse: forget the sequence state
+            stream.reset()
+            if filt is not None:
+                filt.reset()
+            if decoder is not None:
+                decoder.reset()
             continue
         try:
             q = parse_descriptor_line(line, n_features)
@@ -171,9 +186,9 @@ def localize_stream(
             continue
         try:
             if decoder is not None:
-                place = decoder.update(emission_scores(model, q)[0])
+                place = decoder.update(zscore_rows(stream.place_scores(q)[None, :])[0])
             else:
-                place = int(model.predict(q)[0])
+                place = int(stream.search(q, 1)[1][0])
         except (InvalidDescriptorsError, DimensionMismatchError) as exc:  # a model without n_features_in_
             if on_error is not None:
                 on_error(number, str(exc))

@@ -2,11 +2,9 @@
 
 A baseline indexes map *rows* (descriptors) and answers with *places*. With ``places`` given to
 ``fit`` several rows may belong to one place; the row → place table is then stored (smallest
-unsigned dtype, counted in storage, since inference reads it) and :meth:`_RowLocalizer.rank`
-returns unique places, best first. Without ``places`` row i is place i and nothing extra is stored.
-
-A subclass implements the row index: ``_fit_rows``, ``_search_rows`` (k best rows per query, best
-first), ``_model_arrays``, ``_model_state`` and ``_restore_model``.
+unsigned dtype, counted in storage, since inference reads it) and the search returns unique
+places, best first (a place scores its best row). Without ``places`` row i is place i and nothing
+extra is stored.
 """
 
 from __future__ import annotations
@@ -17,14 +15,14 @@ import re
 import sys
 import tempfile
 import time
+from abc import abstractmethod
 from typing import Any, Iterator
 
 import numpy as np
 
-from .._validation import check_descriptors, check_places, check_positive_int
-from ..base import PlaceLocalizer
-from ..exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError, NotEnoughPlacesError
-from ..storage import format_bytes, parse_budget
+from ..base import ArraySpec, PlaceLocalizer
+from ..exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError
+from ..storage import format_bytes
 
 __all__ = ["quiet_faiss", "faiss_threads", "smallest_uint_dtype", "rank_unique_places", "raise_budget_too_small"]
 
@@ -92,7 +90,8 @@ def smallest_uint_dtype(max_value: int) -> np.dtype:
     return np.dtype(np.uint64)
 
 
-def rank_unique_places(row_ranking: np.ndarray, row_places: np.ndarray, k: int) -> np.ndarray:
+def rank_unique_places(row_ranking: np.ndarray, row_places: np.ndarray, k: int,
+                       row_scores: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Turn ranked map rows into the first ``k`` distinct places per query, best first.
 
     Parameters
@@ -102,10 +101,13 @@ def rank_unique_places(row_ranking: np.ndarray, row_places: np.ndarray, k: int) 
     row_places : ndarray of shape (n_rows,), int
         Place label of every map row.
     k : int
+    row_scores : ndarray of shape (n_queries, k_rows), optional
+        Score of each ranked row (a place scores its best row).
 
     Returns
     -------
-    ndarray of shape (n_queries, k), int64
+    places : ndarray of shape (n_queries, k), int64
+    scores : ndarray of shape (n_queries, k), float64 (zeros without ``row_scores``)
     """
     labels = np.asarray(row_places, dtype=np.int64)[row_ranking]
     # First occurrence of each label within a query row: sort stably, mark label changes,
@@ -117,7 +119,10 @@ def rank_unique_places(row_ranking: np.ndarray, row_places: np.ndarray, k: int) 
     first = np.empty_like(first_sorted)
     np.put_along_axis(first, order, first_sorted, axis=1)
     keep = first & (np.cumsum(first, axis=1) <= k)
-    return labels[keep].reshape(labels.shape[0], k)
+    places = labels[keep].reshape(labels.shape[0], k)
+    scores = np.zeros(places.shape) if row_scores is None else \
+        np.asarray(row_scores, dtype=np.float64)[keep].reshape(labels.shape[0], k)
+    return places, scores
 
 
 def raise_budget_too_small(method: str, budget: int, minimum: int, detail: str) -> None:
@@ -132,112 +137,61 @@ def raise_budget_too_small(method: str, budget: int, minimum: int, detail: str) 
 
 
 class _RowLocalizer(PlaceLocalizer):
-    """Shared ``fit``/``predict``/``rank``/storage plumbing of the baselines (see module docstring)."""
+    """Shared plumbing of the baselines that index map rows (see module docstring).
 
-    supports_ranking = True
+    A subclass implements ``_fit_rows(X, budget, reserved)`` (``reserved`` bytes of the budget are
+    taken already: front end and row → place table), ``_search_rows(Q, k) -> (scores, rows)``
+    (the k best map rows per query, best first, higher score = better), ``_model_arrays``,
+    ``_model_state``, ``_model_specs(state, n_rows)`` and ``_restore_model``.
+    """
 
-    #: Fewest map rows the method can index (k-means and PCA need a few).
-    _min_rows: int = 2
-    #: faiss threads for fit and search (every subclass takes ``n_jobs``; see :func:`faiss_threads`).
-    n_jobs: int | None = None
+    _runtime_params = ("n_jobs",)
 
     # -- to implement ------------------------------------------------------------------------
-    def _fit_rows(self, X: np.ndarray, budget: int | None, extra_bytes: int) -> None:  # pragma: no cover
-        """Fit the row index on ``X`` within ``budget − extra_bytes`` bytes (``budget`` may be None)."""
-        raise NotImplementedError
+    @abstractmethod
+    def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
+        """Fit the row index on ``X`` within ``budget − reserved`` bytes (``budget`` may be None)."""
 
-    def _search_rows(self, Q: np.ndarray, k: int) -> np.ndarray:  # pragma: no cover
-        """The ``k`` best map rows per query, best first: int64 (n_queries, k)."""
-        raise NotImplementedError
+    @abstractmethod
+    def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """(scores, rows): the ``k`` best map rows per query, best first, float64 and int64 (n_queries, k)."""
 
-    def _model_arrays(self) -> dict[str, np.ndarray]:  # pragma: no cover
-        raise NotImplementedError
+    @abstractmethod
+    def _model_arrays(self) -> dict[str, np.ndarray]:
+        """The arrays of the row index."""
 
     def _model_state(self) -> dict[str, Any]:
         return {}
 
-    def _restore_model(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:  # pragma: no cover
-        raise NotImplementedError
+    @abstractmethod
+    def _model_specs(self, state: dict[str, Any], d: int) -> dict[str, ArraySpec]:
+        """Shape and dtype of every array of the row index (``None`` for the number of rows)."""
+
+    @abstractmethod
+    def _restore_model(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
+        """Set the row index from checked arrays."""
 
     # -- shared ------------------------------------------------------------------------------
-    def fit(self, X: Any, places: Any = None) -> "_RowLocalizer":
-        """Index the map descriptors.
-
-        Parameters
-        ----------
-        X : array-like of shape (n_rows, n_features)
-            Map descriptors in route order.
-        places : array-like of int of shape (n_rows,), optional
-            Place label of each row (several rows may share a place); default: row i = place i.
-
-        Returns
-        -------
-        self
-        """
-        start = time.perf_counter()
-        budget = parse_budget(self.budget)
-        X = check_descriptors(X, name="X")
-        n_rows = X.shape[0]
-        if places is None:
-            row_places, n_places = None, n_rows
-            if n_places < 2:
-                raise NotEnoughPlacesError(
-                    f"N = {n_places} place(s): an index needs at least 2 places. Fit on a longer route."
-                )
-        else:
-            labels, n_places = check_places(places, n_rows)
-            # Row i = place i needs no table; any other labelling is stored for inference.
-            identity = n_places == n_rows and np.array_equal(labels, np.arange(n_rows))
-            row_places = None if identity else labels.astype(smallest_uint_dtype(n_places - 1))
-        if n_rows < self._min_rows:
-            raise NotEnoughPlacesError(
-                f"{type(self).__name__} needs at least {self._min_rows} map descriptors; got {n_rows}."
-            )
-        extra = 0 if row_places is None else int(row_places.nbytes)
+    def _fit(self, X: np.ndarray, places: np.ndarray | None, n_places: int, budget: int | None,
+             reserved: int) -> None:
+        # Row i = place i needs no table; any other labelling is stored for inference.
+        row_places = None if places is None else places.astype(smallest_uint_dtype(n_places - 1))
+        extra = reserved + (0 if row_places is None else int(row_places.nbytes))
         with faiss_threads(self.n_jobs):
             self._fit_rows(X, budget, extra)
         self.row_places_ = row_places
-        self.n_features_in_ = int(X.shape[1])
-        self.fit_time_ = time.perf_counter() - start
-        self.n_places_ = int(n_places)  # the fitted marker: set last
-        return self
 
-    def predict(self, Q: Any) -> np.ndarray:
-        """Place of each query.
-
-        Parameters
-        ----------
-        Q : array-like of shape (n_queries, n_features)
-
-        Returns
-        -------
-        ndarray of shape (n_queries,), dtype int64
-            Values in ``[0, n_places_)``.
-        """
-        Q = self._check_queries(Q)
-        with faiss_threads(self.n_jobs):
-            rows = self._search_rows(Q, 1)[:, 0]
-        return rows.astype(np.int64) if self.row_places_ is None else self.row_places_[rows].astype(np.int64)
-
-    def rank(self, Q: Any, k: int = 10) -> np.ndarray:
-        """The ``k`` best places per query, best first (``k`` is capped at ``n_places_``).
-
-        Returns
-        -------
-        ndarray of shape (n_queries, min(k, n_places_)), dtype int64
-            Distinct places per row.
-        """
-        Q = self._check_queries(Q)
-        k = min(check_positive_int(k, "k"), self.n_places_)
+    def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         if self.row_places_ is None:
             with faiss_threads(self.n_jobs):
-                return self._search_rows(Q, k).astype(np.int64)
+                return self._search_rows(Q, k)
         # k places need at most k·(most rows of one place) rows.
         per_place = int(np.bincount(self.row_places_.astype(np.int64)).max())
         n_rows = self.row_places_.shape[0]
         with faiss_threads(self.n_jobs):
-            rows = self._search_rows(Q, min(n_rows, k * per_place))
-        return rank_unique_places(rows, self.row_places_, k)
+            scores, rows = self._search_rows(Q, min(n_rows, k * per_place))
+        places, place_scores = rank_unique_places(rows, self.row_places_, k, scores)
+        return place_scores, places
 
     def _stored_arrays(self) -> dict[str, np.ndarray]:
         arrays = dict(self._model_arrays())
@@ -246,28 +200,45 @@ class _RowLocalizer(PlaceLocalizer):
         return arrays
 
     def _fitted_state(self) -> dict[str, Any]:
-        return {
-            "n_places": self.n_places_,
-            "n_features_in": self.n_features_in_,
-            "fit_time": self.fit_time_,
-            **self._model_state(),
-        }
+        return dict(self._model_state())
+
+    def _array_specs(self, state: dict[str, Any]) -> dict[str, ArraySpec]:
+        d = self.front_end_.n_features_out(int(state["n_features_in"]))
+        specs = dict(self._model_specs(state, d))
+        specs["row_places"] = ArraySpec((None,), (np.uint8, np.uint16, np.uint32, np.uint64), required=False)
+        return specs
 
     def _restore(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
         row_places = arrays.get("row_places")
         n_places = int(state["n_places"])
-        if row_places is not None:
-            if row_places.ndim != 1 or row_places.dtype.kind != "u" or int(row_places.max()) >= n_places:
-                raise ModelFileError(f"the model file's row_places table does not fit N = {n_places} places.")
-        self.row_places_ = row_places
-        self.n_features_in_ = int(state["n_features_in"])
-        self.fit_time_ = float(state.get("fit_time", float("nan")))
         self._restore_model(arrays, state)
-        self.n_places_ = n_places
+        n_rows = self._n_rows()
+        if row_places is None:
+            if n_rows != n_places:
+                raise ModelFileError(f"the model file indexes {n_rows} map rows but says N = {n_places} places "
+                                     "and has no row → place table.")
+        else:
+            if row_places.shape != (n_rows,) or int(row_places.max()) >= n_places \
+                    or np.unique(row_places).size != n_places:
+                raise ModelFileError(f"the model file's row_places table does not fit {n_rows} rows and N = "
+                                     f"{n_places} places.")
+        self.row_places_ = row_places
+
+    @abstractmethod
+    def _n_rows(self) -> int:
+        """Map rows in the (restored) index."""
 
     def __getstate__(self) -> dict[str, Any]:
-        # A faiss index does not pickle (joblib/dask workers); subclasses rebuild it from the
-        # stored arrays on first use.
-        state = super().__getstate__()
+        # A faiss index does not pickle (joblib/dask workers); it is rebuilt on unpickling.
+        state = dict(super().__getstate__())  # a copy: object.__getstate__ returns the live __dict__
         state.pop("_index", None)
         return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        super().__setstate__(state)
+        if hasattr(self, "n_places_"):
+            self._index = self._build_index()
+
+    def _build_index(self) -> Any:
+        """The faiss index of the fitted row index (None for methods that search without one)."""
+        return None

@@ -1,8 +1,10 @@
 """Brute-force nearest neighbour: every map descriptor at float32, exact L2 search (SPEC §8).
 
 The upper reference of every comparison: storage grows linearly in N (N×d×4 bytes) and a query
-costs N distance computations. The search is faiss' exact ``IndexFlatL2``, built at fit time or,
-after loading, from the stored descriptors on first use.
+costs N distance computations. The search is faiss' exact ``IndexFlatL2`` (scores are minus the
+squared distances), built at fit time and when a model is loaded. With the default front end
+(``normalize='l2'``) the rows are unit vectors, so L2 ranks exactly as cosine similarity does:
+the strongest honest form of brute force for global descriptors.
 """
 
 from __future__ import annotations
@@ -12,14 +14,15 @@ from typing import Any
 import faiss
 import numpy as np
 
-from ..base import register_model
+from .._validation import N_JOBS, Budget
+from ..base import ArraySpec
 from ..exceptions import ModelFileError
+from ..frontend import FRONT_END_CONSTRAINTS
 from ._common import _RowLocalizer, raise_budget_too_small
 
 __all__ = ["BruteForceNN"]
 
 
-@register_model
 class BruteForceNN(_RowLocalizer):
     """Exact L2 nearest neighbour over the stored map descriptors.
 
@@ -29,16 +32,19 @@ class BruteForceNN(_RowLocalizer):
         Bytes (or ``"500KB"``). Brute force has a single configuration, N×d float32 values
         (plus the row → place table when ``places`` maps several rows to one place): if that
         exceeds the budget, ``fit`` raises :class:`~btel.exceptions.BudgetTooSmallError` naming it.
-
+    normalize, whiten, delta
+        The front end (:mod:`btel.frontend`).
     n_jobs : int, optional
         faiss threads for fitting and searching (None: faiss' default, all cores; -1: all cores).
+
     Attributes
     ----------
     descriptors_ : ndarray of shape (n_rows, n_features), float32
-        The map, exactly what inference reads.
+        The (front-end transformed) map, exactly what inference reads.
     n_places_, n_features_in_ : int
     row_places_ : ndarray of shape (n_rows,), unsigned int, or None
         Place of each row when ``places`` was given (None: row i = place i).
+    front_end_ : FrontEnd
     fit_time_ : float
         Seconds.
 
@@ -50,8 +56,14 @@ class BruteForceNN(_RowLocalizer):
     [0, 1, 2]
     """
 
-    def __init__(self, *, budget: int | str | None = None, n_jobs: int | None = None) -> None:
+    _parameter_constraints = {"budget": [Budget()], "n_jobs": N_JOBS, **FRONT_END_CONSTRAINTS}
+
+    def __init__(self, *, budget: int | str | None = None, normalize: str = "none", whiten: int | None = None,
+                 delta: int | None = None, n_jobs: int | None = None) -> None:
         self.budget = budget
+        self.normalize = normalize
+        self.whiten = whiten
+        self.delta = delta
         self.n_jobs = n_jobs
 
     @staticmethod
@@ -59,36 +71,37 @@ class BruteForceNN(_RowLocalizer):
         """Storage of a map of ``n_rows`` descriptors of dimension ``n_features``: N·d·4 bytes."""
         return int(n_rows) * int(n_features) * 4
 
-    def _fit_rows(self, X: np.ndarray, budget: int | None, extra_bytes: int) -> None:
-        needed = self.planned_bytes(*X.shape) + extra_bytes
+    def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
+        needed = self.planned_bytes(*X.shape) + reserved
         if budget is not None and needed > budget:
             raise_budget_too_small(
                 "brute-force NN", budget, needed, f"all {X.shape[0]} descriptors × {X.shape[1]} float32 values"
             )
         # A private copy: the index must not change if the caller later edits X.
         self.descriptors_ = np.array(X, dtype=np.float32, order="C", copy=True)
-        self._index = None
+        self._index = self._build_index()
 
-    def _get_index(self) -> faiss.IndexFlatL2:
-        if getattr(self, "_index", None) is None:
-            index = faiss.IndexFlatL2(self.descriptors_.shape[1])
-            index.add(self.descriptors_)
-            self._index = index
-        return self._index
+    def _build_index(self) -> faiss.IndexFlatL2:
+        index = faiss.IndexFlatL2(self.descriptors_.shape[1])
+        index.add(self.descriptors_)
+        return index
 
-    def _search_rows(self, Q: np.ndarray, k: int) -> np.ndarray:
-        _, rows = self._get_index().search(Q, k)
-        return rows.astype(np.int64)
+    def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        dist, rows = self._index.search(Q, k)
+        return -dist.astype(np.float64), rows.astype(np.int64)
 
     def _model_arrays(self) -> dict[str, np.ndarray]:
         return {"descriptors": self.descriptors_}
 
+    def _model_specs(self, state: dict[str, Any], d: int) -> dict[str, ArraySpec]:
+        return {"descriptors": ArraySpec((None, d), np.float32)}
+
+    def _n_rows(self) -> int:
+        return int(self.descriptors_.shape[0])
+
     def _restore_model(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
         descriptors = arrays["descriptors"]
-        if descriptors.dtype != np.float32 or descriptors.ndim != 2 or descriptors.shape[1] != self.n_features_in_:
-            raise ModelFileError(
-                f"brute-force model file holds descriptors of shape {descriptors.shape} and dtype "
-                f"{descriptors.dtype}; expected float32 with {self.n_features_in_} columns."
-            )
+        if not np.isfinite(descriptors).all():
+            raise ModelFileError("the brute-force model file's descriptors contain NaN or infinite values.")
         self.descriptors_ = np.ascontiguousarray(descriptors)
-        self._index = None
+        self._index = self._build_index()

@@ -23,11 +23,12 @@ from typing import Any
 import faiss
 import numpy as np
 
-from .._validation import check_positive_int
-from ..base import register_model
+from .._validation import N_JOBS, RANDOM_STATE, Budget, Interval, check_positive_int, read_state_int
+from ..base import ArraySpec
 from ..exceptions import InvalidParameterError, ModelFileError, NotEnoughPlacesError
+from ..frontend import FRONT_END_CONSTRAINTS
 from ._common import _RowLocalizer, quiet_faiss, raise_budget_too_small
-from .pq import pca_projection
+from .pq import check_finite, pca_projection
 
 __all__ = ["ITQLocalizer"]
 
@@ -35,7 +36,6 @@ __all__ = ["ITQLocalizer"]
 DEFAULT_CODE_BITS = 256
 
 
-@register_model
 class ITQLocalizer(_RowLocalizer):
     """PCA + ITQ rotation to binary codes, nearest code by Hamming distance, under a byte budget.
 
@@ -48,9 +48,11 @@ class ITQLocalizer(_RowLocalizer):
         Code length b, a multiple of 8, at most min(d, number of map rows).
     random_state : int or None
         Seed of the randomized PCA and of ITQ's initial rotation.
-
+    normalize, whiten, delta
+        The front end (:mod:`btel.frontend`).
     n_jobs : int, optional
         faiss threads for fitting and searching (None: faiss' default, all cores; -1: all cores).
+
     Attributes
     ----------
     code_bits_ : int
@@ -63,6 +65,13 @@ class ITQLocalizer(_RowLocalizer):
     """
 
     _min_rows = 8
+    _parameter_constraints = {
+        "budget": [Budget()],
+        "code_bits": [None, Interval(int, 8, None)],
+        "random_state": RANDOM_STATE,
+        "n_jobs": N_JOBS,
+        **FRONT_END_CONSTRAINTS,
+    }
 
     def __init__(
         self,
@@ -70,11 +79,17 @@ class ITQLocalizer(_RowLocalizer):
         budget: int | str | None = None,
         code_bits: int | None = None,
         random_state: int | None = 0,
+        normalize: str = "none",
+        whiten: int | None = None,
+        delta: int | None = None,
         n_jobs: int | None = None,
     ) -> None:
         self.budget = budget
         self.code_bits = code_bits
         self.random_state = random_state
+        self.normalize = normalize
+        self.whiten = whiten
+        self.delta = delta
         self.n_jobs = n_jobs
 
     @staticmethod
@@ -111,9 +126,9 @@ class ITQLocalizer(_RowLocalizer):
             raise_budget_too_small("ITQ", budget, minimum, detail)
         return max(fitting)
 
-    def _fit_rows(self, X: np.ndarray, budget: int | None, extra_bytes: int) -> None:
+    def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
         n_rows, n_features = X.shape
-        bits = self.choose_code_bits(n_rows, n_features, budget, extra_bytes)
+        bits = self.choose_code_bits(n_rows, n_features, budget, reserved)
         mean = X.mean(axis=0, dtype=np.float64).astype(np.float32)
         centred = X - mean
         pca = pca_projection(X, bits, self.random_state)
@@ -129,22 +144,20 @@ class ITQLocalizer(_RowLocalizer):
         self.mean_ = mean
         self.code_bits_ = bits
         self.codes_ = self.encode_centred(centred)
-        self._index = None
+        self._index = self._build_index()
 
     def encode_centred(self, centred: np.ndarray) -> np.ndarray:
         """Binary codes of mean-subtracted descriptors: (n, b/8) uint8, bit = (projection > 0)."""
         return np.packbits(centred @ self.projection_ > 0, axis=1)
 
-    def _get_index(self) -> faiss.IndexBinaryFlat:
-        if getattr(self, "_index", None) is None:
-            index = faiss.IndexBinaryFlat(self.code_bits_)
-            index.add(np.ascontiguousarray(self.codes_))
-            self._index = index
-        return self._index
+    def _build_index(self) -> faiss.IndexBinaryFlat:
+        index = faiss.IndexBinaryFlat(self.code_bits_)
+        index.add(np.ascontiguousarray(self.codes_))
+        return index
 
-    def _search_rows(self, Q: np.ndarray, k: int) -> np.ndarray:
-        _, rows = self._get_index().search(self.encode_centred(Q - self.mean_), k)
-        return rows.astype(np.int64)
+    def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        dist, rows = self._index.search(self.encode_centred(Q - self.mean_), k)
+        return -dist.astype(np.float64), rows.astype(np.int64)
 
     def _model_arrays(self) -> dict[str, np.ndarray]:
         return {"codes": self.codes_, "projection": self.projection_, "mean": self.mean_}
@@ -152,15 +165,18 @@ class ITQLocalizer(_RowLocalizer):
     def _model_state(self) -> dict[str, Any]:
         return {"code_bits": self.code_bits_}
 
+    def _model_specs(self, state: dict[str, Any], d: int) -> dict[str, ArraySpec]:
+        bits = read_state_int(state, "code_bits", 8, 8 * ((d + 7) // 8))
+        if bits % 8:
+            raise ModelFileError(f"the ITQ model file's code_bits = {bits} is not a multiple of 8.")
+        return {"codes": ArraySpec((None, bits // 8), np.uint8), "projection": ArraySpec((d, bits), np.float32),
+                "mean": ArraySpec((d,), np.float32)}
+
+    def _n_rows(self) -> int:
+        return int(self.codes_.shape[0])
+
     def _restore_model(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
-        bits, d = int(state["code_bits"]), self.n_features_in_
-        codes, projection, mean = arrays["codes"], arrays["projection"], arrays["mean"]
-        if codes.dtype != np.uint8 or codes.ndim != 2 or codes.shape[1] * 8 != bits:
-            raise ModelFileError(f"ITQ model file holds codes of shape {codes.shape}; expected (n, {bits // 8}) uint8.")
-        if projection.shape != (d, bits) or mean.shape != (d,):
-            raise ModelFileError(
-                f"ITQ model file holds a projection {projection.shape} and mean {mean.shape}; "
-                f"expected ({d}, {bits}) and ({d},)."
-            )
-        self.code_bits_, self.codes_, self.projection_, self.mean_ = bits, codes, projection, mean
-        self._index = None
+        check_finite(arrays, ("projection", "mean"), "ITQ")
+        self.code_bits_ = int(state["code_bits"])
+        self.codes_, self.projection_, self.mean_ = arrays["codes"], arrays["projection"], arrays["mean"]
+        self._index = self._build_index()

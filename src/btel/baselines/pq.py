@@ -34,15 +34,16 @@ Fewer than 16 map rows: no automatic configuration exists (NotEnoughPlacesError)
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, ClassVar, Iterator
+from typing import Any, Iterator
 
 import faiss
 import numpy as np
 from sklearn.decomposition import PCA
 
-from .._validation import check_positive_int
-from ..base import register_model
+from .._validation import N_JOBS, RANDOM_STATE, Budget, Interval, check_positive_int, read_state_int
+from ..base import ArraySpec
 from ..exceptions import InvalidParameterError, ModelFileError, NotEnoughPlacesError
+from ..frontend import FRONT_END_CONSTRAINTS
 from ._common import _RowLocalizer, quiet_faiss, raise_budget_too_small
 
 __all__ = ["PQConfig", "PQLocalizer", "pca_projection"]
@@ -105,13 +106,58 @@ def _divisors(n: int) -> list[int]:
     return sorted(set(small + [n // m for m in small]))
 
 
-class _PQBase(_RowLocalizer):
-    """A linear projection (or none) followed by a faiss product quantiser; see :mod:`btel.baselines.pq`."""
+class PQLocalizer(_RowLocalizer):
+    """Product quantisation with an optional PCA projection, fitted to a byte budget.
 
-    #: Display name in messages.
-    _method_name: ClassVar[str] = "PQ"
-    #: True when a projection is stored even for p = d (OPQ's rotation).
-    _projection_required: ClassVar[bool] = False
+    Parameters
+    ----------
+    budget : int or str, optional
+        Bytes (or ``"500KB"``); ``fit`` picks the configuration by the rule in
+        :mod:`btel.baselines.pq` (most code bits that fit) and raises
+        :class:`~btel.exceptions.BudgetTooSmallError` with the minimum when nothing fits.
+    n_subquantizers : int, optional
+        M; must divide the code dimension. None: chosen by the rule / default.
+    nbits : int, optional
+        Bits per sub-quantiser, 1 … 8 (2^nbits centroids, at most the number of map rows).
+    pca_dim : int, optional
+        Code dimension p; ``pca_dim == n_features`` means no projection.
+    random_state : int or None
+        Seed of k-means and of the randomized PCA.
+    normalize, whiten, delta
+        The front end (:mod:`btel.frontend`).
+    n_jobs : int, optional
+        faiss threads for fitting and searching (None: faiss' default, all cores; -1: all cores).
+
+    Attributes
+    ----------
+    config_ : PQConfig
+        The chosen (p, M, nbits).
+    codes_ : ndarray of shape (n_rows, code_size), uint8
+    codebooks_ : ndarray of shape (M, 2**nbits, p // M), float32
+    projection_ : ndarray of shape (n_features, p), float32, or None
+    n_places_, n_features_in_ : int
+    row_places_ : ndarray of shape (n_rows,) or None
+    front_end_ : FrontEnd
+    fit_time_ : float
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> X = np.random.default_rng(0).normal(size=(300, 32)).astype(np.float32)
+    >>> model = PQLocalizer(budget="20KB").fit(X)
+    >>> model.nbytes <= 20_000
+    True
+    """
+
+    _parameter_constraints = {
+        "budget": [Budget()],
+        "n_subquantizers": [None, Interval(int, 1, 1 << 16)],
+        "nbits": [None, Interval(int, 1, 8)],
+        "pca_dim": [None, Interval(int, 1, None)],
+        "random_state": RANDOM_STATE,
+        "n_jobs": N_JOBS,
+        **FRONT_END_CONSTRAINTS,
+    }
 
     def __init__(
         self,
@@ -121,6 +167,9 @@ class _PQBase(_RowLocalizer):
         nbits: int | None = None,
         pca_dim: int | None = None,
         random_state: int | None = 0,
+        normalize: str = "none",
+        whiten: int | None = None,
+        delta: int | None = None,
         n_jobs: int | None = None,
     ) -> None:
         self.budget = budget
@@ -128,16 +177,21 @@ class _PQBase(_RowLocalizer):
         self.nbits = nbits
         self.pca_dim = pca_dim
         self.random_state = random_state
+        self.normalize = normalize
+        self.whiten = whiten
+        self.delta = delta
         self.n_jobs = n_jobs
 
     # -- configuration -------------------------------------------------------------------------
-    def _projection_bytes(self, n_features: int, dim: int) -> int:
-        """Bytes of the stored projection for code dimension ``dim`` (0: none stored)."""
-        return 0 if dim == n_features else n_features * dim * 4
+    @staticmethod
+    def projection_bytes(n_features: int, dim: int, always: bool = False) -> int:
+        """Bytes of the stored d×p projection (0 when p = d, unless a rotation is ``always`` stored)."""
+        return 0 if dim == n_features and not always else n_features * dim * 4
 
-    def planned_bytes(self, config: PQConfig, n_rows: int, n_features: int) -> int:
+    def planned_bytes(self, config: PQConfig, n_rows: int, n_features: int, *, always_project: bool = False) -> int:
         """Storage of ``config`` for ``n_rows`` map rows of dimension ``n_features`` (no row table)."""
-        return n_rows * config.code_size + config.codebook_bytes + self._projection_bytes(n_features, config.dim)
+        return n_rows * config.code_size + config.codebook_bytes + \
+            self.projection_bytes(n_features, config.dim, always_project)
 
     def _check_explicit(self, n_rows: int, n_features: int) -> tuple[int | None, int | None, int | None]:
         dim = m = nbits = None
@@ -195,47 +249,42 @@ class _PQBase(_RowLocalizer):
             )
         return PQConfig(dim, m, nbits)
 
-    def choose_config(self, n_rows: int, n_features: int, budget: int | None, extra_bytes: int = 0) -> PQConfig:
-        """The configuration ``fit`` uses (see the module docstring for the rule)."""
+    def choose_config(self, n_rows: int, n_features: int, budget: int | None, extra_bytes: int = 0, *,
+                      method_name: str = "PQ", always_project: bool = False) -> PQConfig:
+        """The configuration ``fit`` uses (see the module docstring for the rule).
+
+        ``always_project`` counts a d×p matrix for every p (OPQ's rotation).
+        """
         if self.nbits is None and n_rows < (1 << min(AUTO_NBITS)):
             raise NotEnoughPlacesError(
-                f"{self._method_name} needs at least {1 << min(AUTO_NBITS)} map descriptors to train "
+                f"{method_name} needs at least {1 << min(AUTO_NBITS)} map descriptors to train "
                 f"{min(AUTO_NBITS)}-bit sub-quantisers; got {n_rows}. Pass a smaller nbits or use BruteForceNN."
             )
         if budget is None:
             return self._default_config(n_rows, n_features)
         options = [
-            (c, self.planned_bytes(c, n_rows, n_features) + extra_bytes) for c in self.candidates(n_rows, n_features)
+            (c, self.planned_bytes(c, n_rows, n_features, always_project=always_project) + extra_bytes)
+            for c in self.candidates(n_rows, n_features)
         ]
         if not options:
             raise InvalidParameterError(
-                f"no {self._method_name} configuration matches n_subquantizers={self.n_subquantizers}, "
+                f"no {method_name} configuration matches n_subquantizers={self.n_subquantizers}, "
                 f"pca_dim={self.pca_dim}: n_subquantizers must divide the code dimension."
             )
         fitting = [(c, b) for c, b in options if b <= budget]
         if not fitting:
             smallest, minimum = min(options, key=lambda cb: (cb[1], -cb[0].code_bits))
             raise_budget_too_small(
-                self._method_name, budget, minimum,
+                method_name, budget, minimum,
                 f"p = {smallest.dim}, {smallest.n_subquantizers} sub-quantiser(s) × {smallest.nbits} bits",
             )
         return max(fitting, key=lambda cb: (cb[0].code_bits, -cb[1], cb[0].dim, cb[0].nbits))[0]
 
     # -- fitting -------------------------------------------------------------------------------
-    def _learn_projection(self, X: np.ndarray, config: PQConfig) -> np.ndarray | None:
-        """d×p float32 projection applied before quantisation, or None (PQ: PCA when p < d)."""
-        if config.dim == X.shape[1]:
-            return None
-        return pca_projection(X, config.dim, self.random_state)
-
-    def _check_params(self) -> None:
-        """Validate parameters that the configuration rule does not read (none for PQ)."""
-
-    def _fit_rows(self, X: np.ndarray, budget: int | None, extra_bytes: int) -> None:
-        self._check_params()
+    def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
         n_rows, n_features = X.shape
-        config = self.choose_config(n_rows, n_features, budget, extra_bytes)
-        projection = self._learn_projection(X, config)
+        config = self.choose_config(n_rows, n_features, budget, reserved)
+        projection = None if config.dim == n_features else pca_projection(X, config.dim, self.random_state)
         Y = X if projection is None else np.ascontiguousarray(X @ projection, dtype=np.float32)
         index = faiss.IndexPQ(config.dim, config.n_subquantizers, config.nbits)
         if self.random_state is not None:
@@ -251,31 +300,30 @@ class _PQBase(_RowLocalizer):
         self.config_ = config
         self._index = index
 
-    # -- inference -----------------------------------------------------------------------------
-    def _get_index(self) -> faiss.IndexPQ:
-        if getattr(self, "_index", None) is None:
-            c = self.config_
-            index = faiss.IndexPQ(c.dim, c.n_subquantizers, c.nbits)
-            faiss.copy_array_to_vector(np.ascontiguousarray(self.codebooks_).ravel(), index.pq.centroids)
-            index.is_trained = True
-            index.add_sa_codes(np.ascontiguousarray(self.codes_))
-            self._index = index
-        return self._index
+    def _build_index(self) -> faiss.IndexPQ:
+        c = self.config_
+        index = faiss.IndexPQ(c.dim, c.n_subquantizers, c.nbits)
+        faiss.copy_array_to_vector(np.ascontiguousarray(self.codebooks_).ravel(), index.pq.centroids)
+        index.is_trained = True
+        index.add_sa_codes(np.ascontiguousarray(self.codes_))
+        return index
 
-    def transform(self, Q: Any) -> np.ndarray:
-        """Project queries into the code space (identity when no projection is stored).
+    # -- inference -----------------------------------------------------------------------------
+    def project(self, Q: Any) -> np.ndarray:
+        """Queries in the code space: front end, then the projection (identity when none is stored).
 
         Returns
         -------
         ndarray of shape (n_queries, p), float32
         """
-        Q = self._check_queries(Q)
+        return self._projected(self._check_queries(Q))
+
+    def _projected(self, Q: np.ndarray) -> np.ndarray:
         return Q if self.projection_ is None else np.ascontiguousarray(Q @ self.projection_, dtype=np.float32)
 
-    def _search_rows(self, Q: np.ndarray, k: int) -> np.ndarray:
-        Y = Q if self.projection_ is None else np.ascontiguousarray(Q @ self.projection_, dtype=np.float32)
-        _, rows = self._get_index().search(Y, k)
-        return rows.astype(np.int64)
+    def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        dist, rows = self._index.search(self._projected(Q), k)
+        return -dist.astype(np.float64), rows.astype(np.int64)
 
     # -- storage and files ---------------------------------------------------------------------
     def _model_arrays(self) -> dict[str, np.ndarray]:
@@ -288,66 +336,50 @@ class _PQBase(_RowLocalizer):
         c = self.config_
         return {"dim": c.dim, "n_subquantizers": c.n_subquantizers, "nbits": c.nbits}
 
+    def _model_specs(self, state: dict[str, Any], d: int) -> dict[str, ArraySpec]:
+        config = read_config(state, d)
+        specs = pq_specs(config)
+        if config.dim != d:
+            specs["projection"] = ArraySpec((d, config.dim), np.float32)
+        return specs
+
+    def _n_rows(self) -> int:
+        return int(self.codes_.shape[0])
+
     def _restore_model(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
-        config = PQConfig(int(state["dim"]), int(state["n_subquantizers"]), int(state["nbits"]))
-        codes, codebooks = arrays["codes"], arrays["codebooks"]
+        d = self.front_end_.n_features_out(int(state["n_features_in"]))
         projection = arrays.get("projection")
-        name, d = self._method_name, self.n_features_in_
-        expected = (config.n_subquantizers, 1 << config.nbits, config.dim // max(config.n_subquantizers, 1))
-        if codebooks.shape != expected or codebooks.dtype != np.float32:
-            raise ModelFileError(f"{name} model file holds codebooks of shape {codebooks.shape}; expected {expected}.")
-        if codes.ndim != 2 or codes.dtype != np.uint8 or codes.shape[1] != config.code_size:
-            raise ModelFileError(
-                f"{name} model file holds codes of shape {codes.shape}; expected (n, {config.code_size}) uint8."
-            )
-        if projection is not None and projection.shape != (d, config.dim):
-            raise ModelFileError(
-                f"{name} model file holds a projection of shape {projection.shape}; expected ({d}, {config.dim})."
-            )
-        if projection is None and (self._projection_required or config.dim != d):
-            raise ModelFileError(f"{name} model file lacks its {d}×{config.dim} projection.")
+        check_finite(arrays, ("codebooks", "projection"), "PQ")
+        self._set_codes(read_config(state, d), arrays["codes"], arrays["codebooks"], projection)
+
+    def _set_codes(self, config: PQConfig, codes: np.ndarray, codebooks: np.ndarray,
+                   projection: np.ndarray | None) -> "PQLocalizer":
+        """Adopt trained codes and codebooks (a loaded file, or OPQ's quantiser) and build the index."""
         self.config_, self.codes_, self.codebooks_, self.projection_ = config, codes, codebooks, projection
-        self._index = None
+        self._index = self._build_index()
+        return self
 
 
-@register_model
-class PQLocalizer(_PQBase):
-    """Product quantisation with an optional PCA projection, fitted to a byte budget.
+def read_config(state: dict[str, Any], d: int) -> PQConfig:
+    """The (p, M, nbits) recorded in a model file, checked (ModelFileError) against the dimension d."""
+    dim = read_state_int(state, "dim", 1, d)
+    m = read_state_int(state, "n_subquantizers", 1, dim)
+    nbits = read_state_int(state, "nbits", 1, 8)
+    if dim % m:
+        raise ModelFileError(f"the model file's n_subquantizers = {m} does not divide its code dimension {dim}.")
+    return PQConfig(dim, m, nbits)
 
-    Parameters
-    ----------
-    budget : int or str, optional
-        Bytes (or ``"500KB"``); ``fit`` picks the configuration by the rule in
-        :mod:`btel.baselines.pq` (most code bits that fit) and raises
-        :class:`~btel.exceptions.BudgetTooSmallError` with the minimum when nothing fits.
-    n_subquantizers : int, optional
-        M; must divide the code dimension. None: chosen by the rule / default.
-    nbits : int, optional
-        Bits per sub-quantiser, 1 … 8 (2^nbits centroids, at most the number of map rows).
-    pca_dim : int, optional
-        Code dimension p; ``pca_dim == n_features`` means no projection.
-    random_state : int or None
-        Seed of k-means and of the randomized PCA.
-    n_jobs : int, optional
-        faiss threads for fitting and searching (None: faiss' default, all cores; -1: all cores).
 
-    Attributes
-    ----------
-    config_ : PQConfig
-        The chosen (p, M, nbits).
-    codes_ : ndarray of shape (n_rows, code_size), uint8
-    codebooks_ : ndarray of shape (M, 2**nbits, p // M), float32
-    projection_ : ndarray of shape (n_features, p), float32, or None
-    n_places_, n_features_in_ : int
-    row_places_ : ndarray of shape (n_rows,) or None
-    fit_time_ : float
+def pq_specs(config: PQConfig) -> dict[str, ArraySpec]:
+    """Codes and codebooks of a product quantiser (the number of codes is free)."""
+    return {"codes": ArraySpec((None, config.code_size), np.uint8),
+            "codebooks": ArraySpec((config.n_subquantizers, 1 << config.nbits,
+                                    config.dim // config.n_subquantizers), np.float32)}
 
-    Examples
-    --------
-    >>> import numpy as np
-    >>> X = np.random.default_rng(0).normal(size=(300, 32)).astype(np.float32)
-    >>> model = PQLocalizer(budget="20KB").fit(X)
-    >>> model.nbytes <= 20_000
-    True
-    """
 
+def check_finite(arrays: dict[str, np.ndarray], names: tuple[str, ...], method: str) -> None:
+    """ModelFileError when a float array of a model file holds NaN or infinity."""
+    for name in names:
+        a = arrays.get(name)
+        if a is not None and not np.isfinite(a).all():
+            raise ModelFileError(f"the {method} model file's {name} contain NaN or infinite values.")

@@ -32,9 +32,10 @@ from typing import Any
 import faiss
 import numpy as np
 
-from .._validation import check_positive_int
-from ..base import register_model
+from .._validation import N_JOBS, Budget, Interval, check_positive_int
+from ..base import ArraySpec
 from ..exceptions import InvalidDescriptorsError, InvalidParameterError, ModelFileError
+from ..frontend import FRONT_END_CONSTRAINTS
 from ._common import _RowLocalizer, raise_budget_too_small
 
 __all__ = ["SeqSLAM", "seqslam_match", "enhance_contrast", "sequence_costs", "velocities"]
@@ -214,12 +215,12 @@ def seqslam_match(
     return _match_from_costs(sequence_costs(D, ds, vmin, vmax, vskip), window)
 
 
-@register_model
 class SeqSLAM(_RowLocalizer):
     """Sequence matching over a uint8 map (OpenSeqSLAM parameters).
 
     ``predict(Q)`` treats the rows of ``Q`` as consecutive query frames in travel order: the
-    answer for row j uses rows j−ds+1 … j. Shuffled or unrelated queries lose the sequence.
+    answer for row j uses rows j−ds+1 … j. Shuffled or unrelated queries lose the sequence, so
+    SeqSLAM is marked as a sequence method (``uses_sequence``) in every table.
 
     Parameters
     ----------
@@ -229,9 +230,12 @@ class SeqSLAM(_RowLocalizer):
     ds : int
         Sequence length in frames.
     vmin, vmax, vskip : float
-        Velocities searched (map rows per query).
+        Velocities searched (map rows per query); at most 1000 of them.
     window : int
         Contrast-enhancement window R (and the confidence ratio's exclusion window).
+    normalize, whiten, delta
+        The front end (:mod:`btel.frontend`); none by default — SeqSLAM's own front end is the
+        patch-normalised thumbnail and its contrast enhancement.
     n_jobs : int, optional
         faiss threads for fitting and searching (None: faiss' default, all cores; -1: all cores).
 
@@ -242,8 +246,21 @@ class SeqSLAM(_RowLocalizer):
         ``(lo, scale)`` of the affine map descriptor → byte.
     n_places_, n_features_in_ : int
     row_places_ : ndarray of shape (n_rows,) or None
+    front_end_ : FrontEnd
     fit_time_ : float
     """
+
+    uses_sequence = True
+    _parameter_constraints = {
+        "budget": [Budget()],
+        "ds": [Interval(int, 1, 10_000)],
+        "vmin": [Interval(float, 0, 1e6)],
+        "vmax": [Interval(float, 0, 1e6)],
+        "vskip": [Interval(float, 0, 1e6, closed="right")],
+        "window": [Interval(int, 2, 1_000_000)],
+        "n_jobs": N_JOBS,
+        **FRONT_END_CONSTRAINTS,
+    }
 
     def __init__(
         self,
@@ -254,6 +271,9 @@ class SeqSLAM(_RowLocalizer):
         vmax: float = 1.2,
         vskip: float = 0.1,
         window: int = 10,
+        normalize: str = "none",
+        whiten: int | None = None,
+        delta: int | None = None,
         n_jobs: int | None = None,
     ) -> None:
         self.budget = budget
@@ -262,6 +282,9 @@ class SeqSLAM(_RowLocalizer):
         self.vmax = vmax
         self.vskip = vskip
         self.window = window
+        self.normalize = normalize
+        self.whiten = whiten
+        self.delta = delta
         self.n_jobs = n_jobs
 
     @staticmethod
@@ -271,12 +294,16 @@ class SeqSLAM(_RowLocalizer):
 
     def _check_params(self) -> None:
         check_positive_int(self.ds, "ds")
-        velocities(self.vmin, self.vmax, self.vskip)
+        if velocities(self.vmin, self.vmax, self.vskip).size > 1000:
+            raise InvalidParameterError(
+                f"vmin={self.vmin}, vmax={self.vmax}, vskip={self.vskip} give more than 1000 velocities; "
+                "raise vskip or narrow [vmin, vmax]."
+            )
         _check_window(self.window)
 
-    def _fit_rows(self, X: np.ndarray, budget: int | None, extra_bytes: int) -> None:
+    def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
         self._check_params()
-        needed = self.planned_bytes(*X.shape) + extra_bytes
+        needed = self.planned_bytes(*X.shape) + reserved
         if budget is not None and needed > budget:
             raise_budget_too_small("SeqSLAM", budget, needed, f"{X.shape[0]} × {X.shape[1]} bytes of map + 8")
         lo, hi = float(X.min()), float(X.max())
@@ -295,28 +322,32 @@ class SeqSLAM(_RowLocalizer):
         -------
         ndarray of shape (n_queries, n_rows), float32
         """
-        Q = self._check_queries(Q)
-        return self._differences(Q)
+        return self._differences(self._check_queries(Q))
 
     def _differences(self, Q: np.ndarray) -> np.ndarray:
         codes = self._quantise(Q).astype(np.float32)
         l1 = faiss.pairwise_distances(codes, self.map_codes_.astype(np.float32), metric=faiss.METRIC_L1)
-        return (l1 * (float(self.value_range_[1]) / self.n_features_in_)).astype(np.float32)
+        return (l1 * (float(self.value_range_[1]) / self.map_codes_.shape[1])).astype(np.float32)
 
     def _costs(self, Q: np.ndarray) -> np.ndarray:
-        self._check_params()
         D = enhance_contrast(self._differences(Q), self.window)
         return sequence_costs(D, self.ds, self.vmin, self.vmax, self.vskip)
 
-    def _search_rows(self, Q: np.ndarray, k: int) -> np.ndarray:
+    def _sequence_context(self) -> int:
+        return int(self.ds) - 1
+
+    def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         costs = self._costs(Q)
         if k == 1:
-            return np.argmin(costs, axis=1)[:, None].astype(np.int64)
-        top = np.argpartition(costs, k - 1, axis=1)[:, :k]
-        # Order the k best by cost, ties by map row, so that rankings are reproducible.
-        values = np.take_along_axis(costs, top, axis=1)
-        order = np.lexsort((top, values), axis=1)
-        return np.take_along_axis(top, order, axis=1).astype(np.int64)
+            rows = np.argmin(costs, axis=1)[:, None].astype(np.int64)
+        else:
+            top = np.argpartition(costs, k - 1, axis=1)[:, :k] if k < costs.shape[1] else \
+                np.broadcast_to(np.arange(costs.shape[1]), costs.shape).copy()
+            # Order the k best by cost, ties by map row, so that rankings are reproducible.
+            values = np.take_along_axis(costs, top, axis=1)
+            order = np.lexsort((top, values), axis=1)
+            rows = np.take_along_axis(top, order, axis=1).astype(np.int64)
+        return -np.take_along_axis(costs, rows, axis=1).astype(np.float64), rows
 
     def match(self, Q: Any) -> tuple[np.ndarray, np.ndarray]:
         """Best place and OpenSeqSLAM confidence ratio for each query of a sequence.
@@ -335,14 +366,18 @@ class SeqSLAM(_RowLocalizer):
     def _model_arrays(self) -> dict[str, np.ndarray]:
         return {"map_codes": self.map_codes_, "value_range": self.value_range_}
 
+    def _model_specs(self, state: dict[str, Any], d: int) -> dict[str, ArraySpec]:
+        return {"map_codes": ArraySpec((None, d), np.uint8), "value_range": ArraySpec((2,), np.float32)}
+
+    def _n_rows(self) -> int:
+        return int(self.map_codes_.shape[0])
+
     def _restore_model(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
         codes, value_range = arrays["map_codes"], arrays["value_range"]
-        if codes.dtype != np.uint8 or codes.ndim != 2 or codes.shape[1] != self.n_features_in_:
-            raise ModelFileError(
-                f"SeqSLAM model file holds a map of shape {codes.shape}, dtype {codes.dtype}; "
-                f"expected uint8 with {self.n_features_in_} columns."
-            )
-        if value_range.shape != (2,) or not float(value_range[1]) > 0:
+        if not (np.isfinite(value_range).all() and float(value_range[1]) > 0):
             raise ModelFileError("SeqSLAM model file holds an invalid value range.")
-        self._check_params()
+        try:
+            self._check_params()
+        except InvalidParameterError as exc:
+            raise ModelFileError(f"the SeqSLAM model file's parameters are invalid: {exc}") from exc
         self.map_codes_, self.value_range_ = codes, value_range
