@@ -103,7 +103,8 @@ def demo(n_places: int, dim: int, budget: str, methods: str, seed: int, out_dir:
     query traverse under an appearance change. Every method but brute force gets the same budget.
     """
     from .datasets import synthetic_route
-    from .evaluation import evaluate, write_run
+    from .evaluation import evaluate
+    from .runs import write_run
     from .methods import make_method
 
     route = synthetic_route(n_places, dim, seed=seed)
@@ -343,7 +344,8 @@ def evaluate_cmd(db: str | None, model_paths: tuple[str, ...], queries: str, met
     """
     from .base import load
     from .datasets import GroundTruth
-    from .evaluation import evaluate, write_run
+    from .evaluation import evaluate
+    from .runs import write_run
     from .methods import make_method
 
     if db is None and not model_paths:

@@ -33,8 +33,8 @@ import time
 from pathlib import Path
 from typing import Callable
 
-from ..evaluation import run_metadata
 from ..exceptions import InvalidParameterError
+from ..runs import run_metadata
 from ._common import QUICK_FRAMES, ExperimentRun, NordlandData, default_nordland_root, describe_row, write_results
 from .accuracy import exp_accuracy
 from .beyond import exp_beyond
