@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from btel.cli import main
-from btel.evaluation import recompute_recall_from_csv
+from btel.runs import recompute_recall_from_csv
 
 
 def run(*args: str) -> "click.testing.Result":  # noqa: F821
@@ -145,4 +145,97 @@ def test_train_with_code_options_and_localize_with_hmm_and_top_k(small_pair, tmp
     result = run("train", db, "-o", model, "--block-size", "4", "--tolerance", "4")
     assert result.exit_code != 0 and "not both" in result.output
     result = run("train", db, "-o", model, "--method", "pq", "--code-copies", "2")
-    assert result.exit_code != 0 and "only apply to BTEL" in result.output
+    assert result.exit_code == 2 and "'code_copies', which pq does not have" in result.output
+
+
+# -- --param: any parameter of any method --------------------------------------------------------------
+@pytest.mark.parametrize("text, value", [("3", 3), ("0.5", 0.5), ("true", True), ("null", None), ('"x"', "x"),
+                                         ("[1, 2]", [1, 2]), ("auto", "auto"), ("float16", "float16"),
+                                         ("NaN", "NaN"), ("", ""), ("tcp://host:8786", "tcp://host:8786")])
+def test_param_values_are_json_literals_or_text(text: str, value: object) -> None:
+    from btel.cli import _param_value
+
+    assert _param_value(text) == value and type(_param_value(text)) is type(value)
+
+
+def test_train_param_fills_the_same_parameters_as_the_shortcuts(small_pair, tmp_path: Path) -> None:
+    from btel import load
+
+    db, _ = small_pair
+    a, b = tmp_path / "a.npz", tmp_path / "b.npz"
+    assert run("train", db, "-o", a, "--budget", "8KB", "--n-features", "16", "--dtype", "float16", "--seed", "1",
+               "--no-progress").exit_code == 0
+    result = run("train", db, "-o", b, "--param", "budget=8KB", "--param", "n_features=16", "--param", "dtype=float16",
+                 "--param", "random_state=1", "--param", "progress=false")
+    assert result.exit_code == 0, result.output
+    assert load(a).get_params() == load(b).get_params()
+    assert load(b).dtype == "float16" and load(b).progress is False
+    # A baseline's own parameters, and the shortcuts it has (--seed is random_state).
+    result = run("train", db, "-o", b, "--method", "pq", "--budget", "5KB", "--seed", "3", "--param", "nbits=4")
+    assert result.exit_code == 0, result.output
+    assert load(b).get_params()["nbits"] == 4 and load(b).get_params()["random_state"] == 3
+
+
+@pytest.mark.parametrize(
+    "args, code, message",
+    [
+        (["--param", "foo=1"], 2, ["btel-c has no parameter 'foo'", "feature_ratio", "sparsity"]),
+        (["--method", "pq", "--param", "feature_ratio=0.5"], 2, ["pq has no parameter 'feature_ratio'", "nbits"]),
+        (["--method", "bruteforce", "--seed", "1"], 2, ["--seed", "'random_state', which bruteforce does not have",
+                                                        "budget, n_jobs"]),
+        (["--method", "pq", "--no-progress"], 2, ["which pq does not have"]),
+        (["--param", "sparsity"], 2, ["not NAME=VALUE"]),
+        (["--param", "pq:nbits=4"], 2, ["'pq', which is not a method of this run"]),
+        (["--feature-ratio", "0.2", "--param", "feature_ratio=0.3"], 2, ["both set feature_ratio"]),
+        (["--param", "n_features=4", "--param", "n_features=5"], 2, ["twice"]),
+        (["--param", "classifier=tree"], 1, ["btel-c: classifier must be one of", "svm", "logistic", "tree"]),
+        (["--param", "feature_ratio=lots"], 1, ["btel-c: feature_ratio must be in (0, 1]"]),
+    ],
+)
+def test_train_param_errors_name_method_parameter_and_choices(args, code, message, small_pair, tmp_path: Path) -> None:
+    db, _ = small_pair
+    result = CliRunner().invoke(main, ["train", str(db), "-o", str(tmp_path / "m.npz"), *args])
+    assert result.exit_code == code, result.output
+    assert "Traceback" not in result.output and result.output.strip().count("\n") <= 4
+    error = result.output.strip().splitlines()[-1]
+    assert error.startswith("Error: ")
+    for part in message:
+        assert part in error
+    assert not (tmp_path / "m.npz").exists()
+
+
+def test_evaluate_and_demo_params_for_every_method_or_one(small_pair, tmp_path: Path) -> None:
+    db, q = small_pair
+    out = tmp_path / "run"
+    result = run("evaluate", "--db", db, "--queries", q, "--methods", "btel-c,btel-r,pq", "--budget", "8KB",
+                 "--param", "progress=false", "--param", "btel-r:progress=false", "--param", "btel-r:n_regions=2",
+                 "--param", "pq:nbits=4", "--param", "btel-c:budget=4KB", "--out", out)
+    assert "progress" in result.output and result.exit_code == 2  # pq has no progress: --param applies to every method
+    result = run("evaluate", "--db", db, "--queries", q, "--methods", "btel-c,btel-r,pq", "--budget", "8KB",
+                 "--param", "btel-c:progress=false", "--param", "btel-r:progress=false", "--param", "btel-r:n_regions=2",
+                 "--param", "pq:nbits=4", "--param", "btel-c:budget=4KB", "--param", "n_jobs=1", "--out", out)
+    assert result.exit_code == 0, result.output
+    params = {r["name"]: r["params"] for r in json.loads((out / "metrics.json").read_text())["results"]}
+    assert params["btel-r"]["n_regions"] == 2 and params["btel-c"]["n_regions"] == 1
+    assert params["pq"]["nbits"] == 4 and params["btel-c"]["budget"] == "4KB" and params["pq"]["budget"] == "8KB"
+    assert all(p["n_jobs"] == 1 for p in params.values())
+    result = run("evaluate", "--model", tmp_path / "m.npz", "--queries", q, "--param", "nbits=4", "--out", out)
+    assert result.exit_code == 2 and "--db" in result.output
+
+    demo_out = tmp_path / "demo"
+    result = run("demo", "--places", "200", "--dim", "32", "--methods", "btel-c,pq", "--budget", "10KB",
+                 "--param", "btel-c:feature_ratio=0.25", "--out", demo_out)
+    assert result.exit_code == 0, result.output
+    params = {r["name"]: r["params"] for r in json.loads((demo_out / "metrics.json").read_text())["results"]}
+    assert params["btel-c"]["feature_ratio"] == 0.25 and "feature_ratio" not in params["pq"]
+    result = run("demo", "--places", "200", "--dim", "32", "--methods", "btel-c,pq", "--param", "pq:depth=3",
+                 "--out", tmp_path / "demo2")
+    assert result.exit_code == 2 and "pq has no parameter 'depth'" in result.output
+    assert not (tmp_path / "demo2").exists()
+
+
+def test_methods_lists_parameters() -> None:
+    result = run("methods", "--params")
+    assert result.exit_code == 0
+    lines = dict(line.split(": ", 1) for line in result.output.splitlines())
+    assert "n_regions=20" in lines["btel-r"] and "nbits=null" in lines["pq"]

@@ -1,10 +1,8 @@
-"""Recall at a tolerance, R@K, evaluate() and run folders."""
+"""Recall at a tolerance, R@K and evaluate() (run folders: tests/test_runs.py)."""
 
 from __future__ import annotations
 
-import csv
 import json
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -20,8 +18,6 @@ from btel.evaluation import (
     recall_at_k,
     recall_at_tolerance,
     recall_curve,
-    recompute_recall_from_csv,
-    write_run,
 )
 from btel.exceptions import DimensionMismatchError, InvalidParameterError
 
@@ -180,78 +176,8 @@ def test_evaluate_input_errors() -> None:
         evaluate(_NearestNeighbour(), None, Q)
 
 
-# -- run folders -------------------------------------------------------------------------------------
-def _two_results() -> list[Any]:
-    X, Q = _route(n=80, noise=1.0)
-    return [
-        evaluate(_NearestNeighbour(), X, Q, name="NN euclid"),
-        evaluate(_NearestNeighbour(metric="cosine"), X, Q, name="NN cosine"),
-        evaluate(_PlainPredictor(), X, Q, name="ahead"),
-    ]
-
-
-def test_write_run_files_and_recomputed_recall(tmp_path: Path) -> None:
-    results = _two_results()
-    out = tmp_path / "run"
-    report = write_run(results, out, command=["btel", "evaluate", "--out", str(out)], extra={"data": "toy"})
-    names = sorted(p.name for p in out.iterdir())
-    assert names == sorted(
-        ["metrics.json", "metrics.csv", "predictions_NN_euclid.csv", "predictions_NN_cosine.csv",
-         "predictions_ahead.csv", "recall_vs_tolerance.png", "recall_vs_storage.png"]
-    )
-    metrics = json.loads(report.metrics_json.read_text())
-    run = metrics["run"]
-    assert run["command"] == f"btel evaluate --out {out}"
-    assert run["extra"] == {"data": "toy"}
-    assert {"btel", "numpy", "scikit-learn", "faiss", "python"} <= set(run["versions"])
-    assert run["date_utc"] and run["platform"]
-    assert [r["name"] for r in metrics["results"]] == ["NN euclid", "NN cosine", "ahead"]
-
-    for entry, result in zip(metrics["results"], results):
-        recomputed = recompute_recall_from_csv(report.predictions[result.name])
-        assert {int(t): v for t, v in entry["recall"].items()} == recomputed
-        assert entry["nbytes"] == result.nbytes
-        assert len(entry["recall_curve"]) == 81
-    # The noise makes the two metrics disagree somewhere, so this comparison is not vacuous.
-    assert results[0].recall != results[2].recall
-
-    with open(report.metrics_csv, newline="") as fh:
-        rows = list(csv.DictReader(fh))
-    assert [r["method"] for r in rows] == ["NN euclid", "NN cosine", "ahead"]
-    assert float(rows[0]["recall@10"]) == results[0].recall[10]
-    assert int(rows[0]["nbytes"]) == results[0].nbytes and rows[2]["nbytes"] == ""
-    assert float(rows[1]["R@5"]) == results[1].recall_at_k[5] and rows[2]["R@5"] == ""
-    with open(report.predictions["ahead"], newline="") as fh:
-        first = next(csv.DictReader(fh))
-    assert first == {"query": "0", "prediction": "1", "true": "0"}
-
-
-def test_write_run_refuses_to_overwrite(tmp_path: Path) -> None:
-    results = _two_results()
-    out = tmp_path / "run"
-    write_run(results, out, plots=False)
-    with pytest.raises(FileExistsError, match=str(out)):
-        write_run(results[:1], out, plots=False)
-    (out / "notes.txt").write_text("keep me")
-    write_run(results[:1], out, overwrite=True, plots=False)
-    # Stale files of the earlier run are gone; the user's own file is kept.
-    assert not (out / "predictions_ahead.csv").exists()
-    assert (out / "predictions_NN_euclid.csv").exists() and (out / "notes.txt").exists()
-    # An existing empty folder is fine.
-    (tmp_path / "empty").mkdir()
-    write_run(results[:1], tmp_path / "empty", plots=False)
-
-
-def test_write_run_rejects_clashing_names(tmp_path: Path) -> None:
-    results = _two_results()
-    results[1].name = "NN/euclid"  # same file name as "NN euclid" once made file-safe
-    with pytest.raises(InvalidParameterError, match="not distinct"):
-        write_run(results, tmp_path / "run")
-    assert not (tmp_path / "run").exists()
-
-
 @pytest.mark.realdata
-def test_evaluate_on_nordland_pixels(nordland_pixels: tuple[np.ndarray, np.ndarray], tmp_path: Path) -> None:
+def test_evaluate_on_nordland_pixels(nordland_pixels: tuple[np.ndarray, np.ndarray]) -> None:
     summer, winter = nordland_pixels
     X, Q = summer[::4], winter[::4]  # every 4th frame: 894 places
     result = evaluate(_NearestNeighbour(), X, Q, name="pixel NN")
@@ -265,8 +191,3 @@ def test_evaluate_on_nordland_pixels(nordland_pixels: tuple[np.ndarray, np.ndarr
     assert result.recall[0] <= result.recall[10] <= result.recall[20]
     shifted = recall_at_tolerance(result.predictions, np.roll(np.arange(X.shape[0]), 200), (10,))
     assert shifted[10] < result.recall[10] / 2
-
-    report = write_run([result], tmp_path / "run", command="pytest")
-    metrics = json.loads(report.metrics_json.read_text())
-    recomputed = recompute_recall_from_csv(report.predictions["pixel NN"])
-    assert {int(t): v for t, v in metrics["results"][0]["recall"].items()} == recomputed

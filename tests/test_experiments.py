@@ -11,7 +11,8 @@ from click.testing import CliRunner
 
 from btel.cli import main
 from btel.exceptions import BudgetExceededError, DataNotFoundError, InvalidParameterError
-from btel.experiments import EXPERIMENTS, NordlandData, _fit_row, run_experiment
+from btel.experiments import EXPERIMENTS, NordlandData, run_experiment
+from btel.experiments._common import fit_row
 from btel.report import write_report
 
 
@@ -66,7 +67,7 @@ def test_a_method_over_its_budget_fails_the_run(nordland_dir: Path, tmp_path: Pa
     data = NordlandData(nordland_dir, tmp_path / "cache", progress=False, max_frames=100)
     monkeypatch.setattr(BTELocalizer, "nbytes", property(lambda self: 10**9))
     with pytest.raises(BudgetExceededError, match="over its budget"):
-        _fit_row("btel-c", data, budget="50KB", n_places=100)
+        fit_row("btel-c", data, budget="50KB", n_places=100)
 
 
 def test_bad_names_and_folders(tmp_path: Path) -> None:
@@ -91,7 +92,7 @@ def test_cli_experiment_quick(nordland_dir: Path, quick_runs: Path, tmp_path: Pa
 
 
 def test_stretch_split_keeps_validation_and_reported_queries_apart() -> None:
-    from btel.beyond import stretch_split
+    from btel.experiments.beyond import stretch_split
 
     val, rep, starts = stretch_split(3576)
     assert np.intersect1d(val, rep).size == 0 and val.size + rep.size == 3576

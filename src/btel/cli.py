@@ -2,6 +2,10 @@
 
 Every subcommand has ``--help``. Failures print one line ``Error: …`` on stderr and exit with a
 non-zero code (1 for bad data or models, 2 for bad usage); no traceback unless ``BTEL_DEBUG=1``.
+
+Any parameter of any method is set with ``--param NAME=VALUE`` (``train``, ``evaluate``, ``demo``);
+the named BTEL options of ``train`` are shortcuts that fill the same parameters. Names are checked
+against the method's ``get_params()`` before anything is fitted.
 """
 
 from __future__ import annotations
@@ -12,6 +16,8 @@ import os
 import shlex
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +25,7 @@ import click
 import numpy as np
 
 from . import __version__
-from .exceptions import BTELError
+from .exceptions import BTELError, InvalidParameterError
 
 _EXPECTED_ERRORS = (BTELError, OSError, ValueError)
 
@@ -68,8 +74,83 @@ def _echo_storage(model: Any) -> None:
     click.echo(f"  {'total':<{width}}  {model.nbytes:>12,d} B  ({format_bytes(model.nbytes)})")
 
 
-def _method_params(ctx_params: dict[str, Any]) -> dict[str, Any]:
-    return {k: v for k, v in ctx_params.items() if v is not None}
+_VALUE_HELP = ("VALUE is read as JSON when it is a JSON literal (3, 0.5, true, null, \"x\"), else kept as text "
+               "(auto, float16). `btel methods --params` lists every method's parameters.")
+_PARAM_HELP = "A parameter of --method, NAME=VALUE (repeatable), e.g. --param sparsity=0.05. " + _VALUE_HELP
+_PARAMS_HELP = ("A parameter NAME=VALUE of every method in --methods, or METHOD:NAME=VALUE of one of them "
+                "(repeatable), e.g. --param btel-r:n_regions=10. " + _VALUE_HELP)
+
+
+def _param_value(text: str) -> Any:
+    """VALUE of ``--param NAME=VALUE``: the JSON literal it spells (``3``, ``0.5``, ``true``, ``null``,
+    ``"x"``, ``[1, 2]``), else the text itself (``auto``, ``float16``). NaN and Infinity stay text."""
+    def reject(constant: str) -> Any:
+        raise ValueError(constant)
+
+    try:
+        return json.loads(text, parse_constant=reject)
+    except ValueError:
+        return text
+
+
+def _valid_params(method: str) -> list[str]:
+    """Parameter names of ``method`` (its ``get_params()`` keys), sorted."""
+    from .methods import make_method
+
+    return sorted(make_method(method).get_params())
+
+
+def _params_by_method(methods: list[str], param_texts: tuple[str, ...], *,
+                      shortcuts: dict[str, tuple[str, Any]] | None = None,
+                      base: dict[str, dict[str, Any]] | None = None) -> dict[str, dict[str, Any]]:
+    """Each method's parameters, every name checked against its ``get_params()`` before anything is fitted.
+
+    Layers, later ones overriding: ``base`` (per method, the command's own defaults), ``shortcuts``
+    (parameter name → (option, value) of each named option given), ``--param NAME=VALUE`` (every
+    method), ``--param METHOD:NAME=VALUE`` (that method). A shortcut and ``--param`` setting the same
+    name, or one name given twice in one layer, is a usage error; so is a name a method does not have.
+    """
+    shortcuts = shortcuts or {}
+    general: dict[str, Any] = {}
+    targeted: dict[str, dict[str, Any]] = {}
+    for text in param_texts:
+        key, eq, raw = text.partition("=")
+        target, _, name = key.strip().rpartition(":")
+        if not eq or not name.isidentifier():
+            raise click.UsageError(f"--param {text!r} is not NAME=VALUE (or METHOD:NAME=VALUE), e.g. feature_ratio=0.25.")
+        if target and target not in methods:
+            raise click.UsageError(f"--param {text!r} is for {target!r}, which is not a method of this run "
+                                   f"({', '.join(methods)}).")
+        layer = targeted.setdefault(target, {}) if target else general
+        if name in layer:
+            raise click.UsageError(f"--param sets {key.strip()} twice; give it once.")
+        if name in shortcuts:
+            raise click.UsageError(f"{shortcuts[name][0]} and --param {key.strip()}=… both set {name}; give one of them.")
+        layer[name] = _param_value(raw)
+    out: dict[str, dict[str, Any]] = {}
+    for method in methods:
+        valid = _valid_params(method)
+        for name, (option, _) in shortcuts.items():
+            if name not in valid:
+                raise click.UsageError(f"{option} sets parameter {name!r}, which {method} does not have; "
+                                       f"{method} takes: {', '.join(valid)}.")
+        given = {**general, **targeted.get(method, {})}
+        for name in given:
+            if name not in valid:
+                hint = (f" (--param {name}=… applies to every method; write METHOD:{name}=… for one)"
+                        if name in general and len(methods) > 1 else "")
+                raise click.UsageError(f"{method} has no parameter {name!r}{hint}; {method} takes: {', '.join(valid)}.")
+        out[method] = {**(base or {}).get(method, {}), **{n: v for n, (_, v) in shortcuts.items()}, **given}
+    return out
+
+
+@contextmanager
+def _naming(method: str) -> Iterator[None]:
+    """A bad parameter value found while building, fitting or evaluating ``method`` names the method."""
+    try:
+        yield
+    except InvalidParameterError as exc:
+        raise InvalidParameterError(f"{method}: {exc}") from exc
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
@@ -94,25 +175,30 @@ def main() -> None:
 @click.option("--methods", default="btel-c,btel-r,pq,bruteforce", show_default=True,
               help="Comma-separated method names (see `btel methods`); bruteforce ignores the budget.")
 @click.option("--seed", default=0, show_default=True, help="Random seed of the route.")
+@click.option("--param", "param_texts", multiple=True, metavar="[METHOD:]NAME=VALUE", help=_PARAMS_HELP)
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
               help="Run folder for metrics.json, CSV and plots (default: runs/demo-<time>).")
-def demo(n_places: int, dim: int, budget: str, methods: str, seed: int, out_dir: str | None) -> None:
+def demo(n_places: int, dim: int, budget: str, methods: str, seed: int, param_texts: tuple[str, ...],
+         out_dir: str | None) -> None:
     """Run the main job on the embedded default: a synthetic route, several methods, a table and a plot.
 
     The route is generated by btel itself (btel.datasets.synthetic_route): a map traverse and a
     query traverse under an appearance change. Every method but brute force gets the same budget.
     """
     from .datasets import synthetic_route
-    from .evaluation import evaluate, write_run
+    from .evaluation import evaluate
     from .methods import make_method
+    from .runs import write_run
 
+    names = _split(methods)
+    params = _params_by_method(names, param_texts, base={
+        name: {} if name in ("bruteforce", "seqslam") else {"budget": budget} for name in names})
     route = synthetic_route(n_places, dim, seed=seed)
     click.echo(f"synthetic route: N = {n_places} places, d = {dim}, map + 1 query traverse (seed {seed})")
     results = []
-    for name in _split(methods):
-        params = {} if name in ("bruteforce", "seqslam") else {"budget": budget}
-        method = make_method(name, **params)
-        results.append(evaluate(method, route.map, route.queries, name=name))
+    for name in names:
+        with _naming(name):
+            results.append(evaluate(make_method(name, **params[name]), route.map, route.queries, name=name))
     _print_table(results)
     out = Path(out_dir) if out_dir else Path("runs") / time.strftime("demo-%Y%m%d-%H%M%S")
     report = write_run(results, out, command=_command_line(), extra={"data": "synthetic_route", "seed": seed})
@@ -157,6 +243,7 @@ def extract(images_dir: str, output: str, descriptor: str, fit_on: str | None, s
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Model file to write (.npz).")
 @click.option("--method", default="btel-c", show_default=True, help="Method name (see `btel methods`).")
 @click.option("--budget", default=None, help="Byte budget, e.g. 500KB, 2MB, 64KiB.")
+@click.option("--param", "param_texts", multiple=True, metavar="NAME=VALUE", help=_PARAM_HELP)
 @click.option("--regions", default=None, help="BTEL: number of regions r, or 'auto'.")
 @click.option("--feature-ratio", type=float, default=None, help="BTEL: c = d'/d.")
 @click.option("--n-features", type=int, default=None, help="BTEL: d' directly.")
@@ -168,22 +255,31 @@ def extract(images_dir: str, output: str, descriptor: str, fit_on: str | None, s
                    "(pip install btel[dask]).")
 @click.option("--scheduler", default=None, help="With --backend dask: the scheduler address, e.g. tcp://10.0.0.5:8786.")
 @click.option("--no-progress", is_flag=True, help="BTEL: no progress bar.")
-@click.option("--seed", "random_state", type=int, default=None, help="Random seed.")
+@click.option("--seed", "random_state", type=int, default=None, help="Random seed (random_state).")
 @click.option("--block-size", type=int, default=None,
               help="BTEL: tolerance-aware codes, index blocks of B places and answer the block centre.")
 @click.option("--tolerance", type=int, default=None,
               help="BTEL: the tolerance t you need (frames); sets --block-size to the largest power of two ≤ t.")
 @click.option("--code-copies", type=int, default=None, help="BTEL: offset (error-correcting) codes, m copies.")
 @click.option("--exemplar-radius", type=int, default=None, help="BTEL: multi-exemplar weights within ±e places.")
-def train(db: str, output: str, method: str, budget: str | None, regions: str | None, feature_ratio: float | None,
-          n_features: int | None, classifier: str | None, dtype: str | None, n_jobs: int | None,
-          backend: str | None, scheduler: str | None, no_progress: bool, random_state: int | None,
-          block_size: int | None, tolerance: int | None, code_copies: int | None,
+def train(db: str, output: str, method: str, budget: str | None, param_texts: tuple[str, ...], regions: str | None,
+          feature_ratio: float | None, n_features: int | None, classifier: str | None, dtype: str | None,
+          n_jobs: int | None, backend: str | None, scheduler: str | None, no_progress: bool,
+          random_state: int | None, block_size: int | None, tolerance: int | None, code_copies: int | None,
           exemplar_radius: int | None) -> None:
     """Fit a model on map descriptors DB and save it; prints the storage breakdown.
 
     DB is a .npy matrix (row i = place i; memory-mapped, so maps larger than RAM work), an .npz,
     or a folder of .npy shards taken in natural file-name order (shard_2 before shard_10).
+
+    \b
+    Any parameter of --method is set with --param NAME=VALUE, e.g.
+      btel train db.npy -o m.npz --method pq --param n_subquantizers=16 --param nbits=8
+
+    --budget and the options after --param are shortcuts that fill the same parameters (--regions
+    is n_regions, --seed random_state, --no-progress progress=false, --block-size and --tolerance
+    block_size, the others by their own names). Each must be a parameter of --method (see `btel
+    methods --params`), and a shortcut and --param may not set the same one.
     """
     from .methods import make_method
 
@@ -195,27 +291,24 @@ def train(db: str, output: str, method: str, budget: str | None, regions: str | 
         from .localizer import block_size_for_tolerance
 
         block_size = block_size_for_tolerance(tolerance)
+    n_regions: Any = None
+    if regions is not None:
+        n_regions = regions if regions == "auto" else _int(regions, "--regions")
+    named = {"budget": ("--budget", budget), "n_regions": ("--regions", n_regions),
+             "feature_ratio": ("--feature-ratio", feature_ratio), "n_features": ("--n-features", n_features),
+             "classifier": ("--classifier", classifier), "dtype": ("--dtype", dtype), "n_jobs": ("--n-jobs", n_jobs),
+             "backend": ("--backend", backend), "scheduler": ("--scheduler", scheduler),
+             "progress": ("--no-progress", False if no_progress else None),
+             "random_state": ("--seed", random_state),
+             "block_size": ("--tolerance" if tolerance is not None else "--block-size", block_size),
+             "code_copies": ("--code-copies", code_copies), "exemplar_radius": ("--exemplar-radius", exemplar_radius)}
+    shortcuts = {name: (option, value) for name, (option, value) in named.items() if value is not None}
+    params = _params_by_method([method], param_texts, shortcuts=shortcuts)[method]
     X = _load_map(db)
-    params: dict[str, Any] = {"budget": budget}
-    if method.startswith("btel"):
-        n_regions: Any = None
-        if regions is not None:
-            n_regions = regions if regions == "auto" else _int(regions, "--regions")
-        params.update(n_regions=n_regions, feature_ratio=feature_ratio, n_features=n_features,
-                      classifier=classifier, dtype=dtype, n_jobs=n_jobs, random_state=random_state,
-                      backend=backend, scheduler=scheduler, progress=False if no_progress else None,
-                      block_size=block_size, code_copies=code_copies, exemplar_radius=exemplar_radius)
-    else:
-        unsupported = {"--regions": regions, "--feature-ratio": feature_ratio, "--n-features": n_features,
-                       "--classifier": classifier, "--dtype": dtype, "--backend": backend,
-                       "--block-size/--tolerance": block_size, "--code-copies": code_copies,
-                       "--exemplar-radius": exemplar_radius}
-        used = [k for k, v in unsupported.items() if v is not None]
-        if used:
-            raise click.UsageError(f"{', '.join(used)} only apply to BTEL methods, not {method!r}.")
-    model = make_method(method, **_method_params(params))
     start = time.perf_counter()
-    model.fit(X)
+    with _naming(method):
+        model = make_method(method, **params)
+        model.fit(X)
     regions = f", r = {model.n_regions_} regions" if getattr(model, "n_regions_", 1) > 1 else ""
     click.echo(f"fitted {method}{regions} on {X.shape[0]} places × {X.shape[1]} dims "
                f"in {time.perf_counter() - start:.1f} s")
@@ -255,7 +348,7 @@ def localize(model_path: str, queries: str | None, output: str | None, window: i
     next well-formed input line. A malformed line (wrong count, not a number, NaN) gets a one-line
     error naming its line number on stderr, produces no output line, and the stream goes on.
     """
-    from .base import load
+    from . import load
     from .sequence import filter_sequence
 
     if stream:
@@ -275,7 +368,7 @@ def localize(model_path: str, queries: str | None, output: str | None, window: i
         raise click.UsageError("choose --hmm or --sequence-filter, not both.")
     model = load(model_path)
     Q = _load_matrix(queries, "query descriptors")
-    if top_k is not None and not getattr(model, "supports_ranking", False):
+    if top_k is not None and not getattr(model, "supports_ranking", True):
         raise click.UsageError(f"{type(model).__name__} does not rank candidates; drop --top-k.")
     predictions = model.predict_sequence(Q, "hmm") if hmm else model.predict(Q)
     if window is not None:
@@ -331,23 +424,30 @@ def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_time
 @click.option("--queries", required=True, type=click.Path(dir_okay=False), help="Query descriptors (.npy), one query per row.")
 @click.option("--methods", default="btel-c", show_default=True, help="Comma-separated method names (with --db).")
 @click.option("--budget", default=None, help="Byte budget for every method.")
+@click.option("--param", "param_texts", multiple=True, metavar="[METHOD:]NAME=VALUE", help=_PARAMS_HELP)
 @click.option("--ground-truth", type=click.Path(dir_okay=False), default=None,
               help="Ground-truth file (.npz/.npy/.mat); default: frame-aligned (query j is place j).")
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Run folder.")
 @click.option("--overwrite", is_flag=True, help="Replace the run files in an existing run folder.")
 def evaluate_cmd(db: str | None, model_paths: tuple[str, ...], queries: str, methods: str, budget: str | None,
-                 ground_truth: str | None, out_dir: str, overwrite: bool) -> None:
+                 param_texts: tuple[str, ...], ground_truth: str | None, out_dir: str, overwrite: bool) -> None:
     """Localize QUERIES with each method and write metrics.json, metrics.csv, predictions and plots to --out.
 
-    Methods are fitted on --db (by name, --methods), or loaded from saved --model files.
+    Methods are fitted on --db (by name, --methods, each with --budget and its --param values), or
+    loaded from saved --model files (which keep the parameters they were fitted with).
     """
-    from .base import load
+    from . import load
     from .datasets import GroundTruth
-    from .evaluation import evaluate, write_run
+    from .evaluation import evaluate
     from .methods import make_method
+    from .runs import write_run
 
     if db is None and not model_paths:
         raise click.UsageError("give --db (to fit --methods) or at least one --model.")
+    if param_texts and db is None:
+        raise click.UsageError("--param sets parameters of the methods fitted on --db; saved --model files keep theirs.")
+    names = _split(methods) if db is not None else []
+    params = _params_by_method(names, param_texts, base={name: {"budget": budget} if budget else {} for name in names})
     Q = _load_matrix(queries, "query descriptors")
     gt = GroundTruth.from_file(ground_truth) if ground_truth else None
     results = []
@@ -359,10 +459,10 @@ def evaluate_cmd(db: str | None, model_paths: tuple[str, ...], queries: str, met
         if X.shape[1] != Q.shape[1]:
             raise click.ClickException(
                 f"--db has {X.shape[1]} dims but --queries has {Q.shape[1]}; describe both with the same descriptor.")
-        for name in _split(methods):
-            method = make_method(name, **({"budget": budget} if budget else {}))
+        for name in names:
             click.echo(f"evaluating {name} …")
-            results.append(evaluate(method, X, Q, name=name, ground_truth=gt))
+            with _naming(name):
+                results.append(evaluate(make_method(name, **params[name]), X, Q, name=name, ground_truth=gt))
     _print_table(results)
     report = write_run(results, out_dir, command=_command_line(), overwrite=overwrite,
                        extra={"db": str(Path(db).resolve()) if db else None, "models": list(model_paths),
@@ -371,19 +471,24 @@ def evaluate_cmd(db: str | None, model_paths: tuple[str, ...], queries: str, met
 
 
 @main.command(name="methods")
-def methods_cmd() -> None:
-    """List the registered method names."""
-    from .methods import METHODS
+@click.option("--params", "show_params", is_flag=True, help="Also list each method's parameters and defaults.")
+def methods_cmd(show_params: bool) -> None:
+    """List the registered method names (and, with --params, what --param can set)."""
+    from .methods import METHODS, make_method
 
     for name in METHODS:
-        click.echo(name)
+        if not show_params:
+            click.echo(name)
+            continue
+        defaults = sorted(make_method(name).get_params().items())
+        click.echo(f"{name}: " + ", ".join(f"{k}={_param_text(v)}" for k, v in defaults))
 
 
 @main.command()
 @click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
 def info(model_path: str) -> None:
     """Show what a saved MODEL is and what it stores."""
-    from .base import load
+    from . import load
 
     model = load(model_path)
     click.echo(f"{type(model).__name__}: N = {model.n_places_} places, d = {model.n_features_in_}")
@@ -437,6 +542,16 @@ def _split(methods: str) -> list[str]:
     if not names:
         raise click.UsageError("--methods is empty; give at least one method name (see `btel methods`).")
     return names
+
+
+def _param_text(value: Any) -> str:
+    """How to write ``value`` after --param NAME= (text as is unless it would read as JSON)."""
+    if isinstance(value, str) and _param_value(value) == value:
+        return value
+    try:
+        return json.dumps(value)
+    except TypeError:
+        return repr(value)
 
 
 def _int(value: str, flag: str) -> int:

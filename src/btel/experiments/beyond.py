@@ -36,17 +36,15 @@ from __future__ import annotations
 import itertools
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from .evaluation import DEFAULT_TOLERANCES, recall_at_k, recall_at_tolerance
-from .exceptions import BudgetTooSmallError
-from .methods import make_method
-from .storage import check_within_budget, parse_budget
-
-if TYPE_CHECKING:  # pragma: no cover
-    from .experiments import ExperimentRun, NordlandData
+from ..evaluation import DEFAULT_TOLERANCES, recall_at_k, recall_at_tolerance
+from ..exceptions import BudgetTooSmallError
+from ..methods import make_method
+from ..storage import check_within_budget, parse_budget
+from ._common import SEASONS, ExperimentRun, NordlandData
 
 __all__ = ["exp_beyond", "BTEL_VARIANTS", "stretch_split"]
 
@@ -103,14 +101,12 @@ def _single_frame_row(base: dict[str, Any], fitted: tuple[Any, float] | int, Q: 
     return {**base, "status": "ok", "nbytes": int(model.nbytes), "fit_s": fit_s, **_recalls(model.predict(Q), truth)}
 
 
-def _nordland_rows(data: "NordlandData", budget: int, quick: bool, log: Any,
+def _nordland_rows(data: NordlandData, budget: int, quick: bool, log: Any,
                    keep: dict[str, Any]) -> tuple[list[dict], dict]:
     """Part 1: every variant and quantiser, four read-outs, both directions; plus the ladder.
 
     The summer-map BTEL variants are put in ``keep`` (label → model) for the diagnostics.
     """
-    from .experiments import SEASONS
-
     stretch = 50 if quick else STRETCH
     rows: list[dict[str, Any]] = []
     ladder: dict[str, Any] = {}
@@ -142,7 +138,7 @@ def _nordland_rows(data: "NordlandData", budget: int, quick: bool, log: Any,
                 keep[label] = model
             common = {**base, "nbytes": int(model.nbytes), "fit_s": fit_s, "status": "ok"}
             single = model.predict(Q)
-            ranked = model.rank(Q, 10) if getattr(model, "supports_ranking", False) else None
+            ranked = model.rank(Q, 10) if getattr(model, "supports_ranking", True) else None
             row = {**common, "decoder": "single", **_recalls(single[rep], rep),
                    "val_recall@10": float(np.mean(np.abs(single[val] - val) <= TOLERANCE))}
             if ranked is not None:
@@ -160,7 +156,7 @@ def _nordland_rows(data: "NordlandData", budget: int, quick: bool, log: Any,
 
 
 def _median_by_stretch(single: np.ndarray, resets: np.ndarray, n: int) -> np.ndarray:
-    from .sequence import filter_sequence
+    from ..sequence import filter_sequence
 
     out = np.empty_like(single)
     bounds = list(resets) + [len(single)]
@@ -172,7 +168,7 @@ def _median_by_stretch(single: np.ndarray, resets: np.ndarray, n: int) -> np.nda
 def _hmm(model: Any, Q: np.ndarray, truth: np.ndarray, val: np.ndarray, rep: np.ndarray,
          resets: np.ndarray) -> dict[str, Any]:
     """HMM decoding with temperature and vmax chosen on the validation rows."""
-    from .sequence_decoding import decode_sequence, emission_scores
+    from ..sequence_decoding import decode_sequence, emission_scores
 
     S = emission_scores(model, Q)
     best: tuple[float, dict[str, Any], np.ndarray] | None = None
@@ -249,7 +245,7 @@ def _gardens_point_rows(root: Path, quick: bool, log: Any) -> list[dict[str, Any
 
 def _synthetic_rows(quick: bool, log: Any) -> list[dict[str, Any]]:
     """Part 3: recall@10 against appearance change on synthetic routes, BTE-C vs PQ / OPQ at one budget."""
-    from .datasets import synthetic_route
+    from ..datasets import synthetic_route
 
     n, dim, budget = (256, 128, "8KB") if quick else (2048, 256, "16KB")
     shifts = (0.3, 1.0) if quick else (0.2, 0.4, 0.6, 0.8, 1.0, 1.2, 1.5)
@@ -275,11 +271,11 @@ def _synthetic_rows(quick: bool, log: Any) -> list[dict[str, Any]]:
     return rows
 
 
-def _diagnostics(data: "NordlandData", root: Path, budget: int, out: Path,
+def _diagnostics(data: NordlandData, root: Path, budget: int, out: Path,
                  hog_models: dict[str, Any]) -> dict[str, Any]:
     """Part 4: per-bit accuracy plots, one per descriptor, one line per variant; returns their numbers."""
-    from .diagnostics import bit_accuracy, localizer_bit_accuracy, plot_bit_accuracy
-    from .encoding import encode, n_bits_for
+    from ..diagnostics import bit_accuracy, localizer_bit_accuracy, plot_bit_accuracy
+    from ..encoding import encode, n_bits_for
 
     def nearest_neighbour_bits(X: np.ndarray, Q: np.ndarray) -> Any:
         """Bits of the brute-force nearest neighbour's place against the true place's bits."""
@@ -328,10 +324,8 @@ def _diagnostics(data: "NordlandData", root: Path, budget: int, out: Path,
     return summary
 
 
-def exp_beyond(data: "NordlandData", out: Path, quick: bool) -> "ExperimentRun":
+def exp_beyond(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:
     """The "beyond the paper" ladder (module docstring)."""
-    from .experiments import ExperimentRun
-
     out.mkdir(parents=True, exist_ok=True)
     budget = parse_budget("16KB" if quick else "64KB")
     log = (lambda msg: print(f"  {msg}", flush=True)) if data.progress else (lambda msg: None)

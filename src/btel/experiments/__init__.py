@@ -1,0 +1,87 @@
+"""The paper's experiments on real Nordland frames, under one storage budget for every method (SPEC §9).
+
+Data: ``nordland64/{summer,winter}`` (3576 frame-aligned 64×32 frames, every 10th frame of the
+videos). Descriptors: HOG (3780-D, SPEC §10) for every method except SeqSLAM, which works on its
+own front end, 64×32 patch-normalised thumbnails (2048-D); both are extracted once and cached.
+Ground truth is frame-aligned; tolerance is in frames (one frame ≈ 200 m here).
+
+=================== =============================== ====================================================================
+name                module                          what
+=================== =============================== ====================================================================
+``accuracy``        :mod:`.accuracy`                (a) recall vs tolerance t = 0…80 at ≤ 2 MB, N = 2000, both directions
+``vs-n``            :mod:`.vs_n`                    (b) recall@10 vs N = 64 … 3576 at ≤ 0.5 MB
+``vs-budget``       :mod:`.vs_budget`               (c) recall@10 vs budget 5 MB … 32 KB at N = 3576
+``feature-ratio``   :mod:`.feature_ratio`           (d) BTE-C with c = 0.1 … 1 at r = 1
+``regions``         :mod:`.regions`                 (e) BTEL with r = 1 … 20 at c = 0.1
+``sequence-filter`` :mod:`.sequence_filter`         (f) the sequence filter, a = 5 and a = 20, at N = 3576 and 1 MB
+``beyond``          :mod:`.beyond`                  the paper's variants against quantisation at the same bytes
+=================== =============================== ====================================================================
+
+Every row carries the method's bytes. A method that cannot fit a budget is reported as such (with
+its minimum), never run over it; a fitted method whose bytes exceed its budget fails the run
+(:class:`~btel.exceptions.BudgetExceededError`). Brute force is the unbudgeted upper reference.
+``quick=True`` shrinks every experiment (first 300 frames, few points) for the tests.
+
+Adding an experiment is one module with a function ``(data, out, quick) -> ExperimentRun`` and one
+line in :data:`EXPERIMENTS`. The modules import :mod:`._common` only; nothing imports this package
+back.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Callable
+
+from ..exceptions import InvalidParameterError
+from ..runs import run_metadata
+from ._common import QUICK_FRAMES, ExperimentRun, NordlandData, default_nordland_root, describe_row, write_results
+from .accuracy import exp_accuracy
+from .beyond import exp_beyond
+from .feature_ratio import exp_feature_ratio
+from .regions import exp_regions
+from .sequence_filter import exp_sequence_filter
+from .vs_budget import exp_vs_budget
+from .vs_n import exp_vs_n
+
+__all__ = ["EXPERIMENTS", "NordlandData", "ExperimentRun", "run_experiment", "default_nordland_root", "describe_row"]
+
+EXPERIMENTS: dict[str, Callable[[NordlandData, Path, bool], ExperimentRun]] = {
+    "accuracy": exp_accuracy,
+    "vs-n": exp_vs_n,
+    "vs-budget": exp_vs_budget,
+    "feature-ratio": exp_feature_ratio,
+    "regions": exp_regions,
+    "sequence-filter": exp_sequence_filter,
+    "beyond": exp_beyond,
+}
+
+
+def run_experiment(name: str, *, data_root: str | Path | None = None, out_dir: str | Path = "runs/experiments",
+                   cache_dir: str | Path | None = None, quick: bool = False, progress: bool = True,
+                   command: str | None = None) -> ExperimentRun:
+    """Run one experiment and write ``<out_dir>/<name>/results.{csv,json}`` and its plot(s).
+
+    Raises
+    ------
+    InvalidParameterError
+        Unknown experiment name.
+    DataNotFoundError
+        Missing Nordland folders.
+    BudgetExceededError
+        A method stored more bytes than its budget.
+    """
+    if name not in EXPERIMENTS:
+        raise InvalidParameterError(f"unknown experiment {name!r}; choose from {', '.join(EXPERIMENTS)} or 'all'.")
+    root = Path(data_root) if data_root else default_nordland_root()
+    out = Path(out_dir) / name
+    data = NordlandData(root, Path(cache_dir) if cache_dir else Path(out_dir) / "cache", progress=progress,
+                        max_frames=QUICK_FRAMES if quick else None)
+    start = time.perf_counter()
+    run = EXPERIMENTS[name](data, out, quick)
+    meta = {**run_metadata(command or f"btel experiment {name}{' --quick' if quick else ''}"), "experiment": name,
+            "quick": quick, "data": str(root.resolve()),
+            "descriptor": "HOG 3780-D (SeqSLAM: 64×32 patch-normalised, 2048-D)",
+            "seconds": time.perf_counter() - start}
+    write_results(run, out, meta)
+    return run

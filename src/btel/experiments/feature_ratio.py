@@ -1,0 +1,18 @@
+"""(d) BTE-C with feature ratio c = d'/d = 0.1 … 1 at r = 1 (no budget; the bytes are reported)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ._common import ExperimentRun, NordlandData, fit_row, full_or_quick
+
+__all__ = ["exp_feature_ratio"]
+
+
+def exp_feature_ratio(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:
+    """(d) BTE-C with c = 0.1 … 1 at r = 1 (no budget; bytes reported)."""
+    ratios = full_or_quick(quick, [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0], [0.1, 0.3])
+    n = 300 if quick else None
+    rows = [fit_row("btel-c", data, budget=None, n_places=n, params={"feature_ratio": c},
+                    label=f"BTE-C c={c:g}", extra={"feature_ratio": c})[0] for c in ratios]
+    return ExperimentRun("feature-ratio", rows, out)

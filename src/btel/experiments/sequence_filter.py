@@ -1,0 +1,36 @@
+"""(f) The paper's sequence filter, windows a = 5 and a = 20, at N = 3576 and ≤ 1 MB (summer → winter)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..evaluation import DEFAULT_TOLERANCES, recall_at_tolerance, recall_curve
+from ..sequence import filter_sequence
+from ._common import ExperimentRun, NordlandData, fit_row, full_or_quick
+
+__all__ = ["exp_sequence_filter"]
+
+
+def exp_sequence_filter(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:
+    """(f) the paper's sequence filter (a = 5, 20) on single-frame predictions at N = 3576 and 1 MB.
+
+    The filter changes no stored bytes; it is applied to every method's predictions alike (PQ gets
+    the same filter) so that the comparison stays on equal terms.
+    """
+    n = 300 if quick else None
+    budget = "50KB" if quick else "1MB"
+    methods = full_or_quick(quick, ["btel-c", "btel-r", "pq"], ["btel-r", "pq"])
+    rows, curves = [], {}
+    for name in methods:
+        row, result = fit_row(name, data, budget=budget, n_places=n)
+        rows.append({**row, "window": 0})
+        if result is None:
+            continue
+        curves[f"{name} a=0"] = result.recall_curve.tolist()
+        for a in (5, 20):
+            filtered = filter_sequence(result.predictions, a, n_places=row["n_places"])
+            recall = recall_at_tolerance(filtered, None, DEFAULT_TOLERANCES)
+            rows.append({**row, "method": f"{name} + filter a={a}", "window": a,
+                         **{f"recall@{t}": v for t, v in recall.items()}})
+            curves[f"{name} a={a}"] = recall_curve(filtered, None, 80).tolist()
+    return ExperimentRun("sequence-filter", rows, out, curves)

@@ -1,0 +1,248 @@
+"""Run folders: the files one evaluation writes, and where and how the run was made.
+
+:func:`write_run` turns :class:`~btel.evaluation.EvaluationResult` objects into a run folder —
+``metrics.json``, ``metrics.csv``, ``predictions_<method>.csv`` and the plots;
+:func:`run_metadata` records the command line, library versions, platform and date (the
+experiments' ``results.json`` carries it too); :func:`recompute_recall_from_csv` checks a folder
+by recomputing recall from the predictions it holds.
+"""
+
+from __future__ import annotations
+
+import csv
+import datetime as _dt
+import importlib.metadata
+import json
+import os
+import platform
+import re
+import shlex
+import sys
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .evaluation import DEFAULT_TOLERANCES, EvaluationResult, _jsonable, recall_at_tolerance
+from .exceptions import DataNotFoundError, InvalidParameterError
+
+__all__ = ["RunReport", "run_metadata", "write_run", "recompute_recall_from_csv"]
+
+
+@dataclass
+class RunReport:
+    """The files :func:`write_run` wrote.
+
+    Attributes
+    ----------
+    out_dir : Path
+    metrics_json, metrics_csv : Path
+    predictions : dict of str to Path
+        Method name → its ``predictions_<name>.csv``.
+    plots : list of Path
+        PNG files.
+    """
+
+    out_dir: Path
+    metrics_json: Path
+    metrics_csv: Path
+    predictions: dict[str, Path]
+    plots: list[Path]
+
+
+def _package_version(*names: str) -> str | None:
+    for n in names:
+        try:
+            return importlib.metadata.version(n)
+        except importlib.metadata.PackageNotFoundError:
+            continue
+    return None
+
+
+def run_metadata(command: str | Sequence[str] | None = None) -> dict[str, Any]:
+    """Where and how a run was made: command line, library versions, platform, UTC date."""
+    from . import __version__
+
+    if command is None:
+        command = shlex.join(sys.argv)
+    elif not isinstance(command, str):
+        command = shlex.join(str(c) for c in command)
+    return {
+        "command": command,
+        "date_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "versions": {
+            "btel": __version__,
+            "python": platform.python_version(),
+            "numpy": np.__version__,
+            "scipy": _package_version("scipy"),
+            "scikit-learn": _package_version("scikit-learn"),
+            "faiss": _package_version("faiss-cpu", "faiss", "faiss-gpu"),
+            "matplotlib": _package_version("matplotlib"),
+        },
+        "platform": platform.platform(),
+        "machine": platform.machine(),
+        "cpu_count": os.cpu_count(),
+    }
+
+
+def _safe_name(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "method"
+
+
+#: Files a run folder may hold; with ``overwrite=True`` these (and only these) are removed first.
+_RUN_FILE_PATTERNS = ("metrics.json", "metrics.csv", "predictions_*.csv", "recall_vs_*.png")
+
+
+def _prepare_out_dir(out_dir: Path, overwrite: bool) -> None:
+    if out_dir.exists() and not out_dir.is_dir():
+        raise FileExistsError(f"run folder {str(out_dir)!r} exists and is a file; choose another --out folder.")
+    if out_dir.is_dir() and any(out_dir.iterdir()):
+        if not overwrite:
+            raise FileExistsError(
+                f"run folder {str(out_dir)!r} already exists and is not empty; choose a new folder "
+                "or pass overwrite=True (CLI: --overwrite) to replace its results."
+            )
+        # Remove the previous run's files so no stale predictions_<old method>.csv is left behind;
+        # anything else the user put there is kept.
+        for pattern in _RUN_FILE_PATTERNS:
+            for old in out_dir.glob(pattern):
+                old.unlink()
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+
+def _fmt(value: float | int | None) -> str:
+    if value is None:
+        return ""
+    return repr(float(value)) if isinstance(value, float) else str(value)
+
+
+def write_run(
+    results: Sequence[EvaluationResult],
+    out_dir: str | os.PathLike,
+    *,
+    command: str | Sequence[str] | None = None,
+    extra: Mapping[str, Any] | None = None,
+    overwrite: bool = False,
+    plots: bool = True,
+) -> RunReport:
+    """Write a run folder: metrics, per-method predictions and plots.
+
+    Files:
+
+    - ``metrics.json`` — ``{"run": run_metadata(command) + extra, "results": [r.to_dict(), …]}``;
+    - ``metrics.csv`` — one row per method: method, n_map, n_queries, nbytes, fit_time_s,
+      query_time_s_per_query, ``recall@t`` for every tolerance, ``R@K`` for every K (blank
+      where a method has none);
+    - ``predictions_<method>.csv`` — columns ``query,prediction`` plus ``true`` when the ground
+      truth has one true place per query;
+    - ``recall_vs_tolerance.png`` and, when storage is known, ``recall_vs_storage.png``.
+
+    Parameters
+    ----------
+    results : sequence of EvaluationResult
+        Method names must be distinct (they name the files).
+    out_dir : path
+        Created if missing.
+    command : str or sequence of str, optional
+        Command line to record; default ``sys.argv``.
+    extra : mapping, optional
+        More run metadata (data set, budget, …), JSON-safe.
+    overwrite : bool, default False
+        Replace the results in an existing non-empty folder (only run files are removed).
+    plots : bool, default True
+        Also draw the PNG plots.
+
+    Returns
+    -------
+    RunReport
+
+    Raises
+    ------
+    FileExistsError
+        ``out_dir`` exists, is not empty, and ``overwrite`` is False.
+    InvalidParameterError
+        No results, or two results whose names give the same file name.
+    """
+    results = list(results)
+    if not results:
+        raise InvalidParameterError("write_run needs at least one EvaluationResult.")
+    safe = [_safe_name(r.name) for r in results]
+    if len(set(safe)) != len(safe):
+        raise InvalidParameterError(
+            f"method names {[r.name for r in results]} are not distinct once made file-safe ({safe}); "
+            "give each evaluate(...) call its own name=."
+        )
+    out_dir = Path(out_dir)
+    _prepare_out_dir(out_dir, overwrite)
+
+    meta = run_metadata(command)
+    if extra:
+        meta["extra"] = _jsonable(dict(extra))
+    metrics_json = out_dir / "metrics.json"
+    payload = {"run": meta, "results": [r.to_dict() for r in results]}
+    metrics_json.write_text(json.dumps(payload, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+
+    tolerances = sorted({t for r in results for t in r.recall})
+    ks = sorted({k for r in results for k in (r.recall_at_k or {})})
+    header = ["method", "n_map", "n_queries", "nbytes", "fit_time_s", "query_time_s_per_query"]
+    header += [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks]
+    metrics_csv = out_dir / "metrics.csv"
+    with open(metrics_csv, "w", newline="", encoding="utf-8") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(header)
+        for r in results:
+            row = [r.name, _fmt(r.n_map), r.n_queries, _fmt(r.nbytes)]
+            row += [_fmt(r.fit_time_s), _fmt(r.query_time_s_per_query)]
+            row += [_fmt(r.recall.get(t)) for t in tolerances]
+            row += [_fmt((r.recall_at_k or {}).get(k)) for k in ks]
+            writer.writerow(row)
+
+    prediction_files: dict[str, Path] = {}
+    for r, stem in zip(results, safe):
+        path = out_dir / f"predictions_{stem}.csv"
+        columns = [np.arange(r.n_queries), r.predictions]
+        names = ["query", "prediction"]
+        if r.ground_truth is not None and r.ground_truth.kind == "places":
+            columns.append(r.ground_truth.query_places)
+            names.append("true")
+        np.savetxt(path, np.column_stack(columns), fmt="%d", delimiter=",", header=",".join(names), comments="")
+        prediction_files[r.name] = path
+
+    plot_files: list[Path] = []
+    if plots:
+        from . import plots as _plots
+
+        plot_files.append(out_dir / "recall_vs_tolerance.png")
+        _plots.plot_recall_vs_tolerance(results, plot_files[-1])
+        rows = [r.to_row() for r in results if r.nbytes is not None]
+        common = set.intersection(*(set(r["recall"]) for r in rows)) if rows else set()
+        if common:
+            t = 10 if 10 in common else max(common)
+            plot_files.append(out_dir / "recall_vs_storage.png")
+            _plots.plot_recall_vs_storage(rows, plot_files[-1], tolerance=t)
+    return RunReport(out_dir, metrics_json, metrics_csv, prediction_files, plot_files)
+
+
+def recompute_recall_from_csv(
+    predictions_csv: str | os.PathLike, tolerances: Iterable[int] = DEFAULT_TOLERANCES
+) -> dict[int, float]:
+    """Recall at each tolerance recomputed from a ``predictions_<method>.csv`` file.
+
+    Uses the ``true`` column when present, else frame alignment (true place = query index).
+    """
+    path = Path(predictions_csv)
+    if not path.is_file():
+        raise DataNotFoundError(f"predictions file {str(path)!r} does not exist.")
+    with open(path, newline="", encoding="utf-8") as fh:
+        reader = csv.DictReader(fh)
+        if reader.fieldnames is None or not {"query", "prediction"} <= set(reader.fieldnames):
+            raise DataNotFoundError(
+                f"{str(path)!r} is not a predictions file (needs columns query,prediction; got {reader.fieldnames})."
+            )
+        rows = list(reader)
+    query = np.array([int(r["query"]) for r in rows], dtype=np.int64)
+    pred = np.array([int(r["prediction"]) for r in rows], dtype=np.int64)
+    true = np.array([int(r["true"]) for r in rows], dtype=np.int64) if "true" in reader.fieldnames else query
+    return recall_at_tolerance(pred, true, tolerances)

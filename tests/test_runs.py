@@ -1,0 +1,134 @@
+"""Run folders: write_run, run_metadata and recall recomputed from the predictions a folder holds."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from btel.evaluation import EvaluationResult, evaluate
+from btel.exceptions import DataNotFoundError, InvalidParameterError
+from btel.methods import make_method
+from btel.runs import recompute_recall_from_csv, run_metadata, write_run
+
+
+class _PlainPredictor:
+    """An object with only fit/predict (no storage, no params, no ranking)."""
+
+    def fit(self, X: Any) -> "_PlainPredictor":
+        self.n_ = len(X)
+        return self
+
+    def predict(self, Q: Any) -> np.ndarray:
+        return np.minimum(np.arange(len(Q)) + 1, self.n_ - 1)  # always one frame ahead
+
+
+def _results() -> list[EvaluationResult]:
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(80, 16)).astype(np.float32)
+    Q = (X + 1.0 * rng.normal(size=X.shape)).astype(np.float32)
+    Q2 = (X + 1.5 * rng.normal(size=X.shape)).astype(np.float32)
+    return [
+        evaluate(make_method("bruteforce"), X, Q, name="NN euclid"),
+        evaluate(make_method("bruteforce"), X, Q2, name="NN noisier"),
+        evaluate(_PlainPredictor(), X, Q, name="ahead"),
+    ]
+
+
+def test_write_run_files_and_recomputed_recall(tmp_path: Path) -> None:
+    results = _results()
+    out = tmp_path / "run"
+    report = write_run(results, out, command=["btel", "evaluate", "--out", str(out)], extra={"data": "toy"})
+    names = sorted(p.name for p in out.iterdir())
+    assert names == sorted(
+        ["metrics.json", "metrics.csv", "predictions_NN_euclid.csv", "predictions_NN_noisier.csv",
+         "predictions_ahead.csv", "recall_vs_tolerance.png", "recall_vs_storage.png"]
+    )
+    metrics = json.loads(report.metrics_json.read_text())
+    run = metrics["run"]
+    assert run["command"] == f"btel evaluate --out {out}"
+    assert run["extra"] == {"data": "toy"}
+    assert {"btel", "numpy", "scikit-learn", "faiss", "python"} <= set(run["versions"])
+    assert run["date_utc"] and run["platform"]
+    assert [r["name"] for r in metrics["results"]] == ["NN euclid", "NN noisier", "ahead"]
+
+    for entry, result in zip(metrics["results"], results):
+        recomputed = recompute_recall_from_csv(report.predictions[result.name])
+        assert {int(t): v for t, v in entry["recall"].items()} == recomputed
+        assert entry["nbytes"] == result.nbytes
+        assert len(entry["recall_curve"]) == 81
+    # The noise makes the methods disagree somewhere, so this comparison is not vacuous.
+    assert results[0].recall != results[2].recall
+
+    with open(report.metrics_csv, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["method"] for r in rows] == ["NN euclid", "NN noisier", "ahead"]
+    assert float(rows[0]["recall@10"]) == results[0].recall[10]
+    assert int(rows[0]["nbytes"]) == results[0].nbytes and rows[2]["nbytes"] == ""
+    assert float(rows[1]["R@5"]) == results[1].recall_at_k[5] and rows[2]["R@5"] == ""
+    with open(report.predictions["ahead"], newline="") as fh:
+        first = next(csv.DictReader(fh))
+    assert first == {"query": "0", "prediction": "1", "true": "0"}
+
+
+def test_predictions_carry_an_explicit_true_place(tmp_path: Path) -> None:
+    X = np.random.default_rng(1).normal(size=(30, 8)).astype(np.float32)
+    truth = np.roll(np.arange(30), 3)
+    result = evaluate(make_method("bruteforce"), X, X[truth], ground_truth=truth, name="NN")
+    report = write_run([result], tmp_path / "run", plots=False)
+    with open(report.predictions["NN"], newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [int(r["true"]) for r in rows] == truth.tolist()
+    assert recompute_recall_from_csv(report.predictions["NN"]) == result.recall
+
+
+def test_write_run_refuses_to_overwrite(tmp_path: Path) -> None:
+    results = _results()
+    out = tmp_path / "run"
+    write_run(results, out, plots=False)
+    with pytest.raises(FileExistsError, match=str(out)):
+        write_run(results[:1], out, plots=False)
+    (out / "notes.txt").write_text("keep me")
+    write_run(results[:1], out, overwrite=True, plots=False)
+    # Stale files of the earlier run are gone; the user's own file is kept.
+    assert not (out / "predictions_ahead.csv").exists()
+    assert (out / "predictions_NN_euclid.csv").exists() and (out / "notes.txt").exists()
+    # An existing empty folder is fine.
+    (tmp_path / "empty").mkdir()
+    write_run(results[:1], tmp_path / "empty", plots=False)
+
+
+def test_write_run_rejects_clashing_names_and_no_results(tmp_path: Path) -> None:
+    results = _results()
+    results[1].name = "NN/euclid"  # same file name as "NN euclid" once made file-safe
+    with pytest.raises(InvalidParameterError, match="not distinct"):
+        write_run(results, tmp_path / "run")
+    assert not (tmp_path / "run").exists()
+    with pytest.raises(InvalidParameterError, match="at least one"):
+        write_run([], tmp_path / "run")
+
+
+def test_run_metadata_and_recompute_errors(tmp_path: Path) -> None:
+    meta = run_metadata(["btel", "demo", "--out", "a b"])
+    assert meta["command"] == "btel demo --out 'a b'"
+    assert meta["versions"]["btel"] and meta["cpu_count"]
+    with pytest.raises(DataNotFoundError, match="does not exist"):
+        recompute_recall_from_csv(tmp_path / "missing.csv")
+    (tmp_path / "other.csv").write_text("a,b\n1,2\n")
+    with pytest.raises(DataNotFoundError, match="not a predictions file"):
+        recompute_recall_from_csv(tmp_path / "other.csv")
+
+
+@pytest.mark.realdata
+def test_run_folder_of_nordland_pixels(nordland_pixels: tuple[np.ndarray, np.ndarray], tmp_path: Path) -> None:
+    summer, winter = nordland_pixels
+    result = evaluate(make_method("bruteforce"), summer[::4], winter[::4], name="pixel NN")
+    report = write_run([result], tmp_path / "run", command="pytest")
+    metrics = json.loads(report.metrics_json.read_text())
+    recomputed = recompute_recall_from_csv(report.predictions["pixel NN"])
+    assert {int(t): v for t, v in metrics["results"][0]["recall"].items()} == recomputed
+    assert recomputed[10] > 3 * 21 / summer[::4].shape[0]  # far above chance: frames are aligned
