@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import time
 
-import numpy as np
 
 from btel import BTELocalizer
 from btel.datasets import synthetic_route

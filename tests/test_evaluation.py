@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from sklearn.neighbors import NearestNeighbors
 
-from btel._validation import check_descriptors
-from btel.base import PlaceLocalizer
+from btel._validation import Options
+from btel.base import ArraySpec, PlaceLocalizer
 from btel.datasets.groundtruth import GroundTruth
 from btel.evaluation import (
     DEFAULT_TOLERANCES,
@@ -23,27 +23,29 @@ from btel.exceptions import DimensionMismatchError, InvalidParameterError
 
 
 class _NearestNeighbour(PlaceLocalizer):
-    """Tiny brute-force localizer for these tests (the real baselines are written elsewhere)."""
+    """A tiny localizer for these tests: adding a method is ``_fit``, one primitive and its arrays."""
 
-    supports_ranking = True
+    _parameter_constraints = {"metric": [Options("euclidean", "manhattan")]}
 
     def __init__(self, *, metric: str = "euclidean") -> None:
         self.metric = metric
 
-    def fit(self, X: Any, places: Any = None) -> "_NearestNeighbour":
-        self.map_ = check_descriptors(X)
-        self.n_places_ = self.map_.shape[0]
+    def _fit(self, X, places, n_places, budget, reserved) -> None:
+        self.map_ = np.array(X)
         self.index_ = NearestNeighbors(metric=self.metric).fit(self.map_)
-        return self
 
-    def predict(self, Q: Any) -> np.ndarray:
-        return self.index_.kneighbors(check_descriptors(Q), 1, return_distance=False)[:, 0].astype(np.int64)
-
-    def rank(self, Q: Any, k: int = 10) -> np.ndarray:
-        return self.index_.kneighbors(check_descriptors(Q), k, return_distance=False).astype(np.int64)
+    def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        dist, rows = self.index_.kneighbors(Q, k)
+        return -dist, rows.astype(np.int64)
 
     def _stored_arrays(self) -> dict[str, np.ndarray]:
         return {"map": self.map_}
+
+    def _array_specs(self, state: dict[str, Any]) -> dict[str, ArraySpec]:
+        return {"map": ArraySpec((state["n_places"], None), np.float32)}
+
+    def _restore(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
+        self._fit(arrays["map"], None, state["n_places"], None, 0)
 
 
 class _PlainPredictor:

@@ -14,17 +14,12 @@ import ast
 from collections.abc import Iterable
 from pathlib import Path
 
-import pytest
 
 import btel
 
 SRC = Path(btel.__file__).resolve().parent
 
-#: The method core (modules and packages), whose cycle (base → methods → … → base) the core rewrite of #10 removes.
-CORE = ("btel.base", "btel.localizer", "btel.ranking", "btel.sequence_decoding", "btel.baselines", "btel.ryth",
-        "btel.methods", "btel.compressed", "btel.full", "btel.training", "btel.linear", "btel._validation",
-        "btel.storage", "btel.streaming", "btel.diagnostics")
-#: The layers above the core: no cycle may touch them.
+#: The layers above the method core.
 UPPER = ("btel.experiments", "btel.evaluation", "btel.runs", "btel.report", "btel.cli")
 
 
@@ -157,20 +152,13 @@ def test_the_cycle_finder_on_a_toy_package(tmp_path: Path) -> None:
     assert a_cycle_through(cycles(graph)[0], graph) == ["toy.a", "toy.sub.b", "toy.c", "toy.a"]
 
 
-def test_no_cycle_touches_the_layers_above_the_core() -> None:
-    """The experiments, evaluation, run folders, report and CLI are layers: nothing below imports them back."""
-    bad = [c for c in cycles(GRAPH) if any(within(m, UPPER) for m in c)]
-    assert not bad, "import cycles through the upper layers:\n" + describe(bad, GRAPH)
-
-
-def test_every_cycle_left_is_inside_the_method_core() -> None:
-    """While the core rewrite is pending, a cycle may only join core modules; a new one elsewhere fails."""
-    bad = [c for c in cycles(GRAPH) if not all(within(m, CORE) for m in c)]
-    assert not bad, "import cycles outside the method core:\n" + describe(bad, GRAPH)
-
-
-@pytest.mark.xfail(strict=False, reason="the method core's cycle (base → methods → … → base) is removed by the core "
-                                        "rewrite of #10; the two tests above hold meanwhile")
 def test_the_import_graph_has_no_cycle() -> None:
     found = cycles(GRAPH)
     assert not found, f"{len(found)} import cycle(s) in src/btel:\n" + describe(found, GRAPH)
+
+
+def test_the_method_interface_does_not_import_its_implementations() -> None:
+    """base.py (the interface) imports no method, registry or upper layer."""
+    below = {"btel.methods", "btel.localizer", "btel.ryth", "btel.baselines", *UPPER}
+    bad = sorted(m for m in GRAPH.get("btel.base", ()) if within(m, below))
+    assert not bad, f"btel.base imports {bad}"

@@ -9,7 +9,6 @@ from hypothesis import strategies as st
 from sklearn.base import clone
 from sklearn.linear_model import LogisticRegression
 from sklearn.svm import LinearSVC
-from sklearn.utils.estimator_checks import parametrize_with_checks
 
 from btel import BTELocalizer
 from btel.compressed import compressed_n_classifiers, compressed_tasks
@@ -29,31 +28,6 @@ def noisy_copy(M: np.ndarray, level: float, seed: int) -> np.ndarray:
     """Map + Gaussian noise of std ``level`` × each column's std."""
     rng = np.random.default_rng(seed)
     return (M + level * M.std(axis=0) * rng.standard_normal(M.shape)).astype(np.float32)
-
-
-# ----------------------------------------------------------------------------- scikit-learn contract
-EXPECTED_FAILED_CHECKS = {
-    # By design: the second argument of fit is a place index, named ``places`` (not an arbitrary y).
-    "check_fit_score_takes_y": "fit(X, places): the target is a place index, deliberately not called y",
-    # By design: places must cover 0..N−1 (a route), so sklearn's arbitrary labels are rejected.
-    "check_estimators_dtypes": "places must cover 0..N−1; the check's labels leave gaps",
-    "check_fit2d_1feature": "places must cover 0..N−1; the check's labels leave gaps",
-    # By design: descriptors must be numeric arrays; object arrays are refused rather than cast.
-    "check_dtype_object": "object-dtype descriptors are refused with InvalidDescriptorsError",
-    # Error *wording* only: btel raises the right ValueError subclass with its own message.
-    "check_n_features_in_after_fitting": "DimensionMismatchError says 'Q has k features but the model was fitted on d'",
-    "check_complex_data": "InvalidDescriptorsError says 'X is complex', not sklearn's wording",
-    "check_estimators_empty_data_messages": "InvalidDescriptorsError names the shape, not sklearn's wording",
-    "check_fit2d_1sample": "one row raises NotEnoughPlacesError ('N = 1 place'), not sklearn's wording",
-    "check_fit2d_predict1d": "1-D queries get 'Q must be 2-D ... reshape(1, -1)', not 'Reshape your data'",
-}
-
-
-@parametrize_with_checks(
-    [BTELocalizer(progress=False, random_state=0)], expected_failed_checks=lambda est: EXPECTED_FAILED_CHECKS
-)
-def test_sklearn_estimator_checks(estimator, check) -> None:
-    check(estimator)
 
 
 def test_clone_and_params_round_trip() -> None:

@@ -207,7 +207,7 @@ class PlaceLocalizer(BaseEstimator, ABC):
             raise NotEnoughPlacesError(
                 f"{type(self).__name__} needs at least {self._min_rows} map descriptors; got {X.shape[0]}."
             )
-        budget = parse_budget(self.budget)
+        budget = parse_budget(getattr(self, "budget", None))
         front = FrontEnd.of(self)
         reserved = front.planned_bytes(X.shape[1])
         if budget is not None and reserved >= budget:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import re
 import shlex
 import sys
 import time
@@ -150,7 +151,9 @@ def _naming(method: str) -> Iterator[None]:
     try:
         yield
     except InvalidParameterError as exc:
-        raise InvalidParameterError(f"{method}: {exc}") from exc
+        # The estimator names its class ("BTELocalizer: C must be …"); the user chose a method name.
+        message = re.sub(r"^[A-Z][A-Za-z]+: ", "", str(exc))
+        raise InvalidParameterError(f"{method}: {message}") from exc
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})

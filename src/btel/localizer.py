@@ -17,7 +17,7 @@ from ._validation import BOOLEAN, N_JOBS, RANDOM_STATE, Budget, DType, Interval,
 from .base import ArraySpec, PlaceLocalizer
 from .compressed import DECODERS, compressed_tasks, decode_code, decode_margins
 from .distributed import BACKENDS
-from .encoding import encode, n_bits_for
+from .encoding import n_bits_for
 from .exceptions import InvalidParameterError, ModelFileError
 from .feature_selection import column_index_dtype
 from .frontend import FRONT_END_CONSTRAINTS

@@ -168,8 +168,11 @@ class RYTHLocalizer(PlaceLocalizer):
         places_arr = np.arange(n_places, dtype=np.int64) if places is None else places
         d = X.shape[1]
         periods = coprime_periods(n_places, self.n_periods)
-        if min(np.bincount(places_arr % p, minlength=p).min() for p in periods) < 1:  # pragma: no cover
-            raise NotEnoughPlacesError(f"N = {n_places} places leave a residue class empty for periods {periods}.")
+        if max(periods) > n_places:  # a residue class with no place cannot be learnt
+            raise NotEnoughPlacesError(
+                f"RYTH with K = {self.n_periods} co-prime periods {periods} needs N ≥ {max(periods)} places (every "
+                f"residue class must hold one); got N = {n_places}. Use fewer periods (n_periods) or a longer route."
+            )
         dtype = np.dtype(self.dtype).name
         if self.n_features is not None:
             cap = min(int(self.n_features), d)

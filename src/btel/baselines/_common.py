@@ -14,7 +14,6 @@ import os
 import re
 import sys
 import tempfile
-import time
 from abc import abstractmethod
 from typing import Any, Iterator
 
