@@ -167,8 +167,17 @@ def test_rank_agrees_with_scores(route, kw):
     assert all(len(set(row)) == 6 for row in ranked.tolist())
     scores = model.place_scores(route.queries)
     assert scores.shape == (400, 400)
-    best = np.take_along_axis(scores, ranked[:, :1], axis=1)[:, 0]
-    np.testing.assert_allclose(best, scores.max(axis=1), rtol=1e-5, atol=1e-4)
+    # The first candidate is the point prediction; the others follow by score, best first.
+    np.testing.assert_array_equal(ranked[:, 0], model.predict(route.queries))
+    rest = np.take_along_axis(scores, ranked[:, 1:], axis=1)
+    assert np.all(np.diff(rest, axis=1) <= 1e-9)
+    # Where the point is the best-scoring place (always, but for a constrained decode of an invalid
+    # hard code), the ranking is the score order outright.
+    first = np.take_along_axis(scores, ranked[:, :1], axis=1)[:, 0]
+    top = np.isclose(first, scores.max(axis=1), rtol=1e-5, atol=1e-4)
+    assert top.mean() > 0.8
+    np.testing.assert_allclose(rest[top, 0], np.sort(scores[top], axis=1)[:, -2 if "block_size" not in kw else -6],
+                               rtol=1e-5, atol=1e-4)
     if "block_size" in kw:
         np.testing.assert_array_equal(ranked % 5, 2)
         np.testing.assert_array_equal(scores[:, 0], scores[:, 4])  # one score per block

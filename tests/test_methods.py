@@ -59,3 +59,17 @@ def test_save_load_and_ranking(name: str, route, tmp_path) -> None:
 def test_unknown_method_names_the_choices() -> None:
     with pytest.raises(InvalidParameterError, match="btel-c"):
         make_method("nope")
+
+
+@pytest.mark.parametrize("name", list(METHODS))
+def test_the_first_ranked_place_is_the_prediction_for_every_method(name: str, route) -> None:
+    """R@1 is the recall of predict, for every method (the ranking starts with the point decode)."""
+    X, Q = route
+    method = make_method(name, budget=40_000).fit(X) if name not in ("bruteforce", "seqslam") else \
+        make_method(name).fit(X)
+    scores, places = method.search(Q, 10)
+    assert places.shape == scores.shape == (200, 10) and scores.dtype == np.float64
+    np.testing.assert_array_equal(places[:, 0], method.predict(Q))
+    np.testing.assert_array_equal(method.rank(Q, 10), places)
+    assert all(len(set(row)) == 10 for row in places.tolist())
+    assert places.min() >= 0 and places.max() < 200

@@ -128,9 +128,25 @@ def _layout(model, Q):
     return model.column_margins(Q).astype(np.float64), deficits_from_scores(scores, model.n_regions_, Q.shape[0])
 
 
-def test_search_r1_matches_kbest_of_decision_function(plain, route):
+def test_search_r1_is_the_decode_then_kbest_of_decision_function(plain, route):
     scores, places = plain.search(route.queries, 7)
     idx, cost = kbest_codes(plain.decision_function(route.queries), 300, 7)
+    # The constrained decode comes first (rank[:, 0] == predict), then the k-best by flip cost.
+    point = plain.predict(route.queries)
+    np.testing.assert_array_equal(places[:, 0], point)
+    for row, best, first in zip(places, idx, point):
+        np.testing.assert_array_equal(row[1:], [p for p in best if p != first][:6])
+    # Where the hard code is a valid index (most queries) the decode is the cheapest code.
+    same = idx[:, 0] == point
+    assert same.mean() > 0.9
+    np.testing.assert_array_equal(places[same], idx[same])
+    np.testing.assert_allclose(-scores[same], cost[same], rtol=1e-6, atol=1e-6)
+
+
+def test_soft_decode_search_is_exactly_kbest(route):
+    soft = BTELocalizer(feature_ratio=0.5, decode="soft", progress=False, random_state=0).fit(route.map)
+    scores, places = soft.search(route.queries, 7)
+    idx, cost = kbest_codes(soft.decision_function(route.queries), 300, 7)
     np.testing.assert_array_equal(places, idx)
     np.testing.assert_allclose(-scores, cost, rtol=1e-6, atol=1e-6)
 
@@ -170,12 +186,11 @@ def test_predicted_region_comes_first_and_matches_predict(regional, route):
     np.testing.assert_array_equal(soft.rank(Q, 5)[:, 0], soft.predict(Q))
 
 
-def test_r_at_k_grows_with_k_and_top1_is_soft_decode(plain, route):
+def test_r_at_k_grows_with_k_and_r_at_1_is_the_point_prediction(plain, route):
     places = plain.rank(route.queries, 20)
     r = recall_at_k(places, None, ks=(1, 5, 10, 20))
     assert r[1] <= r[5] <= r[10] <= r[20]
-    soft_top1 = np.mean(decode_soft(plain.decision_function(route.queries), 300) == np.arange(300))
-    assert r[1] == pytest.approx(soft_top1)
+    assert r[1] == pytest.approx(np.mean(plain.predict(route.queries) == np.arange(300)))
 
 
 def test_ranking_errors(route):
@@ -202,6 +217,6 @@ def test_ranking_on_gardens_point(gardenspoint_netvlad):
     np.testing.assert_allclose(np.abs(model.decision_function(Q).astype(np.float64)).sum(1, keepdims=True) - costs,
                                ref_scores, rtol=1e-5, atol=1e-5)
     r = recall_at_k(places, None, ks=(1, 10), tolerance=2)
-    single = np.mean(np.abs(decode_soft(model.decision_function(Q), n) - np.arange(n)) <= 2)
-    assert r[1] == pytest.approx(single)
+    single = np.mean(np.abs(model.predict(Q) - np.arange(n)) <= 2)
+    assert r[1] == pytest.approx(single)  # R@1 is the point prediction's recall
     assert r[10] >= r[1]

@@ -14,7 +14,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from ._validation import BOOLEAN, N_JOBS, RANDOM_STATE, Budget, DType, Interval, Options, String, check_positive_int, read_state_int
-from .base import ArraySpec, PlaceLocalizer
+from .base import ArraySpec, PlaceLocalizer, put_first
 from .compressed import DECODERS, compressed_tasks, decode_code, decode_margins
 from .distributed import BACKENDS
 from .encoding import n_bits_for
@@ -483,10 +483,15 @@ class BTELocalizer(PlaceLocalizer):
         return scores
 
     def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """The decode (k = 1) or the k best codes by cost, as places (distinct block centres)."""
+        """The decode, then the other codes by cost (lowest first), as places (distinct block centres).
+
+        The first candidate is always the decode (``predict``): with ``decode='constrained'`` a
+        hard code ≥ N is mapped to a valid one by the paper's MSB-first rule, which need not be the
+        cheapest valid code, so the ranking by cost follows it.
+        """
+        point, _, point_costs = self._decode(Q)
         if k == 1:
-            codes, _, costs = self._decode(Q)
-            return -costs[:, None], self._places_of_codes(codes)[:, None]
+            return -point_costs[:, None], self._places_of_codes(point)[:, None]
         k_codes = min(k, self.n_codes_)
         if self.scheme == "compressed" and self.code_copies_ == 1:
             margins = self.hyperplanes_.margins(Q).astype(np.float64)
@@ -498,7 +503,8 @@ class BTELocalizer(PlaceLocalizer):
 
             neg, codes = top_k(-self._code_costs(Q), k_codes)
             costs = -neg
-        return -costs, self._places_of_codes(codes)
+        scores, codes = put_first(-costs, codes, -point_costs, point)
+        return scores, self._places_of_codes(codes)
 
     # ------------------------------------------------------------------ storage and files
     def _stored_arrays(self) -> dict[str, np.ndarray]:

@@ -261,27 +261,29 @@ class RYTHLocalizer(PlaceLocalizer):
         return self._summed(self._residue_scores(Q))
 
     def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        from .base import top_k
+        """The decode first (soft, or CRT when it gives a valid place), then the rest by summed score."""
+        from .base import put_first, top_k
 
         n = int(self.n_places_)
         rows = max(1, (1 << 22) // n)
         values = np.empty((Q.shape[0], k))
         places = np.empty((Q.shape[0], k), dtype=np.int64)
         for start in range(0, Q.shape[0], rows):
-            scores = self._residue_scores(Q[start : start + rows])
+            stop = min(start + rows, Q.shape[0])
+            scores = self._residue_scores(Q[start:stop])
             total = self._summed(scores)
+            best = np.argmax(total, axis=1)
+            if self.decode == "crt":  # the CRT answer when it is a valid place, else the soft one
+                offsets = np.concatenate([[0], np.cumsum(self.periods_)[:-1]])
+                residues = np.stack([np.argmax(scores[:, o : o + p], axis=1)
+                                     for o, p in zip(offsets, self.periods_)], axis=1)
+                exact = crt(residues, self.periods_)
+                best = np.where(exact < n, exact, best)
+            best_value = np.take_along_axis(total, best[:, None], axis=1)[:, 0]
             if k == 1:
-                best = np.argmax(total, axis=1)
-                if self.decode == "crt":  # the CRT answer when it is a valid place, else the soft one
-                    offsets = np.concatenate([[0], np.cumsum(self.periods_)[:-1]])
-                    residues = np.stack([np.argmax(scores[:, o : o + p], axis=1)
-                                         for o, p in zip(offsets, self.periods_)], axis=1)
-                    exact = crt(residues, self.periods_)
-                    best = np.where(exact < n, exact, best)
-                values[start : start + rows, 0] = np.take_along_axis(total, best[:, None], axis=1)[:, 0]
-                places[start : start + rows, 0] = best
+                values[start:stop, 0], places[start:stop, 0] = best_value, best
             else:
-                values[start : start + rows], places[start : start + rows] = top_k(total, k)
+                values[start:stop], places[start:stop] = put_first(*top_k(total, k), best_value, best)
         return values, places
 
     def _stored_arrays(self) -> dict[str, np.ndarray]:
