@@ -149,8 +149,9 @@ def test_rank_shape_order_and_agreement_with_predict(name, route, fitted):
 
 
 def test_bruteforce_rank_is_sorted_by_true_distance(route, fitted):
-    X, Q = route
-    ranked = fitted["bruteforce"].rank(Q[:20], 10)
+    model = fitted["bruteforce"]
+    X, Q = (model.front_end_.transform(a) for a in route)  # distances on the front end's rows
+    ranked = model.rank(route[1][:20], 10)
     dist = ((Q[:20, None, :] - X[None, :, :]) ** 2).sum(-1)
     got = np.take_along_axis(dist, ranked, axis=1)
     assert np.all(np.diff(got, axis=1) >= -1e-4)

@@ -122,7 +122,7 @@ def test_pq_search_is_an_exact_scan_of_asymmetric_distances(data):
     packed = model.codes_
     nibbles = np.stack([packed & 0x0F, packed >> 4], axis=2).reshape(len(packed), -1)[:, :M]
     recon = np.concatenate([model.codebooks_[m][nibbles[:, m]] for m in range(M)], axis=1)
-    dist = (((Q @ model.projection_)[:, None, :] - recon[None]) ** 2).sum(-1)
+    dist = (((model.front_end_.transform(Q) @ model.projection_)[:, None, :] - recon[None]) ** 2).sum(-1)
     ranked = model.rank(Q, 5)
     np.testing.assert_allclose(np.take_along_axis(dist, ranked[:, :1], 1)[:, 0], dist.min(1), rtol=1e-4, atol=1e-4)
 
@@ -179,6 +179,8 @@ def test_itq_codes_are_signs_and_search_is_exact_hamming(data):
     X, Q = data
     model = ITQLocalizer(code_bits=32, n_jobs=1).fit(X)
     assert model.codes_.shape == (400, 4) and model.codes_.dtype == np.uint8
+    queries = Q
+    X, Q = model.front_end_.transform(X), model.front_end_.transform(Q)  # codes of the front end's rows
     bits = np.unpackbits(model.codes_, axis=1).astype(bool)
     np.testing.assert_array_equal(bits, (X - model.mean_) @ model.projection_ > 0)
     # The rotation keeps the PCA directions orthonormal.
@@ -186,7 +188,7 @@ def test_itq_codes_are_signs_and_search_is_exact_hamming(data):
     np.testing.assert_allclose(P.T @ P, np.eye(32), atol=1e-4)
     qbits = (Q - model.mean_) @ model.projection_ > 0
     hamming = (qbits[:, None, :] != bits[None]).sum(-1)
-    pred = model.predict(Q)
+    pred = model.predict(queries)
     np.testing.assert_array_equal(hamming[np.arange(len(Q)), pred], hamming.min(1))
     assert np.mean(pred == np.arange(100)) >= 0.9
 

@@ -188,7 +188,7 @@ def test_place_scores_argmax_is_each_methods_prediction(route):
         assert S.shape == (Q.shape[0], X.shape[0])
         best = S[np.arange(Q.shape[0]), model.predict(Q)]
         np.testing.assert_allclose(best, S.max(axis=1), rtol=1e-5)  # ties allowed (ITQ)
-    bf = BruteForceNN().fit(X)
+    bf = BruteForceNN(normalize="none").fit(X)  # raw rows: the scores are minus squared L2 distances
     sq = ((Q[:, None, :].astype(np.float64) - X[None, :, :]) ** 2).sum(-1)
     np.testing.assert_allclose(-bf.place_scores(Q), sq, rtol=1e-4, atol=1e-3)
 

@@ -121,8 +121,9 @@ class BTELocalizer(PlaceLocalizer):
     scheduler : str, optional
         Dask scheduler address for ``backend='dask'`` (e.g. ``'tcp://10.0.0.5:8786'``); None uses
         the ``distributed.Client`` already running in this process.
-    random_state : int, optional
-        Seed for liblinear and the randomized PCA of KTS.
+    random_state : int or None
+        Seed for liblinear and the randomized PCA of KTS (default 0, so a refit gives the same
+        model; None draws a fresh seed).
     progress : bool
         Show a progress bar while fitting (only on a terminal).
     block_size : int
@@ -142,9 +143,10 @@ class BTELocalizer(PlaceLocalizer):
         Several exemplars per place from extra traverses or augmented images go through
         ``fit(X, places)``.
     normalize, whiten, delta
-        The front end (:mod:`btel.frontend`): row normalisation ('none', 'l2', 'power'), PCA
-        whitening to that many dimensions (stored and counted), delta descriptors over a window
-        of that many frames (queries are then one ordered traverse).
+        The front end (:mod:`btel.frontend`): row normalisation ('l2' by default: global
+        descriptors are compared by direction; 'none', 'power'), PCA whitening to that many
+        dimensions (stored and counted), delta descriptors over a window of that many frames
+        (queries are then one ordered traverse).
 
     Attributes
     ----------
@@ -233,12 +235,12 @@ class BTELocalizer(PlaceLocalizer):
         n_jobs: int | None = None,
         backend: str | None = None,
         scheduler: str | None = None,
-        random_state: int | None = None,
+        random_state: int | None = 0,
         progress: bool = True,
         block_size: int = 1,
         code_copies: int = 1,
         exemplar_radius: int = 0,
-        normalize: str = "none",
+        normalize: str = "l2",
         whiten: int | None = None,
         delta: int | None = None,
     ) -> None:

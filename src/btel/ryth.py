@@ -135,8 +135,8 @@ class RYTHLocalizer(PlaceLocalizer):
         decode: str = "soft",
         max_iter: int = 1000,
         n_jobs: int | None = None,
-        random_state: int | None = None,
-        normalize: str = "none",
+        random_state: int | None = 0,
+        normalize: str = "l2",
         whiten: int | None = None,
         delta: int | None = None,
     ) -> None:

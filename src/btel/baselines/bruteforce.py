@@ -58,7 +58,7 @@ class BruteForceNN(_RowLocalizer):
 
     _parameter_constraints = {"budget": [Budget()], "n_jobs": N_JOBS, **FRONT_END_CONSTRAINTS}
 
-    def __init__(self, *, budget: int | str | None = None, normalize: str = "none", whiten: int | None = None,
+    def __init__(self, *, budget: int | str | None = None, normalize: str = "l2", whiten: int | None = None,
                  delta: int | None = None, n_jobs: int | None = None) -> None:
         self.budget = budget
         self.normalize = normalize

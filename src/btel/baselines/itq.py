@@ -79,7 +79,7 @@ class ITQLocalizer(_RowLocalizer):
         budget: int | str | None = None,
         code_bits: int | None = None,
         random_state: int | None = 0,
-        normalize: str = "none",
+        normalize: str = "l2",
         whiten: int | None = None,
         delta: int | None = None,
         n_jobs: int | None = None,

@@ -83,7 +83,7 @@ class OPQLocalizer(_RowLocalizer):
         budget: int | str | None = None,
         pq: PQLocalizer | None = None,
         n_iter: int = 20,
-        normalize: str = "none",
+        normalize: str = "l2",
         whiten: int | None = None,
         delta: int | None = None,
         n_jobs: int | None = None,

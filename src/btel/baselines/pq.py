@@ -167,7 +167,7 @@ class PQLocalizer(_RowLocalizer):
         nbits: int | None = None,
         pca_dim: int | None = None,
         random_state: int | None = 0,
-        normalize: str = "none",
+        normalize: str = "l2",
         whiten: int | None = None,
         delta: int | None = None,
         n_jobs: int | None = None,
