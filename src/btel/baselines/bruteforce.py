@@ -1,10 +1,14 @@
 """Brute-force nearest neighbour: every map descriptor at float32, exact L2 search (SPEC §8).
 
 The upper reference of every comparison: storage grows linearly in N (N×d×4 bytes) and a query
-costs N distance computations. The search is faiss' exact ``IndexFlatL2`` (scores are minus the
-squared distances), built at fit time and when a model is loaded. With the default front end
-(``normalize='l2'``) the rows are unit vectors, so L2 ranks exactly as cosine similarity does:
-the strongest honest form of brute force for global descriptors.
+costs N distance computations. The search is exact, by faiss, built at fit time and when a model
+is loaded: with a normalising front end (the default ``normalize='l2'``) it is **cosine similarity**
+(``IndexFlatIP`` on the unit rows; scores are the cosines), the strongest honest form of brute force
+for global descriptors; with ``normalize='none'`` it is L2 (``IndexFlatL2``; scores are minus the
+squared distances). The two rank unit vectors alike, except that a zero row (a delta descriptor of
+a traverse's first frame, which carries no change) scores 0 under cosine but sits at distance 1
+from every query under L2, where it swallowed most cross-season queries (Nordland HOG with delta
+descriptors: recall@10 0.05 under L2 against 0.62 under cosine).
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ __all__ = ["BruteForceNN"]
 
 
 class BruteForceNN(_RowLocalizer):
-    """Exact L2 nearest neighbour over the stored map descriptors.
+    """Exact nearest neighbour over the stored map descriptors: cosine on normalised rows, else L2.
 
     Parameters
     ----------
@@ -81,14 +85,21 @@ class BruteForceNN(_RowLocalizer):
         self.descriptors_ = np.array(X, dtype=np.float32, order="C", copy=True)
         self._index = self._build_index()
 
-    def _build_index(self) -> faiss.IndexFlatL2:
-        index = faiss.IndexFlatL2(self.descriptors_.shape[1])
+    @property
+    def metric(self) -> str:
+        """'cosine' with a normalising front end, else 'l2'."""
+        return "l2" if self.normalize == "none" else "cosine"
+
+    def _build_index(self) -> faiss.IndexFlat:
+        dim = self.descriptors_.shape[1]
+        index = faiss.IndexFlatL2(dim) if self.metric == "l2" else faiss.IndexFlatIP(dim)
         index.add(self.descriptors_)
         return index
 
     def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        dist, rows = self._index.search(Q, k)
-        return -dist.astype(np.float64), rows.astype(np.int64)
+        values, rows = self._index.search(Q, k)
+        scores = values.astype(np.float64)
+        return (-scores if self.metric == "l2" else scores), rows.astype(np.int64)
 
     def _model_arrays(self) -> dict[str, np.ndarray]:
         return {"descriptors": self.descriptors_}

@@ -15,10 +15,12 @@ Each descriptor has the same interface (:class:`ImageDescriptor`): ``fit(images)
   PCA-whitening (Torii et al. 2015).
 
 Descriptors computed elsewhere (NetVLAD, ...) are read with :func:`load_descriptor_matrix`.
+:func:`delta_descriptors` turns any traverse of descriptors into sequence (delta) descriptors.
 """
 
 from __future__ import annotations
 
+from ..frontend import delta_descriptors
 from .augment import augmented_views
 from .base import DESCRIPTORS, ImageDescriptor, get_descriptor, load_descriptor, register_descriptor
 from .densevlad import DenseVLADDescriptor, dense_rootsift, vlad_encode
@@ -30,6 +32,7 @@ from .patchnorm import PatchNormDescriptor, patch_normalise
 
 __all__ = [
     "augmented_views",
+    "delta_descriptors",
     "DESCRIPTORS",
     "IMAGE_EXTENSIONS",
     "DenseVLADDescriptor",

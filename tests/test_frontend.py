@@ -1,0 +1,172 @@
+"""The front end every method owns: normalisation, delta descriptors, whitening; stored and counted."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+import btel
+from btel.datasets import synthetic_route
+from btel.descriptors import delta_descriptors
+from btel.exceptions import BudgetTooSmallError, InvalidDescriptorsError, InvalidParameterError, NotEnoughPlacesError
+from btel.frontend import FrontEnd, normalize_rows, traverse_starts
+from btel.methods import METHODS, make_method
+from btel.streaming import localize_stream
+
+
+def reference_delta(X: np.ndarray, w: int) -> np.ndarray:
+    """The definition, one frame at a time: frames before the start are copies of the first one."""
+    out = np.empty(X.shape)
+    for j in range(X.shape[0]):
+        frame = [X[max(i, 0)] for i in range(j - 2 * w + 1, j + 1)]  # the last 2w frames, edge-padded
+        out[j] = np.mean(frame[w:], axis=0) - np.mean(frame[:w], axis=0)
+    return out
+
+
+@settings(max_examples=40, deadline=None)
+@given(X=arrays(np.float32, st.tuples(st.integers(2, 40), st.integers(1, 6)), elements=st.floats(-100, 100, width=32)),
+       w=st.integers(1, 20))
+def test_delta_equals_the_reference_loop(X, w) -> None:
+    if X.shape[0] < 2 * w:
+        with pytest.raises(NotEnoughPlacesError, match=f"2w = {2 * w}"):
+            delta_descriptors(X, w)
+        return
+    np.testing.assert_allclose(delta_descriptors(X, w), reference_delta(X.astype(np.float64), w), rtol=1e-4,
+                               atol=1e-3)
+
+
+def test_delta_is_causal_and_restarts_at_traverse_starts() -> None:
+    X = np.random.default_rng(0).normal(size=(30, 4)).astype(np.float32)
+    full = delta_descriptors(X, 3)
+    # Frame j does not depend on frames after it.
+    np.testing.assert_allclose(delta_descriptors(X[:17], 3), full[:17], atol=1e-5)
+    # Two traverses: the second is differenced on its own.
+    both = delta_descriptors(np.concatenate([X, X]), 3, starts=[0, 30])
+    np.testing.assert_allclose(both[30:], full, atol=1e-5)
+    np.testing.assert_array_equal(traverse_starts(np.r_[np.arange(5), np.arange(5)]), [0, 5])
+    assert traverse_starts(None).tolist() == [0]
+
+
+def test_delta_bad_input() -> None:
+    X = np.ones((10, 3), np.float32)
+    with pytest.raises(NotEnoughPlacesError, match="delta ≤ 5"):
+        delta_descriptors(X, 6)
+    X[4, 1] = np.nan
+    with pytest.raises(InvalidDescriptorsError, match="NaN"):
+        delta_descriptors(X, 2)
+    with pytest.raises(InvalidParameterError, match="delta window"):
+        delta_descriptors(np.ones((10, 3)), 0)
+
+
+def test_normalisations() -> None:
+    X = np.array([[3.0, -4.0], [0.0, 0.0], [1.0, 0.0]], np.float32)
+    np.testing.assert_allclose(normalize_rows(X, "l2"), [[0.6, -0.8], [0, 0], [1, 0]], atol=1e-7)
+    power = normalize_rows(X, "power")
+    np.testing.assert_allclose(power[0], np.array([np.sqrt(3), -2.0]) / np.sqrt(7), atol=1e-6)
+    assert normalize_rows(X, "none") is X
+    with pytest.raises(InvalidParameterError, match="normalize"):
+        normalize_rows(X, "max")
+
+
+@pytest.fixture(scope="module")
+def route():
+    return synthetic_route(240, 48, n_regions=3, seed=4)
+
+
+def test_defaults_a_vpr_practitioner_expects() -> None:
+    for name in METHODS:
+        expected = "none" if name == "seqslam" else "l2"
+        assert make_method(name).normalize == expected, name
+        assert make_method(name).whiten is None and make_method(name).delta is None
+
+
+@pytest.mark.parametrize("name", list(METHODS))
+@pytest.mark.parametrize("front", [{"normalize": "power"}, {"whiten": 16}, {"delta": 4}, {"normalize": "none"}])
+def test_every_method_round_trips_its_front_end(name, front, route, tmp_path) -> None:
+    X, Q = route.map, route.queries
+    model = make_method(name, **front).fit(X)
+    assert model.front_end_.to_header() == {**{"normalize": model.normalize, "whiten": None, "delta": None}, **front}
+    path = model.save(tmp_path / "m.npz")
+    again = btel.load(path)
+    assert again.front_end_.to_header() == model.front_end_.to_header()
+    np.testing.assert_array_equal(again.predict(Q), model.predict(Q))
+    assert again.nbytes == model.nbytes
+    assert path.stat().st_size - model.nbytes <= 4096
+    if "whiten" in front:  # the whitening matrix and mean are stored and counted
+        parts = model.storage_breakdown()
+        assert parts["frontend_whitening"] == 48 * 16 * 4 and parts["frontend_mean"] == 48 * 4
+    assert model.uses_query_sequence == ("delta" in front or name == "seqslam")
+
+
+def test_budgets_count_the_whitening_matrix(route) -> None:
+    X = route.map
+    plain = make_method("btel-c", budget=6000).fit(X)
+    white = make_method("btel-c", budget=6000, whiten=16).fit(X)
+    assert white.nbytes <= 6000 and plain.nbytes <= 6000
+    assert white.storage_breakdown()["frontend_whitening"] == 48 * 16 * 4
+    with pytest.raises(BudgetTooSmallError, match="whitening matrix alone needs 3264 B"):
+        make_method("pq", budget=3000, whiten=16).fit(X)
+    with pytest.raises(BudgetTooSmallError) as info:
+        make_method("bruteforce", budget=20_000, whiten=16).fit(X)
+    assert info.value.minimum == 240 * 16 * 4 + 48 * 17 * 4  # map + whitening, both counted
+    with pytest.raises(InvalidParameterError, match="whiten ≤ 48"):
+        make_method("bruteforce", whiten=64).fit(X)
+
+
+def test_streaming_delta_equals_batch_line_by_line(route) -> None:
+    X, Q = route.map, route.queries
+    model = make_method("pq", delta=5).fit(X)
+    batch = model.predict(Q)
+    text = "".join(",".join(f"{v:.9g}" for v in row) + "\n" for row in Q)
+    streamed = [place for _, place in localize_stream(model, io.StringIO(text))]
+    np.testing.assert_array_equal(streamed, batch)
+    # The transformed rows agree too (float64 means online, cumulative sums in batch).
+    stream = FrontEnd.of(model)
+    stream.mean_, stream.whitening_ = model.front_end_.mean_, model.front_end_.whitening_
+    online = stream.stream()
+    rows = np.concatenate([online.update(q[None, :]) for q in Q])
+    np.testing.assert_allclose(rows, model.front_end_.transform(Q), atol=1e-5)
+
+
+def test_a_reset_line_starts_a_new_traverse(route) -> None:
+    X, Q = route.map, route.queries
+    model = make_method("bruteforce", delta=3).fit(X)
+    lines = [",".join(f"{v:.9g}" for v in row) for row in Q]
+    text = "\n".join(lines[:50] + ["reset"] + lines[100:150]) + "\n"
+    out = [place for _, place in localize_stream(model, io.StringIO(text))]
+    np.testing.assert_array_equal(out[:50], model.predict(Q[:50]))
+    np.testing.assert_array_equal(out[50:], model.predict(Q[100:150]))
+
+
+def test_seqslam_streams_with_its_sequence_context(route) -> None:
+    X, Q = route.map, route.queries
+    model = make_method("seqslam").fit(X)
+    stream = model.stream()
+    online = [int(stream.search(q)[1][0]) for q in Q[:40]]
+    np.testing.assert_array_equal(online, model.predict(Q[:40]))
+
+
+@pytest.mark.realdata
+def test_delta_descriptors_on_nordland_hog(nordland_hog) -> None:
+    """Delta descriptors carry the place across seasons better than single frames (Garg & Milford)."""
+    S, W = (a[:1500] for a in nordland_hog)
+    t = np.arange(1500)
+    single = make_method("bruteforce").fit(S).predict(W)
+    delta = make_method("bruteforce", delta=10).fit(S).predict(W)
+    r_single, r_delta = (float(np.mean(np.abs(p - t) <= 10)) for p in (single, delta))
+    assert r_delta > r_single + 0.1, (r_single, r_delta)
+
+
+@pytest.mark.realdata
+def test_l2_normalisation_on_gardens_point(gardenspoint_netvlad) -> None:
+    """NetVLAD-family descriptors are compared normalised: cosine brute force beats raw L2 by far."""
+    X, Q = gardenspoint_netvlad
+    t = np.arange(len(X))
+    raw = make_method("bruteforce", normalize="none").fit(X).predict(Q)
+    cos = make_method("bruteforce").fit(X).predict(Q)
+    assert np.mean(np.abs(cos - t) <= 2) > np.mean(np.abs(raw - t) <= 2) + 0.15
