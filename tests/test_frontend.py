@@ -112,7 +112,7 @@ def test_budgets_count_the_whitening_matrix(route) -> None:
     with pytest.raises(BudgetTooSmallError, match="whitening matrix alone needs 3264 B"):
         make_method("pq", budget=3000, whiten=16).fit(X)
     with pytest.raises(BudgetTooSmallError) as info:
-        make_method("bruteforce", budget=20_000, whiten=16).fit(X)
+        make_method("bruteforce", budget=18_000, whiten=16).fit(X)
     assert info.value.minimum == 240 * 16 * 4 + 48 * 17 * 4  # map + whitening, both counted
     with pytest.raises(InvalidParameterError, match="whiten ≤ 48"):
         make_method("bruteforce", whiten=64).fit(X)
