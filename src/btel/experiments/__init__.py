@@ -15,6 +15,7 @@ name                module                          what
 ``regions``         :mod:`.regions`                 (e) BTEL with r = 1 … 20 at c = 0.1
 ``sequence-filter`` :mod:`.sequence_filter`         (f) the sequence filter, a = 5 and a = 20, at N = 3576 and 1 MB
 ``beyond``          :mod:`.beyond`                  the paper's variants against quantisation at the same bytes
+``front-ends``      :mod:`.front_ends`              every front end (normalisation, delta, whitening) × method × read-out
 =================== =============================== ====================================================================
 
 Every row carries the method's bytes. A method that cannot fit a budget is reported as such (with
@@ -39,6 +40,7 @@ from ._common import QUICK_FRAMES, ExperimentRun, NordlandData, default_nordland
 from .accuracy import exp_accuracy
 from .beyond import exp_beyond
 from .feature_ratio import exp_feature_ratio
+from .front_ends import exp_front_ends
 from .regions import exp_regions
 from .sequence_filter import exp_sequence_filter
 from .vs_budget import exp_vs_budget
@@ -54,6 +56,7 @@ EXPERIMENTS: dict[str, Callable[[NordlandData, Path, bool], ExperimentRun]] = {
     "regions": exp_regions,
     "sequence-filter": exp_sequence_filter,
     "beyond": exp_beyond,
+    "front-ends": exp_front_ends,
 }
 
 

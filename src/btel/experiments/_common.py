@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import json
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -19,7 +20,7 @@ from ..exceptions import BudgetTooSmallError, DataNotFoundError
 from ..methods import make_method
 from ..storage import check_within_budget, format_bytes, parse_budget
 
-__all__ = ["SEASONS", "QUICK_FRAMES", "NordlandData", "ExperimentRun", "default_nordland_root", "fit_row",
+__all__ = ["SEASONS", "QUICK_FRAMES", "NordlandData", "ExperimentRun", "default_nordland_root", "fit_row", "fit_model",
            "full_or_quick", "write_results", "describe_row"]
 
 SEASONS = ("summer", "winter")
@@ -123,6 +124,22 @@ def fit_row(name: str, data: NordlandData, *, budget: Any, n_places: int | None,
     if result.recall_at_k:
         row.update({f"R@{k}": v for k, v in result.recall_at_k.items()})
     return row, result
+
+
+def fit_model(name: str, params: dict[str, Any], X: np.ndarray) -> tuple[Any, float] | int:
+    """Fit a registered method on X: (fitted model, seconds), or the minimum bytes when its budget is too small.
+
+    Every method is seeded (``random_state=0`` where it has one), so reruns give the same numbers.
+    """
+    model = make_method(name, **params)
+    if "random_state" in model.get_params():
+        model.set_params(random_state=0)
+    start = time.perf_counter()
+    try:
+        model.fit(X)
+    except BudgetTooSmallError as exc:
+        return int(exc.minimum or 0)
+    return model, time.perf_counter() - start
 
 
 def full_or_quick(quick: bool, full: list[Any], small: list[Any]) -> list[Any]:

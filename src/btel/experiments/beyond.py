@@ -41,10 +41,9 @@ from typing import Any
 import numpy as np
 
 from ..evaluation import DEFAULT_TOLERANCES, recall_at_k, recall_at_tolerance
-from ..exceptions import BudgetTooSmallError
 from ..methods import make_method
 from ..storage import check_within_budget, parse_budget
-from ._common import SEASONS, ExperimentRun, NordlandData
+from ._common import SEASONS, ExperimentRun, NordlandData, fit_model
 
 __all__ = ["exp_beyond", "BTEL_VARIANTS", "stretch_split"]
 
@@ -80,15 +79,7 @@ def _recalls(pred: np.ndarray, truth: np.ndarray) -> dict[str, float]:
 
 def _fit(name: str, params: dict[str, Any], X: np.ndarray, budget: int | None) -> tuple[Any, float] | int:
     """(fitted model, seconds), or the minimum bytes when the budget is too small."""
-    model = make_method(name, **({"budget": budget} if budget is not None else {}), **params)
-    if "random_state" in model.get_params():  # the same numbers on every run
-        model.set_params(random_state=0)
-    start = time.perf_counter()
-    try:
-        model.fit(X)
-    except BudgetTooSmallError as exc:
-        return int(exc.minimum or 0)
-    return model, time.perf_counter() - start
+    return fit_model(name, {**({"budget": budget} if budget is not None else {}), **params}, X)
 
 
 def _single_frame_row(base: dict[str, Any], fitted: tuple[Any, float] | int, Q: np.ndarray,
