@@ -307,6 +307,8 @@ def plot_experiment(run: Any, out_dir: str | os.PathLike) -> list[Path]:
         written.append(path)
     elif name == "beyond":
         written += _plot_beyond(run.rows, out_dir)
+    elif name == "front-ends":
+        written += _plot_front_ends(run.rows, out_dir)
     elif name == "regions":
         path = out_dir / "recall_vs_regions.png"
         plot_parameter_sweep(run.rows, path, x_key="n_regions", xlabel="regions r",
@@ -379,5 +381,24 @@ def _plot_beyond(rows: Sequence[Mapping[str, Any]], out_dir: Path) -> list[Path]
         _finish_recall_plot(fig, ax, path, xlabel="appearance change between map and query traverse (condition_shift)",
                             ylabel="recall@10",
                             title=f"Synthetic route, N = {synth[0]['n_places']}, ≤ {format_bytes(budget) if budget else '?'}")
+        written.append(path)
+    return written
+
+
+def _plot_front_ends(rows: Sequence[Mapping[str, Any]], out_dir: Path) -> list[Path]:
+    """The "front-ends" experiment: one bar group per method (and budget), one bar per front end."""
+    written = []
+    for part, direction in dict.fromkeys((r.get("part"), r.get("direction")) for r in rows if r.get("direction")):
+        single = [{**r, "method": f"{r['method']} ({format_bytes(r['budget']) if r.get('budget') else 'no budget'})"}
+                  for r in rows if r.get("part") == part and r.get("direction") == direction
+                  and r.get("decoder") == "single"]
+        if not any(r.get("status") == "ok" for r in single):
+            continue
+        t = 10 if part == "nordland" else 2
+        path = out_dir / f"{part}_{direction.replace('→', '_to_')}.png"
+        what = "Nordland HOG" if part == "nordland" else "Gardens Point NetVLAD"
+        plot_method_bars(single, path, group_key="front", value_key=f"recall@{t}",
+                         title=f"{what} {direction}: single-frame recall@{t} by front end",
+                         credit=NORDLAND_CREDIT if part == "nordland" else None)
         written.append(path)
     return written
