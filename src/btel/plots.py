@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from matplotlib.ticker import FuncFormatter
+from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
 from .exceptions import InvalidParameterError
 from .storage import format_bytes
@@ -36,6 +36,8 @@ __all__ = [
     "plot_curves",
     "plot_parameter_sweep",
     "plot_experiment",
+    "plot_recall_at_k",
+    "plot_run",
 ]
 
 _FIGSIZE = (6.4, 4.4)
@@ -64,7 +66,7 @@ def _finish_recall_plot(fig: Figure, ax: Any, path: str | os.PathLike, *, xlabel
     ax.grid(True, which="both", alpha=0.3)  # minor lines only show on log axes
     ax.legend(fontsize=legend_size)
     if title:
-        ax.set_title(title)
+        ax.set_title(title, fontsize="medium")
     if credit:
         fig.text(0.99, 0.005, credit, ha="right", va="bottom", fontsize="xx-small", color="grey")
     _save(fig, path)
@@ -117,10 +119,10 @@ def plot_recall_vs_tolerance(
     if not results:
         raise InvalidParameterError("nothing to plot: results is empty.")
     fig, ax = _new_figure()
+    right = 0
     for r in results:
         name = str(_field(r, "name", "method"))
-        nbytes = _field(r, "nbytes")
-        label = name if nbytes is None else f"{name} ({format_bytes(nbytes)})"
+        label = _legend_label(r)
         curve = _field(r, "recall_curve")
         if curve is not None and len(curve):
             y = np.asarray(curve, dtype=float)
@@ -136,17 +138,132 @@ def plot_recall_vs_tolerance(
         if max_tolerance is not None:
             keep = x <= max_tolerance
             x, y = x[keep], y[keep]
-        ax.plot(x, y, marker=marker, drawstyle=drawstyle, label=label)
-    ax.set_xlabel("tolerance (frames)")
-    ax.set_ylabel("recall")
+        right = max(right, int(x.max()) if x.size else 0)
+        ax.plot(x, y, marker=marker, drawstyle=drawstyle, label=label, linestyle=_linestyle(r))
+    ax.set_xlabel("tolerance t (frames)")
+    ax.set_ylabel("recall@t")
     ax.set_ylim(0.0, 1.02)
-    ax.set_xlim(left=0)
+    # The axis ends where the curves end (twice the largest reported tolerance), not at a fixed 80.
+    ax.set_xlim(0, max(right, 1))
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize="small", loc="lower right")  # recall rises with t: the lower right is free
     if title:
-        ax.set_title(title)
+        ax.set_title(title, fontsize="medium")
     _save(fig, path)
     return fig
+
+
+def _legend_label(r: Any) -> str:
+    """``name (bytes)``; the reference row and sequence methods say what they are."""
+    name = str(_field(r, "name", "method"))
+    nbytes = _field(r, "nbytes")
+    notes = [format_bytes(nbytes)] if nbytes is not None else []
+    if _field(r, "reference", False):
+        notes.append("reference, unbudgeted")
+    if _field(r, "uses_query_sequence", False):
+        notes.append("† query sequence")
+    return f"{name} ({', '.join(notes)})" if notes else name
+
+
+def _linestyle(r: Any) -> str:
+    """Dashed for rows that are not single-frame methods under the budget (reference, sequence)."""
+    return "--" if _field(r, "reference", False) or _field(r, "uses_query_sequence", False) else "-"
+
+
+def plot_recall_at_k(results: Sequence[Any], path: str | os.PathLike, *, title: str | None = None) -> Figure:
+    """R@K (y) against K (x), one line per method: the plot for ground truth with explicit positives.
+
+    Parameters
+    ----------
+    results : sequence of EvaluationResult or dict
+        Each needs ``name`` and ``recall_at_k`` (K → R@K; keys int or str).
+    path : path
+        PNG file to write.
+    title : str, optional
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    series = [(r, sorted((int(k), float(v)) for k, v in (_field(r, "recall_at_k") or {}).items())) for r in results]
+    series = [(r, pts) for r, pts in series if pts]
+    if not series:
+        raise InvalidParameterError("nothing to plot: no result has R@K.")
+    fig, ax = _new_figure()
+    ks = sorted({k for _, pts in series for k, _ in pts})
+    for r, pts in series:
+        ax.plot([k for k, _ in pts], [v for _, v in pts], marker="o", label=_legend_label(r), linestyle=_linestyle(r))
+    ax.set_xticks(ks)
+    ax.set_xlim(0.5, ks[-1] + 0.5)
+    _finish_recall_plot(fig, ax, path, xlabel="K (ranked candidates)", ylabel="R@K", title=title)
+    return fig
+
+
+def _bytes_axis(ax: Any) -> None:
+    """A log axis of bytes labelled in one unit style (``50 KB``), no 3×10⁴ minor labels."""
+    ax.set_xscale("log")
+    ax.xaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda value, _pos: format_bytes(value)))
+    ax.xaxis.set_minor_formatter(NullFormatter())
+
+
+def plot_run(results: Sequence[Any], out_dir: str | os.PathLike, *, title: str | None = None) -> list[Path]:
+    """The plots of an evaluation run folder (``btel evaluate``, ``btel demo``).
+
+    - ``recall_vs_tolerance.png`` when the ground truth has one true place per query (the curve
+      runs to twice the largest reported tolerance), else ``recall_at_k.png`` (R@K vs K);
+    - ``recall_vs_storage.png`` when storage is known: recall@t at the middle reported
+      tolerance (10 frames when reported), or R@1 with explicit positives, against stored bytes.
+
+    Returns
+    -------
+    list of Path
+        The PNG files written.
+    """
+    out_dir = Path(out_dir)
+    results = list(results)
+    written: list[Path] = []
+    if any(len(_field(r, "recall_curve") if _field(r, "recall_curve") is not None else ()) for r in results):
+        written.append(out_dir / "recall_vs_tolerance.png")
+        plot_recall_vs_tolerance(results, written[-1], title=title)
+    elif any(_field(r, "recall_at_k") for r in results):
+        written.append(out_dir / "recall_at_k.png")
+        plot_recall_at_k(results, written[-1], title=title)
+    rows = []
+    for r in results:
+        if _field(r, "nbytes") is None:
+            continue
+        recall = {int(t): v for t, v in (_field(r, "recall") or {}).items()}
+        metric = "recall@t"
+        if not recall:
+            recall = {int(k): v for k, v in (_field(r, "recall_at_k") or {}).items() if int(k) == 1}
+            metric = "R@1"
+        if recall:
+            rows.append({"method": _legend_label_short(r), "bytes": _field(r, "nbytes"), "recall": recall,
+                         "metric": metric})
+    common = set.intersection(*(set(r["recall"]) for r in rows)) if rows else set()
+    if common:
+        metric = rows[0]["metric"]
+        if metric == "R@1":
+            key, ylabel = 1, "R@1"
+        else:
+            ordered = sorted(common)
+            key = 10 if 10 in common else ordered[len(ordered) // 2]
+            ylabel = f"recall@{key} (within {key} frames)"
+        written.append(out_dir / "recall_vs_storage.png")
+        budgets = sorted({int(b) for r in results if (b := _field(r, "budget")) is not None
+                          and not _field(r, "reference", False)})
+        plot_recall_vs_storage(rows, written[-1], tolerance=key, title=title, ylabel=ylabel, budgets=budgets)
+    return written
+
+
+def _legend_label_short(r: Any) -> str:
+    name = str(_field(r, "name", "method"))
+    if _field(r, "reference", False):
+        name += " (reference, unbudgeted)"
+    if _field(r, "uses_query_sequence", False):
+        name += " †"
+    return name
 
 
 def _plot_rows(
@@ -157,7 +274,9 @@ def _plot_rows(
     xlabel: str,
     tolerance: int,
     title: str | None,
-    x_formatter: Any = None,
+    bytes_axis: bool = False,
+    ylabel: str | None = None,
+    budgets: Sequence[int] = (),
 ) -> Figure:
     if not rows:
         raise InvalidParameterError("nothing to plot: rows is empty.")
@@ -177,15 +296,23 @@ def _plot_rows(
     for method, points in series.items():
         points.sort()
         ax.plot([p[0] for p in points], [p[1] for p in points], marker="o", label=method)
-    ax.set_xscale("log")
-    if x_formatter is not None:
-        ax.xaxis.set_major_formatter(x_formatter)
-    _finish_recall_plot(fig, ax, path, xlabel=xlabel, ylabel=f"recall (tolerance {tolerance} frames)", title=title)
+    if bytes_axis:
+        _bytes_axis(ax)
+    else:
+        ax.set_xscale("log")
+    for i, budget in enumerate(sorted(set(budgets))):
+        ax.axvline(budget, color="grey", linestyle=":", linewidth=1, label="budget" if i == 0 else None)
+    xs = [p[0] for points in series.values() for p in points] + list(budgets)
+    if max(xs) / min(xs) < 4:  # a narrow range: widen it so the points do not sit on the frame
+        ax.set_xlim(min(xs) / 2, max(xs) * 2)
+    _finish_recall_plot(fig, ax, path, xlabel=xlabel, ylabel=ylabel or f"recall@{tolerance} (within {tolerance} frames)",
+                        title=title)
     return fig
 
 
 def plot_recall_vs_storage(
-    rows: Sequence[Mapping[str, Any]], path: str | os.PathLike, tolerance: int = 10, *, title: str | None = None
+    rows: Sequence[Mapping[str, Any]], path: str | os.PathLike, tolerance: int = 10, *, title: str | None = None,
+    ylabel: str | None = None, budgets: Sequence[int] = (),
 ) -> Figure:
     """Recall at ``tolerance`` (y) against storage in bytes (x, log scale), one series per method.
 
@@ -197,15 +324,17 @@ def plot_recall_vs_storage(
         PNG file to write.
     tolerance : int, default 10
         Which recall point to plot; every row must have it.
+    ylabel : str, optional
+        Default ``recall@<tolerance> (within <tolerance> frames)``.
+    budgets : sequence of int, optional
+        Budgets in bytes, drawn as dotted vertical lines.
 
     Returns
     -------
     matplotlib.figure.Figure
     """
-    return _plot_rows(
-        rows, path, x_key="bytes", xlabel="storage (bytes)", tolerance=tolerance, title=title,
-        x_formatter=FuncFormatter(lambda value, _pos: format_bytes(value)),
-    )
+    return _plot_rows(rows, path, x_key="bytes", xlabel="storage (bytes, log scale)", tolerance=tolerance,
+                      title=title, bytes_axis=True, ylabel=ylabel, budgets=budgets)
 
 
 def plot_recall_vs_n(
