@@ -357,17 +357,24 @@ def plot_recall_vs_n(
     return _plot_rows(rows, path, x_key="n_places", xlabel="N (map places)", tolerance=tolerance, title=title)
 
 
+def _curve_label(method: str, sequence_methods: set[str]) -> str:
+    if method == "bruteforce":
+        return f"{method} (reference, unbudgeted)"
+    return f"{method} † query sequence" if method in sequence_methods else method
+
+
 def plot_curves(
     curves: Mapping[str, Sequence[float]], path: str | os.PathLike, *, title: str | None = None,
-    credit: str | None = None,
+    credit: str | None = None, ylabel: str = "recall@t",
 ) -> Figure:
-    """Recall (y) against tolerance t = 0, 1, … (x), one line per named curve."""
+    """recall@t (y) against tolerance t = 0, 1, … (x), one line per named curve."""
     if not curves:
         raise InvalidParameterError("nothing to plot: no curves.")
     fig, ax = _new_figure()
     for label, values in curves.items():
         ax.step(np.arange(len(values)), values, where="post", label=label)
-    _finish_recall_plot(fig, ax, path, xlabel="tolerance (frames)", title=title, credit=credit, legend_size="x-small")
+    _finish_recall_plot(fig, ax, path, xlabel="tolerance t (frames)", ylabel=ylabel, title=title, credit=credit,
+                        legend_size="x-small")
     return fig
 
 
@@ -411,11 +418,19 @@ def plot_experiment(run: Any, out_dir: str | os.PathLike) -> list[Path]:
     written: list[Path] = []
     name = run.name
     if name == "accuracy":
+        # The budget and N in the title are the ones the rows were run with (2 MB and 2000 in the full
+        # run, 50 KB and 300 in --quick), never a fixed text.
+        budgets = sorted({int(r["budget"]) for r in run.rows if r.get("budget")})
+        budget_text = ", ".join(format_bytes(b) for b in budgets) or "no budget"
+        n_text = ", ".join(str(n) for n in sorted({int(r["n_places"]) for r in run.rows}))
+        sequence = {r["method"] for r in run.rows if r.get("uses_query_sequence")}
         for direction in sorted({k.split(" ", 1)[1] for k in run.curves}):
-            curves = {k.split(" ", 1)[0]: v for k, v in run.curves.items() if k.endswith(direction)}
+            curves = {_curve_label(k.split(" ", 1)[0], sequence): v for k, v in run.curves.items()
+                      if k.endswith(direction)}
             path = out_dir / f"recall_vs_tolerance_{direction.replace('→', '_to_')}.png"
-            plot_curves(curves, path, title=f"Nordland {direction}, ≤ 2 MB (brute force: no budget)",
-                        credit=NORDLAND_CREDIT)
+            plot_curves(curves, path, title=f"Nordland {direction}, N = {n_text}, ≤ {budget_text} "
+                                            "(brute force: reference, unbudgeted)",
+                        credit=NORDLAND_CREDIT, ylabel="recall@t")
             written.append(path)
     elif name == "sequence-filter":
         path = out_dir / "sequence_filter.png"
