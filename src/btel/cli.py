@@ -241,32 +241,68 @@ def demo(ctx: click.Context, n_places: int, dim: int, budget: str, methods: str,
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Descriptor matrix to write (.npy).")
 @click.option("--descriptor", default="hog", show_default=True,
               help="hog | patchnorm | densevlad, or a descriptor file saved with --save-descriptor.")
+@click.option("--size", default=None, metavar="WxH",
+              help="hog / patchnorm: the thumbnail every image is resized to, whatever its aspect (default 64x32, "
+                   "Nordland's; a Warning says when it stretches the images, e.g. use 56x32 for 16:9 frames).")
+@click.option("--param", "param_texts", multiple=True, metavar="NAME=VALUE",
+              help="A parameter of the descriptor, e.g. --param n_components=256 or --param n_clusters=64 "
+                   "(densevlad: PCA to n_components, capped at the number of map images − 1, with a Warning). "
+                   + _VALUE_HELP)
 @click.option("--fit-on", type=click.Path(file_okay=False), default=None,
               help="Map image folder to learn from (DenseVLAD vocabulary + PCA). Never the queries.")
 @click.option("--save-descriptor", type=click.Path(dir_okay=False), default=None,
               help="Write the fitted descriptor (e.g. the DenseVLAD vocabulary) to describe the queries with it.")
 @click.option("--force", is_flag=True, help="Recompute even if OUTPUT is up to date.")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
-def extract(images_dir: str, output: str, descriptor: str, fit_on: str | None, save_descriptor: str | None,
-            force: bool, no_progress: bool) -> None:
+def extract(images_dir: str, output: str, descriptor: str, size: str | None, param_texts: tuple[str, ...],
+            fit_on: str | None, save_descriptor: str | None, force: bool, no_progress: bool) -> None:
     """Describe every image in IMAGES_DIR (natural file-name order = route order) into one .npy matrix.
 
     Row i of OUTPUT is the i-th image. A JSON file beside OUTPUT records the descriptor and the
     images; when nothing changed, the existing OUTPUT is reused (a cache) unless --force.
+
+    \b
+    What each descriptor does to the images (each prints a Warning when it happens):
+      hog, patchnorm  resize every image to --size (64x32); other aspects are stretched.
+      densevlad       PCA-whitens to n_components (4096), capped at (map images − 1).
+    Images of mixed sizes are described as they are, with a Warning.
     """
     from .descriptors import get_descriptor
     from .descriptors.base import load_descriptor
     from .descriptors.extract import extract_cached
+    from .storage import format_bytes
 
-    model = load_descriptor(descriptor) if Path(descriptor).is_file() else get_descriptor(descriptor)
+    params: dict[str, Any] = {}
+    for text in param_texts:
+        name, eq, raw = text.partition("=")
+        if not eq or not name.strip().isidentifier():
+            raise click.UsageError(f"--param {text!r} is not NAME=VALUE, e.g. n_components=256.")
+        params[name.strip()] = _param_value(raw)
+    if size is not None:
+        match = re.fullmatch(r"\s*(\d+)\s*[xX×]\s*(\d+)\s*", size)
+        if not match:
+            raise click.UsageError(f"--size {size!r} is not WIDTHxHEIGHT, e.g. 64x32.")
+        params["size"] = (int(match.group(1)), int(match.group(2)))
+    if Path(descriptor).is_file():
+        if params:
+            raise click.UsageError("--size and --param set a new descriptor; a saved descriptor file keeps its own.")
+        model = load_descriptor(descriptor)
+    else:
+        model = get_descriptor(descriptor, **params)
+        if "size" in params and "size" not in model.get_params():
+            raise click.UsageError(f"--size applies to hog and patchnorm; {descriptor} keeps each image's size.")
     X, reused = extract_cached(images_dir, output, model, fit_on=fit_on, progress=not no_progress, force=force)
     if reused:
         click.echo(f"{output} is up to date ({X.shape[0]} images, {descriptor}); use --force to recompute")
         return
-    click.echo(f"{X.shape[0]} images → {X.shape[1]}-D {type(model).__name__} descriptors written to {output}")
+    resize = getattr(model, "thumbnail_size", None)
+    how = f" (every image resized to {resize[0]}×{resize[1]})" if resize else ""
+    click.echo(f"{X.shape[0]} images → {X.shape[1]}-D {type(model).__name__} descriptors{how} written to {output}")
     if save_descriptor:
-        model.save(save_descriptor)
-        click.echo(f"fitted descriptor written to {save_descriptor}")
+        path = model.save(save_descriptor)
+        parts = ", ".join(f"{k} {format_bytes(v.nbytes)}" for k, v in model._stored_arrays().items())
+        click.echo(f"fitted descriptor written to {path} ({format_bytes(path.stat().st_size)}"
+                   f"{': ' + parts if parts else ''})")
 
 
 @main.command()

@@ -791,7 +791,7 @@ def evaluate_all(
             on_start(index, job)
         try:
             done[job.name] = evaluate(job.method, X_map if job.fit else None, Q, ground_truth=gt,
-                                      tolerances=tolerances, ks=ks, k_tolerance=k_tolerance, name=job.name,
+                                      tolerances=tolerances or None, ks=ks, k_tolerance=k_tolerance, name=job.name,
                                       curve_max=curve_max, fit=job.fit, budget=job.budget, reference=job.reference)
         except BudgetTooSmallError as exc:
             done[job.name] = EvaluationResult.not_measured(job.name, STATUS_DOES_NOT_FIT, _short_reason(exc),

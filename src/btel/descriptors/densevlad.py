@@ -380,7 +380,7 @@ class DenseVLADDescriptor(ImageDescriptor):
             warnings.warn(
                 f"densevlad: n_components={self.n_components} requested, {kept}-D descriptors produced: {why}. "
                 f"The paper's {self.n_components}-D needs at least {int(self.n_components) + 1} distinct map images; "
-                "pass n_components=None to keep the raw VLAD vector instead.", DescriptorWarning, stacklevel=3)
+                "pass n_components=None (btel extract --param n_components=null) to keep the raw VLAD vector instead.", DescriptorWarning, stacklevel=3)
         return np.concatenate([self._project(raw[i : i + self._batch_size]) for i in range(0, n_images, self._batch_size)])
 
     # -- persistence --------------------------------------------------------------------------
