@@ -261,7 +261,7 @@ def test_plots_have_titles_byte_labels_and_a_fitting_tolerance_axis(tmp_path: Pa
     RunWriter(tmp_path / "run").finish(results, title="toy: N = 120")
     tolerance_ax = seen["recall_vs_tolerance.png"].axes[0]
     storage_ax = seen["recall_vs_storage.png"].axes[0]
-    assert tolerance_ax.get_title() == "toy: N = 120" == storage_ax.get_title()
+    assert seen["recall_vs_tolerance.png"]._suptitle.get_text() == "toy: N = 120" == storage_ax.get_title()
     assert tolerance_ax.get_xlim()[1] == 20  # 120 places: tolerances up to 10, curve to 20, not 80
     fig = seen["recall_vs_storage.png"]
     fig.canvas.draw()
@@ -270,6 +270,16 @@ def test_plots_have_titles_byte_labels_and_a_fitting_tolerance_axis(tmp_path: Pa
     assert shown and all(t.endswith("B") for t in shown), shown  # "5.0 KB", never "3×10⁴"
     legend = [t.get_text() for t in storage_ax.get_legend().get_texts()]
     assert "nn (reference, unbudgeted)" in legend and "budget" in legend
+    # Two budgets: one panel each, the reference in both, a method keeps its colour across panels.
+    jobs = [Job(f"pq@{b}", make_method("pq", budget=b), series="pq") for b in ("3KB", "6KB")]
+    results = evaluate_all(jobs + [Job("nn", make_method("bruteforce"), reference=True)], route.map, route.queries)
+    RunWriter(tmp_path / "two").finish(results, title="two budgets")
+    panels = seen["recall_vs_tolerance.png"].axes
+    assert [ax.get_title() for ax in panels] == ["budget 3.0 KB", "budget 6.0 KB"]
+    assert [len(ax.get_lines()) for ax in panels] == [2, 2]
+    assert panels[0].get_lines()[0].get_color() == panels[1].get_lines()[0].get_color()
+    series = [line.get_label() for line in seen["recall_vs_storage.png"].axes[0].get_lines()]
+    assert series[:2] == ["pq", "nn (reference, unbudgeted)"]  # one line through both budgets
 
 
 def test_failed_rows_in_the_table_say_why() -> None:

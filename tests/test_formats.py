@@ -117,6 +117,8 @@ def test_hloc_global_descriptors_in_natural_name_order(tmp_path: Path) -> None:
     np.testing.assert_array_equal(load_descriptor_matrix(tmp_path / "feats.h5"), X[[2, 1, 0, 3]])
     with pytest.raises(DataNotFoundError, match="under 'nope/'"):
         load_descriptor_matrix(f"{tmp_path / 'feats.h5'}:nope/")
+    np.savez(tmp_path / "both.npz", hlrTrain=X[:2], hlrTest=X[2:])  # EchoVPR's layout: FILE.npz:KEY picks one
+    np.testing.assert_array_equal(load_descriptor_matrix(f"{tmp_path / 'both.npz'}:hlrTest"), X[2:])
     (tmp_path / "not.h5").write_bytes(b"plain text")
     with pytest.raises(InvalidDescriptorsError, match="not a readable HDF5"):
         load_descriptor_matrix(tmp_path / "not.h5")

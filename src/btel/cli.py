@@ -486,8 +486,8 @@ def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_time
 
 @main.command(name="evaluate")
 @click.option("--db", type=click.Path(dir_okay=False), default=None,
-              help="Map descriptors to fit --methods on: .npy/.npz, or hloc global features FILE.h5 "
-                   "(FILE.h5:PREFIX keeps images whose name starts with PREFIX). Row i = place i.")
+              help="Map descriptors to fit --methods on: .npy, .npz (FILE.npz:KEY names the array), or hloc global "
+                   "features FILE.h5 (FILE.h5:PREFIX keeps images whose name starts with PREFIX). Row i = place i.")
 @click.option("--model", "model_paths", multiple=True, type=click.Path(dir_okay=False),
               help="A saved model to evaluate instead of fitting (repeatable).")
 @click.option("--queries", required=True, type=click.Path(dir_okay=False),
@@ -648,7 +648,7 @@ def _fit_jobs(names: list[str], budgets: list[str | None], param_texts: tuple[st
             if budget is not None and "budget" not in kwargs:
                 kwargs["budget"] = budget
             with _naming(name):
-                jobs.append(Job(label, make_method(name, **kwargs), reference=is_reference))
+                jobs.append(Job(label, make_method(name, **kwargs), reference=is_reference, series=name))
     return jobs
 
 

@@ -356,6 +356,11 @@ class EvaluationResult:
     uses_query_sequence : bool
         Answers depend on the query sequence (SeqSLAM, a delta front end): not comparable with
         single-frame methods, marked in every table.
+    minimum_bytes : int or None
+        For ``"does not fit"``: the smallest budget the method needs.
+    series : str or None
+        The method this row is one point of (``pq`` for the rows ``pq@100KB`` and ``pq@500KB``);
+        plots draw one line per series. None: the row's own name.
     """
 
     name: str
@@ -380,6 +385,7 @@ class EvaluationResult:
     reference: bool = False
     uses_query_sequence: bool = False
     minimum_bytes: int | None = None
+    series: str | None = None
 
     @property
     def ok(self) -> bool:
@@ -405,6 +411,7 @@ class EvaluationResult:
             "name": self.name,
             "status": self.status,
             "reason": self.reason,
+            "series": self.series or self.name,
             "reference": self.reference,
             "uses_query_sequence": self.uses_query_sequence,
             "budget": self.budget,
@@ -590,12 +597,15 @@ class Job:
     fit : bool
     reference : bool
         The unbudgeted reference row (brute force).
+    series : str, optional
+        The method this row is one point of, when a run has several budgets (``pq`` for ``pq@100KB``).
     """
 
     name: str
     method: Any
     fit: bool = True
     reference: bool = False
+    series: str | None = None
 
     @property
     def budget(self) -> int | None:
@@ -775,6 +785,9 @@ def evaluate_all(
     gt = check_ground_truth(ground_truth, Q.shape[0], n_map)
     tolerances = _tolerances_for(tolerances, gt, n_map)
     skipped = preflight(jobs, n_map, n_features, queries_are_route=queries_are_route)
+    for job in jobs:
+        if job.name in skipped:
+            skipped[job.name].series = job.series
     if on_preflight is not None:
         on_preflight(skipped)
     done: dict[str, EvaluationResult] = dict(skipped)
@@ -803,6 +816,7 @@ def evaluate_all(
                         later.name, STATUS_NOT_RUN, "interrupted (Ctrl-C) before it finished",
                         method=later.method, n_map=n_map, n_queries=Q.shape[0], budget=later.budget,
                         reference=later.reference)
+                    done[later.name].series = later.series
             if on_result is not None:
                 on_result(rows())
             raise
@@ -810,6 +824,7 @@ def evaluate_all(
             logger.debug("%s failed", job.name, exc_info=True)
             done[job.name] = EvaluationResult.not_measured(
                 job.name, STATUS_FAILED, f"{type(exc).__name__}: {_short_reason(exc)}", **common)
+        done[job.name].series = job.series
         if on_result is not None:
             on_result(rows())
     return rows()

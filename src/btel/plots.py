@@ -66,7 +66,9 @@ def _finish_recall_plot(fig: Figure, ax: Any, path: str | os.PathLike, *, xlabel
     ax.grid(True, which="both", alpha=0.3)  # minor lines only show on log axes
     ax.legend(fontsize=legend_size)
     if title:
-        ax.set_title(title, fontsize="medium")
+        import textwrap
+
+        ax.set_title(textwrap.fill(title, 70), fontsize="medium")
     if credit:
         fig.text(0.99, 0.005, credit, ha="right", va="bottom", fontsize="xx-small", color="grey")
     _save(fig, path)
@@ -207,13 +209,80 @@ def _bytes_axis(ax: Any) -> None:
     ax.xaxis.set_minor_formatter(NullFormatter())
 
 
+def _series(r: Any) -> str:
+    return str(_field(r, "series") or _field(r, "name", "method"))
+
+
+def _panels(results: Sequence[Any]) -> list[tuple[int | None, list[Any]]]:
+    """Results grouped by budget, one panel each; the reference (unbudgeted) rows join every panel."""
+    budgets = sorted({int(b) for r in results if (b := _field(r, "budget")) is not None
+                      and not _field(r, "reference", False)})
+    if len(budgets) <= 1:
+        return [(budgets[0] if budgets else None, list(results))]
+    shared = [r for r in results if _field(r, "reference", False) or _field(r, "budget") is None]
+    return [(b, [r for r in results if _field(r, "budget") == b and r not in shared] + shared) for b in budgets]
+
+
+def _run_figure(results: Sequence[Any], path: Path, *, kind: str, title: str | None) -> Figure:
+    """recall@t curves (``kind="tolerance"``) or R@K lines (``kind="k"``), one panel per budget.
+
+    A method keeps its colour in every panel; each panel's legend sits below it (two columns), so
+    it never covers a curve however many methods there are; the title is wrapped to the width.
+    """
+    import textwrap
+
+    panels = _panels(results)
+    series = list(dict.fromkeys(_series(r) for r in results))
+    colours = {name: f"C{i % 10}" for i, name in enumerate(series)}
+    markers = {name: "osD^v<>ph*"[i // 10 % 10] for i, name in enumerate(series)}
+    rows_of_legend = -(-max(len(members) for _, members in panels) // 2)
+    width = min(6.4 * len(panels), 19.2)
+    fig = Figure(figsize=(width, 4.0 + 0.2 * rows_of_legend), dpi=_DPI)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, len(panels), sharey=True, squeeze=False)[0]
+    for ax, (budget, members) in zip(axes, panels):
+        right = 1
+        for r in members:
+            name = _series(r)
+            style = dict(color=colours[name], linestyle=_linestyle(r), label=_legend_label(r))
+            if kind == "tolerance":
+                curve = _field(r, "recall_curve")
+                curve = np.asarray(curve if curve is not None else [], dtype=float)
+                if curve.size:
+                    ax.plot(np.arange(curve.size), curve, drawstyle="steps-post", **style)
+                    right = max(right, curve.size - 1)
+            else:
+                pts = sorted((int(k), float(v)) for k, v in (_field(r, "recall_at_k") or {}).items())
+                if pts:
+                    ax.plot([k for k, _ in pts], [v for _, v in pts], marker=markers[name], **style)
+                    right = max(right, pts[-1][0])
+        if kind == "tolerance":
+            ax.set_xlim(0, right)  # twice the largest reported tolerance, not a fixed 80 frames
+            ax.set_xlabel("tolerance t (frames)")
+        else:
+            ax.set_xlim(0.5, right + 0.5)
+            ax.set_xlabel("K (ranked candidates)")
+        ax.set_ylim(0.0, 1.02)
+        ax.grid(True, alpha=0.3)
+        if len(panels) > 1:
+            ax.set_title(f"budget {format_bytes(budget)}" if budget is not None else "no budget", fontsize="small")
+        ax.legend(fontsize="x-small", loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, frameon=False)
+    axes[0].set_ylabel("recall@t" if kind == "tolerance" else "R@K")
+    if title:
+        fig.suptitle(textwrap.fill(title, width=int(12 * width)), fontsize="medium")
+    _save(fig, path)
+    return fig
+
+
 def plot_run(results: Sequence[Any], out_dir: str | os.PathLike, *, title: str | None = None) -> list[Path]:
     """The plots of an evaluation run folder (``btel evaluate``, ``btel demo``).
 
     - ``recall_vs_tolerance.png`` when the ground truth has one true place per query (the curve
-      runs to twice the largest reported tolerance), else ``recall_at_k.png`` (R@K vs K);
+      runs to twice the largest reported tolerance), else ``recall_at_k.png`` (R@K vs K); one
+      panel per budget when the run has several, the reference in each;
     - ``recall_vs_storage.png`` when storage is known: recall@t at the middle reported
-      tolerance (10 frames when reported), or R@1 with explicit positives, against stored bytes.
+      tolerance (10 frames when reported), or R@1 with explicit positives, against stored bytes,
+      one line per method through its budgets, the budgets as dotted lines.
 
     Returns
     -------
@@ -225,10 +294,10 @@ def plot_run(results: Sequence[Any], out_dir: str | os.PathLike, *, title: str |
     written: list[Path] = []
     if any(len(_field(r, "recall_curve") if _field(r, "recall_curve") is not None else ()) for r in results):
         written.append(out_dir / "recall_vs_tolerance.png")
-        plot_recall_vs_tolerance(results, written[-1], title=title)
+        _run_figure(results, written[-1], kind="tolerance", title=title)
     elif any(_field(r, "recall_at_k") for r in results):
         written.append(out_dir / "recall_at_k.png")
-        plot_recall_at_k(results, written[-1], title=title)
+        _run_figure(results, written[-1], kind="k", title=title)
     rows = []
     for r in results:
         if _field(r, "nbytes") is None:
@@ -250,15 +319,15 @@ def plot_run(results: Sequence[Any], out_dir: str | os.PathLike, *, title: str |
             ordered = sorted(common)
             key = 10 if 10 in common else ordered[len(ordered) // 2]
             ylabel = f"recall@{key} (within {key} frames)"
-        written.append(out_dir / "recall_vs_storage.png")
         budgets = sorted({int(b) for r in results if (b := _field(r, "budget")) is not None
                           and not _field(r, "reference", False)})
+        written.append(out_dir / "recall_vs_storage.png")
         plot_recall_vs_storage(rows, written[-1], tolerance=key, title=title, ylabel=ylabel, budgets=budgets)
     return written
 
 
 def _legend_label_short(r: Any) -> str:
-    name = str(_field(r, "name", "method"))
+    name = _series(r)
     if _field(r, "reference", False):
         name += " (reference, unbudgeted)"
     if _field(r, "uses_query_sequence", False):
@@ -305,6 +374,20 @@ def _plot_rows(
     xs = [p[0] for points in series.values() for p in points] + list(budgets)
     if max(xs) / min(xs) < 4:  # a narrow range: widen it so the points do not sit on the frame
         ax.set_xlim(min(xs) / 2, max(xs) * 2)
+    if len(series) > 5:
+        # Many methods: the legend goes beside the axes, where it cannot cover a point.
+        fig.set_size_inches(_FIGSIZE[0] + 2.4, _FIGSIZE[1])
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel or f"recall@{tolerance} (within {tolerance} frames)")
+        ax.set_ylim(0.0, 1.02)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize="x-small", loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+        if title:
+            import textwrap
+
+            ax.set_title(textwrap.fill(title, 70), fontsize="medium")
+        _save(fig, path)
+        return fig
     _finish_recall_plot(fig, ax, path, xlabel=xlabel, ylabel=ylabel or f"recall@{tolerance} (within {tolerance} frames)",
                         title=title)
     return fig
@@ -488,7 +571,9 @@ def plot_method_bars(
     ax.grid(True, axis="x", alpha=0.3)
     ax.legend(fontsize="x-small", loc="lower right")
     if title:
-        ax.set_title(title, fontsize="medium")
+        import textwrap
+
+        ax.set_title(textwrap.fill(title, 70), fontsize="medium")
     if credit:
         fig.text(0.99, 0.005, credit, ha="right", va="bottom", fontsize="xx-small", color="grey")
     fig.tight_layout()

@@ -35,12 +35,13 @@ def _natural_key(name: str) -> list:
 
 
 def split_prefix(path: str | os.PathLike) -> tuple[Path, str | None]:
-    """``"feats.h5:db/"`` → (Path("feats.h5"), "db/"); a path that exists as given is kept whole."""
+    """``"feats.h5:db/"`` → (Path("feats.h5"), "db/"), ``"x.npz:hlrTrain"`` → (Path("x.npz"), "hlrTrain");
+    a path that exists as given is kept whole."""
     text = os.fspath(path)
     if Path(text).exists() or ":" not in text:
         return Path(text), None
     head, _, prefix = text.rpartition(":")
-    if Path(head).suffix.lower() in HDF5_SUFFIXES:
+    if Path(head).suffix.lower() in (*HDF5_SUFFIXES, ".npz"):
         return Path(head), prefix
     return Path(text), None
 
@@ -110,7 +111,7 @@ def load_descriptor_matrix(
     ----------
     path : str or path-like
         A ``.npy`` file, an ``.npz`` archive (then ``key`` names the array; it may be left
-        out when the archive holds exactly one), or an hloc ``.h5`` file (``PATH.h5:PREFIX``
+        out when the archive holds exactly one; ``PATH.npz:KEY`` names it too), or an hloc ``.h5`` file (``PATH.h5:PREFIX``
         selects the images whose name starts with PREFIX; see the module docstring).
     mmap_mode : {None, "r", "c"}
         ``"r"`` memory-maps a ``.npy`` read-only instead of reading it into memory, for maps
@@ -135,6 +136,10 @@ def load_descriptor_matrix(
         A writable or unknown ``mmap_mode``, or ``mmap_mode`` with an ``.npz``.
     """
     path, prefix = split_prefix(path)
+    if prefix is not None and path.suffix.lower() == ".npz":
+        if key is not None and key != prefix:
+            raise InvalidParameterError(f"{path}:{prefix} names array {prefix!r} but key={key!r}; give one.")
+        key = prefix
     if path.suffix.lower() in HDF5_SUFFIXES:
         if key is not None:
             raise InvalidParameterError(f"key={key!r} only applies to .npz archives; write {path}:PREFIX instead.")
