@@ -286,3 +286,26 @@ def test_failed_rows_in_the_table_say_why() -> None:
     rows = [EvaluationResult.not_measured("itq", "does not fit", "budget too small …", budget=5000,
                                           minimum_bytes=19208)]
     assert "needs ≥ 19.2 KB (budget 5.0 KB)" in format_table(rows)
+
+
+# -- 7: one name per metric in the experiments too; titles from the run itself -----------------------------
+def test_experiment_lines_and_plot_titles_name_metrics_direction_and_budget(tmp_path: Path, monkeypatch) -> None:
+    import btel.plots as plots
+    from btel.experiments import ExperimentRun, describe_row
+
+    rows = [{"method": m, "n_places": 300, "budget": None if m == "bruteforce" else 50_000, "nbytes": 1000,
+             "direction": d, "status": "ok", "uses_query_sequence": m == "seqslam", "recall@0": 0.1,
+             "recall@10": 0.2, "recall@20": 0.3, "R@1": 0.1, "R@10": 0.4}
+            for d in ("summer→winter", "winter→summer") for m in ("btel-c", "seqslam", "bruteforce")]
+    lines = [describe_row(r) for r in rows]
+    assert lines[0].startswith("btel-c [summer→winter]") and lines[3].startswith("btel-c [winter→summer]")
+    assert lines[1].startswith("seqslam † [summer→winter]")
+    assert "recall@0=0.100" in lines[0] and "R@1=0.100" in lines[0] and "R@10=0.400" in lines[0]
+    assert " R@0=" not in lines[0] and " R@20=" not in lines[0]  # R@ is only ever the ranked metric
+
+    titles = []
+    monkeypatch.setattr(plots, "plot_curves", lambda curves, path, **kw: titles.append((list(curves), kw["title"])))
+    curves = {f"{r['method']} {r['direction']}": [0.1, 0.2] for r in rows}
+    plots.plot_experiment(ExperimentRun("accuracy", rows, tmp_path, curves), tmp_path)
+    assert len(titles) == 2 and all("≤ 50.0 KB" in t and "N = 300" in t and "2 MB" not in t for _, t in titles)
+    assert "seqslam † query sequence" in titles[0][0] and "bruteforce (reference, unbudgeted)" in titles[0][0]

@@ -201,11 +201,22 @@ def plot_recall_at_k(results: Sequence[Any], path: str | os.PathLike, *, title: 
     return fig
 
 
-def _bytes_axis(ax: Any) -> None:
-    """A log axis of bytes labelled in one unit style (``50 KB``), no 3×10⁴ minor labels."""
+def _tick_bytes(value: float) -> str:
+    """``format_bytes`` without a trailing ``.0`` (``50 KB``, ``2.5 MB``): tick labels stay short."""
+    return format_bytes(value).replace(".0 ", " ")
+
+
+def _bytes_axis(ax: Any, xs: Sequence[float]) -> None:
+    """A log axis of bytes labelled in one unit style (``50 KB``), no 3×10⁴ minor labels.
+
+    Ticks at 1-2-5 steps over a narrow range, at powers of ten over a wide one, so that labels
+    never run into each other.
+    """
     ax.set_xscale("log")
-    ax.xaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
-    ax.xaxis.set_major_formatter(FuncFormatter(lambda value, _pos: format_bytes(value)))
+    decades = np.log10(max(xs) / min(xs)) if xs and min(xs) > 0 else 0.0
+    subs = (1.0, 2.0, 5.0) if decades <= 1.5 else (1.0, 3.0) if decades <= 2.5 else (1.0,)
+    ax.xaxis.set_major_locator(LogLocator(base=10, subs=subs))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda value, _pos: _tick_bytes(value)))
     ax.xaxis.set_minor_formatter(NullFormatter())
 
 
@@ -365,13 +376,13 @@ def _plot_rows(
     for method, points in series.items():
         points.sort()
         ax.plot([p[0] for p in points], [p[1] for p in points], marker="o", label=method)
-    if bytes_axis:
-        _bytes_axis(ax)
-    else:
-        ax.set_xscale("log")
     for i, budget in enumerate(sorted(set(budgets))):
         ax.axvline(budget, color="grey", linestyle=":", linewidth=1, label="budget" if i == 0 else None)
     xs = [p[0] for points in series.values() for p in points] + list(budgets)
+    if bytes_axis:
+        _bytes_axis(ax, xs)
+    else:
+        ax.set_xscale("log")
     if max(xs) / min(xs) < 4:  # a narrow range: widen it so the points do not sit on the frame
         ax.set_xlim(min(xs) / 2, max(xs) * 2)
     if len(series) > 5:
