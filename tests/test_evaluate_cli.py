@@ -84,6 +84,22 @@ def test_preflight_agrees_with_fit_for_every_method() -> None:
                 assert found.status == "does not fit" and found.minimum_bytes == fitted, (name, budget)
                 checked += 1
     assert checked >= 6  # the small budgets really exclude several methods
+    # Too few places for the method's structure (regions, sub-quantisers, periods): known before fitting too.
+    tiny = X[:10]
+    refused = 0
+    for name in METHODS:
+        params = {"progress": False} if "progress" in make_method(name).get_params() else {}
+        found = preflight([Job(name, make_method(name, **params))], *tiny.shape).get(name)
+        try:
+            make_method(name, **params).fit(tiny)
+            error = None
+        except (ValueError, RuntimeError) as exc:
+            error = str(exc)
+        assert (found is None) == (error is None), (name, found and found.reason, error)
+        if found is not None:
+            assert found.status == "failed" and found.reason == " ".join(error.split()), name
+            refused += 1
+    assert refused >= 3  # btel-r (20 regions), pq and opq (16 rows) at least
 
 
 def test_a_failing_method_is_a_row_and_ctrl_c_keeps_finished_rows(tmp_path: Path) -> None:

@@ -619,37 +619,40 @@ STATUS_FAILED = "failed"
 STATUS_NOT_RUN = "not run"
 
 
-def _budget_check(method: Any, n_rows: int, n_features: int, budget: int) -> None:
-    """Raise what the method's own fit would raise for this budget, using only its planning rules.
+def _budget_check(method: Any, n_rows: int, n_features: int, budget: int | None) -> None:
+    """Raise what the method's own fit would raise for this map shape and budget, without fitting.
 
     Every rule here is the method's own (``planned_bytes``, ``choose_config``, ``choose_code_bits``,
-    :func:`btel.planning.largest_fitting`) applied to the shapes alone: nothing is fitted. Where
-    the storage depends on what fitting finds (BTEL with a fixed r ≥ 2: the region sizes come from
-    KTS), nothing is raised and the fit decides.
+    :func:`btel.planning.largest_fitting`, the KTS and RYTH minimum sizes) applied to the shapes
+    alone. Where the storage depends on what fitting finds (BTEL with a fixed r ≥ 2: the region
+    sizes come from KTS), nothing is raised and the fit decides.
     """
-    from .baselines import ITQLocalizer, OPQLocalizer, PQLocalizer, BruteForceNN, SeqSLAM
+    from .baselines import BruteForceNN, ITQLocalizer, OPQLocalizer, PQLocalizer, SeqSLAM
     from .baselines._common import raise_budget_too_small
+    from .exceptions import NotEnoughPlacesError
     from .frontend import FrontEnd
     from .localizer import BTELocalizer
-    from .planning import largest_fitting, planned_bytes, raise_budget_too_small as raise_btel_too_small
+    from .planning import largest_fitting, planned_bytes
+    from .planning import raise_budget_too_small as raise_btel_too_small
     from .ryth import RYTHLocalizer, coprime_periods
+    from .segmentation import _check_count
 
     front = FrontEnd.of(method)
     reserved = front.planned_bytes(n_features)
-    if reserved >= budget:
+    if budget is not None and reserved >= budget:
         raise BudgetTooSmallError(
             f"budget {format_bytes(budget)} ({budget} B) is too small for {type(method).__name__} with "
             f"whiten = {front.whiten}: the whitening matrix alone needs {reserved} B.",
             budget=budget, minimum=reserved + 1)
     d = front.n_features_out(n_features)
-    if isinstance(method, BruteForceNN):
-        needed = BruteForceNN.planned_bytes(n_rows, d) + reserved
+    if isinstance(method, (BruteForceNN, SeqSLAM)):
+        if budget is None:
+            return
+        what, detail = (("brute-force NN", f"all {n_rows} descriptors × {d} float32 values")
+                        if isinstance(method, BruteForceNN) else ("SeqSLAM", f"{n_rows} × {d} bytes of map + 8"))
+        needed = type(method).planned_bytes(n_rows, d) + reserved
         if needed > budget:
-            raise_budget_too_small("brute-force NN", budget, needed, f"all {n_rows} descriptors × {d} float32 values")
-    elif isinstance(method, SeqSLAM):
-        needed = SeqSLAM.planned_bytes(n_rows, d) + reserved
-        if needed > budget:
-            raise_budget_too_small("SeqSLAM", budget, needed, f"{n_rows} × {d} bytes of map + 8")
+            raise_budget_too_small(what, budget, needed, detail)
     elif isinstance(method, ITQLocalizer):
         method.choose_code_bits(n_rows, d, budget, reserved)
     elif isinstance(method, OPQLocalizer):
@@ -657,9 +660,13 @@ def _budget_check(method: Any, n_rows: int, n_features: int, budget: int) -> Non
     elif isinstance(method, PQLocalizer):
         method.choose_config(n_rows, d, budget, reserved)
     elif isinstance(method, BTELocalizer):
-        if method.n_regions not in (1, "auto"):
-            return
         n_codes = -(-n_rows // int(method.block_size))
+        if method.n_regions != "auto" and int(method.n_regions) > 1:
+            if n_codes <= int(method.kts_max_points):  # longer routes are averaged in blocks first
+                _check_count(n_codes, int(method.n_regions))
+            return
+        if budget is None:
+            return
         dtype = str(np.dtype(method.dtype))
         kw = dict(scheme=method.scheme, dtype=dtype, code_copies=int(method.code_copies))
         if largest_fitting([n_codes], d, method._cap(d, budget), budget - reserved, method.scheme, dtype,
@@ -669,9 +676,15 @@ def _budget_check(method: Any, n_rows: int, n_features: int, budget: int) -> Non
                                  "Raise the budget, use dtype='float16', or fewer regions.")
     elif isinstance(method, RYTHLocalizer):
         periods = coprime_periods(n_rows, int(method.n_periods))
+        if max(periods) > n_rows:
+            raise NotEnoughPlacesError(
+                f"RYTH with K = {method.n_periods} co-prime periods {periods} needs N ≥ {max(periods)} places; got "
+                f"N = {n_rows}. Use fewer periods (n_periods) or a longer route.")
+        if budget is None:
+            return
         dtype = str(np.dtype(method.dtype))
         minimum = RYTHLocalizer.planned_bytes(periods, 1, d, dtype) + reserved
-        if max(periods) <= n_rows and minimum > budget:
+        if minimum > budget:
             raise BudgetTooSmallError(
                 f"budget {format_bytes(budget)} ({budget} B) is too small for RYTH with periods {periods}: "
                 f"the smallest model (d' = 1) needs {minimum} B. Raise the budget or use fewer periods.",
@@ -684,7 +697,8 @@ def preflight(jobs: Sequence[Job], n_map: int | None, n_features: int | None, *,
 
     - a job whose method does not fit its budget (the method's own planning rules applied to the
       map's shape) → status ``"does not fit"`` with the method's message and minimum bytes;
-    - a job whose parameters cannot work on this map (e.g. too few places) → ``"failed"``;
+    - a job whose parameters cannot work on this map (too few places for its regions, periods or
+      sub-quantisers) → ``"failed"``;
     - a method that uses the query sequence when ``queries_are_route`` is False → ``"refused"``.
 
     Jobs of already fitted methods are only checked for the last rule.
@@ -703,11 +717,10 @@ def preflight(jobs: Sequence[Job], n_map: int | None, n_features: int | None, *,
                 "uses the query sequence (SeqSLAM or a delta front end), but the query rows are independent "
                 "places, not a route", **common)
             continue
-        budget = job.budget
-        if not job.fit or budget is None or n_map is None or n_features is None:
+        if not job.fit or n_map is None or n_features is None:
             continue
         try:
-            _budget_check(job.method, int(n_map), int(n_features), budget)
+            _budget_check(job.method, int(n_map), int(n_features), job.budget)
         except BudgetTooSmallError as exc:
             out[job.name] = EvaluationResult.not_measured(job.name, STATUS_DOES_NOT_FIT, _short_reason(exc),
                                                           minimum_bytes=exc.minimum, **common)
