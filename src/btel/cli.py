@@ -727,19 +727,31 @@ def methods_cmd(show_params: bool) -> None:
             click.echo(" " * (width + 2) + "params: " + ", ".join(f"{k}={_param_text(v)}" for k, v in defaults))
 
 
-def _registry_name(model: Any) -> str | None:
-    """The registry name whose factory builds this model's class with the parameters it fixes."""
+def _method_names() -> list[str]:
+    from .methods import METHODS
+
+    return list(METHODS)
+
+
+def _registry_name(model: Any) -> str:
+    """The registry name of this model (``btel-f``) when a preset builds exactly it; else the class
+    and the parameters the presets of that class differ in (``BTELocalizer (scheme=compressed, n_regions=4)``)."""
     from functools import partial
 
     from .methods import METHODS
 
     params = model.get_params(deep=False)
+    keys: list[str] = []
     for name, factory in METHODS.items():
         cls = factory.func if isinstance(factory, partial) else factory
+        if type(model) is not cls:
+            continue
         fixed = factory.keywords if isinstance(factory, partial) else {}
-        if type(model) is cls and all(params.get(k) == v for k, v in fixed.items()):
+        if all(params.get(k) == v for k, v in fixed.items()):
             return name
-    return None
+        keys += [k for k in fixed if k not in keys]
+    shown = ", ".join(f"{k}={_param_text(params.get(k))}" for k in keys)
+    return f"{type(model).__name__} ({shown})" if shown else type(model).__name__
 
 
 @main.command()
@@ -750,7 +762,7 @@ def info(model_path: str) -> None:
 
     model = load(model_path)
     name = _registry_name(model)
-    click.echo(f"method: {name or '(not a registry preset)'} — {type(model).__name__}")
+    click.echo(f"method: {name}" + (f" — {type(model).__name__}" if name in _method_names() else ""))
     click.echo(f"map: N = {model.n_places_} places, d = {model.n_features_in_}")
     front = model.front_end_
     click.echo(f"front end: normalize={front.normalize}, whiten={front.whiten}, delta={front.delta}"
