@@ -271,6 +271,8 @@ def _run_figure(results: Sequence[Any], path: Path, *, kind: str, title: str | N
             ax.set_xlim(0, right)  # twice the largest reported tolerance, not a fixed 80 frames
             ax.set_xlabel("tolerance t (frames)")
         else:
+            ks = sorted({int(k) for r in members for k in (_field(r, "recall_at_k") or {})})
+            ax.set_xticks(ks)  # R@K exists only at the K that were measured
             ax.set_xlim(0.5, right + 0.5)
             ax.set_xlabel("K (ranked candidates)")
         ax.set_ylim(0.0, 1.02)
