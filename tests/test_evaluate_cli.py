@@ -62,6 +62,7 @@ def test_methods_that_do_not_fit_become_rows_and_are_listed_before_fitting(route
     assert (out / "predictions_pq.csv").is_file() and not (out / "predictions_itq.csv").exists()
 
 
+@pytest.mark.slow
 def test_preflight_agrees_with_fit_for_every_method() -> None:
     """Item 2: the budget check before fitting raises exactly when fit would, with the same minimum."""
     X = np.random.default_rng(0).normal(size=(260, 24)).astype(np.float32)
