@@ -81,8 +81,10 @@ def test_demo_runs_and_writes_a_run_folder(tmp_path: Path) -> None:
                  "--out", out)
     assert result.exit_code == 0, result.output
     metrics = json.loads((out / "metrics.json").read_text())
-    assert [r["name"] for r in metrics["results"]] == ["btel-c", "btel-r"]
-    assert all(r["nbytes"] <= 20_000 for r in metrics["results"])
+    # Brute force is always there, as the unbudgeted reference row.
+    assert [r["name"] for r in metrics["results"]] == ["btel-c", "btel-r", "bruteforce"]
+    assert [r["reference"] for r in metrics["results"]] == [False, False, True]
+    assert all(r["nbytes"] <= 20_000 for r in metrics["results"] if not r["reference"])
     assert (out / "recall_vs_tolerance.png").stat().st_size > 0
 
 
@@ -237,5 +239,6 @@ def test_evaluate_and_demo_params_for_every_method_or_one(small_pair, tmp_path: 
 def test_methods_lists_parameters() -> None:
     result = run("methods", "--params")
     assert result.exit_code == 0
-    lines = dict(line.split(": ", 1) for line in result.output.splitlines())
-    assert "n_regions=20" in lines["btel-r"] and "nbits=null" in lines["pq"]
+    lines = result.output.splitlines()
+    params = {lines[i].split()[0]: lines[i + 1].split("params: ", 1)[1] for i in range(0, len(lines), 2)}
+    assert "n_regions=20" in params["btel-r"] and "nbits=null" in params["pq"]

@@ -126,7 +126,9 @@ def test_evaluate_localizer_with_ranking_and_storage() -> None:
     assert result.name == "nn" and result.n_map == 60 and result.n_queries == 60
     assert result.params == {"metric": "euclidean"}
     np.testing.assert_array_equal(result.predictions, method.predict(Q))
-    assert result.recall == recall_at_tolerance(result.predictions)
+    # 60 places: tolerances up to a tenth of the route are reported by default.
+    assert list(result.recall) == [0, 1, 2, 5]
+    assert result.recall == recall_at_tolerance(result.predictions, tolerances=(0, 1, 2, 5))
     assert result.recall_curve.shape == (31,)
     assert 0.5 < result.recall[0] < 1.0  # noisy queries: mostly but not always the right place
     # The best-ranked candidate is the prediction, so R@1 equals recall@0; R@K grows with K.
@@ -145,7 +147,8 @@ def test_evaluate_localizer_with_ranking_and_storage() -> None:
 def test_evaluate_plain_object_and_explicit_truth() -> None:
     X, Q = _route(n=20)
     result = evaluate(_PlainPredictor(), X, Q[:10], ground_truth=np.arange(10) + 1, ks=(1, 5))
-    assert result.nbytes is None and result.storage_breakdown is None and result.recall_at_k is None
+    # No rank(): the point prediction is the only candidate, so R@1 (and only R@1) is known.
+    assert result.nbytes is None and result.storage_breakdown is None and result.recall_at_k == {1: result.recall[0]}
     assert result.params == {}
     assert result.name == "_PlainPredictor"
     assert result.recall[0] == 1.0  # the predictor is always one frame ahead, and so is this truth

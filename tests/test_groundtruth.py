@@ -159,8 +159,9 @@ def test_from_file_errors(tmp_path: Path) -> None:
     np.save(tmp_path / "float.npy", np.zeros((3, 2)))
     with pytest.raises(DataNotFoundError, match="1-D integer array"):
         GroundTruth.from_file(tmp_path / "float.npy")
-    np.save(tmp_path / "obj.npy", np.array([[1, 2], [3]], dtype=object), allow_pickle=True)
-    with pytest.raises(DataNotFoundError, match="never loads pickles"):
+    # An object array is read only when every item is integers (VPR-Bench's per-query positives).
+    np.save(tmp_path / "obj.npy", np.array(["a", "b"], dtype=object), allow_pickle=True)
+    with pytest.raises(DataNotFoundError, match="found a str where place indices"):
         GroundTruth.from_file(tmp_path / "obj.npy")
     (tmp_path / "junk.mat").write_bytes(b"not a mat file at all")
     with pytest.raises(DataNotFoundError, match="loadmat"):

@@ -53,7 +53,7 @@ def test_recall_vs_tolerance_png_and_legend(tmp_path: Path) -> None:
     assert _has_colour(path, _C0_BGR) and _has_colour(path, _C1_BGR)
     ax = fig.axes[0]
     assert [t.get_text() for t in ax.get_legend().get_texts()] == ["good (492.2 KB)", "random"]
-    assert ax.get_xlabel() == "tolerance (frames)" and ax.get_ylabel() == "recall"
+    assert ax.get_xlabel() == "tolerance t (frames)" and ax.get_ylabel() == "recall@t"
     line = ax.get_lines()[0]
     np.testing.assert_allclose(line.get_ydata(), recall_curve(good, max_tolerance=40))
 
@@ -74,7 +74,7 @@ def test_recall_vs_tolerance_from_json_dicts_and_points(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize(
     ("plot", "x_key", "xlabel"),
-    [(plot_recall_vs_storage, "bytes", "storage (bytes)"), (plot_recall_vs_n, "n_places", "N (map places)")],
+    [(plot_recall_vs_storage, "bytes", "storage (bytes, log scale)"), (plot_recall_vs_n, "n_places", "N (map places)")],
 )
 def test_rows_plots_series_sorted_on_log_axis(tmp_path: Path, plot, x_key: str, xlabel: str) -> None:
     path = tmp_path / f"{x_key}.png"

@@ -57,19 +57,21 @@ def test_write_run_files_and_recomputed_recall(tmp_path: Path) -> None:
     assert [r["name"] for r in metrics["results"]] == ["NN euclid", "NN noisier", "ahead"]
 
     for entry, result in zip(metrics["results"], results):
-        recomputed = recompute_recall_from_csv(report.predictions[result.name])
-        assert {int(t): v for t, v in entry["recall"].items()} == recomputed
+        recorded = {int(t): v for t, v in entry["recall"].items()}
+        assert list(recorded) == [0, 1, 2, 5]  # 80 places: tolerances up to a tenth of the route
+        assert recompute_recall_from_csv(report.predictions[result.name], recorded) == recorded
         assert entry["nbytes"] == result.nbytes
-        assert len(entry["recall_curve"]) == 81
+        assert len(entry["recall_curve"]) == 11  # t = 0..10: twice the largest tolerance, at least 10
     # The noise makes the methods disagree somewhere, so this comparison is not vacuous.
     assert results[0].recall != results[2].recall
 
     with open(report.metrics_csv, newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert [r["method"] for r in rows] == ["NN euclid", "NN noisier", "ahead"]
-    assert float(rows[0]["recall@10"]) == results[0].recall[10]
+    assert float(rows[0]["recall@5"]) == results[0].recall[5]
+    assert [r["status"] for r in rows] == ["ok"] * 3
     assert int(rows[0]["nbytes"]) == results[0].nbytes and rows[2]["nbytes"] == ""
-    assert float(rows[1]["R@5"]) == results[1].recall_at_k[5] and rows[2]["R@5"] == ""
+    assert float(rows[1]["R@5"]) == results[1].recall_at_k[5] and rows[2]["R@5"] == ""  # no rank(): R@1 only
     with open(report.predictions["ahead"], newline="") as fh:
         first = next(csv.DictReader(fh))
     assert first == {"query": "0", "prediction": "1", "true": "0"}
@@ -83,7 +85,7 @@ def test_predictions_carry_an_explicit_true_place(tmp_path: Path) -> None:
     with open(report.predictions["NN"], newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert [int(r["true"]) for r in rows] == truth.tolist()
-    assert recompute_recall_from_csv(report.predictions["NN"]) == result.recall
+    assert recompute_recall_from_csv(report.predictions["NN"], result.recall) == result.recall
 
 
 def test_write_run_refuses_to_overwrite(tmp_path: Path) -> None:

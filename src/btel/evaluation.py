@@ -4,11 +4,22 @@ Queries are rows: query j is row j of ``Q``, entry j of the predictions and row 
 Ground truth defaults to frame-aligned traverses (the true place of query j is j); pass a
 :class:`~btel.datasets.groundtruth.GroundTruth` (or an array of true places) otherwise.
 
-- **Recall@t** — share of queries whose prediction lies within t frames of the true place
-  (``|pred − true| ≤ t``), reported at t ∈ {0, 1, 2, 5, 10, 20} and as a curve t = 0..80.
-- **R@K** — for methods that rank candidates: share of queries with at least one of the top K
-  candidates within the tolerance (default 0).
+Two names, one meaning each, everywhere (tables, CSV, JSON, plots):
+
+- **recall@t** — share of queries whose *point prediction* lies within t frames of the true place
+  (``|pred − true| ≤ t``). Needs one true place per query (frame-aligned traverses); reported at
+  the tolerances the route supports (:func:`default_tolerances`) and as a curve t = 0..t_max.
+- **R@K** — share of queries with at least one of the top K *ranked* candidates correct (within
+  ``k_tolerance`` frames, default 0, or among the positives). Every method ranks, and the first
+  candidate is the point prediction, so R@1 = recall@0 (at ``k_tolerance`` 0) for every method.
+- With explicit positives per query (VPR-Bench, GPS radius) the tolerance does not apply: only
+  R@K is reported (R@1/5/10 by default).
 - Every result carries storage bytes (and their breakdown), fit time and query time per query.
+
+:func:`evaluate_all` is the harness of ``btel evaluate`` and ``btel demo``: it checks every method
+against its budget before fitting any (:func:`preflight`), runs each in turn, turns a method that
+does not fit or fails into a row with its status and reason instead of an error, and hands each
+finished row to a callback (the run folder is written as each method finishes).
 
 Writing results to disk (run folders, run metadata) is :mod:`btel.runs`; this module reads and
 writes no files.
@@ -19,7 +30,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -27,7 +38,8 @@ import numpy as np
 
 from ._validation import check_descriptors, check_positive_int
 from .datasets.groundtruth import GroundTruth, check_predictions
-from .exceptions import InvalidParameterError
+from .exceptions import BTELError, BudgetTooSmallError, InvalidParameterError
+from .storage import format_bytes, parse_budget
 
 __all__ = [
     "DEFAULT_TOLERANCES",
@@ -37,41 +49,114 @@ __all__ = [
     "recall_at_k",
     "EvaluationResult",
     "evaluate",
+    "Job",
+    "preflight",
+    "evaluate_all",
+    "default_tolerances",
+    "default_ks",
+    "check_ground_truth",
+    "format_table",
+    "STATUS_OK",
 ]
 
 logger = logging.getLogger(__name__)
 
 #: Tolerances (frames) at which recall is reported (SPEC §9).
 DEFAULT_TOLERANCES: tuple[int, ...] = (0, 1, 2, 5, 10, 20)
-#: K values for R@K of ranking methods (SPEC §9).
+#: K values for R@K (SPEC §9).
 DEFAULT_KS: tuple[int, ...] = (1, 5, 10, 20)
+#: K values printed by default (R@20 stays in the files when asked for with ``ks``).
+TABLE_KS: tuple[int, ...] = (1, 5, 10)
+#: The status of a row that ran; anything else says why it did not.
+STATUS_OK = "ok"
 
 TruthLike = GroundTruth | np.ndarray | Sequence[int] | None
 
 
 # -- recall -------------------------------------------------------------------------------------
-def _ground_truth(true_places: TruthLike, n_queries: int, n_map: int | None = None) -> GroundTruth:
-    """A GroundTruth for ``n_queries`` rows: given, built from true places, or frame-aligned."""
+def check_ground_truth(true_places: TruthLike, n_queries: int, n_map: int | None = None, *,
+                       option: str = "ground_truth=") -> GroundTruth:
+    """The ground truth for ``n_queries`` query rows and a map of ``n_map`` places, checked.
+
+    Called before anything is fitted, so a mismatch costs nothing. ``option`` is how the caller
+    gives a ground truth (``"ground_truth="`` in Python, ``"--ground-truth"`` on the command line)
+    and is named in the messages.
+
+    Parameters
+    ----------
+    true_places : GroundTruth, array-like of int of shape (n_queries,), or None
+        None means frame-aligned (query j ↔ place j).
+    n_queries : int
+    n_map : int, optional
+
+    Returns
+    -------
+    GroundTruth
+
+    Raises
+    ------
+    InvalidParameterError
+        Counts that do not match, or frame alignment with more queries than places.
+    """
     if isinstance(true_places, GroundTruth):
         gt = true_places
     elif true_places is None:
         if n_map is not None and n_queries > n_map:
             raise InvalidParameterError(
                 f"there are {n_queries} queries but only {n_map} map places, so the default frame-aligned "
-                "ground truth (query j ↔ place j) cannot hold. Pass ground_truth= (true places or a GroundTruth)."
+                f"ground truth (query j ↔ place j) cannot hold. Give the true places with {option}."
             )
         gt = GroundTruth.frame_aligned(n_queries, n_map=n_map)
     else:
         gt = GroundTruth.from_places(true_places, n_map=n_map)
     if gt.n_queries != n_queries:
         raise InvalidParameterError(
-            f"the ground truth covers {gt.n_queries} queries but there are {n_queries} query rows."
+            f"the ground truth ({option}) covers {gt.n_queries} queries but there are {n_queries} query rows."
         )
     if n_map is not None and gt.n_map is not None and gt.n_map != n_map:
         raise InvalidParameterError(
-            f"the ground truth refers to a map of {gt.n_map} places but the map has {n_map}."
+            f"the ground truth ({option}) refers to a map of {gt.n_map} places but the map has {n_map}."
+        )
+    if n_map is not None and gt.kind == "places" and gt.query_places.size and gt.query_places.max() >= n_map:
+        raise InvalidParameterError(
+            f"the ground truth ({option}) names map place {int(gt.query_places.max())} but the map has only "
+            f"{n_map} places (0..{n_map - 1})."
+        )
+    if n_map is not None and gt.kind == "positives" and gt.indices.size and gt.indices.max() >= n_map:
+        raise InvalidParameterError(
+            f"the ground truth ({option}) names map place {int(gt.indices.max())} as a positive but the map has "
+            f"only {n_map} places (0..{n_map - 1})."
         )
     return gt
+
+
+_ground_truth = check_ground_truth
+
+
+def default_tolerances(n_map: int | None, ground_truth: GroundTruth | None = None) -> tuple[int, ...]:
+    """The recall@t tolerances a route supports: :data:`DEFAULT_TOLERANCES` up to a tenth of the map.
+
+    A tolerance of 20 frames on a 111-frame route accepts over a third of the route as "correct";
+    so only tolerances t ≤ max(1, N // 10) are reported by default. Explicit positives (kind
+    ``"positives"``) have no tolerance: the result is ``()`` (report R@K instead).
+    """
+    if ground_truth is not None and not ground_truth.uses_tolerance:
+        return ()
+    if n_map is None:
+        return DEFAULT_TOLERANCES
+    limit = max(1, int(n_map) // 10)
+    return tuple(t for t in DEFAULT_TOLERANCES if t <= limit)
+
+
+def default_ks(n_map: int | None) -> tuple[int, ...]:
+    """R@K values for a map of ``n_map`` places: :data:`TABLE_KS` (K ≤ N)."""
+    return tuple(k for k in TABLE_KS if n_map is None or k <= n_map) or (1,)
+
+
+def default_curve_max(tolerances: Sequence[int], n_map: int | None) -> int:
+    """Right end of the recall@t curve: twice the largest reported tolerance (≥ 10), within the map."""
+    t_max = max(10, 2 * max(tolerances, default=0))
+    return t_max if n_map is None else max(0, min(t_max, int(n_map) - 1))
 
 
 def _predictions_1d(predictions: Any) -> np.ndarray:
@@ -221,7 +306,7 @@ def _storage_of(method: Any) -> tuple[int | None, dict[str, int] | None]:
 
 @dataclass
 class EvaluationResult:
-    """Everything measured for one method on one map/query pair.
+    """Everything measured for one method on one map/query pair — or why it was not measured.
 
     Attributes
     ----------
@@ -234,21 +319,22 @@ class EvaluationResult:
     n_queries : int
         Query rows.
     recall : dict of int to float
-        Tolerance (frames) → recall.
+        recall@t: tolerance (frames) → share of point predictions within t of the true place.
+        Empty with explicit positives (no tolerance applies) and for rows that did not run.
     recall_curve : ndarray of shape (curve_max + 1,), dtype float64
-        Recall at t = 0, 1, …, curve_max.
+        recall@t at t = 0, 1, …, curve_max (empty where ``recall`` is).
     recall_at_k : dict of int to float or None
-        K → R@K for ranking methods, else None.
+        R@K: K → share of queries with a correct place among the top K ranked candidates.
     nbytes : int or None
         Storage (SPEC §7); None when the method does not report it (plain scikit-learn objects).
     storage_breakdown : dict of str to int or None
         Part → bytes.
     fit_time_s : float or None
         Wall-clock seconds of ``fit`` (None when the method was evaluated already fitted).
-    query_time_s_per_query : float
+    query_time_s_per_query : float or None
         Wall-clock seconds of ``predict`` on all queries divided by the number of queries.
     rank_time_s_per_query : float or None
-        Same for ``rank`` (ranking methods only).
+        Same for ``rank``.
     predictions : ndarray of shape (n_queries,), dtype int64
         Predicted place per query row (not written to JSON; see ``predictions_<name>.csv``).
     ranked : ndarray of shape (n_queries, k), dtype int64, or None
@@ -257,6 +343,24 @@ class EvaluationResult:
         The ground truth used (not written to JSON).
     tolerance_for_k : int
         Tolerance used for R@K.
+    status : str
+        ``"ok"``, or why there are no numbers: ``"does not fit"`` (the budget), ``"failed"`` (an
+        error while fitting or localizing), ``"refused"`` (e.g. a sequence method on queries that
+        are not a route), ``"not run"`` (interrupted before its turn).
+    reason : str or None
+        The message behind a status other than ``"ok"``.
+    budget : int or None
+        The byte budget the method was given (None: unbudgeted).
+    reference : bool
+        The unbudgeted reference row (brute force).
+    uses_query_sequence : bool
+        Answers depend on the query sequence (SeqSLAM, a delta front end): not comparable with
+        single-frame methods, marked in every table.
+    minimum_bytes : int or None
+        For ``"does not fit"``: the smallest budget the method needs.
+    series : str or None
+        The method this row is one point of (``pq`` for the rows ``pq@100KB`` and ``pq@500KB``);
+        plots draw one line per series. None: the row's own name.
     """
 
     name: str
@@ -269,17 +373,49 @@ class EvaluationResult:
     nbytes: int | None
     storage_breakdown: dict[str, int] | None
     fit_time_s: float | None
-    query_time_s_per_query: float
+    query_time_s_per_query: float | None
     rank_time_s_per_query: float | None = None
     predictions: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64), repr=False)
     ranked: np.ndarray | None = field(default=None, repr=False)
     ground_truth: GroundTruth | None = field(default=None, repr=False)
     tolerance_for_k: int = 0
+    status: str = STATUS_OK
+    reason: str | None = None
+    budget: int | None = None
+    reference: bool = False
+    uses_query_sequence: bool = False
+    minimum_bytes: int | None = None
+    series: str | None = None
+
+    @property
+    def ok(self) -> bool:
+        """True when the method ran and was measured."""
+        return self.status == STATUS_OK
+
+    @classmethod
+    def not_measured(cls, name: str, status: str, reason: str, *, method: Any = None, n_map: int | None = None,
+                     n_queries: int = 0, budget: int | None = None, reference: bool = False,
+                     minimum_bytes: int | None = None) -> "EvaluationResult":
+        """A row for a method that did not run (``status`` says why, ``reason`` in full)."""
+        result = cls(name=name, params=_params_of(method) if method is not None else {}, n_map=n_map,
+                     n_queries=int(n_queries), recall={}, recall_curve=np.zeros(0), recall_at_k=None, nbytes=None,
+                     storage_breakdown=None, fit_time_s=None, query_time_s_per_query=None, status=status,
+                     reason=reason, budget=budget, reference=reference,
+                     uses_query_sequence=bool(getattr(method, "uses_query_sequence", False)),
+                     minimum_bytes=minimum_bytes)
+        return result
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (no predictions). Tolerances and K stay ints here; JSON makes them strings."""
         return {
             "name": self.name,
+            "status": self.status,
+            "reason": self.reason,
+            "series": self.series or self.name,
+            "reference": self.reference,
+            "uses_query_sequence": self.uses_query_sequence,
+            "budget": self.budget,
+            "minimum_bytes": self.minimum_bytes,
             "params": self.params,
             "n_map": self.n_map,
             "n_queries": self.n_queries,
@@ -297,6 +433,10 @@ class EvaluationResult:
             "ground_truth": None if self.ground_truth is None else self.ground_truth.kind,
         }
 
+    def headline(self) -> dict[int, float]:
+        """What the storage plot shows: recall@t when the ground truth has a tolerance, else R@K keyed by K."""
+        return dict(self.recall) if self.recall else dict(self.recall_at_k or {})
+
     def to_row(self) -> dict[str, Any]:
         """A row for :func:`btel.plots.plot_recall_vs_storage` / :func:`~btel.plots.plot_recall_vs_n`."""
         return {"method": self.name, "bytes": self.nbytes, "n_places": self.n_map, "recall": dict(self.recall)}
@@ -308,12 +448,14 @@ def evaluate(
     Q: Any,
     *,
     ground_truth: TruthLike = None,
-    tolerances: Iterable[int] = DEFAULT_TOLERANCES,
+    tolerances: Iterable[int] | None = None,
     ks: Iterable[int] = DEFAULT_KS,
     k_tolerance: int = 0,
     name: str | None = None,
-    curve_max: int = 80,
+    curve_max: int | None = None,
     fit: bool = True,
+    budget: int | None = None,
+    reference: bool = False,
 ) -> EvaluationResult:
     """Fit ``method`` on the map, localize the queries, and measure everything SPEC §9 asks for.
 
@@ -322,7 +464,8 @@ def evaluate(
     method : estimator
         A :class:`~btel.base.PlaceLocalizer` or any object with ``fit(X)`` and ``predict(Q)``
         returning place indices. Ranking (``rank(Q, k)``) is used when the method has ``rank``
-        (and, where it says so, ``supports_ranking`` is true); storage is read from ``nbytes`` / ``storage_breakdown()`` when present.
+        (and, where it says so, ``supports_ranking`` is true); storage is read from ``nbytes`` /
+        ``storage_breakdown()`` when present.
     X_map : array-like of shape (n_map, n_features)
         Map descriptors, row i = place i. May be None when ``fit=False`` and the method knows its
         number of places (``n_places_``).
@@ -330,28 +473,31 @@ def evaluate(
         Query descriptors, one query per row.
     ground_truth : GroundTruth, array-like of int of shape (n_queries,), or None
         None means frame-aligned: the true place of query j is j.
-    tolerances : iterable of int
-        Tolerances (frames) for the recall points.
+    tolerances : iterable of int, optional
+        Tolerances (frames) for recall@t; default :func:`default_tolerances` (none with explicit
+        positives, which have no tolerance; giving some then is an error).
     ks : iterable of int
-        K values for R@K (ranking methods). K larger than the map is left out.
+        K values for R@K. K larger than the map is left out.
     k_tolerance : int, default 0
         Tolerance applied to R@K.
     name : str, optional
         Name in reports; default the method's class name.
-    curve_max : int, default 80
-        The recall curve covers t = 0..curve_max.
+    curve_max : int, optional
+        The recall@t curve covers t = 0..curve_max; default :func:`default_curve_max`.
     fit : bool, default True
         False evaluates an already fitted method (``fit_time_s`` is then None).
+    budget : int, optional
+        The budget the method was given (recorded in the result only).
+    reference : bool, default False
+        Mark the result as the unbudgeted reference row.
 
     Returns
     -------
     EvaluationResult
     """
-    tolerances = _check_points(tolerances, "tolerances", 0)
     ks = tuple(ks)
     if ks:
         ks = _check_points(ks, "ks", 1)
-    curve_max = check_positive_int(curve_max, "curve_max", minimum=0)
     if X_map is not None:
         X_map = check_descriptors(X_map, name="X_map")
         n_map = X_map.shape[0]
@@ -363,7 +509,10 @@ def evaluate(
         n_features = None
     Q = check_descriptors(Q, name="Q", n_features=n_features)
     n_queries = Q.shape[0]
-    gt = _ground_truth(ground_truth, n_queries, n_map)
+    gt = check_ground_truth(ground_truth, n_queries, n_map)
+    tolerances = _tolerances_for(tolerances, gt, n_map)
+    curve_max = (default_curve_max(tolerances, n_map) if curve_max is None
+                 else check_positive_int(curve_max, "curve_max", minimum=0))
 
     fit_time = None
     if fit:
@@ -393,6 +542,9 @@ def evaluate(
         if len(usable) < len(ks):
             logger.info("R@K left out for K > %d (the map has %s places)", ranked.shape[1], n_map)
         r_at_k = recall_at_k(ranked, gt, usable, tolerance=k_tolerance) if usable else None
+    elif ks:
+        # No ranking: the point prediction is the one candidate, so R@K is known for K = 1 only.
+        r_at_k = recall_at_k(predictions[:, None], gt, (1,), tolerance=k_tolerance)
 
     nbytes, breakdown = _storage_of(method)
     return EvaluationResult(
@@ -400,8 +552,8 @@ def evaluate(
         params=_params_of(method),
         n_map=int(n_map) if n_map is not None else None,
         n_queries=int(n_queries),
-        recall=recall_at_tolerance(predictions, gt, tolerances),
-        recall_curve=recall_curve(predictions, gt, curve_max),
+        recall=recall_at_tolerance(predictions, gt, tolerances) if tolerances else {},
+        recall_curve=recall_curve(predictions, gt, curve_max) if gt.uses_tolerance else np.zeros(0),
         recall_at_k=r_at_k,
         nbytes=nbytes,
         storage_breakdown=breakdown,
@@ -412,4 +564,334 @@ def evaluate(
         ranked=ranked,
         ground_truth=gt,
         tolerance_for_k=int(k_tolerance),
+        budget=budget if budget is not None else parse_budget(getattr(method, "budget", None)),
+        reference=bool(reference),
+        uses_query_sequence=bool(getattr(method, "uses_query_sequence", False)),
     )
+
+
+def _tolerances_for(tolerances: Iterable[int] | None, gt: GroundTruth, n_map: int | None) -> tuple[int, ...]:
+    """Checked tolerances, or the default for this ground truth and map."""
+    if tolerances is None:
+        return default_tolerances(n_map, gt)
+    tolerances = _check_points(tolerances, "tolerances", 0)
+    if not gt.uses_tolerance:
+        raise InvalidParameterError(
+            "tolerances (recall@t) need one true place per query; this ground truth lists explicit positives, "
+            "which already say what is close enough. Report R@K (ks) instead."
+        )
+    return tolerances
+
+
+# -- the harness of `btel evaluate` and `btel demo` ----------------------------------------------
+@dataclass
+class Job:
+    """One row of an evaluation run: a method to fit (or an already fitted one) under a budget.
+
+    Attributes
+    ----------
+    name : str
+        Row name (distinct within a run).
+    method : estimator
+        Unfitted (``fit=True``) or fitted (``fit=False``, e.g. a saved model).
+    fit : bool
+    reference : bool
+        The unbudgeted reference row (brute force).
+    series : str, optional
+        The method this row is one point of, when a run has several budgets (``pq`` for ``pq@100KB``).
+    """
+
+    name: str
+    method: Any
+    fit: bool = True
+    reference: bool = False
+    series: str | None = None
+
+    @property
+    def budget(self) -> int | None:
+        return parse_budget(getattr(self.method, "budget", None))
+
+
+#: Status of a row that was refused before fitting because the queries are not a route.
+STATUS_REFUSED = "refused"
+STATUS_DOES_NOT_FIT = "does not fit"
+STATUS_FAILED = "failed"
+STATUS_NOT_RUN = "not run"
+
+
+def _budget_check(method: Any, n_rows: int, n_features: int, budget: int | None) -> None:
+    """Raise what the method's own fit would raise for this map shape and budget, without fitting.
+
+    Every rule here is the method's own (``planned_bytes``, ``choose_config``, ``choose_code_bits``,
+    :func:`btel.planning.largest_fitting`, the KTS and RYTH minimum sizes) applied to the shapes
+    alone. Where the storage depends on what fitting finds (BTEL with a fixed r ≥ 2: the region
+    sizes come from KTS), nothing is raised and the fit decides.
+    """
+    from .baselines import BruteForceNN, ITQLocalizer, OPQLocalizer, PQLocalizer, SeqSLAM
+    from .baselines._common import raise_budget_too_small
+    from .exceptions import NotEnoughPlacesError
+    from .frontend import FrontEnd
+    from .localizer import BTELocalizer
+    from .planning import largest_fitting, planned_bytes
+    from .planning import raise_budget_too_small as raise_btel_too_small
+    from .ryth import RYTHLocalizer, coprime_periods
+    from .segmentation import _check_count
+
+    front = FrontEnd.of(method)
+    reserved = front.planned_bytes(n_features)
+    if budget is not None and reserved >= budget:
+        raise BudgetTooSmallError(
+            f"budget {format_bytes(budget)} ({budget} B) is too small for {type(method).__name__} with "
+            f"whiten = {front.whiten}: the whitening matrix alone needs {reserved} B.",
+            budget=budget, minimum=reserved + 1)
+    d = front.n_features_out(n_features)
+    if isinstance(method, (BruteForceNN, SeqSLAM)):
+        if budget is None:
+            return
+        what, detail = (("brute-force NN", f"all {n_rows} descriptors × {d} float32 values")
+                        if isinstance(method, BruteForceNN) else ("SeqSLAM", f"{n_rows} × {d} bytes of map + 8"))
+        needed = type(method).planned_bytes(n_rows, d) + reserved
+        if needed > budget:
+            raise_budget_too_small(what, budget, needed, detail)
+    elif isinstance(method, ITQLocalizer):
+        method.choose_code_bits(n_rows, d, budget, reserved)
+    elif isinstance(method, OPQLocalizer):
+        method._quantiser().choose_config(n_rows, d, budget, reserved, method_name="OPQ", always_project=True)
+    elif isinstance(method, PQLocalizer):
+        method.choose_config(n_rows, d, budget, reserved)
+    elif isinstance(method, BTELocalizer):
+        n_codes = -(-n_rows // int(method.block_size))
+        if method.n_regions != "auto" and int(method.n_regions) > 1:
+            if n_codes <= int(method.kts_max_points):  # longer routes are averaged in blocks first
+                _check_count(n_codes, int(method.n_regions))
+            return
+        if budget is None:
+            return
+        dtype = str(np.dtype(method.dtype))
+        kw = dict(scheme=method.scheme, dtype=dtype, code_copies=int(method.code_copies))
+        if largest_fitting([n_codes], d, method._cap(d, budget), budget - reserved, method.scheme, dtype,
+                           int(method.code_copies)) < 1:
+            raise_btel_too_small(f"BTEL ({method.scheme}, N = {n_rows}, r = 1)", budget,
+                                 planned_bytes([n_codes], 1, d, **kw) + reserved,
+                                 "Raise the budget, use dtype='float16', or fewer regions.")
+    elif isinstance(method, RYTHLocalizer):
+        periods = coprime_periods(n_rows, int(method.n_periods))
+        if max(periods) > n_rows:
+            raise NotEnoughPlacesError(
+                f"RYTH with K = {method.n_periods} co-prime periods {periods} needs N ≥ {max(periods)} places; got "
+                f"N = {n_rows}. Use fewer periods (n_periods) or a longer route.")
+        if budget is None:
+            return
+        dtype = str(np.dtype(method.dtype))
+        minimum = RYTHLocalizer.planned_bytes(periods, 1, d, dtype) + reserved
+        if minimum > budget:
+            raise BudgetTooSmallError(
+                f"budget {format_bytes(budget)} ({budget} B) is too small for RYTH with periods {periods}: "
+                f"the smallest model (d' = 1) needs {minimum} B. Raise the budget or use fewer periods.",
+                budget=budget, minimum=minimum)
+
+
+def preflight(jobs: Sequence[Job], n_map: int | None, n_features: int | None, *,
+              queries_are_route: bool = True) -> dict[str, EvaluationResult]:
+    """Every row that cannot run, found before anything is fitted, by job name.
+
+    - a job whose method does not fit its budget (the method's own planning rules applied to the
+      map's shape) → status ``"does not fit"`` with the method's message and minimum bytes;
+    - a job whose parameters cannot work on this map (too few places for its regions, periods or
+      sub-quantisers) → ``"failed"``;
+    - a method that uses the query sequence when ``queries_are_route`` is False → ``"refused"``.
+
+    Jobs of already fitted methods are only checked for the last rule.
+
+    Returns
+    -------
+    dict of str to EvaluationResult
+        Only the jobs that will not run; every other job is left to :func:`evaluate_all`.
+    """
+    out: dict[str, EvaluationResult] = {}
+    for job in jobs:
+        common = dict(method=job.method, n_map=n_map, budget=job.budget, reference=job.reference)
+        if not queries_are_route and getattr(job.method, "uses_query_sequence", False):
+            out[job.name] = EvaluationResult.not_measured(
+                job.name, STATUS_REFUSED,
+                "uses the query sequence (SeqSLAM or a delta front end), but the query rows are independent "
+                "places, not a route", **common)
+            continue
+        if not job.fit or n_map is None or n_features is None:
+            continue
+        try:
+            _budget_check(job.method, int(n_map), int(n_features), job.budget)
+        except BudgetTooSmallError as exc:
+            out[job.name] = EvaluationResult.not_measured(job.name, STATUS_DOES_NOT_FIT, _short_reason(exc),
+                                                          minimum_bytes=exc.minimum, **common)
+        except BTELError as exc:
+            out[job.name] = EvaluationResult.not_measured(job.name, STATUS_FAILED, _short_reason(exc), **common)
+    return out
+
+
+def _short_reason(exc: BaseException) -> str:
+    """An exception as one line: its message (its type when it has none)."""
+    message = " ".join(str(exc).split())
+    return message or type(exc).__name__
+
+
+def evaluate_all(
+    jobs: Sequence[Job],
+    X_map: Any,
+    Q: Any,
+    *,
+    ground_truth: TruthLike = None,
+    tolerances: Iterable[int] | None = None,
+    ks: Iterable[int] = DEFAULT_KS,
+    k_tolerance: int = 0,
+    curve_max: int | None = None,
+    queries_are_route: bool = True,
+    on_preflight: Callable[[dict[str, EvaluationResult]], None] | None = None,
+    on_result: Callable[[list[EvaluationResult]], None] | None = None,
+    on_start: Callable[[int, Job], None] | None = None,
+) -> list[EvaluationResult]:
+    """Evaluate every job; one that does not fit or fails becomes a row, never an abort.
+
+    Order of work: the ground truth is checked against the query and map counts, then
+    :func:`preflight` finds every row that cannot run (all of them, reported at once through
+    ``on_preflight``), then each remaining job is fitted and measured in turn. A
+    :class:`~btel.exceptions.BudgetTooSmallError` the preflight could not foresee becomes a
+    ``"does not fit"`` row, any other error of btel, numpy or faiss (``ValueError``,
+    ``RuntimeError``, ``MemoryError``, ``OSError``) a ``"failed"`` row, and the next job runs.
+    After each job ``on_result`` receives every row so far, in job order (write them there: a
+    crash or Ctrl-C then keeps what is done). On Ctrl-C the rows not yet run become ``"not run"``,
+    ``on_result`` sees them, and the ``KeyboardInterrupt`` propagates.
+
+    Parameters
+    ----------
+    jobs : sequence of Job
+        Distinct names.
+    X_map : array-like of shape (n_map, n_features) or None
+        Map descriptors (None when every job is already fitted).
+    Q : array-like of shape (n_queries, n_features)
+    ground_truth, tolerances, ks, k_tolerance, curve_max
+        As in :func:`evaluate`.
+    queries_are_route : bool, default True
+        False says the query rows are independent places, not a traverse: methods that use the
+        query sequence are refused.
+    on_preflight : callable, optional
+        Called once with the rows that will not run (may be empty), before any fit.
+    on_result : callable, optional
+        Called with the list of rows so far after each job.
+    on_start : callable, optional
+        Called with (index, job) before a job is fitted (progress display).
+
+    Returns
+    -------
+    list of EvaluationResult
+        One per job, in job order.
+    """
+    names = [job.name for job in jobs]
+    if len(set(names)) != len(names):
+        raise InvalidParameterError(f"job names must be distinct; got {names}.")
+    if X_map is not None:
+        X_map = check_descriptors(X_map, name="X_map")
+    n_map = X_map.shape[0] if X_map is not None else next(
+        (int(j.method.n_places_) for j in jobs if not j.fit and hasattr(j.method, "n_places_")), None)
+    n_features = X_map.shape[1] if X_map is not None else None
+    Q = check_descriptors(Q, name="Q", n_features=n_features)
+    gt = check_ground_truth(ground_truth, Q.shape[0], n_map)
+    tolerances = _tolerances_for(tolerances, gt, n_map)
+    skipped = preflight(jobs, n_map, n_features, queries_are_route=queries_are_route)
+    for job in jobs:
+        if job.name in skipped:
+            skipped[job.name].series = job.series
+    if on_preflight is not None:
+        on_preflight(skipped)
+    done: dict[str, EvaluationResult] = dict(skipped)
+
+    def rows() -> list[EvaluationResult]:
+        return [done[name] for name in names if name in done]
+
+    for index, job in enumerate(jobs):
+        if job.name in done:
+            continue
+        common = dict(method=job.method, n_map=n_map, n_queries=Q.shape[0], budget=job.budget,
+                      reference=job.reference)
+        if on_start is not None:
+            on_start(index, job)
+        try:
+            done[job.name] = evaluate(job.method, X_map if job.fit else None, Q, ground_truth=gt,
+                                      tolerances=tolerances or None, ks=ks, k_tolerance=k_tolerance, name=job.name,
+                                      curve_max=curve_max, fit=job.fit, budget=job.budget, reference=job.reference)
+        except BudgetTooSmallError as exc:
+            done[job.name] = EvaluationResult.not_measured(job.name, STATUS_DOES_NOT_FIT, _short_reason(exc),
+                                                           minimum_bytes=exc.minimum, **common)
+        except KeyboardInterrupt:
+            for later in jobs[index:]:
+                if later.name not in done:
+                    done[later.name] = EvaluationResult.not_measured(
+                        later.name, STATUS_NOT_RUN, "interrupted (Ctrl-C) before it finished",
+                        method=later.method, n_map=n_map, n_queries=Q.shape[0], budget=later.budget,
+                        reference=later.reference)
+                    done[later.name].series = later.series
+            if on_result is not None:
+                on_result(rows())
+            raise
+        except (ValueError, RuntimeError, MemoryError, OSError, ArithmeticError) as exc:
+            logger.debug("%s failed", job.name, exc_info=True)
+            done[job.name] = EvaluationResult.not_measured(
+                job.name, STATUS_FAILED, f"{type(exc).__name__}: {_short_reason(exc)}", **common)
+        done[job.name].series = job.series
+        if on_result is not None:
+            on_result(rows())
+    return rows()
+
+
+# -- the table -------------------------------------------------------------------------------------
+SEQUENCE_MARK = "†"
+REFERENCE_MARK = "*"
+
+
+def format_table(results: Sequence[EvaluationResult]) -> str:
+    """The results as a plain-text table, with the metrics the ground truth supports.
+
+    Columns: method, status, bytes, fit seconds, µs per query, recall@t for every tolerance any
+    row has (frame-aligned ground truth only) and R@K for every K. Rows that did not run show
+    their status and reason. ``†`` marks methods that use the query sequence (not comparable
+    with single-frame methods), ``*`` the unbudgeted reference; a legend line says so.
+    """
+    tolerances = sorted({t for r in results for t in r.recall})
+    ks = sorted({k for r in results for k in (r.recall_at_k or {})})
+    metric_names = [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks]
+    width = max([len("method")] + [len(_row_label(r)) for r in results]) + 1
+    header = (f"{'method':<{width}} {'status':<12} {'bytes':>10} {'fit s':>7} {'µs/query':>9} "
+              + " ".join(f"{m:>9}" for m in metric_names))
+    lines = [header.rstrip(), "-" * len(header.rstrip())]
+    for r in results:
+        label = _row_label(r)
+        if not r.ok:
+            # The table says what the user needs to decide; the full message is in metrics.csv/json.
+            why = (f"needs ≥ {format_bytes(r.minimum_bytes)}"
+                   + (f" (budget {format_bytes(r.budget)})" if r.budget is not None else "")
+                   if r.status == STATUS_DOES_NOT_FIT and r.minimum_bytes is not None else (r.reason or ""))
+            lines.append(f"{label:<{width}} {r.status:<12} {why}")
+            continue
+        size = format_bytes(r.nbytes) if r.nbytes is not None else "?"
+        fit = f"{r.fit_time_s:.1f}" if r.fit_time_s is not None else "-"
+        values = [r.recall.get(t) for t in tolerances] + [(r.recall_at_k or {}).get(k) for k in ks]
+        cells = " ".join(f"{v:>9.3f}" if v is not None else f"{'-':>9}" for v in values)
+        query = r.query_time_s_per_query * 1e6 if r.query_time_s_per_query is not None else float("nan")
+        lines.append(f"{label:<{width}} {r.status:<12} {size:>10} {fit:>7} {query:>9.1f} {cells}".rstrip())
+    notes = []
+    if tolerances:
+        notes.append("recall@t: point prediction within t frames of the true place")
+    if ks:
+        k_tol = max((r.tolerance_for_k for r in results if r.ok), default=0)
+        within = f" (within {k_tol} frames)" if k_tol else ""
+        notes.append(f"R@K: a correct place{within} among the top K ranked candidates")
+    if any(r.reference for r in results):
+        notes.append(f"{REFERENCE_MARK} reference (unbudgeted)")
+    if any(r.uses_query_sequence for r in results):
+        notes.append(f"{SEQUENCE_MARK} uses the query sequence: not comparable with single-frame methods")
+    lines += [f"  {n}" for n in notes]
+    return "\n".join(lines)
+
+
+def _row_label(r: EvaluationResult) -> str:
+    return r.name + (REFERENCE_MARK if r.reference else "") + (SEQUENCE_MARK if r.uses_query_sequence else "")

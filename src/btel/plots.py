@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from matplotlib.ticker import FuncFormatter
+from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
 from .exceptions import InvalidParameterError
 from .storage import format_bytes
@@ -36,6 +36,8 @@ __all__ = [
     "plot_curves",
     "plot_parameter_sweep",
     "plot_experiment",
+    "plot_recall_at_k",
+    "plot_run",
 ]
 
 _FIGSIZE = (6.4, 4.4)
@@ -64,7 +66,9 @@ def _finish_recall_plot(fig: Figure, ax: Any, path: str | os.PathLike, *, xlabel
     ax.grid(True, which="both", alpha=0.3)  # minor lines only show on log axes
     ax.legend(fontsize=legend_size)
     if title:
-        ax.set_title(title)
+        import textwrap
+
+        ax.set_title(textwrap.fill(title, 70), fontsize="medium")
     if credit:
         fig.text(0.99, 0.005, credit, ha="right", va="bottom", fontsize="xx-small", color="grey")
     _save(fig, path)
@@ -117,10 +121,10 @@ def plot_recall_vs_tolerance(
     if not results:
         raise InvalidParameterError("nothing to plot: results is empty.")
     fig, ax = _new_figure()
+    right = 0
     for r in results:
         name = str(_field(r, "name", "method"))
-        nbytes = _field(r, "nbytes")
-        label = name if nbytes is None else f"{name} ({format_bytes(nbytes)})"
+        label = _legend_label(r)
         curve = _field(r, "recall_curve")
         if curve is not None and len(curve):
             y = np.asarray(curve, dtype=float)
@@ -136,17 +140,212 @@ def plot_recall_vs_tolerance(
         if max_tolerance is not None:
             keep = x <= max_tolerance
             x, y = x[keep], y[keep]
-        ax.plot(x, y, marker=marker, drawstyle=drawstyle, label=label)
-    ax.set_xlabel("tolerance (frames)")
-    ax.set_ylabel("recall")
+        right = max(right, int(x.max()) if x.size else 0)
+        ax.plot(x, y, marker=marker, drawstyle=drawstyle, label=label, linestyle=_linestyle(r))
+    ax.set_xlabel("tolerance t (frames)")
+    ax.set_ylabel("recall@t")
     ax.set_ylim(0.0, 1.02)
-    ax.set_xlim(left=0)
+    # The axis ends where the curves end (twice the largest reported tolerance), not at a fixed 80.
+    ax.set_xlim(0, max(right, 1))
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize="small", loc="lower right")  # recall rises with t: the lower right is free
     if title:
-        ax.set_title(title)
+        ax.set_title(title, fontsize="medium")
     _save(fig, path)
     return fig
+
+
+def _legend_label(r: Any) -> str:
+    """``name (bytes)``; the reference row and sequence methods say what they are."""
+    name = str(_field(r, "name", "method"))
+    nbytes = _field(r, "nbytes")
+    notes = [format_bytes(nbytes)] if nbytes is not None else []
+    if _field(r, "reference", False):
+        notes.append("reference, unbudgeted")
+    if _field(r, "uses_query_sequence", False):
+        notes.append("† query sequence")
+    return f"{name} ({', '.join(notes)})" if notes else name
+
+
+def _linestyle(r: Any) -> str:
+    """Dashed for rows that are not single-frame methods under the budget (reference, sequence)."""
+    return "--" if _field(r, "reference", False) or _field(r, "uses_query_sequence", False) else "-"
+
+
+def plot_recall_at_k(results: Sequence[Any], path: str | os.PathLike, *, title: str | None = None) -> Figure:
+    """R@K (y) against K (x), one line per method: the plot for ground truth with explicit positives.
+
+    Parameters
+    ----------
+    results : sequence of EvaluationResult or dict
+        Each needs ``name`` and ``recall_at_k`` (K → R@K; keys int or str).
+    path : path
+        PNG file to write.
+    title : str, optional
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    series = [(r, sorted((int(k), float(v)) for k, v in (_field(r, "recall_at_k") or {}).items())) for r in results]
+    series = [(r, pts) for r, pts in series if pts]
+    if not series:
+        raise InvalidParameterError("nothing to plot: no result has R@K.")
+    fig, ax = _new_figure()
+    ks = sorted({k for _, pts in series for k, _ in pts})
+    for r, pts in series:
+        ax.plot([k for k, _ in pts], [v for _, v in pts], marker="o", label=_legend_label(r), linestyle=_linestyle(r))
+    ax.set_xticks(ks)
+    ax.set_xlim(0.5, ks[-1] + 0.5)
+    _finish_recall_plot(fig, ax, path, xlabel="K (ranked candidates)", ylabel="R@K", title=title)
+    return fig
+
+
+def _tick_bytes(value: float) -> str:
+    """``format_bytes`` without a trailing ``.0`` (``50 KB``, ``2.5 MB``): tick labels stay short."""
+    return format_bytes(value).replace(".0 ", " ")
+
+
+def _bytes_axis(ax: Any, xs: Sequence[float]) -> None:
+    """A log axis of bytes labelled in one unit style (``50 KB``), no 3×10⁴ minor labels.
+
+    Ticks at 1-2-5 steps over a narrow range, at powers of ten over a wide one, so that labels
+    never run into each other.
+    """
+    ax.set_xscale("log")
+    decades = np.log10(max(xs) / min(xs)) if xs and min(xs) > 0 else 0.0
+    subs = (1.0, 2.0, 5.0) if decades <= 1.5 else (1.0, 3.0) if decades <= 2.5 else (1.0,)
+    ax.xaxis.set_major_locator(LogLocator(base=10, subs=subs))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda value, _pos: _tick_bytes(value)))
+    ax.xaxis.set_minor_formatter(NullFormatter())
+
+
+def _series(r: Any) -> str:
+    return str(_field(r, "series") or _field(r, "name", "method"))
+
+
+def _panels(results: Sequence[Any]) -> list[tuple[int | None, list[Any]]]:
+    """Results grouped by budget, one panel each; the reference (unbudgeted) rows join every panel."""
+    budgets = sorted({int(b) for r in results if (b := _field(r, "budget")) is not None
+                      and not _field(r, "reference", False)})
+    if len(budgets) <= 1:
+        return [(budgets[0] if budgets else None, list(results))]
+    shared = [r for r in results if _field(r, "reference", False) or _field(r, "budget") is None]
+    return [(b, [r for r in results if _field(r, "budget") == b and r not in shared] + shared) for b in budgets]
+
+
+def _run_figure(results: Sequence[Any], path: Path, *, kind: str, title: str | None) -> Figure:
+    """recall@t curves (``kind="tolerance"``) or R@K lines (``kind="k"``), one panel per budget.
+
+    A method keeps its colour in every panel; each panel's legend sits below it (two columns), so
+    it never covers a curve however many methods there are; the title is wrapped to the width.
+    """
+    import textwrap
+
+    panels = _panels(results)
+    series = list(dict.fromkeys(_series(r) for r in results))
+    colours = {name: f"C{i % 10}" for i, name in enumerate(series)}
+    markers = {name: "osD^v<>ph*"[i // 10 % 10] for i, name in enumerate(series)}
+    rows_of_legend = -(-max(len(members) for _, members in panels) // 2)
+    width = min(6.4 * len(panels), 19.2)
+    fig = Figure(figsize=(width, 4.0 + 0.2 * rows_of_legend), dpi=_DPI)
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, len(panels), sharey=True, squeeze=False)[0]
+    for ax, (budget, members) in zip(axes, panels):
+        right = 1
+        for r in members:
+            name = _series(r)
+            style = dict(color=colours[name], linestyle=_linestyle(r), label=_legend_label(r))
+            if kind == "tolerance":
+                curve = _field(r, "recall_curve")
+                curve = np.asarray(curve if curve is not None else [], dtype=float)
+                if curve.size:
+                    ax.plot(np.arange(curve.size), curve, drawstyle="steps-post", **style)
+                    right = max(right, curve.size - 1)
+            else:
+                pts = sorted((int(k), float(v)) for k, v in (_field(r, "recall_at_k") or {}).items())
+                if pts:
+                    ax.plot([k for k, _ in pts], [v for _, v in pts], marker=markers[name], **style)
+                    right = max(right, pts[-1][0])
+        if kind == "tolerance":
+            ax.set_xlim(0, right)  # twice the largest reported tolerance, not a fixed 80 frames
+            ax.set_xlabel("tolerance t (frames)")
+        else:
+            ks = sorted({int(k) for r in members for k in (_field(r, "recall_at_k") or {})})
+            ax.set_xticks(ks)  # R@K exists only at the K that were measured
+            ax.set_xlim(0.5, right + 0.5)
+            ax.set_xlabel("K (ranked candidates)")
+        ax.set_ylim(0.0, 1.02)
+        ax.grid(True, alpha=0.3)
+        if len(panels) > 1:
+            ax.set_title(f"budget {format_bytes(budget)}" if budget is not None else "no budget", fontsize="small")
+        ax.legend(fontsize="x-small", loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, frameon=False)
+    axes[0].set_ylabel("recall@t" if kind == "tolerance" else "R@K")
+    if title:
+        fig.suptitle(textwrap.fill(title, width=int(12 * width)), fontsize="medium")
+    _save(fig, path)
+    return fig
+
+
+def plot_run(results: Sequence[Any], out_dir: str | os.PathLike, *, title: str | None = None) -> list[Path]:
+    """The plots of an evaluation run folder (``btel evaluate``, ``btel demo``).
+
+    - ``recall_vs_tolerance.png`` when the ground truth has one true place per query (the curve
+      runs to twice the largest reported tolerance), else ``recall_at_k.png`` (R@K vs K); one
+      panel per budget when the run has several, the reference in each;
+    - ``recall_vs_storage.png`` when storage is known: recall@t at the middle reported
+      tolerance (10 frames when reported), or R@1 with explicit positives, against stored bytes,
+      one line per method through its budgets, the budgets as dotted lines.
+
+    Returns
+    -------
+    list of Path
+        The PNG files written.
+    """
+    out_dir = Path(out_dir)
+    results = list(results)
+    written: list[Path] = []
+    if any(len(_field(r, "recall_curve") if _field(r, "recall_curve") is not None else ()) for r in results):
+        written.append(out_dir / "recall_vs_tolerance.png")
+        _run_figure(results, written[-1], kind="tolerance", title=title)
+    elif any(_field(r, "recall_at_k") for r in results):
+        written.append(out_dir / "recall_at_k.png")
+        _run_figure(results, written[-1], kind="k", title=title)
+    rows = []
+    for r in results:
+        if _field(r, "nbytes") is None:
+            continue
+        recall = {int(t): v for t, v in (_field(r, "recall") or {}).items()}
+        metric = "recall@t"
+        if not recall:
+            recall = {int(k): v for k, v in (_field(r, "recall_at_k") or {}).items() if int(k) == 1}
+            metric = "R@1"
+        if recall:
+            rows.append({"method": _legend_label_short(r), "bytes": _field(r, "nbytes"), "recall": recall,
+                         "metric": metric})
+    common = set.intersection(*(set(r["recall"]) for r in rows)) if rows else set()
+    if common:
+        metric = rows[0]["metric"]
+        if metric == "R@1":
+            key, ylabel = 1, "R@1"
+        else:
+            ordered = sorted(common)
+            key = 10 if 10 in common else ordered[len(ordered) // 2]
+            ylabel = f"recall@{key} (within {key} frames)"
+        budgets = sorted({int(b) for r in results if (b := _field(r, "budget")) is not None
+                          and not _field(r, "reference", False)})
+        written.append(out_dir / "recall_vs_storage.png")
+        plot_recall_vs_storage(rows, written[-1], tolerance=key, title=title, ylabel=ylabel, budgets=budgets)
+    return written
+
+
+def _legend_label_short(r: Any) -> str:
+    name = _series(r)
+    if _field(r, "reference", False):
+        name += " (reference, unbudgeted)"
+    if _field(r, "uses_query_sequence", False):
+        name += " †"
+    return name
 
 
 def _plot_rows(
@@ -157,7 +356,9 @@ def _plot_rows(
     xlabel: str,
     tolerance: int,
     title: str | None,
-    x_formatter: Any = None,
+    bytes_axis: bool = False,
+    ylabel: str | None = None,
+    budgets: Sequence[int] = (),
 ) -> Figure:
     if not rows:
         raise InvalidParameterError("nothing to plot: rows is empty.")
@@ -177,15 +378,37 @@ def _plot_rows(
     for method, points in series.items():
         points.sort()
         ax.plot([p[0] for p in points], [p[1] for p in points], marker="o", label=method)
-    ax.set_xscale("log")
-    if x_formatter is not None:
-        ax.xaxis.set_major_formatter(x_formatter)
-    _finish_recall_plot(fig, ax, path, xlabel=xlabel, ylabel=f"recall (tolerance {tolerance} frames)", title=title)
+    for i, budget in enumerate(sorted(set(budgets))):
+        ax.axvline(budget, color="grey", linestyle=":", linewidth=1, label="budget" if i == 0 else None)
+    xs = [p[0] for points in series.values() for p in points] + list(budgets)
+    if bytes_axis:
+        _bytes_axis(ax, xs)
+    else:
+        ax.set_xscale("log")
+    if max(xs) / min(xs) < 4:  # a narrow range: widen it so the points do not sit on the frame
+        ax.set_xlim(min(xs) / 2, max(xs) * 2)
+    if len(series) > 5:
+        # Many methods: the legend goes beside the axes, where it cannot cover a point.
+        fig.set_size_inches(_FIGSIZE[0] + 2.4, _FIGSIZE[1])
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel or f"recall@{tolerance} (within {tolerance} frames)")
+        ax.set_ylim(0.0, 1.02)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize="x-small", loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+        if title:
+            import textwrap
+
+            ax.set_title(textwrap.fill(title, 70), fontsize="medium")
+        _save(fig, path)
+        return fig
+    _finish_recall_plot(fig, ax, path, xlabel=xlabel, ylabel=ylabel or f"recall@{tolerance} (within {tolerance} frames)",
+                        title=title)
     return fig
 
 
 def plot_recall_vs_storage(
-    rows: Sequence[Mapping[str, Any]], path: str | os.PathLike, tolerance: int = 10, *, title: str | None = None
+    rows: Sequence[Mapping[str, Any]], path: str | os.PathLike, tolerance: int = 10, *, title: str | None = None,
+    ylabel: str | None = None, budgets: Sequence[int] = (),
 ) -> Figure:
     """Recall at ``tolerance`` (y) against storage in bytes (x, log scale), one series per method.
 
@@ -197,15 +420,17 @@ def plot_recall_vs_storage(
         PNG file to write.
     tolerance : int, default 10
         Which recall point to plot; every row must have it.
+    ylabel : str, optional
+        Default ``recall@<tolerance> (within <tolerance> frames)``.
+    budgets : sequence of int, optional
+        Budgets in bytes, drawn as dotted vertical lines.
 
     Returns
     -------
     matplotlib.figure.Figure
     """
-    return _plot_rows(
-        rows, path, x_key="bytes", xlabel="storage (bytes)", tolerance=tolerance, title=title,
-        x_formatter=FuncFormatter(lambda value, _pos: format_bytes(value)),
-    )
+    return _plot_rows(rows, path, x_key="bytes", xlabel="storage (bytes, log scale)", tolerance=tolerance,
+                      title=title, bytes_axis=True, ylabel=ylabel, budgets=budgets)
 
 
 def plot_recall_vs_n(
@@ -228,17 +453,24 @@ def plot_recall_vs_n(
     return _plot_rows(rows, path, x_key="n_places", xlabel="N (map places)", tolerance=tolerance, title=title)
 
 
+def _curve_label(method: str, sequence_methods: set[str]) -> str:
+    if method == "bruteforce":
+        return f"{method} (reference, unbudgeted)"
+    return f"{method} † query sequence" if method in sequence_methods else method
+
+
 def plot_curves(
     curves: Mapping[str, Sequence[float]], path: str | os.PathLike, *, title: str | None = None,
-    credit: str | None = None,
+    credit: str | None = None, ylabel: str = "recall@t",
 ) -> Figure:
-    """Recall (y) against tolerance t = 0, 1, … (x), one line per named curve."""
+    """recall@t (y) against tolerance t = 0, 1, … (x), one line per named curve."""
     if not curves:
         raise InvalidParameterError("nothing to plot: no curves.")
     fig, ax = _new_figure()
     for label, values in curves.items():
         ax.step(np.arange(len(values)), values, where="post", label=label)
-    _finish_recall_plot(fig, ax, path, xlabel="tolerance (frames)", title=title, credit=credit, legend_size="x-small")
+    _finish_recall_plot(fig, ax, path, xlabel="tolerance t (frames)", ylabel=ylabel, title=title, credit=credit,
+                        legend_size="x-small")
     return fig
 
 
@@ -282,11 +514,19 @@ def plot_experiment(run: Any, out_dir: str | os.PathLike) -> list[Path]:
     written: list[Path] = []
     name = run.name
     if name == "accuracy":
+        # The budget and N in the title are the ones the rows were run with (2 MB and 2000 in the full
+        # run, 50 KB and 300 in --quick), never a fixed text.
+        budgets = sorted({int(r["budget"]) for r in run.rows if r.get("budget")})
+        budget_text = ", ".join(format_bytes(b) for b in budgets) or "no budget"
+        n_text = ", ".join(str(n) for n in sorted({int(r["n_places"]) for r in run.rows}))
+        sequence = {r["method"] for r in run.rows if r.get("uses_query_sequence")}
         for direction in sorted({k.split(" ", 1)[1] for k in run.curves}):
-            curves = {k.split(" ", 1)[0]: v for k, v in run.curves.items() if k.endswith(direction)}
+            curves = {_curve_label(k.split(" ", 1)[0], sequence): v for k, v in run.curves.items()
+                      if k.endswith(direction)}
             path = out_dir / f"recall_vs_tolerance_{direction.replace('→', '_to_')}.png"
-            plot_curves(curves, path, title=f"Nordland {direction}, ≤ 2 MB (brute force: no budget)",
-                        credit=NORDLAND_CREDIT)
+            plot_curves(curves, path, title=f"Nordland {direction}, N = {n_text}, ≤ {budget_text} "
+                                            "(brute force: reference, unbudgeted)",
+                        credit=NORDLAND_CREDIT, ylabel="recall@t")
             written.append(path)
     elif name == "sequence-filter":
         path = out_dir / "sequence_filter.png"
@@ -346,7 +586,9 @@ def plot_method_bars(
     ax.grid(True, axis="x", alpha=0.3)
     ax.legend(fontsize="x-small", loc="lower right")
     if title:
-        ax.set_title(title, fontsize="medium")
+        import textwrap
+
+        ax.set_title(textwrap.fill(title, 70), fontsize="medium")
     if credit:
         fig.text(0.99, 0.005, credit, ha="right", va="bottom", fontsize="xx-small", color="grey")
     fig.tight_layout()

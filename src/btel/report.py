@@ -35,10 +35,12 @@ _MARKER = re.compile(r"<!-- (?P<name>[\w-]+):start -->.*?<!-- (?P=name):end -->"
 
 
 def _table(rows: list[dict[str, Any]], extra: list[str]) -> list[str]:
-    head = ["method", *extra, "N", "budget", "bytes", *[f"R@{t}" for t in _TOLERANCES], "fit s"]
+    # recall@t: the point prediction within t frames; R@K (ranked) is a separate column where present.
+    head = ["method", *extra, "N", "budget", "bytes", *[f"recall@{t}" for t in _TOLERANCES], "fit s"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
-        cells = [str(r["method"]), *[str(r.get(k, "")) for k in extra], str(r["n_places"]),
+        method = str(r["method"]) + (" †" if r.get("uses_query_sequence") else "")
+        cells = [method, *[str(r.get(k, "")) for k in extra], str(r["n_places"]),
                  format_bytes(r["budget"]) if r.get("budget") else "none"]
         if r.get("status", "ok") != "ok":
             cells += [r["status"], *[""] * len(_TOLERANCES), ""]
@@ -113,10 +115,11 @@ def _beyond_lines(payload: dict[str, Any]) -> list[str]:
              ("gardens-point", "Gardens Point day → night (NetVLAD 500-D, N = 200), no tuning", []),
              ("synthetic", "Synthetic routes: appearance change between traverses, no tuning", ["condition_shift"])]
     for key, title, extra in parts:
-        rows = [dict(r, **{"R@10 ranked": f"{r['R@10']:.3f}" if r.get("R@10") is not None else ""})
+        rows = [dict(r, **{"R@10 (top 10 ranked)": f"{r['R@10']:.3f}" if r.get("R@10") is not None else ""})
                 for r in payload["rows"] if r.get("part") == key]
         if rows:
-            lines += [f"### {title}", ""] + _table(rows, extra + (["R@10 ranked"] if key == "nordland" else [])) + [""]
+            lines += [f"### {title}", ""] + _table(rows, extra + (["R@10 (top 10 ranked)"] if key == "nordland" else []))
+            lines += [""]
     return lines
 
 
@@ -150,7 +153,10 @@ def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path
              "frame-aligned seasons; tolerance in frames (≈ 200 m each). Descriptor: HOG 3780-D "
              "(9 orientations, 4×4 cells, 2×2 blocks) for every method except SeqSLAM (64×32 patch-normalised "
              "thumbnails). Budgets are decimal (1 MB = 10⁶ B); every method's bytes follow the one storage rule "
-             "(README). Brute force is the unbudgeted reference.", ""]
+             "(README). Brute force is the unbudgeted reference.", "",
+             "Metrics: recall@t = share of queries whose point prediction is within t frames of the true place; "
+             "R@K = share with a correct place among the top K ranked candidates (R@1 = recall@0). "
+             "† marks methods that use the query sequence (SeqSLAM): not comparable with single-frame methods.", ""]
     summary: dict[str, Any] = {}
     for name, path in found.items():
         payload = json.loads(path.read_text())

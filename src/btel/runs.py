@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import datetime as _dt
 import importlib.metadata
+import io
 import json
 import os
 import platform
@@ -28,7 +29,7 @@ import numpy as np
 from .evaluation import DEFAULT_TOLERANCES, EvaluationResult, _jsonable, recall_at_tolerance
 from .exceptions import DataNotFoundError, InvalidParameterError
 
-__all__ = ["RunReport", "run_metadata", "write_run", "recompute_recall_from_csv"]
+__all__ = ["RunReport", "RunWriter", "check_run_folder", "run_metadata", "write_run", "recompute_recall_from_csv"]
 
 
 @dataclass
@@ -92,18 +93,31 @@ def _safe_name(name: str) -> str:
 
 
 #: Files a run folder may hold; with ``overwrite=True`` these (and only these) are removed first.
-_RUN_FILE_PATTERNS = ("metrics.json", "metrics.csv", "predictions_*.csv", "recall_vs_*.png")
+_RUN_FILE_PATTERNS = ("metrics.json", "metrics.csv", "predictions_*.csv", "recall_vs_*.png", "recall_at_k.png",
+                      ".metrics.*.tmp")
+
+
+def check_run_folder(out_dir: str | os.PathLike, overwrite: bool = False) -> None:
+    """Raise now (before any work) if ``out_dir`` cannot become a run folder; touches nothing.
+
+    Raises
+    ------
+    FileExistsError
+        ``out_dir`` is a file, or a non-empty folder and ``overwrite`` is False.
+    """
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise FileExistsError(f"run folder {str(out_dir)!r} exists and is a file; choose another --out folder.")
+    if out_dir.is_dir() and any(out_dir.iterdir()) and not overwrite:
+        raise FileExistsError(
+            f"run folder {str(out_dir)!r} already exists and is not empty; choose a new folder "
+            "or pass overwrite=True (CLI: --overwrite) to replace its results."
+        )
 
 
 def _prepare_out_dir(out_dir: Path, overwrite: bool) -> None:
-    if out_dir.exists() and not out_dir.is_dir():
-        raise FileExistsError(f"run folder {str(out_dir)!r} exists and is a file; choose another --out folder.")
+    check_run_folder(out_dir, overwrite)
     if out_dir.is_dir() and any(out_dir.iterdir()):
-        if not overwrite:
-            raise FileExistsError(
-                f"run folder {str(out_dir)!r} already exists and is not empty; choose a new folder "
-                "or pass overwrite=True (CLI: --overwrite) to replace its results."
-            )
         # Remove the previous run's files so no stale predictions_<old method>.csv is left behind;
         # anything else the user put there is kept.
         for pattern in _RUN_FILE_PATTERNS:
@@ -118,6 +132,110 @@ def _fmt(value: float | int | None) -> str:
     return repr(float(value)) if isinstance(value, float) else str(value)
 
 
+def _atomic_write_text(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file and a rename: a reader (or a crash)
+    sees the old file or the new one, never half of one."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def _csv_text(results: Sequence[EvaluationResult]) -> str:
+    tolerances = sorted({t for r in results for t in r.recall})
+    ks = sorted({k for r in results for k in (r.recall_at_k or {})})
+    header = ["method", "status", "reference", "uses_query_sequence", "budget", "n_map", "n_queries", "nbytes",
+              "fit_time_s", "query_time_s_per_query"]
+    header += [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks] + ["reason"]
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(header)
+    for r in results:
+        row = [r.name, r.status, int(r.reference), int(r.uses_query_sequence), _fmt(r.budget), _fmt(r.n_map),
+               r.n_queries, _fmt(r.nbytes), _fmt(r.fit_time_s), _fmt(r.query_time_s_per_query)]
+        row += [_fmt(r.recall.get(t)) for t in tolerances]
+        row += [_fmt((r.recall_at_k or {}).get(k)) for k in ks]
+        row.append(r.reason or "")
+        writer.writerow(row)
+    return buffer.getvalue()
+
+
+class RunWriter:
+    """A run folder written as an evaluation goes: metrics after every method, plots at the end.
+
+    Creating the writer checks the folder at once (before anything is fitted): an existing
+    non-empty folder is refused unless ``overwrite``. :meth:`write` rewrites ``metrics.json`` and
+    ``metrics.csv`` atomically with every row so far (rows that did not run included, with their
+    status and reason) and writes the new rows' predictions; ``metrics.json`` says
+    ``"complete": false`` until :meth:`finish` draws the plots and marks it complete. A crash or
+    Ctrl-C between methods therefore leaves every finished method on disk.
+
+    Parameters
+    ----------
+    out_dir : path
+    command : str or sequence of str, optional
+        Command line to record; default ``sys.argv``.
+    extra : mapping, optional
+        More run metadata (data set, budget, …), JSON-safe.
+    overwrite : bool, default False
+        Replace the run files of an existing non-empty folder (only run files are removed).
+
+    Raises
+    ------
+    FileExistsError
+        ``out_dir`` exists, is not empty, and ``overwrite`` is False; or it is a file.
+    """
+
+    def __init__(self, out_dir: str | os.PathLike, *, command: str | Sequence[str] | None = None,
+                 extra: Mapping[str, Any] | None = None, overwrite: bool = False) -> None:
+        self.out_dir = Path(out_dir)
+        _prepare_out_dir(self.out_dir, overwrite)
+        self.meta = run_metadata(command)
+        if extra:
+            self.meta["extra"] = _jsonable(dict(extra))
+        self.metrics_json = self.out_dir / "metrics.json"
+        self.metrics_csv = self.out_dir / "metrics.csv"
+        self.predictions: dict[str, Path] = {}
+        self.plots: list[Path] = []
+
+    def write(self, results: Sequence[EvaluationResult], *, complete: bool = False) -> None:
+        """Write the metrics of every row so far, and the predictions of rows not written yet."""
+        results = list(results)
+        safe = [_safe_name(r.name) for r in results]
+        if len(set(safe)) != len(safe):
+            raise InvalidParameterError(
+                f"method names {[r.name for r in results]} are not distinct once made file-safe ({safe}); "
+                "give each evaluate(...) call its own name=."
+            )
+        payload = {"run": {**self.meta, "complete": bool(complete)}, "results": [r.to_dict() for r in results]}
+        _atomic_write_text(self.metrics_json, json.dumps(payload, indent=2, allow_nan=False) + "\n")
+        _atomic_write_text(self.metrics_csv, _csv_text(results))
+        for r, stem in zip(results, safe):
+            if not r.ok or r.name in self.predictions:
+                continue
+            path = self.out_dir / f"predictions_{stem}.csv"
+            columns = [np.arange(r.n_queries), r.predictions]
+            names = ["query", "prediction"]
+            if r.ground_truth is not None and r.ground_truth.kind == "places":
+                columns.append(r.ground_truth.query_places)
+                names.append("true")
+            if r.ranked is not None and r.ranked.shape[1] > 1:
+                columns.append(r.ranked)
+                names += [f"rank_{j + 1}" for j in range(r.ranked.shape[1])]
+            np.savetxt(path, np.column_stack(columns), fmt="%d", delimiter=",", header=",".join(names), comments="")
+            self.predictions[r.name] = path
+
+    def finish(self, results: Sequence[EvaluationResult], *, plots: bool = True, title: str | None = None) -> "RunReport":
+        """Write the final metrics (``"complete": true``) and the plots; return what was written."""
+        results = list(results)
+        self.write(results, complete=True)
+        measured = [r for r in results if r.ok]
+        if plots and measured:
+            from . import plots as _plots
+
+            self.plots = _plots.plot_run(measured, self.out_dir, title=title)
+        return RunReport(self.out_dir, self.metrics_json, self.metrics_csv, dict(self.predictions), list(self.plots))
+
+
 def write_run(
     results: Sequence[EvaluationResult],
     out_dir: str | os.PathLike,
@@ -126,18 +244,20 @@ def write_run(
     extra: Mapping[str, Any] | None = None,
     overwrite: bool = False,
     plots: bool = True,
+    title: str | None = None,
 ) -> RunReport:
-    """Write a run folder: metrics, per-method predictions and plots.
+    """Write a run folder at once: metrics, per-method predictions and plots (see :class:`RunWriter`).
 
     Files:
 
-    - ``metrics.json`` — ``{"run": run_metadata(command) + extra, "results": [r.to_dict(), …]}``;
-    - ``metrics.csv`` — one row per method: method, n_map, n_queries, nbytes, fit_time_s,
-      query_time_s_per_query, ``recall@t`` for every tolerance, ``R@K`` for every K (blank
-      where a method has none);
-    - ``predictions_<method>.csv`` — columns ``query,prediction`` plus ``true`` when the ground
-      truth has one true place per query;
-    - ``recall_vs_tolerance.png`` and, when storage is known, ``recall_vs_storage.png``.
+    - ``metrics.json`` — ``{"run": run_metadata(command) + extra + complete, "results": [r.to_dict(), …]}``;
+    - ``metrics.csv`` — one row per method: method, status, reference, uses_query_sequence, budget,
+      n_map, n_queries, nbytes, fit_time_s, query_time_s_per_query, ``recall@t`` for every
+      tolerance, ``R@K`` for every K (blank where a row has none), reason;
+    - ``predictions_<method>.csv`` — columns ``query,prediction``, ``true`` when the ground truth
+      has one true place per query, and ``rank_1…rank_K`` (rows that ran only);
+    - ``recall_vs_tolerance.png`` (frame-aligned ground truth) or ``recall_at_k.png`` (explicit
+      positives), and ``recall_vs_storage.png`` when storage is known.
 
     Parameters
     ----------
@@ -153,6 +273,8 @@ def write_run(
         Replace the results in an existing non-empty folder (only run files are removed).
     plots : bool, default True
         Also draw the PNG plots.
+    title : str, optional
+        Plot title (data set, budget, ground truth).
 
     Returns
     -------
@@ -174,55 +296,8 @@ def write_run(
             f"method names {[r.name for r in results]} are not distinct once made file-safe ({safe}); "
             "give each evaluate(...) call its own name=."
         )
-    out_dir = Path(out_dir)
-    _prepare_out_dir(out_dir, overwrite)
-
-    meta = run_metadata(command)
-    if extra:
-        meta["extra"] = _jsonable(dict(extra))
-    metrics_json = out_dir / "metrics.json"
-    payload = {"run": meta, "results": [r.to_dict() for r in results]}
-    metrics_json.write_text(json.dumps(payload, indent=2, allow_nan=False) + "\n", encoding="utf-8")
-
-    tolerances = sorted({t for r in results for t in r.recall})
-    ks = sorted({k for r in results for k in (r.recall_at_k or {})})
-    header = ["method", "n_map", "n_queries", "nbytes", "fit_time_s", "query_time_s_per_query"]
-    header += [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks]
-    metrics_csv = out_dir / "metrics.csv"
-    with open(metrics_csv, "w", newline="", encoding="utf-8") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(header)
-        for r in results:
-            row = [r.name, _fmt(r.n_map), r.n_queries, _fmt(r.nbytes)]
-            row += [_fmt(r.fit_time_s), _fmt(r.query_time_s_per_query)]
-            row += [_fmt(r.recall.get(t)) for t in tolerances]
-            row += [_fmt((r.recall_at_k or {}).get(k)) for k in ks]
-            writer.writerow(row)
-
-    prediction_files: dict[str, Path] = {}
-    for r, stem in zip(results, safe):
-        path = out_dir / f"predictions_{stem}.csv"
-        columns = [np.arange(r.n_queries), r.predictions]
-        names = ["query", "prediction"]
-        if r.ground_truth is not None and r.ground_truth.kind == "places":
-            columns.append(r.ground_truth.query_places)
-            names.append("true")
-        np.savetxt(path, np.column_stack(columns), fmt="%d", delimiter=",", header=",".join(names), comments="")
-        prediction_files[r.name] = path
-
-    plot_files: list[Path] = []
-    if plots:
-        from . import plots as _plots
-
-        plot_files.append(out_dir / "recall_vs_tolerance.png")
-        _plots.plot_recall_vs_tolerance(results, plot_files[-1])
-        rows = [r.to_row() for r in results if r.nbytes is not None]
-        common = set.intersection(*(set(r["recall"]) for r in rows)) if rows else set()
-        if common:
-            t = 10 if 10 in common else max(common)
-            plot_files.append(out_dir / "recall_vs_storage.png")
-            _plots.plot_recall_vs_storage(rows, plot_files[-1], tolerance=t)
-    return RunReport(out_dir, metrics_json, metrics_csv, prediction_files, plot_files)
+    writer = RunWriter(out_dir, command=command, extra=extra, overwrite=overwrite)
+    return writer.finish(results, plots=plots, title=title)
 
 
 def recompute_recall_from_csv(

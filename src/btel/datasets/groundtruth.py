@@ -16,13 +16,18 @@ Two kinds of ground truth, one :class:`GroundTruth` class:
     ``posDistThr``) become positives: the map places within ``posDistThr`` metres of the query.
 
 Files (:meth:`GroundTruth.from_file`) are ``.npz`` / ``.npy`` read with ``allow_pickle=False``,
-or MATLAB ``.mat`` files read with :func:`scipy.io.loadmat`; see that method for the layouts.
+MATLAB ``.mat`` files read with :func:`scipy.io.loadmat`, CSV files of positives, and VPR-Bench's
+``ground_truth_new.npy`` — an object array, i.e. a pickle — read by :func:`read_object_npy`, a
+restricted reader that can build numpy integer arrays and nothing else; see that function.
 """
 
 from __future__ import annotations
 
+import csv
+import io
 import logging
 import os
+import pickle
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -33,12 +38,141 @@ import scipy.sparse as sp
 from .._validation import check_descriptors, check_positive_int
 from ..exceptions import DataNotFoundError, DimensionMismatchError, InvalidParameterError
 
-__all__ = ["GroundTruth", "save_positives", "load_positives", "check_predictions"]
+__all__ = ["GroundTruth", "save_positives", "load_positives", "check_predictions", "read_object_npy"]
 
 logger = logging.getLogger(__name__)
 
 _UTM_KEYS = ("utmDb", "utmQ", "posDistThr")
 _CSR_KEYS = ("indptr", "indices")
+
+# -- VPR-Bench's object arrays, without unpickling arbitrary objects --------------------------------
+#: The only globals a pickled object array of integer arrays refers to (numpy 1.x and 2.x names),
+#: plus ``_codecs.encode``, which protocol-2 pickles (Python 2 era files) use to spell bytes.
+_ALLOWED_GLOBALS = {
+    ("numpy.core.multiarray", "_reconstruct"),
+    ("numpy._core.multiarray", "_reconstruct"),
+    ("numpy.core.multiarray", "scalar"),
+    ("numpy._core.multiarray", "scalar"),
+    ("numpy", "ndarray"),
+    ("numpy", "dtype"),
+    ("_codecs", "encode"),
+}
+#: Largest object-array file read (a ground truth is small; this bounds the memory a hostile
+#: file can ask for).
+_MAX_OBJECT_NPY_BYTES = 256 * 1024 * 1024
+
+
+class _NumpyOnlyUnpickler(pickle.Unpickler):
+    """An unpickler whose ``find_class`` resolves only :data:`_ALLOWED_GLOBALS`.
+
+    Why it cannot run code: a pickle calls code only through objects it names by module and name
+    (GLOBAL / STACK_GLOBAL / INST / OBJ opcodes, and the copyreg extension codes EXT1/2/4, which
+    CPython also resolves through ``find_class``); REDUCE, NEWOBJ and BUILD can only call what
+    such a lookup returned, or methods of containers (list, dict, tuple) the pickle builds itself.
+    Here every lookup but numpy's array and dtype reconstruction raises, and persistent IDs are
+    refused by :meth:`persistent_load`. The reconstruction functions only allocate arrays and set
+    their dtype, shape and data. (This is the "restricting globals" recipe of the ``pickle``
+    documentation, in the spirit of skops' trusted types.)
+    """
+
+    def find_class(self, module: str, name: str) -> object:
+        if (module, name) in _ALLOWED_GLOBALS:
+            return super().find_class(module, name)
+        raise pickle.UnpicklingError(
+            f"refused global {module}.{name}: only numpy arrays of integers are read from object arrays")
+
+    def persistent_load(self, pid: object) -> object:
+        raise pickle.UnpicklingError("refused persistent id: only numpy arrays of integers are read")
+
+
+def read_object_npy(path: str | os.PathLike) -> np.ndarray:
+    """Read an ``.npy`` holding an object array whose items are integer arrays or lists of integers.
+
+    This is how VPR-Bench stores ground truth (``ground_truth_new.npy``: per query, the indices of
+    its correct map images), and ``np.load`` only reads it with ``allow_pickle=True``, which would
+    run any code the file names. Here the header is parsed by numpy and the pickled payload by
+    :class:`_NumpyOnlyUnpickler`, which can build numpy arrays, dtypes, numpy scalars, lists,
+    tuples, ints and strings and nothing else (see its docstring for why no code can run). The
+    result is then checked: every leaf must be an integer.
+
+    Returns
+    -------
+    ndarray, dtype object
+        As stored (1-D: one item per query; 2-D: VPR-Bench's rows ``[query index, positives]``).
+
+    Raises
+    ------
+    DataNotFoundError
+        Not an .npy file, a plain (non-object) array, a refused global, or items that are not integers.
+    """
+    path = Path(path)
+    if path.stat().st_size > _MAX_OBJECT_NPY_BYTES:
+        raise DataNotFoundError(f"{str(path)!r} is over {_MAX_OBJECT_NPY_BYTES >> 20} MB; not a ground-truth file.")
+    with open(path, "rb") as fh:
+        try:
+            version = np.lib.format.read_magic(fh)
+            read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                           else np.lib.format.read_array_header_2_0)
+            shape, fortran, dtype = read_header(fh)
+        except ValueError as exc:
+            raise DataNotFoundError(f"{str(path)!r} is not an .npy file ({exc}).") from exc
+        if not dtype.hasobject:
+            raise DataNotFoundError(f"{str(path)!r} holds a plain {dtype} array, not an object array.")
+        payload = fh.read()
+    try:
+        array = _NumpyOnlyUnpickler(io.BytesIO(payload), encoding="latin1").load()
+    except (pickle.UnpicklingError, EOFError, AttributeError, TypeError, ValueError, ImportError) as exc:
+        raise DataNotFoundError(
+            f"{str(path)!r} holds pickled objects other than numpy integer arrays ({exc}); btel reads only "
+            "integer arrays from object arrays and never runs code from a file."
+        ) from exc
+    if not isinstance(array, np.ndarray) or array.dtype != object or array.shape != tuple(shape):
+        raise DataNotFoundError(f"{str(path)!r}: the pickled payload is not the object array its header announces.")
+    for item in array.ravel():
+        _integers(item, str(path))
+    return array
+
+
+def _integers(item: object, source: str) -> np.ndarray:
+    """An item of an object array as a 1-D int64 array; anything but integers is refused."""
+    if isinstance(item, (bool, np.bool_)):
+        raise DataNotFoundError(f"{source}: found a boolean where place indices were expected.")
+    if isinstance(item, (int, np.integer)):
+        return np.array([int(item)], dtype=np.int64)
+    if isinstance(item, (list, tuple)):
+        parts = [_integers(x, source) for x in item]
+        return np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+    if isinstance(item, np.ndarray):
+        if item.dtype == object:
+            return _integers(list(item.ravel()), source)
+        if item.dtype.kind in "iu":
+            return item.astype(np.int64).ravel()
+        if item.dtype.kind == "f" and item.size and np.all(np.isfinite(item)) and np.all(item == np.round(item)):
+            return item.astype(np.int64).ravel()
+        if item.size == 0:
+            return np.zeros(0, dtype=np.int64)
+        raise DataNotFoundError(f"{source}: found an array of dtype {item.dtype} where place indices were expected.")
+    raise DataNotFoundError(f"{source}: found a {type(item).__name__} where place indices were expected.")
+
+
+def _positives_from_object_array(array: np.ndarray, source: str) -> list[np.ndarray]:
+    """Per-query positives from VPR-Bench's layout (rows ``[query index, positives]``) or a 1-D
+    object array (item j = positives of query j)."""
+    if array.ndim == 2 and array.shape[1] == 2:
+        queries = [int(_integers(q, source)[0]) for q in array[:, 0]]
+        if sorted(queries) != list(range(len(queries))):
+            raise DataNotFoundError(
+                f"{source}: the query indices in column 0 are not 0..{len(queries) - 1} once each; cannot tell "
+                "which query row each list of positives belongs to.")
+        out: list[np.ndarray] = [np.zeros(0, dtype=np.int64)] * len(queries)
+        for q, positives in zip(queries, array[:, 1]):
+            out[q] = _integers(positives, source)
+        return out
+    if array.ndim == 1:
+        return [_integers(item, source) for item in array]
+    raise DataNotFoundError(
+        f"{source}: an object array of shape {array.shape}; expected VPR-Bench's (n_queries, 2) rows "
+        "[query index, positives] or a 1-D array of per-query positives.")
 
 
 def check_predictions(predictions: Any, n_queries: int, *, name: str = "predictions") -> np.ndarray:
@@ -248,7 +382,15 @@ class GroundTruth:
           array: one true place per query;
         - ``.mat`` (MATLAB, read with scipy): top-level ``utmDb``/``utmQ``/``posDistThr`` (one
           position per row), or NetVLAD's ``dbStruct`` whose ``utmDb``/``utmQ`` are 2×n
-          (transposed on reading).
+          (transposed on reading);
+        - ``.npy`` object array as VPR-Bench writes it (``ground_truth_new.npy``: rows ``[query
+          index, positives]``, or one item of positives per query), read by
+          :func:`read_object_npy` (numpy integer arrays only, nothing else is unpickled);
+        - ``.csv``: explicit positives with a header ``query,positive`` and one (query, map place)
+          pair per line (a query may take several lines; a query without any line has no
+          positive), or a header ``query,positives`` with the places of each query separated by
+          spaces or semicolons in one cell. Queries are numbered from 0; the number of queries is
+          the largest query index + 1.
 
         Raises
         ------
@@ -261,9 +403,14 @@ class GroundTruth:
         suffix = path.suffix.lower()
         if suffix == ".mat":
             return cls._from_mat(path)
+        if suffix in (".csv", ".txt"):
+            return cls._from_csv(path)
         try:
             loaded = np.load(path, allow_pickle=False)
         except ValueError as exc:
+            if suffix == ".npy" and "pickle" in str(exc).lower():
+                # VPR-Bench's ground_truth_new.npy: an object array, read without unpickling objects.
+                return cls.from_positives(_positives_from_object_array(read_object_npy(path), repr(str(path))))
             raise DataNotFoundError(
                 f"ground-truth file {str(path)!r} holds pickled objects or is not numpy data ({exc}); "
                 "btel never loads pickles. Save plain arrays with np.savez."
@@ -280,6 +427,33 @@ class GroundTruth:
         with loaded as npz:
             arrays = {name: npz[name] for name in npz.files}
         return cls._from_arrays(arrays, str(path))
+
+    @classmethod
+    def _from_csv(cls, path: Path) -> "GroundTruth":
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            reader = csv.reader(fh)
+            header = [h.strip().lower() for h in next(reader, [])]
+            rows = [row for row in reader if row and any(cell.strip() for cell in row)]
+        if len(header) < 2 or header[0] != "query" or header[1] not in ("positive", "positives"):
+            raise DataNotFoundError(
+                f"{str(path)!r} has header {header}; a ground-truth CSV starts with 'query,positive' (one pair "
+                "per line) or 'query,positives' (places separated by spaces or ';').")
+        pairs: list[tuple[int, list[int]]] = []
+        for line, row in enumerate(rows, start=2):
+            try:
+                query = int(row[0])
+                places = [int(x) for x in row[1].replace(";", " ").split()] if len(row) > 1 else []
+            except ValueError:
+                raise DataNotFoundError(f"{str(path)!r} line {line}: {row} is not query index, place indices.") from None
+            if query < 0:
+                raise DataNotFoundError(f"{str(path)!r} line {line}: query index {query} is negative.")
+            pairs.append((query, places))
+        if not pairs:
+            raise DataNotFoundError(f"{str(path)!r} lists no query.")
+        positives: list[list[int]] = [[] for _ in range(max(q for q, _ in pairs) + 1)]
+        for query, places in pairs:
+            positives[query].extend(places)
+        return cls.from_positives(positives)
 
     @classmethod
     def _from_arrays(cls, arrays: dict[str, np.ndarray], source: str) -> "GroundTruth":

@@ -19,6 +19,9 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
+from collections import Counter
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -32,6 +35,7 @@ from ..storage import load_arrays, save_arrays
 from .images import ImageInput, as_image_list, iter_grey
 
 __all__ = [
+    "DescriptorWarning",
     "ImageDescriptor",
     "DESCRIPTORS",
     "register_descriptor",
@@ -45,6 +49,15 @@ FILE_KIND = "image-descriptor"
 
 #: Registry: short name → descriptor class (filled by :func:`register_descriptor`).
 DESCRIPTORS: dict[str, type["ImageDescriptor"]] = {}
+
+
+#: An image whose aspect ratio differs from the thumbnail's by more than this share is distorted.
+_ASPECT_SLACK = 0.05
+
+
+class DescriptorWarning(UserWarning):
+    """Something a descriptor did to the images that the user did not ask for (a distorting
+    resize, mixed image sizes, a PCA capped below the requested size)."""
 
 
 def register_descriptor(cls: type["ImageDescriptor"]) -> type["ImageDescriptor"]:
@@ -96,6 +109,42 @@ class ImageDescriptor(BaseEstimator):
     def output_dim(self) -> int:  # pragma: no cover - every subclass overrides
         """Length of one descriptor."""
         raise NotImplementedError
+
+    @property
+    def thumbnail_size(self) -> tuple[int, int] | None:
+        """``(width, height)`` every image is resized to before encoding, or None (kept as is)."""
+        return None
+
+    def _watch_sizes(self, greys: Iterator[np.ndarray], sizes: Counter) -> Iterator[np.ndarray]:
+        """Pass the images through, counting their (width, height)."""
+        for grey in greys:
+            sizes[(int(grey.shape[1]), int(grey.shape[0]))] += 1
+            yield grey
+
+    def _warn_about_sizes(self, sizes: Counter) -> None:
+        """Say (as a :class:`DescriptorWarning`) when images came in several sizes, or when the fixed
+        thumbnail size distorts them: both change the descriptors silently otherwise."""
+        if len(sizes) > 1:
+            listed = ", ".join(f"{w}×{h} ({n})" for (w, h), n in sizes.most_common(4))
+            more = f" and {len(sizes) - 4} more" if len(sizes) > 4 else ""
+            warnings.warn(
+                f"{self.name}: the images come in {len(sizes)} sizes ({listed}{more}); descriptors of differently "
+                "sized images of one place may differ. Give every image the same size.",
+                DescriptorWarning, stacklevel=3)
+        target = self.thumbnail_size
+        if target is None or not sizes:
+            return
+        width, height = target
+        aspect = width / height
+        distorted = [(w, h) for (w, h) in sizes if abs((w / h) / aspect - 1.0) > _ASPECT_SLACK]
+        if distorted:
+            w, h = max(distorted, key=lambda wh: sizes[wh])
+            suggestion = (round(height * w / h / 8) * 8 or 8, height)
+            warnings.warn(
+                f"{self.name} resizes every image to {width}×{height} (aspect {aspect:.2f}), but these images are "
+                f"{w}×{h} (aspect {w / h:.2f}): they are stretched. Pass a size with their aspect, e.g. "
+                f"size=({suggestion[0]}, {suggestion[1]}) (btel extract --size {suggestion[0]}x{suggestion[1]}).",
+                DescriptorWarning, stacklevel=3)
 
     # -- shared ------------------------------------------------------------------------------
     def fit(self, images: ImageInput = None, y: Any = None, *, progress: bool = True) -> "ImageDescriptor":
@@ -153,7 +202,8 @@ class ImageDescriptor(BaseEstimator):
         n = len(items)
         out = np.empty((n, self.output_dim), dtype=np.float32)
         raw = np.empty((min(n, self._batch_size), self._raw_dim()), dtype=np.float32)
-        greys = iter_grey(items, progress=progress, desc=self.name)
+        sizes: Counter = Counter()
+        greys = self._watch_sizes(iter_grey(items, progress=progress, desc=self.name), sizes)
         for start in range(0, n, raw.shape[0]):
             stop = min(n, start + raw.shape[0])
             with single_blas_thread():
@@ -161,6 +211,7 @@ class ImageDescriptor(BaseEstimator):
                     raw[row] = self._encode(next(greys))
             # The batch projection is one large product: there BLAS threads pay off.
             out[start:stop] = self._project(raw[: stop - start])
+        self._warn_about_sizes(sizes)
         return out
 
     def fit_transform(self, images: ImageInput, y: Any = None, *, progress: bool = True) -> np.ndarray:

@@ -37,6 +37,7 @@ Choices and deviations from the paper, each deliberate:
 
 from __future__ import annotations
 
+import warnings
 from functools import lru_cache
 from typing import Any, ClassVar
 
@@ -49,7 +50,7 @@ from sklearn.utils import check_random_state
 
 from .._validation import check_is_fitted, check_positive_int
 from ..exceptions import InvalidParameterError, NotEnoughPlacesError
-from .base import ImageDescriptor, register_descriptor, single_blas_thread
+from .base import DescriptorWarning, ImageDescriptor, register_descriptor, single_blas_thread
 from .images import iter_grey, to_grey
 
 __all__ = ["DenseVLADDescriptor", "dense_rootsift", "vlad_encode", "SIFT_DIM"]
@@ -372,6 +373,14 @@ class DenseVLADDescriptor(ImageDescriptor):
         self.pca_explained_variance_ = variance[:kept].astype(np.float32)
         self.n_components_ = kept
         self.dim_ = kept
+        if kept < int(self.n_components):
+            why = (f"PCA has at most n_train − 1 = {n_images - 1} directions of variance on {n_images} map images"
+                   if cap == n_images - 1 and kept == cap else
+                   f"only {kept} of {cap} components have non-zero variance (duplicate or blank map frames)")
+            warnings.warn(
+                f"densevlad: n_components={self.n_components} requested, {kept}-D descriptors produced: {why}. "
+                f"The paper's {self.n_components}-D needs at least {int(self.n_components) + 1} distinct map images; "
+                "pass n_components=None (btel extract --param n_components=null) to keep the raw VLAD vector instead.", DescriptorWarning, stacklevel=3)
         return np.concatenate([self._project(raw[i : i + self._batch_size]) for i in range(0, n_images, self._batch_size)])
 
     # -- persistence --------------------------------------------------------------------------

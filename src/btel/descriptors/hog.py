@@ -92,6 +92,12 @@ class HOGDescriptor(ImageDescriptor):
         return n_r, n_c
 
     @property
+    def thumbnail_size(self) -> tuple[int, int]:
+        """Every image is resized to ``size`` = (width, height), whatever its aspect (warned when it
+        distorts the images)."""
+        return check_pair(self.size, "size")
+
+    @property
     def output_dim(self) -> int:
         """Descriptor length: blocks × cells per block × orientations (3780 by default)."""
         n_r, n_c = self._blocks()

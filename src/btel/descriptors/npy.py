@@ -1,12 +1,21 @@
-"""Descriptor matrices computed by other tools (NetVLAD, DenseVLAD in MATLAB, ...) as ``.npy``.
+"""Descriptor matrices computed by other tools (NetVLAD, DenseVLAD in MATLAB, hloc, ...).
 
-Row i is the global descriptor of image (place) i. Files are read with ``allow_pickle=False``:
-nothing in a descriptor file can run code.
+Row i is the global descriptor of image (place) i. Formats:
+
+- ``.npy`` / ``.npz``, read with ``allow_pickle=False``: nothing in a descriptor file can run code;
+- ``.h5`` / ``.hdf5`` as written by hloc's ``extract_features`` for global descriptors (NetVLAD,
+  OpenIBL, EigenPlaces, ...): one HDF5 group per image name holding a ``global_descriptor``
+  dataset. Image names may contain ``/`` (hloc then nests groups: ``db/0001.jpg``). Rows are the
+  images in **natural name order** (``img2`` before ``img10``), which is the route order when the
+  file names are frame numbers; ``PATH.h5:PREFIX`` keeps only the names starting with ``PREFIX``
+  (hloc often keeps map and query images in one file, e.g. ``feats.h5:db/`` and ``feats.h5:query/``).
+  HDF5 holds plain arrays only; h5py reads no pickles.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import zipfile
 from pathlib import Path
 
@@ -15,7 +24,82 @@ import numpy as np
 from .._validation import check_descriptors
 from ..exceptions import DataNotFoundError, InvalidDescriptorsError, InvalidParameterError
 
-__all__ = ["load_descriptor_matrix"]
+__all__ = ["load_descriptor_matrix", "load_hloc_global", "HDF5_SUFFIXES"]
+
+HDF5_SUFFIXES = (".h5", ".hdf5")
+_HLOC_DATASET = "global_descriptor"
+
+
+def _natural_key(name: str) -> list:
+    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
+
+
+def split_prefix(path: str | os.PathLike) -> tuple[Path, str | None]:
+    """``"feats.h5:db/"`` → (Path("feats.h5"), "db/"), ``"x.npz:hlrTrain"`` → (Path("x.npz"), "hlrTrain");
+    a path that exists as given is kept whole."""
+    text = os.fspath(path)
+    if Path(text).exists() or ":" not in text:
+        return Path(text), None
+    head, _, prefix = text.rpartition(":")
+    if Path(head).suffix.lower() in (*HDF5_SUFFIXES, ".npz"):
+        return Path(head), prefix
+    return Path(text), None
+
+
+def load_hloc_global(path: str | os.PathLike, prefix: str | None = None) -> tuple[np.ndarray, list[str]]:
+    """Global descriptors from an hloc HDF5 feature file, one row per image in natural name order.
+
+    Parameters
+    ----------
+    path : path
+        HDF5 file with one group per image name, each holding a ``global_descriptor`` dataset
+        (shape (d,) or (1, d)).
+    prefix : str, optional
+        Keep only images whose name starts with this (e.g. ``"db/"``).
+
+    Returns
+    -------
+    X : ndarray of shape (n_images, d), dtype float32
+    names : list of str
+        Image name of each row.
+
+    Raises
+    ------
+    DataNotFoundError
+        Missing file, or no ``global_descriptor`` (under ``prefix``).
+    InvalidDescriptorsError
+        Not an HDF5 file, descriptors of different lengths, or non-finite values.
+    """
+    import h5py
+
+    path = Path(path)
+    if not path.is_file():
+        raise DataNotFoundError(f"descriptor file {str(path)!r} does not exist. Check the path.")
+    found: dict[str, np.ndarray] = {}
+    try:
+        with h5py.File(path, "r") as fh:
+            def visit(name: str, obj: object) -> None:
+                if isinstance(obj, h5py.Dataset) and name.rsplit("/", 1)[-1] == _HLOC_DATASET:
+                    image = name[: -len(_HLOC_DATASET) - 1] if "/" in name else ""
+                    if prefix is None or image.startswith(prefix):
+                        found[image] = np.asarray(obj[()])
+            fh.visititems(visit)
+    except OSError as exc:
+        raise InvalidDescriptorsError(f"{str(path)!r} is not a readable HDF5 file ({exc}).") from exc
+    if not found:
+        where = f" under {prefix!r}" if prefix else ""
+        raise DataNotFoundError(
+            f"{str(path)!r} holds no '{_HLOC_DATASET}' dataset{where}; expected hloc global features (one group "
+            "per image name with a global_descriptor). Local features (keypoints/descriptors) are not global "
+            "descriptors.")
+    names = sorted(found, key=_natural_key)
+    lengths = {found[n].size for n in names}
+    if len(lengths) != 1:
+        raise InvalidDescriptorsError(
+            f"{str(path)!r}: the global descriptors have different lengths ({sorted(lengths)}); one model must "
+            "describe every image.")
+    X = np.stack([found[n].reshape(-1) for n in names])
+    return check_descriptors(X, name=f"global descriptors in {path.name}"), names
 
 
 def load_descriptor_matrix(
@@ -26,8 +110,9 @@ def load_descriptor_matrix(
     Parameters
     ----------
     path : str or path-like
-        A ``.npy`` file, or an ``.npz`` archive (then ``key`` names the array; it may be left
-        out when the archive holds exactly one).
+        A ``.npy`` file, an ``.npz`` archive (then ``key`` names the array; it may be left
+        out when the archive holds exactly one; ``PATH.npz:KEY`` names it too), or an hloc ``.h5`` file (``PATH.h5:PREFIX``
+        selects the images whose name starts with PREFIX; see the module docstring).
     mmap_mode : {None, "r", "c"}
         ``"r"`` memory-maps a ``.npy`` read-only instead of reading it into memory, for maps
         larger than RAM; the result stays a view of the file when it is already float32 and
@@ -50,7 +135,15 @@ def load_descriptor_matrix(
     InvalidParameterError
         A writable or unknown ``mmap_mode``, or ``mmap_mode`` with an ``.npz``.
     """
-    path = Path(path)
+    path, prefix = split_prefix(path)
+    if prefix is not None and path.suffix.lower() == ".npz":
+        if key is not None and key != prefix:
+            raise InvalidParameterError(f"{path}:{prefix} names array {prefix!r} but key={key!r}; give one.")
+        key = prefix
+    if path.suffix.lower() in HDF5_SUFFIXES:
+        if key is not None:
+            raise InvalidParameterError(f"key={key!r} only applies to .npz archives; write {path}:PREFIX instead.")
+        return load_hloc_global(path, prefix)[0]
     if mmap_mode not in (None, "r", "c"):
         raise InvalidParameterError(
             f"mmap_mode must be None, 'r' or 'c'; got {mmap_mode!r} (writable maps could change the file)."

@@ -102,6 +102,12 @@ class PatchNormDescriptor(ImageDescriptor):
             )
 
     @property
+    def thumbnail_size(self) -> tuple[int, int]:
+        """Every image is resized to ``size`` = (width, height), whatever its aspect (warned when it
+        distorts the images)."""
+        return check_pair(self.size, "size")
+
+    @property
     def output_dim(self) -> int:
         """``width × height`` of the thumbnail (2048 by default)."""
         self._validate_params()

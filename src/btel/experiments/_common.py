@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from ..evaluation import EvaluationResult, evaluate
+from ..evaluation import DEFAULT_TOLERANCES, EvaluationResult, evaluate
 from ..exceptions import BudgetTooSmallError, DataNotFoundError
 from ..methods import make_method
 from ..storage import check_within_budget, format_bytes, parse_budget
@@ -109,11 +109,13 @@ def fit_row(name: str, data: NordlandData, *, budget: Any, n_places: int | None,
     budget_bytes = parse_budget(budget)
     if budget_bytes is not None:
         kwargs["budget"] = budget_bytes
-    row: dict[str, Any] = {"method": label or name, "registry_name": name, "n_places": int(X.shape[0]),
-                           "map": map_season, "budget": budget_bytes, **(extra or {})}
     method = make_method(name, **kwargs)
+    row: dict[str, Any] = {"method": label or name, "registry_name": name, "n_places": int(X.shape[0]),
+                           "map": map_season, "budget": budget_bytes,
+                           "uses_query_sequence": bool(method.uses_query_sequence), **(extra or {})}
     try:
-        result = evaluate(method, X, Q, name=label or name)
+        # The paper's fixed tolerances and 0..80 curve, whatever N (the experiments compare across N).
+        result = evaluate(method, X, Q, name=label or name, tolerances=DEFAULT_TOLERANCES, curve_max=80)
     except BudgetTooSmallError as exc:
         row.update(status=f"does not fit (needs ≥ {exc.minimum} B)", nbytes=None, minimum_bytes=exc.minimum)
         return row, None
@@ -178,15 +180,24 @@ def _write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
 
 
 def describe_row(row: dict[str, Any]) -> str:
-    """One human line for a result row (used by the CLI)."""
+    """One human line for a result row (used by the CLI).
+
+    Metric names as everywhere in btel: ``recall@t`` is the point prediction within t frames,
+    ``R@K`` a correct place among the top K ranked candidates. ``†`` marks methods that use the
+    query sequence; the map→query direction is named when the row has one.
+    """
+    name = row["method"] + (" †" if row.get("uses_query_sequence") else "")
+    if row.get("direction") and "part" not in row:
+        name += f" [{row['direction']}]"
     if row.get("status", "ok") != "ok":
-        return f"{row['method']:<26} {row['status']}"
+        return f"{name:<30} {row['status']}"
     if "decoder" in row or "part" in row:  # the "beyond" experiment: say which read-out and where
         where = row.get("direction") or f"shift {row.get('condition_shift')}"
-        label = f"{row['method']} [{row.get('decoder', 'single')}, {where}]"
-        ranked = f" R@10(ranked)={row['R@10']:.3f}" if row.get("R@10") is not None else ""
+        label = f"{name} [{row.get('decoder', 'single')}, {where}]"
+        ranked = f" R@10={row['R@10']:.3f}" if row.get("R@10") is not None else ""
         return (f"{label:<52} N={row['n_places']:<5} {format_bytes(row['nbytes']):>10}  "
-                f"R@10={row['recall@10']:.3f}{ranked}")
+                f"recall@10={row['recall@10']:.3f}{ranked}")
     size = format_bytes(row["nbytes"]) if row.get("nbytes") is not None else "-"
-    return (f"{row['method']:<26} N={row['n_places']:<5} {size:>10}  R@0={row['recall@0']:.3f} "
-            f"R@10={row['recall@10']:.3f} R@20={row['recall@20']:.3f}")
+    ranked = "".join(f" R@{k}={row[f'R@{k}']:.3f}" for k in (1, 10) if row.get(f"R@{k}") is not None)
+    return (f"{name:<30} N={row['n_places']:<5} {size:>10}  recall@0={row['recall@0']:.3f} "
+            f"recall@10={row['recall@10']:.3f} recall@20={row['recall@20']:.3f}{ranked}")

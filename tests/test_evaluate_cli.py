@@ -1,0 +1,328 @@
+"""`btel evaluate` / `btel demo` as a VPR researcher uses them (issue #14): nothing lost, nothing cryptic.
+
+Each test names the numbered point of the issue it pins down.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from btel.cli import main
+from btel.datasets import GroundTruth, synthetic_route
+from btel.evaluation import EvaluationResult, Job, evaluate_all, format_table, preflight
+from btel.exceptions import BudgetTooSmallError
+from btel.methods import METHODS, make_method
+from btel.runs import RunWriter
+
+
+def run(*args: object) -> "click.testing.Result":  # noqa: F821
+    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+
+
+@pytest.fixture()
+def route_files(tmp_path: Path) -> tuple[Path, Path]:
+    route = synthetic_route(n_places=200, dim=32, seed=0)
+    np.save(tmp_path / "db.npy", route.map)
+    np.save(tmp_path / "q.npy", route.queries)
+    return tmp_path / "db.npy", tmp_path / "q.npy"
+
+
+def _csv_rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+# -- 1, 2: a method that does not fit is a row; all of them are reported before any fit -----------------
+def test_methods_that_do_not_fit_become_rows_and_are_listed_before_fitting(route_files, tmp_path: Path) -> None:
+    """Item 1 and 2: 1.2 KB fits btel-c and pq but not itq (≥ 1352 B) or seqslam (≥ 6408 B); the run
+    goes on, keeps every row, lists both failures before the first fit, and exits 3."""
+    db, q = route_files
+    out = tmp_path / "run"
+    result = run("evaluate", "--db", db, "--queries", q, "--methods", "btel-c,itq,seqslam,pq", "--budget", "1.2KB",
+                 "--param", "btel-c:progress=false", "--no-progress", "--out", out)
+    assert result.exit_code == 3, result.output
+    text = result.output
+    assert "2 of 5 rows cannot run" in text
+    first_fit = text.index("[1/5] fitting")
+    assert text.index("itq: does not fit") < first_fit and text.index("seqslam: does not fit") < first_fit
+    rows = {r["method"]: r for r in _csv_rows(out / "metrics.csv")}
+    assert list(rows) == ["btel-c", "itq", "seqslam", "pq", "bruteforce"]
+    assert {m: r["status"] for m, r in rows.items()} == {
+        "btel-c": "ok", "itq": "does not fit", "seqslam": "does not fit", "pq": "ok", "bruteforce": "ok"}
+    assert "too small for ITQ" in rows["itq"]["reason"] and rows["pq"]["recall@0"] != ""
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["run"]["complete"] is True
+    assert metrics["results"][1]["minimum_bytes"] == 1352 and metrics["results"][2]["minimum_bytes"] == 6408
+    assert (out / "predictions_pq.csv").is_file() and not (out / "predictions_itq.csv").exists()
+
+
+@pytest.mark.slow
+def test_preflight_agrees_with_fit_for_every_method() -> None:
+    """Item 2: the budget check before fitting raises exactly when fit would, with the same minimum."""
+    X = np.random.default_rng(0).normal(size=(260, 24)).astype(np.float32)
+    checked = 0
+    for name in METHODS:
+        if name == "btel-r":  # r = 20 fixed: region sizes come from KTS, so only the fit can tell
+            continue
+        for budget in (300, 2_500, 30_000):
+            params = {"budget": budget}
+            if "progress" in make_method(name).get_params():
+                params["progress"] = False
+            found = preflight([Job(name, make_method(name, **params))], *X.shape).get(name)
+            try:
+                make_method(name, **params).fit(X)
+                fitted = None
+            except BudgetTooSmallError as exc:
+                fitted = exc.minimum
+            assert (found is None) == (fitted is None), (name, budget, found and found.reason)
+            if found is not None:
+                assert found.status == "does not fit" and found.minimum_bytes == fitted, (name, budget)
+                checked += 1
+    assert checked >= 6  # the small budgets really exclude several methods
+    # Too few places for the method's structure (regions, sub-quantisers, periods): known before fitting too.
+    tiny = X[:10]
+    refused = 0
+    for name in METHODS:
+        params = {"progress": False} if "progress" in make_method(name).get_params() else {}
+        found = preflight([Job(name, make_method(name, **params))], *tiny.shape).get(name)
+        try:
+            make_method(name, **params).fit(tiny)
+            error = None
+        except (ValueError, RuntimeError) as exc:
+            error = str(exc)
+        assert (found is None) == (error is None), (name, found and found.reason, error)
+        if found is not None:
+            assert found.status == "failed" and found.reason == " ".join(error.split()), name
+            refused += 1
+    assert refused >= 3  # btel-r (20 regions), pq and opq (16 rows) at least
+
+
+def test_a_failing_method_is_a_row_and_ctrl_c_keeps_finished_rows(tmp_path: Path) -> None:
+    """Item 1: an error inside one fit is a "failed" row; Ctrl-C keeps the rows already written."""
+    route = synthetic_route(n_places=120, dim=16, seed=1)
+
+    class Broken:
+        def fit(self, X):
+            raise RuntimeError("faiss ran out of something")
+
+    class Interrupting:
+        def fit(self, X):
+            raise KeyboardInterrupt
+
+    writer = RunWriter(tmp_path / "run")
+    jobs = [Job("nn", make_method("bruteforce")), Job("broken", Broken()), Job("pq", make_method("pq", budget="4KB")),
+            Job("stop", Interrupting()), Job("after", make_method("bruteforce"))]
+    with pytest.raises(KeyboardInterrupt):
+        evaluate_all(jobs, route.map, route.queries, on_result=writer.write)
+    rows = {r["method"]: r for r in _csv_rows(tmp_path / "run" / "metrics.csv")}
+    assert {m: r["status"] for m, r in rows.items()} == {
+        "nn": "ok", "broken": "failed", "pq": "ok", "stop": "not run", "after": "not run"}
+    assert rows["broken"]["reason"] == "RuntimeError: faiss ran out of something"
+    assert float(rows["nn"]["recall@0"]) == 1.0 or float(rows["nn"]["recall@0"]) > 0.5
+    assert json.loads((tmp_path / "run" / "metrics.json").read_text())["run"]["complete"] is False
+
+
+# -- 3: everything checkable is checked before fitting ----------------------------------------------------
+def test_existing_folder_and_ground_truth_counts_are_checked_before_any_fit(route_files, tmp_path: Path) -> None:
+    db, q = route_files
+    out = tmp_path / "taken"
+    out.mkdir()
+    (out / "metrics.json").write_text("{}")
+    result = run("evaluate", "--db", db, "--queries", q, "--methods", "btel-c,pq", "--out", out, "--no-progress")
+    assert result.exit_code == 1 and "already exists" in result.output and "] fitting" not in result.output
+    GroundTruth.from_places(np.arange(150)).save(tmp_path / "gt.npz")
+    result = run("evaluate", "--db", db, "--queries", q, "--methods", "btel-c", "--ground-truth", tmp_path / "gt.npz",
+                 "--out", tmp_path / "new", "--no-progress")
+    assert result.exit_code == 1 and "] fitting" not in result.output
+    assert "--ground-truth" in result.output and "ground_truth=" not in result.output
+    assert "150 queries but there are 200" in result.output and not (tmp_path / "new").exists()
+
+
+# -- 4: brute force is the unbudgeted reference, in demo and evaluate alike --------------------------------
+def test_brute_force_is_always_the_unbudgeted_reference(route_files, tmp_path: Path) -> None:
+    db, q = route_files
+    for args in (["evaluate", "--db", db, "--queries", q, "--methods", "pq,bruteforce"],
+                 ["demo", "--places", "200", "--dim", "32", "--methods", "pq"]):
+        out = tmp_path / args[0]
+        result = run(*args, "--budget", "5KB", "--out", out, "--no-progress")
+        assert result.exit_code == 0, result.output
+        results = json.loads((out / "metrics.json").read_text())["results"]
+        reference = [r for r in results if r["reference"]]
+        assert [r["name"] for r in reference] == ["bruteforce"] and reference[0]["budget"] is None
+        assert reference[0]["nbytes"] == 200 * 32 * 4 > 5_000  # unbudgeted: the whole map
+        assert "bruteforce*" in result.output and "reference (unbudgeted)" in result.output
+        assert "is the unbudgeted reference" in " ".join(run(args[0], "--help").output.split())
+    out = tmp_path / "none"
+    result = run("evaluate", "--db", db, "--queries", q, "--methods", "pq", "--budget", "5KB", "--no-reference",
+                 "--out", out, "--no-progress")
+    assert [r["name"] for r in json.loads((out / "metrics.json").read_text())["results"]] == ["pq"]
+
+
+# -- 5: every method ranks in the harness, and R@1 is its point prediction --------------------------------
+def test_every_registered_method_gets_r_at_k_with_r1_equal_to_recall0() -> None:
+    route = synthetic_route(n_places=150, dim=24, seed=2)
+    jobs = []
+    for name in METHODS:
+        params = {"progress": False} if "progress" in make_method(name).get_params() else {}
+        if name == "btel-r":
+            params["n_regions"] = 3
+        jobs.append(Job(name, make_method(name, **params)))
+    results = evaluate_all(jobs, route.map, route.queries, ks=(1, 5, 10))
+    for r in results:
+        assert r.ok, (r.name, r.reason)
+        assert set(r.recall_at_k) == {1, 5, 10}, r.name
+        assert r.recall_at_k[1] == r.recall[0], r.name
+        assert r.recall_at_k[1] <= r.recall_at_k[5] <= r.recall_at_k[10], r.name
+    header = format_table(results).splitlines()[0]
+    assert "R@1" in header and "R@10" in header and "recall@0" in header
+
+
+# -- 6: the metrics the ground truth supports ----------------------------------------------------------------
+def test_positives_give_r_at_k_only_and_tolerances_follow_the_route(route_files, tmp_path: Path) -> None:
+    db, q = route_files
+    positives = [[j, j + 1] if j + 1 < 200 else [j] for j in range(200)]
+    GroundTruth.from_positives(positives, n_map=200).save(tmp_path / "pos.npz")
+    out = tmp_path / "pos"
+    result = run("evaluate", "--db", db, "--queries", q, "--methods", "pq", "--budget", "5KB",
+                 "--ground-truth", tmp_path / "pos.npz", "--out", out, "--no-progress")
+    assert result.exit_code == 0, result.output
+    header = next(line for line in result.output.splitlines() if line.startswith("method"))
+    assert "recall@" not in header and header.split()[-3:] == ["R@1", "R@5", "R@10"]
+    assert (out / "recall_at_k.png").is_file() and not (out / "recall_vs_tolerance.png").exists()
+    result = run("evaluate", "--db", db, "--queries", q, "--ground-truth", tmp_path / "pos.npz", "--tolerances", "0,5",
+                 "--out", tmp_path / "x")
+    assert result.exit_code == 2 and "explicit positives" in result.output
+
+    # A 111-place route: tolerances up to a tenth of it; --tolerances and --k choose others.
+    route = synthetic_route(n_places=111, dim=16, seed=0)
+    np.save(tmp_path / "db111.npy", route.map)
+    np.save(tmp_path / "q111.npy", route.queries)
+    out = tmp_path / "r111"
+    result = run("evaluate", "--db", tmp_path / "db111.npy", "--queries", tmp_path / "q111.npy", "--methods", "pq",
+                 "--no-reference", "--out", out, "--no-progress")
+    header = next(line for line in result.output.splitlines() if line.startswith("method"))
+    assert header.split()[-8:] == ["recall@0", "recall@1", "recall@2", "recall@5", "recall@10", "R@1", "R@5", "R@10"]
+    assert len(json.loads((out / "metrics.json").read_text())["results"][0]["recall_curve"]) == 21
+    result = run("evaluate", "--db", tmp_path / "db111.npy", "--queries", tmp_path / "q111.npy", "--methods", "pq",
+                 "--no-reference", "--tolerances", "3,0", "--k", "2", "--out", tmp_path / "r111b", "--no-progress")
+    header = next(line for line in result.output.splitlines() if line.startswith("method"))
+    assert header.split()[-3:] == ["recall@0", "recall@3", "R@2"]
+
+
+# -- 8: sequence methods are marked, and refused on independent queries ----------------------------------
+def test_sequence_methods_are_marked_and_refused_when_rows_are_not_a_route(route_files, tmp_path: Path) -> None:
+    db, q = route_files
+    out = tmp_path / "route"
+    result = run("evaluate", "--db", db, "--queries", q, "--methods", "seqslam,pq", "--param", "pq:delta=3",
+                 "--no-reference", "--out", out, "--no-progress")
+    assert result.exit_code == 0, result.output
+    assert "seqslam†" in result.output and "pq†" in result.output and "uses the query sequence" in result.output
+    assert [r["uses_query_sequence"] for r in _csv_rows(out / "metrics.csv")] == ["1", "1"]
+    out = tmp_path / "independent"
+    result = run("evaluate", "--db", db, "--queries", q, "--methods", "seqslam,btel-c,pq", "--param", "pq:delta=3",
+                 "--param", "btel-c:progress=false", "--query-order", "independent", "--out", out, "--no-progress")
+    assert result.exit_code == 3, result.output
+    status = {r["method"]: r["status"] for r in _csv_rows(out / "metrics.csv")}
+    assert status == {"seqslam": "refused", "btel-c": "ok", "pq": "refused", "bruteforce": "ok"}
+
+
+# -- 11: progress per method and per budget ------------------------------------------------------------------
+def test_one_progress_step_per_method_and_budget(route_files, tmp_path: Path) -> None:
+    db, q = route_files
+    out = tmp_path / "budgets"
+    result = run("evaluate", "--db", db, "--queries", q, "--methods", "pq,itq", "--budget", "4KB,8KB",
+                 "--out", out, "--no-progress")
+    steps = [line for line in result.output.splitlines() if line.startswith("[")]
+    assert [s.split()[0] for s in steps] == ["[1/5]", "[2/5]", "[3/5]", "[4/5]", "[5/5]"]
+    assert any("pq@4KB (4.0 KB)" in s for s in steps) and any("bruteforce (reference, unbudgeted)" in s for s in steps)
+    names = [r["method"] for r in _csv_rows(out / "metrics.csv")]
+    assert names == ["pq@4KB", "pq@8KB", "itq@4KB", "itq@8KB", "bruteforce"]
+
+
+# -- 12: info and methods say what things are ---------------------------------------------------------------
+def test_info_shows_method_parameters_front_end_and_methods_have_descriptions(route_files, tmp_path: Path) -> None:
+    db, _ = route_files
+    model = tmp_path / "m.npz"
+    assert run("train", db, "-o", model, "--method", "btel-f", "--budget", "20KB", "--no-progress").exit_code == 0
+    text = run("info", model).output
+    assert "method: btel-f — BTELocalizer" in text and "scheme=full" in text
+    assert "front end: normalize=l2, whiten=None, delta=None" in text and "total" in text
+    lines = run("methods").output.splitlines()
+    assert len(lines) == len(METHODS)
+    assert all(len(line.split(None, 1)) == 2 for line in lines)  # name, then a description
+    assert any(line.startswith("seqslam") and line.endswith("†") for line in lines)
+
+
+# -- 13: plots have titles, one byte unit style, and a tolerance axis that fits the route --------------------
+def test_plots_have_titles_byte_labels_and_a_fitting_tolerance_axis(tmp_path: Path, monkeypatch) -> None:
+    import btel.plots as plots
+
+    seen = {}
+    original_save = plots._save
+
+    def keep(fig, path):
+        seen[Path(path).name] = fig
+        original_save(fig, path)
+
+    monkeypatch.setattr(plots, "_save", keep)
+    route = synthetic_route(n_places=120, dim=16, seed=0)
+    jobs = [Job("pq", make_method("pq", budget="3KB")), Job("pq-b", make_method("pq", budget="3.2KB")),
+            Job("nn", make_method("bruteforce"), reference=True)]
+    results = evaluate_all(jobs, route.map, route.queries)
+    RunWriter(tmp_path / "run").finish(results, title="toy: N = 120")
+    tolerance_ax = seen["recall_vs_tolerance.png"].axes[0]
+    storage_ax = seen["recall_vs_storage.png"].axes[0]
+    assert seen["recall_vs_tolerance.png"]._suptitle.get_text() == "toy: N = 120" == storage_ax.get_title()
+    assert tolerance_ax.get_xlim()[1] == 20  # 120 places: tolerances up to 10, curve to 20, not 80
+    fig = seen["recall_vs_storage.png"]
+    fig.canvas.draw()
+    labels = [t.get_text() for t in storage_ax.get_xticklabels(minor=False) + storage_ax.get_xticklabels(minor=True)]
+    shown = [t for t in labels if t]
+    assert shown and all(t.endswith("B") for t in shown), shown  # "5.0 KB", never "3×10⁴"
+    legend = [t.get_text() for t in storage_ax.get_legend().get_texts()]
+    assert "nn (reference, unbudgeted)" in legend and "budget" in legend
+    # Two budgets: one panel each, the reference in both, a method keeps its colour across panels.
+    jobs = [Job(f"pq@{b}", make_method("pq", budget=b), series="pq") for b in ("3KB", "6KB")]
+    results = evaluate_all(jobs + [Job("nn", make_method("bruteforce"), reference=True)], route.map, route.queries)
+    RunWriter(tmp_path / "two").finish(results, title="two budgets")
+    panels = seen["recall_vs_tolerance.png"].axes
+    assert [ax.get_title() for ax in panels] == ["budget 3.0 KB", "budget 6.0 KB"]
+    assert [len(ax.get_lines()) for ax in panels] == [2, 2]
+    assert panels[0].get_lines()[0].get_color() == panels[1].get_lines()[0].get_color()
+    series = [line.get_label() for line in seen["recall_vs_storage.png"].axes[0].get_lines()]
+    assert series[:2] == ["pq", "nn (reference, unbudgeted)"]  # one line through both budgets
+
+
+def test_failed_rows_in_the_table_say_why() -> None:
+    rows = [EvaluationResult.not_measured("itq", "does not fit", "budget too small …", budget=5000,
+                                          minimum_bytes=19208)]
+    assert "needs ≥ 19.2 KB (budget 5.0 KB)" in format_table(rows)
+
+
+# -- 7: one name per metric in the experiments too; titles from the run itself -----------------------------
+def test_experiment_lines_and_plot_titles_name_metrics_direction_and_budget(tmp_path: Path, monkeypatch) -> None:
+    import btel.plots as plots
+    from btel.experiments import ExperimentRun, describe_row
+
+    rows = [{"method": m, "n_places": 300, "budget": None if m == "bruteforce" else 50_000, "nbytes": 1000,
+             "direction": d, "status": "ok", "uses_query_sequence": m == "seqslam", "recall@0": 0.1,
+             "recall@10": 0.2, "recall@20": 0.3, "R@1": 0.1, "R@10": 0.4}
+            for d in ("summer→winter", "winter→summer") for m in ("btel-c", "seqslam", "bruteforce")]
+    lines = [describe_row(r) for r in rows]
+    assert lines[0].startswith("btel-c [summer→winter]") and lines[3].startswith("btel-c [winter→summer]")
+    assert lines[1].startswith("seqslam † [summer→winter]")
+    assert "recall@0=0.100" in lines[0] and "R@1=0.100" in lines[0] and "R@10=0.400" in lines[0]
+    assert " R@0=" not in lines[0] and " R@20=" not in lines[0]  # R@ is only ever the ranked metric
+
+    titles = []
+    monkeypatch.setattr(plots, "plot_curves", lambda curves, path, **kw: titles.append((list(curves), kw["title"])))
+    curves = {f"{r['method']} {r['direction']}": [0.1, 0.2] for r in rows}
+    plots.plot_experiment(ExperimentRun("accuracy", rows, tmp_path, curves), tmp_path)
+    assert len(titles) == 2 and all("≤ 50.0 KB" in t and "N = 300" in t and "2 MB" not in t for _, t in titles)
+    assert "seqslam † query sequence" in titles[0][0] and "bruteforce (reference, unbudgeted)" in titles[0][0]
