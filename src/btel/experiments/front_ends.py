@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from ..evaluation import recall_at_k, recall_at_tolerance
+from ..evaluation import DEFAULT_TOLERANCES, recall_at_k, recall_at_tolerance
 from ..storage import check_within_budget, parse_budget
 from ._common import SEASONS, ExperimentRun, NordlandData, fit_model
 
@@ -47,7 +47,7 @@ GARDENS_POINT_FRONT_ENDS: dict[str, dict[str, Any]] = {
     "l2 + delta 5": {"normalize": "l2", "delta": 5},
     "l2 + whiten 64": {"normalize": "l2", "whiten": 64},
 }
-TOLERANCES = (0, 2, 10)
+TOLERANCES = DEFAULT_TOLERANCES
 
 
 def _rows_for(label: str, name: str, params: dict[str, Any], budget: Any, X: np.ndarray, Q: np.ndarray,
