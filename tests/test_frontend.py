@@ -170,3 +170,48 @@ def test_l2_normalisation_on_gardens_point(gardenspoint_netvlad) -> None:
     raw = make_method("bruteforce", normalize="none").fit(X).predict(Q)
     cos = make_method("bruteforce").fit(X).predict(Q)
     assert np.mean(np.abs(cos - t) <= 2) > np.mean(np.abs(raw - t) <= 2) + 0.15
+
+
+# ------------------------------------------------------------------------- the command line
+def _run(*args):
+    from click.testing import CliRunner
+
+    from btel.cli import main
+
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def test_cli_front_end_options(route, tmp_path) -> None:
+    np.save(tmp_path / "db.npy", route.map)
+    np.save(tmp_path / "q.npy", route.queries)
+    result = _run("train", tmp_path / "db.npy", "-o", tmp_path / "m.npz", "--method", "pq", "--delta", 6,
+                  "--whiten", 16)
+    assert result.exit_code == 0, result.output
+    model = btel.load(tmp_path / "m.npz")
+    assert model.front_end_.to_header() == {"normalize": "l2", "whiten": 16, "delta": 6}
+    assert "frontend_whitening" in result.output  # the storage breakdown counts it
+    result = _run("evaluate", "--db", tmp_path / "db.npy", "--queries", tmp_path / "q.npy", "--methods", "pq",
+                  "--delta", 6, "--out", tmp_path / "run", "--no-progress")
+    assert result.exit_code == 0, result.output
+    assert "pq†" in result.output  # a delta front end uses the query sequence: marked
+    result = _run("evaluate", "--model", tmp_path / "m.npz", "--queries", tmp_path / "q.npy", "--delta", 6,
+                  "--out", tmp_path / "run2")
+    assert result.exit_code == 2 and "--model files keep theirs" in result.output
+
+
+def test_cli_extract_delta(gardenspoint_sample_dir, tmp_path) -> None:
+    out = tmp_path / "ref-delta.npy"
+    result = _run("extract", gardenspoint_sample_dir / "ref", "-o", out, "--descriptor", "patchnorm", "--delta", 2,
+                  "--no-progress")
+    assert result.exit_code == 0, result.output
+    plain = np.load(tmp_path / "ref-delta.plain.npy")
+    np.testing.assert_allclose(np.load(out), delta_descriptors(plain, 2), atol=1e-6)
+    result = _run("extract", gardenspoint_sample_dir / "ref", "-o", tmp_path / "x.npy", "--delta", 6, "--no-progress")
+    assert result.exit_code == 1 and "2w = 12" in result.output  # 10 images are too few for W = 6
+
+
+def test_experiment_front_end_override_is_refused_where_the_experiment_sets_it() -> None:
+    from btel.experiments import run_experiment
+
+    with pytest.raises(InvalidParameterError, match="sets each method's front end itself"):
+        run_experiment("front-ends", front_end={"delta": 10}, quick=True)

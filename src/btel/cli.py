@@ -236,6 +236,13 @@ def demo(ctx: click.Context, n_places: int, dim: int, budget: str, methods: str,
         ctx.exit(EXIT_SOME_ROWS_FAILED)
 
 
+_DELTA_HELP = ("Delta (sequence) descriptors over W frames (Garg & Milford 2020): every method's front end turns a "
+               "traverse into mean(last W frames) − mean(the W before), causally; queries are then one ordered "
+               "traverse and the method is marked † (uses the query sequence). Same as --param delta=W.")
+_FRONT_END_HELP = ("Front end of every method (default: rows L2-normalised, SeqSLAM: none): --normalize none|l2|power, "
+                   "--whiten P (PCA-whitening to P dims, counted in the bytes), --delta W.")
+
+
 @main.command()
 @click.argument("images_dir", type=click.Path(file_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Descriptor matrix to write (.npy).")
@@ -253,9 +260,15 @@ def demo(ctx: click.Context, n_places: int, dim: int, budget: str, methods: str,
 @click.option("--save-descriptor", type=click.Path(dir_okay=False), default=None,
               help="Write the fitted descriptor (e.g. the DenseVLAD vocabulary) to describe the queries with it.")
 @click.option("--force", is_flag=True, help="Recompute even if OUTPUT is up to date.")
+@click.option("--delta", "delta", type=int, default=None, metavar="W",
+              help="Write delta descriptors of the traverse instead: row j = mean of frames j−W+1…j minus the mean "
+                   "of the W before (causal; the first frames count the first image as earlier ones). Needs at "
+                   "least 2W images. (Or keep plain descriptors and give --delta W to train/evaluate: the same "
+                   "transform as every method's front end, with L2 normalisation around it.)")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 def extract(images_dir: str, output: str, descriptor: str, size: str | None, param_texts: tuple[str, ...],
-            fit_on: str | None, save_descriptor: str | None, force: bool, no_progress: bool) -> None:
+            fit_on: str | None, save_descriptor: str | None, force: bool, delta: int | None,
+            no_progress: bool) -> None:
     """Describe every image in IMAGES_DIR (natural file-name order = route order) into one .npy matrix.
 
     Row i of OUTPUT is the i-th image. A JSON file beside OUTPUT records the descriptor and the
@@ -291,6 +304,9 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
         model = get_descriptor(descriptor, **params)
         if "size" in params and "size" not in model.get_params():
             raise click.UsageError(f"--size applies to hog and patchnorm; {descriptor} keeps each image's size.")
+    if delta is not None:
+        _extract_delta(images_dir, output, model, fit_on, no_progress, force, delta)
+        return
     X, reused = extract_cached(images_dir, output, model, fit_on=fit_on, progress=not no_progress, force=force)
     if reused:
         click.echo(f"{output} is up to date ({X.shape[0]} images, {descriptor}); use --force to recompute")
@@ -303,6 +319,23 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
         parts = ", ".join(f"{k} {format_bytes(v.nbytes)}" for k, v in model._stored_arrays().items())
         click.echo(f"fitted descriptor written to {path} ({format_bytes(path.stat().st_size)}"
                    f"{': ' + parts if parts else ''})")
+
+
+def _extract_delta(images_dir: str, output: str, model: Any, fit_on: str | None, no_progress: bool, force: bool,
+                   window: int) -> None:
+    """``extract --delta W``: the plain descriptors (cached beside OUTPUT), then their delta, written to OUTPUT."""
+    import numpy as np
+
+    from .descriptors import delta_descriptors
+    from .descriptors.extract import extract_cached
+
+    plain = Path(output).with_name(Path(output).stem + ".plain.npy")
+    X, _ = extract_cached(images_dir, plain, model, fit_on=fit_on, progress=not no_progress, force=force)
+    D = delta_descriptors(X, window)
+    Path(output).parent.mkdir(parents=True, exist_ok=True)
+    np.save(output, D)
+    click.echo(f"{X.shape[0]} images → {D.shape[1]}-D delta descriptors (W = {window}) of {type(model).__name__} "
+               f"written to {output} (plain descriptors kept in {plain})")
 
 
 @main.command()
@@ -329,11 +362,14 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
               help="BTEL: the tolerance t you need (frames); sets --block-size to the largest power of two ≤ t.")
 @click.option("--code-copies", type=int, default=None, help="BTEL: offset (error-correcting) codes, m copies.")
 @click.option("--exemplar-radius", type=int, default=None, help="BTEL: multi-exemplar weights within ±e places.")
+@click.option("--normalize", type=click.Choice(["none", "l2", "power"]), default=None, help=_FRONT_END_HELP)
+@click.option("--whiten", type=int, default=None, metavar="P", help="PCA-whiten to P dimensions (front end).")
+@click.option("--delta", type=int, default=None, metavar="W", help=_DELTA_HELP)
 def train(db: str, output: str, method: str, budget: str | None, param_texts: tuple[str, ...], regions: str | None,
           feature_ratio: float | None, n_features: int | None, classifier: str | None, dtype: str | None,
           n_jobs: int | None, backend: str | None, scheduler: str | None, no_progress: bool,
           random_state: int | None, block_size: int | None, tolerance: int | None, code_copies: int | None,
-          exemplar_radius: int | None) -> None:
+          exemplar_radius: int | None, normalize: str | None, whiten: int | None, delta: int | None) -> None:
     """Fit a model on map descriptors DB and save it; prints the storage breakdown.
 
     DB is a .npy matrix (row i = place i; memory-mapped, so maps larger than RAM work), an .npz,
@@ -368,7 +404,8 @@ def train(db: str, output: str, method: str, budget: str | None, param_texts: tu
              "progress": ("--no-progress", False if no_progress else None),
              "random_state": ("--seed", random_state),
              "block_size": ("--tolerance" if tolerance is not None else "--block-size", block_size),
-             "code_copies": ("--code-copies", code_copies), "exemplar_radius": ("--exemplar-radius", exemplar_radius)}
+             "code_copies": ("--code-copies", code_copies), "exemplar_radius": ("--exemplar-radius", exemplar_radius),
+             "normalize": ("--normalize", normalize), "whiten": ("--whiten", whiten), "delta": ("--delta", delta)}
     shortcuts = {name: (option, value) for name, (option, value) in named.items() if value is not None}
     params = _params_by_method([method], param_texts, shortcuts=shortcuts)[method]
     X = _load_map(db)
@@ -511,12 +548,17 @@ def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_time
               help=_ORDER_HELP)
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Run folder.")
 @click.option("--overwrite", is_flag=True, help="Replace the run files in an existing run folder.")
+@click.option("--normalize", type=click.Choice(["none", "l2", "power"]), default=None,
+              help="Every method's front-end normalisation (default l2; SeqSLAM none). Same as --param normalize=…")
+@click.option("--whiten", type=int, default=None, metavar="P",
+              help="Every method: PCA-whiten to P dimensions (counted in its bytes). Same as --param whiten=P.")
+@click.option("--delta", type=int, default=None, metavar="W", help=_DELTA_HELP)
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 @click.pass_context
 def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...], queries: str, methods: str,
                  budget: str | None, no_reference: bool, param_texts: tuple[str, ...], ground_truth: str | None,
                  tolerances: str | None, ks_text: str, query_order: str, out_dir: str, overwrite: bool,
-                 no_progress: bool) -> None:
+                 normalize: str | None, whiten: int | None, delta: int | None, no_progress: bool) -> None:
     """Localize QUERIES with each method and write metrics.json, metrics.csv, predictions and plots to --out.
 
     Methods are fitted on --db (by name, --methods, each with --budget and its --param values), or
@@ -549,7 +591,13 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
     budgets = _budgets(budget) if budget else [None]
     ks = _int_list(ks_text, "--k", minimum=1)
     tolerance_list = _int_list(tolerances, "--tolerances", minimum=0) if tolerances is not None else None
-    jobs = _fit_jobs(_split(methods), budgets, param_texts, reference=not no_reference) if db is not None else []
+    front = {name: (f"--{name}", value) for name, value in
+             (("normalize", normalize), ("whiten", whiten), ("delta", delta)) if value is not None}
+    if front and db is None:
+        raise click.UsageError("--normalize/--whiten/--delta set the front end of methods fitted on --db; saved "
+                               "--model files keep theirs.")
+    jobs = _fit_jobs(_split(methods), budgets, param_texts, reference=not no_reference, shortcuts=front) \
+        if db is not None else []
     # Cheap checks first, so that nothing is fitted for a run that cannot be written or scored.
     check_run_folder(Path(out_dir), overwrite)
     Q = _load_matrix(queries, "query descriptors")
@@ -626,7 +674,7 @@ def _int_list(text: str, flag: str, *, minimum: int) -> list[int]:
 
 
 def _fit_jobs(names: list[str], budgets: list[str | None], param_texts: tuple[str, ...], *,
-              reference: bool) -> list[Any]:
+              reference: bool, shortcuts: dict[str, tuple[str, Any]] | None = None) -> list[Any]:
     """One job per (method, budget); brute force once, unbudgeted, as the reference row.
 
     The rule (the same in demo and evaluate): brute force stores every map descriptor, so it is the
@@ -638,7 +686,7 @@ def _fit_jobs(names: list[str], budgets: list[str | None], param_texts: tuple[st
 
     if reference and "bruteforce" not in names:
         names = [*names, "bruteforce"]
-    params = _params_by_method(names, param_texts)
+    params = _params_by_method(names, param_texts, shortcuts=shortcuts)
     jobs = []
     for name in names:
         is_reference = name == "bruteforce" and "budget" not in params[name]
@@ -785,11 +833,17 @@ def info(model_path: str) -> None:
 @click.option("--cache", "cache_dir", type=click.Path(file_okay=False), default=None,
               help="Descriptor cache (default OUT/cache).")
 @click.option("--quick", is_flag=True, help="Small version (first 300 frames, few points): for tests and smoke runs.")
-def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | None, quick: bool) -> None:
+@click.option("--delta", type=int, default=None, metavar="W",
+              help="Run every method with delta descriptors over W frames (front end; results go to "
+                   "OUT/NAME-delta-W/ so they sit beside the default runs).")
+def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | None, quick: bool,
+               delta: int | None) -> None:
     """Run one of the paper's experiments on Nordland (or 'all').
 
     \b
-    NAME: accuracy | vs-n | vs-budget | feature-ratio | regions | sequence-filter | beyond | all
+    NAME: accuracy | vs-n | vs-budget | feature-ratio | regions | sequence-filter | beyond |
+          front-ends | all
+    Every method runs with its default front end (rows L2-normalised; SeqSLAM none) unless --delta.
     Each writes results.csv, results.json and PNG plots into OUT/NAME/; `btel report` turns the
     latest runs into docs/results.md.
     """
@@ -799,7 +853,7 @@ def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | 
     for n in names:
         click.echo(f"experiment {n}{' (quick)' if quick else ''} …")
         run = run_experiment(n, data_root=data_root, out_dir=out_dir, cache_dir=cache_dir, quick=quick,
-                             command=_command_line())
+                             command=_command_line(), front_end={"delta": delta} if delta else None)
         for row in run.rows:
             click.echo("  " + describe_row(row))
         click.echo(f"  written to {run.out_dir}")

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 from ..exceptions import InvalidParameterError
 from ..runs import run_metadata
@@ -60,10 +60,18 @@ EXPERIMENTS: dict[str, Callable[[NordlandData, Path, bool], ExperimentRun]] = {
 }
 
 
+#: Experiments that choose every method's front end themselves (they refuse a global override).
+SELF_CONTAINED = ("beyond", "front-ends")
+
+
 def run_experiment(name: str, *, data_root: str | Path | None = None, out_dir: str | Path = "runs/experiments",
                    cache_dir: str | Path | None = None, quick: bool = False, progress: bool = True,
-                   command: str | None = None) -> ExperimentRun:
+                   command: str | None = None, front_end: dict[str, Any] | None = None) -> ExperimentRun:
     """Run one experiment and write ``<out_dir>/<name>/results.{csv,json}`` and its plot(s).
+
+    ``front_end`` (e.g. ``{"delta": 10}``) is given to every method of the paper's experiments (a)–(f)
+    and the results go to ``<out_dir>/<name>-delta-10/``; the experiments that compare front ends
+    or variants themselves (beyond, front-ends) refuse it.
 
     Raises
     ------
@@ -76,15 +84,21 @@ def run_experiment(name: str, *, data_root: str | Path | None = None, out_dir: s
     """
     if name not in EXPERIMENTS:
         raise InvalidParameterError(f"unknown experiment {name!r}; choose from {', '.join(EXPERIMENTS)} or 'all'.")
+    front_end = {k: v for k, v in (front_end or {}).items() if v is not None} or None
+    if front_end and name in SELF_CONTAINED:
+        raise InvalidParameterError(f"experiment {name!r} sets each method's front end itself; run it without "
+                                    "--delta (the paper's experiments (a)–(f) take it).")
     root = Path(data_root) if data_root else default_nordland_root()
-    out = Path(out_dir) / name
+    suffix = "".join(f"-{k}-{v}" for k, v in sorted((front_end or {}).items()))
+    out = Path(out_dir) / f"{name}{suffix}"
     data = NordlandData(root, Path(cache_dir) if cache_dir else Path(out_dir) / "cache", progress=progress,
-                        max_frames=QUICK_FRAMES if quick else None)
+                        max_frames=QUICK_FRAMES if quick else None, front_end=front_end)
     start = time.perf_counter()
     run = EXPERIMENTS[name](data, out, quick)
     meta = {**run_metadata(command or f"btel experiment {name}{' --quick' if quick else ''}"), "experiment": name,
             "quick": quick, "data": str(root.resolve()),
             "descriptor": "HOG 3780-D (SeqSLAM: 64×32 patch-normalised, 2048-D)",
+            "front_end": front_end or "each method's default (rows L2-normalised; SeqSLAM none)",
             "seconds": time.perf_counter() - start}
     write_results(run, out, meta)
     return run

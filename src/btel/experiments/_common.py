@@ -52,6 +52,8 @@ class NordlandData:
     progress: bool = True
     #: Only the first ``max_frames`` frames of each season are read (quick mode); None = all.
     max_frames: int | None = None
+    #: Front-end parameters given to every method (e.g. ``{"delta": 10}``); None: each method's default.
+    front_end: dict[str, Any] | None = None
     _features: dict[tuple[str, str], np.ndarray] = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
@@ -109,9 +111,10 @@ def fit_row(name: str, data: NordlandData, *, budget: Any, n_places: int | None,
     budget_bytes = parse_budget(budget)
     if budget_bytes is not None:
         kwargs["budget"] = budget_bytes
-    method = make_method(name, **kwargs)
+    method = make_method(name, **{**(data.front_end or {}), **kwargs})
+    front = {k: method.get_params()[k] for k in ("normalize", "whiten", "delta")}
     row: dict[str, Any] = {"method": label or name, "registry_name": name, "n_places": int(X.shape[0]),
-                           "map": map_season, "budget": budget_bytes,
+                           "map": map_season, "budget": budget_bytes, "front_end": front,
                            "uses_query_sequence": bool(method.uses_query_sequence), **(extra or {})}
     try:
         # The paper's fixed tolerances and 0..80 curve, whatever N (the experiments compare across N).
