@@ -307,8 +307,9 @@ class Budget:
         return "a byte budget such as 500000, '500KB' or '2MB' (or None)"
 
 
-#: A seed: None or an integer in [0, 2**32 − 1] (what numpy, liblinear and faiss accept).
-RANDOM_STATE = [None, Interval(int, 0, 2**32 - 1)]
+#: A seed: None or an integer in [0, 2**31 − 1] (what numpy, liblinear and faiss all accept: faiss
+#: seeds are C ints).
+RANDOM_STATE = [None, Interval(int, 0, 2**31 - 1)]
 #: joblib / faiss worker counts: None, −1 (every core) or a positive integer.
 N_JOBS = [None, Interval(int, -1, -1), Interval(int, 1, 4096)]
 BOOLEAN = [Options(True, False)]

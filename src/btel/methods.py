@@ -152,9 +152,13 @@ def _params_from_file(cls: type[PlaceLocalizer], params: dict[str, Any]) -> dict
     return out
 
 
+#: Most places a model file may declare: a place index fits in uint32 (the largest map measured has 10⁶).
+MAX_PLACES = 2**32
+
+
 def _restore(model: PlaceLocalizer, arrays: dict[str, Any], state: dict[str, Any]) -> None:
     """Check the common state, the front end and every array's shape and dtype; then restore."""
-    n_places = read_state_int(state, "n_places", 2, 2**40)
+    n_places = read_state_int(state, "n_places", 2, MAX_PLACES)
     n_features = read_state_int(state, "n_features_in", 1, 2**31)
     arrays = dict(arrays)
     model.front_end_ = FrontEnd.restore(state.get("front_end"), arrays, n_features)

@@ -133,6 +133,8 @@ def save_arrays(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], heade
     ModelFileError
         Writing failed (disk full, no permission…); nothing is left behind.
     """
+    if not isinstance(path, (str, os.PathLike)):
+        raise InvalidParameterError(f"the model path must be a string or a path; got {type(path).__name__}.")
     if isinstance(path, str) and not path.strip():
         raise InvalidParameterError("the model path is empty; give a file name such as 'map.btel.npz'.")
     path = Path(path)
@@ -170,6 +172,7 @@ def save_arrays(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], heade
         # mkstemp creates the file readable by its owner only; give it the usual permissions.
         os.chmod(tmp, 0o666 & ~_UMASK)
         os.replace(tmp, path)
+        _fsync_folder(folder)  # the rename itself survives a power cut
     except BaseException as exc:  # KeyboardInterrupt included: never leave the temporary behind
         with contextlib.suppress(OSError):
             tmp.unlink()
@@ -177,6 +180,20 @@ def save_arrays(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], heade
             raise ModelFileError(f"cannot save to {str(path)!r}: {exc.strerror or exc}.") from exc
         raise
     return path
+
+
+def _fsync_folder(folder: Path) -> None:
+    """Flush a folder's entries to disk where the system allows it (POSIX); best effort."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
 
 
 def _read_umask() -> int:
