@@ -72,7 +72,12 @@ class SequenceFilter:
         InvalidParameterError
             ``prediction`` is not a whole number ≥ 0 (and < N when ``n_places`` is given).
         """
-        raw = int(_check_predictions(np.asarray(prediction).reshape(1), self.n_places)[0])
+        if isinstance(prediction, (int, np.integer)) and not isinstance(prediction, (bool, np.bool_)) \
+                and 0 <= prediction < (self.n_places if self.n_places is not None else 2**63):
+            return self._update(int(prediction))  # the usual case, checked without numpy
+        return self._update(int(_check_predictions(np.asarray(prediction).reshape(1), self.n_places)[0]))
+
+    def _update(self, raw: int) -> int:
         out = raw
         if len(self._past) == self._past.maxlen:
             median = int(np.floor(np.median(self._past)))
@@ -104,7 +109,7 @@ def filter_sequence(
     """
     f = SequenceFilter(window, mode=mode, history=history, n_places=n_places)
     values = _check_predictions(np.asarray(predictions).ravel(), f.n_places)
-    return np.fromiter((f.update(p) for p in values.tolist()), dtype=np.int64, count=values.size)
+    return np.fromiter((f._update(p) for p in values.tolist()), dtype=np.int64, count=values.size)
 
 
 def _check_predictions(values: np.ndarray, n_places: int | None) -> np.ndarray:
