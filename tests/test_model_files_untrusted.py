@@ -349,7 +349,8 @@ def storage_header_bytes(path: Path) -> bytes:
     ("edit", "message"),
     [
         (lambda t: t.replace('"fit_time": ', '"fit_time": 1e400, "x": '), "out of range"),  # OverflowError
-        (lambda t: t.replace('"fit_time": ', '"fit_time": NaN, "x": '), "NaN is not a number"),
+        (lambda t: t.replace('"C": null', '"C": NaN'), "NaN is not a number"),
+        (lambda t: t.replace('"fit_time": ', '"fit_time": [NaN], "x": '), "NaN is not a number"),
         (lambda t: t.replace('"fit_time": ', '"fit_time": -Infinity, "x": '), "Infinity is not a number"),
         (lambda t: t.replace('"fit_time": ', '"fit_time": ' + "9" * 5000 + ', "x": '), "5000 digits"),
         (lambda t: t.replace('"fit_time": ', '"fit_time": 1' + "0" * 30 + ', "x": '), "31 digits"),
@@ -366,6 +367,16 @@ def storage_header_bytes(path: Path) -> bytes:
 def test_header_json_is_parsed_strictly(edit, message, files, tmp_path) -> None:
     with pytest.raises(ModelFileError, match=message):
         btel.load(rewrite(files["btel-c"], tmp_path / "m.npz", header_text=edit))
+
+
+def test_a_nan_fit_time_from_an_earlier_btel_still_loads(files, queries, tmp_path) -> None:
+    """Earlier btel wrote a loaded model's unknown fit time as NaN when it was saved again."""
+    edit = lambda t: t.replace('"fit_time": ', '"fit_time": NaN, "fit_time_was": ')  # noqa: E731
+    model = btel.load(rewrite(files["btel-c"], tmp_path / "m.npz", header_text=edit))
+    assert np.isnan(model.fit_time_)
+    again = btel.load(model.save(tmp_path / "again.npz"))  # saved as null now
+    assert np.isnan(again.fit_time_) and '"fit_time": null' in json.dumps(load_arrays(tmp_path / "again.npz")[1])
+    np.testing.assert_array_equal(again.predict(queries), model.predict(queries))
 
 
 def test_a_header_that_is_not_bytes(files, tmp_path) -> None:

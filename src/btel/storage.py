@@ -400,9 +400,13 @@ def _read_header(archive: zipfile.ZipFile, info: zipfile.ZipInfo, where: str) ->
         raise ModelFileError(f"{where} has a corrupt header (an array of {raw.dtype} and shape {raw.shape}, "
                              "not UTF-8 bytes).")
     try:
-        header = json.loads(raw.tobytes().decode("utf-8"), parse_constant=_refuse_constant,
+        header = json.loads(raw.tobytes().decode("utf-8"), parse_constant=_parse_constant,
                             parse_float=_finite_float, parse_int=_bounded_int)
-        _check_depth(header)
+        state = header.get("state") if isinstance(header, dict) else None
+        if isinstance(state, dict) and state.get("fit_time") is _NAN:
+            # Earlier btel saved a loaded model's unknown fit time as NaN: read it as unknown.
+            state["fit_time"] = None
+        _check_values(header)
     except RecursionError as exc:
         raise ModelFileError(f"{where} has a corrupt header (nested too deeply).") from exc
     except (UnicodeDecodeError, ValueError) as exc:
@@ -422,7 +426,13 @@ def _read_header(archive: zipfile.ZipFile, info: zipfile.ZipInfo, where: str) ->
     return header
 
 
-def _refuse_constant(name: str) -> Any:
+#: Stands for the JSON constant NaN while the header is checked (refused anywhere but state.fit_time).
+_NAN = type("_NaNConstant", (), {"__repr__": lambda self: "NaN"})()
+
+
+def _parse_constant(name: str) -> Any:
+    if name == "NaN":
+        return _NAN
     raise ValueError(f"{name} is not a number a btel header holds")
 
 
@@ -439,11 +449,13 @@ def _bounded_int(text: str) -> int:
     return int(text)
 
 
-def _check_depth(value: Any) -> None:
-    """ValueError when lists/objects nest deeper than MAX_HEADER_DEPTH (iterative: no recursion)."""
+def _check_values(value: Any) -> None:
+    """ValueError for a NaN, or lists/objects nested deeper than MAX_HEADER_DEPTH (iterative: no recursion)."""
     stack = [(value, 1)]
     while stack:
         item, depth = stack.pop()
+        if item is _NAN:
+            raise ValueError("NaN is not a number a btel header holds")
         if isinstance(item, (dict, list)):
             if depth > MAX_HEADER_DEPTH:
                 raise ValueError(f"lists/objects nested more than {MAX_HEADER_DEPTH} deep")
