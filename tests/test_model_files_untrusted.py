@@ -369,6 +369,13 @@ def test_header_json_is_parsed_strictly(edit, message, files, tmp_path) -> None:
         btel.load(rewrite(files["btel-c"], tmp_path / "m.npz", header_text=edit))
 
 
+@pytest.mark.parametrize(("path", "error"), [(3, InvalidParameterError), ("a\0b.npz", ModelFileError),
+                                             ("x" * 5000 + ".npz", ModelFileError)])
+def test_paths_that_cannot_name_a_model_file(path, error) -> None:
+    with pytest.raises(error):
+        btel.load(path)
+
+
 def test_a_nan_fit_time_from_an_earlier_btel_still_loads(files, queries, tmp_path) -> None:
     """Earlier btel wrote a loaded model's unknown fit time as NaN when it was saved again."""
     edit = lambda t: t.replace('"fit_time": ', '"fit_time": NaN, "fit_time_was": ')  # noqa: E731

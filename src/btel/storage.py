@@ -249,11 +249,17 @@ def load_arrays(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[st
     UnsupportedModelVersionError
         The file's format version is newer than this btel can read.
     """
+    if not isinstance(path, (str, os.PathLike)):
+        raise InvalidParameterError(f"a model path must be a string or a path; got {type(path).__name__}.")
     path = Path(path)
     where = repr(str(path))
-    if not path.exists():
+    try:
+        exists, is_dir = path.exists(), path.is_dir()
+    except (OSError, ValueError) as exc:  # a name too long, an embedded NUL byte…
+        raise ModelFileError(f"{where[:200]} cannot be read as a model file ({exc}).") from exc
+    if not exists:
         raise ModelFileError(f"model file {where} does not exist. Train one with BTELocalizer.fit(...).save(path) or `btel train`.")
-    if path.is_dir():
+    if is_dir:
         raise ModelFileError(f"{where} is a folder, not a model file.")
     try:
         # Our own handle: np.load leaks the file it opened when the zip is truncated.
