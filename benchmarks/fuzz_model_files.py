@@ -215,8 +215,9 @@ def _header_values(rng: np.random.Generator, old: Any) -> tuple[Any, str]:
     if choice == 0 and isinstance(old, (int, float)) and not isinstance(old, bool):
         factor = rng.choice([-1, 0, 2, 0.5, 1.5])
         step = int(rng.choice([-2, -1, 1, 2]))
-        value = old + step if isinstance(old, int) and rng.random() < 0.5 else \
-            (type(old)(old * factor) if np.isfinite(old * factor) else old)
+        with np.errstate(all="ignore"):  # an earlier edit may have left 1e300 here
+            value = old + step if isinstance(old, int) and rng.random() < 0.5 else \
+                (type(old)(old * factor) if np.isfinite(old * factor) else old)
         return value, f"{old!r} → {value!r}"
     if choice == 1:
         i = int(rng.integers(len(_RAW_LITERALS)))
