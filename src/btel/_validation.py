@@ -153,16 +153,20 @@ def check_places(places: Any, n_samples: int) -> tuple[np.ndarray, int]:
             raise InvalidParameterError("places must be whole numbers (place indices).")
     elif arr.dtype.kind not in "iu":
         raise InvalidParameterError(f"places must be integer place indices; got dtype {arr.dtype}.")
+    if arr.dtype.kind == "f" and np.abs(arr).max() >= 2.0**62:
+        raise InvalidParameterError("places must be place indices below the number of descriptor rows.")
     arr = arr.astype(np.int64)
     if arr.min() < 0:
         raise InvalidParameterError("places must be non-negative place indices.")
     n_places = int(arr.max()) + 1
-    counts = np.bincount(arr, minlength=n_places)
-    missing = np.flatnonzero(counts == 0)
-    if missing.size:
+    # The distinct labels, not a count table: a label of 10**12 must not ask for an 8 TB table.
+    present = np.unique(arr)
+    if present.size != n_places:
+        gaps = np.flatnonzero(present != np.arange(present.size))
+        first_missing = int(gaps[0]) if gaps.size else int(present.size)
         raise InvalidParameterError(
-            f"places must cover every index 0..{n_places - 1}; {missing.size} are missing "
-            f"(first: {missing[0]}). Renumber the places contiguously in route order."
+            f"places must cover every index 0..{n_places - 1}; {n_places - present.size} are missing "
+            f"(first: {first_missing}). Renumber the places contiguously in route order."
         )
     if n_places < 2:
         raise NotEnoughPlacesError(
@@ -214,7 +218,10 @@ class Interval:
             return False
         if self.kind is int and not isinstance(value, numbers.Integral):
             return False
-        if not np.isfinite(float(value)):
+        try:
+            if not np.isfinite(float(value)):
+                return False
+        except (OverflowError, ValueError, TypeError):  # an integer beyond float range (10**400)
             return False
         left = self.closed in ("both", "left")
         right = self.closed in ("both", "right")
@@ -300,8 +307,9 @@ class Budget:
         return "a byte budget such as 500000, '500KB' or '2MB' (or None)"
 
 
-#: A seed: None or an integer in [0, 2**32 − 1] (what numpy, liblinear and faiss accept).
-RANDOM_STATE = [None, Interval(int, 0, 2**32 - 1)]
+#: A seed: None or an integer in [0, 2**31 − 1] (what numpy, liblinear and faiss all accept: faiss
+#: seeds are C ints).
+RANDOM_STATE = [None, Interval(int, 0, 2**31 - 1)]
 #: joblib / faiss worker counts: None, −1 (every core) or a positive integer.
 N_JOBS = [None, Interval(int, -1, -1), Interval(int, 1, 4096)]
 BOOLEAN = [Options(True, False)]

@@ -405,7 +405,9 @@ class PlaceLocalizer(BaseEstimator, ABC):
         check_is_fitted(self, self._fitted_marker)
         params = {k: _jsonable(v) for k, v in self.get_params(deep=False).items() if k not in self._runtime_params}
         state = {"n_places": int(self.n_places_), "n_features_in": int(self.n_features_in_),
-                 "fit_time": float(self.fit_time_), "front_end": self.front_end_.to_header(),
+                 # JSON has no NaN: a loaded model's unknown fit time is saved as null.
+                 "fit_time": float(self.fit_time_) if np.isfinite(self.fit_time_) else None,
+                 "front_end": self.front_end_.to_header(),
                  **self._fitted_state()}
         header = {"model": type(self).__name__, "params": params, "state": state}
         return save_arrays(path, {**self.front_end_.arrays(), **self._stored_arrays()}, header)

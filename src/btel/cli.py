@@ -506,7 +506,9 @@ def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_time
         n_bad += 1
         click.echo(f"error: line {line_number}: {message} (skipped)", err=True)
 
-    source = open(input_path) if input_path is not None else sys.stdin
+    # Bytes, decoded line by line in localize_stream: a byte that is not UTF-8 is one malformed line,
+    # not the end of the stream (a text stream's decoder would raise and stop it).
+    source = open(input_path, "rb") if input_path is not None else getattr(sys.stdin, "buffer", sys.stdin)
     try:
         for _, place in localize_stream(model, source, window=window, on_error=report, follow=follow,
                                         idle_timeout=idle_timeout, hmm=hmm):

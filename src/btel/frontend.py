@@ -41,12 +41,16 @@ __all__ = ["FrontEnd", "FrontEndStream", "delta_descriptors", "normalize_rows", 
            "NORMALIZATIONS", "FRONT_END_CONSTRAINTS"]
 
 NORMALIZATIONS = ("none", "l2", "power")
+#: Longest delta window (frames per half window).
+MAX_DELTA = 1000
 
 #: The constraints of the three front-end parameters every method declares.
 FRONT_END_CONSTRAINTS: dict[str, list[Any]] = {
     "normalize": [Options(*NORMALIZATIONS)],
     "whiten": [None, Interval(int, 1, None)],
-    "delta": [None, Interval(int, 1, None)],
+    # A window of w frames keeps 2w frames per streamed query (and reads 2w·d values each frame):
+    # windows are tens of frames; 1000 bounds what a model file can ask for.
+    "delta": [None, Interval(int, 1, MAX_DELTA)],
 }
 
 #: Rows transformed at a time (bounds the float64 temporaries on large, memory-mapped maps).

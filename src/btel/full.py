@@ -45,8 +45,12 @@ def full_nodes(n_places: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def full_n_classifiers(n_places: int) -> int:
-    """Number of hyperplanes BTE-F stores for N places (N − 1 when every place is present)."""
-    return int(full_nodes(n_places)[0].size)
+    """Number of hyperplanes BTE-F stores for N places: N − 1 (the size of :func:`full_nodes`).
+
+    In closed form because a model file's N is checked against its arrays with it, before
+    anything of size N is built.
+    """
+    return max(int(n_places) - 1, 0)
 
 
 def full_tasks(places: np.ndarray, n_places: int, rows: np.ndarray | None = None) -> list[Task]:

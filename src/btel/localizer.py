@@ -42,6 +42,8 @@ __all__ = ["BTELocalizer", "planned_bytes", "block_centres", "block_size_for_tol
 
 #: Most offset-code copies accepted (beyond ~log2 of the block sizes extra copies repeat shifts).
 MAX_CODE_COPIES = 256
+#: Most regions a model file may declare (its region list is built before the arrays are checked).
+MAX_REGIONS_IN_FILE = 1 << 16
 
 
 def block_centres(codes: np.ndarray, block_size: int, n_places: int) -> np.ndarray:
@@ -201,7 +203,7 @@ class BTELocalizer(PlaceLocalizer):
         "kts_penalty": [Interval(float, 0, None)],
         "kts_pca_dims": [None, Interval(int, 1, None)],
         "kts_max_points": [Interval(int, 4, None)],
-        "max_iter": [Interval(int, 1, None)],
+        "max_iter": [Interval(int, 1, 2**31 - 1)],  # liblinear takes a C int
         "n_jobs": N_JOBS,
         "backend": [None, Options(*BACKENDS)],
         "scheduler": [None, String()],
@@ -529,7 +531,7 @@ class BTELocalizer(PlaceLocalizer):
             raise ModelFileError(f"the model file's N = {n_places} and block_size = {self.block_size} leave "
                                  f"{n_codes} code; an index needs at least 2.")
         n_selected = read_state_int(state, "n_selected", 1, d)
-        r = read_state_int(state, "n_regions", 1, n_codes)
+        r = read_state_int(state, "n_regions", 1, min(n_codes, MAX_REGIONS_IN_FILE))
         self._check_combinations_from_file()
         # The region sizes are read from region_starts; the specs need only their count and total,
         # except for the number of tree classifiers, checked in _restore once the starts are known.

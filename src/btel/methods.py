@@ -16,7 +16,7 @@ import os
 from functools import partial
 from typing import Any, Callable
 
-from ._validation import check_params, read_state_int
+from ._validation import Instance, check_params, read_state_int
 from .base import PlaceLocalizer
 from .baselines import BASELINES, PQLocalizer
 from .exceptions import BTELError, InvalidParameterError, ModelFileError
@@ -89,7 +89,8 @@ def load(path: str | os.PathLike) -> PlaceLocalizer:
     Raises
     ------
     ModelFileError
-        Missing, corrupt, truncated, edited or foreign file, or an unknown model class.
+        Missing, corrupt, truncated, edited or foreign file, or an unknown model class. Nothing
+        else escapes: any other failure while reading or checking the file becomes this error.
     UnsupportedModelVersionError
         A file from a newer btel.
     """
@@ -115,7 +116,7 @@ def load(path: str | os.PathLike) -> PlaceLocalizer:
         raise ModelFileError(f"{where}: {exc}") from exc
     except BTELError as exc:
         raise ModelFileError(f"{where} is inconsistent with a {name} model: {exc}") from exc
-    except (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError, MemoryError) as exc:
+    except Exception as exc:  # a file is untrusted input: whatever else goes wrong, it is a bad file
         raise ModelFileError(
             f"{where} is inconsistent with a {name} model ({type(exc).__name__}: {str(exc)[:200]}); "
             "the file is corrupt or was edited."
@@ -124,33 +125,48 @@ def load(path: str | os.PathLike) -> PlaceLocalizer:
 
 
 def _params_from_file(cls: type[PlaceLocalizer], params: dict[str, Any]) -> dict[str, Any]:
-    """The declared, non-runtime parameters of a header (nested estimators rebuilt from their params)."""
+    """The declared, non-runtime parameters of a header (a nested estimator rebuilt from its params).
+
+    A parameter may hold an estimator only where its constraints declare one
+    (:class:`~btel._validation.Instance`, e.g. OPQ's ``pq``), and only of that class.
+    """
     declared = set(cls._parameter_constraints) - set(cls._runtime_params)
     unknown = sorted(set(params) - declared - set(cls._runtime_params))
     if unknown:
-        raise ModelFileError(f"the model file has parameters {unknown[:5]} that {cls.__name__} does not take.")
+        raise ModelFileError(f"the model file has parameters {[u[:40] for u in unknown[:5]]} that {cls.__name__} "
+                             "does not take.")
     out = {}
     for key in declared & set(params):
         value = params[key]
         if isinstance(value, dict):  # a nested estimator (OPQ's pq), saved as {"estimator", "params"}
-            nested = MODEL_CLASSES.get(value.get("estimator")) if isinstance(value.get("estimator"), str) else None
-            if nested is None or not isinstance(value.get("params"), dict):
-                raise ModelFileError(f"the model file's parameter {key!r} is not a known estimator.")
+            allowed = [c.cls for c in cls._parameter_constraints[key] if isinstance(c, Instance)]
+            estimator = value.get("estimator")
+            nested = MODEL_CLASSES.get(estimator) if isinstance(estimator, str) else None
+            if nested is None or nested not in allowed or set(value) != {"estimator", "params"} \
+                    or not isinstance(value["params"], dict):
+                raise ModelFileError(f"the model file's parameter {key!r} is not a "
+                                     f"{' or '.join(a.__name__ for a in allowed) or 'plain value'}.")
             value = nested(**_params_from_file(nested, value["params"]))
+            check_params(value)
         out[key] = value
     return out
 
 
+#: Most places a model file may declare: a place index fits in uint32 (the largest map measured has 10⁶).
+MAX_PLACES = 2**32
+
+
 def _restore(model: PlaceLocalizer, arrays: dict[str, Any], state: dict[str, Any]) -> None:
     """Check the common state, the front end and every array's shape and dtype; then restore."""
-    n_places = read_state_int(state, "n_places", 2, 2**40)
+    n_places = read_state_int(state, "n_places", 2, MAX_PLACES)
     n_features = read_state_int(state, "n_features_in", 1, 2**31)
     arrays = dict(arrays)
     model.front_end_ = FrontEnd.restore(state.get("front_end"), arrays, n_features)
     specs = model._array_specs(state)
     unexpected = sorted(set(arrays) - set(specs))
     if unexpected:
-        raise ModelFileError(f"the file holds arrays {unexpected[:5]} that a {type(model).__name__} does not store.")
+        raise ModelFileError(f"the file holds arrays {[u[:40] for u in unexpected[:5]]} that a {type(model).__name__} "
+                             "does not store.")
     for key, spec in specs.items():
         if key not in arrays:
             if spec.required:

@@ -114,7 +114,7 @@ class RYTHLocalizer(PlaceLocalizer):
         "budget": [Budget()],
         "dtype": [DType("float32", "float16")],
         "decode": [Options("soft", "crt")],
-        "max_iter": [Interval(int, 1, None)],
+        "max_iter": [Interval(int, 1, 2**31 - 1)],  # liblinear takes a C int
         "n_jobs": N_JOBS,
         "random_state": RANDOM_STATE,
         **FRONT_END_CONSTRAINTS,

@@ -21,6 +21,8 @@ from .exceptions import InvalidParameterError
 __all__ = ["SequenceFilter", "filter_sequence"]
 
 _MODES = ("forward", "symmetric")
+#: Largest window a (the history holds 2a predictions).
+MAX_WINDOW = 1 << 30
 _HISTORIES = ("raw", "filtered")
 
 
@@ -47,6 +49,8 @@ class SequenceFilter:
 
     def __init__(self, window: int, *, mode: str = "forward", history: str = "raw", n_places: int | None = None):
         self.window = check_positive_int(window, "window")
+        if self.window > MAX_WINDOW:
+            raise InvalidParameterError(f"window must be at most {MAX_WINDOW}; got {window!r}.")
         if mode not in _MODES:
             raise InvalidParameterError(f"mode must be one of {_MODES}; got {mode!r}.")
         if history not in _HISTORIES:
@@ -61,8 +65,19 @@ class SequenceFilter:
         self._past.clear()
 
     def update(self, prediction: int) -> int:
-        """Filter one prediction and return the (possibly corrected) place index."""
-        raw = int(prediction)
+        """Filter one prediction and return the (possibly corrected) place index.
+
+        Raises
+        ------
+        InvalidParameterError
+            ``prediction`` is not a whole number ≥ 0 (and < N when ``n_places`` is given).
+        """
+        if isinstance(prediction, (int, np.integer)) and not isinstance(prediction, (bool, np.bool_)) \
+                and 0 <= prediction < (self.n_places if self.n_places is not None else 2**63):
+            return self._update(int(prediction))  # the usual case, checked without numpy
+        return self._update(int(_check_predictions(np.asarray(prediction).reshape(1), self.n_places)[0]))
+
+    def _update(self, raw: int) -> int:
         out = raw
         if len(self._past) == self._past.maxlen:
             median = int(np.floor(np.median(self._past)))
@@ -93,4 +108,25 @@ def filter_sequence(
     ndarray of shape (n_queries,), int64
     """
     f = SequenceFilter(window, mode=mode, history=history, n_places=n_places)
-    return np.fromiter((f.update(int(p)) for p in np.asarray(predictions).ravel()), dtype=np.int64)
+    values = _check_predictions(np.asarray(predictions).ravel(), f.n_places)
+    return np.fromiter((f._update(p) for p in values.tolist()), dtype=np.int64, count=values.size)
+
+
+def _check_predictions(values: np.ndarray, n_places: int | None) -> np.ndarray:
+    """Place indices as int64: whole, finite numbers in [0, N) (N = ``n_places``; no upper bound if None)."""
+    if values.dtype.kind not in "biuf":
+        raise InvalidParameterError(f"predictions must be place indices (whole numbers); got dtype {values.dtype}.")
+    if values.dtype.kind == "f":
+        if not np.isfinite(values).all() or not (values == np.round(values)).all():
+            raise InvalidParameterError("predictions must be whole, finite place indices (no NaN or fractions).")
+        if values.size and np.abs(values).max() >= 2.0**62:
+            raise InvalidParameterError("predictions hold a place index beyond 2**62.")
+    elif values.dtype.kind == "u" and values.size and int(values.max()) >= 2**63:
+        raise InvalidParameterError("predictions hold a place index beyond 2**63.")
+    out = values.astype(np.int64)
+    if out.size and out.min() < 0:
+        raise InvalidParameterError(f"predictions must be place indices ≥ 0; got {int(out.min())}.")
+    if n_places is not None and out.size and out.max() >= n_places:
+        raise InvalidParameterError(
+            f"predictions must be place indices below N = {n_places}; got {int(out.max())}.")
+    return out

@@ -92,8 +92,10 @@ def read_lines(
 
     Parameters
     ----------
-    stream : text file
-        A pipe (stdin) or a file. A pipe blocks until its next line; a file ends at EOF.
+    stream : text or binary file
+        A pipe (stdin) or a file. A pipe blocks until its next line; a file ends at EOF. A binary
+        stream yields bytes lines (decoded one line at a time by :func:`localize_stream`, so a
+        byte that is not UTF-8 spoils only its own line).
     follow : bool
         Keep reading a file as it grows (``tail -f``): at EOF, wait ``poll_interval`` seconds and
         try again. A line without its newline yet is held back until it is complete.
@@ -101,16 +103,16 @@ def read_lines(
         With ``follow``, stop after this many seconds without new data (default: never; stop
         with Ctrl-C).
     """
-    pending = ""
+    pending: Any = None
     last_data = time.monotonic()
     while True:
         chunk = stream.readline()
         if chunk:
             last_data = time.monotonic()
-            pending += chunk
-            if pending.endswith("\n"):
+            pending = chunk if pending is None else pending + chunk
+            if pending.endswith(b"\n" if isinstance(pending, bytes) else "\n"):
                 yield pending
-                pending = ""
+                pending = None
             continue
         if not follow:
             break
@@ -137,8 +139,9 @@ def localize_stream(
     ----------
     model : fitted PlaceLocalizer
         Anything with ``predict`` (and ``n_features_in_``, ``n_places_``).
-    lines : text file or iterable of str
-        One descriptor per line; blank lines are ignored.
+    lines : text or binary file, or iterable of str or bytes
+        One descriptor per line; blank lines are ignored. Bytes are decoded as UTF-8 line by line:
+        a line that is not UTF-8 is a malformed line like any other.
     window : int, optional
         Sequence-filter window a (SPEC §6); None: raw predictions.
     on_error : callable, optional
@@ -169,6 +172,13 @@ def localize_stream(
 
         decoder = HMMDecoder(int(model.n_places_))
     for number, line in enumerate(lines, start=1):
+        if isinstance(line, (bytes, bytearray)):
+            try:
+                line = bytes(line).decode("utf-8")
+            except UnicodeDecodeError as exc:
+                if on_error is not None:
+                    on_error(number, f"not UTF-8 text (byte 0x{line[exc.start]:02x} at column {exc.start + 1}).")
+                continue
         if not line.strip():
             continue
         if line.strip().lower() == RESET_LINE:  # a new traverse: forget the sequence state

@@ -20,10 +20,11 @@ from typing import Any, Iterator
 import numpy as np
 
 from ..base import ArraySpec, PlaceLocalizer
-from ..exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError
+from ..exceptions import BudgetTooSmallError, InvalidDescriptorsError, InvalidParameterError, ModelFileError
 from ..storage import format_bytes
 
-__all__ = ["quiet_faiss", "faiss_threads", "smallest_uint_dtype", "rank_unique_places", "raise_budget_too_small"]
+__all__ = ["quiet_faiss", "faiss_threads", "smallest_uint_dtype", "rank_unique_places", "raise_budget_too_small",
+           "check_magnitude", "check_model_values", "MAX_NORM"]
 
 #: faiss' k-means prints this from C++ whenever it has fewer than 39 points per centroid, which is
 #: the normal case for a map of a few thousand places; it is not actionable for a btel user.
@@ -124,6 +125,39 @@ def rank_unique_places(row_ranking: np.ndarray, row_places: np.ndarray, k: int,
     return places, scores
 
 
+#: Largest L2 norm of a descriptor (after the front end) a row index searches: squared distances
+#: of such vectors stay far below float32's maximum (3.4e38), where faiss' distances overflow.
+MAX_NORM = 1e18
+
+
+def check_magnitude(X: np.ndarray, name: str, *, error: type[Exception] = InvalidDescriptorsError,
+                    chunk_rows: int = 65536) -> None:
+    """``error`` naming the first row of ``X`` that is not finite or whose L2 norm exceeds :data:`MAX_NORM`.
+
+    Squared norms are summed in X's own float32: one that overflows is far beyond the bound anyway.
+    """
+    for start in range(0, X.shape[0], chunk_rows):
+        block = X[start : start + chunk_rows]
+        with np.errstate(over="ignore", invalid="ignore"):
+            squares = np.einsum("ij,ij->i", block, block)
+        bad = np.flatnonzero(~(squares <= MAX_NORM**2))
+        if bad.size:
+            row = start + int(bad[0])
+            raise error(
+                f"{name} row {row} has length {float(np.sqrt(np.float64(squares[bad[0]]))):.3g} (after the front "
+                f"end); squared distances of descriptors longer than {MAX_NORM:.0e} overflow float32. Scale the "
+                "descriptors down (or use normalize='l2')."
+            )
+
+
+def check_model_values(arrays: dict[str, np.ndarray], names: tuple[str, ...], method: str) -> None:
+    """ModelFileError when a float array of a model file holds NaN, infinity or values beyond MAX_NORM."""
+    for name in names:
+        a = arrays.get(name)
+        if a is not None and a.size and not (np.isfinite(a).all() and float(np.abs(a).max()) <= MAX_NORM):
+            raise ModelFileError(f"the {method} model file's {name} contain NaN, infinite or out-of-range values.")
+
+
 def raise_budget_too_small(method: str, budget: int, minimum: int, detail: str) -> None:
     """Raise :class:`BudgetTooSmallError` naming the minimum bytes and the smallest configuration."""
     raise BudgetTooSmallError(
@@ -176,19 +210,28 @@ class _RowLocalizer(PlaceLocalizer):
         # Row i = place i needs no table; any other labelling is stored for inference.
         row_places = None if places is None else places.astype(smallest_uint_dtype(n_places - 1))
         extra = reserved + (0 if row_places is None else int(row_places.nbytes))
+        check_magnitude(X, "X")
         with faiss_threads(self.n_jobs):
             self._fit_rows(X, budget, extra)
         self.row_places_ = row_places
 
     def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        if self.row_places_ is None:
-            with faiss_threads(self.n_jobs):
-                return self._search_rows(Q, k)
+        check_magnitude(Q, "Q")
+        n_rows = self._n_rows()
         # k places need at most k·(most rows of one place) rows.
-        per_place = int(np.bincount(self.row_places_.astype(np.int64)).max())
-        n_rows = self.row_places_.shape[0]
+        k_rows = k if self.row_places_ is None else \
+            min(n_rows, k * int(np.bincount(self.row_places_.astype(np.int64)).max()))
         with faiss_threads(self.n_jobs):
-            scores, rows = self._search_rows(Q, min(n_rows, k * per_place))
+            scores, rows = self._search_rows(Q, k_rows)
+        # faiss answers −1 when no distance is finite (overflow, a corrupt index): never a place.
+        bad = np.flatnonzero(((rows < 0) | (rows >= n_rows)).any(axis=1))
+        if bad.size:
+            raise InvalidDescriptorsError(
+                f"query row {int(bad[0])} has no finite distance to the map ({type(self).__name__}): its values are "
+                "too large for float32 arithmetic, or the model holds invalid values. Check the descriptors."
+            )
+        if self.row_places_ is None:
+            return scores, rows
         places, place_scores = rank_unique_places(rows, self.row_places_, k, scores)
         return place_scores, places
 

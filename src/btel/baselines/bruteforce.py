@@ -22,7 +22,7 @@ from .._validation import N_JOBS, Budget
 from ..base import ArraySpec
 from ..exceptions import ModelFileError
 from ..frontend import FRONT_END_CONSTRAINTS
-from ._common import _RowLocalizer, raise_budget_too_small
+from ._common import _RowLocalizer, check_magnitude, raise_budget_too_small
 
 __all__ = ["BruteForceNN"]
 
@@ -112,7 +112,6 @@ class BruteForceNN(_RowLocalizer):
 
     def _restore_model(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
         descriptors = arrays["descriptors"]
-        if not np.isfinite(descriptors).all():
-            raise ModelFileError("the brute-force model file's descriptors contain NaN or infinite values.")
+        check_magnitude(descriptors, "the brute-force model file's descriptors", error=ModelFileError)
         self.descriptors_ = np.ascontiguousarray(descriptors)
         self._index = self._build_index()

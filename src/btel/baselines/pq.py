@@ -44,7 +44,7 @@ from .._validation import N_JOBS, RANDOM_STATE, Budget, Interval, check_positive
 from ..base import ArraySpec
 from ..exceptions import InvalidParameterError, ModelFileError, NotEnoughPlacesError
 from ..frontend import FRONT_END_CONSTRAINTS
-from ._common import _RowLocalizer, quiet_faiss, raise_budget_too_small
+from ._common import _RowLocalizer, check_model_values, quiet_faiss, raise_budget_too_small
 
 __all__ = ["PQConfig", "PQLocalizer", "pca_projection"]
 
@@ -378,8 +378,5 @@ def pq_specs(config: PQConfig) -> dict[str, ArraySpec]:
 
 
 def check_finite(arrays: dict[str, np.ndarray], names: tuple[str, ...], method: str) -> None:
-    """ModelFileError when a float array of a model file holds NaN or infinity."""
-    for name in names:
-        a = arrays.get(name)
-        if a is not None and not np.isfinite(a).all():
-            raise ModelFileError(f"the {method} model file's {name} contain NaN or infinite values.")
+    """ModelFileError when a float array of a model file holds NaN, infinity or values beyond MAX_NORM."""
+    check_model_values(arrays, names, method)

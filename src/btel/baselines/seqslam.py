@@ -42,6 +42,8 @@ __all__ = ["SeqSLAM", "seqslam_match", "enhance_contrast", "sequence_costs", "ve
 
 #: Queries per block in the contrast enhancement (bounds its float64 temporaries).
 _BLOCK_ROWS = 512
+#: Most velocities searched (each is a line per cell and query).
+MAX_VELOCITIES = 1000
 
 
 def _check_matrix(D: Any, name: str) -> np.ndarray:
@@ -75,8 +77,13 @@ def velocities(vmin: float = 0.8, vmax: float = 1.2, vskip: float = 0.1) -> np.n
             f"velocities need 0 ≤ vmin ≤ vmax and vskip > 0; got vmin={vmin}, vmax={vmax}, vskip={vskip}."
         )
     # The small tolerance keeps vmax itself when (vmax − vmin)/vskip is a whole number in decimal.
-    count = int(np.floor((vmax - vmin) / vskip + 1e-9)) + 1
-    return vmin + vskip * np.arange(count)
+    steps = np.floor((vmax - vmin) / vskip + 1e-9)
+    if not np.isfinite(steps) or steps >= MAX_VELOCITIES:
+        raise InvalidParameterError(
+            f"vmin={vmin}, vmax={vmax}, vskip={vskip} give more than {MAX_VELOCITIES} velocities; "
+            "raise vskip or narrow [vmin, vmax]."
+        )
+    return vmin + vskip * np.arange(int(steps) + 1)
 
 
 def enhance_contrast(D: Any, window: int = 10) -> np.ndarray:
@@ -143,7 +150,10 @@ def sequence_costs(D: Any, ds: int = 10, vmin: float = 0.8, vmax: float = 1.2, v
     n_queries, n_map = D.shape
     steps = np.arange(ds)
     # Round half up; velocities giving the same row offsets give the same line: search it once.
-    offsets = np.unique(np.floor(velocities(vmin, vmax, vskip)[:, None] * steps + 0.5).astype(np.int64), axis=0)
+    # A line offset past the map's first row reads the padding whatever its size, so offsets are
+    # capped at n_map: the same costs, and the padding never exceeds the map (huge vmax·ds).
+    lines = np.minimum(np.floor(velocities(vmin, vmax, vskip)[:, None] * steps + 0.5), n_map)
+    offsets = np.unique(lines.astype(np.int64), axis=0)
     pad = int(offsets.max())
     padded = np.empty((n_queries, pad + n_map), dtype=np.float32)
     padded[:, :pad] = D.mean(axis=1, keepdims=True)
@@ -294,11 +304,7 @@ class SeqSLAM(_RowLocalizer):
 
     def _check_params(self) -> None:
         check_positive_int(self.ds, "ds")
-        if velocities(self.vmin, self.vmax, self.vskip).size > 1000:
-            raise InvalidParameterError(
-                f"vmin={self.vmin}, vmax={self.vmax}, vskip={self.vskip} give more than 1000 velocities; "
-                "raise vskip or narrow [vmin, vmax]."
-            )
+        velocities(self.vmin, self.vmax, self.vskip)  # at most MAX_VELOCITIES of them
         _check_window(self.window)
 
     def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:

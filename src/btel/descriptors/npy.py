@@ -182,8 +182,16 @@ def load_descriptor_matrix(
             try:
                 array = loaded[key]
             except ValueError as exc:
+                if "pickle" not in str(exc).lower():
+                    raise InvalidDescriptorsError(f"array {key!r} in {str(path)!r} is not a valid .npy array: "
+                                                  f"{str(exc)[:200]}") from exc
                 raise InvalidDescriptorsError(
                     f"array {key!r} in {str(path)!r} holds Python objects; btel never unpickles files."
+                ) from exc
+            except Exception as exc:  # a damaged archive: bad CRC, truncated member, odd compression…
+                raise InvalidDescriptorsError(
+                    f"{str(path)!r} is a damaged .npz archive; array {key!r} cannot be read "
+                    f"({type(exc).__name__}: {str(exc)[:200]})."
                 ) from exc
         name = f"{key!r} in {path.name}"
     else:
