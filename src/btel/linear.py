@@ -270,7 +270,7 @@ def _newton(problem: _Problem, tol: float, max_iter: int) -> tuple[np.ndarray, n
         gram += 1.0
     full_primal = None
     if not kernel and problem.classifier == "svm" and problem.weights is None:
-        full_primal = _augmented_gram(Xs, None)  # X̃ᵀX̃, to subtract the few non-violators from
+        full_primal = _augmented_gram(Xs, None, None)  # X̃ᵀX̃, to subtract the few non-violators from
     inverse = None
     if shared_inverse:
         # R = I/(2C) + K̃ and its inverse: a step solves R_AA x = r on the violators A, through
@@ -318,10 +318,11 @@ def _newton(problem: _Problem, tol: float, max_iter: int) -> tuple[np.ndarray, n
             for j, k in enumerate(a):
                 rows = np.flatnonzero(d2[:, k] > 0)
                 if full_primal is not None and rows.size > n // 2:
+                    # Most rows violate the margin: subtract the few others from X̃ᵀX̃.
                     others = np.flatnonzero(d2[:, k] == 0)
-                    H = (2.0 * problem.C) * (full_primal - _augmented_gram(Xs[others], None))
+                    H = (2.0 * problem.C) * (full_primal - _augmented_gram(Xs, others, None))
                 else:
-                    H = _augmented_gram(Xs[rows], d2[rows, k])
+                    H = _augmented_gram(Xs, rows, d2[rows, k])
                 H[np.diag_indices_from(H)] += 1.0
                 P[:, j] = -sla.cho_solve(sla.cho_factor(H, overwrite_a=True, check_finite=False), G[:, k],
                                          check_finite=False)
@@ -333,19 +334,23 @@ def _newton(problem: _Problem, tol: float, max_iter: int) -> tuple[np.ndarray, n
     return V, n_iter, ~active
 
 
-def _augmented_gram(rows: np.ndarray, weights: np.ndarray | None) -> np.ndarray:
-    """X̃ᵀ diag(weights) X̃ for the rows (bias feature 1 appended), (d' + 1)², float64."""
-    n, d = rows.shape
+def _augmented_gram(Xs: np.ndarray, rows: np.ndarray | None, weights: np.ndarray | None) -> np.ndarray:
+    """X̃ᵀ diag(weights) X̃ over ``rows`` of Xs (bias feature 1 appended), (d' + 1)², float64.
+
+    Rows are gathered a chunk at a time (at most ~4M values), so no copy of the active rows is
+    made (at N = 1M, d' = 64 one would be 512 MB per classifier).
+    """
+    n, d = Xs.shape
+    index = np.arange(n) if rows is None else np.asarray(rows)
     out = np.zeros((d + 1, d + 1))
-    step = max(1, (1 << 22) // max(d, 1))
-    for start in range(0, n, step):
-        block = np.asarray(rows[start : start + step], dtype=np.float64)
-        aug = np.empty((block.shape[0], d + 1))
-        aug[:, :d] = block
+    step = max(1, (1 << 22) // max(d + 1, 1))
+    for start in range(0, index.size, step):
+        chunk = index[start : start + step]
+        aug = np.empty((chunk.size, d + 1))
+        aug[:, :d] = Xs[chunk] if rows is not None else Xs[start : start + step]
         aug[:, d] = 1.0
         if weights is not None:
-            scaled = aug * weights[start : start + step, None]
-            out += scaled.T @ aug
+            out += (aug * weights[start : start + step, None]).T @ aug
         else:
             out += aug.T @ aug
     return out

@@ -124,15 +124,15 @@ class BTELocalizer(PlaceLocalizer):
         Where the classifier fits run (:mod:`btel.distributed`). None: threads, or whatever
         ``joblib.parallel_config`` the caller set. 'dask': the workers of a Dask cluster (X is
         sent to each worker once); needs ``pip install btel[dask]``. The model does not depend
-        on the backend — bitwise so when no worker process runs two fits at once: liblinear's
-        dual solver draws from one random generator per process, so fits sharing a process in
-        threads (``n_jobs`` ≥ 2 with threads) can differ in the last bits of their weights.
+        on the backend: the Newton and L-BFGS solvers are deterministic. (With
+        ``solver='liblinear'`` only bitwise so when no worker process runs two fits at once:
+        liblinear's dual solver draws from one random generator per process.)
     scheduler : str, optional
         Dask scheduler address for ``backend='dask'`` (e.g. ``'tcp://10.0.0.5:8786'``); None uses
         the ``distributed.Client`` already running in this process.
     random_state : int or None
-        Seed for liblinear and the randomized PCA of KTS (default 0, so a refit gives the same
-        model; None draws a fresh seed).
+        Seed for the randomized PCA of KTS and for liblinear (``solver='liblinear'``); default 0,
+        so a refit gives the same model; None draws a fresh seed.
     progress : bool
         Show a progress bar while fitting (only on a terminal).
     block_size : int
