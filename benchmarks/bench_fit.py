@@ -28,8 +28,10 @@ the models are of the same kind.
     python benchmarks/bench_fit.py --quick          # N = 1024 subsets: a smoke run
 
 Writes ``benchmarks/results/bench_fit.json`` (and ``bench_fit.png``: objective against time,
-one line per solver, from the solvers' per-iteration trace) and prints the table, with the load
-average before and after (``os.getloadavg``): timings on a shared machine are upper bounds.
+one line per solver, from the solvers' per-iteration trace), prints the table with the load
+average before and after (``os.getloadavg``: timings on a shared machine are upper bounds), and
+rewrites the "Fit speed" section of ``docs/results.md`` (between ``<!-- fit:start -->`` and
+``<!-- fit:end -->``; ``--no-docs`` to skip, ``--docs-only`` to rewrite it from the saved JSON).
 """
 
 from __future__ import annotations
@@ -183,6 +185,46 @@ def plot(path: Path, shapes: list[dict[str, Any]]) -> None:
     plt.close(fig)
 
 
+def docs_section(payload: dict[str, Any]) -> str:
+    """The "Fit speed" section of docs/results.md from a bench_fit payload."""
+    lines = [
+        "## Fit speed: solvers (issue #15)",
+        "",
+        f"`{payload['config']['command'].strip()}` on {payload['machine']['cpu_count']} cores, "
+        f"{payload['machine']['date'][:16]}, load average {payload['load_before'][0]:.1f} before and "
+        f"{payload['load_after'][0]:.1f} after (1-min; the machine was shared, so times are upper bounds). BTE-C, whole "
+        "`fit` timed; objective = liblinear's squared-hinge L2-SVM primal objective summed over the bits, recomputed "
+        "from the stored hyperplanes; floor = the best dual bound (no solver can go below it). Figures: "
+        "`benchmarks/results/bench_fit.{json,png}`.",
+        "",
+        "| shape | solver | fit s | objective | above the floor | unconverged | recall@10 |",
+        "|---|---|---:|---:|---:|---:|---:|",
+    ]
+    for shape in payload["shapes"]:
+        for r in shape["rows"]:
+            if "objective" not in r:
+                lines.append(f"| {shape['name']} | {r['solver']} (peer, same run) | {r['fit_s']:.1f} | | | | |")
+                continue
+            lines.append(f"| {shape['name']} | {r['solver']} | {r['fit_s']:.1f} | {r['objective']:.3f} | "
+                         f"{100 * r['relative_gap']:.2f} % | {r['n_unconverged']}/{r['n_classifiers']} | "
+                         f"{r['recall@10']:.3f} |")
+        lines.append(f"| {shape['name']} | floor (dual bound) | | {shape['floor']:.3f} | 0 | | |")
+    return "\n".join(lines)
+
+
+def write_docs_section(text: str) -> Path:
+    path = HERE.parent / "docs" / "results.md"
+    block = f"<!-- fit:start -->\n{text}\n<!-- fit:end -->"
+    current = path.read_text() if path.is_file() else "# Results\n"
+    if "<!-- fit:start -->" in current and "<!-- fit:end -->" in current:
+        head, rest = current.split("<!-- fit:start -->", 1)
+        current = head + block + rest.split("<!-- fit:end -->", 1)[1]
+    else:
+        current = current.rstrip("\n") + "\n\n" + block + "\n"
+    path.write_text(current)
+    return path
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--shapes", nargs="+", default=["nordland", "synthetic"], choices=["nordland", "synthetic"])
@@ -190,7 +232,15 @@ def main() -> None:
     parser.add_argument("--n-jobs", type=int, default=-1)
     parser.add_argument("--data", type=Path, default=HERE.parent.parent / "shared" / "data")
     parser.add_argument("--quick", action="store_true", help="N = 1024 subsets")
+    parser.add_argument("--no-docs", action="store_true", help="do not rewrite docs/results.md")
+    parser.add_argument("--docs-only", action="store_true", help="rewrite the docs section from the saved JSON")
     args = parser.parse_args()
+    if args.docs_only:
+        import json
+
+        payload = json.loads((RESULTS_DIR / "bench_fit.json").read_text())
+        print(f"section written to {write_docs_section(docs_section(payload))}")
+        return
 
     load_before = os.getloadavg()
     started = time.perf_counter()
@@ -231,12 +281,17 @@ def main() -> None:
     print(f"\nload average before {load_before[0]:.2f}, after {load_after[0]:.2f} (1-min); {os.cpu_count()} cores; "
           f"total {time.perf_counter() - started:.0f} s")
     name = "bench_fit" + ("_quick" if args.quick else "")
-    payload = {"config": {**vars(args), "data": str(args.data),
+    payload = {"config": {**{k: v for k, v in vars(args).items() if k not in ("docs_only", "no_docs")},
+                          "data": str(args.data),
                           "command": "python benchmarks/bench_fit.py " + " ".join(sys.argv[1:])},
                "load_before": list(load_before), "load_after": list(load_after), "shapes": shapes}
     path = write_results(name, payload)
     plot(RESULTS_DIR / f"{name}.png", shapes)
     print(f"written to {path} and {name}.png")
+    if not args.quick and not args.no_docs:
+        import json
+
+        print(f"section written to {write_docs_section(docs_section(json.loads(path.read_text())))}")
 
 
 if __name__ == "__main__":

@@ -204,19 +204,42 @@ def _line_search(classifier: str, margins: np.ndarray, step_margins: np.ndarray,
                  ) -> np.ndarray:
     """Exact line search: the t ≥ 0 minimising φ(t) = ½‖w + t p‖² + loss(m + t q), per classifier.
 
-    φ is convex (piecewise quadratic for the squared hinge), so Newton's method in t from t0
-    converges; it needs only the margins (n, K) and the margin change q = X p, no product with X.
+    φ is convex (piecewise quadratic for the squared hinge), so its slope is increasing: Newton's
+    method in t, safeguarded by bisection on a bracket [lo, hi] with φ'(lo) < 0 < φ'(hi) (plain
+    Newton steps can cycle between the pieces of a piecewise quadratic). Needs only the margins
+    (n, K) and the margin change q = X p, no product with X.
     """
-    t = np.full(margins.shape[1], float(t0))
-    for _ in range(50):
+    K = margins.shape[1]
+
+    def slope_and_curvature(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         _, d1, d2 = _loss_terms(classifier, margins + t * step_margins, Y, weights, C)
         slope = wp + t * pp + np.einsum("ik,ik->k", d1, step_margins)
-        curvature = pp + np.einsum("ik,ik->k", d2 * step_margins, step_margins)
-        delta = slope / np.maximum(curvature, 1e-300)
-        t_next = np.maximum(t - delta, 0.0)
-        if np.all(np.abs(t_next - t) <= 1e-9 * np.maximum(t_next, 1e-9)):
-            return t_next
-        t = t_next
+        return slope, pp + np.einsum("ik,ik->k", d2 * step_margins, step_margins)
+
+    lo = np.zeros(K)
+    slope0, _ = slope_and_curvature(lo)
+    hi = np.full(K, float(t0))
+    slope_hi, _ = slope_and_curvature(hi)
+    for _ in range(60):  # widen the bracket until φ'(hi) ≥ 0
+        short = slope_hi < 0
+        if not short.any():
+            break
+        lo = np.where(short, hi, lo)
+        hi = np.where(short, 2.0 * hi, hi)
+        slope_hi, _ = slope_and_curvature(hi)
+    t = np.where(slope0 >= 0, 0.0, hi)  # not a descent direction: no step
+    done = slope0 >= 0
+    for _ in range(100):
+        slope, curvature = slope_and_curvature(t)
+        lo = np.where(slope < 0, t, lo)
+        hi = np.where(slope > 0, t, hi)
+        newton = t - slope / np.maximum(curvature, 1e-300)
+        inside = (newton > lo) & (newton < hi)
+        t_next = np.where(inside, newton, 0.5 * (lo + hi))
+        done |= (slope == 0) | (np.abs(t_next - t) <= 1e-12 * np.maximum(t, 1e-300)) | (hi - lo <= 1e-12 * hi)
+        t = np.where(done, t, t_next)
+        if done.all():
+            break
     return t
 
 
@@ -288,8 +311,10 @@ def _newton(problem: _Problem, tol: float, max_iter: int) -> tuple[np.ndarray, n
         G = V + problem.rmatmul(d1)
         gnorm = np.sqrt((G * G).sum(axis=0))
         if g0 is None:
-            g0 = np.maximum(gnorm, 1e-300)
-        active &= gnorm > tol * g0
+            # Relative to the gradient at w = 0, with an absolute floor: rows that no hyperplane
+            # can separate (duplicate frames with both labels) have a zero gradient at w = 0.
+            g0 = tol * gnorm + 1e-12 * (1.0 + problem.C * n)
+        active &= gnorm > g0
         if not active.any() or it == max_iter:
             break
         a = np.flatnonzero(active)
@@ -419,11 +444,11 @@ def _lbfgs(problem: _Problem, tol: float, max_iter: int, memory: int = 10
     rho = np.zeros((memory, K))
     _, d1, _ = problem.terms(margins)
     G = V + problem.rmatmul(d1)
-    g0 = np.maximum(np.sqrt((G * G).sum(axis=0)), 1e-300)
+    threshold = tol * np.sqrt((G * G).sum(axis=0)) + 1e-12 * (1.0 + problem.C * n)  # as in _newton
     active = np.ones(K, dtype=bool)
     n_iter = np.zeros(K, dtype=np.int64)
     for it in range(max_iter):
-        active &= np.sqrt((G * G).sum(axis=0)) > tol * g0
+        active &= np.sqrt((G * G).sum(axis=0)) > threshold
         if not active.any():
             break
         a = np.flatnonzero(active)
@@ -461,7 +486,7 @@ def _lbfgs(problem: _Problem, tol: float, max_iter: int, memory: int = 10
         if TRACE is not None:
             loss_all = problem.terms(margins)[0]
             TRACE("lbfgs", it + 1, 0.5 * (V * V).sum(axis=0) + loss_all, np.zeros(K, dtype=np.int64))
-    converged = np.sqrt((G * G).sum(axis=0)) <= tol * g0
+    converged = np.sqrt((G * G).sum(axis=0)) <= threshold
     return V, n_iter, converged
 
 
