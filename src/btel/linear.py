@@ -21,8 +21,9 @@ Classifiers that read the same rows and columns are solved together on one stand
   the kernel form with the rows × rows Gram matrix, which is computed once and shared by every
   classifier and step. For the SVM without sample weights, the inverse of ``I/(2C) + K`` is
   shared too and each step factors only min(#violators, #others) rows. Converges to a relative
-  gradient norm of :data:`NEWTON_TOL` in 5–30 steps. Used by ``'auto'`` when min(rows, d' + 1)
-  ≤ :data:`NEWTON_MAX_SYSTEM`.
+  gradient norm of :data:`NEWTON_TOL` in 5–40 steps. The form is chosen by a flop count
+  (:func:`newton_uses_kernel`: the kernel form when rows ≲ 2·d'). Used by ``'auto'`` when that
+  system has at most :data:`NEWTON_MAX_SYSTEM` unknowns.
 - ``'lbfgs'``: limited-memory BFGS over all classifiers of a group at once (two matrix products
   per step for all of them, a per-classifier history and exact line search along the step).
   Cheap steps, but on ill-conditioned maps (N ≈ d) it needs thousands of them; used by
@@ -51,7 +52,8 @@ from sklearn.svm import LinearSVC
 from .exceptions import InvalidParameterError, ModelFileError
 
 __all__ = ["ColumnStats", "fit_linear", "fit_linear_group", "standardised_columns", "Hyperplanes", "CLASSIFIERS",
-           "SOLVERS", "default_C", "choose_solver", "default_max_iter", "linear_objective", "solve_linear"]
+           "SOLVERS", "default_C", "choose_solver", "default_max_iter", "linear_objective", "solve_linear",
+           "newton_uses_kernel"]
 
 CLASSIFIERS = ("svm", "logistic")
 #: Accepted ``solver`` values ('auto' picks by shape: :func:`choose_solver`).
@@ -143,18 +145,35 @@ def _make_classifier(classifier: str, C: float, max_iter: int, random_state: int
     raise InvalidParameterError(f"classifier must be one of {CLASSIFIERS}; got {classifier!r}.")
 
 
-def choose_solver(solver: str, n_rows: int, n_columns: int) -> str:
-    """The solver 'auto' means for a group of classifiers on ``n_rows`` rows and d' = ``n_columns``.
+def newton_uses_kernel(n_rows: int, n_columns: int, n_classifiers: int = 1, *, shared: bool = True) -> bool:
+    """Whether Newton's method solves in the kernel form (rows × rows) rather than the primal ((d'+1)²).
 
-    Newton's method when its linear system, min(rows, d' + 1), has at most
-    :data:`NEWTON_MAX_SYSTEM` unknowns (a factorisation of up to 4096² costs ~23 GFLOP; typical maps
-    of this project are far below), otherwise L-BFGS.
+    By a flop count for ~20 steps: the kernel form costs the Gram matrix and its inverse once per
+    group (n²d' + n³) plus a factorisation of m rows per classifier and step; the primal form the
+    (d'+1)² Gram matrix of m rows plus its factorisation per classifier and step. m is about n/2
+    for the squared hinge with the shared inverse (``shared``: the smaller of the margin violators
+    and the others), n otherwise (logistic, sample weights).
+    """
+    n, d, K, steps = float(n_rows), float(n_columns), float(n_classifiers), 20.0
+    m = n / 2 if shared else n
+    kernel = n * n * d + n**3 + K * steps * m**3 / 3
+    primal = n * d * d + K * steps * (m * d * d + d**3 / 3)
+    return kernel < primal
+
+
+def choose_solver(solver: str, n_rows: int, n_columns: int, n_classifiers: int = 1) -> str:
+    """The solver 'auto' means for ``n_classifiers`` classifiers on ``n_rows`` rows and d' = ``n_columns``.
+
+    Newton's method when its linear system — rows in the kernel form, d' + 1 in the primal
+    (:func:`newton_uses_kernel`) — has at most :data:`NEWTON_MAX_SYSTEM` unknowns (a factorisation
+    of 4096² costs ~23 GFLOP), otherwise L-BFGS.
     """
     if solver not in SOLVERS:
         raise InvalidParameterError(f"solver must be one of {SOLVERS}; got {solver!r}.")
     if solver != "auto":
         return solver
-    return "newton" if min(int(n_rows), int(n_columns) + 1) <= NEWTON_MAX_SYSTEM else "lbfgs"
+    size = n_rows if newton_uses_kernel(n_rows, n_columns, n_classifiers) else n_columns + 1
+    return "newton" if size <= NEWTON_MAX_SYSTEM else "lbfgs"
 
 
 def default_max_iter(solver: str) -> int:
@@ -284,8 +303,9 @@ def _newton(problem: _Problem, tol: float, max_iter: int) -> tuple[np.ndarray, n
     K = problem.Y.shape[1]
     V = np.zeros((d + 1, K))
     margins = np.zeros((n, K))
-    kernel = n < d + 1
-    shared_inverse = kernel and problem.classifier == "svm" and problem.weights is None
+    shareable = problem.classifier == "svm" and problem.weights is None
+    kernel = newton_uses_kernel(n, d, K, shared=shareable)
+    shared_inverse = kernel and shareable
     gram = None
     if kernel:
         # K̃ = X̃X̃ᵀ (the bias feature adds 1): one product for every classifier and step.
@@ -549,7 +569,7 @@ def solve_linear(Xs: np.ndarray, labels: np.ndarray, *, C: float, classifier: st
         Relative gradient norm to stop at (Newton, L-BFGS; None: :data:`NEWTON_TOL`, :data:`LBFGS_TOL`).
     """
     labels = np.asarray(labels).reshape(Xs.shape[0], -1)
-    name = choose_solver(solver, Xs.shape[0], Xs.shape[1])
+    name = choose_solver(solver, Xs.shape[0], Xs.shape[1], labels.shape[1])
     cap = default_max_iter(name) if max_iter is None else int(max_iter)
     sw = None if sample_weight is None else np.asarray(sample_weight, dtype=np.float64).reshape(Xs.shape[0], -1)
     if name == "liblinear":
@@ -607,7 +627,8 @@ def fit_linear_group(
     cols = np.asarray(columns, dtype=np.intp)
     mu = stats.mean[cols]
     sigma = stats.scale[cols]
-    name = choose_solver(solver, X.shape[0], cols.size)
+    n_classifiers = sum(1 if np.unique(y).size <= 2 else np.unique(y).size for y in labels)
+    name = choose_solver(solver, X.shape[0], cols.size, n_classifiers)
     Xs = standardised_columns(X, cols, mu, sigma, dtype=np.dtype(np.float32 if name == "lbfgs" else np.float64))
     blocks = [_label_columns(np.asarray(y)) for y in labels]
     widths = [blk.shape[1] for blk in blocks]

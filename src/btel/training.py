@@ -227,5 +227,5 @@ def fit_tasks(
 
     solver = fit_kwargs.get("solver", "auto")
     rows_of = [X.shape[0] if tasks[idx[0]].rows is None else len(tasks[idx[0]].rows) for idx in members]
-    used = tuple(sorted({choose_solver(solver, r, len(columns[idx[0]])) for r, idx in zip(rows_of, members)}))
+    used = tuple(sorted({choose_solver(solver, r, len(columns[idx[0]]), len(idx)) for r, idx in zip(rows_of, members)}))
     return parts, FitSummary(n_classifiers, n_unconverged, objective, most_iter, used)
