@@ -244,8 +244,13 @@ def shaped_model(n_places: int, d: int, d_sel: int, folder: Path, seed: int = 0)
     columns = np.sort(np.stack([rng.choice(d, d_sel, replace=False) for _ in range(b)]), axis=1)
     arrays = {"weights": rng.standard_normal((b, d_sel)).astype(np.float32),
               "bias": rng.standard_normal(b).astype(np.float32), "columns": columns.astype(np.uint16)}
-    header = {"model": "BTELocalizer", "params": BTELocalizer(n_features=d_sel).get_params(),
-              "state": {"n_places": n_places, "n_features_in": d, "n_selected": d_sel}}
+    params = {k: v for k, v in BTELocalizer(n_features=d_sel).get_params().items()
+              if k not in BTELocalizer._runtime_params}
+    # The default front end (rows L2-normalised): part of every query's cost.
+    header = {"model": "BTELocalizer", "params": params,
+              "state": {"n_places": n_places, "n_features_in": d, "n_selected": d_sel, "n_regions": 1,
+                        "n_unconverged": 0, "fit_time": 0.0,
+                        "front_end": {"normalize": params["normalize"], "whiten": None, "delta": None}}}
     path = folder / f"shaped_b{b}_d{d_sel}_of_{d}.npz"
     save_arrays(path, arrays, header)
     return load(path)

@@ -117,3 +117,19 @@ def test_ryth_solves_each_period_together_and_counts_stops(route) -> None:
     with pytest.warns(ConvergenceWarning, match=r"RYTHLocalizer\.fit: \d+ of \d+ classifiers stopped"):
         stopped = RYTHLocalizer(feature_ratio=0.5, max_iter=1).fit(route.map)
     assert stopped.n_unconverged_ > 0
+
+
+def test_experiment_cache_reuses_a_model_its_budget_did_not_shape(route, tmp_path) -> None:
+    from btel.experiments._common import ModelCache
+
+    cache = ModelCache(tmp_path, min_fit_seconds=0.0)
+    X = route.map
+    big, _, cached = cache.fit("btel-c", {"budget": 2_000_000, "feature_ratio": 0.5}, X)
+    assert not cached and big.n_selected_ == 48  # capped by c = 0.5, not by 2 MB
+    same, _, cached = cache.fit("btel-c", {"budget": 1_000_000, "feature_ratio": 0.5}, X)
+    assert cached and same is big  # 1 MB gives the same model
+    small, _, cached = cache.fit("btel-c", {"budget": 1_000, "feature_ratio": 0.5}, X)
+    assert not cached and small.n_selected_ < 48  # a budget that does shape the model is fitted
+    fresh = ModelCache(tmp_path, min_fit_seconds=0.0)  # another process: from disk
+    again, _, cached = fresh.fit("btel-c", {"budget": 500_000, "feature_ratio": 0.5}, X)
+    assert cached and np.array_equal(again.hyperplanes_.weights, big.hyperplanes_.weights)

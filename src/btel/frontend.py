@@ -82,8 +82,12 @@ def normalize_rows(X: np.ndarray, how: str = "l2", *, check_finite: bool = False
             from ._validation import raise_if_non_finite
 
             raise_if_non_finite(np.asarray(X[start : start + step]), name, row_offset=start)
+        divisor = np.where(norms > 0, norms, 1.0)
         with np.errstate(invalid="ignore"):
-            np.divide(block, np.where(norms > 0, norms, 1.0)[:, None], out=out[start : start + step], casting="unsafe")
+            if block.dtype == np.float32:  # float32 ÷ float32: no buffered casting (the mixed loop was 1.5–2× slower)
+                np.divide(block, divisor.astype(np.float32)[:, None], out=out[start : start + step])
+            else:
+                np.divide(block, divisor[:, None], out=out[start : start + step], casting="unsafe")
     return out
 
 

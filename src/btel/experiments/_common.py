@@ -172,6 +172,7 @@ class ModelCache:
         self._memory: dict[str, tuple[Any, float]] = {}
         self._lock = threading.Lock()
         self._key_locks: dict[str, threading.Lock] = {}
+        self._aliases: dict[str, tuple[str, int]] = {}
 
     @staticmethod
     def key(name: str, params: dict[str, Any], X: np.ndarray) -> str:
@@ -219,13 +220,28 @@ class ModelCache:
     def fit(self, name: str, params: dict[str, Any], X: np.ndarray) -> tuple[Any, float, bool]:
         """(fitted model, fit seconds, from the cache?) of ``make_method(name, **params)`` on X.
 
-        Raises whatever ``fit`` raises (e.g. BudgetTooSmallError); such outcomes are not cached.
+        A budget that only caps the model: when a model with the same parameters but another
+        budget reached its configuration's cap (:func:`_budget_saturated`: d' as large as the
+        parameters allow, so its budget did not shape it) and fits this budget too, it *is* the
+        model this budget gives — BTE-C at d' = d under 5 MB … 256 KB, RYTH under 5 MB … 1 MB —
+        and is reused. Raises whatever ``fit`` raises (e.g. BudgetTooSmallError); such outcomes
+        are not cached.
         """
         key = self.key(name, params, X)
-        with self._locked(key):
+        budget = params.get("budget")
+        alias = None if budget is None else self.key(name, {k: v for k, v in params.items() if k != "budget"}, X) \
+            + "-saturated"
+        # Budgets of one configuration wait for each other: the second may reuse the first.
+        with self._locked(alias or key):
             hit = self.get(key)
             if hit is not None:
                 return hit[0], hit[1], True
+            if alias is not None and self.enabled:
+                target = self._aliases.get(alias) or self._read_alias(alias)
+                if target is not None and target[1] <= parse_budget(budget):
+                    hit = self.get(target[0])
+                    if hit is not None:
+                        return hit[0], hit[1], True
             model = make_method(name, **params)
             if "progress" in model.get_params():  # one bar per experiment instead (fit_rows)
                 model.set_params(progress=False)
@@ -233,7 +249,49 @@ class ModelCache:
             model.fit(X)
             fit_s = time.perf_counter() - start
             self.put(key, model, fit_s, {"method": name, "params": params, "n_places": int(X.shape[0])})
+            if alias is not None and self.enabled and _budget_saturated(model):
+                self._aliases[alias] = (key, int(model.nbytes))
+                if self.folder is not None and fit_s >= self.min_fit_seconds:
+                    (self.folder / f"{alias}.json").write_text(json.dumps({"key": key, "nbytes": int(model.nbytes)}))
             return model, fit_s, False
+
+    def _read_alias(self, alias: str) -> tuple[str, int] | None:
+        path = None if self.folder is None else self.folder / f"{alias}.json"
+        if path is None or not path.is_file():
+            return None
+        try:
+            entry = json.loads(path.read_text())
+            return str(entry["key"]), int(entry["nbytes"])
+        except (ValueError, KeyError, TypeError):
+            return None
+
+
+def _budget_saturated(model: Any) -> bool:
+    """True when a fitted BTEL/RYTH model is as large as its parameters allow, so its budget did not shape it.
+
+    Then every budget ≥ its bytes gives the same model: the budget only picks the largest d'
+    (and, with ``n_regions='auto'``, lowers r — never counted as saturated here).
+    """
+    from ..localizer import BTELocalizer
+    from ..ryth import RYTHLocalizer
+
+    if not hasattr(model, "n_selected_"):
+        return False
+    d = model.front_end_.n_features_out(int(model.n_features_in_))
+    if isinstance(model, BTELocalizer):
+        if model.n_regions == "auto":
+            return False
+        cap = model._cap(d, None if model.budget is None else 1)
+    elif isinstance(model, RYTHLocalizer):
+        if model.n_features is not None:
+            cap = min(int(model.n_features), d)
+        elif model.feature_ratio is not None:
+            cap = int(min(d, max(1, round(model.feature_ratio * d))))
+        else:
+            cap = d
+    else:
+        return False
+    return int(model.n_selected_) == int(cap)
 
 
 _CACHES: dict[str, ModelCache] = {}
