@@ -314,8 +314,8 @@ def offset_data():
          lambda: LogisticRegression(C=4.0, solver="liblinear", tol=0.01, max_iter=1000, random_state=0)),
         # Newton's method and L-BFGS stop at a relative gradient of 1e-5: compare with liblinear
         # run to a much tighter tolerance (the same optimum).
-        ("svm", "newton", lambda: LinearSVC(C=1.0, dual=True, tol=1e-12, max_iter=100_000, random_state=0)),
-        ("svm", "lbfgs", lambda: LinearSVC(C=1.0, dual=True, tol=1e-12, max_iter=100_000, random_state=0)),
+        ("svm", "newton", lambda: LinearSVC(C=1.0, dual=False, tol=1e-12, max_iter=100_000, random_state=0)),
+        ("svm", "lbfgs", lambda: LinearSVC(C=1.0, dual=False, tol=1e-12, max_iter=100_000, random_state=0)),
         ("logistic", "newton",
          lambda: LogisticRegression(C=4.0, solver="liblinear", tol=1e-12, max_iter=100_000, random_state=0)),
     ],
