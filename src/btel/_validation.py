@@ -24,6 +24,7 @@ def check_descriptors(
     n_features: int | None = None,
     min_rows: int = 1,
     dtype: type = np.float32,
+    check_finite: bool = True,
 ) -> np.ndarray:
     """Validate a descriptor matrix and return it as a C-contiguous 2-D float array.
 
@@ -39,6 +40,9 @@ def check_descriptors(
         Fewest rows accepted.
     dtype : numpy dtype
         Result dtype (float32 unless the caller needs float64).
+    check_finite : bool
+        False leaves the NaN/inf check to the caller, who must then do it in a pass it makes
+        anyway (queries through a normalising front end: :func:`btel.frontend.normalize_rows`).
 
     Returns
     -------
@@ -76,13 +80,19 @@ def check_descriptors(
     # No copy when X already has the right dtype and layout (memory-mapped maps stay mapped).
     if not fast:
         arr = np.ascontiguousarray(arr, dtype=dtype)
+    if check_finite:
+        raise_if_non_finite(arr, name)
+    return arr
+
+
+def raise_if_non_finite(arr: np.ndarray, name: str, *, row_offset: int = 0) -> None:
+    """Raise :class:`InvalidDescriptorsError` naming the first NaN/inf of ``arr`` (rows counted from ``row_offset``)."""
     bad = _first_non_finite(arr)
     if bad is not None:
         raise InvalidDescriptorsError(
-            f"{name} contains NaN or infinite values (first at row {bad[0]}, column {bad[1]}). "
+            f"{name} contains NaN or infinite values (first at row {bad[0] + row_offset}, column {bad[1]}). "
             "Remove or repair those rows before fitting or predicting."
         )
-    return arr
 
 
 def _as_numeric_array(X: Any, name: str) -> np.ndarray:

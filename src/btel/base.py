@@ -273,8 +273,11 @@ class PlaceLocalizer(BaseEstimator, ABC):
     def _check_queries(self, Q: Any) -> np.ndarray:
         """Validated queries (float32, 2-D, finite, the fitted dimension) through the front end."""
         check_is_fitted(self, self._fitted_marker)
-        Q = check_descriptors(Q, name="Q", n_features=self.n_features_in_)
-        return self.front_end_.transform(Q)
+        front = self.front_end_
+        # A normalising front end checks NaN/inf in its own pass over Q (the row norms): one
+        # read of the queries instead of two (issue #15: the check was ~30 % of batch predict).
+        Q = check_descriptors(Q, name="Q", n_features=self.n_features_in_, check_finite=not front.checks_finite)
+        return front.transform(Q, check_finite=True)
 
     def _check_k(self, k: Any) -> int:
         return min(check_positive_int(k, "k"), int(self.n_places_))

@@ -22,7 +22,8 @@ import scipy.sparse as sp
 
 from .exceptions import InvalidParameterError
 
-__all__ = ["between_cluster_ss", "sparse_weights", "select_features", "column_index_dtype"]
+__all__ = ["between_cluster_ss", "between_cluster_ss_binary", "sparse_weights", "select_features",
+           "select_features_many", "column_index_dtype"]
 
 
 def column_index_dtype(n_columns: int) -> np.dtype:
@@ -68,6 +69,50 @@ def between_cluster_ss(
     total = sums.sum(axis=0)
     # Σ_k n_k (μ_k − μ)² = Σ_k sums_k² / n_k − total² / n
     bcss = (sums**2 / counts[:, None]).sum(axis=0) - total**2 / n
+    np.maximum(bcss, 0.0, out=bcss)  # rounding can give −1e-12
+    if scale is not None:
+        bcss /= np.asarray(scale, dtype=np.float64) ** 2
+    return bcss
+
+
+def between_cluster_ss_binary(
+    X: np.ndarray,
+    labels: np.ndarray,
+    *,
+    scale: np.ndarray | None = None,
+    chunk_rows: int = 16384,
+) -> np.ndarray:
+    """BCSS of every column for K two-cluster labellings at once, in one pass over X.
+
+    For cluster sums S₁ (label 1) and the total T: ``BCSS = S₁²/n₁ + (T − S₁)²/n₀ − T²/n``, the
+    same as :func:`between_cluster_ss` for each column of ``labels``; all K sums S₁ come from one
+    matrix product per row chunk, so X is read and converted to float64 once instead of K times.
+
+    Parameters
+    ----------
+    X : ndarray of shape (n_samples, n_features)
+    labels : ndarray of shape (n_samples, K), values in {0, 1}
+    scale : ndarray of shape (n_features,), optional
+        Column standard deviations; the scores are those of ``X / scale``.
+
+    Returns
+    -------
+    bcss : ndarray of shape (K, n_features), float64
+    """
+    Y = np.asarray(labels, dtype=np.float64).reshape(X.shape[0], -1)
+    n, d = X.shape
+    ones_sum = np.zeros((Y.shape[1], d))
+    total = np.zeros(d)
+    step = max(1, min(int(chunk_rows), (1 << 22) // max(d, 1)))
+    for start in range(0, n, step):
+        block = np.asarray(X[start : start + step], dtype=np.float64)
+        ones_sum += Y[start : start + step].T @ block
+        total += block.sum(axis=0)
+    n1 = Y.sum(axis=0)[:, None]
+    n0 = n - n1
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bcss = np.where(n1 > 0, ones_sum**2 / np.maximum(n1, 1), 0.0) \
+            + np.where(n0 > 0, (total - ones_sum) ** 2 / np.maximum(n0, 1), 0.0) - total**2 / n
     np.maximum(bcss, 0.0, out=bcss)  # rounding can give −1e-12
     if scale is not None:
         bcss /= np.asarray(scale, dtype=np.float64) ** 2
@@ -152,8 +197,48 @@ def select_features(
     d = X.shape[1]
     if not 1 <= n_features <= d:
         raise InvalidParameterError(f"n_features must be in [1, {d}]; got {n_features}.")
-    bcss = between_cluster_ss(X, labels, scale=scale)
+    return _top_columns(between_cluster_ss(X, labels, scale=scale), n_features, sparsity)
+
+
+def _top_columns(bcss: np.ndarray, n_features: int, sparsity: float) -> np.ndarray:
+    """Top ``n_features`` columns by W–T weight, ties by BCSS, then by index; sorted ascending."""
+    d = bcss.size
     weights = sparse_weights(bcss, sparsity)
     # lexsort: last key is primary. Descending weight, then descending BCSS, then lowest index.
     order = np.lexsort((np.arange(d), -bcss, -weights))
     return np.sort(order[:n_features]).astype(column_index_dtype(d))
+
+
+def select_features_many(
+    X: np.ndarray,
+    labels: list[np.ndarray],
+    n_features: int,
+    *,
+    sparsity: float = 0.1,
+    scale: np.ndarray | None = None,
+) -> list[np.ndarray]:
+    """:func:`select_features` for several labellings of the same rows, in one pass over X.
+
+    Two-cluster labellings (the bits of BTE-C) share one product per row chunk
+    (:func:`between_cluster_ss_binary`); others are scored one by one.
+
+    Returns
+    -------
+    list of ndarray of shape (n_features,), one per labelling (as :func:`select_features`)
+    """
+    d = X.shape[1]
+    if not 1 <= n_features <= d:
+        raise InvalidParameterError(f"n_features must be in [1, {d}]; got {n_features}.")
+    out: list[np.ndarray | None] = [None] * len(labels)
+    binary = []
+    for i, y in enumerate(labels):
+        values = np.unique(y)
+        if values.size <= 2:
+            binary.append((i, (np.asarray(y) == values[-1]).astype(np.int8)))
+        else:
+            out[i] = select_features(X, y, n_features, sparsity=sparsity, scale=scale)
+    if binary:
+        bcss = between_cluster_ss_binary(X, np.stack([y for _, y in binary], axis=1), scale=scale)
+        for (i, _), scores in zip(binary, bcss):
+            out[i] = _top_columns(scores, n_features, sparsity)
+    return out  # type: ignore[return-value]

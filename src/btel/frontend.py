@@ -57,22 +57,41 @@ FRONT_END_CONSTRAINTS: dict[str, list[Any]] = {
 _CHUNK_ROWS = 65536
 
 
-def normalize_rows(X: np.ndarray, how: str = "l2") -> np.ndarray:
+def normalize_rows(X: np.ndarray, how: str = "l2", *, check_finite: bool = False, name: str = "X") -> np.ndarray:
     """Rows scaled to unit L2 length (``'l2'``), after a signed square root (``'power'``), or as is.
 
-    A zero row stays zero. Returns a new float32 array (X itself for ``'none'``).
+    A zero row stays zero. Returns a new float32 array (X itself for ``'none'``). Row norms are
+    accumulated in float64 over chunks of about a million values (no float64 copy of X: the old
+    whole-block conversion made this 9× slower than the product that follows it at inference).
+
+    With ``check_finite`` the norms double as the finiteness check of the input (a row holding a
+    NaN or an infinity has a non-finite norm; finite float32 values cannot overflow a float64 sum
+    of squares), so validated queries are read once for both: :class:`InvalidDescriptorsError`
+    names the first bad value as :func:`btel._validation.check_descriptors` does.
     """
     if how == "none":
         return X
     if how not in NORMALIZATIONS:
         raise InvalidParameterError(f"normalize must be one of {NORMALIZATIONS}; got {how!r}.")
     out = np.empty(X.shape, dtype=np.float32)
-    for start in range(0, X.shape[0], _CHUNK_ROWS):
-        block = np.asarray(X[start : start + _CHUNK_ROWS], dtype=np.float64)
+    step = max(1, min(_CHUNK_ROWS, (1 << 20) // max(X.shape[1], 1)))
+    for start in range(0, X.shape[0], step):
+        block = X[start : start + step]
         if how == "power":
+            block = np.asarray(block, dtype=np.float64)
             block = np.sign(block) * np.sqrt(np.abs(block))
-        norms = np.linalg.norm(block, axis=1, keepdims=True)
-        out[start : start + _CHUNK_ROWS] = block / np.where(norms > 0, norms, 1.0)
+        with np.errstate(invalid="ignore", over="ignore"):
+            norms = np.sqrt(np.einsum("ij,ij->i", block, block, dtype=np.float64))
+        if check_finite and not np.isfinite(norms).all():
+            from ._validation import raise_if_non_finite
+
+            raise_if_non_finite(np.asarray(X[start : start + step]), name, row_offset=start)
+        divisor = np.where(norms > 0, norms, 1.0)
+        with np.errstate(invalid="ignore"):
+            if block.dtype == np.float32:  # float32 ÷ float32: no buffered casting (the mixed loop was 1.5–2× slower)
+                np.divide(block, divisor.astype(np.float32)[:, None], out=out[start : start + step])
+            else:
+                np.divide(block, divisor[:, None], out=out[start : start + step], casting="unsafe")
     return out
 
 
@@ -174,9 +193,14 @@ class FrontEnd:
         return self.delta is not None
 
     # -- fit / transform ----------------------------------------------------------------------
-    def _frames(self, X: np.ndarray, starts: np.ndarray | None) -> np.ndarray:
+    @property
+    def checks_finite(self) -> bool:
+        """True when :meth:`transform` with ``check_finite=True`` rejects NaN/inf itself (a normalising front end)."""
+        return self.normalize != "none"
+
+    def _frames(self, X: np.ndarray, starts: np.ndarray | None, check_finite: bool = False) -> np.ndarray:
         """Normalise, delta, normalise: everything before the whitening."""
-        Z = normalize_rows(X, self.normalize)
+        Z = normalize_rows(X, self.normalize, check_finite=check_finite, name="Q")
         if self.delta is not None:
             Z = normalize_rows(delta_descriptors(Z, self.delta, starts=starts), self.normalize)
         return Z
@@ -207,11 +231,14 @@ class FrontEnd:
             out[start : start + _CHUNK_ROWS] = (Z[start : start + _CHUNK_ROWS] - self.mean_) @ self.whitening_
         return normalize_rows(out, "none" if self.normalize == "none" else "l2")
 
-    def transform(self, X: np.ndarray, starts: np.ndarray | None = None) -> np.ndarray:
-        """Apply the fitted front end to validated descriptors (queries: one traverse, in order)."""
+    def transform(self, X: np.ndarray, starts: np.ndarray | None = None, *, check_finite: bool = False) -> np.ndarray:
+        """Apply the fitted front end to validated descriptors (queries: one traverse, in order).
+
+        ``check_finite``: reject NaN/inf in X while normalising (see :attr:`checks_finite`).
+        """
         if self.is_identity:
             return X
-        return self._whitened(self._frames(X, starts))
+        return self._whitened(self._frames(X, starts, check_finite))
 
     def stream(self) -> "FrontEndStream":
         """A streaming version for one descriptor at a time (``btel localize --stream``)."""

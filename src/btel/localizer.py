@@ -22,7 +22,7 @@ from .exceptions import InvalidParameterError, ModelFileError
 from .feature_selection import column_index_dtype
 from .frontend import FRONT_END_CONSTRAINTS
 from .full import full_costs, full_tasks, predict_full
-from .linear import CLASSIFIERS, ColumnStats, Hyperplanes, default_C
+from .linear import CLASSIFIERS, SOLVERS, ColumnStats, Hyperplanes, default_C
 from .planning import (
     SCHEMES,
     WEIGHT_DTYPES,
@@ -36,7 +36,7 @@ from .planning import (
 from .ranking import code_costs, deficits_from_scores, merge_region_kbest
 from .regions import predict_regions, segment_route
 from .segmentation import region_of
-from .training import Task, fit_tasks, one_vs_rest_tasks
+from .training import Task, convergence_warning, fit_tasks, one_vs_rest_tasks
 
 __all__ = ["BTELocalizer", "planned_bytes", "block_centres", "block_size_for_tolerance"]
 
@@ -77,7 +77,14 @@ class BTELocalizer(PlaceLocalizer):
         'compressed' (BTE-C): one classifier per bit, O(log N) storage. 'full' (BTE-F): one per
         internal tree node, O(N) storage (the paper's foil).
     classifier : {'svm', 'logistic'}
-        Linear SVM (``LinearSVC``, squared hinge) or L2 logistic regression (liblinear, tol 0.01).
+        L2-regularised linear SVM with the squared hinge loss, or L2 logistic regression (the
+        objectives of liblinear; :mod:`btel.linear`).
+    solver : {'auto', 'newton', 'lbfgs', 'liblinear'}
+        How the classifiers are solved (:mod:`btel.linear`). 'newton': Newton's method with exact
+        line search, to a relative gradient norm of 1e-5 (the exact optimum for the squared hinge);
+        'lbfgs': L-BFGS over all classifiers that share rows and columns; 'liblinear':
+        scikit-learn's liblinear (what btel used before, which stops unconverged on maps with
+        N ≈ d). 'auto' (default): 'newton' when min(rows, d' + 1) ≤ 4096, else 'lbfgs'.
     C : float, optional
         Regularisation; default 1.0 for 'svm', 4.0 for 'logistic'.
     feature_ratio : float in (0, 1], optional
@@ -108,8 +115,10 @@ class BTELocalizer(PlaceLocalizer):
     kts_max_points : int
         Longest route KTS segments exactly (O(N²·r)); longer routes are averaged in blocks of
         ⌈N / kts_max_points⌉ places first (:func:`btel.segmentation.kts_regions`).
-    max_iter : int
-        liblinear iteration cap per classifier.
+    max_iter : int, optional
+        Iteration cap of the solver (None: its default — 100 Newton steps, 2000 L-BFGS steps,
+        1000 liblinear iterations). Classifiers that stop at the cap are counted in
+        ``n_unconverged_`` and reported by one ``ConvergenceWarning`` from ``fit``.
     n_jobs : int, optional
         Parallel classifier fits (joblib; −1 = all cores; with ``backend='dask'`` None means every
         worker of the cluster). A runtime setting: not saved in model files.
@@ -117,15 +126,15 @@ class BTELocalizer(PlaceLocalizer):
         Where the classifier fits run (:mod:`btel.distributed`). None: threads, or whatever
         ``joblib.parallel_config`` the caller set. 'dask': the workers of a Dask cluster (X is
         sent to each worker once); needs ``pip install btel[dask]``. The model does not depend
-        on the backend — bitwise so when no worker process runs two fits at once: liblinear's
-        dual solver draws from one random generator per process, so fits sharing a process in
-        threads (``n_jobs`` ≥ 2 with threads) can differ in the last bits of their weights.
+        on the backend: the Newton and L-BFGS solvers are deterministic. (With
+        ``solver='liblinear'`` only bitwise so when no worker process runs two fits at once:
+        liblinear's dual solver draws from one random generator per process.)
     scheduler : str, optional
         Dask scheduler address for ``backend='dask'`` (e.g. ``'tcp://10.0.0.5:8786'``); None uses
         the ``distributed.Client`` already running in this process.
     random_state : int or None
-        Seed for liblinear and the randomized PCA of KTS (default 0, so a refit gives the same
-        model; None draws a fresh seed).
+        Seed for the randomized PCA of KTS and for liblinear (``solver='liblinear'``); default 0,
+        so a refit gives the same model; None draws a fresh seed.
     progress : bool
         Show a progress bar while fitting (only on a terminal).
     block_size : int
@@ -174,7 +183,9 @@ class BTELocalizer(PlaceLocalizer):
         The region classifier (None when r = 1).
     front_end_ : FrontEnd
     n_unconverged_ : int
-        Classifiers whose liblinear solver stopped at ``max_iter``.
+        Classifiers whose solver stopped at its iteration cap (``fit`` then warns once).
+    fit_summary_ : btel.training.FitSummary
+        Solvers used, summed objective, most iterations (not saved in model files).
     fit_time_ : float
         Seconds spent in fit.
 
@@ -191,6 +202,7 @@ class BTELocalizer(PlaceLocalizer):
     _parameter_constraints = {
         "scheme": [Options(*SCHEMES)],
         "classifier": [Options(*CLASSIFIERS)],
+        "solver": [Options(*SOLVERS)],
         "C": [None, Interval(float, 0, None, closed="neither")],
         "feature_ratio": [None, Interval(float, 0, 1, closed="right")],
         "n_features": [None, Interval(int, 1, None)],
@@ -203,7 +215,7 @@ class BTELocalizer(PlaceLocalizer):
         "kts_penalty": [Interval(float, 0, None)],
         "kts_pca_dims": [None, Interval(int, 1, None)],
         "kts_max_points": [Interval(int, 4, None)],
-        "max_iter": [Interval(int, 1, 2**31 - 1)],  # liblinear takes a C int
+        "max_iter": [None, Interval(int, 1, 2**31 - 1)],  # None: the solver's own cap; liblinear takes a C int
         "n_jobs": N_JOBS,
         "backend": [None, Options(*BACKENDS)],
         "scheduler": [None, String()],
@@ -221,6 +233,7 @@ class BTELocalizer(PlaceLocalizer):
         *,
         scheme: str = "compressed",
         classifier: str = "svm",
+        solver: str = "auto",
         C: float | None = None,
         feature_ratio: float | None = None,
         n_features: int | None = None,
@@ -233,7 +246,7 @@ class BTELocalizer(PlaceLocalizer):
         kts_penalty: float = 1.0,
         kts_pca_dims: int | None = 128,
         kts_max_points: int = 4096,
-        max_iter: int = 1000,
+        max_iter: int | None = None,
         n_jobs: int | None = None,
         backend: str | None = None,
         scheduler: str | None = None,
@@ -248,6 +261,7 @@ class BTELocalizer(PlaceLocalizer):
     ) -> None:
         self.scheme = scheme
         self.classifier = classifier
+        self.solver = solver
         self.C = C
         self.feature_ratio = feature_ratio
         self.n_features = n_features
@@ -350,11 +364,13 @@ class BTELocalizer(PlaceLocalizer):
 
         with tqdm(total=len(tasks), desc="BTEL fit", unit="clf", disable=None if self.progress else True,
                   leave=False) as bar:
-            parts, n_unconverged = fit_tasks(
+            parts, summary = fit_tasks(
                 X, tasks, n_selected, stats, sparsity=float(self.sparsity), n_jobs=self.n_jobs,
                 backend=self.backend, scheduler=self.scheduler, progress=bar.update, classifier=self.classifier,
-                C=C, max_iter=int(self.max_iter), random_state=self.random_state, dtype=np.dtype(dtype),
+                C=C, solver=self.solver, max_iter=None if self.max_iter is None else int(self.max_iter),
+                random_state=self.random_state, dtype=np.dtype(dtype),
             )
+        convergence_warning(summary, "BTELocalizer.fit", self.max_iter)
 
         index_dtype = None if n_selected >= d else column_index_dtype(d)
         self.region_hyperplanes_ = (
@@ -363,7 +379,8 @@ class BTELocalizer(PlaceLocalizer):
             if first_tree_task else None
         )
         self.hyperplanes_ = Hyperplanes.stack(parts[first_tree_task:], d, n_selected, np.dtype(dtype), index_dtype)
-        self.n_unconverged_ = int(n_unconverged)
+        self.n_unconverged_ = int(summary.n_unconverged)
+        self.fit_summary_ = summary
         self._set_structure(n_places, n_selected, starts)
 
     def _set_structure(self, n_places: int, n_selected: int, starts: np.ndarray) -> None:

@@ -23,9 +23,9 @@ from .base import ArraySpec, PlaceLocalizer
 from .exceptions import BudgetTooSmallError, ModelFileError, NotEnoughPlacesError
 from .feature_selection import column_index_dtype
 from .frontend import FRONT_END_CONSTRAINTS
-from .linear import CLASSIFIERS, ColumnStats, Hyperplanes, default_C
+from .linear import CLASSIFIERS, SOLVERS, ColumnStats, Hyperplanes, default_C
 from .storage import format_bytes
-from .training import fit_tasks, one_vs_rest_tasks
+from .training import convergence_warning, fit_tasks, one_vs_rest_tasks
 
 __all__ = ["RYTHLocalizer", "coprime_periods", "crt"]
 
@@ -79,6 +79,9 @@ class RYTHLocalizer(PlaceLocalizer):
     n_periods : int
         K, the number of co-prime periods (classifiers), 1 … 16.
     classifier : {'svm', 'logistic'}
+    solver : {'auto', 'newton', 'lbfgs', 'liblinear'}
+        As in :class:`btel.BTELocalizer`. A period's p one-vs-rest classifiers share their columns,
+        so they are solved together on one standardised copy.
     C : float, optional
     feature_ratio : float in (0, 1], optional
         c = d'/d (default 0.1 without a budget; as large as fits under one).
@@ -91,7 +94,8 @@ class RYTHLocalizer(PlaceLocalizer):
     dtype : {'float32', 'float16'}
     decode : {'soft', 'crt'}
     max_iter, n_jobs, random_state
-        As in :class:`btel.BTELocalizer`.
+        As in :class:`btel.BTELocalizer` (max_iter None: the solver's default cap; classifiers that
+        stop at it are counted in ``n_unconverged_`` and reported by one ``ConvergenceWarning``).
     normalize, whiten, delta
         The front end (:mod:`btel.frontend`).
 
@@ -107,6 +111,7 @@ class RYTHLocalizer(PlaceLocalizer):
     _parameter_constraints = {
         "n_periods": [Interval(int, 1, 16)],
         "classifier": [Options(*CLASSIFIERS)],
+        "solver": [Options(*SOLVERS)],
         "C": [None, Interval(float, 0, None, closed="neither")],
         "feature_ratio": [None, Interval(float, 0, 1, closed="right")],
         "n_features": [None, Interval(int, 1, None)],
@@ -114,7 +119,7 @@ class RYTHLocalizer(PlaceLocalizer):
         "budget": [Budget()],
         "dtype": [DType("float32", "float16")],
         "decode": [Options("soft", "crt")],
-        "max_iter": [Interval(int, 1, 2**31 - 1)],  # liblinear takes a C int
+        "max_iter": [None, Interval(int, 1, 2**31 - 1)],  # None: the solver's own cap; liblinear takes a C int
         "n_jobs": N_JOBS,
         "random_state": RANDOM_STATE,
         **FRONT_END_CONSTRAINTS,
@@ -126,6 +131,7 @@ class RYTHLocalizer(PlaceLocalizer):
         *,
         n_periods: int = 3,
         classifier: str = "svm",
+        solver: str = "auto",
         C: float | None = None,
         feature_ratio: float | None = None,
         n_features: int | None = None,
@@ -133,7 +139,7 @@ class RYTHLocalizer(PlaceLocalizer):
         budget: int | str | None = None,
         dtype: str = "float32",
         decode: str = "soft",
-        max_iter: int = 1000,
+        max_iter: int | None = None,
         n_jobs: int | None = None,
         random_state: int | None = 0,
         normalize: str = "l2",
@@ -142,6 +148,7 @@ class RYTHLocalizer(PlaceLocalizer):
     ) -> None:
         self.n_periods = n_periods
         self.classifier = classifier
+        self.solver = solver
         self.C = C
         self.feature_ratio = feature_ratio
         self.n_features = n_features
@@ -194,11 +201,13 @@ class RYTHLocalizer(PlaceLocalizer):
         tasks = []
         for p in periods:
             tasks.extend(one_vs_rest_tasks(X, places_arr % p, p, n_selected, stats, sparsity=float(self.sparsity)))
-        parts, n_unconverged = fit_tasks(
+        parts, summary = fit_tasks(
             X, tasks, n_selected, stats, sparsity=float(self.sparsity), n_jobs=self.n_jobs,
-            classifier=self.classifier, C=C, max_iter=int(self.max_iter), random_state=self.random_state,
+            classifier=self.classifier, C=C, solver=self.solver,
+            max_iter=None if self.max_iter is None else int(self.max_iter), random_state=self.random_state,
             dtype=np.dtype(dtype),
         )
+        convergence_warning(summary, "RYTHLocalizer.fit", self.max_iter)
         # Period 2 is a single hyperplane (positive = residue 1); store it as the two-class scores
         # (−m, m) at inference, so every period reads p rows' worth of scores.
         index_dtype = None if n_selected >= d else column_index_dtype(d)
@@ -216,7 +225,8 @@ class RYTHLocalizer(PlaceLocalizer):
         )
         self.periods_ = periods
         self.n_selected_ = int(n_selected)
-        self.n_unconverged_ = int(n_unconverged)
+        self.n_unconverged_ = int(summary.n_unconverged)
+        self.fit_summary_ = summary
         self._expanded_cache = None
 
     # The column sets are one row per period; expand them to one per hyperplane for the margins.

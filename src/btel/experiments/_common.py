@@ -1,17 +1,37 @@
-"""What every experiment shares: the Nordland descriptors, one fitted row, and the result files.
+"""What every experiment shares: the Nordland descriptors, fitted rows, and the result files.
 
 An experiment is a function ``(data: NordlandData, out: Path, quick: bool) -> ExperimentRun``;
 :func:`write_results` turns its run into ``results.json``, ``results.csv`` and its plot(s).
+
+Fitting is shared too (:func:`fit_rows`, :func:`fit_model`):
+
+- **cache** — a fitted model is kept by (method, parameters, a SHA-1 of the map's bytes and
+  shape, a SHA-1 of btel's own source): in memory for the rest of the process and on disk in
+  ``<cache_dir>/models/`` (``model.save`` / ``btel.load``: plain arrays, no pickles), so a
+  configuration met again — the same BTE-C in several experiments, a rerun after a crash —
+  is loaded instead of refitted. Any change to btel's code changes the key, so a cached model
+  is always one the current code would fit. A row from the cache reports the fit time measured
+  when the model was fitted, and ``"cached": true``. ``BTEL_EXPERIMENT_CACHE=0`` turns it off.
+- **parallel** — the independent fits of an experiment run in ``BTEL_EXPERIMENT_JOBS`` threads
+  (default: every core), each with one BLAS thread and one faiss thread (threadpoolctl), so fit
+  times are single-core times; the rows come back in their order whatever finished first. The
+  solvers are deterministic, so a rerun gives the same rows.
+- **progress** — one bar per experiment with the rows done and an ETA.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import dataclasses
+import hashlib
 import json
+import os
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -20,8 +40,9 @@ from ..exceptions import BudgetTooSmallError, DataNotFoundError
 from ..methods import make_method
 from ..storage import check_within_budget, format_bytes, parse_budget
 
-__all__ = ["SEASONS", "QUICK_FRAMES", "NordlandData", "ExperimentRun", "default_nordland_root", "fit_row", "fit_model",
-           "full_or_quick", "write_results", "describe_row"]
+__all__ = ["SEASONS", "QUICK_FRAMES", "NordlandData", "ExperimentRun", "default_nordland_root", "fit_row",
+           "fit_rows", "fit_model", "ModelCache", "full_or_quick", "write_results", "describe_row",
+           "data_fingerprint", "experiment_jobs"]
 
 SEASONS = ("summer", "winter")
 #: Frames per season read in quick mode.
@@ -102,6 +123,197 @@ class ExperimentRun:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
+def experiment_jobs() -> int:
+    """Threads for an experiment's independent fits: ``BTEL_EXPERIMENT_JOBS``, default every core."""
+    value = os.environ.get("BTEL_EXPERIMENT_JOBS")
+    return max(1, int(value)) if value else max(1, os.cpu_count() or 1)
+
+
+def data_fingerprint(X: np.ndarray) -> str:
+    """SHA-1 of an array's shape, dtype and bytes (C order)."""
+    arr = np.ascontiguousarray(X)
+    digest = hashlib.sha1(f"{arr.shape}|{arr.dtype.str}|".encode())
+    digest.update(memoryview(arr).cast("B"))
+    return digest.hexdigest()
+
+
+_SOURCE_DIGEST: str | None = None
+
+
+def _source_digest() -> str:
+    """SHA-1 of every .py file of the installed btel package: the code a cached model was fitted by."""
+    global _SOURCE_DIGEST
+    if _SOURCE_DIGEST is None:
+        root = Path(__file__).resolve().parents[1]
+        digest = hashlib.sha1()
+        for path in sorted(root.rglob("*.py")):
+            digest.update(str(path.relative_to(root)).encode())
+            digest.update(path.read_bytes())
+        _SOURCE_DIGEST = digest.hexdigest()
+    return _SOURCE_DIGEST
+
+
+class ModelCache:
+    """Fitted models by (method, parameters, data fingerprint, btel source), in memory and on disk.
+
+    Parameters
+    ----------
+    folder : path or None
+        Where models are saved (``<key>.btel.npz`` + ``<key>.json``); None keeps them in memory only.
+    enabled : bool
+        False: never reuse (every fit runs).
+    min_fit_seconds : float
+        Models that fitted faster than this are not written to disk (refitting is cheaper than
+        reading, e.g. brute force, whose file is the whole map).
+    """
+
+    def __init__(self, folder: Path | None, *, enabled: bool = True, min_fit_seconds: float = 2.0) -> None:
+        self.folder = None if folder is None else Path(folder)
+        self.enabled = enabled
+        self.min_fit_seconds = float(min_fit_seconds)
+        self._memory: dict[str, tuple[Any, float]] = {}
+        self._lock = threading.Lock()
+        self._key_locks: dict[str, threading.Lock] = {}
+        self._aliases: dict[str, tuple[str, int]] = {}
+
+    @staticmethod
+    def key(name: str, params: dict[str, Any], X: np.ndarray) -> str:
+        text = json.dumps({"method": name, "params": params, "data": data_fingerprint(X), "code": _source_digest()},
+                          sort_keys=True, default=str)
+        return hashlib.sha1(text.encode()).hexdigest()
+
+    @contextlib.contextmanager
+    def _locked(self, key: str) -> Iterator[None]:
+        """One fit per key at a time: a second thread asking for it waits and then reads the cache."""
+        with self._lock:
+            lock = self._key_locks.setdefault(key, threading.Lock())
+        with lock:
+            yield
+
+    def get(self, key: str) -> tuple[Any, float] | None:
+        if not self.enabled:
+            return None
+        if key in self._memory:
+            return self._memory[key]
+        if self.folder is not None:
+            model_path, meta_path = self.folder / f"{key}.btel.npz", self.folder / f"{key}.json"
+            if model_path.is_file() and meta_path.is_file():
+                from ..methods import load
+
+                try:
+                    model, fit_s = load(model_path), float(json.loads(meta_path.read_text())["fit_s"])
+                except Exception:  # a damaged cache file is refitted, never trusted
+                    return None
+                self._memory[key] = (model, fit_s)
+                return model, fit_s
+        return None
+
+    def put(self, key: str, model: Any, fit_s: float, description: dict[str, Any]) -> None:
+        if not self.enabled:
+            return
+        self._memory[key] = (model, fit_s)
+        if self.folder is not None and fit_s >= self.min_fit_seconds:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            tmp = self.folder / f"{key}.tmp.btel.npz"
+            model.save(tmp)
+            os.replace(tmp, self.folder / f"{key}.btel.npz")
+            (self.folder / f"{key}.json").write_text(json.dumps({**description, "fit_s": fit_s}, default=str) + "\n")
+
+    def fit(self, name: str, params: dict[str, Any], X: np.ndarray) -> tuple[Any, float, bool]:
+        """(fitted model, fit seconds, from the cache?) of ``make_method(name, **params)`` on X.
+
+        A budget that only caps the model: when a model with the same parameters but another
+        budget reached its configuration's cap (:func:`_budget_saturated`: d' as large as the
+        parameters allow, so its budget did not shape it) and fits this budget too, it *is* the
+        model this budget gives — BTE-C at d' = d under 5 MB … 256 KB, RYTH under 5 MB … 1 MB —
+        and is reused. Raises whatever ``fit`` raises (e.g. BudgetTooSmallError); such outcomes
+        are not cached.
+        """
+        key = self.key(name, params, X)
+        budget = params.get("budget")
+        alias = None if budget is None else self.key(name, {k: v for k, v in params.items() if k != "budget"}, X) \
+            + "-saturated"
+        # Budgets of one configuration wait for each other: the second may reuse the first.
+        with self._locked(alias or key):
+            hit = self.get(key)
+            if hit is not None:
+                return hit[0], hit[1], True
+            if alias is not None and self.enabled:
+                target = self._aliases.get(alias) or self._read_alias(alias)
+                if target is not None and target[1] <= parse_budget(budget):
+                    hit = self.get(target[0])
+                    if hit is not None:
+                        return hit[0], hit[1], True
+            model = make_method(name, **params)
+            if "progress" in model.get_params():  # one bar per experiment instead (fit_rows)
+                model.set_params(progress=False)
+            start = time.perf_counter()
+            model.fit(X)
+            fit_s = time.perf_counter() - start
+            self.put(key, model, fit_s, {"method": name, "params": params, "n_places": int(X.shape[0])})
+            if alias is not None and self.enabled and _budget_saturated(model):
+                self._aliases[alias] = (key, int(model.nbytes))
+                if self.folder is not None and fit_s >= self.min_fit_seconds:
+                    (self.folder / f"{alias}.json").write_text(json.dumps({"key": key, "nbytes": int(model.nbytes)}))
+            return model, fit_s, False
+
+    def _read_alias(self, alias: str) -> tuple[str, int] | None:
+        path = None if self.folder is None else self.folder / f"{alias}.json"
+        if path is None or not path.is_file():
+            return None
+        try:
+            entry = json.loads(path.read_text())
+            return str(entry["key"]), int(entry["nbytes"])
+        except (ValueError, KeyError, TypeError):
+            return None
+
+
+def _budget_saturated(model: Any) -> bool:
+    """True when a fitted BTEL/RYTH model is as large as its parameters allow, so its budget did not shape it.
+
+    Then every budget ≥ its bytes gives the same model: the budget only picks the largest d'
+    (and, with ``n_regions='auto'``, lowers r — never counted as saturated here).
+    """
+    from ..localizer import BTELocalizer
+    from ..ryth import RYTHLocalizer
+
+    if not hasattr(model, "n_selected_"):
+        return False
+    d = model.front_end_.n_features_out(int(model.n_features_in_))
+    if isinstance(model, BTELocalizer):
+        if model.n_regions == "auto":
+            return False
+        cap = model._cap(d, None if model.budget is None else 1)
+    elif isinstance(model, RYTHLocalizer):
+        if model.n_features is not None:
+            cap = min(int(model.n_features), d)
+        elif model.feature_ratio is not None:
+            cap = int(min(d, max(1, round(model.feature_ratio * d))))
+        else:
+            cap = d
+    else:
+        return False
+    return int(model.n_selected_) == int(cap)
+
+
+_CACHES: dict[str, ModelCache] = {}
+
+
+def model_cache(data: "NordlandData | None") -> ModelCache:
+    """The process' cache for this data's cache folder (``<cache_dir>/models``; memory only without data)."""
+    folder = None if data is None else Path(data.cache_dir) / "models"
+    key = str(folder)
+    if key not in _CACHES:
+        _CACHES[key] = ModelCache(folder, enabled=os.environ.get("BTEL_EXPERIMENT_CACHE", "1") != "0")
+    return _CACHES[key]
+
+
+def fit_model(name: str, params: dict[str, Any], X: np.ndarray, data: "NordlandData | None" = None
+              ) -> tuple[Any, float, bool]:
+    """(fitted model, fit seconds, cached?) through the experiment cache (module docstring)."""
+    return model_cache(data).fit(name, dict(params), np.asarray(X))
+
+
 def fit_row(name: str, data: NordlandData, *, budget: Any, n_places: int | None, map_season: str = "summer",
             params: dict[str, Any] | None = None, label: str | None = None,
             extra: dict[str, Any] | None = None) -> tuple[dict[str, Any], EvaluationResult | None]:
@@ -111,40 +323,84 @@ def fit_row(name: str, data: NordlandData, *, budget: Any, n_places: int | None,
     budget_bytes = parse_budget(budget)
     if budget_bytes is not None:
         kwargs["budget"] = budget_bytes
-    method = make_method(name, **{**(data.front_end or {}), **kwargs})
+    kwargs = {**(data.front_end or {}), **kwargs}
+    method = make_method(name, **kwargs)
     front = {k: method.get_params()[k] for k in ("normalize", "whiten", "delta")}
     row: dict[str, Any] = {"method": label or name, "registry_name": name, "n_places": int(X.shape[0]),
                            "map": map_season, "budget": budget_bytes, "front_end": front,
                            "uses_query_sequence": bool(method.uses_query_sequence), **(extra or {})}
     try:
-        # The paper's fixed tolerances and 0..80 curve, whatever N (the experiments compare across N).
-        result = evaluate(method, X, Q, name=label or name, tolerances=DEFAULT_TOLERANCES, curve_max=80)
+        model, fit_s, cached = fit_model(name, kwargs, X, data)
     except BudgetTooSmallError as exc:
         row.update(status=f"does not fit (needs ≥ {exc.minimum} B)", nbytes=None, minimum_bytes=exc.minimum)
         return row, None
+    # The paper's fixed tolerances and 0..80 curve, whatever N (the experiments compare across N).
+    result = dataclasses.replace(evaluate(model, None, Q, name=label or name, fit=False,
+                                          tolerances=DEFAULT_TOLERANCES, curve_max=80), fit_time_s=fit_s)
     check_within_budget(label or name, result.nbytes, budget_bytes)
     row.update(status="ok", nbytes=result.nbytes, fit_s=result.fit_time_s,
                query_us=result.query_time_s_per_query * 1e6,
                **{f"recall@{t}": result.recall[t] for t in result.recall})
+    if cached:
+        row["cached"] = True
+    if getattr(model, "n_unconverged_", None) is not None:
+        row["n_unconverged"] = int(model.n_unconverged_)
     if result.recall_at_k:
         row.update({f"R@{k}": v for k, v in result.recall_at_k.items()})
     return row, result
 
 
-def fit_model(name: str, params: dict[str, Any], X: np.ndarray) -> tuple[Any, float] | int:
-    """Fit a registered method on X: (fitted model, seconds), or the minimum bytes when its budget is too small.
+@contextlib.contextmanager
+def _one_thread_each() -> Iterator[None]:
+    """BLAS and faiss limited to one thread for the parallel section (both are process-wide settings)."""
+    from threadpoolctl import threadpool_limits
 
-    Every method is seeded (``random_state=0`` where it has one), so reruns give the same numbers.
-    """
-    model = make_method(name, **params)
-    if "random_state" in model.get_params():
-        model.set_params(random_state=0)
-    start = time.perf_counter()
+    faiss = None
     try:
-        model.fit(X)
-    except BudgetTooSmallError as exc:
-        return int(exc.minimum or 0)
-    return model, time.perf_counter() - start
+        import faiss  # noqa: F811
+    except ImportError:  # pragma: no cover - faiss is a dependency
+        pass
+    before = faiss.omp_get_max_threads() if faiss is not None else None
+    if faiss is not None:
+        faiss.omp_set_num_threads(1)
+    try:
+        with threadpool_limits(limits=1):
+            yield
+    finally:
+        if faiss is not None:
+            faiss.omp_set_num_threads(before)
+
+
+def fit_rows(data: NordlandData, jobs: list[dict[str, Any]], *, desc: str = "fits"
+             ) -> list[tuple[dict[str, Any], EvaluationResult | None]]:
+    """:func:`fit_row` for every job (its keyword arguments, ``name`` included), in parallel, in order.
+
+    Independent fits run in :func:`experiment_jobs` threads with one BLAS/faiss thread each; a
+    progress bar shows the rows done and the ETA (``data.progress``).
+    """
+    from joblib import Parallel, delayed
+    from tqdm.auto import tqdm
+
+    for job in jobs:  # read every descriptor matrix first, in this thread
+        data.pair(job["name"], job.get("map_season", "summer"), job.get("n_places"))
+    workers = min(experiment_jobs(), max(1, len(jobs)))
+    out: list[Any] = [None] * len(jobs)
+    with tqdm(total=len(jobs), desc=desc, unit="fit", disable=None if data.progress else True, leave=False) as bar:
+        def run(i: int, job: dict[str, Any]) -> tuple[int, Any]:
+            job = dict(job)
+            return i, fit_row(job.pop("name"), data, **job)
+
+        if workers == 1:
+            for i, job in enumerate(jobs):
+                out[i] = run(i, job)[1]
+                bar.update(1)
+            return out
+        with _one_thread_each():
+            for i, result in Parallel(n_jobs=workers, prefer="threads", return_as="generator_unordered")(
+                    delayed(run)(i, job) for i, job in enumerate(jobs)):
+                out[i] = result
+                bar.update(1)
+    return out
 
 
 def full_or_quick(quick: bool, full: list[Any], small: list[Any]) -> list[Any]:

@@ -42,6 +42,7 @@ import numpy as np
 
 from ..evaluation import DEFAULT_TOLERANCES, recall_at_k, recall_at_tolerance
 from ..methods import make_method
+from ..exceptions import BudgetTooSmallError
 from ..storage import check_within_budget, parse_budget
 from ._common import SEASONS, ExperimentRun, NordlandData, fit_model
 
@@ -77,9 +78,21 @@ def _recalls(pred: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     return {f"recall@{t}": v for t, v in recall_at_tolerance(pred, truth, DEFAULT_TOLERANCES).items()}
 
 
-def _fit(name: str, params: dict[str, Any], X: np.ndarray, budget: int | None) -> tuple[Any, float] | int:
-    """(fitted model, seconds), or the minimum bytes when the budget is too small."""
-    return fit_model(name, {**({"budget": budget} if budget is not None else {}), **params}, X)
+def _fit(name: str, params: dict[str, Any], X: np.ndarray, budget: int | None,
+         data: NordlandData | None = None) -> tuple[Any, float] | int:
+    """(fitted model, seconds), or the minimum bytes when the budget is too small.
+
+    Through the experiments' model cache (:func:`._common.fit_model`); seeded (random_state 0
+    where the method has one) so that every run gives the same numbers.
+    """
+    params = {**({"budget": budget} if budget is not None else {}), **params}
+    if "random_state" in make_method(name, **params).get_params():
+        params["random_state"] = 0
+    try:
+        model, seconds, _ = fit_model(name, params, X, data)
+    except BudgetTooSmallError as exc:
+        return int(exc.minimum or 0)
+    return model, seconds
 
 
 def _single_frame_row(base: dict[str, Any], fitted: tuple[Any, float] | int, Q: np.ndarray,
@@ -118,7 +131,7 @@ def _nordland_rows(data: NordlandData, budget: int, quick: bool, log: Any,
             base = {"part": "nordland", "descriptor": "HOG", "direction": direction, "method": label,
                     "registry_name": name, "family": family, "n_places": n, "budget": budget,
                     "options": opts}
-            fitted = _fit(name, opts, X, budget)
+            fitted = _fit(name, opts, X, budget, data)
             if isinstance(fitted, int):
                 rows.append({**base, "decoder": "single", "status": f"does not fit (needs ≥ {fitted} B)",
                              "nbytes": None, "minimum_bytes": fitted})
@@ -285,12 +298,12 @@ def _diagnostics(data: NordlandData, root: Path, budget: int, out: Path,
                 curves[name] = localizer_bit_accuracy(model, Q[:n], np.arange(n))
             # Within-season generalisation: place k = summer frames 2k (fitted) and 2k + 1 (queried).
             half = n // 2
-            fitted = _fit("btel-c", {}, X[0 : 2 * half : 2], budget)
+            fitted = _fit("btel-c", {}, X[0 : 2 * half : 2], budget, data)
             if not isinstance(fitted, int):
                 curves["BTE-C, next summer frame (held out)"] = localizer_bit_accuracy(
                     fitted[0], X[1 : 2 * half : 2], np.arange(half))
         else:
-            fitted = _fit("btel-c", {}, X[:n], budget)
+            fitted = _fit("btel-c", {}, X[:n], budget, data)
             if not isinstance(fitted, int):
                 curves["BTE-C"] = localizer_bit_accuracy(fitted[0], Q[:n], np.arange(n))
         curves["nearest neighbour's place (unbudgeted)"] = nearest_neighbour_bits(X[:n], Q[:n])

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ._common import ExperimentRun, NordlandData, fit_row, full_or_quick
+from ._common import ExperimentRun, NordlandData, fit_rows, full_or_quick
 
 __all__ = ["exp_feature_ratio"]
 
@@ -13,6 +13,7 @@ def exp_feature_ratio(data: NordlandData, out: Path, quick: bool) -> ExperimentR
     """(d) BTE-C with c = 0.1 … 1 at r = 1 (no budget; bytes reported)."""
     ratios = full_or_quick(quick, [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0], [0.1, 0.3])
     n = 300 if quick else None
-    rows = [fit_row("btel-c", data, budget=None, n_places=n, params={"feature_ratio": c},
-                    label=f"BTE-C c={c:g}", extra={"feature_ratio": c})[0] for c in ratios]
+    jobs = [dict(name="btel-c", budget=None, n_places=n, params={"feature_ratio": c}, label=f"BTE-C c={c:g}",
+                 extra={"feature_ratio": c}) for c in ratios]
+    rows = [row for row, _ in fit_rows(data, jobs, desc="feature-ratio")]
     return ExperimentRun("feature-ratio", rows, out)

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from ..evaluation import DEFAULT_TOLERANCES, recall_at_k, recall_at_tolerance
+from ..exceptions import BudgetTooSmallError
 from ..storage import check_within_budget, parse_budget
 from ._common import SEASONS, ExperimentRun, NordlandData, fit_model
 
@@ -50,18 +51,18 @@ GARDENS_POINT_FRONT_ENDS: dict[str, dict[str, Any]] = {
 TOLERANCES = DEFAULT_TOLERANCES
 
 
-def _rows_for(label: str, name: str, params: dict[str, Any], budget: Any, X: np.ndarray, Q: np.ndarray,
-              base: dict[str, Any], tolerance_k: int, hmm: bool = True) -> list[dict[str, Any]]:
+def _rows_for(data: NordlandData, label: str, name: str, params: dict[str, Any], budget: Any, X: np.ndarray,
+              Q: np.ndarray, base: dict[str, Any], tolerance_k: int, hmm: bool = True) -> list[dict[str, Any]]:
     """Single-frame and HMM rows of one method under one front end (or its 'does not fit' row)."""
     budget_bytes = parse_budget(budget)
     truth = np.arange(len(Q))
     row = {**base, "method": label, "registry_name": name, "front_end": params, "budget": budget_bytes,
            "n_places": int(len(X))}
-    fitted = fit_model(name, {**params, **({"budget": budget_bytes} if budget_bytes else {})}, X)
-    if isinstance(fitted, int):
-        return [{**row, "decoder": "single", "status": f"does not fit (needs ≥ {fitted} B)", "nbytes": None,
-                 "minimum_bytes": fitted}]
-    model, fit_s = fitted
+    try:
+        model, fit_s, _ = fit_model(name, {**params, **({"budget": budget_bytes} if budget_bytes else {})}, X, data)
+    except BudgetTooSmallError as exc:
+        return [{**row, "decoder": "single", "status": f"does not fit (needs ≥ {exc.minimum} B)", "nbytes": None,
+                 "minimum_bytes": exc.minimum}]
     check_within_budget(label, model.nbytes, budget_bytes)
     common = {**row, "status": "ok", "nbytes": int(model.nbytes), "fit_s": fit_s}
     ranked = model.rank(Q, 10)
@@ -94,13 +95,13 @@ def _nordland(data: NordlandData, quick: bool, log: Any) -> list[dict[str, Any]]
                 if name == "btel-c" and front in ("power", "l2 + whiten 256", "l2 + delta 10"):
                     continue  # BTE-C is at chance on this pair whatever the front end: three fits are enough
                 base = {"part": "nordland", "descriptor": "HOG", "direction": direction, "front": front}
-                rows += _rows_for(label, name, params, budget, X[:n], Q[:n], base, tolerance_k=10)
+                rows += _rows_for(data, label, name, params, budget, X[:n], Q[:n], base, tolerance_k=10)
             log(f"{direction} front end {front} done")
     return rows
 
 
-def _gardens_point(root: Path, quick: bool, log: Any) -> list[dict[str, Any]]:
-    path = root.parent / "gardenspoint_netvlad" / "hiddenRepr-GardensPoint.npz"
+def _gardens_point(data: NordlandData, quick: bool, log: Any) -> list[dict[str, Any]]:
+    path = data.root.parent / "gardenspoint_netvlad" / "hiddenRepr-GardensPoint.npz"
     if not path.is_file():
         return [{"part": "gardens-point", "method": "-", "status": f"skipped: {path} not found", "n_places": 0}]
     with np.load(path, allow_pickle=False) as z:
@@ -114,7 +115,7 @@ def _gardens_point(root: Path, quick: bool, log: Any) -> list[dict[str, Any]]:
             continue
         for label, name, budget, opts in methods[:3] if quick else methods:
             base = {"part": "gardens-point", "descriptor": "NetVLAD 500-D", "direction": "day→night", "front": front}
-            rows += _rows_for(label, name, {**params, **opts}, budget, X, Q, base, tolerance_k=2)
+            rows += _rows_for(data, label, name, {**params, **opts}, budget, X, Q, base, tolerance_k=2)
         log(f"Gardens Point front end {front} done")
     return rows
 
@@ -122,7 +123,7 @@ def _gardens_point(root: Path, quick: bool, log: Any) -> list[dict[str, Any]]:
 def exp_front_ends(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:
     """Every front end × method × read-out on Nordland HOG and Gardens Point NetVLAD (module docstring)."""
     log = (lambda msg: print(f"  {msg}", flush=True)) if data.progress else (lambda msg: None)
-    rows = _nordland(data, quick, log) + _gardens_point(data.root, quick, log)
+    rows = _nordland(data, quick, log) + _gardens_point(data, quick, log)
     run = ExperimentRun("front-ends", rows, out)
     run.extra = {"front_ends": FRONT_ENDS, "gardens_point_front_ends": GARDENS_POINT_FRONT_ENDS,
                  "protocol": "front-end settings and HMM options fixed in advance; nothing tuned on the queries"}

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from ..evaluation import DEFAULT_TOLERANCES, recall_at_tolerance, recall_curve
 from ..sequence import filter_sequence
-from ._common import ExperimentRun, NordlandData, fit_row, full_or_quick
+from ._common import ExperimentRun, NordlandData, fit_rows, full_or_quick
 
 __all__ = ["exp_sequence_filter"]
 
@@ -21,8 +21,8 @@ def exp_sequence_filter(data: NordlandData, out: Path, quick: bool) -> Experimen
     budget = "50KB" if quick else "1MB"
     methods = full_or_quick(quick, ["btel-c", "btel-r", "pq"], ["btel-r", "pq"])
     rows, curves = [], {}
-    for name in methods:
-        row, result = fit_row(name, data, budget=budget, n_places=n)
+    jobs = [dict(name=name, budget=budget, n_places=n) for name in methods]
+    for name, (row, result) in zip(methods, fit_rows(data, jobs, desc="sequence-filter")):
         rows.append({**row, "window": 0})
         if result is None:
             continue

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ._common import ExperimentRun, NordlandData, fit_row, full_or_quick
+from ._common import ExperimentRun, NordlandData, fit_rows, full_or_quick
 
 __all__ = ["exp_vs_budget"]
 
@@ -14,5 +14,6 @@ def exp_vs_budget(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:
     budgets = full_or_quick(quick, ["5MB", "2MB", "1MB", "500KB", "256KB", "128KB", "64KB", "32KB"], ["50KB", "16KB"])
     methods = full_or_quick(quick, ["btel-c", "btel-r", "pq", "opq", "itq", "ryth"], ["btel-c", "pq"])
     n = 300 if quick else None
-    rows = [fit_row(name, data, budget=b, n_places=n)[0] for b in budgets for name in methods]
+    jobs = [dict(name=name, budget=b, n_places=n) for b in budgets for name in methods]
+    rows = [row for row, _ in fit_rows(data, jobs, desc="vs-budget")]
     return ExperimentRun("vs-budget", rows, out)
