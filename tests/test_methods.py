@@ -73,3 +73,32 @@ def test_the_first_ranked_place_is_the_prediction_for_every_method(name: str, ro
     np.testing.assert_array_equal(method.rank(Q, 10), places)
     assert all(len(set(row)) == 10 for row in places.tolist())
     assert places.min() >= 0 and places.max() < 200
+
+
+@pytest.mark.parametrize("name", ["btel-c", "btel-r", "btel-f", "ryth"])
+@pytest.mark.parametrize("front", [{}, {"whiten": 8}])
+def test_large_batches_predicted_in_chunks_equal_the_whole_batch_answer(name: str, front, route) -> None:
+    """Batches ≥ 8192 queries run in row chunks on every core: same answers as one-chunk prediction."""
+    from btel import base
+
+    X, Q = route
+    model = make_method(name, **front).fit(X)
+    rng = np.random.default_rng(0)
+    big = np.repeat(Q, -(-9000 // len(Q)), axis=0)[:9000] + 0.01 * rng.standard_normal((9000, Q.shape[1]))
+    big = big.astype(np.float32)
+    chunked = model.predict(big)
+    expected = model._predict(model._check_queries(big))  # the whole batch in one call, one thread
+    np.testing.assert_array_equal(chunked, expected)
+    np.testing.assert_array_equal(chunked, model.search(big, 1)[1][:, 0])
+    assert base._PARALLEL_PREDICT_FROM <= len(big)
+
+
+def test_a_nan_in_a_chunked_batch_is_named_by_its_row_in_the_whole_batch(route) -> None:
+    from btel.exceptions import InvalidDescriptorsError
+
+    X, Q = route
+    model = make_method("btel-c").fit(X)
+    big = np.repeat(Q, -(-9000 // len(Q)), axis=0)[:9000].astype(np.float32)
+    big[8500, 3] = np.nan
+    with pytest.raises(InvalidDescriptorsError, match="row 8500, column 3"):
+        model.predict(big)

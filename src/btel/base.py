@@ -39,7 +39,7 @@ import numpy as np
 from sklearn.base import BaseEstimator
 
 from ._validation import check_descriptors, check_is_fitted, check_params, check_places, check_positive_int
-from .exceptions import BudgetTooSmallError, InvalidParameterError, NotEnoughPlacesError
+from .exceptions import BudgetTooSmallError, InvalidDescriptorsError, InvalidParameterError, NotEnoughPlacesError
 from .frontend import FrontEnd, traverse_starts
 from .storage import format_bytes, parse_budget, save_arrays, storage_breakdown
 
@@ -47,6 +47,57 @@ __all__ = ["PlaceLocalizer", "ArraySpec", "QueryStream", "top_k", "put_first"]
 
 #: Queries scored at a time when a (block × N) score matrix is built (about 32 MB of float64).
 _SCORE_BLOCK_VALUES = 1 << 22
+#: Batches of at least this many queries are predicted with one BLAS thread (below, no threads start).
+_ONE_BLAS_THREAD_FROM = 512
+_BLAS_CONTROLLER: Any = None
+#: Batches of at least this many queries are predicted in row chunks on every core (linear methods).
+_PARALLEL_PREDICT_FROM = 8192
+_PREDICT_CHUNK_ROWS = 4096
+_PREDICT_POOL: Any = None
+
+
+_PREDICT_THREADS: int | None = None
+
+
+def _predict_threads() -> int:
+    """Cores this process may use (its CPU affinity at first call), at most 8."""
+    global _PREDICT_THREADS
+    if _PREDICT_THREADS is None:
+        import os
+
+        try:
+            _PREDICT_THREADS = min(8, len(os.sched_getaffinity(0)))
+        except AttributeError:  # not on Linux
+            _PREDICT_THREADS = min(8, os.cpu_count() or 1)
+    return _PREDICT_THREADS
+
+
+def _predict_pool(n_threads: int) -> Any:
+    """One thread pool for chunked batch prediction, made at first use and kept."""
+    global _PREDICT_POOL
+    if _PREDICT_POOL is None or _PREDICT_POOL._max_workers != n_threads:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _PREDICT_POOL = ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="btel-predict")
+    return _PREDICT_POOL
+
+
+def one_blas_thread() -> Any:
+    """A context that runs BLAS on one thread (threadpoolctl; the controller is built once).
+
+    Batch inference interleaves a thin product (n × d by d × K, K ≈ 20) with single-threaded numpy
+    work (norms, decoding). OpenBLAS' worker threads keep spinning after each product and take the
+    other core from that work: at b = 20, d' = 410, d = 4096 a 20,000-query batch ran at 123k q/s
+    with the default threads against 203k with one. Large batches of the linear methods go further
+    and run whole row chunks (norms, product, decode) on every core, one BLAS thread each
+    (:meth:`PlaceLocalizer._predict_in_chunks`; ``benchmarks/bench_scale.py --target-shape-only``).
+    """
+    global _BLAS_CONTROLLER
+    if _BLAS_CONTROLLER is None:
+        from threadpoolctl import ThreadpoolController
+
+        _BLAS_CONTROLLER = ThreadpoolController()
+    return _BLAS_CONTROLLER.limit(limits=1, user_api="blas")
 
 
 class ArraySpec:
@@ -133,6 +184,9 @@ class PlaceLocalizer(BaseEstimator, ABC):
     _fitted_marker: ClassVar[str] = "n_places_"
     #: Fewest map rows the method can index.
     _min_rows: ClassVar[int] = 2
+    #: True when the method reads transformed queries only through products ``Q @ W`` and row
+    #: selections: it then takes :class:`btel.frontend.ScaledRows` (no normalised copy of a batch).
+    _linear_in_queries: ClassVar[bool] = False
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -277,7 +331,7 @@ class PlaceLocalizer(BaseEstimator, ABC):
         # A normalising front end checks NaN/inf in its own pass over Q (the row norms): one
         # read of the queries instead of two (issue #15: the check was ~30 % of batch predict).
         Q = check_descriptors(Q, name="Q", n_features=self.n_features_in_, check_finite=not front.checks_finite)
-        return front.transform(Q, check_finite=True)
+        return front.transform(Q, check_finite=True, lazy=self._linear_in_queries)
 
     def _check_k(self, k: Any) -> int:
         return min(check_positive_int(k, "k"), int(self.n_places_))
@@ -312,7 +366,42 @@ class PlaceLocalizer(BaseEstimator, ABC):
         -------
         ndarray of shape (n_queries,), int64, every value in [0, N)
         """
-        return self.search(Q, 1)[1][:, 0]
+        if (self._linear_in_queries and getattr(Q, "ndim", 0) == 2 and Q.shape[0] >= _PARALLEL_PREDICT_FROM
+                and _predict_threads() > 1 and not self.front_end_.uses_sequence):
+            return self._predict_in_chunks(Q, _predict_threads())
+        Q = self._check_queries(Q)
+        if Q.shape[0] < _ONE_BLAS_THREAD_FROM:
+            return self._predict(Q)
+        with one_blas_thread():
+            return self._predict(Q)
+
+    def _predict_in_chunks(self, Q: Any, n_threads: int) -> np.ndarray:
+        """:meth:`predict` of a large batch as row chunks on ``n_threads`` threads (one BLAS thread each).
+
+        Only for methods whose prediction of a row depends on that row alone (``_linear_in_queries``,
+        and a front end without delta descriptors): the chunks' answers are the whole batch's. The
+        front end, the product and the decode of each chunk run in one thread, so the
+        single-threaded numpy passes (row norms, decoding) use every core, not just the product.
+        """
+        check_is_fitted(self, self._fitted_marker)
+        front = self.front_end_
+        Q = check_descriptors(Q, name="Q", n_features=self.n_features_in_, check_finite=not front.checks_finite)
+        step = _PREDICT_CHUNK_ROWS
+        slices = [slice(a, min(a + step, Q.shape[0])) for a in range(0, Q.shape[0], step)]
+
+        def one(rows: slice) -> np.ndarray:
+            return self._predict(front.transform(Q[rows], check_finite=True, lazy=True))
+
+        try:
+            with one_blas_thread():
+                return np.concatenate(list(_predict_pool(n_threads).map(one, slices)))
+        except InvalidDescriptorsError:
+            self._check_queries(Q)  # the same error, with row numbers counted over the whole batch
+            raise
+
+    def _predict(self, Q: np.ndarray) -> np.ndarray:
+        """Best place of transformed queries: ``_search(Q, 1)``'s, unless a method has a faster exact path."""
+        return self._search(Q, 1)[1][:, 0]
 
     def rank(self, Q: Any, k: int = 10) -> np.ndarray:
         """The ``k`` most likely places per query, best first (shape (n_queries, min(k, N)), int64)."""

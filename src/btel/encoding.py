@@ -85,6 +85,11 @@ def decode_constrained(margins: np.ndarray, n_places: int) -> np.ndarray:
     indices : ndarray of shape (n_queries,), dtype int64, every value in [0, N)
     """
     m, n = _check_margins(margins, n_places)
+    return _decode_constrained(m, n)
+
+
+def _decode_constrained(m: np.ndarray, n: int) -> np.ndarray:
+    """:func:`decode_constrained` of checked margins (shape (n_queries, b), b = n_bits_for(n))."""
     if m.shape[0] == 1:
         # One query (streaming): the same rule on Python ints, without a dozen tiny numpy calls.
         return np.array([_constrained_one(m[0], n - 1)], dtype=np.int64)

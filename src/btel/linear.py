@@ -830,6 +830,7 @@ class Hyperplanes:
         """
         rows = np.asarray(row_of_query, dtype=np.intp)
         w = self.weights[rows].astype(np.float32)
+        Q = np.asarray(Q)  # ScaledRows: multiplied out (columns are gathered, not a product)
         if self.columns is None:
             q = Q
         else:

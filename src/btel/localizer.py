@@ -17,7 +17,7 @@ from ._validation import BOOLEAN, N_JOBS, RANDOM_STATE, Budget, DType, Interval,
 from .base import ArraySpec, PlaceLocalizer, put_first
 from .compressed import DECODERS, compressed_tasks, decode_code, decode_margins
 from .distributed import BACKENDS
-from .encoding import n_bits_for
+from .encoding import _decode_constrained, n_bits_for
 from .exceptions import InvalidParameterError, ModelFileError
 from .feature_selection import column_index_dtype
 from .frontend import FRONT_END_CONSTRAINTS
@@ -199,6 +199,7 @@ class BTELocalizer(PlaceLocalizer):
     (500,)
     """
 
+    _linear_in_queries = True  # queries are only multiplied by hyperplanes (see btel.frontend.ScaledRows)
     _parameter_constraints = {
         "scheme": [Options(*SCHEMES)],
         "classifier": [Options(*CLASSIFIERS)],
@@ -433,10 +434,11 @@ class BTELocalizer(PlaceLocalizer):
 
         levels, shifts = compressed_code(n_k, self.code_copies_)
         b = n_bits_for(n_k)
-        shifted = (codes[:, None] + shifts[None, :]) & ((1 << b) - 1)
-        signs = 2.0 * ((shifted >> (b - 1 - levels)[None, :]) & 1) - 1.0
-        m = margins.astype(np.float64)
-        return np.abs(m).sum(axis=1) - np.einsum("ij,ij->i", m, signs)
+        shifted = codes[:, None] if self.code_copies_ == 1 else (codes[:, None] + shifts[None, :]) & ((1 << b) - 1)
+        bits = ((shifted >> (b - 1 - levels)[None, :]) & 1).astype(bool)
+        # A column costs 2|m| where the code's bit disagrees with the margin's sign, else nothing.
+        flipped = bits != (margins > 0)
+        return 2.0 * np.einsum("ij,ij->i", np.abs(margins, dtype=np.float64), flipped, dtype=np.float64)
 
     def _decode(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(codes, margins padded to the widest tree, cost) of each query: region, then its tree."""
@@ -454,6 +456,20 @@ class BTELocalizer(PlaceLocalizer):
             margins[rows, : m.shape[1]] = m
             costs[rows] = cost  # the predicted region's deficit is 0
         return codes, margins, costs
+
+    def _predict(self, Q: np.ndarray) -> np.ndarray:
+        """The decode alone (no scores): what ``_search(Q, 1)`` answers, without the flip costs."""
+        if self.n_regions_ == 1 and self.scheme == "compressed":
+            margins = self.hyperplanes_.margins(Q)
+            n_k = int(self.region_sizes_[0])
+            if self.code_copies_ > 1:
+                codes = decode_code(margins, n_k, self.code_copies_)
+            elif self.decode == "constrained":  # the hot path (streaming, batches): margins are ours
+                codes = _decode_constrained(margins, n_k)
+            else:
+                codes = decode_margins(margins, n_k, self.decode)
+            return self._places_of_codes(codes)
+        return self._places_of_codes(self._decode(Q)[0])
 
     def _places_of_codes(self, codes: np.ndarray) -> np.ndarray:
         """Place answered for each code: the code itself, or its block's centre (block_size > 1)."""

@@ -108,6 +108,7 @@ class RYTHLocalizer(PlaceLocalizer):
     front_end_ : FrontEnd
     """
 
+    _linear_in_queries = True  # queries are only multiplied by hyperplanes (see btel.frontend.ScaledRows)
     _parameter_constraints = {
         "n_periods": [Interval(int, 1, 16)],
         "classifier": [Options(*CLASSIFIERS)],
