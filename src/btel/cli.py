@@ -69,6 +69,8 @@ def _echo_storage(model: Any) -> None:
 
     breakdown = model.storage_breakdown()
     width = max(len(k) for k in breakdown) if breakdown else 4
+    if hasattr(model, "summary"):  # what a budget planner chose (btel-codes)
+        click.echo(model.summary())
     click.echo("storage breakdown:")
     for name, n in breakdown.items():
         click.echo(f"  {name:<{width}}  {n:>12,d} B")
@@ -513,7 +515,7 @@ def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | 
     """Run one of the paper's experiments on Nordland (or 'all').
 
     \b
-    NAME: accuracy | vs-n | vs-budget | feature-ratio | regions | sequence-filter | beyond | all
+    NAME: accuracy | vs-n | vs-budget | feature-ratio | regions | sequence-filter | beyond | codes | all
     Each writes results.csv, results.json and PNG plots into OUT/NAME/; `btel report` turns the
     latest runs into docs/results.md.
     """

@@ -319,23 +319,6 @@ class Codebook:
             b = min(stop, a + rows)
             yield a, b, self.codewords(np.arange(a, b))
 
-    def block_means(self, block: int) -> np.ndarray:
-        """Mean codeword of each run of ``block`` consecutive places (the last may be shorter).
-
-        Returns
-        -------
-        ndarray of shape (⌈N / block⌉, K), float32
-        """
-        n_blocks = -(-self.n_places // block)
-        out = np.empty((n_blocks, self.n_codes), dtype=np.float32)
-        rows = max(block, (_BLOCK_ELEMENTS // max(self.n_codes, 1)) // block * block)
-        for a, b, codes in self.iter_blocks(rows=rows):  # a is a multiple of block
-            starts = np.arange(0, b - a, block)
-            sums = np.add.reduceat(codes.astype(np.float32), starts, axis=0)
-            counts = np.diff(np.append(starts, b - a)).astype(np.float32)
-            out[a // block : a // block + starts.size] = sums / counts[:, None]
-        return out
-
     def to_header(self) -> dict[str, int | str]:
         """What a model file records to regenerate this codebook."""
         return {"family": self.family, "n_places": int(self.n_places), "n_codes": int(self.n_codes),

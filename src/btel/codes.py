@@ -11,9 +11,12 @@ index to K ≥ b code columns (error-correcting output codes, Dietterich & Bakir
    d' shared columns of largest variance;
 3. the weights are stored at 32, 16, 8 or 4 bits with one scale per column (:mod:`btel.quantise`);
 4. a query's K margins m are decoded softly over every place: score_i = m · c_i (the Gaussian
-   log-likelihood of the margins up to a constant), batched as a product with the codebook in
-   blocks of places; ``rank``, ``place_scores``, the HMM decoder and streaming come from the base
-   class (:class:`btel.base.PlaceLocalizer`) on top of it.
+   log-likelihood of the margins up to a constant). At inference the codebook is expanded once
+   into packed bits (N·K/8 bytes of memory, never stored), and the top-k search is faiss'
+   inner-product PQ scan with the 256 ±1 patterns of 8 columns as the "centroids" of each byte —
+   ⌈K/8⌉ table look-ups per place; ``place_scores`` is the same sum as a matrix product in blocks
+   of places. ``rank``, the HMM decoder and streaming come from the base class
+   (:class:`btel.base.PlaceLocalizer`) on top of them.
 
 Storage is K·d' weights (plus K scales and biases, and d' column indices), independent of N, so it
 stays sub-linear, and K is the dial that turns bytes into accuracy: the budget planner
@@ -44,6 +47,7 @@ columns are shared instead. The **sequence filter** and the **HMM decoder** comp
 
 from __future__ import annotations
 
+import contextlib
 from typing import Any
 
 import numpy as np
@@ -67,8 +71,8 @@ SOLVERS = ("ridge", "liblinear")
 DECODES = ("auto", "exact", "coarse")
 #: From this many places ``decode='auto'`` decodes route families coarse to fine.
 COARSE_MIN_PLACES = 1 << 17
-#: The whole codebook is cached as int8 at inference when it has at most this many values (128 MB).
-CODE_CACHE_VALUES = 1 << 27
+#: The codebook is cached at inference as packed bits (N × ⌈K/8⌉ bytes) up to this size (256 MB).
+PACKED_CACHE_BYTES = 1 << 28
 #: Values (rows × columns) of one block of scores or codes at inference (about 16 MB of float32).
 _BLOCK_VALUES = 1 << 22
 
@@ -291,25 +295,69 @@ class CodeLocalizer(PlaceLocalizer):
         """Margins of every code column (positive = +1), shape (n_queries, K), float32."""
         return self._margins(self._check_queries(Q))
 
+    # -- the codebook at inference: packed bits (a runtime cache) and faiss' ADC scan ------------
+    def _packed_codes(self) -> np.ndarray | None:
+        """(N, ⌈K/8⌉) uint8: every codeword as bits (+1 → 1, column j in bit j % 8 of byte j // 8).
+
+        Built once from the implicit codebook (N·K/8 bytes of memory, not of storage); None when
+        it would exceed :data:`PACKED_CACHE_BYTES` (the codewords are then generated per block).
+        """
+        n, groups = int(self.n_places_), -(-self.n_codes_ // 8)
+        if n * groups > PACKED_CACHE_BYTES:
+            return None
+        if self._cache.packed is None:
+            packed = np.empty((n, groups), dtype=np.uint8)
+            for a, b, codes in self.codebook_.iter_blocks():
+                packed[a:b] = np.packbits(codes > 0, axis=1, bitorder="little")
+            self._cache.packed = packed
+        return self._cache.packed
+
+    def _codes_of(self, places: np.ndarray) -> np.ndarray:
+        """±1 codewords of the given places as float32 (n, K): from the packed cache when there is one."""
+        packed = self._packed_codes()
+        if packed is None:
+            return self.codebook_.codewords(places).astype(np.float32)
+        bits = np.unpackbits(packed[places], axis=1, count=self.n_codes_, bitorder="little")
+        return bits.astype(np.float32) * 2.0 - 1.0
+
     def _code_blocks(self, rows: int | None = None):
-        """Yield (start, stop, codewords float32) over blocks of places; from the int8 cache when it fits."""
-        n, K = int(self.n_places_), self.n_codes_
-        rows = rows or max(1, _BLOCK_VALUES // K)
-        if n * K <= CODE_CACHE_VALUES:
-            if self._cache.codes is None:
-                self._cache.codes = np.concatenate([c for _, _, c in self.codebook_.iter_blocks()])
-            for a in range(0, n, rows):
-                yield a, min(n, a + rows), self._cache.codes[a : a + rows].astype(np.float32)
-        else:
-            for a, b, codes in self.codebook_.iter_blocks(rows=rows):
-                yield a, b, codes.astype(np.float32)
+        """Yield (start, stop, codewords float32 (stop − start, K)) over consecutive blocks of places."""
+        n = int(self.n_places_)
+        rows = rows or max(1, _BLOCK_VALUES // self.n_codes_)
+        for a in range(0, n, rows):
+            b = min(n, a + rows)
+            yield a, b, self._codes_of(np.arange(a, b))
+
+    def _adc_index(self) -> Any:
+        """faiss.IndexPQ over the packed codewords whose scan computes m · c_i exactly (or None).
+
+        The soft decode is an asymmetric-distance scan: cut the K columns into groups of 8, a group
+        of a codeword is one byte, and the 256 "centroids" of every group are the 256 ±1 patterns
+        of 8 columns. faiss' inner-product PQ scan then sums, per place, one table entry per group
+        (⌈K/8⌉ look-ups instead of K multiply-adds), multi-threaded and in C++.
+        """
+        if self._cache.index is None:
+            packed = self._packed_codes()
+            if packed is None:
+                return None
+            import faiss
+
+            groups = packed.shape[1]
+            index = faiss.IndexPQ(8 * groups, groups, 8, faiss.METRIC_INNER_PRODUCT)
+            patterns = ((np.arange(256)[:, None] >> np.arange(8)) & 1) * 2.0 - 1.0
+            faiss.copy_array_to_vector(np.tile(patterns, (groups, 1)).astype(np.float32).ravel(), index.pq.centroids)
+            index.is_trained = True
+            index.add_sa_codes(packed)
+            self._cache.index = index
+        return self._cache.index
 
     def _place_scores(self, Q: np.ndarray) -> np.ndarray:
         """m · c_i for every place (the exact soft decode), (n, N) float64."""
-        M = self._margins(Q)
-        out = np.empty((Q.shape[0], int(self.n_places_)))
-        for a, b, codes in self._code_blocks():
-            out[:, a:b] = M @ codes.T
+        with _blas_for(Q.shape[0], self.n_codes_ * (self.n_selected_ + int(self.n_places_))):
+            M = self._margins(Q)
+            out = np.empty((Q.shape[0], int(self.n_places_)))
+            for a, b, codes in self._code_blocks():
+                out[:, a:b] = M @ codes.T
         return out
 
     def _coarse_default(self) -> bool:
@@ -319,7 +367,8 @@ class CodeLocalizer(PlaceLocalizer):
         return self.decode == "coarse" or int(self.n_places_) >= COARSE_MIN_PLACES
 
     def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        M = self._margins(Q)
+        with _blas_for(Q.shape[0], self.n_codes_ * self.n_selected_):
+            M = self._margins(Q)
         if self._coarse_default():
             block, candidates = self._coarse_shape()
             if k <= block * candidates:
@@ -327,7 +376,16 @@ class CodeLocalizer(PlaceLocalizer):
         return self._exact_search(M, k)
 
     def _exact_search(self, M: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """Top k of the exact scores, blocked over places (ties: the lower place first)."""
+        """Top k of m · c_i over every place: faiss' ADC scan, or blocked products without a cache."""
+        index = self._adc_index()
+        if index is not None:
+            from .baselines._common import faiss_threads
+
+            padded = np.zeros((M.shape[0], index.d), dtype=np.float32)
+            padded[:, : self.n_codes_] = M
+            with faiss_threads(self.n_jobs):
+                scores, places = index.search(padded, k)
+            return scores.astype(np.float64), places.astype(np.int64)
         n = M.shape[0]
         best_s = np.empty((n, 0), dtype=np.float32)
         best_p = np.empty((n, 0), dtype=np.int64)
@@ -349,7 +407,14 @@ class CodeLocalizer(PlaceLocalizer):
     def _block_means(self) -> np.ndarray:
         block, _ = self._coarse_shape()
         if self._cache.means is None or self._cache.means[0] != block:
-            self._cache.means = (block, self.codebook_.block_means(block))
+            n_blocks = -(-int(self.n_places_) // block)
+            means = np.empty((n_blocks, self.n_codes_), dtype=np.float32)
+            rows = max(block, (_BLOCK_VALUES // self.n_codes_) // block * block)
+            for a, b, codes in self._code_blocks(rows):  # a is a multiple of block
+                starts = np.arange(0, b - a, block)
+                counts = np.diff(np.append(starts, b - a)).astype(np.float32)
+                means[a // block : a // block + starts.size] = np.add.reduceat(codes, starts, axis=0) / counts[:, None]
+            self._cache.means = (block, means)
         return self._cache.means[1]
 
     def _coarse_search(self, M: np.ndarray, k: int, block: int, candidates: int) -> tuple[np.ndarray, np.ndarray]:
@@ -365,15 +430,13 @@ class CodeLocalizer(PlaceLocalizer):
             coarse = m @ means.T
             blocks = np.argpartition(-coarse, candidates - 1, axis=1)[:, :candidates] if candidates < coarse.shape[1] \
                 else np.broadcast_to(np.arange(coarse.shape[1]), coarse.shape)
-            places = (blocks[:, :, None] * block + np.arange(block)).reshape(m.shape[0], width)
-            valid = places < n_places
-            codes = self.codebook_.codewords(np.where(valid, places, 0).ravel()).astype(np.float32)
-            scores = np.einsum("qpk,qk->qp", codes.reshape(m.shape[0], width, self.n_codes_), m)
-            scores[~valid] = -np.inf
             # Candidates in place order, so that ties go to the lower place as in the exact decode.
-            order = np.argsort(places, axis=1, kind="stable")
-            places = np.take_along_axis(places, order, axis=1)
-            values, cols = top_k(np.take_along_axis(scores, order, axis=1), k)
+            places = np.sort((blocks[:, :, None] * block + np.arange(block)).reshape(m.shape[0], width), axis=1)
+            valid = places < n_places
+            codes = self._codes_of(np.where(valid, places, 0).ravel()).reshape(m.shape[0], width, self.n_codes_)
+            scores = np.matmul(codes, m[:, :, None])[:, :, 0].astype(np.float64)
+            scores[~valid] = -np.inf
+            values, cols = top_k(scores, k)
             out_s[a : a + step] = values
             out_p[a : a + step] = np.take_along_axis(places, cols, axis=1)
         return out_s, out_p
@@ -434,14 +497,39 @@ class CodeLocalizer(PlaceLocalizer):
         return state
 
 
+#: Below this many multiply-adds a decode runs its BLAS products on one thread (see _blas_for).
+_SMALL_PRODUCT = 1 << 27
+_controller: Any = None
+
+
+def _blas_for(n_queries: int, work_per_query: int) -> Any:
+    """One BLAS thread for small batched products, the library's default otherwise.
+
+    Measured on the shared 2-core machine: the (200 × 242) · (242 × 244) margin product of a
+    Gardens Point batch took 71 ms with OpenBLAS' two threads (spinning against other processes)
+    and 4 ms with one. Few queries are left alone: their matrix-vector products run on one thread
+    anyway, and switching the thread count per call cost more than the product (≈ 0.8 ms).
+    """
+    global _controller
+    if n_queries < 16 or n_queries * work_per_query >= _SMALL_PRODUCT:
+        return contextlib.nullcontext()
+    if _controller is None:
+        from threadpoolctl import ThreadpoolController
+
+        _controller = ThreadpoolController()
+    return _controller.limit(limits=1, user_api="blas")
+
+
 class _RuntimeCache:
     """What inference derives from the stored arrays once (not stored, not compared: one object per model).
 
-    ``dense``: (d', K) float32 dequantised weights; ``codes``: the (N, K) int8 codebook when it has
-    at most :data:`CODE_CACHE_VALUES` values; ``means``: (B, ⌈N/B⌉ × K block-mean codewords).
+    ``dense``: (d', K) float32 dequantised weights; ``packed``: the (N, ⌈K/8⌉) packed codebook when
+    it has at most :data:`PACKED_CACHE_BYTES` bytes; ``index``: the faiss scan over it; ``means``:
+    (B, the ⌈N/B⌉ × K block-mean codewords of the coarse decode).
     """
 
     def __init__(self) -> None:
         self.dense: np.ndarray | None = None
-        self.codes: np.ndarray | None = None
+        self.packed: np.ndarray | None = None
+        self.index: Any = None
         self.means: tuple[int, np.ndarray] | None = None

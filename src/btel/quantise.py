@@ -168,6 +168,9 @@ def quantise(W: np.ndarray, bits: int, scales: np.ndarray | None = None) -> Quan
     qmax = _qmax(bits)
     if scales is None:
         peak = np.abs(W).max(axis=1) if W.shape[1] else np.zeros(W.shape[0])
+        # A row below float32's smallest normal number times q_max has no representable scale: it is
+        # stored as zeros (scale 1), an error of at most that peak.
+        peak = np.where(peak >= np.finfo(np.float32).tiny * qmax, peak, 0.0)
         scales = np.where(peak > 0, peak / qmax, 1.0).astype(np.float32)
         # A float32 scale rounded down could push the peak to q_max + 1: round it up instead.
         scales = np.where(peak / scales.astype(np.float64) > qmax + 0.5, np.nextafter(scales, np.inf), scales)

@@ -29,6 +29,7 @@ _TITLES = {
     "regions": "(e) BTEL, regions r = 1 … 20, c = 0.1 (summer → winter, N = 3576)",
     "sequence-filter": "(f) Sequence filter a = 5, 20 at N = 3576, ≤ 1 MB (summer → winter)",
     "beyond": "Beyond the paper: BTEL variants vs quantisers at the same bytes (the ladder)",
+    "codes": "Output codes beyond the binary index (btel-codes) vs quantisers, 1 KB … 1 MB",
 }
 _TOLERANCES = (0, 1, 2, 5, 10, 20)
 _MARKER = re.compile(r"<!-- (?P<name>[\w-]+):start -->.*?<!-- (?P=name):end -->", re.S)
@@ -163,6 +164,10 @@ def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path
                   f"{run.get('seconds', 0):.0f} s, btel {run.get('versions', {}).get('btel', '?')}.", ""]
         if name == "beyond":
             lines += _beyond_lines(payload)
+        elif name == "codes":
+            from .experiments.codes import report_lines
+
+            lines += report_lines(payload, docs_dir)
         else:
             extra = {"accuracy": ["direction"], "sequence-filter": ["window"]}.get(name, [])
             lines += _table(rows, extra) + [""]
@@ -170,7 +175,7 @@ def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path
             target = figures / f"{name}-{png.name}"
             shutil.copyfile(png, target)
             lines += [f"![{name} {png.stem}](figures/{target.name})", ""]
-        reading = [] if name == "beyond" else _reading(name, rows)
+        reading = [] if name in ("beyond", "codes") else _reading(name, rows)
         if reading:
             lines += ["Reading (computed from the table):", ""] + [f"- {s}" for s in reading] + [""]
     missing = [name for name in EXPERIMENTS if name not in found]

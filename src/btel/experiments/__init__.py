@@ -15,6 +15,7 @@ name                module                          what
 ``regions``         :mod:`.regions`                 (e) BTEL with r = 1 … 20 at c = 0.1
 ``sequence-filter`` :mod:`.sequence_filter`         (f) the sequence filter, a = 5 and a = 20, at N = 3576 and 1 MB
 ``beyond``          :mod:`.beyond`                  the paper's variants against quantisation at the same bytes
+``codes``           :mod:`.codes`                   output codes (btel-codes, every family and width) vs quantisers, 1 KB … 1 MB
 =================== =============================== ====================================================================
 
 Every row carries the method's bytes. A method that cannot fit a budget is reported as such (with
@@ -38,6 +39,7 @@ from ..runs import run_metadata
 from ._common import QUICK_FRAMES, ExperimentRun, NordlandData, default_nordland_root, describe_row, write_results
 from .accuracy import exp_accuracy
 from .beyond import exp_beyond
+from .codes import exp_codes
 from .feature_ratio import exp_feature_ratio
 from .regions import exp_regions
 from .sequence_filter import exp_sequence_filter
@@ -54,6 +56,7 @@ EXPERIMENTS: dict[str, Callable[[NordlandData, Path, bool], ExperimentRun]] = {
     "regions": exp_regions,
     "sequence-filter": exp_sequence_filter,
     "beyond": exp_beyond,
+    "codes": exp_codes,
 }
 
 
