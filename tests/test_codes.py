@@ -269,3 +269,37 @@ def test_gardens_point_day_to_night_at_32kb(gardenspoint_netvlad) -> None:
     assert codes.nbytes <= 32_000
     assert within["codes"][0] >= 0.55 and within["codes"][1] >= 0.82, within
     assert within["codes"][0] > within["pq"][0] and within["codes"][1] > within["pq"][1], within
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("backend", ["loky", "dask"])
+def test_ridge_on_worker_processes_and_dask_equals_a_serial_fit(backend: str) -> None:
+    route = synthetic_route(2000, 32, seed=2)  # the primal path: column groups are separate tasks
+    serial = CodeLocalizer(n_codes=192).fit(route.map)
+    if backend == "dask":
+        distributed = pytest.importorskip("distributed")
+        with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                                      dashboard_address=":0") as cluster, distributed.Client(cluster):
+            remote = CodeLocalizer(n_codes=192, backend="dask", n_jobs=2).fit(route.map)
+    else:
+        remote = CodeLocalizer(n_codes=192, backend="loky", n_jobs=2).fit(route.map)
+    np.testing.assert_allclose(remote.weights_.dequantise(), serial.weights_.dequantise(), rtol=0, atol=1e-4)
+    assert np.mean(remote.predict(route.queries) == serial.predict(route.queries)) > 0.99
+
+
+def test_targets_are_read_off_the_btel_codes_rows_only() -> None:
+    from btel.experiments.codes import check_targets
+
+    def row(method, budget, r2, r10, family="codes"):
+        return {"part": "gardens-point", "status": "ok", "method": method, "budget": budget, "nbytes": budget,
+                "family": family, "recall@2": r2, "recall@10": r10}
+
+    rows = [row("btel-codes", 32_000, 0.55, 0.79), row("codes random 4-bit", 32_000, 0.9, 0.9),
+            row("btel-codes", 64_000, 0.63, 0.85), row("PQ", 64_000, 0.64, 0.7, "quantiser"),
+            row("brute force", None, 0.48, 0.75, "reference")]
+    rows[-1]["nbytes"] = 400_000
+    verdicts = {t["target"]: t for t in check_targets(rows)}
+    assert verdicts["≤ 32 KB: R@2 ≥ 0.50"]["met"] and not verdicts["≤ 32 KB: R@10 ≥ 0.80"]["met"]
+    assert verdicts["≤ 64 KB: R@2 ≥ 0.62"]["met"]
+    versus = verdicts["every budget 4–64 KB: btel-codes ≥ best of PQ/OPQ/ITQ (recall@2)"]
+    assert not versus["met"] and [v["met"] for v in versus["per_budget"]] == [True, False]

@@ -37,8 +37,6 @@ signs in a column; kept as the solver BTE-C uses, for comparison.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
-
 import numpy as np
 from joblib import Parallel, delayed
 from threadpoolctl import threadpool_limits
@@ -213,7 +211,3 @@ def fit_liblinear_codes(X: np.ndarray, cols: np.ndarray, codebook: Codebook, pla
     return CodeFit(weights=weights, offsets=offsets, center=center, alpha=float("nan"),
                    n_unconverged=int(n_unconverged))
 
-
-def describe_solver(fit: CodeFit, solver: str) -> dict[str, Any]:
-    """What the solver chose, for the model header."""
-    return {"alpha": None if not np.isfinite(fit.alpha) else float(fit.alpha), "n_unconverged": fit.n_unconverged}

@@ -260,15 +260,14 @@ class CodeLocalizer(PlaceLocalizer):
         self.plan_ = plan
         self.alpha_ = float(fitted.alpha) if self.solver == "ridge" else None
         self.n_unconverged_ = int(fitted.n_unconverged)
-        self._set_structure(codebook, d)
+        self._set_structure(codebook)
 
-    def _set_structure(self, codebook: Codebook, d: int) -> None:
+    def _set_structure(self, codebook: Codebook) -> None:
         self.codebook_ = codebook
         self.n_codes_ = int(codebook.n_codes)
         self.code_seed_ = int(codebook.seed)
         self.n_selected_ = int(self.weights_.n_columns)
         self.weight_bits_ = int(self.weights_.bits)
-        self._d = int(d)
         self._reset_caches()
 
     def _reset_caches(self) -> None:
@@ -312,16 +311,28 @@ class CodeLocalizer(PlaceLocalizer):
             self._cache.packed = packed
         return self._cache.packed
 
+    def _width(self) -> int:
+        """K rounded up to whole bytes: the width of the codewords and margins the decoders multiply."""
+        return 8 * -(-self.n_codes_ // 8)
+
+    def _padded(self, M: np.ndarray) -> np.ndarray:
+        """Margins (n, K) → (n, 8⌈K/8⌉) float32, zeros in the padding columns (which then add nothing)."""
+        out = np.zeros((M.shape[0], self._width()), dtype=np.float32)
+        out[:, : self.n_codes_] = M
+        return out
+
     def _codes_of(self, places: np.ndarray) -> np.ndarray:
-        """±1 codewords of the given places as float32 (n, K): from the packed cache when there is one."""
+        """±1 codewords of the given places, float32 (n, 8⌈K/8⌉): padding columns are +1 (× zero margins)."""
         packed = self._packed_codes()
         if packed is None:
-            return self.codebook_.codewords(places).astype(np.float32)
-        bits = np.unpackbits(packed[places], axis=1, count=self.n_codes_, bitorder="little")
-        return bits.astype(np.float32) * 2.0 - 1.0
+            codes = np.ones((len(places), self._width()), dtype=np.float32)
+            codes[:, : self.n_codes_] = self.codebook_.codewords(places)
+            return codes
+        # One table look-up per byte: the 8 ±1 values of its bits.
+        return _BYTE_SIGNS[packed[places]].reshape(len(places), -1)
 
     def _code_blocks(self, rows: int | None = None):
-        """Yield (start, stop, codewords float32 (stop − start, K)) over consecutive blocks of places."""
+        """Yield (start, stop, codewords float32 (stop − start, 8⌈K/8⌉)) over consecutive blocks of places."""
         n = int(self.n_places_)
         rows = rows or max(1, _BLOCK_VALUES // self.n_codes_)
         for a in range(0, n, rows):
@@ -344,8 +355,7 @@ class CodeLocalizer(PlaceLocalizer):
 
             groups = packed.shape[1]
             index = faiss.IndexPQ(8 * groups, groups, 8, faiss.METRIC_INNER_PRODUCT)
-            patterns = ((np.arange(256)[:, None] >> np.arange(8)) & 1) * 2.0 - 1.0
-            faiss.copy_array_to_vector(np.tile(patterns, (groups, 1)).astype(np.float32).ravel(), index.pq.centroids)
+            faiss.copy_array_to_vector(np.tile(_BYTE_SIGNS, (groups, 1)).ravel(), index.pq.centroids)
             index.is_trained = True
             index.add_sa_codes(packed)
             self._cache.index = index
@@ -354,7 +364,7 @@ class CodeLocalizer(PlaceLocalizer):
     def _place_scores(self, Q: np.ndarray) -> np.ndarray:
         """m · c_i for every place (the exact soft decode), (n, N) float64."""
         with _blas_for(Q.shape[0], self.n_codes_ * (self.n_selected_ + int(self.n_places_))):
-            M = self._margins(Q)
+            M = self._padded(self._margins(Q))
             out = np.empty((Q.shape[0], int(self.n_places_)))
             for a, b, codes in self._code_blocks():
                 out[:, a:b] = M @ codes.T
@@ -367,13 +377,13 @@ class CodeLocalizer(PlaceLocalizer):
         return self.decode == "coarse" or int(self.n_places_) >= COARSE_MIN_PLACES
 
     def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        with _blas_for(Q.shape[0], self.n_codes_ * self.n_selected_):
-            M = self._margins(Q)
-        if self._coarse_default():
-            block, candidates = self._coarse_shape()
-            if k <= block * candidates:
-                return self._coarse_search(M, k, block, candidates)
-        return self._exact_search(M, k)
+        with _blas_for(Q.shape[0], self.n_codes_ * (self.n_selected_ + int(self.n_places_))):
+            M = self._padded(self._margins(Q))
+            if self._coarse_default():
+                block, candidates = self._coarse_shape()
+                if k <= block * candidates:
+                    return self._coarse_search(M, k, block, candidates)
+            return self._exact_search(M, k)
 
     def _exact_search(self, M: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         """Top k of m · c_i over every place: faiss' ADC scan, or blocked products without a cache."""
@@ -381,10 +391,8 @@ class CodeLocalizer(PlaceLocalizer):
         if index is not None:
             from .baselines._common import faiss_threads
 
-            padded = np.zeros((M.shape[0], index.d), dtype=np.float32)
-            padded[:, : self.n_codes_] = M
             with faiss_threads(self.n_jobs):
-                scores, places = index.search(padded, k)
+                scores, places = index.search(M, k)
             return scores.astype(np.float64), places.astype(np.int64)
         n = M.shape[0]
         best_s = np.empty((n, 0), dtype=np.float32)
@@ -408,7 +416,7 @@ class CodeLocalizer(PlaceLocalizer):
         block, _ = self._coarse_shape()
         if self._cache.means is None or self._cache.means[0] != block:
             n_blocks = -(-int(self.n_places_) // block)
-            means = np.empty((n_blocks, self.n_codes_), dtype=np.float32)
+            means = np.empty((n_blocks, self._width()), dtype=np.float32)
             rows = max(block, (_BLOCK_VALUES // self.n_codes_) // block * block)
             for a, b, codes in self._code_blocks(rows):  # a is a multiple of block
                 starts = np.arange(0, b - a, block)
@@ -433,7 +441,7 @@ class CodeLocalizer(PlaceLocalizer):
             # Candidates in place order, so that ties go to the lower place as in the exact decode.
             places = np.sort((blocks[:, :, None] * block + np.arange(block)).reshape(m.shape[0], width), axis=1)
             valid = places < n_places
-            codes = self._codes_of(np.where(valid, places, 0).ravel()).reshape(m.shape[0], width, self.n_codes_)
+            codes = self._codes_of(np.where(valid, places, 0).ravel()).reshape(m.shape[0], width, -1)
             scores = np.matmul(codes, m[:, :, None])[:, :, 0].astype(np.float64)
             scores[~valid] = -np.inf
             values, cols = top_k(scores, k)
@@ -488,7 +496,7 @@ class CodeLocalizer(PlaceLocalizer):
                               int(sum(spec.nbytes for spec in self._array_specs(state).values())),
                               room if isinstance(room, int) and not isinstance(room, bool) else None,
                               rule if isinstance(rule, str) else "recorded without a rule")
-        self._set_structure(codebook, d)
+        self._set_structure(codebook)
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(super().__getstate__())
@@ -497,21 +505,24 @@ class CodeLocalizer(PlaceLocalizer):
         return state
 
 
+#: The ±1 values of the 8 bits of every byte (bit j → column j), float32 (256, 8).
+_BYTE_SIGNS = (((np.arange(256)[:, None] >> np.arange(8)) & 1) * 2.0 - 1.0).astype(np.float32)
 #: Below this many multiply-adds a decode runs its BLAS products on one thread (see _blas_for).
 _SMALL_PRODUCT = 1 << 27
 _controller: Any = None
 
 
 def _blas_for(n_queries: int, work_per_query: int) -> Any:
-    """One BLAS thread for small batched products, the library's default otherwise.
+    """One BLAS thread for the decode's products, unless a large batch (where a second thread can pay).
 
-    Measured on the shared 2-core machine: the (200 × 242) · (242 × 244) margin product of a
-    Gardens Point batch took 71 ms with OpenBLAS' two threads (spinning against other processes)
-    and 4 ms with one. Few queries are left alone: their matrix-vector products run on one thread
-    anyway, and switching the thread count per call cost more than the product (≈ 0.8 ms).
+    Measured on the shared 2-core machine (load ≈ 12): the (200 × 242) · (242 × 244) margin
+    product of a Gardens Point batch took 71 ms with OpenBLAS' two threads (spinning against other
+    processes) and 4 ms with one; the coarse decode's (4000 × 470) matrix-vector product of one
+    query at N = 10⁶ took 14–21 ms with two threads and 2 ms with one (setting the limit per call
+    cost less than the noise).
     """
     global _controller
-    if n_queries < 16 or n_queries * work_per_query >= _SMALL_PRODUCT:
+    if n_queries > 64 and n_queries * work_per_query >= _SMALL_PRODUCT:
         return contextlib.nullcontext()
     if _controller is None:
         from threadpoolctl import ThreadpoolController

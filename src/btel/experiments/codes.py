@@ -129,14 +129,14 @@ def _gardens_point(root: Path, quick: bool, log: Any) -> tuple[list[dict[str, An
         X, Q = z["hlrTrain"].astype(np.float32), z["hlrTest"].astype(np.float32)
     part = {"part": "gardens-point", "dataset": "Gardens Point", "direction": "day→night",
             "descriptor": "NetVLAD 500-D", "n_places": int(X.shape[0])}
-    families = ("periodic", "random") if quick else FAMILIES
+    families = ("periodic",) if quick else FAMILIES
     widths = (4, 8) if quick else WIDTHS
     methods = [_codes(MAIN)]
     for family in families:
         for bits in widths:
             methods.append(_codes(f"codes {family} {bits}-bit", family, bits))
     methods += _baselines(with_today=True)
-    budgets = ("4KB", "32KB") if quick else GP_BUDGETS
+    budgets = ("8KB", "32KB") if quick else GP_BUDGETS
     rows = _sweep(part, X, Q, budgets, methods, log)
     rows.append(_row({**part, "method": "brute force, raw rows (L2)", "family": "reference"}, "bruteforce",
                      {"normalize": "none"}, X, Q, None))
@@ -162,14 +162,15 @@ def _gardens_point(root: Path, quick: bool, log: Any) -> tuple[list[dict[str, An
 def _nordland(data: NordlandData, quick: bool, log: Any) -> list[dict[str, Any]]:
     rows = []
     budgets = ("16KB",) if quick else NORDLAND_BUDGETS
-    for map_season in SEASONS:
+    for map_season in SEASONS[:1] if quick else SEASONS:
         query_season = SEASONS[1 - SEASONS.index(map_season)]
         X, Q = data.features(map_season, "hog"), data.features(query_season, "hog")
         n = min(len(X), len(Q))
         part = {"part": "nordland", "dataset": "Nordland", "direction": f"{map_season}→{query_season}",
                 "descriptor": "HOG 3780-D", "n_places": int(n)}
-        methods = [_codes(MAIN), _codes("codes random", "random"), _codes("codes blocks", "blocks")]
-        methods += _baselines(with_today=False)
+        methods = [_codes(MAIN)] if quick else [_codes(MAIN), _codes("codes random", "random"),
+                                                _codes("codes blocks", "blocks")]
+        methods += _baselines(with_today=False)[: 1 if quick else None]
         rows += _sweep(part, X[:n], Q[:n], budgets, methods, log)
         if not quick:
             for label, name, params in (("BTE-C", "btel-c", {}),):
@@ -192,10 +193,10 @@ def _synthetic(quick: bool, log: Any) -> list[dict[str, Any]]:
         route = synthetic_route(n, dim, condition_shift=shift, seed=7)
         part = {"part": "synthetic", "dataset": f"synthetic shift {shift}", "direction": f"shift {shift}",
                 "descriptor": f"synthetic {dim}-D", "condition_shift": shift, "n_places": n}
-        methods = [_codes(MAIN), _codes("codes random", "random"), _codes("codes blocks", "blocks")]
-        methods += _baselines(with_today=True)
-        rows += _sweep(part, route.map, route.queries, ("4KB", "32KB") if quick else SYNTHETIC_BUDGETS, methods,
-                       log)
+        methods = [_codes(MAIN), _codes("codes random", "random")] if quick else \
+            [_codes(MAIN), _codes("codes random", "random"), _codes("codes blocks", "blocks")]
+        methods += _baselines(with_today=True)[: 1 if quick else None]
+        rows += _sweep(part, route.map, route.queries, ("8KB",) if quick else SYNTHETIC_BUDGETS, methods, log)
     return rows
 
 
