@@ -377,7 +377,9 @@ class CodeLocalizer(PlaceLocalizer):
         return self.decode == "coarse" or int(self.n_places_) >= COARSE_MIN_PLACES
 
     def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        with _blas_for(Q.shape[0], self.n_codes_ * (self.n_selected_ + int(self.n_places_))):
+        # The search's own products are small per query (margins, block means, refined places; the
+        # exact scan runs in faiss): one BLAS thread always.
+        with _blas_for(1, 0):
             M = self._padded(self._margins(Q))
             if self._coarse_default():
                 block, candidates = self._coarse_shape()
