@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 from .base import PlaceLocalizer
+from .codes import CodeLocalizer
 from .localizer import BTELocalizer
 from .methods import load, make_method
 from .sequence import SequenceFilter, filter_sequence
@@ -14,5 +15,5 @@ from .storage import parse_budget
 
 __version__ = "0.1.0"
 
-__all__ = ["BTELocalizer", "PlaceLocalizer", "SequenceFilter", "filter_sequence", "load", "make_method", "parse_budget",
+__all__ = ["BTELocalizer", "CodeLocalizer", "PlaceLocalizer", "SequenceFilter", "filter_sequence", "load", "make_method", "parse_budget",
            "__version__"]

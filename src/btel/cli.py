@@ -82,6 +82,8 @@ def _echo_storage(model: Any) -> None:
 
     breakdown = model.storage_breakdown()
     width = max(len(k) for k in breakdown) if breakdown else 4
+    if hasattr(model, "summary"):  # what a budget planner chose (btel-codes)
+        click.echo(model.summary())
     click.echo("storage breakdown:")
     for name, n in breakdown.items():
         click.echo(f"  {name:<{width}}  {n:>12,d} B")
@@ -844,7 +846,7 @@ def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | 
 
     \b
     NAME: accuracy | vs-n | vs-budget | feature-ratio | regions | sequence-filter | beyond |
-          front-ends | all
+          front-ends | codes | all
     Every method runs with its default front end (rows L2-normalised; SeqSLAM none) unless --delta.
     Each writes results.csv, results.json and PNG plots into OUT/NAME/; `btel report` turns the
     latest runs into docs/results.md.

@@ -19,6 +19,7 @@ from typing import Any, Callable
 from ._validation import Instance, check_params, read_state_int
 from .base import PlaceLocalizer
 from .baselines import BASELINES, PQLocalizer
+from .codes import CodeLocalizer
 from .exceptions import BTELError, InvalidParameterError, ModelFileError
 from .frontend import FrontEnd
 from .localizer import BTELocalizer
@@ -32,6 +33,7 @@ METHODS: dict[str, Callable[..., PlaceLocalizer]] = {
     "btel-f": partial(BTELocalizer, scheme="full", n_regions=1),
     "btel-r": partial(BTELocalizer, scheme="compressed", n_regions=20),
     "btel-auto": partial(BTELocalizer, scheme="compressed", n_regions="auto"),
+    "btel-codes": partial(CodeLocalizer, code="periodic"),
     "ryth": RYTHLocalizer,
     **BASELINES,
 }
@@ -42,6 +44,8 @@ DESCRIPTIONS: dict[str, str] = {
     "btel-f": "BTE-F: one classifier per tree node, O(N) bytes (the paper's foil)",
     "btel-r": "BTEL with 20 KTS regions, a region classifier and one BTE-C tree each",
     "btel-auto": "BTEL with the number of regions chosen by the KTS penalty",
+    "btel-codes": "BTEL beyond the binary index: K ≥ log2 N implicit periodic output codes, ridge-fitted, "
+                  "4-bit weights, K and d' chosen to fill the budget",
     "ryth": "RYTH: residues of the place index modulo co-prime periods (Yu et al. 2018)",
     "bruteforce": "exact nearest neighbour over every map descriptor (the unbudgeted reference)",
     "pq": "product quantisation (faiss), the most code bits that fit the budget",

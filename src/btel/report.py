@@ -30,6 +30,7 @@ _TITLES = {
     "sequence-filter": "(f) Sequence filter a = 5, 20 at N = 3576, ≤ 1 MB (summer → winter)",
     "beyond": "Beyond the paper: BTEL variants vs quantisers at the same bytes (the ladder)",
     "front-ends": "Front ends: normalisation, delta descriptors and whitening, for every method",
+    "codes": "Output codes beyond the binary index (btel-codes) vs quantisers, 1 KB … 1 MB",
 }
 _TOLERANCES = (0, 1, 2, 5, 10, 20)
 _MARKER = re.compile(r"<!-- (?P<name>[\w-]+):start -->.*?<!-- (?P=name):end -->", re.S)
@@ -219,6 +220,10 @@ def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path
             lines += _beyond_lines(payload)
         elif name == "front-ends":
             lines += _front_ends_lines(payload)
+        elif name == "codes":
+            from .experiments.codes import report_lines
+
+            lines += report_lines(payload, docs_dir)
         else:
             extra = {"accuracy": ["direction"], "sequence-filter": ["window"]}.get(name, [])
             lines += _table(rows, extra) + [""]
@@ -226,7 +231,7 @@ def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path
             target = figures / f"{name}-{png.name}"
             shutil.copyfile(png, target)
             lines += [f"![{name} {png.stem}](figures/{target.name})", ""]
-        reading = [] if name in ("beyond", "front-ends") else _reading(name, rows)
+        reading = [] if name in ("beyond", "front-ends", "codes") else _reading(name, rows)
         if reading:
             lines += ["Reading (computed from the table):", ""] + [f"- {s}" for s in reading] + [""]
     missing = [name for name in EXPERIMENTS if name not in found]

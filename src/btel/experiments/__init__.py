@@ -16,6 +16,7 @@ name                module                          what
 ``sequence-filter`` :mod:`.sequence_filter`         (f) the sequence filter, a = 5 and a = 20, at N = 3576 and 1 MB
 ``beyond``          :mod:`.beyond`                  the paper's variants against quantisation at the same bytes
 ``front-ends``      :mod:`.front_ends`              every front end (normalisation, delta, whitening) × method × read-out
+``codes``           :mod:`.codes`                   output codes (btel-codes, every family and width) vs quantisers, 1 KB … 1 MB
 =================== =============================== ====================================================================
 
 Every row carries the method's bytes. A method that cannot fit a budget is reported as such (with
@@ -39,6 +40,7 @@ from ..runs import run_metadata
 from ._common import QUICK_FRAMES, ExperimentRun, NordlandData, default_nordland_root, describe_row, write_results
 from .accuracy import exp_accuracy
 from .beyond import exp_beyond
+from .codes import exp_codes
 from .feature_ratio import exp_feature_ratio
 from .front_ends import exp_front_ends
 from .regions import exp_regions
@@ -57,11 +59,12 @@ EXPERIMENTS: dict[str, Callable[[NordlandData, Path, bool], ExperimentRun]] = {
     "sequence-filter": exp_sequence_filter,
     "beyond": exp_beyond,
     "front-ends": exp_front_ends,
+    "codes": exp_codes,
 }
 
 
 #: Experiments that choose every method's front end themselves (they refuse a global override).
-SELF_CONTAINED = ("beyond", "front-ends")
+SELF_CONTAINED = ("beyond", "front-ends", "codes")
 
 
 def run_experiment(name: str, *, data_root: str | Path | None = None, out_dir: str | Path = "runs/experiments",
@@ -71,7 +74,7 @@ def run_experiment(name: str, *, data_root: str | Path | None = None, out_dir: s
 
     ``front_end`` (e.g. ``{"delta": 10}``) is given to every method of the paper's experiments (a)–(f)
     and the results go to ``<out_dir>/<name>-delta-10/``; the experiments that compare front ends
-    or variants themselves (beyond, front-ends) refuse it.
+    or variants themselves (beyond, front-ends, codes) refuse it.
 
     Raises
     ------
