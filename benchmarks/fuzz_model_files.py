@@ -89,6 +89,8 @@ def fixture_specs() -> dict[str, tuple[str, dict[str, Any], bool]]:
         "pq-pca": ("pq", {"pca_dim": 8}, False),
         "itq-places": ("itq", {}, True),
         "seqslam-delta": ("seqslam", {"delta": 2, "ds": 4}, False),
+        "btel-codes-random-8bit": ("btel-codes", {"code": "random", "weight_bits": 8}, False),
+        "btel-codes-places": ("btel-codes", {"code": "blocks", "weight_bits": 32}, True),
     })
     return specs
 
@@ -108,7 +110,7 @@ def build_fixtures(folder: Path, n_places: int = 64, dim: int = 16) -> dict[str,
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         for name, (method, params, with_places) in fixture_specs().items():
-            extra = {"progress": False} if method.startswith("btel") else {}
+            extra = {"progress": False} if "progress" in make_method(method).get_params() else {}
             model = make_method(method, **params, **extra)
             model.fit(traverses, labels) if with_places else model.fit(route.map)
             path = folder / f"{name}.npz"
