@@ -21,10 +21,11 @@ stored in the model file and counted by the storage rule, so :func:`btel.load` r
   then L2 again when ``normalize`` is not ``'none'``. Stores a d×p float32 matrix and a d float32
   mean (counted in the method's bytes).
 
-Measured (brute force, recall@0/2/10, ``python benchmarks/probe_frontends.py``): Gardens Point
-NetVLAD day→night 0.07/0.235/0.48 raw L2 → 0.155/0.48/0.75 with ``'l2'``; Nordland HOG
-summer→winter recall@10 0.38 with or without ``'l2'``, 0.62–0.65 with ``delta`` 10–20; whitening
-and ``'power'`` lowered both sets. Hence the default front end is ``normalize='l2'``.
+Measured (``btel experiment front-ends``; docs/results.md has every row): brute force on Gardens
+Point NetVLAD day→night, recall@0/2/10, 0.07/0.235/0.48 raw L2 → 0.155/0.48/0.755 with ``'l2'``;
+Nordland HOG summer→winter recall@10 0.382 / 0.381 without / with ``'l2'``, 0.625 / 0.650 with
+``delta`` 10 / 20; whitening lowered brute force on both sets and ``'power'`` was level with or
+below ``'l2'``. Hence the default front end is ``normalize='l2'``.
 """
 
 from __future__ import annotations
