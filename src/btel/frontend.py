@@ -30,6 +30,7 @@ below ``'l2'``. Hence the default front end is ``normalize='l2'``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -70,13 +71,15 @@ def row_norms(X: np.ndarray, *, check_finite: bool = False, name: str = "X") -> 
     """
     if X.shape[0] == 1 and X.dtype == np.float32 and X.ndim == 2:  # one query (streaming): BLAS' sdot
         sq1 = float(np.dot(X[0], X[0]))
-        if not np.isfinite(sq1):
+        if not math.isfinite(sq1):
             sq1 = float(np.dot(X[0].astype(np.float64), X[0].astype(np.float64)))
-            if check_finite and not np.isfinite(sq1):
+            if check_finite and not math.isfinite(sq1):
                 from ._validation import raise_if_non_finite
 
                 raise_if_non_finite(np.asarray(X), name)
-        return np.array([np.sqrt(sq1)])
+            if not math.isfinite(sq1):
+                return np.array([sq1])  # NaN/inf not checked here: the caller's own check sees it
+        return np.array([math.sqrt(sq1)])
     if X.size <= 1 << 16:  # a few queries: one pass, least fixed overhead
         if X.dtype == np.float32:
             sq = np.einsum("ij,ij->i", X, X)
