@@ -194,23 +194,27 @@ def docs_section(payload: dict[str, Any]) -> str:
         "",
         f"`{payload['config']['command'].strip()}` on {payload['machine']['cpu_count']} cores, "
         f"{payload['machine']['date'][:16]}, load average {payload['load_before'][0]:.1f} before and "
-        f"{payload['load_after'][0]:.1f} after (1-min; the machine was shared, so times are upper bounds). BTE-C, whole "
+        f"{payload['load_after'][0]:.1f} after (1-min; times on a shared machine are upper bounds). BTE-C, whole "
         "`fit` timed; objective = liblinear's squared-hinge L2-SVM primal objective summed over the bits, recomputed "
         "from the stored hyperplanes; floor = the best dual bound (no solver can go below it). Figures: "
-        "`benchmarks/results/bench_fit.{json,png}`.",
+        "`benchmarks/results/bench_fit.{json,png}`. CPU seconds (user + system of the process) are given "
+        "beside wall seconds; a row marked 'earlier run' was measured by an earlier run of this script "
+        "(`--keep-earlier`) and its time is not comparable with the others.",
         "",
-        "| shape | solver | fit s | objective | above the floor | unconverged | recall@10 |",
-        "|---|---|---:|---:|---:|---:|---:|",
+        "| shape | solver | fit s | CPU s | objective | above the floor | unconverged | recall@10 |",
+        "|---|---|---:|---:|---:|---:|---:|---:|",
     ]
     for shape in payload["shapes"]:
         for r in shape["rows"]:
             if "objective" not in r:
-                lines.append(f"| {shape['name']} | {r['solver']} (peer, same run) | {r['fit_s']:.1f} | | | | |")
+                lines.append(f"| {shape['name']} | {r['solver']} (peer, same run) | {r['fit_s']:.1f} | | | | | |")
                 continue
-            lines.append(f"| {shape['name']} | {r['solver']} | {r['fit_s']:.1f} | {r['objective']:.3f} | "
+            when = f" (earlier run {r['earlier_run']['date']}, load {r['earlier_run']['load']})" if "earlier_run" in r else ""
+            cpu = f"{r['cpu_s']:.1f}" if r.get("cpu_s") is not None else ""
+            lines.append(f"| {shape['name']} | {r['solver']}{when} | {r['fit_s']:.1f} | {cpu} | {r['objective']:.3f} | "
                          f"{100 * r['relative_gap']:.2f} % | {r['n_unconverged']}/{r['n_classifiers']} | "
                          f"{r['recall@10']:.3f} |")
-        lines.append(f"| {shape['name']} | floor (dual bound) | | {shape['floor']:.3f} | 0 | | |")
+        lines.append(f"| {shape['name']} | floor (dual bound) | | | {shape['floor']:.3f} | 0 | | |")
     return "\n".join(lines)
 
 
@@ -236,7 +240,15 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="N = 1024 subsets")
     parser.add_argument("--no-docs", action="store_true", help="do not rewrite docs/results.md")
     parser.add_argument("--docs-only", action="store_true", help="rewrite the docs section from the saved JSON")
+    parser.add_argument("--keep-earlier", action="store_true",
+                        help="keep the saved rows of solvers not run now (e.g. liblinear, 45 min on Nordland), "
+                             "each marked with the date and load of the run that measured it")
     args = parser.parse_args()
+    earlier: dict[str, Any] = {}
+    if args.keep_earlier and (RESULTS_DIR / "bench_fit.json").is_file():
+        import json
+
+        earlier = json.loads((RESULTS_DIR / "bench_fit.json").read_text())
     if args.docs_only:
         import json
 
@@ -262,6 +274,12 @@ def main() -> None:
                   f"{row['dual_bound']:12.4f}  unconverged {row['n_unconverged']}/{row['n_classifiers']}  "
                   f"iterations ≤ {row['max_iterations']}  recall@10 {row['recall@10']:.3f}  "
                   f"(load {row['load_after']:.1f})", flush=True)
+        for previous in (sh for sh in earlier.get("shapes", []) if sh["name"] == shape["name"]):
+            for r in previous["rows"]:
+                if "objective" in r and r["solver"] not in args.solvers:
+                    r.setdefault("earlier_run", {"date": earlier["machine"]["date"][:16],
+                                                 "load": round(r.get("load_after", earlier["load_after"][0]), 1)})
+                    rows.append(r)
         fitted = [r for r in rows if "objective" in r]
         floor = max(r["dual_bound"] for r in fitted) if fitted else float("nan")
         for r in fitted:
