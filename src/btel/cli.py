@@ -200,7 +200,7 @@ _ORDER_HELP = ("route: the query rows are consecutive frames of one traverse (me
 @click.option("--places", "n_places", default=2000, show_default=True, help="Places on the synthetic route.")
 @click.option("--dim", default=512, show_default=True, help="Descriptor dimension.")
 @click.option("--budget", default="64KB", show_default=True, help=_BUDGET_HELP)
-@click.option("--methods", default="btel-c,btel-r,pq,bruteforce", show_default=True,
+@click.option("--methods", default="btel-c,btel-r,btel-codes,pq,bruteforce", show_default=True,
               help="Comma-separated method names (see `btel methods`).")
 @click.option("--no-reference", is_flag=True, help=_REFERENCE_HELP)
 @click.option("--seed", default=0, show_default=True, help="Random seed of the route.")
