@@ -50,7 +50,11 @@ __all__ = ["kbest_codes", "soft_scores", "deficits_from_scores", "code_costs", "
 def _check_margins(margins: Any, n_places: int) -> tuple[np.ndarray, int, int]:
     m, n = _check_decode_margins(margins, n_places)  # the decoders' shape and N checks
     if not np.isfinite(m).all():
-        raise InvalidParameterError("margins contain NaN or infinite values; rank the margins of one tree only.")
+        raise InvalidParameterError(
+            "margins contain NaN or infinite values: the model's weights are out of range for these descriptors "
+            "(a damaged or foreign model file, or queries on another scale than the map). Refit the model or "
+            "check the file with `btel info`."
+        )
     return m, n, m.shape[1]
 
 

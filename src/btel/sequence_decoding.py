@@ -145,7 +145,11 @@ class HMMDecoder:
         if s.shape != (self.n_places,):
             raise InvalidParameterError(f"scores must have shape ({self.n_places},) (one per place); got {s.shape}.")
         if not np.isfinite(s).all():
-            raise InvalidParameterError("scores contain NaN or infinite values.")
+            raise InvalidParameterError(
+                "scores contain NaN or infinite values: for a model's scores, its weights are out of range for "
+                "these descriptors (a damaged or foreign model file, or queries on another scale than the map). "
+                "Refit the model or check the file with `btel info`."
+            )
         return s
 
     def _shifted(self, values: np.ndarray, combine: str) -> np.ndarray:
