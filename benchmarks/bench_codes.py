@@ -43,6 +43,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 from _common import RESULTS_DIR, machine, write_results  # noqa: E402
+from btel.storage import format_bytes  # noqa: E402
 
 DIM = 256
 BUDGETS = ("64KB", "256KB")
@@ -147,13 +148,6 @@ def measure(n: int, n_queries: int, batch: int, repeats: int, single_calls: int)
     return out
 
 
-def fmt_bytes(n: float) -> str:
-    for unit, size in (("GB", 1e9), ("MB", 1e6), ("KB", 1e3)):
-        if n >= size:
-            return f"{n / size:.1f} {unit}"
-    return f"{int(n)} B"
-
-
 def section(payload: dict[str, Any]) -> str:
     rows = payload["rows"]
     lines = [SECTION[0], "## Output codes at scale (btel-codes vs faiss, same run)", "",
@@ -167,7 +161,7 @@ def section(payload: dict[str, Any]) -> str:
              "| ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for r in rows:
         b, s = r["batch_s_per_query"], r["single_s"]
-        lines.append(f"| {r['n_places']:,d} | {r['method']} | {fmt_bytes(r['bytes'])} | {r['fit_s']:.2f} | "
+        lines.append(f"| {r['n_places']:,d} | {r['method']} | {format_bytes(r['bytes'])} | {r['fit_s']:.2f} | "
                      f"{b['min'] * 1e6:,.1f} / {b['median'] * 1e6:,.1f} | {s['min'] * 1e3:,.2f} / {s['median'] * 1e3:,.2f} | "
                      f"{r['recall@0']:.3f} | {r['recall@10']:.3f} |")
     lines.append("")

@@ -50,6 +50,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 from _common import RESULTS_DIR, machine, write_results  # noqa: E402
+from btel.storage import format_bytes  # noqa: E402
 
 DIM = 256
 FEATURE_RATIO = 0.25
@@ -382,13 +383,6 @@ def plot(path: Path, fits: list[dict[str, Any]], baselines: list[dict[str, Any]]
     plt.close(fig)
 
 
-def fmt_bytes(n: float) -> str:
-    for unit, size in (("GB", 1e9), ("MB", 1e6), ("KB", 1e3)):
-        if n >= size:
-            return f"{n / size:.1f} {unit}"
-    return f"{int(n)} B"
-
-
 def results_section(payload: dict[str, Any]) -> str:
     fits, speed, shape, base = payload["fits"], payload["throughput"], payload["target_shape"], payload["baselines"]
     kts = payload["kts"]
@@ -412,8 +406,8 @@ def results_section(payload: dict[str, Any]) -> str:
         b = base_by_n[f["n_places"]]
         name = "BTE-C" if f["regions_requested"] == 1 else "BTEL"
         lines.append(
-            f"| {f['n_places']:,d} | {name} | {f['n_regions']} | {f['model_bytes']:,d} | {fmt_bytes(b['bruteforce_bytes'])} "
-            f"| {fmt_bytes(b['pq_bytes'])} | {f['fit_s']:.1f} | {fmt_bytes(f['peak_rss_bytes'])} | {f['recall@10']:.3f} |"
+            f"| {f['n_places']:,d} | {name} | {f['n_regions']} | {f['model_bytes']:,d} | {format_bytes(b['bruteforce_bytes'])} "
+            f"| {format_bytes(b['pq_bytes'])} | {f['fit_s']:.1f} | {format_bytes(f['peak_rss_bytes'])} | {f['recall@10']:.3f} |"
         )
     lines += [
         "",
@@ -559,7 +553,7 @@ def main() -> None:
         for n in args.sizes:
             row = run_fit(n, r, paths, model_dir)
             fits.append(row)
-            print(f"fit N = {n:>9,d} r = {row['n_regions']:>2d}: {row['fit_s']:8.1f} s, peak {fmt_bytes(row['peak_rss_bytes']):>8}, "
+            print(f"fit N = {n:>9,d} r = {row['n_regions']:>2d}: {row['fit_s']:8.1f} s, peak {format_bytes(row['peak_rss_bytes']):>8}, "
                   f"{row['model_bytes']:>9,d} B, recall@10 {row['recall@10']:.3f}", flush=True)
 
     probe = faiss.IndexPQ(DIM, PQ_M, 8)
@@ -591,7 +585,7 @@ def main() -> None:
          "met": all(s["batch_qps"] >= 200_000 for s in speed if s["method"] == "BTE-C")},
         {"target": f"fit at N = {big['n_places']:,d}, d = {DIM}, c = {FEATURE_RATIO} within 15 min on 2 cores",
          "measured": f"{big['fit_s'] / 60:.1f} min", "met": big["fit_s"] <= 900},
-        {"target": "peak memory of that fit under 8 GB", "measured": fmt_bytes(big["peak_rss_bytes"]),
+        {"target": "peak memory of that fit under 8 GB", "measured": format_bytes(big["peak_rss_bytes"]),
          "met": big["peak_rss_bytes"] < 8e9},
     ]
     payload = {
