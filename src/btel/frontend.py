@@ -77,9 +77,7 @@ def row_norms(X: np.ndarray, *, check_finite: bool = False, name: str = "X") -> 
                 from ._validation import raise_if_non_finite
 
                 raise_if_non_finite(np.asarray(X), name)
-            if not math.isfinite(sq1):
-                return np.array([sq1])  # NaN/inf not checked here: the caller's own check sees it
-        return np.array([math.sqrt(sq1)])
+        return np.array([math.sqrt(sq1)])  # NaN stays NaN, inf stays inf (math.sqrt does not raise on them)
     if X.size <= 1 << 16:  # a few queries: one pass, least fixed overhead
         if X.dtype == np.float32:
             sq = np.einsum("ij,ij->i", X, X)
