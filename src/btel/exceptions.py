@@ -22,6 +22,7 @@ __all__ = [
     "NotFittedError",
     "DataNotFoundError",
     "MissingDependencyError",
+    "ResourceLimitError",
 ]
 
 
@@ -84,3 +85,8 @@ class MissingDependencyError(BTELError, ImportError):
 
 class BudgetExceededError(BTELError, RuntimeError):
     """A fitted model stores more bytes than its budget (a bug in that method's budget fitting)."""
+
+
+class ResourceLimitError(BTELError, ValueError):
+    """An input declares more memory or work than btel's limit allows (see :mod:`btel.limits`;
+    raise the limit with the ``BTEL_MEMORY_LIMIT`` environment variable)."""

@@ -17,17 +17,16 @@ Two kinds of ground truth, one :class:`GroundTruth` class:
 
 Files (:meth:`GroundTruth.from_file`) are ``.npz`` / ``.npy`` read with ``allow_pickle=False``,
 MATLAB ``.mat`` files read with :func:`scipy.io.loadmat`, CSV files of positives, and VPR-Bench's
-``ground_truth_new.npy`` — an object array, i.e. a pickle — read by :func:`read_object_npy`, a
-restricted reader that can build numpy integer arrays and nothing else; see that function.
+``ground_truth_new.npy`` — an object array, i.e. a pickle — read by :func:`read_object_npy`, which
+parses the pickle's opcodes and never unpickles (:mod:`btel.datasets.pickleparse`). Every reader
+checks what a file declares against :mod:`btel.limits` before allocating it.
 """
 
 from __future__ import annotations
 
 import csv
-import io
 import logging
 import os
-import pickle
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -37,6 +36,7 @@ import scipy.sparse as sp
 
 from .._validation import check_descriptors, check_positive_int
 from ..exceptions import DataNotFoundError, DimensionMismatchError, InvalidParameterError
+from ..limits import check_bytes, check_count
 
 __all__ = ["GroundTruth", "save_positives", "load_positives", "check_predictions", "read_object_npy"]
 
@@ -45,92 +45,70 @@ logger = logging.getLogger(__name__)
 _UTM_KEYS = ("utmDb", "utmQ", "posDistThr")
 _CSR_KEYS = ("indptr", "indices")
 
-# -- VPR-Bench's object arrays, without unpickling arbitrary objects --------------------------------
-#: The only globals a pickled object array of integer arrays refers to (numpy 1.x and 2.x names),
-#: plus ``_codecs.encode``, which protocol-2 pickles (Python 2 era files) use to spell bytes.
-_ALLOWED_GLOBALS = {
-    ("numpy.core.multiarray", "_reconstruct"),
-    ("numpy._core.multiarray", "_reconstruct"),
-    ("numpy.core.multiarray", "scalar"),
-    ("numpy._core.multiarray", "scalar"),
-    ("numpy", "ndarray"),
-    ("numpy", "dtype"),
-    ("_codecs", "encode"),
-}
-#: Largest object-array file read (a ground truth is small; this bounds the memory a hostile
-#: file can ask for).
-_MAX_OBJECT_NPY_BYTES = 256 * 1024 * 1024
-
-
-class _NumpyOnlyUnpickler(pickle.Unpickler):
-    """An unpickler whose ``find_class`` resolves only :data:`_ALLOWED_GLOBALS`.
-
-    Why it cannot run code: a pickle calls code only through objects it names by module and name
-    (GLOBAL / STACK_GLOBAL / INST / OBJ opcodes, and the copyreg extension codes EXT1/2/4, which
-    CPython also resolves through ``find_class``); REDUCE, NEWOBJ and BUILD can only call what
-    such a lookup returned, or methods of containers (list, dict, tuple) the pickle builds itself.
-    Here every lookup but numpy's array and dtype reconstruction raises, and persistent IDs are
-    refused by :meth:`persistent_load`. The reconstruction functions only allocate arrays and set
-    their dtype, shape and data. (This is the "restricting globals" recipe of the ``pickle``
-    documentation, in the spirit of skops' trusted types.)
-    """
-
-    def find_class(self, module: str, name: str) -> object:
-        if (module, name) in _ALLOWED_GLOBALS:
-            return super().find_class(module, name)
-        raise pickle.UnpicklingError(
-            f"refused global {module}.{name}: only numpy arrays of integers are read from object arrays")
-
-    def persistent_load(self, pid: object) -> object:
-        raise pickle.UnpicklingError("refused persistent id: only numpy arrays of integers are read")
-
-
+# -- VPR-Bench's object arrays, parsed without unpickling -------------------------------------------
 def read_object_npy(path: str | os.PathLike) -> np.ndarray:
-    """Read an ``.npy`` holding an object array whose items are integer arrays or lists of integers.
+    """Read an ``.npy`` holding an object array whose items are integer arrays or integers.
 
     This is how VPR-Bench stores ground truth (``ground_truth_new.npy``: per query, the indices of
     its correct map images), and ``np.load`` only reads it with ``allow_pickle=True``, which would
     run any code the file names. Here the header is parsed by numpy and the pickled payload by
-    :class:`_NumpyOnlyUnpickler`, which can build numpy arrays, dtypes, numpy scalars, lists,
-    tuples, ints and strings and nothing else (see its docstring for why no code can run). The
-    result is then checked: every leaf must be an integer.
+    :func:`btel.datasets.pickleparse.parse_object_array`, which walks the pickle's opcodes and
+    builds the integer arrays itself: nothing in the file is imported or called.
 
     Returns
     -------
     ndarray, dtype object
-        As stored (1-D: one item per query; 2-D: VPR-Bench's rows ``[query index, positives]``).
+        As stored (1-D: one item per query; 2-D: VPR-Bench's rows ``[query index, positives]``);
+        every item a 1-D int64 array (an integer item becomes a length-1 array).
 
     Raises
     ------
     DataNotFoundError
-        Not an .npy file, a plain (non-object) array, a refused global, or items that are not integers.
+        Not an .npy file, a plain (non-object) array, anything but integer arrays in the pickle.
+    ResourceLimitError
+        The file or its elements exceed :mod:`btel.limits`.
     """
+    from .pickleparse import parse_object_array
+
     path = Path(path)
-    if path.stat().st_size > _MAX_OBJECT_NPY_BYTES:
-        raise DataNotFoundError(f"{str(path)!r} is over {_MAX_OBJECT_NPY_BYTES >> 20} MB; not a ground-truth file.")
-    with open(path, "rb") as fh:
+    check_bytes(path.stat().st_size, f"ground-truth file {str(path)!r}")
+    with _open_regular(path) as fh:
         try:
             version = np.lib.format.read_magic(fh)
             read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
                            else np.lib.format.read_array_header_2_0)
             shape, fortran, dtype = read_header(fh)
-        except ValueError as exc:
+        except (ValueError, SyntaxError, TypeError) as exc:
             raise DataNotFoundError(f"{str(path)!r} is not an .npy file ({exc}).") from exc
         if not dtype.hasobject:
             raise DataNotFoundError(f"{str(path)!r} holds a plain {dtype} array, not an object array.")
         payload = fh.read()
     try:
-        array = _NumpyOnlyUnpickler(io.BytesIO(payload), encoding="latin1").load()
-    except (pickle.UnpicklingError, EOFError, AttributeError, TypeError, ValueError, ImportError) as exc:
-        raise DataNotFoundError(
-            f"{str(path)!r} holds pickled objects other than numpy integer arrays ({exc}); btel reads only "
-            "integer arrays from object arrays and never runs code from a file."
-        ) from exc
-    if not isinstance(array, np.ndarray) or array.dtype != object or array.shape != tuple(shape):
+        stored_shape, items = parse_object_array(payload)
+    except DataNotFoundError as exc:
+        raise DataNotFoundError(f"{str(path)!r}: {exc}") from None
+    if stored_shape != tuple(shape):
         raise DataNotFoundError(f"{str(path)!r}: the pickled payload is not the object array its header announces.")
-    for item in array.ravel():
-        _integers(item, str(path))
-    return array
+    array = np.empty(len(items), dtype=object)
+    for i, item in enumerate(items):
+        array[i] = item
+    return array.reshape(stored_shape)
+
+
+def _open_regular(path: Path) -> Any:
+    """Open a regular file for reading; a FIFO, device or socket is refused without blocking."""
+    import stat
+
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except OSError as exc:
+        raise DataNotFoundError(f"{str(path)!r} could not be opened: {exc.strerror}.") from exc
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise DataNotFoundError(f"{str(path)!r} is not a regular file (a FIFO, device or socket); give a file.")
+    if hasattr(os, "set_blocking"):
+        os.set_blocking(fd, True)
+    return os.fdopen(fd, "rb")
 
 
 def _integers(item: object, source: str) -> np.ndarray:

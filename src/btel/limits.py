@@ -1,0 +1,82 @@
+"""One resource budget for what an input file may make btel allocate or compute.
+
+Every reader of untrusted input (ground truth, descriptor files, HDF5, saved descriptor
+parameters, model files) checks the memory a file *declares* it needs against one limit **before**
+allocating it, so a tiny hostile file cannot ask for gigabytes or hours.
+
+The limit is :data:`DEFAULT_MEMORY_LIMIT` (256 MiB) unless the environment variable
+``BTEL_MEMORY_LIMIT`` sets another: a number of bytes, optionally with a unit ``K``, ``M``, ``G``
+or ``T`` (binary: ``BTEL_MEMORY_LIMIT=4G`` is 4 GiB). Raise it for legitimately large inputs.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+
+from .exceptions import ResourceLimitError
+
+__all__ = ["DEFAULT_MEMORY_LIMIT", "ENV_MEMORY_LIMIT", "memory_limit", "check_bytes", "check_count",
+           "format_size"]
+
+#: Bytes one input may make btel allocate when ``BTEL_MEMORY_LIMIT`` is not set.
+DEFAULT_MEMORY_LIMIT = 256 * 2**20
+#: Environment variable that raises (or lowers) the limit.
+ENV_MEMORY_LIMIT = "BTEL_MEMORY_LIMIT"
+
+_UNITS = {"": 1, "B": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
+
+
+def memory_limit() -> int:
+    """The memory limit in bytes (``BTEL_MEMORY_LIMIT`` or the 256 MiB default).
+
+    Raises
+    ------
+    InvalidParameterError
+        ``BTEL_MEMORY_LIMIT`` is not a positive size such as ``1073741824``, ``512M`` or ``4G``.
+    """
+    from .exceptions import InvalidParameterError
+
+    text = os.environ.get(ENV_MEMORY_LIMIT, "").strip()
+    if not text:
+        return DEFAULT_MEMORY_LIMIT
+    match = re.fullmatch(r"([0-9]{1,15})\s*([KMGT]?)(?:i?B)?", text, flags=re.IGNORECASE)
+    if match is None or int(match.group(1)) <= 0:
+        raise InvalidParameterError(
+            f"{ENV_MEMORY_LIMIT}={text!r} is not a size; give bytes or a number with K, M, G or T (e.g. 4G).")
+    return int(match.group(1)) * _UNITS[match.group(2).upper()]
+
+
+def format_size(n_bytes: float) -> str:
+    """``1536`` → ``"1.5 KiB"`` (for messages)."""
+    if not math.isfinite(n_bytes):
+        return "an unbounded amount"
+    value = float(n_bytes)
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if value < 1024 or unit == "PiB":
+            return f"{value:.0f} {unit}" if unit == "B" else f"{value:.1f} {unit}"
+        value /= 1024
+    return f"{value:.1f} PiB"  # pragma: no cover
+
+
+def check_bytes(n_bytes: float, what: str) -> None:
+    """Raise :class:`ResourceLimitError` when ``n_bytes`` (declared by an input) exceeds the limit.
+
+    Parameters
+    ----------
+    n_bytes : int or float
+        Bytes the work would allocate (may be astronomically large; never allocated here).
+    what : str
+        What needs them, for the message (e.g. ``"ground truth 'gt.npy' (3 × 10⁹ positives)"``).
+    """
+    limit = memory_limit()
+    if not n_bytes <= limit:  # also catches NaN
+        raise ResourceLimitError(
+            f"{what} would need {format_size(n_bytes)}, over btel's memory limit of {format_size(limit)}; "
+            f"if the input is genuine, raise the limit with {ENV_MEMORY_LIMIT} (e.g. {ENV_MEMORY_LIMIT}=4G).")
+
+
+def check_count(count: float, itemsize: int, what: str) -> None:
+    """:func:`check_bytes` for ``count`` items of ``itemsize`` bytes each."""
+    check_bytes(float(count) * itemsize, what)
