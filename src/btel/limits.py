@@ -14,11 +14,12 @@ from __future__ import annotations
 import math
 import os
 import re
+from typing import Any
 
 from .exceptions import ResourceLimitError
 
 __all__ = ["DEFAULT_MEMORY_LIMIT", "ENV_MEMORY_LIMIT", "memory_limit", "check_bytes", "check_count",
-           "format_size"]
+           "format_size", "check_numpy_file"]
 
 #: Bytes one input may make btel allocate when ``BTEL_MEMORY_LIMIT`` is not set.
 DEFAULT_MEMORY_LIMIT = 256 * 2**20
@@ -80,3 +81,56 @@ def check_bytes(n_bytes: float, what: str) -> None:
 def check_count(count: float, itemsize: int, what: str) -> None:
     """:func:`check_bytes` for ``count`` items of ``itemsize`` bytes each."""
     check_bytes(float(count) * itemsize, what)
+
+
+def check_numpy_file(path: "os.PathLike[str] | str", what: str) -> None:
+    """Check what an ``.npy`` or ``.npz`` file declares against the limit before numpy reads it.
+
+    numpy allocates ``prod(shape) × itemsize`` bytes from an array's header before reading its
+    data, and an ``.npz`` member may decompress to far more than its compressed size (a zip bomb).
+    This reads only the headers: an ``.npy``'s own, and for an ``.npz`` each member's zip entry
+    (declared uncompressed size) and ``.npy`` header. Damaged files are left for numpy to report.
+
+    Raises
+    ------
+    ResourceLimitError
+        The arrays together declare more bytes than :func:`memory_limit`.
+    """
+    import zipfile
+
+    import numpy as np
+
+    def declared(fh: Any) -> float:
+        try:
+            version = np.lib.format.read_magic(fh)
+            reader = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                      else np.lib.format.read_array_header_2_0)
+            shape, _, dtype = reader(fh)
+        except Exception:  # not an .npy header: numpy's own reader names the problem
+            return 0.0
+        return float(math.prod(shape)) * max(dtype.itemsize, 1)
+
+    total = 0.0
+    with open(path, "rb") as fh:
+        magic = fh.read(4)
+        fh.seek(0)
+        if magic.startswith(b"PK"):
+            try:
+                archive = zipfile.ZipFile(fh)
+            except (zipfile.BadZipFile, OSError, ValueError, EOFError):
+                return
+            with archive:
+                infos = archive.infolist()
+                check_count(len(infos), 1024, f"{what} ({len(infos)} archive members)")
+                total = float(sum(info.file_size for info in infos))
+                check_bytes(total, f"{what} (decompressed)")
+                total = 0.0
+                for info in infos:
+                    try:
+                        with archive.open(info) as member:
+                            total += declared(member)
+                    except Exception:  # damaged member: numpy reports it when reading
+                        continue
+        else:
+            total = declared(fh)
+    check_bytes(total, what)

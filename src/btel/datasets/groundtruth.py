@@ -24,7 +24,6 @@ checks what a file declares against :mod:`btel.limits` before allocating it.
 
 from __future__ import annotations
 
-import csv
 import logging
 import os
 from collections.abc import Sequence
@@ -36,122 +35,12 @@ import scipy.sparse as sp
 
 from .._validation import check_descriptors, check_positive_int
 from ..exceptions import DataNotFoundError, DimensionMismatchError, InvalidParameterError
-from ..limits import check_bytes, check_count
+from ..limits import check_count, memory_limit
+from .groundtruth_files import read_object_npy
 
 __all__ = ["GroundTruth", "save_positives", "load_positives", "check_predictions", "read_object_npy"]
 
 logger = logging.getLogger(__name__)
-
-_UTM_KEYS = ("utmDb", "utmQ", "posDistThr")
-_CSR_KEYS = ("indptr", "indices")
-
-# -- VPR-Bench's object arrays, parsed without unpickling -------------------------------------------
-def read_object_npy(path: str | os.PathLike) -> np.ndarray:
-    """Read an ``.npy`` holding an object array whose items are integer arrays or integers.
-
-    This is how VPR-Bench stores ground truth (``ground_truth_new.npy``: per query, the indices of
-    its correct map images), and ``np.load`` only reads it with ``allow_pickle=True``, which would
-    run any code the file names. Here the header is parsed by numpy and the pickled payload by
-    :func:`btel.datasets.pickleparse.parse_object_array`, which walks the pickle's opcodes and
-    builds the integer arrays itself: nothing in the file is imported or called.
-
-    Returns
-    -------
-    ndarray, dtype object
-        As stored (1-D: one item per query; 2-D: VPR-Bench's rows ``[query index, positives]``);
-        every item a 1-D int64 array (an integer item becomes a length-1 array).
-
-    Raises
-    ------
-    DataNotFoundError
-        Not an .npy file, a plain (non-object) array, anything but integer arrays in the pickle.
-    ResourceLimitError
-        The file or its elements exceed :mod:`btel.limits`.
-    """
-    from .pickleparse import parse_object_array
-
-    path = Path(path)
-    check_bytes(path.stat().st_size, f"ground-truth file {str(path)!r}")
-    with _open_regular(path) as fh:
-        try:
-            version = np.lib.format.read_magic(fh)
-            read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
-                           else np.lib.format.read_array_header_2_0)
-            shape, fortran, dtype = read_header(fh)
-        except (ValueError, SyntaxError, TypeError) as exc:
-            raise DataNotFoundError(f"{str(path)!r} is not an .npy file ({exc}).") from exc
-        if not dtype.hasobject:
-            raise DataNotFoundError(f"{str(path)!r} holds a plain {dtype} array, not an object array.")
-        payload = fh.read()
-    try:
-        stored_shape, items = parse_object_array(payload)
-    except DataNotFoundError as exc:
-        raise DataNotFoundError(f"{str(path)!r}: {exc}") from None
-    if stored_shape != tuple(shape):
-        raise DataNotFoundError(f"{str(path)!r}: the pickled payload is not the object array its header announces.")
-    array = np.empty(len(items), dtype=object)
-    for i, item in enumerate(items):
-        array[i] = item
-    return array.reshape(stored_shape)
-
-
-def _open_regular(path: Path) -> Any:
-    """Open a regular file for reading; a FIFO, device or socket is refused without blocking."""
-    import stat
-
-    try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-    except OSError as exc:
-        raise DataNotFoundError(f"{str(path)!r} could not be opened: {exc.strerror}.") from exc
-    if not stat.S_ISREG(os.fstat(fd).st_mode):
-        os.close(fd)
-        raise DataNotFoundError(f"{str(path)!r} is not a regular file (a FIFO, device or socket); give a file.")
-    if hasattr(os, "set_blocking"):
-        os.set_blocking(fd, True)
-    return os.fdopen(fd, "rb")
-
-
-def _integers(item: object, source: str) -> np.ndarray:
-    """An item of an object array as a 1-D int64 array; anything but integers is refused."""
-    if isinstance(item, (bool, np.bool_)):
-        raise DataNotFoundError(f"{source}: found a boolean where place indices were expected.")
-    if isinstance(item, (int, np.integer)):
-        return np.array([int(item)], dtype=np.int64)
-    if isinstance(item, (list, tuple)):
-        parts = [_integers(x, source) for x in item]
-        return np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
-    if isinstance(item, np.ndarray):
-        if item.dtype == object:
-            return _integers(list(item.ravel()), source)
-        if item.dtype.kind in "iu":
-            return item.astype(np.int64).ravel()
-        if item.dtype.kind == "f" and item.size and np.all(np.isfinite(item)) and np.all(item == np.round(item)):
-            return item.astype(np.int64).ravel()
-        if item.size == 0:
-            return np.zeros(0, dtype=np.int64)
-        raise DataNotFoundError(f"{source}: found an array of dtype {item.dtype} where place indices were expected.")
-    raise DataNotFoundError(f"{source}: found a {type(item).__name__} where place indices were expected.")
-
-
-def _positives_from_object_array(array: np.ndarray, source: str) -> list[np.ndarray]:
-    """Per-query positives from VPR-Bench's layout (rows ``[query index, positives]``) or a 1-D
-    object array (item j = positives of query j)."""
-    if array.ndim == 2 and array.shape[1] == 2:
-        queries = [int(_integers(q, source)[0]) for q in array[:, 0]]
-        if sorted(queries) != list(range(len(queries))):
-            raise DataNotFoundError(
-                f"{source}: the query indices in column 0 are not 0..{len(queries) - 1} once each; cannot tell "
-                "which query row each list of positives belongs to.")
-        out: list[np.ndarray] = [np.zeros(0, dtype=np.int64)] * len(queries)
-        for q, positives in zip(queries, array[:, 1]):
-            out[q] = _integers(positives, source)
-        return out
-    if array.ndim == 1:
-        return [_integers(item, source) for item in array]
-    raise DataNotFoundError(
-        f"{source}: an object array of shape {array.shape}; expected VPR-Bench's (n_queries, 2) rows "
-        "[query index, positives] or a 1-D array of per-query positives.")
-
 
 def check_predictions(predictions: Any, n_queries: int, *, name: str = "predictions") -> np.ndarray:
     """Validate predicted place indices: a 1-D integer array with one entry per query row.
@@ -331,7 +220,7 @@ class GroundTruth:
         pos_dist_thr : float
             Radius in the same unit (NetVLAD uses 25 m).
         """
-        from sklearn.neighbors import NearestNeighbors
+        from sklearn.neighbors import KDTree, NearestNeighbors
 
         db = check_descriptors(utm_db, name="utmDb", dtype=np.float64)
         q = check_descriptors(utm_q, name="utmQ", dtype=np.float64)
@@ -340,10 +229,25 @@ class GroundTruth:
                 f"utmQ has {q.shape[1]} coordinates per row but utmDb has {db.shape[1]}; "
                 "both must hold one position per row in the same coordinate system."
             )
-        thr = float(np.asarray(pos_dist_thr).squeeze())
+        thr_arr = np.asarray(pos_dist_thr)
+        if thr_arr.size != 1 or thr_arr.dtype.kind not in "iuf":
+            raise InvalidParameterError(
+                f"posDistThr must be one distance; got shape {thr_arr.shape} and dtype {thr_arr.dtype}.")
+        thr = float(thr_arr.reshape(-1)[0])
         if not np.isfinite(thr) or thr < 0:
-            raise InvalidParameterError(f"posDistThr must be a finite distance ≥ 0; got {pos_dist_thr!r}.")
-        graph = NearestNeighbors(radius=thr).fit(db).radius_neighbors_graph(q, mode="connectivity")
+            raise InvalidParameterError(f"posDistThr must be a finite distance ≥ 0; got {thr!r}.")
+        # Count the pairs before building them (identical positions and a large radius make
+        # n_queries × n_map pairs), then search in chunks small enough for the memory limit.
+        tree = KDTree(db)
+        counts = tree.query_radius(q, r=thr, count_only=True)
+        n_pairs = int(counts.sum())
+        check_count(n_pairs, 16, f"positives within posDistThr={thr:g} ({n_pairs} query-place pairs)")
+        nn = NearestNeighbors(radius=thr).fit(db)
+        parts, start = [], 0
+        cap = max(1, memory_limit() // 64 // max(db.shape[0], 1))  # rows per chunk: ≤ limit/8 pairs each
+        for start in range(0, q.shape[0], cap):
+            parts.append(nn.radius_neighbors_graph(q[start:start + cap], mode="connectivity"))
+        graph = sp.vstack(parts, format="csr") if len(parts) > 1 else parts[0].tocsr()
         return cls(indptr=graph.indptr, indices=graph.indices, n_map=db.shape[0])
 
     @classmethod
@@ -373,111 +277,14 @@ class GroundTruth:
         Raises
         ------
         DataNotFoundError
-            Missing file, unreadable file, pickled content, or an unknown layout.
+            Missing file, not a regular file, unreadable or damaged file, pickled content other
+            than VPR-Bench's integer arrays, or an unknown layout.
+        ResourceLimitError
+            The file declares more than :mod:`btel.limits` allows (raise ``BTEL_MEMORY_LIMIT``).
         """
-        path = Path(path)
-        if not path.is_file():
-            raise DataNotFoundError(f"ground-truth file {str(path)!r} does not exist.")
-        suffix = path.suffix.lower()
-        if suffix == ".mat":
-            return cls._from_mat(path)
-        if suffix in (".csv", ".txt"):
-            return cls._from_csv(path)
-        try:
-            loaded = np.load(path, allow_pickle=False)
-        except ValueError as exc:
-            if suffix == ".npy" and "pickle" in str(exc).lower():
-                # VPR-Bench's ground_truth_new.npy: an object array, read without unpickling objects.
-                return cls.from_positives(_positives_from_object_array(read_object_npy(path), repr(str(path))))
-            raise DataNotFoundError(
-                f"ground-truth file {str(path)!r} holds pickled objects or is not numpy data ({exc}); "
-                "btel never loads pickles. Save plain arrays with np.savez."
-            ) from exc
-        except (OSError, EOFError) as exc:
-            raise DataNotFoundError(f"ground-truth file {str(path)!r} could not be read: {exc}") from exc
-        if isinstance(loaded, np.ndarray):
-            if loaded.ndim == 1 and loaded.dtype.kind in "iu":
-                return cls(query_places=loaded)
-            raise DataNotFoundError(
-                f"{str(path)!r} holds an array of shape {loaded.shape} and dtype {loaded.dtype}; a ground-truth "
-                ".npy must be a 1-D integer array of true places (one per query)."
-            )
-        with loaded as npz:
-            arrays = {name: npz[name] for name in npz.files}
-        return cls._from_arrays(arrays, str(path))
+        from .groundtruth_files import read_ground_truth
 
-    @classmethod
-    def _from_csv(cls, path: Path) -> "GroundTruth":
-        with open(path, newline="", encoding="utf-8-sig") as fh:
-            reader = csv.reader(fh)
-            header = [h.strip().lower() for h in next(reader, [])]
-            rows = [row for row in reader if row and any(cell.strip() for cell in row)]
-        if len(header) < 2 or header[0] != "query" or header[1] not in ("positive", "positives"):
-            raise DataNotFoundError(
-                f"{str(path)!r} has header {header}; a ground-truth CSV starts with 'query,positive' (one pair "
-                "per line) or 'query,positives' (places separated by spaces or ';').")
-        pairs: list[tuple[int, list[int]]] = []
-        for line, row in enumerate(rows, start=2):
-            try:
-                query = int(row[0])
-                places = [int(x) for x in row[1].replace(";", " ").split()] if len(row) > 1 else []
-            except ValueError:
-                raise DataNotFoundError(f"{str(path)!r} line {line}: {row} is not query index, place indices.") from None
-            if query < 0:
-                raise DataNotFoundError(f"{str(path)!r} line {line}: query index {query} is negative.")
-            pairs.append((query, places))
-        if not pairs:
-            raise DataNotFoundError(f"{str(path)!r} lists no query.")
-        positives: list[list[int]] = [[] for _ in range(max(q for q, _ in pairs) + 1)]
-        for query, places in pairs:
-            positives[query].extend(places)
-        return cls.from_positives(positives)
-
-    @classmethod
-    def _from_arrays(cls, arrays: dict[str, np.ndarray], source: str) -> "GroundTruth":
-        n_map = int(np.asarray(arrays["n_map"]).squeeze()) if "n_map" in arrays else None
-        if all(k in arrays for k in _CSR_KEYS):
-            return cls(indptr=arrays["indptr"], indices=arrays["indices"], n_map=n_map)
-        if all(k in arrays for k in _UTM_KEYS):
-            return cls.from_utm(arrays["utmDb"], arrays["utmQ"], arrays["posDistThr"])
-        if "query_places" in arrays:
-            return cls(query_places=arrays["query_places"], n_map=n_map)
-        raise DataNotFoundError(
-            f"{source} has arrays {sorted(arrays)}, which match no ground-truth layout. Expected "
-            "'indptr'+'indices' (positives), 'utmDb'+'utmQ'+'posDistThr' (positions) or "
-            "'query_places' (one true place per query)."
-        )
-
-    @classmethod
-    def _from_mat(cls, path: Path) -> "GroundTruth":
-        import scipy.io
-
-        try:
-            mat = scipy.io.loadmat(path)
-        except Exception as exc:  # scipy raises several types for non-MATLAB or v7.3 (HDF5) files
-            raise DataNotFoundError(
-                f"{str(path)!r} could not be read by scipy.io.loadmat ({type(exc).__name__}: {exc}). "
-                "MATLAB v7.3 files are HDF5: re-save with -v7 or convert to .npz."
-            ) from exc
-        if all(k in mat for k in _UTM_KEYS):
-            return cls.from_utm(mat["utmDb"], mat["utmQ"], mat["posDistThr"])
-        if "dbStruct" in mat:
-            struct = mat["dbStruct"]
-            names = struct.dtype.names or ()
-            if not all(k in names for k in _UTM_KEYS):
-                raise DataNotFoundError(
-                    f"{str(path)!r} has a dbStruct with fields {list(names)}; expected NetVLAD's utmDb, utmQ "
-                    "and posDistThr."
-                )
-            fields = {k: struct[k].item() for k in _UTM_KEYS}
-            # NetVLAD stores positions as 2×n (one column per image).
-            return cls.from_utm(np.asarray(fields["utmDb"]).T, np.asarray(fields["utmQ"]).T, fields["posDistThr"])
-        arrays = {k: v for k, v in mat.items() if not k.startswith("__")}
-        # MATLAB has no 1-D arrays: vectors come back as 1×n or n×1.
-        for key in ("query_places", "indptr", "indices"):
-            if key in arrays:
-                arrays[key] = np.asarray(arrays[key]).ravel()
-        return cls._from_arrays(arrays, repr(str(path)))
+        return read_ground_truth(cls, path)
 
     # -- queries ----------------------------------------------------------------------------------
     def __len__(self) -> int:

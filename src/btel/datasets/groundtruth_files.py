@@ -1,0 +1,273 @@
+"""Ground-truth files, read as untrusted input (the layouts are listed in
+:meth:`btel.datasets.groundtruth.GroundTruth.from_file`).
+
+Every reader checks what a file declares (array shapes, decompressed sizes, rows, indices) against
+:mod:`btel.limits` before allocating it, refuses anything but regular files (a FIFO would block),
+and turns every failure of numpy, scipy, zipfile and csv into a :class:`DataNotFoundError` (or
+:class:`ResourceLimitError`) naming the file.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import re
+import stat
+import zipfile
+from array import array as _IntBuffer
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..exceptions import BTELError, DataNotFoundError, InvalidParameterError
+from ..limits import check_bytes, check_count, check_numpy_file
+
+__all__ = ["read_object_npy", "read_ground_truth"]
+
+_UTM_KEYS = ("utmDb", "utmQ", "posDistThr")
+_CSR_KEYS = ("indptr", "indices")
+_INDEX = re.compile(r"[0-9]{1,18}")  # ASCII digits only: no '1_0', no other scripts' digits, < 10**18
+#: Bytes of btel's memory per byte of CSV (two int64 per pair of at least four characters).
+_CSV_EXPANSION = 4
+
+
+def open_regular(path: Path) -> Any:
+    """Open a regular file for reading; a FIFO, device or socket is refused without blocking."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except OSError as exc:
+        raise DataNotFoundError(f"{str(path)!r} could not be opened: {exc.strerror}.") from exc
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise DataNotFoundError(f"{str(path)!r} is not a regular file (a FIFO, device or socket); give a file.")
+    if hasattr(os, "set_blocking"):
+        os.set_blocking(fd, True)
+    return os.fdopen(fd, "rb")
+
+
+# -- VPR-Bench's object arrays, parsed without unpickling -------------------------------------------
+def read_object_npy(path: str | os.PathLike) -> np.ndarray:
+    """Read an ``.npy`` holding an object array whose items are integer arrays or integers.
+
+    This is how VPR-Bench stores ground truth (``ground_truth_new.npy``: per query, the indices of
+    its correct map images), and ``np.load`` only reads it with ``allow_pickle=True``, which would
+    run any code the file names. Here the header is parsed by numpy and the pickled payload by
+    :func:`btel.datasets.pickleparse.parse_object_array`, which walks the pickle's opcodes and
+    builds the integer arrays itself: nothing in the file is imported or called.
+
+    Returns
+    -------
+    ndarray, dtype object
+        As stored (1-D: one item per query; 2-D: VPR-Bench's rows ``[query index, positives]``);
+        every item a 1-D int64 array (an integer item becomes a length-1 array).
+
+    Raises
+    ------
+    DataNotFoundError
+        Not an .npy file, a plain (non-object) array, anything but integer arrays in the pickle.
+    ResourceLimitError
+        The file or its elements exceed :mod:`btel.limits`.
+    """
+    from .pickleparse import parse_object_array
+
+    path = Path(path)
+    with open_regular(path) as fh:
+        check_bytes(os.fstat(fh.fileno()).st_size, f"ground-truth file {str(path)!r}")
+        try:
+            version = np.lib.format.read_magic(fh)
+            read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                           else np.lib.format.read_array_header_2_0)
+            shape, _fortran, dtype = read_header(fh)
+        except (ValueError, SyntaxError, TypeError, OverflowError, RecursionError, MemoryError) as exc:
+            raise DataNotFoundError(f"{str(path)!r} is not an .npy file ({str(exc)[:200]}).") from None
+        if not dtype.hasobject:
+            raise DataNotFoundError(f"{str(path)!r} holds a plain {dtype} array, not an object array.")
+        payload = fh.read()
+    try:
+        stored_shape, items = parse_object_array(payload)
+    except DataNotFoundError as exc:
+        raise DataNotFoundError(f"{str(path)!r}: {exc}") from None
+    if stored_shape != tuple(shape):
+        raise DataNotFoundError(f"{str(path)!r}: the pickled payload is not the object array its header announces.")
+    out = np.empty(len(items), dtype=object)
+    for i, item in enumerate(items):
+        out[i] = item
+    return out.reshape(stored_shape)
+
+
+def _positives_from_object_array(array: np.ndarray, source: str) -> list[np.ndarray]:
+    """Per-query positives from VPR-Bench's layout (rows ``[query index, positives]``) or a 1-D
+    object array (item j = positives of query j); items are int64 arrays (:func:`read_object_npy`)."""
+    if array.ndim == 2 and array.shape[1] == 2:
+        column = list(array[:, 0])
+        if any(len(q) != 1 for q in column):
+            raise DataNotFoundError(f"{source}: column 0 must hold one query index per row.")
+        queries = [int(q[0]) for q in column]
+        if sorted(queries) != list(range(len(queries))):
+            raise DataNotFoundError(
+                f"{source}: the query indices in column 0 are not 0..{len(queries) - 1} once each; cannot tell "
+                "which query row each list of positives belongs to.")
+        out: list[np.ndarray] = [np.zeros(0, dtype=np.int64)] * len(queries)
+        for q, positives in zip(queries, array[:, 1]):
+            out[q] = positives
+        return out
+    if array.ndim == 1:
+        return list(array)
+    raise DataNotFoundError(
+        f"{source}: an object array of shape {array.shape}; expected VPR-Bench's (n_queries, 2) rows "
+        "[query index, positives] or a 1-D array of per-query positives.")
+
+
+# -- every layout -----------------------------------------------------------------------------------
+def read_ground_truth(cls: Any, path: str | os.PathLike) -> Any:
+    """The body of :meth:`GroundTruth.from_file` (``cls`` is the class)."""
+    path = Path(path)
+    if not path.exists():
+        raise DataNotFoundError(f"ground-truth file {str(path)!r} does not exist.")
+    if not path.is_file():
+        raise DataNotFoundError(f"ground-truth file {str(path)!r} is not a regular file (a folder, FIFO or device).")
+    try:
+        return _read(cls, path)
+    except BTELError:
+        raise
+    except (ValueError, TypeError, OverflowError, LookupError, RecursionError, MemoryError, OSError, EOFError,
+            zipfile.BadZipFile, csv.Error, UnicodeError) as exc:
+        raise DataNotFoundError(
+            f"ground-truth file {str(path)!r} could not be read ({type(exc).__name__}: {str(exc)[:200]}).") from None
+
+
+def _read(cls: Any, path: Path) -> Any:
+    suffix = path.suffix.lower()
+    if suffix == ".mat":
+        return _from_mat(cls, path)
+    if suffix in (".csv", ".txt"):
+        return _from_csv(cls, path)
+    with open_regular(path):
+        pass
+    check_numpy_file(path, f"ground-truth file {str(path)!r}")
+    try:
+        loaded = np.load(path, allow_pickle=False)
+    except ValueError as exc:
+        if suffix == ".npy" and "pickle" in str(exc).lower():
+            # VPR-Bench's ground_truth_new.npy: an object array, parsed without unpickling.
+            return cls.from_positives(_positives_from_object_array(read_object_npy(path), repr(str(path))))
+        raise DataNotFoundError(
+            f"ground-truth file {str(path)!r} holds pickled objects or is not numpy data ({str(exc)[:200]}); "
+            "btel never loads pickles. Save plain arrays with np.savez.") from None
+    if isinstance(loaded, np.ndarray):
+        if loaded.ndim == 1 and loaded.dtype.kind in "iu":
+            return cls(query_places=loaded)
+        raise DataNotFoundError(
+            f"{str(path)!r} holds an array of shape {loaded.shape} and dtype {loaded.dtype}; a ground-truth "
+            ".npy must be a 1-D integer array of true places (one per query).")
+    with loaded as npz:
+        arrays = {}
+        for name in npz.files:
+            try:
+                arrays[name] = npz[name]
+            except ValueError as exc:
+                raise DataNotFoundError(f"array {name!r} in {str(path)!r} is not plain numeric data "
+                                        f"({str(exc)[:200]}); btel never loads pickles.") from None
+    return _from_arrays(cls, arrays, repr(str(path)))
+
+
+def _scalar(value: Any, name: str, source: str) -> float:
+    arr = np.asarray(value)
+    if arr.size != 1 or arr.dtype.kind not in "iuf":
+        raise DataNotFoundError(f"{source}: {name} must be one number; got shape {arr.shape} and dtype {arr.dtype}.")
+    return float(arr.reshape(-1)[0])
+
+
+def _from_arrays(cls: Any, arrays: dict[str, np.ndarray], source: str) -> Any:
+    n_map = None
+    if "n_map" in arrays:
+        value = _scalar(arrays["n_map"], "n_map", source)
+        if not (value == int(value) if np.isfinite(value) else False) or not 1 <= value < 2**62:
+            raise DataNotFoundError(f"{source}: n_map must be a positive whole number; got {value}.")
+        n_map = int(value)
+    if all(k in arrays for k in _CSR_KEYS):
+        return cls(indptr=arrays["indptr"], indices=arrays["indices"], n_map=n_map)
+    if all(k in arrays for k in _UTM_KEYS):
+        return cls.from_utm(arrays["utmDb"], arrays["utmQ"], _scalar(arrays["posDistThr"], "posDistThr", source))
+    if "query_places" in arrays:
+        return cls(query_places=arrays["query_places"], n_map=n_map)
+    raise DataNotFoundError(
+        f"{source} has arrays {sorted(arrays)}, which match no ground-truth layout. Expected "
+        "'indptr'+'indices' (positives), 'utmDb'+'utmQ'+'posDistThr' (positions) or "
+        "'query_places' (one true place per query).")
+
+
+def _from_csv(cls: Any, path: Path) -> Any:
+    with open_regular(path) as raw:
+        check_bytes(os.fstat(raw.fileno()).st_size * _CSV_EXPANSION, f"ground-truth CSV {str(path)!r}")
+    queries, places, spans = _IntBuffer("q"), _IntBuffer("q"), _IntBuffer("q")
+    with open(path, newline="", encoding="utf-8-sig") as fh:
+        reader = csv.reader(fh)
+        header = [h.strip().lower() for h in next(reader, [])]
+        if len(header) < 2 or header[0] != "query" or header[1] not in ("positive", "positives"):
+            raise DataNotFoundError(
+                f"{str(path)!r} has header {header[:4]}; a ground-truth CSV starts with 'query,positive' (one "
+                "pair per line) or 'query,positives' (places separated by spaces or ';').")
+        for row in reader:
+            if not row or not any(cell.strip() for cell in row):
+                continue
+            cells = [row[0].strip(), *(row[1].replace(";", " ").split() if len(row) > 1 else [])]
+            if not all(_INDEX.fullmatch(c) for c in cells):
+                raise DataNotFoundError(
+                    f"{str(path)!r} line {reader.line_num}: {row[:4]} is not a query index and place indices "
+                    "(whole numbers 0 ≤ i < 10¹⁸ in ASCII digits).")
+            queries.append(int(cells[0]))
+            spans.append(len(cells) - 1)
+            places.extend(int(c) for c in cells[1:])
+    if not queries:
+        raise DataNotFoundError(f"{str(path)!r} lists no query.")
+    q = np.frombuffer(queries, dtype=np.int64)
+    n_queries = int(q.max()) + 1
+    check_count(n_queries, 16, f"ground-truth CSV {str(path)!r} (query index {n_queries - 1})")
+    rows = np.repeat(q, np.frombuffer(spans, dtype=np.int64))
+    order = np.argsort(rows, kind="stable")
+    indptr = np.zeros(n_queries + 1, dtype=np.int64)
+    np.cumsum(np.bincount(rows, minlength=n_queries), out=indptr[1:])
+    return cls.from_csr(indptr, np.frombuffer(places, dtype=np.int64)[order])
+
+
+def _from_mat(cls: Any, path: Path) -> Any:
+    import scipy.io
+
+    with open_regular(path):
+        pass
+    try:
+        declared = scipy.io.whosmat(path)
+    except Exception as exc:  # scipy raises several types for non-MATLAB or v7.3 (HDF5) files
+        raise DataNotFoundError(
+            f"{str(path)!r} could not be read by scipy.io.loadmat ({type(exc).__name__}: {str(exc)[:200]}). "
+            "MATLAB v7.3 files are HDF5: re-save with -v7 or convert to .npz.") from None
+    total = sum(float(np.prod([float(s) for s in shape])) * 8 for _, shape, _ in declared)
+    check_bytes(total, f"MATLAB ground-truth file {str(path)!r}")
+    try:
+        mat = scipy.io.loadmat(path)
+    except Exception as exc:
+        raise DataNotFoundError(
+            f"{str(path)!r} could not be read by scipy.io.loadmat ({type(exc).__name__}: {str(exc)[:200]}). "
+            "MATLAB v7.3 files are HDF5: re-save with -v7 or convert to .npz.") from None
+    source = repr(str(path))
+    if all(k in mat for k in _UTM_KEYS):
+        return cls.from_utm(mat["utmDb"], mat["utmQ"], _scalar(mat["posDistThr"], "posDistThr", source))
+    if "dbStruct" in mat:
+        struct = mat["dbStruct"]
+        names = struct.dtype.names or ()
+        if not all(k in names for k in _UTM_KEYS) or struct.size != 1:
+            raise DataNotFoundError(
+                f"{source} has a dbStruct with fields {list(names)[:10]}; expected one struct with NetVLAD's utmDb, "
+                "utmQ and posDistThr.")
+        fields = {k: struct[k].reshape(-1)[0] for k in _UTM_KEYS}
+        # NetVLAD stores positions as 2×n (one column per image).
+        return cls.from_utm(np.asarray(fields["utmDb"]).T, np.asarray(fields["utmQ"]).T,
+                            _scalar(fields["posDistThr"], "posDistThr", source))
+    arrays = {k: v for k, v in mat.items() if not k.startswith("__")}
+    # MATLAB has no 1-D arrays: vectors come back as 1×n or n×1.
+    for key in ("query_places", "indptr", "indices"):
+        if key in arrays:
+            arrays[key] = np.asarray(arrays[key]).ravel()
+    return _from_arrays(cls, arrays, source)

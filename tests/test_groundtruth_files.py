@@ -1,0 +1,130 @@
+"""Ground-truth files as hostile input (issue 20, findings 3 and 9): tiny files that asked for
+gigabytes, generic exceptions, FIFOs. Each crafted file is a few hundred bytes."""
+
+from __future__ import annotations
+
+import io
+import os
+import time
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.io
+
+from btel.datasets import GroundTruth
+from btel.exceptions import DataNotFoundError, InvalidParameterError, ResourceLimitError
+
+
+def test_csv_with_a_huge_query_index_is_refused_before_allocating(tmp_path: Path) -> None:
+    (tmp_path / "big.csv").write_text("query,positive\n1000000000000,1\n")  # 31 bytes (MemoryError before)
+    with pytest.raises(ResourceLimitError, match="BTEL_MEMORY_LIMIT"):
+        GroundTruth.from_file(tmp_path / "big.csv")
+    (tmp_path / "huge.csv").write_text("query,positive\n" + "9" * 5000 + ",1\n")
+    with pytest.raises(DataNotFoundError, match="line 2"):
+        GroundTruth.from_file(tmp_path / "huge.csv")
+
+
+@pytest.mark.parametrize("cell", ["1_0", "\u0661", "-1", "+1", "1.0", "0x1", " 1e3"])
+def test_csv_indices_are_ascii_digits_only(tmp_path: Path, cell: str) -> None:
+    (tmp_path / "odd.csv").write_text(f"query,positive\n0,{cell}\n", encoding="utf-8")
+    with pytest.raises(DataNotFoundError, match="line 2"):
+        GroundTruth.from_file(tmp_path / "odd.csv")
+
+
+def test_csv_field_too_large_and_binary_are_data_errors(tmp_path: Path) -> None:
+    (tmp_path / "field.csv").write_text('query,positives\n0,"' + "1 " * 70000 + '\n')
+    with pytest.raises(DataNotFoundError, match="Error"):  # _csv.Error before
+        GroundTruth.from_file(tmp_path / "field.csv")
+    (tmp_path / "bin.csv").write_bytes(b"query,positive\n\xff\xfe\x00\x01\n")
+    with pytest.raises(DataNotFoundError, match="UnicodeDecodeError"):
+        GroundTruth.from_file(tmp_path / "bin.csv")
+
+
+def test_csv_pairs_still_read_in_any_order(tmp_path: Path) -> None:
+    (tmp_path / "pairs.csv").write_text("query,positive\n2,7\n0,6\n0,5\n3,\n")
+    gt = GroundTruth.from_file(tmp_path / "pairs.csv")
+    assert [gt.positives(j).tolist() for j in range(4)] == [[5, 6], [], [7], []]
+
+
+def test_identical_positions_are_counted_before_pairs_are_built(tmp_path: Path,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """20,000 identical points with posDistThr=0 asked for 4·10⁸ pairs from a 1,259-byte .npz."""
+    utm = np.zeros((20000, 2))
+    np.savez_compressed(tmp_path / "same.npz", utmDb=utm, utmQ=utm, posDistThr=np.float64(0.0))
+    assert (tmp_path / "same.npz").stat().st_size < 2000
+    start = time.perf_counter()
+    with pytest.raises(ResourceLimitError, match="query-place pairs"):
+        GroundTruth.from_file(tmp_path / "same.npz")
+    assert time.perf_counter() - start < 20  # a hang guard, not a timing figure
+    # Under a raised limit a small version is computed in chunks and matches the brute force.
+    monkeypatch.setenv("BTEL_MEMORY_LIMIT", "64K")
+    rng = np.random.default_rng(0)
+    db, q = rng.uniform(0, 50, (300, 2)), rng.uniform(0, 50, (40, 2))
+    gt = GroundTruth.from_utm(db, q, 4.0)
+    dist = np.linalg.norm(q[:, None] - db[None], axis=2)
+    assert all(gt.positives(j).tolist() == np.flatnonzero(dist[j] <= 4.0).tolist() for j in range(40))
+
+
+def test_array_valued_posdistthr_and_n_map_are_named(tmp_path: Path) -> None:
+    np.savez(tmp_path / "thr.npz", utmDb=np.zeros((3, 2)), utmQ=np.zeros((2, 2)), posDistThr=np.array([1.0, 2.0]))
+    with pytest.raises(DataNotFoundError, match="posDistThr must be one number"):
+        GroundTruth.from_file(tmp_path / "thr.npz")
+    with pytest.raises(InvalidParameterError, match="posDistThr must be one distance"):
+        GroundTruth.from_utm(np.zeros((3, 2)), np.zeros((2, 2)), np.array([1.0, 2.0]))
+    np.savez(tmp_path / "nmap.npz", query_places=np.array([0, 1]), n_map=np.array([1e300]))
+    with pytest.raises(DataNotFoundError, match="n_map"):
+        GroundTruth.from_file(tmp_path / "nmap.npz")
+
+
+def _npz_declaring(path: Path, shape: tuple[int, ...]) -> None:
+    """An .npz whose member header declares ``shape`` float64 but holds a few bytes."""
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<f8", "fortran_order": False, "shape": shape})
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("utmDb.npy", header.getvalue() + b"\0" * 64)
+
+
+def test_npz_declared_sizes_are_checked_before_reading(tmp_path: Path) -> None:
+    _npz_declaring(tmp_path / "decl.npz", (250_000_000, 2))
+    with pytest.raises(ResourceLimitError, match="ground-truth file"):
+        GroundTruth.from_file(tmp_path / "decl.npz")
+    # A zip bomb: 400 MB of zeros compressed into a small file.
+    with zipfile.ZipFile(tmp_path / "bomb.npz", "w", zipfile.ZIP_DEFLATED) as zf:
+        with zf.open("query_places.npy", "w", force_zip64=True) as member:
+            np.lib.format.write_array_header_1_0(member, {"descr": "<i8", "fortran_order": False,
+                                                          "shape": (50_000_000,)})
+            chunk = b"\0" * (1 << 22)
+            for _ in range(100):
+                member.write(chunk)
+    assert (tmp_path / "bomb.npz").stat().st_size < 1_000_000
+    with pytest.raises(ResourceLimitError, match="decompressed"):
+        GroundTruth.from_file(tmp_path / "bomb.npz")
+
+
+def test_damaged_npz_and_npy_are_data_errors(tmp_path: Path) -> None:
+    np.savez(tmp_path / "ok.npz", query_places=np.arange(5))
+    data = bytearray((tmp_path / "ok.npz").read_bytes())
+    (tmp_path / "cut.npz").write_bytes(bytes(data[: len(data) // 2]))
+    (tmp_path / "badzip.npz").write_bytes(b"PK\x03\x04" + b"\0" * 40)
+    (tmp_path / "junk.npy").write_bytes(b"\x93NUMPY\x01\x00\x10\x00{'descr': <<<}   \n")
+    for name in ("cut.npz", "badzip.npz", "junk.npy"):
+        with pytest.raises(DataNotFoundError):
+            GroundTruth.from_file(tmp_path / name)
+
+
+def test_mat_declared_sizes_are_checked(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    scipy.io.savemat(tmp_path / "big.mat", {"utmDb": np.zeros((200_000, 2)), "utmQ": np.zeros((2, 2)),
+                                            "posDistThr": 1.0}, do_compression=True)
+    monkeypatch.setenv("BTEL_MEMORY_LIMIT", "1M")
+    with pytest.raises(ResourceLimitError, match="MATLAB ground-truth file"):
+        GroundTruth.from_file(tmp_path / "big.mat")
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs FIFOs")
+def test_a_fifo_is_refused_without_blocking(tmp_path: Path) -> None:
+    for name in ("gt.npy", "gt.csv", "gt.mat"):
+        os.mkfifo(tmp_path / name)
+        with pytest.raises(DataNotFoundError, match="not a regular file"):
+            GroundTruth.from_file(tmp_path / name)
