@@ -19,7 +19,7 @@ from typing import Any
 from .exceptions import ResourceLimitError
 
 __all__ = ["DEFAULT_MEMORY_LIMIT", "ENV_MEMORY_LIMIT", "memory_limit", "check_bytes", "check_count",
-           "format_size", "check_numpy_file"]
+           "format_size", "check_numpy_file", "open_regular"]
 
 #: Bytes one input may make btel allocate when ``BTEL_MEMORY_LIMIT`` is not set.
 DEFAULT_MEMORY_LIMIT = 256 * 2**20
@@ -134,3 +134,21 @@ def check_numpy_file(path: "os.PathLike[str] | str", what: str) -> None:
         else:
             total = declared(fh)
     check_bytes(total, what)
+
+
+def open_regular(path: "os.PathLike[str] | str") -> Any:
+    """Open a regular file for reading; a FIFO, device or socket is refused without blocking."""
+    import stat
+
+    from .exceptions import DataNotFoundError
+
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except OSError as exc:
+        raise DataNotFoundError(f"{str(path)!r} could not be opened: {exc.strerror}.") from exc
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise DataNotFoundError(f"{str(path)!r} is not a regular file (a FIFO, device or socket); give a file.")
+    if hasattr(os, "set_blocking"):
+        os.set_blocking(fd, True)
+    return os.fdopen(fd, "rb")

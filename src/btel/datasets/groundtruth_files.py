@@ -12,7 +12,6 @@ from __future__ import annotations
 import csv
 import os
 import re
-import stat
 import zipfile
 from array import array as _IntBuffer
 from pathlib import Path
@@ -21,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..exceptions import BTELError, DataNotFoundError, InvalidParameterError
-from ..limits import check_bytes, check_count, check_numpy_file
+from ..limits import check_bytes, check_count, check_numpy_file, open_regular
 
 __all__ = ["read_object_npy", "read_ground_truth"]
 
@@ -30,20 +29,6 @@ _CSR_KEYS = ("indptr", "indices")
 _INDEX = re.compile(r"[0-9]{1,18}")  # ASCII digits only: no '1_0', no other scripts' digits, < 10**18
 #: Bytes of btel's memory per byte of CSV (two int64 per pair of at least four characters).
 _CSV_EXPANSION = 4
-
-
-def open_regular(path: Path) -> Any:
-    """Open a regular file for reading; a FIFO, device or socket is refused without blocking."""
-    try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-    except OSError as exc:
-        raise DataNotFoundError(f"{str(path)!r} could not be opened: {exc.strerror}.") from exc
-    if not stat.S_ISREG(os.fstat(fd).st_mode):
-        os.close(fd)
-        raise DataNotFoundError(f"{str(path)!r} is not a regular file (a FIFO, device or socket); give a file.")
-    if hasattr(os, "set_blocking"):
-        os.set_blocking(fd, True)
-    return os.fdopen(fd, "rb")
 
 
 # -- VPR-Bench's object arrays, parsed without unpickling -------------------------------------------

@@ -9,13 +9,13 @@ Row i is the global descriptor of image (place) i. Formats:
   images in **natural name order** (``img2`` before ``img10``), which is the route order when the
   file names are frame numbers; ``PATH.h5:PREFIX`` keeps only the names starting with ``PREFIX``
   (hloc often keeps map and query images in one file, e.g. ``feats.h5:db/`` and ``feats.h5:query/``).
-  HDF5 holds plain arrays only; h5py reads no pickles.
+  HDF5 holds plain arrays only; h5py reads no pickles. External storage, virtual datasets, links
+  and non-numeric dtypes are refused (see :mod:`btel.descriptors.hdf5`).
 """
 
 from __future__ import annotations
 
 import os
-import re
 import zipfile
 from pathlib import Path
 
@@ -23,15 +23,12 @@ import numpy as np
 
 from .._validation import check_descriptors
 from ..exceptions import DataNotFoundError, InvalidDescriptorsError, InvalidParameterError
+from ..limits import check_numpy_file, open_regular
+from .hdf5 import load_hloc_global
 
 __all__ = ["load_descriptor_matrix", "load_hloc_global", "HDF5_SUFFIXES"]
 
 HDF5_SUFFIXES = (".h5", ".hdf5")
-_HLOC_DATASET = "global_descriptor"
-
-
-def _natural_key(name: str) -> list:
-    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
 
 
 def split_prefix(path: str | os.PathLike) -> tuple[Path, str | None]:
@@ -44,62 +41,6 @@ def split_prefix(path: str | os.PathLike) -> tuple[Path, str | None]:
     if Path(head).suffix.lower() in (*HDF5_SUFFIXES, ".npz"):
         return Path(head), prefix
     return Path(text), None
-
-
-def load_hloc_global(path: str | os.PathLike, prefix: str | None = None) -> tuple[np.ndarray, list[str]]:
-    """Global descriptors from an hloc HDF5 feature file, one row per image in natural name order.
-
-    Parameters
-    ----------
-    path : path
-        HDF5 file with one group per image name, each holding a ``global_descriptor`` dataset
-        (shape (d,) or (1, d)).
-    prefix : str, optional
-        Keep only images whose name starts with this (e.g. ``"db/"``).
-
-    Returns
-    -------
-    X : ndarray of shape (n_images, d), dtype float32
-    names : list of str
-        Image name of each row.
-
-    Raises
-    ------
-    DataNotFoundError
-        Missing file, or no ``global_descriptor`` (under ``prefix``).
-    InvalidDescriptorsError
-        Not an HDF5 file, descriptors of different lengths, or non-finite values.
-    """
-    import h5py
-
-    path = Path(path)
-    if not path.is_file():
-        raise DataNotFoundError(f"descriptor file {str(path)!r} does not exist. Check the path.")
-    found: dict[str, np.ndarray] = {}
-    try:
-        with h5py.File(path, "r") as fh:
-            def visit(name: str, obj: object) -> None:
-                if isinstance(obj, h5py.Dataset) and name.rsplit("/", 1)[-1] == _HLOC_DATASET:
-                    image = name[: -len(_HLOC_DATASET) - 1] if "/" in name else ""
-                    if prefix is None or image.startswith(prefix):
-                        found[image] = np.asarray(obj[()])
-            fh.visititems(visit)
-    except OSError as exc:
-        raise InvalidDescriptorsError(f"{str(path)!r} is not a readable HDF5 file ({exc}).") from exc
-    if not found:
-        where = f" under {prefix!r}" if prefix else ""
-        raise DataNotFoundError(
-            f"{str(path)!r} holds no '{_HLOC_DATASET}' dataset{where}; expected hloc global features (one group "
-            "per image name with a global_descriptor). Local features (keypoints/descriptors) are not global "
-            "descriptors.")
-    names = sorted(found, key=_natural_key)
-    lengths = {found[n].size for n in names}
-    if len(lengths) != 1:
-        raise InvalidDescriptorsError(
-            f"{str(path)!r}: the global descriptors have different lengths ({sorted(lengths)}); one model must "
-            "describe every image.")
-    X = np.stack([found[n].reshape(-1) for n in names])
-    return check_descriptors(X, name=f"global descriptors in {path.name}"), names
 
 
 def load_descriptor_matrix(
@@ -152,6 +93,10 @@ def load_descriptor_matrix(
         raise DataNotFoundError(f"descriptor file {str(path)!r} does not exist. Check the path.")
     if not path.is_file():
         raise DataNotFoundError(f"{str(path)!r} is a folder; pass the .npy file inside it.")
+    with open_regular(path):
+        pass
+    if mmap_mode is None:
+        check_numpy_file(path, f"descriptor file {str(path)!r}")
     try:
         loaded = np.load(path, mmap_mode=mmap_mode, allow_pickle=False)
     except ValueError as exc:
