@@ -39,7 +39,8 @@ import numpy as np
 from sklearn.base import BaseEstimator
 
 from ._validation import check_descriptors, check_is_fitted, check_params, check_places, check_positive_int
-from .exceptions import BudgetTooSmallError, InvalidDescriptorsError, InvalidParameterError, NotEnoughPlacesError
+from .exceptions import (BudgetTooSmallError, InvalidAnswerError, InvalidDescriptorsError, InvalidParameterError,
+                         NotEnoughPlacesError)
 from .frontend import FrontEnd, traverse_starts
 from .storage import format_bytes, parse_budget, save_arrays, storage_breakdown
 
@@ -353,7 +354,9 @@ class PlaceLocalizer(BaseEstimator, ABC):
             Distinct places in [0, N), best first. ``places[:, 0]`` is :meth:`predict`.
         """
         Q = self._check_queries(Q)
-        return self._search(Q, self._check_k(k))
+        scores, places = self._search(Q, self._check_k(k))
+        self._check_answers(places, scores)
+        return scores, places
 
     def predict(self, Q: Any) -> np.ndarray:
         """Place index of each query.
@@ -371,9 +374,9 @@ class PlaceLocalizer(BaseEstimator, ABC):
             return self._predict_in_chunks(Q, _predict_threads())
         Q = self._check_queries(Q)
         if Q.shape[0] < _ONE_BLAS_THREAD_FROM:
-            return self._predict(Q)
+            return self._check_answers(self._predict(Q))
         with one_blas_thread():
-            return self._predict(Q)
+            return self._check_answers(self._predict(Q))
 
     def _predict_in_chunks(self, Q: Any, n_threads: int) -> np.ndarray:
         """:meth:`predict` of a large batch as row chunks on ``n_threads`` threads (one BLAS thread each).
@@ -394,7 +397,7 @@ class PlaceLocalizer(BaseEstimator, ABC):
 
         try:
             with one_blas_thread():
-                return np.concatenate(list(_predict_pool(n_threads).map(one, slices)))
+                return self._check_answers(np.concatenate(list(_predict_pool(n_threads).map(one, slices))))
         except InvalidDescriptorsError:
             self._check_queries(Q)  # the same error, with row numbers counted over the whole batch
             raise
@@ -414,7 +417,32 @@ class PlaceLocalizer(BaseEstimator, ABC):
         -------
         ndarray of shape (n_queries, N), float64
         """
-        return self._place_scores(self._check_queries(Q))
+        scores = self._place_scores(self._check_queries(Q))
+        self._check_answers(None, scores)
+        return scores
+
+    def _check_answers(self, places: np.ndarray | None, scores: np.ndarray | None = None) -> np.ndarray | None:
+        """Every answer a place in [0, N) and every score finite, for every method (issue 20).
+
+        Raises
+        ------
+        InvalidAnswerError
+            Naming the cause: scores that overflow (weights beyond float32, usually from a damaged
+            or hostile model file) or a place outside the map.
+        """
+        n = int(self.n_places_)
+        if scores is not None and scores.size and not np.isfinite(scores).all():
+            bad = int(np.argwhere(~np.isfinite(scores))[0][0])
+            raise InvalidAnswerError(
+                f"{type(self).__name__} produced non-finite scores (first at query row {bad}): its stored weights "
+                "overflow float arithmetic, which a damaged or hostile model file causes. Refit the model or "
+                "check where the file came from.")
+        if places is not None and places.size and (places.min() < 0 or places.max() >= n):
+            wrong = places[(places < 0) | (places >= n)][0]
+            raise InvalidAnswerError(
+                f"{type(self).__name__} answered place {int(wrong)}, outside the map's 0..{n - 1}: its stored "
+                "weights overflow (a damaged or hostile model file?). Refit the model or check the file.")
+        return places
 
     def stream(self) -> "QueryStream":
         """A query stream: one descriptor at a time, with the state a sequence needs (:class:`QueryStream`)."""
@@ -543,11 +571,14 @@ class QueryStream:
     def search(self, x: Any, k: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """(scores, places) of the k best places for the next frame, shapes (k,), best first."""
         scores, places = self.model._search(self._rows(x), self.model._check_k(k))
+        self.model._check_answers(places[-1:], scores[-1:])
         return scores[-1], places[-1]
 
     def place_scores(self, x: Any) -> np.ndarray:
         """Scores of every place for the next frame, shape (N,), float64."""
-        return self.model._place_scores(self._rows(x))[-1]
+        scores = self.model._place_scores(self._rows(x))[-1]
+        self.model._check_answers(None, scores)
+        return scores
 
 
 def _jsonable(value: Any) -> Any:

@@ -38,7 +38,7 @@ import numpy as np
 
 from ._validation import check_descriptors, check_positive_int
 from .datasets.groundtruth import GroundTruth, check_predictions
-from .exceptions import BTELError, BudgetTooSmallError, InvalidParameterError
+from .exceptions import BTELError, BudgetTooSmallError, InvalidAnswerError, InvalidParameterError
 from .storage import format_bytes, parse_budget
 
 __all__ = [
@@ -524,6 +524,10 @@ def evaluate(
     raw = method.predict(Q)
     query_time = (time.perf_counter() - start) / n_queries
     predictions = check_predictions(raw, n_queries, name=f"{type(method).__name__}.predict(Q)")
+    if n_map is not None and predictions.size and (predictions.min() < 0 or predictions.max() >= n_map):
+        raise InvalidAnswerError(  # never score an answer outside the map (issue 20)
+            f"{type(method).__name__}.predict(Q) answered place {int(predictions[(predictions < 0) | (predictions >= n_map)][0])}, "
+            f"outside the map's 0..{int(n_map) - 1}.")
 
     ranked = None
     rank_time = None

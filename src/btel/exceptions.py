@@ -23,6 +23,7 @@ __all__ = [
     "DataNotFoundError",
     "MissingDependencyError",
     "ResourceLimitError",
+    "InvalidAnswerError",
 ]
 
 
@@ -90,3 +91,8 @@ class BudgetExceededError(BTELError, RuntimeError):
 class ResourceLimitError(BTELError, ValueError):
     """An input declares more memory or work than btel's limit allows (see :mod:`btel.limits`;
     raise the limit with the ``BTEL_MEMORY_LIMIT`` environment variable)."""
+
+
+class InvalidAnswerError(BTELError, ValueError):
+    """A fitted model produced non-finite scores or a place outside [0, N) (usually weights that
+    overflow float32: a damaged or hostile model file, or a fit on extreme values)."""
