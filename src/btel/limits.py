@@ -19,12 +19,18 @@ from typing import Any
 from .exceptions import ResourceLimitError
 
 __all__ = ["DEFAULT_MEMORY_LIMIT", "ENV_MEMORY_LIMIT", "memory_limit", "check_bytes", "check_count",
-           "format_size", "check_numpy_file", "open_regular"]
+           "format_size", "check_numpy_file", "open_regular",
+           "BYTES_PER_PLACE", "check_places"]
 
 #: Bytes one input may make btel allocate when ``BTEL_MEMORY_LIMIT`` is not set.
 DEFAULT_MEMORY_LIMIT = 256 * 2**20
 #: Environment variable that raises (or lowers) the limit.
 ENV_MEMORY_LIMIT = "BTEL_MEMORY_LIMIT"
+
+#: Bytes per map place that answering one query may need (float64 scores plus the HMM decoder's
+#: forward vector and workspace): a model's N may be at most ``memory_limit() // BYTES_PER_PLACE``
+#: (8,388,608 places under the 256 MiB default).
+BYTES_PER_PLACE = 32
 
 _UNITS = {"": 1, "B": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
 
@@ -81,6 +87,12 @@ def check_bytes(n_bytes: float, what: str) -> None:
 def check_count(count: float, itemsize: int, what: str) -> None:
     """:func:`check_bytes` for ``count`` items of ``itemsize`` bytes each."""
     check_bytes(float(count) * itemsize, what)
+
+
+def check_places(n_places: int, what: str) -> None:
+    """Refuse a model whose N would make one query's inference exceed the limit (see
+    :data:`BYTES_PER_PLACE`), before any query runs: a tiny file may claim N = 2³²."""
+    check_bytes(float(n_places) * BYTES_PER_PLACE, f"{what} with N = {n_places} places (per query)")
 
 
 def check_numpy_file(path: "os.PathLike[str] | str", what: str) -> None:

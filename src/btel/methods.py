@@ -20,8 +20,9 @@ from ._validation import Instance, check_params, read_state_int
 from .base import PlaceLocalizer
 from .baselines import BASELINES, PQLocalizer
 from .codes import CodeLocalizer
-from .exceptions import BTELError, InvalidParameterError, ModelFileError
+from .exceptions import BTELError, InvalidParameterError, ModelFileError, ResourceLimitError
 from .frontend import FrontEnd
+from .limits import check_places
 from .localizer import BTELocalizer
 from .ryth import RYTHLocalizer
 from .storage import load_arrays
@@ -118,6 +119,8 @@ def load(path: str | os.PathLike) -> PlaceLocalizer:
         _restore(model, arrays, state)
     except ModelFileError as exc:
         raise ModelFileError(f"{where}: {exc}") from exc
+    except ResourceLimitError as exc:  # N beyond the memory-tied ceiling: still a ModelFileError
+        raise ModelFileError(f"{where}: {exc}") from None
     except BTELError as exc:
         raise ModelFileError(f"{where} is inconsistent with a {name} model: {exc}") from exc
     except Exception as exc:  # a file is untrusted input: whatever else goes wrong, it is a bad file
@@ -157,6 +160,7 @@ def _params_from_file(cls: type[PlaceLocalizer], params: dict[str, Any]) -> dict
 
 
 #: Most places a model file may declare: a place index fits in uint32 (the largest map measured has 10⁶).
+#: A lower, memory-tied ceiling applies too: :func:`btel.limits.check_places` (``BTEL_MEMORY_LIMIT``).
 MAX_PLACES = 2**32
 
 
@@ -180,6 +184,7 @@ def _restore(model: PlaceLocalizer, arrays: dict[str, Any], state: dict[str, Any
             a = arrays[key]
             raise ModelFileError(f"the file's array {key!r} has shape {a.shape} and dtype {a.dtype}; "
                                  f"expected {spec.describe()}.")
+    check_places(n_places, f"a {type(model).__name__}")  # before anything sized by N is built
     model._restore(arrays, state)
     model.n_features_in_ = n_features
     fit_time = state.get("fit_time")

@@ -27,7 +27,9 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .exceptions import BudgetExceededError, InvalidParameterError, ModelFileError, UnsupportedModelVersionError
+from .exceptions import (BudgetExceededError, DataNotFoundError, InvalidParameterError, ModelFileError,
+                         UnsupportedModelVersionError)
+from .limits import open_regular
 
 __all__ = [
     "check_within_budget",
@@ -263,7 +265,7 @@ def load_arrays(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[st
         raise ModelFileError(f"{where} is a folder, not a model file.")
     try:
         # Our own handle: np.load leaks the file it opened when the zip is truncated.
-        with open(path, "rb") as fh:
+        with open_regular(path) as fh:  # a FIFO or device is refused without blocking
             # A model file is a zip (.npz). Anything else would reach np.load's .npy or pickle
             # branches: an ndarray (no context manager) or a misleading "pickled data" error.
             if fh.read(4) != b"PK\x03\x04":
@@ -279,6 +281,8 @@ def load_arrays(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[st
                 arrays = {name: _read_member(archive, info, name, where) for name, info in members.items()}
     except ModelFileError:
         raise
+    except DataNotFoundError as exc:  # open_regular: not a regular file
+        raise ModelFileError(str(exc)) from None
     except Exception as exc:  # zipfile, struct, OSError, EOFError, MemoryError…: all mean a bad file
         raise ModelFileError(
             f"{where} is truncated, corrupt or not a btel model file ({type(exc).__name__}: {str(exc)[:200]}). "
