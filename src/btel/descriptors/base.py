@@ -282,7 +282,7 @@ class ImageDescriptor(BaseEstimator):
             # JSON has no tuples; the size/cell parameters are tuples in __init__.
             obj = klass(**{k: tuple(v) if isinstance(v, list) else v for k, v in params.items()})
             obj._restore(arrays, state)
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
+        except Exception as exc:  # untrusted input: any failure (OverflowError, RecursionError…) is a bad file
             raise ModelFileError(
                 f"{str(path)!r} is inconsistent with a {name} descriptor ({type(exc).__name__}: {exc}); "
                 "the file is corrupt or was edited."

@@ -50,6 +50,7 @@ from sklearn.utils import check_random_state
 
 from .._validation import check_is_fitted, check_positive_int
 from ..exceptions import InvalidParameterError, NotEnoughPlacesError
+from ..limits import check_count
 from .base import DescriptorWarning, ImageDescriptor, register_descriptor, single_blas_thread
 from .images import iter_grey, to_grey
 
@@ -91,8 +92,17 @@ def _prepare(grey: np.ndarray, max_side: int | None) -> np.ndarray:
     return grey
 
 
+def _check_grid(height: int, width: int, sizes: tuple[int, ...], step: int) -> None:
+    """Refuse a grid whose keypoints and SIFT descriptors exceed the memory limit, before building it."""
+    count = sum(max(0, (height - 4 * b) // step + 1) * max(0, (width - 4 * b) // step + 1) for b in sizes)
+    # A KeyPoint object (~100 B) and a 128-float descriptor computed in float32 (512 B) each.
+    check_count(count, 100 + 4 * SIFT_DIM,
+                f"dense SIFT with {len(sizes)} bin sizes and step {step} on {width}×{height} pixels ({count} keypoints)")
+
+
 def _rootsift_grey(grey: np.ndarray, sizes: tuple[int, ...], step: int) -> np.ndarray:
     height, width = grey.shape
+    _check_grid(height, width, sizes, step)
     keypoints = _grid(height, width, sizes, step)
     if not keypoints:
         raise InvalidParameterError(
@@ -266,6 +276,8 @@ class DenseVLADDescriptor(ImageDescriptor):
         check_positive_int(self.step, "step")
         if self.max_side is not None:
             check_positive_int(self.max_side, "max_side")
+            # Worst case: a square max_side image (a saved file may declare any sizes and step).
+            _check_grid(self.max_side, self.max_side, tuple(self.sizes), int(self.step))
         if check_positive_int(self.max_descriptors, "max_descriptors") < n_clusters:
             raise InvalidParameterError(
                 f"max_descriptors ({self.max_descriptors}) must be at least n_clusters ({n_clusters}): "
@@ -407,6 +419,8 @@ class DenseVLADDescriptor(ImageDescriptor):
         centroids = np.ascontiguousarray(arrays["centroids"], dtype=np.float32)
         if centroids.shape != (self.n_clusters, SIFT_DIM):
             raise ValueError(f"centroids have shape {centroids.shape}, expected ({self.n_clusters}, {SIFT_DIM})")
+        if not np.isfinite(centroids).all():
+            raise ValueError("centroids contain NaN or infinite values")
         self.centroids_ = centroids
         self.n_local_descriptors_ = int(state["n_local_descriptors"])
         self.n_sampled_descriptors_ = int(state["n_sampled_descriptors"])
@@ -424,6 +438,14 @@ class DenseVLADDescriptor(ImageDescriptor):
                 raise ValueError("PCA arrays do not match n_clusters and n_components")
             if not np.all(variance > 0):
                 raise ValueError("PCA explained variances must be positive")
+            # Whitening divides by √variance after a product with the components: values near
+            # float32's limits (3e38 in a saved file) overflow to NaN descriptors. Unit-norm VLADs
+            # have variances ≤ 1 and components of unit norm, so anything beyond 1e6 is not a PCA.
+            for label, values in (("mean", mean), ("components", components), ("explained variances", variance)):
+                if not np.isfinite(values).all() or np.abs(values).max(initial=0.0) > 1e6:
+                    raise ValueError(f"PCA {label} are not finite values of a PCA of unit-norm VLAD vectors")
+            if variance.min() < 1e-30:
+                raise ValueError("PCA explained variances are too small to whiten by")
             self.pca_mean_, self.pca_components_, self.pca_explained_variance_ = mean, components, variance
             self.n_components_ = kept
             self.dim_ = kept

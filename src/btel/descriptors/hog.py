@@ -14,6 +14,7 @@ from skimage.feature import hog
 
 from .._validation import check_positive_int
 from ..exceptions import InvalidParameterError
+from ..limits import check_bytes
 from .base import ImageDescriptor, check_pair, register_descriptor
 from .images import resize_grey
 
@@ -76,7 +77,14 @@ class HOGDescriptor(ImageDescriptor):
         check_pair(self.cells_per_block, "cells_per_block")
         if self.block_norm not in _BLOCK_NORMS:
             raise InvalidParameterError(f"block_norm must be one of {', '.join(_BLOCK_NORMS)}; got {self.block_norm!r}.")
-        self._blocks()
+        n_r, n_c = self._blocks()
+        width, height = check_pair(self.size, "size")
+        block_r, block_c = check_pair(self.cells_per_block, "cells_per_block")
+        # One image: the resized image and its gradients (float64), the cell histograms and the
+        # blocks, before the first pixel is read (a saved file may declare any size).
+        per_image = 8.0 * (width * height * 4 + (n_r + block_r) * (n_c + block_c) * self.orientations
+                           + n_r * n_c * block_r * block_c * self.orientations)
+        check_bytes(per_image, f"HOG of size {width}×{height} with {self.orientations} orientations (one image)")
 
     def _blocks(self) -> tuple[int, int]:
         width, height = check_pair(self.size, "size")
