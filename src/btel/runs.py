@@ -9,6 +9,7 @@ by recomputing recall from the predictions it holds.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import datetime as _dt
 import importlib.metadata
@@ -93,8 +94,36 @@ def _safe_name(name: str) -> str:
 
 
 #: Files a run folder may hold; with ``overwrite=True`` these (and only these) are removed first.
-_RUN_FILE_PATTERNS = ("metrics.json", "metrics.csv", "predictions_*.csv", "recall_vs_*.png", "recall_at_k.png",
-                      ".metrics.*.tmp")
+_RUN_FILE_PATTERNS = ("metrics.json", "metrics.csv", "predictions_*.csv", "recall_vs_*.png", "recall_at_k.png")
+
+
+_LOCK_NAME = ".btel-run.lock"
+
+
+def _occupants(out_dir: Path) -> list[Path]:
+    """Entries of a run folder other than a dead run's claim and temporaries."""
+    from ._claims import _owner, pid_alive
+
+    out = []
+    for entry in out_dir.iterdir():
+        if entry.name == _LOCK_NAME:
+            owner = _owner(entry)
+            if owner is not None and owner != os.getpid() and pid_alive(owner):
+                raise FileExistsError(
+                    f"another btel run (process {owner}) is writing to {str(out_dir)!r}; wait for it to finish "
+                    "or choose another --out folder.")
+            continue
+        if entry.name.startswith(".") and entry.name.endswith(".tmp") and _temp_is_dead(entry.name):
+            continue
+        out.append(entry)
+    return out
+
+
+def _temp_is_dead(name: str) -> bool:
+    from ._claims import pid_alive
+
+    match = re.match(r"\.[^/]+\.(\d{1,10})\.[^/]*\.tmp$", name)
+    return match is None or not pid_alive(int(match.group(1)))
 
 
 def check_run_folder(out_dir: str | os.PathLike, overwrite: bool = False) -> None:
@@ -103,27 +132,47 @@ def check_run_folder(out_dir: str | os.PathLike, overwrite: bool = False) -> Non
     Raises
     ------
     FileExistsError
-        ``out_dir`` is a file, or a non-empty folder and ``overwrite`` is False.
+        ``out_dir`` is a file, or a non-empty folder and ``overwrite`` is False, or another live
+        run is writing to it (even with ``overwrite``).
     """
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise FileExistsError(f"run folder {str(out_dir)!r} exists and is a file; choose another --out folder.")
-    if out_dir.is_dir() and any(out_dir.iterdir()) and not overwrite:
+    if out_dir.is_dir() and _occupants(out_dir) and not overwrite:
         raise FileExistsError(
             f"run folder {str(out_dir)!r} already exists and is not empty; choose a new folder "
             "or pass overwrite=True (CLI: --overwrite) to replace its results."
         )
 
 
-def _prepare_out_dir(out_dir: Path, overwrite: bool) -> None:
+def _prepare_out_dir(out_dir: Path, overwrite: bool) -> Path:
+    """Check, then atomically claim the folder (a lock file) and check again under the claim:
+    two runs started at once into one folder cannot both pass. Returns the lock file."""
+    from ._claims import claim, release
+
     check_run_folder(out_dir, overwrite)
-    if out_dir.is_dir() and any(out_dir.iterdir()):
-        # Remove the previous run's files so no stale predictions_<old method>.csv is left behind;
-        # anything else the user put there is kept.
-        for pattern in _RUN_FILE_PATTERNS:
-            for old in out_dir.glob(pattern):
-                old.unlink()
     out_dir.mkdir(parents=True, exist_ok=True)
+    lock = claim(out_dir, _LOCK_NAME)
+    try:
+        # Under the claim every temporary here is a dead writer's.
+        for pattern in (".metrics.*.tmp", ".predictions_*.tmp"):
+            for stale in out_dir.glob(pattern):
+                stale.unlink()
+        occupants = _occupants(out_dir)
+        if occupants and not overwrite:
+            raise FileExistsError(
+                f"run folder {str(out_dir)!r} was filled by another run meanwhile; choose a new folder "
+                "or pass overwrite=True (CLI: --overwrite).")
+        if occupants:
+            # Remove the previous run's files so no stale predictions_<old method>.csv is left behind;
+            # anything else the user put there is kept.
+            for pattern in _RUN_FILE_PATTERNS:
+                for old in out_dir.glob(pattern):
+                    old.unlink()
+    except BaseException:
+        release(lock)
+        raise
+    return lock
 
 
 def _fmt(value: float | int | None) -> str:
@@ -133,11 +182,27 @@ def _fmt(value: float | int | None) -> str:
 
 
 def _atomic_write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename: a reader (or a crash)
-    sees the old file or the new one, never half of one."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
+    """Write ``text`` to ``path`` through a uniquely named temporary and a rename: a reader (or a
+    crash, or a full disk) sees the old file or the new one, never half of one, and a failed
+    write leaves no temporary behind."""
+    import tempfile
+
+    from ._claims import temp_prefix
+
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=temp_prefix(path.name), suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        if isinstance(exc, OSError):
+            raise OSError(exc.errno, f"could not write {str(path)!r} ({exc.strerror or exc}); the rows finished "
+                                     "before are kept in the run folder") from None
+        raise
 
 
 def _csv_text(results: Sequence[EvaluationResult]) -> str:
@@ -188,7 +253,7 @@ class RunWriter:
     def __init__(self, out_dir: str | os.PathLike, *, command: str | Sequence[str] | None = None,
                  extra: Mapping[str, Any] | None = None, overwrite: bool = False) -> None:
         self.out_dir = Path(out_dir)
-        _prepare_out_dir(self.out_dir, overwrite)
+        self._lock: Path | None = _prepare_out_dir(self.out_dir, overwrite)
         self.meta = run_metadata(command)
         if extra:
             self.meta["extra"] = _jsonable(dict(extra))
@@ -221,18 +286,31 @@ class RunWriter:
             if r.ranked is not None and r.ranked.shape[1] > 1:
                 columns.append(r.ranked)
                 names += [f"rank_{j + 1}" for j in range(r.ranked.shape[1])]
-            np.savetxt(path, np.column_stack(columns), fmt="%d", delimiter=",", header=",".join(names), comments="")
+            buffer = io.StringIO()
+            np.savetxt(buffer, np.column_stack(columns), fmt="%d", delimiter=",", header=",".join(names), comments="")
+            _atomic_write_text(path, buffer.getvalue())
             self.predictions[r.name] = path
+
+    def close(self) -> None:
+        """Release the claim on the run folder (done by :meth:`finish`; a crashed run's claim is
+        released when its process is gone)."""
+        from ._claims import release
+
+        release(self._lock)
+        self._lock = None
 
     def finish(self, results: Sequence[EvaluationResult], *, plots: bool = True, title: str | None = None) -> "RunReport":
         """Write the final metrics (``"complete": true``) and the plots; return what was written."""
         results = list(results)
-        self.write(results, complete=True)
-        measured = [r for r in results if r.ok]
-        if plots and measured:
-            from . import plots as _plots
+        try:
+            self.write(results, complete=True)
+            measured = [r for r in results if r.ok]
+            if plots and measured:
+                from . import plots as _plots
 
-            self.plots = _plots.plot_run(measured, self.out_dir, title=title)
+                self.plots = _plots.plot_run(measured, self.out_dir, title=title)
+        finally:
+            self.close()
         return RunReport(self.out_dir, self.metrics_json, self.metrics_csv, dict(self.predictions), list(self.plots))
 
 

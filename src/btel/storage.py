@@ -29,6 +29,7 @@ import numpy as np
 
 from .exceptions import (BudgetExceededError, DataNotFoundError, InvalidParameterError, ModelFileError,
                          UnsupportedModelVersionError)
+from ._claims import remove_stale_temporaries, temp_prefix
 from .limits import open_regular
 
 __all__ = [
@@ -162,7 +163,10 @@ def save_arrays(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], heade
             break
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        fd, tmp_name = tempfile.mkstemp(dir=folder, prefix=f".{path.name}.", suffix=".part")
+        # Temporaries of saves that were killed (SIGKILL, power cut) are removed by the next save
+        # to the same name: their names carry the writer's process id.
+        remove_stale_temporaries(folder, path.name, ".part")
+        fd, tmp_name = tempfile.mkstemp(dir=folder, prefix=temp_prefix(path.name), suffix=".part")
     except OSError as exc:
         raise ModelFileError(f"cannot save to {str(path)!r}: {exc.strerror or exc}.") from exc
     tmp = Path(tmp_name)

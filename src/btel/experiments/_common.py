@@ -27,6 +27,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
@@ -214,10 +215,18 @@ class ModelCache:
         self._memory[key] = (model, fit_s)
         if self.folder is not None and fit_s >= self.min_fit_seconds:
             self.folder.mkdir(parents=True, exist_ok=True)
-            tmp = self.folder / f"{key}.tmp.btel.npz"
-            model.save(tmp)
-            os.replace(tmp, self.folder / f"{key}.btel.npz")
-            (self.folder / f"{key}.json").write_text(json.dumps({**description, "fit_s": fit_s}, default=str) + "\n")
+            # model.save writes a temporary of a unique name and renames it (concurrent puts of one
+            # key cannot collide: the last rename wins); the metadata goes the same way.
+            model.save(self.folder / f"{key}.btel.npz")
+            fd, tmp = tempfile.mkstemp(dir=self.folder, prefix=f".{key}.json.", suffix=".tmp")
+            try:
+                with os.fdopen(fd, "w", encoding="utf-8") as fh:
+                    fh.write(json.dumps({**description, "fit_s": fit_s}, default=str) + "\n")
+                os.replace(tmp, self.folder / f"{key}.json")
+            except BaseException:
+                with contextlib.suppress(OSError):
+                    os.unlink(tmp)
+                raise
 
     def fit(self, name: str, params: dict[str, Any], X: np.ndarray) -> tuple[Any, float, bool]:
         """(fitted model, fit seconds, from the cache?) of ``make_method(name, **params)`` on X.
