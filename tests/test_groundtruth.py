@@ -164,7 +164,7 @@ def test_from_file_errors(tmp_path: Path) -> None:
     with pytest.raises(DataNotFoundError, match="found a str where place indices"):
         GroundTruth.from_file(tmp_path / "obj.npy")
     (tmp_path / "junk.mat").write_bytes(b"not a mat file at all")
-    with pytest.raises(DataNotFoundError, match="loadmat"):
+    with pytest.raises(DataNotFoundError, match="not a MATLAB v5/v7 file"):
         GroundTruth.from_file(tmp_path / "junk.mat")
 
 

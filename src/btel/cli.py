@@ -20,6 +20,7 @@ import shlex
 import sys
 import time
 import warnings
+import zipfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -31,7 +32,10 @@ import numpy as np
 from . import __version__
 from .exceptions import BTELError, InvalidParameterError
 
-_EXPECTED_ERRORS = (BTELError, OSError, ValueError)
+#: Errors that end a command with one line and exit 1. Besides btel's own: what a hostile or damaged
+#: input file can still raise from a library (zip, csv, deep nesting, huge numbers, missing keys).
+_EXPECTED_ERRORS = (BTELError, OSError, ValueError, zipfile.BadZipFile, csv.Error, RecursionError, OverflowError,
+                    LookupError, MemoryError, EOFError)
 #: Exit status of a finished evaluate/demo run in which some method did not fit or failed.
 EXIT_SOME_ROWS_FAILED = 3
 
@@ -56,6 +60,8 @@ class _Group(click.Group):
             if os.environ.get("BTEL_DEBUG"):
                 raise
             message = str(exc) or type(exc).__name__
+            if not isinstance(exc, (BTELError, OSError, ValueError)):  # a library's error: say which
+                message = f"{type(exc).__name__}: {message}"
             raise click.ClickException(message.splitlines()[0] if len(message) > 2000 else message) from exc
 
 

@@ -12,15 +12,15 @@ from __future__ import annotations
 import csv
 import os
 import re
-import zipfile
+import struct
 from array import array as _IntBuffer
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..exceptions import BTELError, DataNotFoundError, InvalidParameterError
-from ..limits import check_bytes, check_count, check_numpy_file, open_regular
+from ..exceptions import BTELError, DataNotFoundError, InvalidParameterError, ResourceLimitError
+from ..limits import check_bytes, check_count, check_numpy_file, memory_limit, open_regular
 
 __all__ = ["read_object_npy", "read_ground_truth"]
 
@@ -64,7 +64,7 @@ def read_object_npy(path: str | os.PathLike) -> np.ndarray:
             read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
                            else np.lib.format.read_array_header_2_0)
             shape, _fortran, dtype = read_header(fh)
-        except (ValueError, SyntaxError, TypeError, OverflowError, RecursionError, MemoryError) as exc:
+        except Exception as exc:  # numpy's header parser raises ValueError, SyntaxError, TokenError…
             raise DataNotFoundError(f"{str(path)!r} is not an .npy file ({str(exc)[:200]}).") from None
         if not dtype.hasobject:
             raise DataNotFoundError(f"{str(path)!r} holds a plain {dtype} array, not an object array.")
@@ -116,8 +116,7 @@ def read_ground_truth(cls: Any, path: str | os.PathLike) -> Any:
         return _read(cls, path)
     except BTELError:
         raise
-    except (ValueError, TypeError, OverflowError, LookupError, RecursionError, MemoryError, OSError, EOFError,
-            zipfile.BadZipFile, csv.Error, UnicodeError) as exc:
+    except Exception as exc:  # untrusted input: zlib.error, tokenize's TokenError, _csv.Error… all mean a bad file
         raise DataNotFoundError(
             f"ground-truth file {str(path)!r} could not be read ({type(exc).__name__}: {str(exc)[:200]}).") from None
 
@@ -217,42 +216,151 @@ def _from_csv(cls: Any, path: Path) -> Any:
     return cls.from_csr(indptr, np.frombuffer(places, dtype=np.int64)[order])
 
 
+#: MAT-file v5 data types (miINT8 … miUTF32); scipy's C reader indexes tables by this number.
+_MAT5_TYPES = frozenset({1, 2, 3, 4, 5, 6, 7, 9, 12, 13, 14, 15, 16, 17, 18})
+_MAT5_MAX_DEPTH = 32
+
+
+def _check_mat5(data: bytes, source: str) -> None:
+    """Walk a MATLAB v5 file's element tags (inflating compressed elements within the memory
+    limit) and refuse unknown data types or sizes past the end before scipy reads it: scipy's C
+    reader crashed the process (SIGSEGV) on a 304-byte file with one flipped bit in a type."""
+    import zlib
+
+    if len(data) < 128 or data[126:128] not in (b"IM", b"MI"):
+        raise DataNotFoundError(f"{source} is not a MATLAB v5/v7 file (v4 and v7.3 files are not read); "
+                                "re-save it with -v7 or convert it to .npz.")
+    order = "<" if data[126:128] == b"IM" else ">"
+    budget = [0]
+
+    def walk(buf: bytes, depth: int) -> None:
+        if depth > _MAT5_MAX_DEPTH:
+            raise DataNotFoundError(f"{source}: MATLAB elements nested more than {_MAT5_MAX_DEPTH} deep.")
+        pos = 0
+        while pos + 8 <= len(buf):
+            mdtype, nbytes = struct.unpack_from(order + "II", buf, pos)
+            if mdtype >> 16:  # small data element: type and size in one word, data in the next
+                mdtype, nbytes, start, end = mdtype & 0xFFFF, mdtype >> 16, pos + 4, pos + 8
+                if nbytes > 4:
+                    raise DataNotFoundError(f"{source}: a small MATLAB element claims {nbytes} bytes.")
+            else:
+                start, end = pos + 8, pos + 8 + nbytes + (-nbytes % 8 if mdtype != 15 else 0)
+            if mdtype not in _MAT5_TYPES:
+                raise DataNotFoundError(f"{source}: unknown MATLAB data type {mdtype} at byte {pos}; the file is damaged.")
+            if start + nbytes > len(buf):
+                raise DataNotFoundError(f"{source}: a MATLAB element at byte {pos} runs past the end of its data.")
+            body = buf[start:start + nbytes]
+            if mdtype == 15:
+                inflater = zlib.decompressobj()
+                room = max(0, memory_limit() - budget[0])
+                try:
+                    inner = inflater.decompress(body, room + 1)
+                except zlib.error as exc:
+                    raise DataNotFoundError(f"{source}: a compressed MATLAB element is damaged ({exc}).") from None
+                budget[0] += len(inner)
+                check_bytes(budget[0] if len(inner) <= room else float("inf"), f"MATLAB file {source} (inflated)")
+                walk(inner, depth + 1)
+            elif mdtype == 14:
+                walk(body, depth + 1)
+            pos = max(end, pos + 8)
+
+    walk(data[128:], 0)
+
+
 def _from_mat(cls: Any, path: Path) -> Any:
+    """A MATLAB file, parsed by scipy in a child process: scipy's C reader is not memory-safe on
+    damaged files (a SIGSEGV on 304 bytes with one flipped bit), so a crash there must not take
+    btel down. The child hands back plain numeric arrays only (an ``.npz`` read without pickles)."""
+    import subprocess
+    import sys
+    import tempfile
+
+    source = repr(str(path))
+    with open_regular(path) as fh:
+        check_bytes(os.fstat(fh.fileno()).st_size, f"MATLAB ground-truth file {source}")
+        _check_mat5(fh.read(), source)
+    package_root = str(Path(__file__).resolve().parents[2])
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([package_root, os.environ.get("PYTHONPATH", "")])}
+    limit = memory_limit()
+
+    def cap_memory() -> None:  # the child may use the limit plus the interpreter's own share
+        import resource
+
+        cap = limit * 3 + (1 << 30)
+        resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
+
+    with tempfile.TemporaryDirectory(prefix="btel-mat-") as tmp:
+        out = Path(tmp) / "arrays.npz"
+        proc = subprocess.run(
+            [sys.executable, "-c", "from btel.datasets.groundtruth_files import _mat_child; _mat_child()",
+             str(path), str(out)], env=env, capture_output=True, text=True, timeout=600,
+            preexec_fn=cap_memory if os.name == "posix" else None)
+        message = (proc.stderr.strip().splitlines() or [""])[-1][:400]
+        if proc.returncode == 4:
+            raise ResourceLimitError(message)
+        if proc.returncode == 3:
+            raise DataNotFoundError(message)
+        if proc.returncode != 0 or not out.is_file():
+            raise DataNotFoundError(
+                f"{source} could not be read by scipy.io.loadmat (its reader ended with status {proc.returncode}); "
+                "the file is damaged. MATLAB v7.3 files are HDF5: re-save with -v7 or convert to .npz.")
+        check_numpy_file(out, f"MATLAB ground-truth file {source}")
+        with np.load(out, allow_pickle=False) as npz:
+            arrays = {name: npz[name] for name in npz.files}
+    return _from_arrays(cls, arrays, source)
+
+
+def _mat_child() -> None:
+    """Child process of :func:`_from_mat`: ``argv[1]`` .mat → ``argv[2]`` .npz of numeric arrays.
+    Exit 3 with a message on stderr for a bad file, 4 for the memory limit."""
+    import sys
+
     import scipy.io
 
-    with open_regular(path):
-        pass
-    try:
-        declared = scipy.io.whosmat(path)
-    except Exception as exc:  # scipy raises several types for non-MATLAB or v7.3 (HDF5) files
-        raise DataNotFoundError(
-            f"{str(path)!r} could not be read by scipy.io.loadmat ({type(exc).__name__}: {str(exc)[:200]}). "
-            "MATLAB v7.3 files are HDF5: re-save with -v7 or convert to .npz.") from None
-    total = sum(float(np.prod([float(s) for s in shape])) * 8 for _, shape, _ in declared)
-    check_bytes(total, f"MATLAB ground-truth file {str(path)!r}")
-    try:
-        mat = scipy.io.loadmat(path)
-    except Exception as exc:
-        raise DataNotFoundError(
-            f"{str(path)!r} could not be read by scipy.io.loadmat ({type(exc).__name__}: {str(exc)[:200]}). "
-            "MATLAB v7.3 files are HDF5: re-save with -v7 or convert to .npz.") from None
+    path, out = Path(sys.argv[1]), sys.argv[2]
     source = repr(str(path))
-    if all(k in mat for k in _UTM_KEYS):
-        return cls.from_utm(mat["utmDb"], mat["utmQ"], _scalar(mat["posDistThr"], "posDistThr", source))
-    if "dbStruct" in mat:
-        struct = mat["dbStruct"]
-        names = struct.dtype.names or ()
-        if not all(k in names for k in _UTM_KEYS) or struct.size != 1:
+    try:
+        try:
+            declared = scipy.io.whosmat(path)
+        except Exception as exc:  # scipy raises several types for non-MATLAB or v7.3 (HDF5) files
             raise DataNotFoundError(
-                f"{source} has a dbStruct with fields {list(names)[:10]}; expected one struct with NetVLAD's utmDb, "
-                "utmQ and posDistThr.")
-        fields = {k: struct[k].reshape(-1)[0] for k in _UTM_KEYS}
-        # NetVLAD stores positions as 2×n (one column per image).
-        return cls.from_utm(np.asarray(fields["utmDb"]).T, np.asarray(fields["utmQ"]).T,
-                            _scalar(fields["posDistThr"], "posDistThr", source))
-    arrays = {k: v for k, v in mat.items() if not k.startswith("__")}
-    # MATLAB has no 1-D arrays: vectors come back as 1×n or n×1.
-    for key in ("query_places", "indptr", "indices"):
-        if key in arrays:
-            arrays[key] = np.asarray(arrays[key]).ravel()
-    return _from_arrays(cls, arrays, source)
+                f"{source} could not be read by scipy.io.loadmat ({type(exc).__name__}: {str(exc)[:200]}). "
+                "MATLAB v7.3 files are HDF5: re-save with -v7 or convert to .npz.") from None
+        total = sum(float(np.prod([float(s) for s in shape])) * 8 for _, shape, _ in declared)
+        check_bytes(total, f"MATLAB ground-truth file {source}")
+        try:
+            mat = scipy.io.loadmat(path)
+        except Exception as exc:
+            raise DataNotFoundError(
+                f"{source} could not be read by scipy.io.loadmat ({type(exc).__name__}: {str(exc)[:200]}).") from None
+        arrays: dict[str, np.ndarray] = {}
+        if "dbStruct" in mat and not all(k in mat for k in _UTM_KEYS):
+            struct_ = mat["dbStruct"]
+            names = struct_.dtype.names or ()
+            if not all(k in names for k in _UTM_KEYS) or struct_.size != 1:
+                raise DataNotFoundError(
+                    f"{source} has a dbStruct with fields {list(names)[:10]}; expected one struct with NetVLAD's "
+                    "utmDb, utmQ and posDistThr.")
+            fields = {k: np.asarray(struct_[k].reshape(-1)[0]) for k in _UTM_KEYS}
+            # NetVLAD stores positions as 2×n (one column per image).
+            arrays = {"utmDb": fields["utmDb"].T, "utmQ": fields["utmQ"].T, "posDistThr": fields["posDistThr"]}
+        else:
+            arrays = {k: np.asarray(v) for k, v in mat.items() if not k.startswith("__")}
+            # MATLAB has no 1-D arrays: vectors come back as 1×n or n×1.
+            for key in ("query_places", "indptr", "indices"):
+                if key in arrays:
+                    arrays[key] = arrays[key].ravel()
+        plain = {k: v for k, v in arrays.items() if v.dtype.kind in "biuf" and not v.dtype.hasobject}
+        for key in (*_UTM_KEYS, *_CSR_KEYS, "query_places", "n_map"):
+            if key in arrays and key not in plain:
+                raise DataNotFoundError(f"{source}: {key} holds {arrays[key].dtype} values, not numbers.")
+        np.savez(out, **plain)
+    except ResourceLimitError as exc:
+        sys.stderr.write(f"{exc}\n")
+        sys.exit(4)
+    except BTELError as exc:
+        sys.stderr.write(f"{exc}\n")
+        sys.exit(3)
+    except Exception as exc:  # untrusted input: anything else is a bad file too
+        sys.stderr.write(f"{source} could not be read ({type(exc).__name__}: {str(exc)[:200]}).\n")
+        sys.exit(3)

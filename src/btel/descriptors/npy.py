@@ -16,7 +16,6 @@ Row i is the global descriptor of image (place) i. Formats:
 from __future__ import annotations
 
 import os
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -106,9 +105,9 @@ def load_descriptor_matrix(
                 "that can run code. Save the descriptors as a numeric array: np.save(path, X.astype('float32'))."
             ) from exc
         raise InvalidDescriptorsError(f"{str(path)!r} is not a valid .npy file: {exc}") from exc
-    except (OSError, EOFError, zipfile.BadZipFile) as exc:
+    except Exception as exc:  # OSError, EOFError, BadZipFile, zlib.error, tokenize's TokenError…: a bad file
         raise InvalidDescriptorsError(
-            f"{str(path)!r} is not a readable .npy/.npz file ({type(exc).__name__}: {exc})."
+            f"{str(path)!r} is not a readable .npy/.npz file ({type(exc).__name__}: {str(exc)[:200]})."
         ) from exc
 
     if isinstance(loaded, np.lib.npyio.NpzFile):

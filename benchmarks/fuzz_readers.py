@@ -1,0 +1,458 @@
+"""Fuzz every reader of untrusted input besides model files (issue 20).
+
+Readers: ground truth as VPR-Bench pickled object arrays (``gt_pickle``), ``.npz`` (``gt_npz``),
+CSV (``gt_csv``) and MATLAB (``gt_mat``); hloc HDF5 descriptors (``hdf5``); ``.npy``/``.npz``
+descriptor matrices (``desc_npy``); saved image-descriptor files, loaded and applied to one
+small image (``desc_file``). Each reader has seeds — legitimate files and the crafted hostile
+files of issue 20 (object pointers, allocation and nesting bombs, huge CSV indices, identical
+positions, zip bombs, external storage, virtual datasets, huge descriptor parameters) — and each
+case is one seed with one seeded mutation (bit flips, truncation, overwritten / deleted /
+duplicated / inserted bytes, and for text formats token edits: huge or odd numbers, quotes, long
+fields).
+
+A case runs in a worker process (imports done once). It **passes** when the reader returns or
+raises a btel error (:class:`~btel.exceptions.BTELError`). It **fails** on any other exception
+(a generic error), no answer within ``--timeout`` seconds (a hang: the worker is killed and
+restarted), the worker's death (a crash), or the worker's peak resident memory above 1 GiB.
+
+Run (writes ``benchmarks/results/fuzz_readers.json``)::
+
+    python benchmarks/fuzz_readers.py --cases 20000 --seed 0            # per reader
+    python benchmarks/fuzz_readers.py --cases 200 --readers gt_csv,hdf5
+
+``--case READER:ID`` reruns one case in this process with its traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import os
+import pickle
+import random
+import resource
+import select
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+import traceback
+import zipfile
+from collections import Counter
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+READERS = ("gt_pickle", "gt_npz", "gt_csv", "gt_mat", "hdf5", "desc_npy", "desc_file")
+SUFFIX = {"gt_pickle": ".npy", "gt_npz": ".npz", "gt_csv": ".csv", "gt_mat": ".mat", "hdf5": ".h5",
+          "desc_npy": ".npz", "desc_file": ".btel"}
+MAX_RSS_BYTES = 1 << 30
+RESULTS = Path(__file__).resolve().parent / "results" / "fuzz_readers.json"
+
+
+# ----------------------------------------------------------------------------------------- seeds
+def _npy_bytes(array: np.ndarray, protocol: int | None = None) -> bytes:
+    buffer = io.BytesIO()
+    if protocol is None:
+        np.save(buffer, array, allow_pickle=array.dtype == object)
+    else:
+        np.lib.format.write_array_header_1_0(buffer, {"descr": "|O", "fortran_order": False, "shape": array.shape})
+        pickle.dump(array, buffer, protocol=protocol)
+    return buffer.getvalue()
+
+
+def _u(text: str) -> bytes:
+    raw = text.encode()
+    return b"X" + struct.pack("<I", len(raw)) + raw
+
+
+def _obj_header(shape: tuple[int, ...]) -> bytes:
+    buffer = io.BytesIO()
+    np.lib.format.write_array_header_1_0(buffer, {"descr": "|O", "fortran_order": False, "shape": shape})
+    return buffer.getvalue()
+
+
+def _vpr(positives: list[list[int]], dtype: str = "int64") -> np.ndarray:
+    array = np.empty((len(positives), 2), dtype=object)
+    for q, places in enumerate(positives):
+        array[q, 0] = np.int64(q)
+        array[q, 1] = np.asarray(places, dtype=dtype)
+    return array
+
+
+def _npz_bytes(**arrays: np.ndarray) -> bytes:
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    return buffer.getvalue()
+
+
+def seeds_gt_pickle() -> list[bytes]:
+    out = []
+    for protocol in (2, 3, 4, 5):
+        out.append(_npy_bytes(_vpr([[0, 1], [], [2, 3, 4]]), protocol))
+    out.append(_npy_bytes(_vpr([[5], [1, 2]], ">u2"), 2))
+    flat = np.empty(2, dtype=object)
+    flat[0], flat[1] = [3, 4], np.array([0, 1], dtype=np.int32)
+    out.append(_npy_bytes(flat, 3))
+    # Crafted: ndarray over file bytes (an object pointer), an allocation bomb, a nested-list bomb.
+    out.append(_obj_header((1,)) + b"\x80\x02cnumpy\nndarray\nK\x01\x85" + _u("O") + b"C\x08"
+               + struct.pack("<Q", 0x4141414141) + b"\x87R.")
+    out.append(_obj_header((1,)) + b"\x80\x02cnumpy\nndarray\nJ" + struct.pack("<i", 10**8) + b"\x85" + _u("i8")
+               + b"\x86R.")
+    one = np.empty(1, dtype=object)
+    one[0] = [7777777]
+    template = pickle.dumps(one, protocol=2)
+    sentinel = b"J" + struct.pack("<i", 7777777) + b"a"
+    start = template.index(sentinel) - 3
+    body = b"]r" + struct.pack("<I", 1000) + b"K\x01a"
+    for level in range(1, 23):
+        prev = struct.pack("<I", 999 + level)
+        body += b"0(j" + prev + b"j" + prev + b"lr" + struct.pack("<I", 1000 + level)
+    out.append(_obj_header((1,)) + template[:start] + body + template[start + 3 + len(sentinel):])
+    out.append(_obj_header((1, 2)) + b"\x80\x02cos\nsystem\n" + _u("true") + b"\x85R.")
+    return out
+
+
+def seeds_gt_npz() -> list[bytes]:
+    utm = np.zeros((20000, 2))
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, utmDb=utm, utmQ=utm, posDistThr=np.float64(0.0))
+    rng = np.random.default_rng(0)
+    out = [
+        _npz_bytes(query_places=np.array([2, 0, 1]), n_map=np.int64(3)),
+        _npz_bytes(indptr=np.array([0, 2, 2, 3]), indices=np.array([1, 3, 0]), n_map=np.int64(5)),
+        _npz_bytes(utmDb=rng.uniform(0, 50, (40, 2)), utmQ=rng.uniform(0, 50, (10, 2)), posDistThr=np.float64(5.0)),
+        _npz_bytes(utmDb=np.zeros((3, 2)), utmQ=np.zeros((2, 2)), posDistThr=np.array([1.0, 2.0])),
+        buffer.getvalue(),
+    ]
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<f8", "fortran_order": False, "shape": (250_000_000, 2)})
+    zbuffer = io.BytesIO()
+    with zipfile.ZipFile(zbuffer, "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("utmDb.npy", header.getvalue() + b"\0" * 64)
+        zf.writestr("utmQ.npy", _npy_bytes(np.zeros((2, 2))))
+        zf.writestr("posDistThr.npy", _npy_bytes(np.float64(1.0)))
+    out.append(zbuffer.getvalue())
+    return out
+
+
+def seeds_gt_csv() -> list[bytes]:
+    return [b"query,positive\n0,5\n0,6\n2,7\n", b"query,positives\n0,5 6\n1,\n2,7;8\n",
+            b"query,positive\n1000000000000,1\n", b"query,positive\n0,1_0\n", "query,positive\n0,\u0661\n".encode(),
+            b'query,positives\n0,"' + b"1 " * 70000 + b'"\n']
+
+
+def seeds_gt_mat() -> list[bytes]:
+    import scipy.io
+
+    out = []
+    utm_db = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 0.0]])
+    utm_q = np.array([[9.0, 0.0], [21.0, 0.0]])
+    for mdict, compress in (({"utmDb": utm_db, "utmQ": utm_q, "posDistThr": 5.0}, False),
+                            ({"dbStruct": {"utmDb": utm_db.T, "utmQ": utm_q.T, "posDistThr": 5.0}}, True),
+                            ({"indptr": np.array([0, 1, 3]), "indices": np.array([2, 0, 1])}, False),
+                            ({"utmDb": np.zeros((20000, 2)), "utmQ": np.zeros((20000, 2)), "posDistThr": 0.0}, True)):
+        buffer = io.BytesIO()
+        scipy.io.savemat(buffer, mdict, do_compression=compress)
+        out.append(buffer.getvalue())
+    return out
+
+
+def seeds_hdf5(folder: Path) -> list[bytes]:
+    import h5py
+
+    out = []
+    secret = folder / "secret.bin"
+    secret.write_bytes(np.arange(64, dtype=np.float32).tobytes())
+    rng = np.random.default_rng(0)
+
+    def build(fill: Callable[[Any], None]) -> bytes:
+        path = folder / "seed.h5"
+        with h5py.File(path, "w") as fh:
+            fill(fh)
+        return path.read_bytes()
+
+    def hloc(fh: Any, compression: str | None = None) -> None:
+        for i in range(4):
+            fh.create_group(f"db/{i}.jpg").create_dataset("global_descriptor", data=rng.normal(size=8).astype("f4"),
+                                                          compression=compression)
+
+    out.append(build(hloc))
+    out.append(build(lambda fh: hloc(fh, "gzip")))
+    out.append(build(lambda fh: fh.create_group("a").create_dataset(
+        "global_descriptor", shape=(16,), dtype="f4", external=[(str(secret), 0, 64)])))
+    out.append(build(lambda fh: fh.create_group("a").create_dataset(
+        "global_descriptor", shape=(250_000_000,), dtype="f4", chunks=(1_000_000,), fillvalue=1.0)))
+    out.append(build(lambda fh: fh.create_group("a").create_dataset("global_descriptor", shape=(3,), dtype="S8")))
+    return out
+
+
+def seeds_desc_npy() -> list[bytes]:
+    X = np.random.default_rng(0).normal(size=(6, 8)).astype(np.float32)
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as zf:
+        with zf.open("X.npy", "w", force_zip64=True) as member:
+            np.lib.format.write_array_header_1_0(member, {"descr": "<f4", "fortran_order": False,
+                                                          "shape": (10_000_000, 8)})
+            member.write(b"\0" * (1 << 20))
+    return [_npz_bytes(X=X), buffer.getvalue(), _npz_bytes(a=X, b=X[:2])]
+
+
+def seeds_desc_file(folder: Path) -> list[bytes]:
+    from btel.descriptors import get_descriptor
+
+    rng = np.random.default_rng(0)
+    images = [rng.integers(0, 255, size=(96, 128), dtype=np.uint8) for _ in range(6)]
+    out = []
+    for descriptor in (get_descriptor("hog"), get_descriptor("patchnorm"),
+                       get_descriptor("densevlad", n_clusters=4, n_components=3, max_descriptors=2000,
+                                      random_state=0).fit(images)):
+        out.append(descriptor.save(folder / "d.btel").read_bytes())
+    return out
+
+
+# ------------------------------------------------------------------------------------- mutations
+_TOKENS = [b"1000000000000", b"-1", b"1e400", b"nan", b"9" * 40, b"1_0", "\u0661".encode(), b'"', b"\0",
+           b"\xff\xfe", b";;", b",,,,", b"\n" * 3, b"x" * 5000, b"2147483648", b"18446744073709551616"]
+
+
+def mutate(data: bytes, rng: random.Random, text: bool) -> tuple[bytes, str]:
+    """One seeded mutation of ``data``; returns (mutated bytes, description)."""
+    buf = bytearray(data)
+    kinds = ["bitflip", "truncate", "overwrite", "delete", "duplicate", "insert", "int"]
+    if text:
+        kinds += ["token", "token"]
+    kind = rng.choice(kinds)
+    n = len(buf)
+    if n == 0:
+        return bytes(rng.randbytes(rng.randint(1, 64))), "random"
+    if kind == "bitflip":
+        for _ in range(rng.randint(1, 8)):
+            i = rng.randrange(n)
+            buf[i] ^= 1 << rng.randrange(8)
+    elif kind == "truncate":
+        del buf[rng.randrange(n):]
+    elif kind == "overwrite":
+        i = rng.randrange(n)
+        k = rng.randint(1, 16)
+        buf[i:i + k] = rng.randbytes(k)
+    elif kind == "delete":
+        i = rng.randrange(n)
+        del buf[i:i + rng.randint(1, 64)]
+    elif kind == "duplicate":
+        i = rng.randrange(n)
+        span = buf[i:i + rng.randint(1, 256)]
+        j = rng.randrange(n)
+        buf[j:j] = span * rng.randint(1, 8)
+    elif kind == "insert":
+        j = rng.randrange(n + 1)
+        buf[j:j] = rng.randbytes(rng.randint(1, 32))
+    elif kind == "int":  # a 1/2/4/8-byte little-endian integer set to an extreme value
+        width = rng.choice([1, 2, 4, 8])
+        i = rng.randrange(max(1, n - width))
+        value = rng.choice([0, 1, 2**(8 * width - 1) - 1, 2**(8 * width) - 1, 2**(8 * width - 2), 255])
+        buf[i:i + width] = (value % 2**(8 * width)).to_bytes(width, "little")
+    else:  # token: replace a run of digits (or any byte) by an odd token
+        digits = [i for i, b in enumerate(buf) if 48 <= b <= 57]
+        i = rng.choice(digits) if digits else rng.randrange(n)
+        j = i
+        while j < n and 48 <= buf[j] <= 57:
+            j += 1
+        buf[i:max(j, i + 1)] = rng.choice(_TOKENS)
+    return bytes(buf), kind
+
+
+def make_case(reader: str, seed: int, case_id: int, seeds: list[bytes]) -> tuple[bytes, str]:
+    rng = random.Random(f"{seed}:{reader}:{case_id}")
+    base = rng.randrange(len(seeds))
+    if case_id < len(seeds):  # every seed is a case as it is
+        return seeds[case_id], f"seed {case_id}"
+    data, kind = seeds[base], ""
+    for _ in range(rng.choice([1, 1, 1, 2, 3])):
+        data, k = mutate(data, rng, text=reader == "gt_csv")
+        kind += ("+" if kind else "") + k
+    return data, f"seed {base} {kind}"
+
+
+# ---------------------------------------------------------------------------------------- worker
+def run_reader(reader: str, path: str) -> str:
+    """Run one reader on ``path``; return a short outcome (raises what the reader raises)."""
+    if reader.startswith("gt_"):
+        from btel.datasets import GroundTruth
+
+        gt = GroundTruth.from_file(path)
+        return f"ok {gt.kind} {gt.n_queries}"
+    if reader in ("hdf5", "desc_npy"):
+        from btel.descriptors.npy import load_descriptor_matrix
+
+        return f"ok {load_descriptor_matrix(path).shape}"
+    if reader == "desc_file":
+        from btel.descriptors.base import load_descriptor
+
+        descriptor = load_descriptor(path)
+        image = (np.arange(64 * 48, dtype=np.uint8).reshape(48, 64) * 7) % 251
+        X = descriptor.transform([image])
+        if not np.isfinite(X).all():
+            raise AssertionError("non-finite descriptors")
+        return f"ok {X.shape}"
+    raise ValueError(reader)
+
+
+def worker_main() -> None:
+    import warnings
+
+    import btel  # noqa: F401 - imports once
+    from btel.exceptions import BTELError
+
+    warnings.simplefilter("ignore")
+    resource.setrlimit(resource.RLIMIT_AS, (4 << 30, 4 << 30))
+    for line in sys.stdin:
+        reader, path = line.rstrip("\n").split("\t", 1)
+        start = time.perf_counter()
+        try:
+            outcome, error = run_reader(reader, path), ""
+        except BTELError as exc:
+            outcome, error = "refused", f"{type(exc).__name__}: {str(exc)[:160]}"
+        except BaseException as exc:  # noqa: BLE001 - the harness records it as a failure
+            outcome, error = "generic", f"{type(exc).__name__}: {str(exc)[:300]}"
+        rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+        sys.stdout.write(json.dumps({"outcome": outcome, "error": error, "rss": rss,
+                                     "seconds": time.perf_counter() - start}) + "\n")
+        sys.stdout.flush()
+
+
+class Worker:
+    def __init__(self) -> None:
+        env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src")}
+        self.proc = subprocess.Popen([sys.executable, __file__, "--worker"], stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, text=True, env=env, bufsize=1)
+
+    def run(self, reader: str, path: str, timeout: float) -> dict[str, Any]:
+        self.proc.stdin.write(f"{reader}\t{path}\n")
+        self.proc.stdin.flush()
+        ready, _, _ = select.select([self.proc.stdout], [], [], timeout)
+        if not ready:
+            self.kill()
+            return {"outcome": "hang", "error": f"no answer in {timeout} s"}
+        line = self.proc.stdout.readline()
+        if not line:
+            code = self.proc.wait()
+            self.proc = None
+            return {"outcome": "crash", "error": f"worker died (exit {code})"}
+        return json.loads(line)
+
+    def kill(self) -> None:
+        if self.proc is not None:
+            self.proc.kill()
+            self.proc.wait()
+            self.proc = None
+
+    @property
+    def alive(self) -> bool:
+        return self.proc is not None
+
+
+def build_seeds(reader: str, folder: Path) -> list[bytes]:
+    makers = {"gt_pickle": seeds_gt_pickle, "gt_npz": seeds_gt_npz, "gt_csv": seeds_gt_csv, "gt_mat": seeds_gt_mat,
+              "hdf5": lambda: seeds_hdf5(folder), "desc_npy": seeds_desc_npy,
+              "desc_file": lambda: seeds_desc_file(folder)}
+    return makers[reader]()
+
+
+def run_cases(n_cases: int, *, seed: int = 0, readers: tuple[str, ...] = READERS, timeout: float = 10.0,
+              progress: bool = False, deadline: float | None = None) -> dict[str, Any]:
+    """Run ``n_cases`` cases per reader; return the summary (see the module docstring)."""
+    summary: dict[str, Any] = {"seed": seed, "cases_per_reader": n_cases, "readers": {}}
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        worker = Worker()
+        try:
+            for reader in readers:
+                seeds = build_seeds(reader, folder)
+                counts: Counter[str] = Counter()
+                failures: list[dict[str, Any]] = []
+                peak = 0
+                done = 0
+                path = folder / f"case{SUFFIX[reader]}"
+                for case_id in range(n_cases):
+                    if deadline is not None and time.time() > deadline:
+                        break
+                    data, description = make_case(reader, seed, case_id, seeds)
+                    path.write_bytes(data)
+                    if not worker.alive:
+                        worker = Worker()
+                    result = worker.run(reader, str(path), timeout)
+                    outcome = result["outcome"]
+                    if outcome.startswith("ok"):
+                        outcome = "ok"
+                    rss = int(result.get("rss", 0))
+                    peak = max(peak, rss)
+                    if rss > MAX_RSS_BYTES and outcome in ("ok", "refused"):
+                        outcome = "memory"
+                    if rss > MAX_RSS_BYTES:
+                        worker.kill()  # start the next case from a fresh peak
+                    counts[outcome] += 1
+                    done += 1
+                    if outcome not in ("ok", "refused"):
+                        failures.append({"id": case_id, "case": description, "outcome": outcome,
+                                         "error": result.get("error", ""), "bytes": len(data)})
+                    if progress and done % 500 == 0:
+                        print(f"{reader}: {done} cases {dict(counts)}", flush=True)
+                summary["readers"][reader] = {
+                    "cases": done, "seeds": len(seeds), "outcomes": dict(counts),
+                    "failures": len(failures), "failed_cases": failures[:50],
+                    "peak_worker_rss_mib": round(peak / 2**20, 1)}
+                if progress:
+                    print(f"{reader}: done, {done} cases, {dict(counts)}", flush=True)
+        finally:
+            worker.kill()
+    summary["failures"] = sum(r["failures"] for r in summary["readers"].values())
+    return summary
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--cases", type=int, default=2000, help="cases per reader")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--readers", default=",".join(READERS))
+    parser.add_argument("--timeout", type=float, default=10.0)
+    parser.add_argument("--minutes", type=float, default=None, help="stop each run after this long")
+    parser.add_argument("--out", default=str(RESULTS))
+    parser.add_argument("--case", default=None, help="READER:ID — rerun one case here with its traceback")
+    parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.worker:
+        worker_main()
+        return
+    if args.case:
+        reader, case_id = args.case.split(":")
+        with tempfile.TemporaryDirectory() as tmp:
+            data, description = make_case(reader, args.seed, int(case_id), build_seeds(reader, Path(tmp)))
+            path = Path(tmp) / f"case{SUFFIX[reader]}"
+            path.write_bytes(data)
+            print(description, len(data), "bytes")
+            try:
+                print(run_reader(reader, str(path)))
+            except Exception:
+                traceback.print_exc()
+        return
+    readers = tuple(r for r in args.readers.split(",") if r)
+    deadline = None if args.minutes is None else time.time() + 60 * args.minutes
+    start = time.time()
+    summary = run_cases(args.cases, seed=args.seed, readers=readers, timeout=args.timeout, progress=True,
+                        deadline=deadline)
+    summary["seconds"] = round(time.time() - start, 1)
+    summary["command"] = " ".join([Path(sys.executable).name, *sys.argv])
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(summary, indent=2) + "\n")
+    for reader, r in summary["readers"].items():
+        print(f"{reader:10s} {r['cases']:6d} cases  {r['outcomes']}  failures {r['failures']}  "
+              f"peak RSS {r['peak_worker_rss_mib']} MiB")
+    print(f"total failures: {summary['failures']} ({summary['seconds']} s); written to {args.out}")
+
+
+if __name__ == "__main__":
+    main()
