@@ -1,0 +1,44 @@
+"""A short seeded run of the readers' fuzz harness (``benchmarks/fuzz_readers.py``, issue 20).
+
+Every case is a seed file (legitimate or one of issue 20's crafted files) with seeded mutations,
+read in a worker process: it must be read or refused with a btel error — never another
+exception, a hang, a crash or more than 1 GiB. The long run is the documented command
+``python benchmarks/fuzz_readers.py --cases 20000 --seed 0`` (README, "Security").
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+HARNESS_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "fuzz_readers.py"
+
+
+@pytest.fixture(scope="module")
+def harness():
+    spec = importlib.util.spec_from_file_location("fuzz_readers", HARNESS_PATH)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_seeded_fuzz_run_finds_no_failure(harness) -> None:
+    summary = harness.run_cases(25, seed=11, timeout=20.0)
+    assert set(summary["readers"]) == set(harness.READERS)
+    failures = [f"{reader} case {f['id']} ({f['case']}): {f['outcome']} {f['error']}"
+                for reader, r in summary["readers"].items() for f in r["failed_cases"]]
+    assert summary["failures"] == 0, "\n".join(failures[:10])
+    for reader, r in summary["readers"].items():
+        assert r["cases"] == 25 and r["outcomes"].get("refused", 0) > 0, (reader, r["outcomes"])
+        assert r["outcomes"].get("ok", 0) > 0, (reader, r["outcomes"])  # the legitimate seeds are read
+
+
+def test_cases_are_reproducible_and_differ(harness) -> None:
+    seeds = harness.seeds_gt_csv()
+    cases = [harness.make_case("gt_csv", 5, i, seeds) for i in range(30)]
+    assert cases == [harness.make_case("gt_csv", 5, i, seeds) for i in range(30)]
+    assert len({data for data, _ in cases}) > 20
