@@ -93,3 +93,18 @@ def test_load_on_a_fifo_does_not_block(tmp_path: Path) -> None:
             pass
         pytest.fail("btel.load blocked on a FIFO")
     assert isinstance(result[0], ModelFileError) and "not a regular file" in str(result[0])
+
+
+@pytest.mark.skipif(not hasattr(os, "fork"), reason="needs resource limits (POSIX)")
+def test_more_shards_than_open_files_allowed(tmp_path: Path) -> None:
+    """> ~1017 shards failed under `ulimit -n 1024` with 'not a readable .npy' (one open map each)."""
+    folder = tmp_path / "shards"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(300):
+        np.save(folder / f"shard_{i}.npy", rng.normal(size=(2, 4)).astype(np.float32))
+    code = ("import resource, sys; resource.setrlimit(resource.RLIMIT_NOFILE, (128, 128));"
+            "from btel.datasets.shards import load_shards; X = load_shards(sys.argv[1]); print(X.shape)")
+    proc = subprocess.run([sys.executable, "-c", code, str(folder)], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-500:]
+    assert proc.stdout.strip() == "(600, 4)"

@@ -477,7 +477,8 @@ class PlaceLocalizer(BaseEstimator, ABC):
             unknown = set(options) - {"window"}
             if unknown:
                 raise InvalidParameterError(f"decoder='median' takes only window; got {sorted(unknown)}.")
-            return filter_sequence(self.predict(Q), options.get("window", 5), n_places=int(self.n_places_))
+            return self._check_answers(
+                filter_sequence(self.predict(Q), options.get("window", 5), n_places=int(self.n_places_)))
         if decoder == "hmm":
             from .sequence_decoding import HMM_OPTIONS, HMMDecoder, zscore_rows
 
@@ -492,7 +493,7 @@ class PlaceLocalizer(BaseEstimator, ABC):
             for start, _, block in self._score_blocks(Qt):
                 for j, scores in enumerate(zscore_rows(block)):
                     out[start + j] = decoder_.update(scores)
-            return out
+            return self._check_answers(out)
         raise InvalidParameterError(f"decoder must be 'hmm' or 'median'; got {decoder!r}.")
 
     # -- storage and files --------------------------------------------------------------------------

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..exceptions import DataNotFoundError, DimensionMismatchError
+from ..exceptions import DataNotFoundError, DimensionMismatchError, InvalidDescriptorsError
 from .traverses import natural_key
 
 __all__ = ["list_shards", "load_shards"]
@@ -94,15 +94,21 @@ def load_shards(
     shards = list_shards(folder)
     if len(shards) == 1:
         return load_descriptor_matrix(shards[0], mmap_mode="r")
-    parts = [load_descriptor_matrix(p, mmap_mode="r") for p in shards]
-    d = parts[0].shape[1]
-    for path, part in zip(shards, parts):
-        if part.shape[1] != d:
+    # Shapes first, one shard mapped at a time: every open memory map holds a file descriptor, so
+    # thousands of shards mapped at once failed under `ulimit -n 1024`.
+    shapes = []
+    for path in shards:
+        part = load_descriptor_matrix(path, mmap_mode="r")
+        shapes.append(part.shape)
+        del part
+    d = shapes[0][1]
+    for path, shape in zip(shards, shapes):
+        if shape[1] != d:
             raise DimensionMismatchError(
-                f"shard {path.name} has {part.shape[1]} columns but {shards[0].name} has {d}; "
+                f"shard {path.name} has {shape[1]} columns but {shards[0].name} has {d}; "
                 "every shard must hold descriptors of the same dimension."
             )
-    n = sum(part.shape[0] for part in parts)
+    n = sum(shape[0] for shape in shapes)
     if out is not None:
         target = Path(out)
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -115,11 +121,16 @@ def load_shards(
     try:
         merged = np.lib.format.open_memmap(target, mode="w+", dtype=np.float32, shape=(n, d))
         row = 0
-        for part in parts:
+        for path, shape in zip(shards, shapes):
+            part = load_descriptor_matrix(path, mmap_mode="r")
+            if part.shape != shape:
+                raise InvalidDescriptorsError(f"shard {path.name} changed while it was being read.")
             for start in range(0, part.shape[0], _CHUNK_ROWS):
                 block = part[start : start + _CHUNK_ROWS]
                 merged[row : row + block.shape[0]] = block
                 row += block.shape[0]
+                del block  # a view keeps the shard's map (and its file descriptor) open
+            del part
         merged.flush()
         del merged
         X = np.load(target, mmap_mode="r", allow_pickle=False)
