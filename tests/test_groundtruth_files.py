@@ -104,14 +104,22 @@ def test_npz_declared_sizes_are_checked_before_reading(tmp_path: Path) -> None:
 
 
 def test_damaged_npz_and_npy_are_data_errors(tmp_path: Path) -> None:
+    from btel.descriptors.npy import load_descriptor_matrix
+    from btel.exceptions import InvalidDescriptorsError
+
     np.savez(tmp_path / "ok.npz", query_places=np.arange(5))
     data = bytearray((tmp_path / "ok.npz").read_bytes())
     (tmp_path / "cut.npz").write_bytes(bytes(data[: len(data) // 2]))
     (tmp_path / "badzip.npz").write_bytes(b"PK\x03\x04" + b"\0" * 40)
     (tmp_path / "junk.npy").write_bytes(b"\x93NUMPY\x01\x00\x10\x00{'descr': <<<}   \n")
-    for name in ("cut.npz", "badzip.npz", "junk.npy"):
+    central = data.rindex(b"PK\x01\x02")  # 'version needed to extract' 25.5: zipfile's NotImplementedError
+    data[central + 6:central + 8] = (255).to_bytes(2, "little")
+    (tmp_path / "version.npz").write_bytes(bytes(data))
+    for name in ("cut.npz", "badzip.npz", "junk.npy", "version.npz"):
         with pytest.raises(DataNotFoundError):
             GroundTruth.from_file(tmp_path / name)
+        with pytest.raises((InvalidDescriptorsError, DataNotFoundError)):
+            load_descriptor_matrix(tmp_path / name)
 
 
 def test_mat_declared_sizes_are_checked(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
