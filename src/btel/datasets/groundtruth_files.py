@@ -279,8 +279,6 @@ def _from_mat(cls: Any, path: Path) -> Any:
     with open_regular(path) as fh:
         check_bytes(os.fstat(fh.fileno()).st_size, f"MATLAB ground-truth file {source}")
         _check_mat5(fh.read(), source)
-    package_root = str(Path(__file__).resolve().parents[2])
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([package_root, os.environ.get("PYTHONPATH", "")])}
     limit = memory_limit()
 
     def cap_memory() -> None:  # the child may use the limit plus the interpreter's own share
@@ -291,10 +289,13 @@ def _from_mat(cls: Any, path: Path) -> Any:
 
     with tempfile.TemporaryDirectory(prefix="btel-mat-") as tmp:
         out = Path(tmp) / "arrays.npz"
-        proc = subprocess.run(
-            [sys.executable, "-c", "from btel.datasets.groundtruth_files import _mat_child; _mat_child()",
-             str(path), str(out)], env=env, capture_output=True, text=True, timeout=600,
-            preexec_fn=cap_memory if os.name == "posix" else None)
+        try:
+            proc = subprocess.run(
+                [sys.executable, "-I", "-c", _MAT_CHILD, str(path), str(out), str(limit)], capture_output=True,
+                text=True, timeout=300, preexec_fn=cap_memory if os.name == "posix" else None)
+        except subprocess.TimeoutExpired:
+            raise DataNotFoundError(f"{source}: scipy.io.loadmat did not finish within 300 s; the file is "
+                                    "damaged or hostile.") from None
         message = (proc.stderr.strip().splitlines() or [""])[-1][:400]
         if proc.returncode == 4:
             raise ResourceLimitError(message)
@@ -310,57 +311,57 @@ def _from_mat(cls: Any, path: Path) -> Any:
     return _from_arrays(cls, arrays, source)
 
 
-def _mat_child() -> None:
-    """Child process of :func:`_from_mat`: ``argv[1]`` .mat → ``argv[2]`` .npz of numeric arrays.
-    Exit 3 with a message on stderr for a bad file, 4 for the memory limit."""
-    import sys
+#: The child process of :func:`_from_mat`: numpy and scipy only (no btel import: it starts in
+#: ~0.5 s), ``argv`` = path, output .npz, memory limit. Exit 3 with a message on stderr for a
+#: bad file, 4 for the memory limit.
+_MAT_CHILD = r"""
+import sys
+import numpy as np
+import scipy.io
 
-    import scipy.io
+path, out, limit = sys.argv[1], sys.argv[2], int(sys.argv[3])
+source = repr(path)
+KEYS = ("utmDb", "utmQ", "posDistThr")
 
-    path, out = Path(sys.argv[1]), sys.argv[2]
-    source = repr(str(path))
-    try:
-        try:
-            declared = scipy.io.whosmat(path)
-        except Exception as exc:  # scipy raises several types for non-MATLAB or v7.3 (HDF5) files
-            raise DataNotFoundError(
-                f"{source} could not be read by scipy.io.loadmat ({type(exc).__name__}: {str(exc)[:200]}). "
-                "MATLAB v7.3 files are HDF5: re-save with -v7 or convert to .npz.") from None
-        total = sum(float(np.prod([float(s) for s in shape])) * 8 for _, shape, _ in declared)
-        check_bytes(total, f"MATLAB ground-truth file {source}")
-        try:
-            mat = scipy.io.loadmat(path)
-        except Exception as exc:
-            raise DataNotFoundError(
-                f"{source} could not be read by scipy.io.loadmat ({type(exc).__name__}: {str(exc)[:200]}).") from None
-        arrays: dict[str, np.ndarray] = {}
-        if "dbStruct" in mat and not all(k in mat for k in _UTM_KEYS):
-            struct_ = mat["dbStruct"]
-            names = struct_.dtype.names or ()
-            if not all(k in names for k in _UTM_KEYS) or struct_.size != 1:
-                raise DataNotFoundError(
-                    f"{source} has a dbStruct with fields {list(names)[:10]}; expected one struct with NetVLAD's "
+
+def fail(code, message):
+    sys.stderr.write(message + "\n")
+    sys.exit(code)
+
+
+try:
+    declared = scipy.io.whosmat(path)
+except Exception as exc:
+    fail(3, f"{source} could not be read by scipy.io.loadmat ({type(exc).__name__}: {str(exc)[:200]}). "
+            "MATLAB v7.3 files are HDF5: re-save with -v7 or convert to .npz.")
+total = sum(float(np.prod([float(s) for s in shape])) * 8 for _, shape, _ in declared)
+if not total <= limit:
+    fail(4, f"MATLAB ground-truth file {source} declares {total / 2**20:.1f} MiB of arrays, over btel's memory "
+            f"limit of {limit / 2**20:.1f} MiB; if the input is genuine, raise the limit with BTEL_MEMORY_LIMIT "
+            "(e.g. BTEL_MEMORY_LIMIT=4G).")
+try:
+    mat = scipy.io.loadmat(path)
+    if "dbStruct" in mat and not all(k in mat for k in KEYS):
+        struct_ = mat["dbStruct"]
+        names = struct_.dtype.names or ()
+        if not all(k in names for k in KEYS) or struct_.size != 1:
+            fail(3, f"{source} has a dbStruct with fields {list(names)[:10]}; expected one struct with NetVLAD's "
                     "utmDb, utmQ and posDistThr.")
-            fields = {k: np.asarray(struct_[k].reshape(-1)[0]) for k in _UTM_KEYS}
-            # NetVLAD stores positions as 2×n (one column per image).
-            arrays = {"utmDb": fields["utmDb"].T, "utmQ": fields["utmQ"].T, "posDistThr": fields["posDistThr"]}
-        else:
-            arrays = {k: np.asarray(v) for k, v in mat.items() if not k.startswith("__")}
-            # MATLAB has no 1-D arrays: vectors come back as 1×n or n×1.
-            for key in ("query_places", "indptr", "indices"):
-                if key in arrays:
-                    arrays[key] = arrays[key].ravel()
-        plain = {k: v for k, v in arrays.items() if v.dtype.kind in "biuf" and not v.dtype.hasobject}
-        for key in (*_UTM_KEYS, *_CSR_KEYS, "query_places", "n_map"):
-            if key in arrays and key not in plain:
-                raise DataNotFoundError(f"{source}: {key} holds {arrays[key].dtype} values, not numbers.")
-        np.savez(out, **plain)
-    except ResourceLimitError as exc:
-        sys.stderr.write(f"{exc}\n")
-        sys.exit(4)
-    except BTELError as exc:
-        sys.stderr.write(f"{exc}\n")
-        sys.exit(3)
-    except Exception as exc:  # untrusted input: anything else is a bad file too
-        sys.stderr.write(f"{source} could not be read ({type(exc).__name__}: {str(exc)[:200]}).\n")
-        sys.exit(3)
+        fields = {k: np.asarray(struct_[k].reshape(-1)[0]) for k in KEYS}
+        # NetVLAD stores positions as 2 x n (one column per image).
+        arrays = {"utmDb": fields["utmDb"].T, "utmQ": fields["utmQ"].T, "posDistThr": fields["posDistThr"]}
+    else:
+        arrays = {k: np.asarray(v) for k, v in mat.items() if not k.startswith("__")}
+        for key in ("query_places", "indptr", "indices"):  # MATLAB vectors are 1 x n or n x 1
+            if key in arrays:
+                arrays[key] = arrays[key].ravel()
+    plain = {k: v for k, v in arrays.items() if v.dtype.kind in "biuf" and not v.dtype.hasobject}
+    for key in (*KEYS, "indptr", "indices", "query_places", "n_map"):
+        if key in arrays and key not in plain:
+            fail(3, f"{source}: {key} holds {arrays[key].dtype} values, not numbers.")
+    np.savez(out, **plain)
+except SystemExit:
+    raise
+except BaseException as exc:
+    fail(3, f"{source} could not be read by scipy.io.loadmat ({type(exc).__name__}: {str(exc)[:200]}).")
+"""
