@@ -28,10 +28,10 @@ from typing import Any
 import click
 import numpy as np
 
-from . import __version__
-from .exceptions import BTELError, InvalidParameterError
+from .. import __version__
 
-_EXPECTED_ERRORS = (BTELError, OSError, ValueError)
+# btel.exceptions (and through it scikit-learn) is imported only when an error is being handled, so
+# that `btel --help` starts in a fraction of a second.
 #: Exit status of a finished evaluate/demo run in which some method did not fit or failed.
 EXIT_SOME_ROWS_FAILED = 3
 
@@ -52,15 +52,17 @@ class _Group(click.Group):
             return super().invoke(ctx)
         except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort):
             raise
-        except _EXPECTED_ERRORS as exc:
-            if os.environ.get("BTEL_DEBUG"):
+        except Exception as exc:
+            from ..exceptions import BTELError
+
+            if not isinstance(exc, (BTELError, OSError, ValueError)) or os.environ.get("BTEL_DEBUG"):
                 raise
             message = str(exc) or type(exc).__name__
             raise click.ClickException(message.splitlines()[0] if len(message) > 2000 else message) from exc
 
 
 def _load_matrix(path: str, what: str) -> np.ndarray:
-    from .descriptors.npy import load_descriptor_matrix
+    from ..descriptors.npy import load_descriptor_matrix
 
     return load_descriptor_matrix(path)
 
@@ -68,17 +70,17 @@ def _load_matrix(path: str, what: str) -> np.ndarray:
 def _load_map(path: str) -> np.ndarray:
     """Map descriptors for training: a folder of .npy shards, a memory-mapped .npy, or an .npz."""
     if Path(path).is_dir():
-        from .datasets.shards import load_shards
+        from ..datasets.shards import load_shards
 
         return load_shards(path)
-    from .descriptors.npy import load_descriptor_matrix
+    from ..descriptors.npy import load_descriptor_matrix
 
     # A .npy map is memory-mapped: pages are read as the fit needs them, never copied whole.
     return load_descriptor_matrix(path, mmap_mode="r" if Path(path).suffix.lower() == ".npy" else None)
 
 
 def _echo_storage(model: Any) -> None:
-    from .storage import format_bytes
+    from ..storage import format_bytes
 
     breakdown = model.storage_breakdown()
     width = max(len(k) for k in breakdown) if breakdown else 4
@@ -111,7 +113,7 @@ def _param_value(text: str) -> Any:
 
 def _valid_params(method: str) -> list[str]:
     """Parameter names of ``method`` (its ``get_params()`` keys), sorted."""
-    from .methods import make_method
+    from ..methods import make_method
 
     return sorted(make_method(method).get_params())
 
@@ -163,6 +165,8 @@ def _params_by_method(methods: list[str], param_texts: tuple[str, ...], *,
 @contextmanager
 def _naming(method: str) -> Iterator[None]:
     """A bad parameter value found while building, fitting or evaluating ``method`` names the method."""
+    from ..exceptions import InvalidParameterError
+
     try:
         yield
     except InvalidParameterError as exc:
@@ -219,13 +223,13 @@ def demo(ctx: click.Context, n_places: int, dim: int, budget: str, methods: str,
     brute force, the unbudgeted reference (see --no-reference); the same rule as `btel evaluate`.
     A method that does not fit the budget becomes a row saying so; exit status 3 then.
     """
-    from .datasets import synthetic_route
+    from ..datasets import synthetic_route
 
     budgets = _budgets(budget)
     route = synthetic_route(n_places, dim, seed=seed)
     out = Path(out_dir) if out_dir else Path("runs") / time.strftime("demo-%Y%m%d-%H%M%S")
     jobs = _fit_jobs(_split(methods), budgets, param_texts, reference=not no_reference)
-    from .runs import check_run_folder
+    from ..runs import check_run_folder
 
     check_run_folder(out, overwrite)
     click.echo(f"synthetic route: N = {n_places} places, d = {dim}, map + 1 query traverse (seed {seed})")
@@ -282,10 +286,10 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
       densevlad       PCA-whitens to n_components (4096), capped at (map images − 1).
     Images of mixed sizes are described as they are, with a Warning.
     """
-    from .descriptors import get_descriptor
-    from .descriptors.base import load_descriptor
-    from .descriptors.extract import extract_cached
-    from .storage import format_bytes
+    from ..descriptors import get_descriptor
+    from ..descriptors.base import load_descriptor
+    from ..descriptors.extract import extract_cached
+    from ..storage import format_bytes
 
     params: dict[str, Any] = {}
     for text in param_texts:
@@ -328,8 +332,8 @@ def _extract_delta(images_dir: str, output: str, model: Any, fit_on: str | None,
     """``extract --delta W``: the plain descriptors (cached beside OUTPUT), then their delta, written to OUTPUT."""
     import numpy as np
 
-    from .descriptors import delta_descriptors
-    from .descriptors.extract import extract_cached
+    from ..descriptors import delta_descriptors
+    from ..descriptors.extract import extract_cached
 
     plain = Path(output).with_name(Path(output).stem + ".plain.npy")
     X, _ = extract_cached(images_dir, plain, model, fit_on=fit_on, progress=not no_progress, force=force)
@@ -386,14 +390,14 @@ def train(db: str, output: str, method: str, budget: str | None, param_texts: tu
     block_size, the others by their own names). Each must be a parameter of --method (see `btel
     methods --params`), and a shortcut and --param may not set the same one.
     """
-    from .methods import make_method
+    from ..methods import make_method
 
     if scheduler is not None and backend != "dask":
         raise click.UsageError("--scheduler only applies with --backend dask.")
     if block_size is not None and tolerance is not None:
         raise click.UsageError("give --block-size or --tolerance, not both.")
     if tolerance is not None:
-        from .localizer import block_size_for_tolerance
+        from ..localizer import block_size_for_tolerance
 
         block_size = block_size_for_tolerance(tolerance)
     n_regions: Any = None
@@ -454,8 +458,8 @@ def localize(model_path: str, queries: str | None, output: str | None, window: i
     next well-formed input line. A malformed line (wrong count, not a number, NaN) gets a one-line
     error naming its line number on stderr, produces no output line, and the stream goes on.
     """
-    from . import load
-    from .sequence import filter_sequence
+    from .. import load
+    from ..sequence import filter_sequence
 
     if stream:
         if top_k is not None:
@@ -495,7 +499,7 @@ def localize(model_path: str, queries: str | None, output: str | None, window: i
 def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_timeout: float | None,
                      window: int | None, hmm: bool = False) -> None:
     """The --stream loop: one flushed output line per well-formed input line."""
-    from .streaming import localize_stream
+    from ..streaming import localize_stream
 
     if follow and input_path is None:
         raise click.UsageError("--follow needs --input FILE (stdin already waits for new lines).")
@@ -583,10 +587,10 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
     Methods marked † use the query sequence (SeqSLAM, delta front ends): not comparable with
     single-frame methods.
     """
-    from . import load
-    from .datasets import GroundTruth
-    from .evaluation import Job, check_ground_truth
-    from .runs import check_run_folder
+    from .. import load
+    from ..datasets import GroundTruth
+    from ..evaluation import Job, check_ground_truth
+    from ..runs import check_run_folder
 
     if db is None and not model_paths:
         raise click.UsageError("give --db (to fit --methods) or at least one --model.")
@@ -647,7 +651,7 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
 
 def _budgets(text: str) -> list[str]:
     """``"100KB, 500KB"`` → ``["100KB", "500KB"]``, each checked by :func:`btel.storage.parse_budget`."""
-    from .storage import parse_budget
+    from ..storage import parse_budget
 
     budgets = [b.strip() for b in text.split(",") if b.strip()]
     if not budgets:
@@ -661,7 +665,7 @@ def _budgets(text: str) -> list[str]:
 
 
 def _budget_text(budgets: list[str | None]) -> str:
-    from .storage import format_bytes, parse_budget
+    from ..storage import format_bytes, parse_budget
 
     given = [format_bytes(parse_budget(b)) for b in budgets if b]
     return ", ".join(given) if given else "none"
@@ -685,8 +689,8 @@ def _fit_jobs(names: list[str], budgets: list[str | None], param_texts: tuple[st
     upper reference, not a contender under the budget. It is run without a budget unless
     ``--param bruteforce:budget=…`` asks for one.
     """
-    from .evaluation import Job
-    from .methods import make_method
+    from ..evaluation import Job
+    from ..methods import make_method
 
     if reference and "bruteforce" not in names:
         names = [*names, "bruteforce"]
@@ -714,9 +718,9 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
     """
     from tqdm import tqdm
 
-    from .evaluation import evaluate_all, format_table
-    from .runs import RunWriter
-    from .storage import format_bytes
+    from ..evaluation import evaluate_all, format_table
+    from ..runs import RunWriter
+    from ..storage import format_bytes
 
     writer = RunWriter(out, command=_command_line(), extra=extra, overwrite=overwrite)
     bar = tqdm(total=len(jobs), unit="method", disable=None if progress else True, leave=False, file=sys.stderr)
@@ -767,7 +771,7 @@ def methods_cmd(show_params: bool) -> None:
 
     † marks methods that use the query sequence.
     """
-    from .methods import DESCRIPTIONS, METHODS, make_method
+    from ..methods import DESCRIPTIONS, METHODS, make_method
 
     width = max(len(n) for n in METHODS)
     for name in METHODS:
@@ -780,7 +784,7 @@ def methods_cmd(show_params: bool) -> None:
 
 
 def _method_names() -> list[str]:
-    from .methods import METHODS
+    from ..methods import METHODS
 
     return list(METHODS)
 
@@ -790,7 +794,7 @@ def _registry_name(model: Any) -> str:
     and the parameters the presets of that class differ in (``BTELocalizer (scheme=compressed, n_regions=4)``)."""
     from functools import partial
 
-    from .methods import METHODS
+    from ..methods import METHODS
 
     params = model.get_params(deep=False)
     keys: list[str] = []
@@ -810,7 +814,7 @@ def _registry_name(model: Any) -> str:
 @click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
 def info(model_path: str) -> None:
     """Show what a saved MODEL is: method, parameters, front end, and the bytes of every stored array."""
-    from . import load
+    from .. import load
 
     model = load(model_path)
     name = _registry_name(model)
@@ -851,7 +855,7 @@ def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | 
     Each writes results.csv, results.json and PNG plots into OUT/NAME/; `btel report` turns the
     latest runs into docs/results.md.
     """
-    from .experiments import EXPERIMENTS, describe_row, run_experiment
+    from ..experiments import EXPERIMENTS, describe_row, run_experiment
 
     names = list(EXPERIMENTS) if name == "all" else [name]
     for n in names:
@@ -868,7 +872,7 @@ def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | 
 @click.option("--docs", "docs_dir", type=click.Path(file_okay=False), default="docs", show_default=True)
 def report(runs_dir: str, docs_dir: str) -> None:
     """Write docs/results.md and docs/results.json (plus figures) from the latest experiment runs."""
-    from .report import write_report
+    from ..report import write_report
 
     path = write_report(runs_dir, docs_dir)
     click.echo(f"written {path} and {path.with_suffix('.json')}")
