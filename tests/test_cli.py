@@ -185,7 +185,6 @@ def test_train_param_fills_the_same_parameters_as_the_shortcuts(small_pair, tmp_
         (["--method", "pq", "--param", "feature_ratio=0.5"], 2, ["pq has no parameter 'feature_ratio'", "nbits"]),
         (["--method", "bruteforce", "--seed", "1"], 2, ["--seed", "'random_state', which bruteforce does not have",
                                                         "budget, delta, n_jobs"]),
-        (["--method", "pq", "--no-progress"], 2, ["which pq does not have"]),
         (["--param", "sparsity"], 2, ["not NAME=VALUE"]),
         (["--param", "pq:nbits=4"], 2, ["'pq', which is not a method of this run"]),
         (["--feature-ratio", "0.2", "--param", "feature_ratio=0.3"], 2, ["both set feature_ratio"]),
@@ -204,6 +203,32 @@ def test_train_param_errors_name_method_parameter_and_choices(args, code, messag
     for part in message:
         assert part in error
     assert not (tmp_path / "m.npz").exists()
+
+
+@pytest.mark.parametrize("method", ["pq", "opq", "itq", "bruteforce", "btel-codes", "btel-c"])
+def test_runtime_flags_apply_where_the_method_has_them_and_are_ignored_elsewhere(method: str, small_pair,
+                                                                                 tmp_path: Path) -> None:
+    from btel import load, make_method
+
+    db, _ = small_pair
+    out = tmp_path / "m.npz"
+    budget = [] if method == "bruteforce" else ["--budget", "20KB"]
+    result = run("train", db, "-o", out, "--method", method, *budget, "--no-progress", "--n-jobs", "1")
+    assert result.exit_code == 0, result.output
+    assert type(load(out)) is type(make_method(method))  # runtime settings are not saved: check what was passed
+    from btel.cli import _params_by_method
+
+    given = _params_by_method([method], (), shortcuts={"progress": ("--no-progress", False),
+                                                       "n_jobs": ("--n-jobs", 1)})[method]
+    valid = make_method(method).get_params()
+    assert given == {k: v for k, v in {"progress": False, "n_jobs": 1}.items() if k in valid}
+
+
+def test_runtime_flags_in_evaluate_for_mixed_methods(small_pair, tmp_path: Path) -> None:
+    db, q = small_pair
+    result = run("evaluate", "--db", db, "--queries", q, "--methods", "btel-c,pq,itq", "--budget", "8KB",
+                 "--no-progress", "--n-jobs", "1", "--out", tmp_path / "run")
+    assert result.exit_code == 0, result.output
 
 
 def test_evaluate_and_demo_params_for_every_method_or_one(small_pair, tmp_path: Path) -> None:
