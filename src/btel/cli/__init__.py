@@ -146,7 +146,7 @@ def _params_by_method(methods: list[str], param_texts: tuple[str, ...], *,
         layer = targeted.setdefault(target, {}) if target else general
         if name in layer:
             raise click.UsageError(f"--param sets {key.strip()} twice; give it once.")
-        if name in shortcuts:
+        if name in shortcuts and name not in RUNTIME_PARAMS:  # a runtime flag yields to an explicit --param
             raise click.UsageError(f"{shortcuts[name][0]} and --param {key.strip()}=… both set {name}; give one of them.")
         layer[name] = _param_value(raw)
     out: dict[str, dict[str, Any]] = {}
