@@ -102,6 +102,11 @@ def test_nordland_extract_train_localize_evaluate(nordland_dir: Path, tmp_path: 
         assert result.exit_code == 0, result.output
     again = run("extract", tmp_path / "summer", "-o", db, "--descriptor", "patchnorm")
     assert "up to date" in again.output  # the cache
+    # The queries described over the map descriptors: refused, naming what would be lost.
+    before = db.read_bytes()
+    wrong = run("extract", tmp_path / "winter", "-o", db, "--descriptor", "patchnorm", "--no-progress")
+    assert wrong.exit_code == 2 and "already exists" in wrong.output and "447 images" in wrong.output
+    assert "--overwrite" in wrong.output and db.read_bytes() == before
     X = np.load(db)
     assert X.shape == (447, 2048) and np.isfinite(X).all()
 
@@ -142,12 +147,30 @@ def test_train_with_code_options_and_localize_with_hmm_and_top_k(small_pair, tmp
     ranked = np.array([[int(v) for v in r[2:]] for r in rows[1:]])
     np.testing.assert_array_equal(ranked, fitted.rank(np.load(q), 3))
     for args, message in ((["--hmm", "--sequence-filter", "3"], "not both"), (["--top-k", "0"], "k")):
-        result = run("localize", model, q, "-o", preds, *args)
+        result = run("localize", model, q, "-o", preds, "--overwrite", *args)
         assert result.exit_code != 0 and message in result.output
     result = run("train", db, "-o", model, "--block-size", "4", "--tolerance", "4")
     assert result.exit_code != 0 and "not both" in result.output
     result = run("train", db, "-o", model, "--method", "pq", "--code-copies", "2")
     assert result.exit_code == 2 and "'code_copies', which pq does not have" in result.output
+
+
+# -- no file is replaced without --overwrite ----------------------------------------------------------------
+def test_train_and_localize_refuse_an_existing_output_without_overwrite(small_pair, tmp_path: Path) -> None:
+    db, q = small_pair
+    model, preds = tmp_path / "m.npz", tmp_path / "p.csv"
+    assert run("train", db, "-o", model, "--budget", "5KB", "--no-progress").exit_code == 0
+    before = model.read_bytes()
+    result = run("train", db, "-o", model, "--method", "pq", "--budget", "5KB")
+    assert result.exit_code == 2 and "already exists" in result.output and "--overwrite" in result.output
+    assert model.read_bytes() == before
+    assert run("train", db, "-o", model, "--method", "pq", "--budget", "5KB", "--overwrite").exit_code == 0
+    assert model.read_bytes() != before
+    preds.write_text("mine\n")
+    result = run("localize", model, q, "-o", preds)
+    assert result.exit_code == 2 and "1 lines" in result.output and preds.read_text() == "mine\n"
+    assert run("localize", model, q, "-o", preds, "--overwrite").exit_code == 0
+    assert preds.read_text().startswith("query,prediction")
 
 
 # -- --param: any parameter of any method --------------------------------------------------------------
@@ -173,7 +196,8 @@ def test_train_param_fills_the_same_parameters_as_the_shortcuts(small_pair, tmp_
     assert load(a).get_params() == load(b).get_params()
     assert load(b).dtype == "float16" and load(b).random_state == 1  # progress: a runtime setting, not saved
     # A baseline's own parameters, and the shortcuts it has (--seed is random_state).
-    result = run("train", db, "-o", b, "--method", "pq", "--budget", "5KB", "--seed", "3", "--param", "nbits=4")
+    result = run("train", db, "-o", b, "--method", "pq", "--budget", "5KB", "--seed", "3", "--param", "nbits=4",
+                 "--overwrite")
     assert result.exit_code == 0, result.output
     assert load(b).get_params()["nbits"] == 4 and load(b).get_params()["random_state"] == 3
 

@@ -29,6 +29,7 @@ import click
 import numpy as np
 
 from .. import __version__
+from ._outputs import refuse_existing
 
 # btel.exceptions (and through it scikit-learn) is imported only when an error is being handled, so
 # that `btel --help` starts in a fraction of a second.
@@ -64,15 +65,42 @@ class _Group(click.Group):
 def _load_matrix(path: str, what: str) -> np.ndarray:
     from ..descriptors.npy import load_descriptor_matrix
 
-    return load_descriptor_matrix(path)
+    return _load_whole_h5(path, what) if _is_whole_h5(path) else load_descriptor_matrix(path)
+
+
+def _is_whole_h5(path: str) -> bool:
+    from ..descriptors.npy import HDF5_SUFFIXES, split_prefix
+
+    file, prefix = split_prefix(path)
+    return prefix is None and file.suffix.lower() in HDF5_SUFFIXES
+
+
+def _load_whole_h5(path: str, what: str) -> np.ndarray:
+    """An hloc .h5 given without a PREFIX: refused when its images sit under several prefixes (map and
+    queries in one file, hloc's usual layout), which would otherwise be read as one set."""
+    from ..descriptors.npy import load_hloc_global
+
+    X, names = load_hloc_global(path)
+    counts: dict[str, int] = {}
+    for name in names:
+        head, slash, _ = name.partition("/")
+        counts[head + slash] = counts.get(head + slash, 0) + 1
+    if len(counts) > 1:
+        found = ", ".join(f"{p or '(top level)'} {n} images" for p, n in counts.items())
+        choices = " or ".join(f"{path}:{p}" for p in counts if p)
+        raise click.UsageError(f"{path} ({what}) holds images under {len(counts)} prefixes ({found}); name the "
+                               f"ones you mean, e.g. {choices}.")
+    return X
 
 
 def _load_map(path: str) -> np.ndarray:
-    """Map descriptors for training: a folder of .npy shards, a memory-mapped .npy, or an .npz."""
+    """Map descriptors for training: a folder of .npy shards, a memory-mapped .npy, an .npz or an hloc .h5."""
     if Path(path).is_dir():
         from ..datasets.shards import load_shards
 
         return load_shards(path)
+    if _is_whole_h5(path):
+        return _load_whole_h5(path, "map descriptors")
     from ..descriptors.npy import load_descriptor_matrix
 
     # A .npy map is memory-mapped: pages are read as the fit needs them, never copied whole.
@@ -281,6 +309,9 @@ _FRONT_END_HELP = ("Front end of every method (default: rows L2-normalised, SeqS
 @click.option("--save-descriptor", type=click.Path(dir_okay=False), default=None,
               help="Write the fitted descriptor (e.g. the DenseVLAD vocabulary) to describe the queries with it.")
 @click.option("--force", is_flag=True, help="Recompute even if OUTPUT is up to date.")
+@click.option("--overwrite", is_flag=True,
+              help="Replace an existing OUTPUT (or --save-descriptor file) that holds other descriptors (other "
+                   "images, descriptor or parameters). An up-to-date OUTPUT is reused without it.")
 @click.option("--delta", "delta", type=int, default=None, metavar="W",
               help="Write delta descriptors of the traverse instead: row j = mean of frames j−W+1…j minus the mean "
                    "of the W before (causal; the first frames count the first image as earlier ones). Needs at "
@@ -288,7 +319,7 @@ _FRONT_END_HELP = ("Front end of every method (default: rows L2-normalised, SeqS
                    "transform as every method's front end, with L2 normalisation around it.)")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 def extract(images_dir: str, output: str, descriptor: str, size: str | None, param_texts: tuple[str, ...],
-            fit_on: str | None, save_descriptor: str | None, force: bool, delta: int | None,
+            fit_on: str | None, save_descriptor: str | None, force: bool, overwrite: bool, delta: int | None,
             no_progress: bool) -> None:
     """Describe every image in IMAGES_DIR (natural file-name order = route order) into one .npy matrix.
 
@@ -325,9 +356,14 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
         model = get_descriptor(descriptor, **params)
         if "size" in params and "size" not in model.get_params():
             raise click.UsageError(f"--size applies to hog and patchnorm; {descriptor} keeps each image's size.")
+    if save_descriptor:
+        refuse_existing(save_descriptor, "--save-descriptor", overwrite)
     if delta is not None:
+        refuse_existing(output, "-o", overwrite)
         _extract_delta(images_dir, output, model, fit_on, no_progress, force, delta)
         return
+    if Path(output).exists() and not overwrite and not _is_cache_of(output, images_dir, model, fit_on):
+        refuse_existing(output, "-o", overwrite)
     X, reused = extract_cached(images_dir, output, model, fit_on=fit_on, progress=not no_progress, force=force)
     if reused:
         click.echo(f"{output} is up to date ({X.shape[0]} images, {descriptor}); use --force to recompute")
@@ -340,6 +376,19 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
         parts = ", ".join(f"{k} {format_bytes(v.nbytes)}" for k, v in model._stored_arrays().items())
         click.echo(f"fitted descriptor written to {path} ({format_bytes(path.stat().st_size)}"
                    f"{': ' + parts if parts else ''})")
+
+
+def _is_cache_of(output: str, images_dir: str, model: Any, fit_on: str | None) -> bool:
+    """``output`` was written by an extraction of these images with this descriptor (its JSON sidecar says so):
+    reusing or recomputing it replaces nothing."""
+    from ..descriptors.extract import extraction_key
+    from ..descriptors.images import list_images
+
+    sidecar = Path(str(output) + ".json")
+    try:
+        return json.loads(sidecar.read_text()) == extraction_key(list_images(images_dir), model, fit_on)
+    except (OSError, ValueError):
+        return False
 
 
 def _extract_delta(images_dir: str, output: str, model: Any, fit_on: str | None, no_progress: bool, force: bool,
@@ -362,6 +411,7 @@ def _extract_delta(images_dir: str, output: str, model: Any, fit_on: str | None,
 @main.command()
 @click.argument("db", type=click.Path())
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Model file to write (.npz).")
+@click.option("--overwrite", is_flag=True, help="Replace an existing OUTPUT model file.")
 @click.option("--method", default="btel-c", show_default=True, help="Method name (see `btel methods`).")
 @click.option("--budget", default=None, help="Byte budget, e.g. 500KB, 2MB, 64KiB.")
 @click.option("--param", "param_texts", multiple=True, metavar="NAME=VALUE", help=_PARAM_HELP)
@@ -386,7 +436,7 @@ def _extract_delta(images_dir: str, output: str, model: Any, fit_on: str | None,
 @click.option("--normalize", type=click.Choice(["none", "l2", "power"]), default=None, help=_FRONT_END_HELP)
 @click.option("--whiten", type=int, default=None, metavar="P", help="PCA-whiten to P dimensions (front end).")
 @click.option("--delta", type=int, default=None, metavar="W", help=_DELTA_HELP)
-def train(db: str, output: str, method: str, budget: str | None, param_texts: tuple[str, ...], regions: str | None,
+def train(db: str, output: str, overwrite: bool, method: str, budget: str | None, param_texts: tuple[str, ...], regions: str | None,
           feature_ratio: float | None, n_features: int | None, classifier: str | None, dtype: str | None,
           n_jobs: int | None, backend: str | None, scheduler: str | None, no_progress: bool,
           random_state: int | None, block_size: int | None, tolerance: int | None, code_copies: int | None,
@@ -429,6 +479,7 @@ def train(db: str, output: str, method: str, budget: str | None, param_texts: tu
              "normalize": ("--normalize", normalize), "whiten": ("--whiten", whiten), "delta": ("--delta", delta)}
     shortcuts = {name: (option, value) for name, (option, value) in named.items() if value is not None}
     params = _params_by_method([method], param_texts, shortcuts=shortcuts)[method]
+    refuse_existing(output, "-o", overwrite)
     X = _load_map(db)
     start = time.perf_counter()
     with _naming(method):
@@ -446,6 +497,7 @@ def train(db: str, output: str, method: str, budget: str | None, param_texts: tu
 @click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
 @click.argument("queries", required=False, type=click.Path(dir_okay=False))
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="Predictions CSV to write (not with --stream).")
+@click.option("--overwrite", is_flag=True, help="Replace an existing OUTPUT predictions file.")
 @click.option("--sequence-filter", "window", type=int, default=None,
               help="Apply the paper's sequence filter with window a (queries must be consecutive frames).")
 @click.option("--stream", is_flag=True,
@@ -461,7 +513,7 @@ def train(db: str, output: str, method: str, budget: str | None, param_texts: tu
 @click.option("--follow", is_flag=True, help="With --stream --input: keep reading as the file grows (like tail -f).")
 @click.option("--idle-timeout", type=float, default=None,
               help="With --follow: stop after this many seconds without a new line (default: run until Ctrl-C).")
-def localize(model_path: str, queries: str | None, output: str | None, window: int | None, stream: bool,
+def localize(model_path: str, queries: str | None, output: str | None, overwrite: bool, window: int | None, stream: bool,
              input_path: str | None, hmm: bool, top_k: int | None, follow: bool, idle_timeout: float | None) -> None:
     """Predict the place of every query with a saved MODEL.
 
@@ -491,6 +543,7 @@ def localize(model_path: str, queries: str | None, output: str | None, window: i
         raise click.UsageError("give QUERIES and -o/--output (or use --stream).")
     if hmm and window is not None:
         raise click.UsageError("choose --hmm or --sequence-filter, not both.")
+    refuse_existing(output, "-o", overwrite)
     model = load(model_path)
     Q = _load_matrix(queries, "query descriptors")
     if top_k is not None and not getattr(model, "supports_ranking", True):
