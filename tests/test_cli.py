@@ -173,6 +173,43 @@ def test_train_and_localize_refuse_an_existing_output_without_overwrite(small_pa
     assert preds.read_text().startswith("query,prediction")
 
 
+# -- errors in the command line's words -----------------------------------------------------------------------
+@pytest.mark.parametrize("args, code, words", [
+    (["train", "DB", "-o", "OUT", "--budget", "32"], 2, ["did you mean 32KB?", "32B"]),
+    (["evaluate", "--db", "DB", "--queries", "DB", "--budget", "500KB,64", "--out", "OUT"], 2, ["did you mean 64KB?"]),
+    (["train", "DB", "-o", "OUT", "--method", "nope"], 2, ["unknown method 'nope'", "btel-c", "pq"]),
+    (["evaluate", "--db", "DB", "--queries", "DB", "--methods", "pq,nope", "--out", "OUT"], 2, ["unknown method 'nope'"]),
+    (["info", "MISSING"], 1, ["Train one with `btel train DB -o MODEL`"]),
+])
+def test_errors_speak_cli(args, code, words, small_pair, tmp_path: Path) -> None:
+    db, _ = small_pair
+    subst = {"DB": str(db), "OUT": str(tmp_path / "out"), "MISSING": str(tmp_path / "missing.npz")}
+    result = CliRunner().invoke(main, [subst.get(a, a) for a in args])
+    assert result.exit_code == code, result.output
+    assert "Traceback" not in result.output
+    for w in words:
+        assert w in result.output
+    for python_word in ("BTELocalizer.fit", "fit_on=", "key="):
+        assert python_word not in result.output
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_unitless_budget_from_1000_up_is_bytes(small_pair, tmp_path: Path) -> None:
+    db, _ = small_pair
+    result = run("train", db, "-o", tmp_path / "m.npz", "--budget", "5000", "--no-progress")
+    assert result.exit_code == 0, result.output
+
+
+def test_cli_message_rewrites_library_phrases() -> None:
+    from btel.cli._errors import cli_message
+
+    assert cli_message("descriptor 'densevlad' learns from map images: pass fit_on=<map images> (…)") == \
+        "descriptor 'densevlad' learns from map images: pass --fit-on MAP_IMAGES_DIR (…)"
+    assert "--param dtype=float16" in cli_message("Raise the budget, use dtype='float16', or fewer regions.")
+    assert cli_message("x.npz holds 2 arrays (a, b); choose one: x.npz:a on the command line, key='a' in Python.") \
+        == "x.npz holds 2 arrays (a, b); choose one: x.npz:a."
+
+
 # -- --param: any parameter of any method --------------------------------------------------------------
 @pytest.mark.parametrize("text, value", [("3", 3), ("0.5", 0.5), ("true", True), ("null", None), ('"x"', "x"),
                                          ("[1, 2]", [1, 2]), ("auto", "auto"), ("float16", "float16"),

@@ -58,7 +58,9 @@ class _Group(click.Group):
 
             if not isinstance(exc, (BTELError, OSError, ValueError)) or os.environ.get("BTEL_DEBUG"):
                 raise
-            message = str(exc) or type(exc).__name__
+            from ._errors import cli_message
+
+            message = cli_message(str(exc) or type(exc).__name__)
             raise click.ClickException(message.splitlines()[0] if len(message) > 2000 else message) from exc
 
 
@@ -144,8 +146,11 @@ def _param_value(text: str) -> Any:
 
 
 def _valid_params(method: str) -> list[str]:
-    """Parameter names of ``method`` (its ``get_params()`` keys), sorted."""
-    from ..methods import make_method
+    """Parameter names of ``method`` (its ``get_params()`` keys), sorted; an unknown method is a usage error."""
+    from ..methods import METHODS, make_method
+
+    if method not in METHODS:
+        raise click.UsageError(f"unknown method {method!r}; choose from {', '.join(METHODS)} (see `btel methods`).")
 
     return sorted(make_method(method).get_params())
 
@@ -478,6 +483,8 @@ def train(db: str, output: str, overwrite: bool, method: str, budget: str | None
              "code_copies": ("--code-copies", code_copies), "exemplar_radius": ("--exemplar-radius", exemplar_radius),
              "normalize": ("--normalize", normalize), "whiten": ("--whiten", whiten), "delta": ("--delta", delta)}
     shortcuts = {name: (option, value) for name, (option, value) in named.items() if value is not None}
+    if budget is not None:
+        _check_budget(budget)
     params = _params_by_method([method], param_texts, shortcuts=shortcuts)[method]
     refuse_existing(output, "-o", overwrite)
     X = _load_map(db)
@@ -738,11 +745,23 @@ def _budgets(text: str) -> list[str]:
     if not budgets:
         raise click.UsageError("--budget is empty; give a byte budget such as 500KB.")
     for b in budgets:
-        try:
-            parse_budget(b)
-        except ValueError as exc:
-            raise click.UsageError(f"--budget {b!r}: {exc}") from None
+        _check_budget(b)
     return budgets
+
+
+def _check_budget(text: str) -> None:
+    """A usage error for a budget that is not one, or a unitless number too small to be meant as bytes."""
+    from ..storage import parse_budget
+    from ._errors import unitless_budget_hint
+
+    hint = unitless_budget_hint(text)
+    if hint is not None:
+        raise click.UsageError(f"--budget {text.strip()} has no unit, so it would mean {text.strip()} bytes; did you "
+                               f"mean {hint}? Write {text.strip()}B if you mean bytes (KB = 1000 B, KiB = 1024 B).")
+    try:
+        parse_budget(text)
+    except ValueError as exc:
+        raise click.UsageError(f"--budget {text!r}: {exc}") from None
 
 
 def _budget_text(budgets: list[str | None]) -> str:
