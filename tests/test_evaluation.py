@@ -196,3 +196,72 @@ def test_evaluate_on_nordland_pixels(nordland_pixels: tuple[np.ndarray, np.ndarr
     assert result.recall[0] <= result.recall[10] <= result.recall[20]
     shifted = recall_at_tolerance(result.predictions, np.roll(np.arange(X.shape[0]), 200), (10,))
     assert shifted[10] < result.recall[10] / 2
+
+
+# -- the timing harness ------------------------------------------------------------------------------
+class _Clock:
+    """A fake perf_counter that only the fake method moves: timings become exact, not measured."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+class _SlowFirstCall:
+    """predict costs 100 s the first time (cold caches, thread start-up), 1 s per batch after; a query
+    answered alone costs 0.01 s (0.5 s the first time)."""
+
+    uses_query_sequence = False
+
+    def __init__(self, clock: _Clock) -> None:
+        self.clock = clock
+        self.calls = 0
+
+    def predict(self, Q: np.ndarray) -> np.ndarray:
+        self.calls += 1
+        if Q.shape[0] == 1:
+            self.clock.now += 0.5 if self.calls == 1 else 0.01
+        else:
+            self.clock.now += 100.0 if self.calls == 1 else 1.0
+        return np.arange(Q.shape[0])
+
+
+def test_time_queries_warms_up_then_reports_medians(monkeypatch) -> None:
+    import btel.evaluation as ev
+
+    clock = _Clock()
+    monkeypatch.setattr(ev.time, "perf_counter", clock)
+    method = _SlowFirstCall(clock)
+    Q = np.zeros((10, 4), np.float32)
+    predictions, timing = ev.time_queries(method, Q, repeats=3, n_single=7)
+    np.testing.assert_array_equal(predictions, np.arange(10))
+    assert timing.batch_s_per_query == pytest.approx(1.0 / 10)  # the 100 s first call is not in it
+    assert timing.latency_s == pytest.approx(0.01) and timing.n_single == 7
+    assert timing.repeats == 3 and timing.n_threads >= 1
+    assert method.calls == 1 + 3 + 3 + 7  # first (warm-up, kept), 3 timed, 3 untimed singles, 7 timed
+
+
+def test_evaluate_reports_batch_throughput_and_single_query_latency_apart(monkeypatch) -> None:
+    import btel.evaluation as ev
+
+    rng = np.random.default_rng(0)
+    X = rng.standard_normal((40, 8)).astype(np.float32)
+    result = ev.evaluate(_NearestNeighbour(), X, X, ks=(1,))
+    assert result.query_time_s_per_query > 0 and result.query_latency_s > 0
+    assert result.timing_repeats >= 1 and result.n_threads >= 1
+    summary = result.to_dict()
+    assert {"query_latency_s", "n_threads", "timing_repeats"} <= set(summary)
+    table = ev.format_table([result])
+    assert "batch µs/q" in table and "1-query µs" in table and "threads" in table
+
+
+def test_time_queries_stops_repeating_after_max_seconds(monkeypatch) -> None:
+    import btel.evaluation as ev
+
+    clock = _Clock()
+    monkeypatch.setattr(ev.time, "perf_counter", clock)
+    method = _SlowFirstCall(clock)
+    _, timing = ev.time_queries(method, np.zeros((10, 4), np.float32), repeats=50, n_single=0, max_seconds=2.5)
+    assert timing.repeats == 3 and timing.latency_s is None  # 1 + 1 + 1 s passes 2.5 s

@@ -57,6 +57,8 @@ __all__ = [
     "check_ground_truth",
     "format_table",
     "STATUS_OK",
+    "QueryTiming",
+    "time_queries",
 ]
 
 logger = logging.getLogger(__name__)
@@ -332,9 +334,16 @@ class EvaluationResult:
     fit_time_s : float or None
         Wall-clock seconds of ``fit`` (None when the method was evaluated already fitted).
     query_time_s_per_query : float or None
-        Wall-clock seconds of ``predict`` on all queries divided by the number of queries.
+        Batch throughput: median wall-clock seconds of ``predict`` on all queries (after a warm-up
+        call, over ``timing_repeats`` calls) divided by the number of queries.
     rank_time_s_per_query : float or None
-        Same for ``rank``.
+        Wall-clock seconds of one ``rank`` call on all queries divided by the number of queries.
+    query_latency_s : float or None
+        Single-query latency: median seconds of one query answered alone (:func:`time_queries`).
+    n_threads : int or None
+        Threads the numerical libraries could use while timing.
+    timing_repeats : int or None
+        Timed batch calls behind ``query_time_s_per_query``.
     predictions : ndarray of shape (n_queries,), dtype int64
         Predicted place per query row (not written to JSON; see ``predictions_<name>.csv``).
     ranked : ndarray of shape (n_queries, k), dtype int64, or None
@@ -375,6 +384,9 @@ class EvaluationResult:
     fit_time_s: float | None
     query_time_s_per_query: float | None
     rank_time_s_per_query: float | None = None
+    query_latency_s: float | None = None
+    n_threads: int | None = None
+    timing_repeats: int | None = None
     predictions: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64), repr=False)
     ranked: np.ndarray | None = field(default=None, repr=False)
     ground_truth: GroundTruth | None = field(default=None, repr=False)
@@ -430,6 +442,9 @@ class EvaluationResult:
             "fit_time_s": self.fit_time_s,
             "query_time_s_per_query": self.query_time_s_per_query,
             "rank_time_s_per_query": self.rank_time_s_per_query,
+            "query_latency_s": self.query_latency_s,
+            "n_threads": self.n_threads,
+            "timing_repeats": self.timing_repeats,
             "ground_truth": None if self.ground_truth is None else self.ground_truth.kind,
         }
 
@@ -440,6 +455,122 @@ class EvaluationResult:
     def to_row(self) -> dict[str, Any]:
         """A row for :func:`btel.plots.plot_recall_vs_storage` / :func:`~btel.plots.plot_recall_vs_n`."""
         return {"method": self.name, "bytes": self.nbytes, "n_places": self.n_map, "recall": dict(self.recall)}
+
+
+# -- timing ----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class QueryTiming:
+    """How long a fitted method takes to answer queries, measured so that runs agree.
+
+    Attributes
+    ----------
+    batch_s_per_query : float
+        Median over ``repeats`` timed ``predict(Q)`` calls on every query (after a warm-up call),
+        divided by the number of queries: throughput when the queries come as one batch.
+    latency_s : float or None
+        Median wall time of one query answered alone (``stream().search`` — what a robot runs —
+        or ``predict`` on one row), over ``n_single`` queries after a few warm-up queries. None when
+        the method answers batches only.
+    n_threads : int
+        Threads the numerical libraries (BLAS, OpenMP) may use during the measurement.
+    repeats : int
+        Timed batch calls behind the median.
+    n_single : int
+        Queries behind the latency median.
+    """
+
+    batch_s_per_query: float
+    latency_s: float | None
+    n_threads: int
+    repeats: int
+    n_single: int
+
+
+def _n_threads() -> int:
+    """The largest thread count any loaded numerical library (BLAS, OpenMP) may use."""
+    try:
+        from threadpoolctl import threadpool_info
+
+        counts = [int(info.get("num_threads") or 0) for info in threadpool_info()]
+    except Exception:  # noqa: BLE001 - a description of the machine, never a reason to fail a run
+        counts = []
+    import os
+
+    return max(counts, default=0) or (os.cpu_count() or 1)
+
+
+def time_queries(method: Any, Q: np.ndarray, *, repeats: int = 5, n_single: int = 50, warmup: int = 1,
+                 max_seconds: float = 10.0) -> tuple[np.ndarray, QueryTiming]:
+    """Localize ``Q`` with a fitted ``method`` and time it: warm-up first, then repeats, medians.
+
+    One un-warmed batch call is not a timing: the first call pays for page faults, lazy
+    allocations and thread start-up (a 100× spread between identical runs). Here the first
+    ``warmup`` calls are not timed, the batch is then timed ``repeats`` times (fewer once the timed
+    calls pass ``max_seconds``; at least one) and the median is reported; single-query latency is
+    timed separately, one query at a time.
+
+    Parameters
+    ----------
+    method : fitted estimator with ``predict``
+    Q : ndarray of shape (n_queries, n_features)
+    repeats : int, default 5
+        Timed batch calls.
+    n_single : int, default 50
+        Queries timed one at a time (the first ones of ``Q``); 0 skips the latency.
+    warmup : int, default 1
+        Untimed batch calls before the timed ones (the predictions come from the first).
+    max_seconds : float, default 10
+        Stop repeating once the timed batch calls have taken this long.
+
+    Returns
+    -------
+    predictions : ndarray of shape (n_queries,)
+        ``method.predict(Q)`` as returned (from the first call).
+    timing : QueryTiming
+    """
+    n_queries = Q.shape[0]
+    predictions = method.predict(Q)
+    for _ in range(max(0, warmup - 1)):
+        method.predict(Q)
+    times: list[float] = []
+    for _ in range(max(1, repeats)):
+        start = time.perf_counter()
+        method.predict(Q)
+        times.append(time.perf_counter() - start)
+        if sum(times) > max_seconds:
+            break
+    latency, n_timed = _single_query_latency(method, Q, min(n_single, n_queries), max_seconds)
+    timing = QueryTiming(batch_s_per_query=float(np.median(times)) / n_queries, latency_s=latency,
+                         n_threads=_n_threads(), repeats=len(times), n_single=n_timed)
+    return predictions, timing
+
+
+def _single_query_latency(method: Any, Q: np.ndarray, n: int, max_seconds: float) -> tuple[float | None, int]:
+    """Median seconds of one query answered alone, over up to ``n`` queries (after 3 untimed ones)."""
+    if n <= 0:
+        return None, 0
+    if callable(getattr(method, "stream", None)):
+        stream = method.stream()
+
+        def one(i: int) -> None:
+            stream.search(Q[i])
+    elif getattr(method, "uses_query_sequence", False):
+        return None, 0  # one row alone is not the same question for a sequence method without a stream
+    else:
+        def one(i: int) -> None:
+            method.predict(Q[i:i + 1])
+    for i in range(min(3, n)):
+        one(i)
+    if callable(getattr(method, "stream", None)):
+        stream = method.stream()  # the timed traverse starts afresh
+    times: list[float] = []
+    for i in range(n):
+        start = time.perf_counter()
+        one(i)
+        times.append(time.perf_counter() - start)
+        if sum(times) > max_seconds:
+            break
+    return float(np.median(times)), len(times)
 
 
 def evaluate(
@@ -456,6 +587,7 @@ def evaluate(
     fit: bool = True,
     budget: int | None = None,
     reference: bool = False,
+    timing_repeats: int = 5,
 ) -> EvaluationResult:
     """Fit ``method`` on the map, localize the queries, and measure everything SPEC §9 asks for.
 
@@ -490,6 +622,9 @@ def evaluate(
         The budget the method was given (recorded in the result only).
     reference : bool, default False
         Mark the result as the unbudgeted reference row.
+    timing_repeats : int, default 5
+        Timed batch calls behind the query-time median (:func:`time_queries`: warm-up, repeats,
+        and single-query latency timed apart).
 
     Returns
     -------
@@ -520,9 +655,8 @@ def evaluate(
         method.fit(X_map)
         fit_time = time.perf_counter() - start
 
-    start = time.perf_counter()
-    raw = method.predict(Q)
-    query_time = (time.perf_counter() - start) / n_queries
+    raw, timing = time_queries(method, Q, repeats=timing_repeats)
+    query_time = timing.batch_s_per_query
     predictions = check_predictions(raw, n_queries, name=f"{type(method).__name__}.predict(Q)")
 
     ranked = None
@@ -560,6 +694,9 @@ def evaluate(
         fit_time_s=fit_time,
         query_time_s_per_query=query_time,
         rank_time_s_per_query=rank_time,
+        query_latency_s=timing.latency_s,
+        n_threads=timing.n_threads,
+        timing_repeats=timing.repeats,
         predictions=predictions,
         ranked=ranked,
         ground_truth=gt,
@@ -851,7 +988,8 @@ REFERENCE_MARK = "*"
 def format_table(results: Sequence[EvaluationResult]) -> str:
     """The results as a plain-text table, with the metrics the ground truth supports.
 
-    Columns: method, status, bytes, fit seconds, µs per query, recall@t for every tolerance any
+    Columns: method, status, bytes, fit seconds, batch µs per query (median throughput), single-query
+    latency in µs, the thread count, recall@t for every tolerance any
     row has (frame-aligned ground truth only) and R@K for every K. Rows that did not run show
     their status and reason. ``†`` marks methods that use the query sequence (not comparable
     with single-frame methods), ``*`` the unbudgeted reference; a legend line says so.
@@ -860,8 +998,8 @@ def format_table(results: Sequence[EvaluationResult]) -> str:
     ks = sorted({k for r in results for k in (r.recall_at_k or {})})
     metric_names = [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks]
     width = max([len("method")] + [len(_row_label(r)) for r in results]) + 1
-    header = (f"{'method':<{width}} {'status':<12} {'bytes':>10} {'fit s':>7} {'µs/query':>9} "
-              + " ".join(f"{m:>9}" for m in metric_names))
+    header = (f"{'method':<{width}} {'status':<12} {'bytes':>10} {'fit s':>7} {'batch µs/q':>10} {'1-query µs':>10} "
+              f"{'threads':>7} " + " ".join(f"{m:>9}" for m in metric_names))
     lines = [header.rstrip(), "-" * len(header.rstrip())]
     for r in results:
         label = _row_label(r)
@@ -876,9 +1014,16 @@ def format_table(results: Sequence[EvaluationResult]) -> str:
         fit = f"{r.fit_time_s:.1f}" if r.fit_time_s is not None else "-"
         values = [r.recall.get(t) for t in tolerances] + [(r.recall_at_k or {}).get(k) for k in ks]
         cells = " ".join(f"{v:>9.3f}" if v is not None else f"{'-':>9}" for v in values)
-        query = r.query_time_s_per_query * 1e6 if r.query_time_s_per_query is not None else float("nan")
-        lines.append(f"{label:<{width}} {r.status:<12} {size:>10} {fit:>7} {query:>9.1f} {cells}".rstrip())
+        query = f"{r.query_time_s_per_query * 1e6:.1f}" if r.query_time_s_per_query is not None else "-"
+        latency = f"{r.query_latency_s * 1e6:.1f}" if r.query_latency_s is not None else "-"
+        threads = str(r.n_threads) if r.n_threads is not None else "-"
+        lines.append(f"{label:<{width}} {r.status:<12} {size:>10} {fit:>7} {query:>10} {latency:>10} {threads:>7} "
+                     f"{cells}".rstrip())
     notes = []
+    repeats = {r.timing_repeats for r in results if r.ok and r.timing_repeats}
+    if repeats:
+        notes.append(f"batch µs/q: median of {'/'.join(map(str, sorted(repeats)))} timed predict calls on all queries "
+                     "after a warm-up, per query; 1-query µs: median latency of one query answered alone")
     if tolerances:
         notes.append("recall@t: point prediction within t frames of the true place")
     if ks:

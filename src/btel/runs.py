@@ -144,14 +144,15 @@ def _csv_text(results: Sequence[EvaluationResult]) -> str:
     tolerances = sorted({t for r in results for t in r.recall})
     ks = sorted({k for r in results for k in (r.recall_at_k or {})})
     header = ["method", "status", "reference", "uses_query_sequence", "budget", "n_map", "n_queries", "nbytes",
-              "fit_time_s", "query_time_s_per_query"]
+              "fit_time_s", "query_time_s_per_query", "query_latency_s", "n_threads"]
     header += [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks] + ["reason"]
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(header)
     for r in results:
         row = [r.name, r.status, int(r.reference), int(r.uses_query_sequence), _fmt(r.budget), _fmt(r.n_map),
-               r.n_queries, _fmt(r.nbytes), _fmt(r.fit_time_s), _fmt(r.query_time_s_per_query)]
+               r.n_queries, _fmt(r.nbytes), _fmt(r.fit_time_s), _fmt(r.query_time_s_per_query),
+               _fmt(r.query_latency_s), _fmt(r.n_threads)]
         row += [_fmt(r.recall.get(t)) for t in tolerances]
         row += [_fmt((r.recall_at_k or {}).get(k)) for k in ks]
         row.append(r.reason or "")
