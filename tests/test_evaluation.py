@@ -265,3 +265,44 @@ def test_time_queries_stops_repeating_after_max_seconds(monkeypatch) -> None:
     method = _SlowFirstCall(clock)
     _, timing = ev.time_queries(method, np.zeros((10, 4), np.float32), repeats=50, n_single=0, max_seconds=2.5)
     assert timing.repeats == 3 and timing.latency_s is None  # 1 + 1 + 1 s passes 2.5 s
+
+
+# -- precision-recall from the best-match score --------------------------------------------------------
+def test_precision_recall_by_hand() -> None:
+    from btel.evaluation import precision_recall
+
+    # Most confident first: right, right, wrong, right; 5 queries (one wrong match scored lowest).
+    scores = np.array([0.9, 0.8, 0.7, 0.6, 0.1])
+    correct = np.array([True, True, False, True, False])
+    pr = precision_recall(scores, correct)
+    np.testing.assert_allclose(pr["recall"], [0, 0.2, 0.4, 0.4, 0.6, 0.6])
+    np.testing.assert_allclose(pr["precision"], [1, 1, 1, 2 / 3, 3 / 4, 3 / 5])
+    assert pr["recall_at_100_precision"] == pytest.approx(0.4)
+    assert pr["auc_pr"] == pytest.approx(0.2 + 0.2 + 0.2 * 3 / 4)
+    # Only the order of the scores matters (each method's own scale).
+    again = precision_recall(np.exp(scores) * 7 - 3, correct)
+    assert again["auc_pr"] == pytest.approx(pr["auc_pr"])
+    # The most confident match wrong: no recall at 100 % precision; no correct match: zeros.
+    assert precision_recall([0.9, 0.1], [False, True])["recall_at_100_precision"] == 0.0
+    assert precision_recall([0.9, 0.1], [False, False])["auc_pr"] == 0.0
+    with pytest.raises(InvalidParameterError):
+        precision_recall([0.1, 0.2], [True])
+
+
+def test_evaluate_reports_pr_from_search_scores() -> None:
+    from btel.evaluation import format_table, precision_recall
+
+    rng = np.random.default_rng(0)
+    X = rng.standard_normal((60, 8)).astype(np.float32)
+    Q = X + 0.8 * rng.standard_normal(X.shape).astype(np.float32)
+    method = _NearestNeighbour().fit(X)
+    result = evaluate(method, None, Q, fit=False, ks=(1, 5))
+    scores, places = method.search(Q, 1)
+    expected = precision_recall(scores[:, 0], places[:, 0] == np.arange(60))
+    assert result.auc_pr == pytest.approx(expected["auc_pr"])
+    assert result.recall_at_100_precision == pytest.approx(expected["recall_at_100_precision"])
+    assert 0 < result.auc_pr <= result.recall_at_k[1] <= 1
+    summary = json.loads(json.dumps(result.to_dict()))
+    assert summary["auc_pr"] == pytest.approx(result.auc_pr)
+    assert len(summary["pr_curve"]["recall"]) == len(summary["pr_curve"]["precision"]) <= 256
+    assert "AUC-PR" in format_table([result]) and "R@100%P" in format_table([result])

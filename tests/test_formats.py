@@ -172,7 +172,7 @@ def test_evaluate_reads_hloc_and_vpr_bench_files(gardenspoint_netvlad, tmp_path:
     nn = np.argmax((X / np.linalg.norm(X, axis=1, keepdims=True)) @ (Q / np.linalg.norm(Q, axis=1, keepdims=True)).T,
                    axis=0)
     assert rows["bruteforce"]["recall_at_k"]["1"] == pytest.approx(np.mean(np.abs(nn - np.arange(200)) <= 2))
-    assert rows["pq"]["recall"] == {} and set(rows["pq"]["recall_at_k"]) == {"1", "5", "10"}
+    assert rows["pq"]["recall"] == {} and set(rows["pq"]["recall_at_k"]) == {"1", "5", "10", "20"}
 
 
 # -- 10: descriptors say what they did to the images ------------------------------------------------------

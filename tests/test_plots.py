@@ -113,3 +113,32 @@ def test_plot_real_gardenspoint_curve(gardenspoint_netvlad: tuple[np.ndarray, np
     y = fig.axes[0].get_lines()[0].get_ydata()
     assert 0 < y[0] < y[-1] <= 1  # real descriptors: imperfect at t=0, better with slack
     assert fig.axes[0].get_legend().get_texts()[0].get_text() == "NetVLAD NN (400.0 KB)"
+
+
+def test_run_plots_include_precision_recall_with_auc_in_the_legend(tmp_path: Path) -> None:
+    from btel.evaluation import precision_recall
+    from btel.plots import plot_run
+
+    rng = np.random.default_rng(0)
+    n = 200
+    rows = []
+    for name, noise in (("sharp", 0.2), ("blunt", 2.0), ("same as sharp", 0.2)):
+        pred = np.clip(np.arange(n) + (rng.integers(-3, 4, size=n) if noise > 1 else 0), 0, n - 1)
+        scores = -np.abs(pred - np.arange(n)) + noise * rng.standard_normal(n)
+        pr = precision_recall(scores, pred == np.arange(n))
+        r = _result(name, pred, 10_000)
+        r.auc_pr, r.recall_at_100_precision = pr["auc_pr"], pr["recall_at_100_precision"]
+        r.pr_curve = {"precision": pr["precision"].tolist(), "recall": pr["recall"].tolist()}
+        rows.append(r)
+    written = plot_run(rows, tmp_path)
+    path = tmp_path / "precision_recall.png"
+    assert path in written and path.stat().st_size > 1000
+    from btel.plots import plot_precision_recall
+
+    fig = plot_precision_recall(rows, tmp_path / "again.png")
+    ax = fig.axes[0]
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert labels[0].startswith("sharp (10.0 KB): AUC ") and "R@100%P" in labels[0]
+    lines = ax.get_lines()
+    assert len({line.get_marker() for line in lines}) == 3  # identical curves stay distinguishable
+    assert ax.get_xlabel().startswith("recall") and ax.get_ylabel() == "precision"

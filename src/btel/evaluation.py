@@ -13,7 +13,7 @@ Two names, one meaning each, everywhere (tables, CSV, JSON, plots):
   ``k_tolerance`` frames, default 0, or among the positives). Every method ranks, and the first
   candidate is the point prediction, so R@1 = recall@0 (at ``k_tolerance`` 0) for every method.
 - With explicit positives per query (VPR-Bench, GPS radius) the tolerance does not apply: only
-  R@K is reported (R@1/5/10 by default).
+  R@K is reported (R@1/5/10/20 on the command line, the field's convention).
 - Every result carries storage bytes (and their breakdown), fit time and query time per query.
 
 :func:`evaluate_all` is the harness of ``btel evaluate`` and ``btel demo``: it checks every method
@@ -59,6 +59,7 @@ __all__ = [
     "STATUS_OK",
     "QueryTiming",
     "time_queries",
+    "precision_recall",
 ]
 
 logger = logging.getLogger(__name__)
@@ -256,6 +257,63 @@ def recall_at_k(
     return {k: float(found[:, k - 1].mean()) for k in points}
 
 
+# -- precision–recall from the best-match score (VPR-Bench, VPR_Tutorial) ----------------------------
+#: Points kept of a PR curve in results (the curve is drawn from them; AUC-PR uses every point).
+PR_CURVE_POINTS = 256
+
+
+def precision_recall(best_scores: Any, correct: Any) -> dict[str, Any]:
+    """The precision–recall curve of accepting a query's top-1 match when its score passes a threshold.
+
+    Each query has one best match and its score (higher = more confident). Sweeping a threshold
+    from the highest score down: precision = correct accepted matches / accepted matches, recall =
+    correct accepted matches / all queries (every query has a true place in the map; VPR-Bench's and
+    VPR_Tutorial's convention). Scores are compared within one method only, so any method's own
+    scale serves (a monotone rescaling changes nothing).
+
+    Parameters
+    ----------
+    best_scores : array-like of float, shape (n_queries,)
+        Score of each query's best match (``search(Q, 1)[0][:, 0]``). NaN counts as least confident.
+    correct : array-like of bool, shape (n_queries,)
+        Whether that best match is a true place.
+
+    Returns
+    -------
+    dict
+        ``precision``, ``recall`` (ndarrays, one point per distinct threshold, recall increasing),
+        ``auc_pr`` (area under the step curve: Σ ΔRecall × precision, i.e. average precision with
+        recall over all queries) and ``recall_at_100_precision`` (the largest recall with no false
+        match accepted; 0 when the most confident match is wrong).
+    """
+    from sklearn.metrics import precision_recall_curve
+
+    scores = np.asarray(best_scores, dtype=np.float64).reshape(-1)
+    correct = np.asarray(correct, dtype=bool).reshape(-1)
+    if scores.shape != correct.shape or scores.size == 0:
+        raise InvalidParameterError(f"best_scores and correct must be 1-D of one length ≥ 1; got {scores.shape} "
+                                    f"and {correct.shape}.")
+    finite = np.isfinite(scores)
+    low = scores[finite].min() - 1.0 if finite.any() else 0.0
+    scores = np.where(np.isnan(scores), low, np.clip(scores, low, None))
+    n_correct = int(correct.sum())
+    if n_correct == 0:
+        return {"precision": np.zeros(1), "recall": np.zeros(1), "auc_pr": 0.0, "recall_at_100_precision": 0.0}
+    precision, recall, _ = precision_recall_curve(correct, scores)
+    # sklearn's recall counts correct top-1 matches only; VPR counts every query (a wrong top-1 is a miss).
+    precision, recall = precision[::-1], recall[::-1] * (n_correct / correct.size)
+    auc = float(np.sum(np.diff(recall) * precision[1:]))
+    perfect = recall[precision >= 1.0]
+    return {"precision": precision, "recall": recall, "auc_pr": auc,
+            "recall_at_100_precision": float(perfect.max()) if perfect.size else 0.0}
+
+
+def _thin_curve(precision: np.ndarray, recall: np.ndarray, n: int = PR_CURVE_POINTS) -> tuple[list[float], list[float]]:
+    """At most ``n`` points of a PR curve, evenly spaced along it (first and last kept)."""
+    keep = np.unique(np.linspace(0, precision.size - 1, min(n, precision.size)).round().astype(int))
+    return [float(v) for v in precision[keep]], [float(v) for v in recall[keep]]
+
+
 # -- evaluation of one method --------------------------------------------------------------------
 def _jsonable(value: Any, depth: int = 0) -> Any:
     """A JSON-safe version of a parameter value (strict JSON: no NaN/inf)."""
@@ -344,6 +402,13 @@ class EvaluationResult:
         Threads the numerical libraries could use while timing.
     timing_repeats : int or None
         Timed batch calls behind ``query_time_s_per_query``.
+    auc_pr : float or None
+        Area under the precision–recall curve of accepting each query's top-1 match by its score
+        (:func:`precision_recall`); None when the method gives no scores.
+    recall_at_100_precision : float or None
+        Recall at 100 % precision on that curve.
+    pr_curve : dict or None
+        ``{"precision": [...], "recall": [...]}``, at most :data:`PR_CURVE_POINTS` points.
     predictions : ndarray of shape (n_queries,), dtype int64
         Predicted place per query row (not written to JSON; see ``predictions_<name>.csv``).
     ranked : ndarray of shape (n_queries, k), dtype int64, or None
@@ -387,6 +452,9 @@ class EvaluationResult:
     query_latency_s: float | None = None
     n_threads: int | None = None
     timing_repeats: int | None = None
+    auc_pr: float | None = None
+    recall_at_100_precision: float | None = None
+    pr_curve: dict[str, list[float]] | None = field(default=None, repr=False)
     predictions: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64), repr=False)
     ranked: np.ndarray | None = field(default=None, repr=False)
     ground_truth: GroundTruth | None = field(default=None, repr=False)
@@ -445,6 +513,9 @@ class EvaluationResult:
             "query_latency_s": self.query_latency_s,
             "n_threads": self.n_threads,
             "timing_repeats": self.timing_repeats,
+            "auc_pr": self.auc_pr,
+            "recall_at_100_precision": self.recall_at_100_precision,
+            "pr_curve": self.pr_curve,
             "ground_truth": None if self.ground_truth is None else self.ground_truth.kind,
         }
 
@@ -662,10 +733,16 @@ def evaluate(
     ranked = None
     rank_time = None
     r_at_k = None
+    best_scores = None
+    has_search = callable(getattr(method, "search", None))
     if ks and getattr(method, "supports_ranking", callable(getattr(method, "rank", None))):
         k = ks[-1] if n_map is None else min(ks[-1], n_map)
         start = time.perf_counter()
-        ranked = np.asarray(method.rank(Q, k=k))
+        if has_search:  # the ranking and each candidate's score in one call
+            scores, ranked = method.search(Q, k=k)
+            best_scores, ranked = np.asarray(scores)[:, 0], np.asarray(ranked)
+        else:
+            ranked = np.asarray(method.rank(Q, k=k))
         rank_time = (time.perf_counter() - start) / n_queries
         if ranked.ndim != 2 or ranked.shape[0] != n_queries:
             raise InvalidParameterError(
@@ -679,6 +756,12 @@ def evaluate(
     elif ks:
         # No ranking: the point prediction is the one candidate, so R@K is known for K = 1 only.
         r_at_k = recall_at_k(predictions[:, None], gt, (1,), tolerance=k_tolerance)
+
+    if best_scores is None and has_search:
+        best_scores = np.asarray(method.search(Q, k=1)[0])[:, 0]
+    pr = None
+    if best_scores is not None and best_scores.shape == (n_queries,):
+        pr = precision_recall(best_scores, gt.is_correct(predictions, k_tolerance))
 
     nbytes, breakdown = _storage_of(method)
     return EvaluationResult(
@@ -697,6 +780,10 @@ def evaluate(
         query_latency_s=timing.latency_s,
         n_threads=timing.n_threads,
         timing_repeats=timing.repeats,
+        auc_pr=None if pr is None else pr["auc_pr"],
+        recall_at_100_precision=None if pr is None else pr["recall_at_100_precision"],
+        pr_curve=None if pr is None else dict(zip(("precision", "recall"), _thin_curve(pr["precision"],
+                                                                                        pr["recall"]))),
         predictions=predictions,
         ranked=ranked,
         ground_truth=gt,
@@ -996,7 +1083,8 @@ def format_table(results: Sequence[EvaluationResult]) -> str:
     """
     tolerances = sorted({t for r in results for t in r.recall})
     ks = sorted({k for r in results for k in (r.recall_at_k or {})})
-    metric_names = [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks]
+    has_pr = any(r.auc_pr is not None for r in results)
+    metric_names = [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks] + (["AUC-PR", "R@100%P"] if has_pr else [])
     width = max([len("method")] + [len(_row_label(r)) for r in results]) + 1
     header = (f"{'method':<{width}} {'status':<12} {'bytes':>10} {'fit s':>7} {'batch µs/q':>10} {'1-query µs':>10} "
               f"{'threads':>7} " + " ".join(f"{m:>9}" for m in metric_names))
@@ -1013,6 +1101,8 @@ def format_table(results: Sequence[EvaluationResult]) -> str:
         size = format_bytes(r.nbytes) if r.nbytes is not None else "?"
         fit = f"{r.fit_time_s:.1f}" if r.fit_time_s is not None else "-"
         values = [r.recall.get(t) for t in tolerances] + [(r.recall_at_k or {}).get(k) for k in ks]
+        if has_pr:
+            values += [r.auc_pr, r.recall_at_100_precision]
         cells = " ".join(f"{v:>9.3f}" if v is not None else f"{'-':>9}" for v in values)
         query = f"{r.query_time_s_per_query * 1e6:.1f}" if r.query_time_s_per_query is not None else "-"
         latency = f"{r.query_latency_s * 1e6:.1f}" if r.query_latency_s is not None else "-"
@@ -1030,6 +1120,9 @@ def format_table(results: Sequence[EvaluationResult]) -> str:
         k_tol = max((r.tolerance_for_k for r in results if r.ok), default=0)
         within = f" (within {k_tol} frames)" if k_tol else ""
         notes.append(f"R@K: a correct place{within} among the top K ranked candidates")
+    if has_pr:
+        notes.append("AUC-PR, R@100%P: precision-recall of accepting each query's top-1 match by its score "
+                     "(recall over all queries)")
     if any(r.reference for r in results):
         notes.append(f"{REFERENCE_MARK} reference (unbudgeted)")
     if any(r.uses_query_sequence for r in results):

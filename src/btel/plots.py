@@ -38,6 +38,7 @@ __all__ = [
     "plot_experiment",
     "plot_recall_at_k",
     "plot_run",
+    "plot_precision_recall",
 ]
 
 _FIGSIZE = (6.4, 4.4)
@@ -295,7 +296,9 @@ def plot_run(results: Sequence[Any], out_dir: str | os.PathLike, *, title: str |
       panel per budget when the run has several, the reference in each;
     - ``recall_vs_storage.png`` when storage is known: recall@t at the middle reported
       tolerance (10 frames when reported), or R@1 with explicit positives, against stored bytes,
-      one line per method through its budgets, the budgets as dotted lines.
+      one line per method through its budgets, the budgets as dotted lines;
+    - ``precision_recall.png`` when the methods give scores: the PR curve of accepting each query's
+      top-1 match by its score, AUC-PR and recall at 100 % precision in the legend.
 
     Returns
     -------
@@ -336,7 +339,61 @@ def plot_run(results: Sequence[Any], out_dir: str | os.PathLike, *, title: str |
                           and not _field(r, "reference", False)})
         written.append(out_dir / "recall_vs_storage.png")
         plot_recall_vs_storage(rows, written[-1], tolerance=key, title=title, ylabel=ylabel, budgets=budgets)
+    if any(_field(r, "pr_curve") for r in results):
+        written.append(out_dir / "precision_recall.png")
+        plot_precision_recall(results, written[-1], title=title)
     return written
+
+
+def plot_precision_recall(results: Sequence[Any], path: str | os.PathLike, *, title: str | None = None) -> Figure:
+    """Precision (y) against recall (x) of accepting each query's top-1 match by its score, one curve per method.
+
+    The legend gives each method's AUC-PR and recall at 100 % precision. Curves that coincide (two
+    methods with the same answers) stay visible: each method has its own marker, placed at
+    different points along the curve.
+
+    Parameters
+    ----------
+    results : sequence of EvaluationResult or dict
+        Each needs ``name`` and ``pr_curve`` (``{"precision": [...], "recall": [...]}``); rows without
+        one are left out.
+    path : path
+        PNG file to write.
+    title : str, optional
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    series = [r for r in results if _field(r, "pr_curve")]
+    if not series:
+        raise InvalidParameterError("nothing to plot: no result has a precision-recall curve.")
+    fig = Figure(figsize=(_FIGSIZE[0], _FIGSIZE[1] + 0.25 * len(series)), dpi=_DPI)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    markers = "osD^v<>ph*"
+    for i, r in enumerate(series):
+        curve = _field(r, "pr_curve")
+        recall, precision = np.asarray(curve["recall"], float), np.asarray(curve["precision"], float)
+        auc, perfect = _field(r, "auc_pr"), _field(r, "recall_at_100_precision")
+        label = _legend_label(r) + (f": AUC {auc:.3f}, R@100%P {perfect:.3f}" if auc is not None else "")
+        n_marks = 6
+        start = (i * max(1, recall.size // (n_marks * len(series)))) % max(1, recall.size)
+        ax.plot(recall, precision, drawstyle="steps-post", color=f"C{i % 10}", linestyle=_linestyle(r),
+                marker=markers[i % len(markers)], markevery=(start, max(1, recall.size // n_marks)), markersize=5,
+                label=label)
+    ax.set_xlim(0.0, 1.0)
+    ax.set_ylim(0.0, 1.02)
+    ax.grid(True, alpha=0.3)
+    ax.set_xlabel("recall (correct accepted top-1 matches / all queries)")
+    ax.set_ylabel("precision")
+    ax.legend(fontsize="x-small", loc="upper center", bbox_to_anchor=(0.5, -0.14), frameon=False)  # never on a curve
+    if title:
+        import textwrap
+
+        ax.set_title(textwrap.fill(title, width=70), fontsize="small")
+    _save(fig, path)
+    return fig
 
 
 def _legend_label_short(r: Any) -> str:

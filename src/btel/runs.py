@@ -145,7 +145,7 @@ def _csv_text(results: Sequence[EvaluationResult]) -> str:
     ks = sorted({k for r in results for k in (r.recall_at_k or {})})
     header = ["method", "status", "reference", "uses_query_sequence", "budget", "n_map", "n_queries", "nbytes",
               "fit_time_s", "query_time_s_per_query", "query_latency_s", "n_threads"]
-    header += [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks] + ["reason"]
+    header += [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks] + ["auc_pr", "recall@100%precision", "reason"]
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(header)
@@ -155,6 +155,7 @@ def _csv_text(results: Sequence[EvaluationResult]) -> str:
                _fmt(r.query_latency_s), _fmt(r.n_threads)]
         row += [_fmt(r.recall.get(t)) for t in tolerances]
         row += [_fmt((r.recall_at_k or {}).get(k)) for k in ks]
+        row += [_fmt(r.auc_pr), _fmt(r.recall_at_100_precision)]
         row.append(r.reason or "")
         writer.writerow(row)
     return buffer.getvalue()

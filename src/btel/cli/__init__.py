@@ -624,7 +624,7 @@ def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_time
 @click.option("--tolerances", default=None, metavar="T,T,…",
               help="recall@t tolerances in frames (one true place per query only). Default: 0,1,2,5,10,20 up "
                    "to a tenth of the map (0,1,2,5,10 on a 111-place route).")
-@click.option("--k", "ks_text", default="1,5,10", show_default=True, metavar="K,K,…",
+@click.option("--k", "ks_text", default="1,5,10,20", show_default=True, metavar="K,K,…",
               help="R@K: a correct place among the top K ranked candidates (every method ranks; R@1 is the point "
                    "prediction). With explicit positives R@K is the only metric.")
 @click.option("--query-order", type=click.Choice(["route", "independent"]), default="route", show_default=True,
@@ -810,7 +810,7 @@ def _fit_jobs(names: list[str], budgets: list[str | None], param_texts: tuple[st
 
 def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out: Path, overwrite: bool, title: str,
               extra: dict[str, Any], progress: bool, tolerances: list[int] | None = None,
-              ks: list[int] | tuple[int, ...] = (1, 5, 10), queries_are_route: bool = True) -> bool:
+              ks: list[int] | tuple[int, ...] = (1, 5, 10, 20), queries_are_route: bool = True) -> bool:
     """Run every job through :func:`btel.evaluation.evaluate_all`, writing the run folder as rows finish.
 
     Prints the rows that cannot run before fitting anything, a progress bar (or one line per job
