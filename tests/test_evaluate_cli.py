@@ -346,3 +346,47 @@ def test_evaluate_reports_r_at_20_and_pr_by_default(tmp_path: Path) -> None:
         assert row["query_latency_s"] > 0 and row["n_threads"] >= 1
     assert "auc_pr" in (out / "metrics.csv").read_text().splitlines()[0]
     assert (out / "precision_recall.png").is_file()
+
+
+def test_ctrl_c_exits_130_with_plots_and_resume_skips_the_rows_done(tmp_path: Path, monkeypatch) -> None:
+    import btel.evaluation as ev
+
+    route = synthetic_route(n_places=120, dim=16, seed=1)
+    np.save(tmp_path / "db.npy", route.map)
+    np.save(tmp_path / "q.npy", route.queries)
+    real = ev.evaluate
+    calls: list[str] = []
+
+    def interrupted_at_itq(method, *args, **kwargs):
+        calls.append(kwargs["name"])
+        if kwargs["name"] == "itq":
+            raise KeyboardInterrupt
+        return real(method, *args, **kwargs)
+
+    monkeypatch.setattr(ev, "evaluate", interrupted_at_itq)
+    out = tmp_path / "run"
+    args = ["evaluate", "--db", tmp_path / "db.npy", "--queries", tmp_path / "q.npy", "--methods", "pq,itq,btel-c",
+            "--budget", "4KB", "--no-progress"]
+    result = run(*args, "--out", out)
+    assert result.exit_code == 130, result.output
+    assert (out / "recall_vs_tolerance.png").is_file()  # the partial run's plots
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["run"]["complete"] is False
+    assert {r["name"]: r["status"] for r in metrics["results"]} == {
+        "pq": "ok", "itq": "not run", "btel-c": "not run", "bruteforce": "not run"}
+    pq_predictions = (out / "predictions_pq.csv").read_text()
+
+    monkeypatch.setattr(ev, "evaluate", lambda method, *a, **kw: (calls.append(kw["name"]), real(method, *a, **kw))[1])
+    calls.clear()
+    result = run(*args, "--resume", out)
+    assert result.exit_code == 0, result.output
+    assert "resuming" in result.output and "1 of 4 rows done (pq)" in result.output
+    assert calls == ["itq", "btel-c", "bruteforce"]  # pq is not run again
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["run"]["complete"] is True
+    assert [r["status"] for r in metrics["results"]] == ["ok"] * 4
+    assert (out / "predictions_pq.csv").read_text() == pq_predictions
+    # Other queries than the run's: refused.
+    np.save(tmp_path / "other.npy", route.queries[::-1].copy())
+    wrong = run(*[a if a != tmp_path / "q.npy" else tmp_path / "other.npy" for a in args], "--resume", out)
+    assert wrong.exit_code == 2 and "give the same" in wrong.output

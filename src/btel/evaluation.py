@@ -485,6 +485,35 @@ class EvaluationResult:
                      minimum_bytes=minimum_bytes)
         return result
 
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "EvaluationResult":
+        """A row back from :meth:`to_dict` (``metrics.json``): every number, no predictions or ranking.
+
+        Raises
+        ------
+        InvalidParameterError
+            ``data`` lacks a field :meth:`to_dict` writes.
+        """
+        try:
+            result = cls(
+                name=str(data["name"]), params=dict(data.get("params") or {}), n_map=data.get("n_map"),
+                n_queries=int(data["n_queries"]), recall={int(t): float(v) for t, v in (data.get("recall") or {}).items()},
+                recall_curve=np.asarray(data.get("recall_curve") or [], dtype=np.float64),
+                recall_at_k=(None if data.get("recall_at_k") is None
+                             else {int(k): float(v) for k, v in data["recall_at_k"].items()}),
+                nbytes=data.get("nbytes"), storage_breakdown=data.get("storage_breakdown"),
+                fit_time_s=data.get("fit_time_s"), query_time_s_per_query=data.get("query_time_s_per_query"),
+                rank_time_s_per_query=data.get("rank_time_s_per_query"), query_latency_s=data.get("query_latency_s"),
+                n_threads=data.get("n_threads"), timing_repeats=data.get("timing_repeats"), auc_pr=data.get("auc_pr"),
+                recall_at_100_precision=data.get("recall_at_100_precision"), pr_curve=data.get("pr_curve"),
+                tolerance_for_k=int(data.get("tolerance_for_k") or 0), status=str(data["status"]),
+                reason=data.get("reason"), budget=data.get("budget"), reference=bool(data.get("reference")),
+                uses_query_sequence=bool(data.get("uses_query_sequence")), minimum_bytes=data.get("minimum_bytes"),
+                series=data.get("series"))
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise InvalidParameterError(f"not a row of metrics.json ({type(exc).__name__}: {exc}).") from exc
+        return result
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (no predictions). Tolerances and K stay ints here; JSON makes them strings."""
         return {
@@ -973,6 +1002,7 @@ def evaluate_all(
     on_preflight: Callable[[dict[str, EvaluationResult]], None] | None = None,
     on_result: Callable[[list[EvaluationResult]], None] | None = None,
     on_start: Callable[[int, Job], None] | None = None,
+    finished: Sequence[EvaluationResult] = (),
 ) -> list[EvaluationResult]:
     """Evaluate every job; one that does not fit or fails becomes a row, never an abort.
 
@@ -1004,6 +1034,9 @@ def evaluate_all(
         Called with the list of rows so far after each job.
     on_start : callable, optional
         Called with (index, job) before a job is fitted (progress display).
+    finished : sequence of EvaluationResult, optional
+        Rows of an earlier, interrupted run of the same jobs (``btel evaluate --resume``): a job
+        with a row of status ``"ok"`` here is not run again; that row is kept.
 
     Returns
     -------
@@ -1028,6 +1061,7 @@ def evaluate_all(
     if on_preflight is not None:
         on_preflight(skipped)
     done: dict[str, EvaluationResult] = dict(skipped)
+    done.update({r.name: r for r in finished if r.ok and r.name in names})
 
     def rows() -> list[EvaluationResult]:
         return [done[name] for name in names if name in done]

@@ -94,7 +94,7 @@ def _safe_name(name: str) -> str:
 
 #: Files a run folder may hold; with ``overwrite=True`` these (and only these) are removed first.
 _RUN_FILE_PATTERNS = ("metrics.json", "metrics.csv", "predictions_*.csv", "recall_vs_*.png", "recall_at_k.png",
-                      ".metrics.*.tmp")
+                      "precision_recall.png", ".metrics.*.tmp")
 
 
 def check_run_folder(out_dir: str | os.PathLike, overwrite: bool = False) -> None:
@@ -236,6 +236,43 @@ class RunWriter:
 
             self.plots = _plots.plot_run(measured, self.out_dir, title=title)
         return RunReport(self.out_dir, self.metrics_json, self.metrics_csv, dict(self.predictions), list(self.plots))
+
+
+# -- resuming an interrupted run (btel evaluate --resume) ------------------------------------------------
+def read_unfinished_run(out_dir: str | os.PathLike) -> tuple[dict[str, Any], list[EvaluationResult]]:
+    """The run metadata and rows of a run folder, to go on with it (``btel evaluate --resume RUN``).
+
+    Raises
+    ------
+    DataNotFoundError
+        No ``metrics.json`` in ``out_dir``.
+    InvalidParameterError
+        ``metrics.json`` is not a btel run (unreadable, or rows without their fields).
+    """
+    path = Path(out_dir) / "metrics.json"
+    if not path.is_file():
+        raise DataNotFoundError(f"{str(out_dir)!r} has no metrics.json; it is not a run folder to resume.")
+    try:
+        payload = json.loads(path.read_text(encoding="utf-8"))
+        return dict(payload["run"]), [EvaluationResult.from_dict(r) for r in payload["results"]]
+    except (ValueError, KeyError, TypeError) as exc:
+        raise InvalidParameterError(f"{str(path)!r} is not a btel run's metrics ({exc}).") from exc
+
+
+def resume_writer(out_dir: str | os.PathLike, finished: Sequence[EvaluationResult], *,
+                  command: str | Sequence[str] | None = None, extra: Mapping[str, Any] | None = None) -> "RunWriter":
+    """A :class:`RunWriter` that goes on writing into an existing run folder: the predictions files of
+    the ``finished`` rows are kept (not rewritten), everything else is rewritten as the run goes on."""
+    writer = RunWriter.__new__(RunWriter)
+    writer.out_dir = Path(out_dir)
+    writer.meta = run_metadata(command)
+    if extra:
+        writer.meta["extra"] = _jsonable(dict(extra))
+    writer.metrics_json = writer.out_dir / "metrics.json"
+    writer.metrics_csv = writer.out_dir / "metrics.csv"
+    writer.predictions = {r.name: writer.out_dir / f"predictions_{_safe_name(r.name)}.csv" for r in finished if r.ok}
+    writer.plots = []
+    return writer
 
 
 def write_run(

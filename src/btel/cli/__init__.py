@@ -35,6 +35,8 @@ from ._outputs import refuse_existing
 # that `btel --help` starts in a fraction of a second.
 #: Exit status of a finished evaluate/demo run in which some method did not fit or failed.
 EXIT_SOME_ROWS_FAILED = 3
+#: Exit status after Ctrl-C (128 + SIGINT, what a shell reports for an interrupted program).
+EXIT_INTERRUPTED = 130
 
 
 def _show_warning(message: Any, category: type, filename: str, lineno: int, file: Any = None,
@@ -629,8 +631,12 @@ def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_time
                    "prediction). With explicit positives R@K is the only metric.")
 @click.option("--query-order", type=click.Choice(["route", "independent"]), default="route", show_default=True,
               help=_ORDER_HELP)
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Run folder.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
+              help="Run folder (required unless --resume).")
 @click.option("--overwrite", is_flag=True, help="Replace the run files in an existing run folder.")
+@click.option("--resume", "resume_dir", type=click.Path(file_okay=False), default=None, metavar="RUN",
+              help="Go on with the run folder RUN (interrupted with Ctrl-C): the rows already done (status ok) are "
+                   "kept and not run again, the others run. Give the same --db/--model/--queries and options.")
 @click.option("--normalize", type=click.Choice(["none", "l2", "power"]), default=None,
               help="Every method's front-end normalisation (default l2; SeqSLAM none). Same as --param normalize=…")
 @click.option("--whiten", type=int, default=None, metavar="P",
@@ -641,7 +647,8 @@ def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_time
 @click.pass_context
 def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...], queries: str, methods: str,
                  budget: str | None, no_reference: bool, param_texts: tuple[str, ...], ground_truth: str | None,
-                 tolerances: str | None, ks_text: str, query_order: str, out_dir: str, overwrite: bool,
+                 tolerances: str | None, ks_text: str, query_order: str, out_dir: str | None, overwrite: bool,
+                 resume_dir: str | None,
                  normalize: str | None, whiten: int | None, delta: int | None, no_progress: bool,
                  n_jobs: int | None) -> None:
     """Localize QUERIES with each method and write metrics.json, metrics.csv, predictions and plots to --out.
@@ -671,6 +678,13 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
 
     if db is None and not model_paths:
         raise click.UsageError("give --db (to fit --methods) or at least one --model.")
+    if resume_dir is not None and out_dir is not None and Path(out_dir) != Path(resume_dir):
+        raise click.UsageError("--resume RUN writes into RUN; drop --out (or give the same folder).")
+    if resume_dir is not None and overwrite:
+        raise click.UsageError("--resume keeps the rows of RUN; --overwrite would replace them. Give one.")
+    if out_dir is None and resume_dir is None:
+        raise click.UsageError("give --out RUN_FOLDER (or --resume RUN to go on with an interrupted run).")
+    out_dir = out_dir or resume_dir
     if param_texts and db is None:
         raise click.UsageError("--param sets parameters of the methods fitted on --db; saved --model files keep theirs.")
     budgets = _budgets(budget) if budget else [None]
@@ -685,7 +699,9 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
                      shortcuts={**front, **_runtime_shortcuts(no_progress, n_jobs)}) \
         if db is not None else []
     # Cheap checks first, so that nothing is fitted for a run that cannot be written or scored.
-    check_run_folder(Path(out_dir), overwrite)
+    finished = _finished_rows(resume_dir, queries) if resume_dir is not None else None
+    if finished is None:
+        check_run_folder(Path(out_dir), overwrite)
     Q = _load_matrix(queries, "query descriptors")
     X = None
     if db is not None:
@@ -718,13 +734,28 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
     click.echo(f"map: N = {n_map} places; queries: {Q.shape[0]} × {Q.shape[1]}; ground truth: {truth}")
     failed = _run_jobs(saved + jobs, X, Q, ground_truth=gt, out=Path(out_dir), overwrite=overwrite, title=title,
                        tolerances=tolerance_list, ks=ks, queries_are_route=query_order == "route",
-                       progress=not no_progress,
+                       progress=not no_progress, finished=finished,
                        extra={"db": str(Path(db).resolve()) if db else None, "models": list(model_paths),
                               "queries": str(Path(queries).resolve()), "budget": budgets,
                               "ground_truth": str(Path(ground_truth).resolve()) if ground_truth else "frame-aligned",
                               "query_order": query_order})
     if failed:
         ctx.exit(EXIT_SOME_ROWS_FAILED)
+
+
+def _finished_rows(run: str, queries: str) -> list[Any]:
+    """The rows of the run folder ``run`` to keep (``--resume``), after checking it ran on ``queries``."""
+    from ..runs import read_unfinished_run
+
+    meta, rows = read_unfinished_run(run)
+    before = (meta.get("extra") or {}).get("queries")
+    if before is not None and before != str(Path(queries).resolve()):
+        raise click.UsageError(f"--resume {run}: that run localized {before}, not {queries}; give the same "
+                               "--queries (and --db/--model, options) as the interrupted run.")
+    done = [r for r in rows if r.ok]
+    click.echo(f"resuming {run}: {len(done)} of {len(rows)} rows done ({', '.join(r.name for r in done) or 'none'}); "
+               "the others run now")
+    return done
 
 
 def _runtime_shortcuts(no_progress: bool, n_jobs: int | None) -> dict[str, tuple[str, Any]]:
@@ -810,6 +841,7 @@ def _fit_jobs(names: list[str], budgets: list[str | None], param_texts: tuple[st
 
 def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out: Path, overwrite: bool, title: str,
               extra: dict[str, Any], progress: bool, tolerances: list[int] | None = None,
+              finished: list[Any] | None = None,
               ks: list[int] | tuple[int, ...] = (1, 5, 10, 20), queries_are_route: bool = True) -> bool:
     """Run every job through :func:`btel.evaluation.evaluate_all`, writing the run folder as rows finish.
 
@@ -822,7 +854,12 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
     from ..runs import RunWriter
     from ..storage import format_bytes
 
-    writer = RunWriter(out, command=_command_line(), extra=extra, overwrite=overwrite)
+    if finished is not None:  # --resume: the finished rows and their predictions stay
+        from ..runs import resume_writer
+
+        writer = resume_writer(out, finished, command=_command_line(), extra=extra)
+    else:
+        writer = RunWriter(out, command=_command_line(), extra=extra, overwrite=overwrite)
     bar = tqdm(total=len(jobs), unit="method", disable=None if progress else True, leave=False, file=sys.stderr)
 
     def on_preflight(skipped: dict[str, Any]) -> None:
@@ -840,7 +877,10 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
         else:
             bar.set_description_str(what)
 
+    latest: list[Any] = []
+
     def on_result(rows: list[Any]) -> None:
+        latest[:] = rows
         writer.write(rows)
         if rows and not bar.disable:
             bar.update(1)
@@ -848,11 +888,12 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
     try:
         results = evaluate_all(jobs, X, Q, ground_truth=ground_truth, tolerances=tolerances, ks=ks,
                                queries_are_route=queries_are_route, on_preflight=on_preflight, on_result=on_result,
-                               on_start=on_start)
+                               on_start=on_start, finished=finished or ())
     except KeyboardInterrupt:
         bar.close()
+        _plot_partial_run(latest, out, title)
         click.echo(f"interrupted: the finished rows are in {out}/metrics.csv", err=True)
-        raise
+        raise click.exceptions.Exit(EXIT_INTERRUPTED) from None
     bar.close()
     click.echo(format_table(results))
     report = writer.finish(results, title=title)
@@ -862,6 +903,19 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
         click.echo(f"{len(failed)} of {len(results)} rows did not run: "
                    + "; ".join(f"{r.name} ({r.status})" for r in failed) + "; see their reason in the table.", err=True)
     return bool(failed)
+
+
+def _plot_partial_run(rows: list[Any], out: Path, title: str) -> None:
+    """The plots of the rows that finished before Ctrl-C (metrics.json stays ``"complete": false``)."""
+    from ..plots import plot_run
+
+    measured = [r for r in rows if r.ok]
+    if not measured:
+        return
+    try:
+        plot_run(measured, out, title=f"{title} — interrupted: {len(measured)} of {len(rows)} rows")
+    except (ValueError, OSError) as exc:  # the rows on disk matter more than a figure
+        click.echo(f"Warning: the plots of the partial run could not be drawn ({exc})", err=True)
 
 
 @main.command(name="methods")
