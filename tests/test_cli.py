@@ -325,6 +325,31 @@ def test_evaluate_and_demo_params_for_every_method_or_one(small_pair, tmp_path: 
 def test_methods_lists_parameters() -> None:
     result = run("methods", "--params")
     assert result.exit_code == 0
-    lines = result.output.splitlines()
-    params = {lines[i].split()[0]: lines[i + 1].split("params: ", 1)[1] for i in range(0, len(lines), 2)}
-    assert "n_regions=20" in params["btel-r"] and "nbits=null" in params["pq"]
+    params: dict[str, list[str]] = {}
+    for line in result.output.splitlines():
+        if line[:1].strip():
+            method = line.split()[0]
+            params[method] = []
+        else:
+            params[method].append(line.strip())
+    assert any(p.startswith("n_regions=20:") for p in params["btel-r"])
+    # Each parameter: default, allowed values (declared constraints), meaning (docstring).
+    nbits = next(p for p in params["pq"] if p.startswith("nbits="))
+    assert nbits.startswith("nbits=null: None or an integer ≥ 1 and ≤ 8 — Bits per sub-quantiser")
+    assert any(p.startswith("progress=true [runtime]: one of (True, False) — ") for p in params["btel-c"])
+    from btel.methods import METHODS, make_method
+
+    assert set(params) == set(METHODS)
+    for name, lines in params.items():
+        assert len(lines) == len(make_method(name).get_params())
+        assert all(" — " in line for line in lines), name  # every parameter has a meaning
+
+
+def test_info_shows_what_fitting_chose_and_every_stored_array(small_pair, tmp_path: Path) -> None:
+    db, _ = small_pair
+    model = tmp_path / "pq.npz"
+    assert run("train", db, "-o", model, "--method", "pq", "--budget", "20KB", "--whiten", "16").exit_code == 0
+    out = run("info", model).output
+    assert "n_subquantizers=null (chosen: " in out and "nbits=null (chosen: " in out
+    assert "chosen at fit: dim=16" in out
+    assert "stored arrays:" in out and "frontend_whitening" in out and "64 × 16  float32         4,096 B" in out

@@ -919,7 +919,9 @@ def _plot_partial_run(rows: list[Any], out: Path, title: str) -> None:
 
 
 @main.command(name="methods")
-@click.option("--params", "show_params", is_flag=True, help="Also list each method's parameters and defaults.")
+@click.option("--params", "show_params", is_flag=True,
+              help="Also list each method's parameters: NAME=DEFAULT: allowed values — meaning ([runtime]: how it "
+                   "runs, not what it computes; not saved with a model).")
 def methods_cmd(show_params: bool) -> None:
     """List the registered methods, one line each (and, with --params, what --param can set).
 
@@ -933,8 +935,11 @@ def methods_cmd(show_params: bool) -> None:
         mark = " †" if model.uses_query_sequence else ""
         click.echo(f"{name:<{width}}  {DESCRIPTIONS.get(name, '')}{mark}")
         if show_params:
-            defaults = sorted(model.get_params().items())
-            click.echo(" " * (width + 2) + "params: " + ", ".join(f"{k}={_param_text(v)}" for k, v in defaults))
+            from ._params import parameter_lines
+
+            runtime = set(getattr(model, "_runtime_params", ()))
+            for line in parameter_lines(model, runtime=runtime):
+                click.echo(" " * (width + 4) + line)
 
 
 def _method_names() -> list[str]:
@@ -980,10 +985,40 @@ def info(model_path: str) -> None:
     params = model.get_params(deep=False)
     runtime = set(getattr(model, "_runtime_params", ()))
     shown = {k: v for k, v in sorted(params.items()) if k not in runtime and k not in ("normalize", "whiten", "delta")}
-    click.echo("parameters: " + ", ".join(f"{k}={_param_text(v)}" for k, v in shown.items()))
+    chosen = _chosen_at_fit(model)
+    click.echo("parameters: " + ", ".join(
+        f"{k}={_param_text(v)}" + (f" (chosen: {_param_text(chosen[k])})" if v is None and k in chosen else "")
+        for k, v in shown.items()))
+    if chosen:
+        click.echo("chosen at fit: " + ", ".join(f"{k}={_param_text(v)}" for k, v in chosen.items()))
     _echo_storage(model)
+    _echo_arrays(model)
     size = Path(model_path).stat().st_size
     click.echo(f"file size {size:,d} B (container overhead {size - model.nbytes:,d} B)")
+
+
+def _chosen_at_fit(model: Any) -> dict[str, Any]:
+    """What fitting decided (the budget planner's choices, sizes): the model's saved state, scalars only."""
+    state = model._fitted_state() if callable(getattr(model, "_fitted_state", None)) else {}
+    out = {}
+    for key, value in state.items():
+        if isinstance(value, (bool, int, float, str)) or value is None:
+            out[key] = value
+        elif isinstance(value, (list, tuple)) and len(value) <= 8 and all(isinstance(v, (int, float)) for v in value):
+            out[key] = list(value)
+    return out
+
+
+def _echo_arrays(model: Any) -> None:
+    """Every array the model file stores: name, shape, dtype and bytes (front end included)."""
+    arrays = {**model.front_end_.arrays(), **model._stored_arrays()}
+    if not arrays:
+        return
+    width = max(len(k) for k in arrays)
+    click.echo("stored arrays:")
+    for name, a in arrays.items():
+        shape = " × ".join(map(str, a.shape)) or "scalar"
+        click.echo(f"  {name:<{width}}  {shape:>14}  {str(a.dtype):<8} {a.nbytes:>12,d} B")
 
 
 @main.command()
