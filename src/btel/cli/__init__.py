@@ -339,10 +339,18 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
       densevlad       PCA-whitens to n_components (4096), capped at (map images − 1).
     Images of mixed sizes are described as they are, with a Warning.
     """
+    from ..datasets.vpr_names import split_dataset_folder
     from ..descriptors import get_descriptor
     from ..descriptors.base import load_descriptor
     from ..descriptors.extract import extract_cached
     from ..storage import format_bytes
+
+    if split_dataset_folder(images_dir) is not None:
+        root = Path(images_dir)
+        raise click.UsageError(
+            f"{images_dir} is a VPR-methods-evaluation data set (database/ and queries/): describe each folder, "
+            f"`btel extract {root / 'database'} -o db.npy --save-descriptor d.npz` then `btel extract "
+            f"{root / 'queries'} -o q.npy --descriptor d.npz`, and evaluate with --ground-truth utm.")
 
     params: dict[str, Any] = {}
     for text in param_texts:
@@ -622,7 +630,16 @@ def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_time
               help="Which map places are correct for each query. Default: frame-aligned (query j is place j). "
                    "Files: .npz (query_places; indptr+indices positives; utmDb+utmQ+posDistThr), .npy (1-D true "
                    "places, or VPR-Bench's ground_truth_new.npy object array), .mat (NetVLAD dbStruct), "
-                   ".csv (header query,positive: one pair per line).")
+                   ".csv (header query,positive: one pair per line). 'utm': VPR-methods-evaluation data (images "
+                   "named @utm_east@utm_north@…, described with btel extract DATASET/database and DATASET/queries): "
+                   "positives within --positive-dist-threshold metres.")
+@click.option("--positive-dist-threshold", type=float, default=None, metavar="METRES",
+              help="With --ground-truth utm: map images within this many metres of a query are its positives "
+                   "(default 25, VPR-methods-evaluation's).")
+@click.option("--pairs", "pairs_path", type=click.Path(dir_okay=False), default=None,
+              help="Also write an hloc retrieval pairs file (query_name db_name per line, each query's top K of the "
+                   "largest --k, best first); with several methods one file each, FILE-<method>.txt. Names come "
+                   "from the inputs (btel extract's .json, hloc .h5), else row numbers.")
 @click.option("--tolerances", default=None, metavar="T,T,…",
               help="recall@t tolerances in frames (one true place per query only). Default: 0,1,2,5,10,20 up "
                    "to a tenth of the map (0,1,2,5,10 on a 111-place route).")
@@ -647,7 +664,7 @@ def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_time
 @click.pass_context
 def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...], queries: str, methods: str,
                  budget: str | None, no_reference: bool, param_texts: tuple[str, ...], ground_truth: str | None,
-                 tolerances: str | None, ks_text: str, query_order: str, out_dir: str | None, overwrite: bool,
+                 positive_dist_threshold: float | None, pairs_path: str | None, tolerances: str | None, ks_text: str, query_order: str, out_dir: str | None, overwrite: bool,
                  resume_dir: str | None,
                  normalize: str | None, whiten: int | None, delta: int | None, no_progress: bool,
                  n_jobs: int | None) -> None:
@@ -721,18 +738,44 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
         raise click.ClickException(f"the maps differ in size ({sorted(n_maps)} places): --db and every --model "
                                    "must cover the same map for one ground truth to hold.")
     n_map = n_maps.pop()
-    gt = check_ground_truth(GroundTruth.from_file(ground_truth) if ground_truth else None, Q.shape[0], n_map,
-                            option="--ground-truth")
+    if positive_dist_threshold is not None and ground_truth != "utm":
+        raise click.UsageError("--positive-dist-threshold applies with --ground-truth utm (positions in the image "
+                               "names); a ground-truth file says its own positives.")
+    if positive_dist_threshold is not None and not positive_dist_threshold > 0:
+        raise click.UsageError(f"--positive-dist-threshold must be > 0 metres; got {positive_dist_threshold:g}.")
+    if ground_truth == "utm":
+        from ..datasets.vpr_names import DEFAULT_POSITIVE_DIST_THRESHOLD
+        from ._names import utm_ground_truth
+
+        if db is None:
+            raise click.UsageError("--ground-truth utm reads the map's image names from --db; give --db.")
+        threshold = DEFAULT_POSITIVE_DIST_THRESHOLD if positive_dist_threshold is None else positive_dist_threshold
+        given = utm_ground_truth(db, queries, n_map, Q.shape[0], threshold)
+    else:
+        given = GroundTruth.from_file(ground_truth) if ground_truth else None
+    gt = check_ground_truth(given, Q.shape[0], n_map, option="--ground-truth")
     if tolerance_list is not None and not gt.uses_tolerance:
         raise click.UsageError("--tolerances needs one true place per query; --ground-truth lists explicit "
                                "positives, which have no tolerance. Use --k (R@K) instead.")
     truth = ("frame-aligned" if ground_truth is None else
+             f"positives within {threshold:g} m (UTM in the image names)" if ground_truth == "utm" else
              f"{'one true place per query' if gt.uses_tolerance else 'positives'} from {Path(ground_truth).name}")
     dataset = Path(db if db else queries).name.split(".")[0]
     title = (f"{dataset}: N = {n_map}, {Q.shape[0]} queries; "
              f"budget {_budget_text(budgets)}; {truth}")
     click.echo(f"map: N = {n_map} places; queries: {Q.shape[0]} × {Q.shape[1]}; ground truth: {truth}")
+    pairs = None
+    if pairs_path is not None:
+        from ._names import pairs_paths, row_names
+
+        targets = pairs_paths(pairs_path, [j.name for j in saved + jobs])
+        for target in targets.values():
+            refuse_existing(target, "--pairs", overwrite)
+        q_names = row_names(queries) or [str(i) for i in range(Q.shape[0])]
+        db_names = (row_names(db) if db else None) or [str(i) for i in range(n_map)]
+        pairs = (targets, q_names, db_names)
     failed = _run_jobs(saved + jobs, X, Q, ground_truth=gt, out=Path(out_dir), overwrite=overwrite, title=title,
+                       pairs=pairs,
                        tolerances=tolerance_list, ks=ks, queries_are_route=query_order == "route",
                        progress=not no_progress, finished=finished,
                        extra={"db": str(Path(db).resolve()) if db else None, "models": list(model_paths),
@@ -841,7 +884,7 @@ def _fit_jobs(names: list[str], budgets: list[str | None], param_texts: tuple[st
 
 def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out: Path, overwrite: bool, title: str,
               extra: dict[str, Any], progress: bool, tolerances: list[int] | None = None,
-              finished: list[Any] | None = None,
+              finished: list[Any] | None = None, pairs: tuple[dict[str, Path], list[str], list[str]] | None = None,
               ks: list[int] | tuple[int, ...] = (1, 5, 10, 20), queries_are_route: bool = True) -> bool:
     """Run every job through :func:`btel.evaluation.evaluate_all`, writing the run folder as rows finish.
 
@@ -898,6 +941,14 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
     click.echo(format_table(results))
     report = writer.finish(results, title=title)
     click.echo(f"run folder: {report.out_dir}")
+    if pairs is not None:
+        from ._names import write_pairs
+
+        targets, q_names, db_names = pairs
+        for r in results:
+            if r.name in targets and r.ok and r.ranked is not None:
+                n = write_pairs(targets[r.name], r.ranked, q_names, db_names)
+                click.echo(f"pairs ({r.name}, top {r.ranked.shape[1]}): {n} lines written to {targets[r.name]}")
     failed = [r for r in results if not r.ok]
     if failed:
         click.echo(f"{len(failed)} of {len(results)} rows did not run: "
