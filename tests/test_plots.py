@@ -142,3 +142,26 @@ def test_run_plots_include_precision_recall_with_auc_in_the_legend(tmp_path: Pat
     lines = ax.get_lines()
     assert len({line.get_marker() for line in lines}) == 3  # identical curves stay distinguishable
     assert ax.get_xlabel().startswith("recall") and ax.get_ylabel() == "precision"
+
+
+def test_run_figure_identical_curves_integer_ticks_and_param_labels(tmp_path: Path) -> None:
+    from btel.plots import plot_run
+
+    n = 60
+    pred = np.arange(n)
+    rows = [_result(name, pred, 3000) for name in ("pq", "opq", "btel-codes")]
+    rows[2].settings = {"code": "random"}
+    plot_run(rows, tmp_path)
+    from btel.plots import _run_figure
+
+    fig = _run_figure(rows, tmp_path / "again.png", kind="tolerance", title="t")
+    ax = fig.axes[0]
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert labels == ["pq (3.0 KB)", "opq (3.0 KB)", "btel-codes code=random (3.0 KB)"]
+    ticks = ax.get_xticks()
+    assert np.all(ticks == np.round(ticks))  # frames: whole numbers only
+    lines = ax.get_lines()
+    assert len({line.get_marker() for line in lines}) == 3
+    marked = [set(np.arange(len(line.get_xdata()))[slice(*line.get_markevery()[:1], None, line.get_markevery()[1])])
+              for line in lines]
+    assert not (marked[0] & marked[1]) and not (marked[1] & marked[2])  # each marks its own points

@@ -435,6 +435,8 @@ class EvaluationResult:
     series : str or None
         The method this row is one point of (``pq`` for the rows ``pq@100KB`` and ``pq@500KB``);
         plots draw one line per series. None: the row's own name.
+    settings : dict or None
+        The parameters set by the user for this row (``--param``), shown in plot legends.
     """
 
     name: str
@@ -466,6 +468,7 @@ class EvaluationResult:
     uses_query_sequence: bool = False
     minimum_bytes: int | None = None
     series: str | None = None
+    settings: dict[str, Any] | None = None
 
     @property
     def ok(self) -> bool:
@@ -509,7 +512,7 @@ class EvaluationResult:
                 tolerance_for_k=int(data.get("tolerance_for_k") or 0), status=str(data["status"]),
                 reason=data.get("reason"), budget=data.get("budget"), reference=bool(data.get("reference")),
                 uses_query_sequence=bool(data.get("uses_query_sequence")), minimum_bytes=data.get("minimum_bytes"),
-                series=data.get("series"))
+                series=data.get("series"), settings=data.get("settings"))
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise InvalidParameterError(f"not a row of metrics.json ({type(exc).__name__}: {exc}).") from exc
         return result
@@ -521,6 +524,7 @@ class EvaluationResult:
             "status": self.status,
             "reason": self.reason,
             "series": self.series or self.name,
+            "settings": _jsonable(self.settings) if self.settings else None,
             "reference": self.reference,
             "uses_query_sequence": self.uses_query_sequence,
             "budget": self.budget,
@@ -852,6 +856,9 @@ class Job:
         The unbudgeted reference row (brute force).
     series : str, optional
         The method this row is one point of, when a run has several budgets (``pq`` for ``pq@100KB``).
+    settings : dict, optional
+        The parameters the user set for this row (``--param code=random``), shown in plot legends
+        so that two rows of one method can be told apart.
     """
 
     name: str
@@ -859,6 +866,7 @@ class Job:
     fit: bool = True
     reference: bool = False
     series: str | None = None
+    settings: dict[str, Any] | None = None
 
     @property
     def budget(self) -> int | None:
@@ -1058,6 +1066,7 @@ def evaluate_all(
     for job in jobs:
         if job.name in skipped:
             skipped[job.name].series = job.series
+            skipped[job.name].settings = job.settings
     if on_preflight is not None:
         on_preflight(skipped)
     done: dict[str, EvaluationResult] = dict(skipped)
@@ -1096,6 +1105,7 @@ def evaluate_all(
             done[job.name] = EvaluationResult.not_measured(
                 job.name, STATUS_FAILED, f"{type(exc).__name__}: {_short_reason(exc)}", **common)
         done[job.name].series = job.series
+        done[job.name].settings = job.settings
         if on_result is not None:
             on_result(rows())
     return rows()

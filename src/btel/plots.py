@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator, NullFormatter
 
 from .exceptions import InvalidParameterError
 from .storage import format_bytes
@@ -148,6 +148,7 @@ def plot_recall_vs_tolerance(
     ax.set_ylim(0.0, 1.02)
     # The axis ends where the curves end (twice the largest reported tolerance), not at a fixed 80.
     ax.set_xlim(0, max(right, 1))
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # frames: no 2.5 or 7.5
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize="small", loc="lower right")  # recall rises with t: the lower right is free
     if title:
@@ -157,8 +158,12 @@ def plot_recall_vs_tolerance(
 
 
 def _legend_label(r: Any) -> str:
-    """``name (bytes)``; the reference row and sequence methods say what they are."""
+    """``name code=random (bytes)``; the parameters the user set, and what the reference row and
+    sequence methods are."""
     name = str(_field(r, "name", "method"))
+    settings = _field(r, "settings") or {}
+    if settings:
+        name += " " + " ".join(f"{k}={v}" for k, v in sorted(settings.items()))
     nbytes = _field(r, "nbytes")
     notes = [format_bytes(nbytes)] if nbytes is not None else []
     if _field(r, "reference", False):
@@ -261,7 +266,13 @@ def _run_figure(results: Sequence[Any], path: Path, *, kind: str, title: str | N
                 curve = _field(r, "recall_curve")
                 curve = np.asarray(curve if curve is not None else [], dtype=float)
                 if curve.size:
-                    ax.plot(np.arange(curve.size), curve, drawstyle="steps-post", **style)
+                    # Markers at points offset per method: curves that coincide (PQ and OPQ at the same
+                    # bytes) still show one marker of each.
+                    index = series.index(name)
+                    every = max(len(series), curve.size // 6)
+                    start = (index * max(1, every // len(series))) % every
+                    ax.plot(np.arange(curve.size), curve, drawstyle="steps-post", marker="osD^v<>ph*"[index % 10],
+                            markersize=4, markevery=(start, every), **style)
                     right = max(right, curve.size - 1)
             else:
                 pts = sorted((int(k), float(v)) for k, v in (_field(r, "recall_at_k") or {}).items())
@@ -270,6 +281,7 @@ def _run_figure(results: Sequence[Any], path: Path, *, kind: str, title: str | N
                     right = max(right, pts[-1][0])
         if kind == "tolerance":
             ax.set_xlim(0, right)  # twice the largest reported tolerance, not a fixed 80 frames
+            ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # frames: no 2.5 or 7.5
             ax.set_xlabel("tolerance t (frames)")
         else:
             ks = sorted({int(k) for r in members for k in (_field(r, "recall_at_k") or {})})

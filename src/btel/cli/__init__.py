@@ -877,8 +877,10 @@ def _fit_jobs(names: list[str], budgets: list[str | None], param_texts: tuple[st
             kwargs = dict(params[name])
             if budget is not None and "budget" not in kwargs:
                 kwargs["budget"] = budget
+            settings = {k: v for k, v in params[name].items() if k != "budget" and k not in RUNTIME_PARAMS}
             with _naming(name):
-                jobs.append(Job(label, make_method(name, **kwargs), reference=is_reference, series=name))
+                jobs.append(Job(label, make_method(name, **kwargs), reference=is_reference, series=name,
+                                settings=settings or None))
     return jobs
 
 
