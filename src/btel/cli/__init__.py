@@ -30,6 +30,7 @@ import numpy as np
 
 from .. import __version__
 from ._outputs import refuse_existing
+from ._params import _param_text, _param_value
 
 # btel.exceptions (and through it scikit-learn) is imported only when an error is being handled, so
 # that `btel --help` starts in a fraction of a second.
@@ -135,16 +136,6 @@ _PARAMS_HELP = ("A parameter NAME=VALUE of every method in --methods, or METHOD:
 RUNTIME_PARAMS = frozenset({"progress", "n_jobs"})
 
 
-def _param_value(text: str) -> Any:
-    """VALUE of ``--param NAME=VALUE``: the JSON literal it spells (``3``, ``0.5``, ``true``, ``null``,
-    ``"x"``, ``[1, 2]``), else the text itself (``auto``, ``float16``). NaN and Infinity stay text."""
-    def reject(constant: str) -> Any:
-        raise ValueError(constant)
-
-    try:
-        return json.loads(text, parse_constant=reject)
-    except ValueError:
-        return text
 
 
 def _valid_params(method: str) -> list[str]:
@@ -1127,14 +1118,6 @@ def _split(methods: str) -> list[str]:
     return names
 
 
-def _param_text(value: Any) -> str:
-    """How to write ``value`` after --param NAME= (text as is unless it would read as JSON)."""
-    if isinstance(value, str) and _param_value(value) == value:
-        return value
-    try:
-        return json.dumps(value)
-    except TypeError:
-        return repr(value)
 
 
 def _int(value: str, flag: str) -> int:

@@ -9,8 +9,31 @@ code.
 from __future__ import annotations
 
 import inspect
+import json
 import re
 from typing import Any
+
+def _param_value(text: str) -> Any:
+    """VALUE of ``--param NAME=VALUE``: the JSON literal it spells (``3``, ``0.5``, ``true``, ``null``,
+    ``"x"``, ``[1, 2]``), else the text itself (``auto``, ``float16``). NaN and Infinity stay text."""
+    def reject(constant: str) -> Any:
+        raise ValueError(constant)
+
+    try:
+        return json.loads(text, parse_constant=reject)
+    except ValueError:
+        return text
+
+
+def _param_text(value: Any) -> str:
+    """How to write ``value`` after --param NAME= (text as is unless it would read as JSON)."""
+    if isinstance(value, str) and _param_value(value) == value:
+        return value
+    try:
+        return json.dumps(value)
+    except TypeError:
+        return repr(value)
+
 
 _HEADING = re.compile(r"^(\w[\w ]*)\n-{3,}\s*$", re.MULTILINE)
 _ENTRY = re.compile(r"^([A-Za-z_][\w]*(?:\s*,\s*[A-Za-z_][\w]*)*)\s*(?::.*)?$")
@@ -61,8 +84,6 @@ def describe_constraints(constraints: list[Any]) -> str:
 
 def parameter_lines(model: Any, *, runtime: set[str] | frozenset[str] = frozenset()) -> list[str]:
     """One line per parameter of ``model``: ``name=default — allowed values — meaning``."""
-    from . import _param_text
-
     cls = type(model)
     constraints = getattr(cls, "_parameter_constraints", {})
     meanings = parameter_meanings(cls)
