@@ -306,3 +306,22 @@ def test_evaluate_reports_pr_from_search_scores() -> None:
     assert summary["auc_pr"] == pytest.approx(result.auc_pr)
     assert len(summary["pr_curve"]["recall"]) == len(summary["pr_curve"]["precision"]) <= 256
     assert "AUC-PR" in format_table([result]) and "R@100%P" in format_table([result])
+
+
+def test_time_queries_runs_with_the_thread_count_it_reports() -> None:
+    from threadpoolctl import threadpool_info
+
+    import btel.evaluation as ev
+
+    seen: list[int] = []
+
+    class Probe:
+        uses_query_sequence = False
+
+        def predict(self, Q: np.ndarray) -> np.ndarray:
+            seen.append(max((int(i["num_threads"]) for i in threadpool_info()), default=1))
+            return np.zeros(Q.shape[0], dtype=np.int64)
+
+    np.ones((2, 2)) @ np.ones((2, 2))  # BLAS loaded
+    _, timing = ev.time_queries(Probe(), np.zeros((4, 2), np.float32), repeats=2, n_single=2)
+    assert set(seen) == {1} and timing.n_threads == 1

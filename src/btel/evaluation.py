@@ -604,7 +604,7 @@ def _n_threads() -> int:
 
 
 def time_queries(method: Any, Q: np.ndarray, *, repeats: int = 5, n_single: int = 50, warmup: int = 1,
-                 max_seconds: float = 10.0) -> tuple[np.ndarray, QueryTiming]:
+                 max_seconds: float = 10.0, threads: int | None = 1) -> tuple[np.ndarray, QueryTiming]:
     """Localize ``Q`` with a fitted ``method`` and time it: warm-up first, then repeats, medians.
 
     One un-warmed batch call is not a timing: the first call pays for page faults, lazy
@@ -625,6 +625,11 @@ def time_queries(method: Any, Q: np.ndarray, *, repeats: int = 5, n_single: int 
         Untimed batch calls before the timed ones (the predictions come from the first).
     max_seconds : float, default 10
         Stop repeating once the timed batch calls have taken this long.
+    threads : int or None, default 1
+        BLAS/OpenMP threads while localizing and timing (threadpoolctl). One thread by default:
+        on a shared machine multi-threaded BLAS and faiss calls spin against other processes, and
+        identical runs then differ by 2–100× (benchmarks/bench_timing_stability.py); one thread
+        gives figures that repeat. None leaves the libraries' own setting.
 
     Returns
     -------
@@ -632,6 +637,16 @@ def time_queries(method: Any, Q: np.ndarray, *, repeats: int = 5, n_single: int 
         ``method.predict(Q)`` as returned (from the first call).
     timing : QueryTiming
     """
+    if threads is not None:
+        from threadpoolctl import threadpool_limits
+
+        with threadpool_limits(limits=int(threads)):
+            return _time_queries(method, Q, repeats, n_single, warmup, max_seconds)
+    return _time_queries(method, Q, repeats, n_single, warmup, max_seconds)
+
+
+def _time_queries(method: Any, Q: np.ndarray, repeats: int, n_single: int, warmup: int,
+                  max_seconds: float) -> tuple[np.ndarray, QueryTiming]:
     n_queries = Q.shape[0]
     predictions = method.predict(Q)
     for _ in range(max(0, warmup - 1)):
@@ -692,6 +707,7 @@ def evaluate(
     budget: int | None = None,
     reference: bool = False,
     timing_repeats: int = 5,
+    timing_threads: int | None = 1,
 ) -> EvaluationResult:
     """Fit ``method`` on the map, localize the queries, and measure everything SPEC §9 asks for.
 
@@ -726,6 +742,9 @@ def evaluate(
         The budget the method was given (recorded in the result only).
     reference : bool, default False
         Mark the result as the unbudgeted reference row.
+    timing_threads : int or None, default 1
+        BLAS/OpenMP threads while localizing and timing (see :func:`time_queries`); reported as
+        ``n_threads``.
     timing_repeats : int, default 5
         Timed batch calls behind the query-time median (:func:`time_queries`: warm-up, repeats,
         and single-query latency timed apart).
@@ -759,7 +778,7 @@ def evaluate(
         method.fit(X_map)
         fit_time = time.perf_counter() - start
 
-    raw, timing = time_queries(method, Q, repeats=timing_repeats)
+    raw, timing = time_queries(method, Q, repeats=timing_repeats, threads=timing_threads)
     query_time = timing.batch_s_per_query
     predictions = check_predictions(raw, n_queries, name=f"{type(method).__name__}.predict(Q)")
 
@@ -1011,6 +1030,7 @@ def evaluate_all(
     on_result: Callable[[list[EvaluationResult]], None] | None = None,
     on_start: Callable[[int, Job], None] | None = None,
     finished: Sequence[EvaluationResult] = (),
+    timing_threads: int | None = 1,
 ) -> list[EvaluationResult]:
     """Evaluate every job; one that does not fit or fails becomes a row, never an abort.
 
@@ -1042,6 +1062,8 @@ def evaluate_all(
         Called with the list of rows so far after each job.
     on_start : callable, optional
         Called with (index, job) before a job is fitted (progress display).
+    timing_threads : int or None, default 1
+        Threads while localizing and timing each method (:func:`time_queries`).
     finished : sequence of EvaluationResult, optional
         Rows of an earlier, interrupted run of the same jobs (``btel evaluate --resume``): a job
         with a row of status ``"ok"`` here is not run again; that row is kept.
@@ -1085,7 +1107,8 @@ def evaluate_all(
         try:
             done[job.name] = evaluate(job.method, X_map if job.fit else None, Q, ground_truth=gt,
                                       tolerances=tolerances or None, ks=ks, k_tolerance=k_tolerance, name=job.name,
-                                      curve_max=curve_max, fit=job.fit, budget=job.budget, reference=job.reference)
+                                      curve_max=curve_max, fit=job.fit, budget=job.budget, reference=job.reference,
+                                      timing_threads=timing_threads)
         except BudgetTooSmallError as exc:
             done[job.name] = EvaluationResult.not_measured(job.name, STATUS_DOES_NOT_FIT, _short_reason(exc),
                                                            minimum_bytes=exc.minimum, **common)
