@@ -57,3 +57,9 @@ def test_python_m_btel_cli_runs() -> None:
     env = {**os.environ, "PYTHONPATH": SRC}
     out = subprocess.run([sys.executable, "-m", "btel.cli", "--version"], env=env, capture_output=True, text=True)
     assert out.returncode == 0 and "btel" in out.stdout
+
+
+def test_btel_help_does_not_import_numpy() -> None:
+    code = ("import sys; sys.argv = ['btel', '--help']\nfrom btel.cli import main\n"
+            "try:\n    main()\nexcept SystemExit:\n    pass")
+    assert "numpy" not in modules_after(code)

@@ -23,10 +23,12 @@ import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
-import numpy as np
+
+if TYPE_CHECKING:  # numpy is imported by the commands that need it: `btel --help` does not wait for it
+    import numpy as np
 
 from .. import __version__
 from ._outputs import refuse_existing
