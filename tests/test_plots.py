@@ -165,3 +165,25 @@ def test_run_figure_identical_curves_integer_ticks_and_param_labels(tmp_path: Pa
     marked = [set(np.arange(len(line.get_xdata()))[slice(*line.get_markevery()[:1], None, line.get_markevery()[1])])
               for line in lines]
     assert not (marked[0] & marked[1]) and not (marked[1] & marked[2])  # each marks its own points
+
+
+def test_run_figures_name_the_rows_that_did_not_run(tmp_path: Path) -> None:
+    from btel.plots import plot_run
+
+    pred = np.arange(30)
+    missing = EvaluationResult.not_measured("itq", "does not fit", "budget too small", n_queries=30)
+    import btel.plots as plots
+
+    titles: list[str] = []
+    real = plots._run_figure
+
+    def spy(results, path, *, kind, title):
+        titles.append(title)
+        return real(results, path, kind=kind, title=title)
+
+    plots._run_figure = spy
+    try:
+        written = plot_run([_result("pq", pred, 900)], tmp_path, title="toy", not_run=[missing])
+    finally:
+        plots._run_figure = real
+    assert written and titles == ["toy — not shown: itq (does not fit)"]

@@ -300,7 +300,8 @@ def _run_figure(results: Sequence[Any], path: Path, *, kind: str, title: str | N
     return fig
 
 
-def plot_run(results: Sequence[Any], out_dir: str | os.PathLike, *, title: str | None = None) -> list[Path]:
+def plot_run(results: Sequence[Any], out_dir: str | os.PathLike, *, title: str | None = None,
+             not_run: Sequence[Any] = ()) -> list[Path]:
     """The plots of an evaluation run folder (``btel evaluate``, ``btel demo``).
 
     - ``recall_vs_tolerance.png`` when the ground truth has one true place per query (the curve
@@ -312,6 +313,9 @@ def plot_run(results: Sequence[Any], out_dir: str | os.PathLike, *, title: str |
     - ``precision_recall.png`` when the methods give scores: the PR curve of accepting each query's
       top-1 match by its score, AUC-PR and recall at 100 % precision in the legend.
 
+    ``not_run``: rows without numbers (does not fit, failed, …); each figure names them under its
+    title, so a method never vanishes from a figure without a word.
+
     Returns
     -------
     list of Path
@@ -319,6 +323,9 @@ def plot_run(results: Sequence[Any], out_dir: str | os.PathLike, *, title: str |
     """
     out_dir = Path(out_dir)
     results = list(results)
+    missing = "; ".join(f"{_field(r, 'name')} ({_field(r, 'status')})" for r in not_run)
+    if missing:
+        title = (f"{title} — " if title else "") + f"not shown: {missing}"
     written: list[Path] = []
     if any(len(_field(r, "recall_curve") if _field(r, "recall_curve") is not None else ()) for r in results):
         written.append(out_dir / "recall_vs_tolerance.png")

@@ -234,7 +234,7 @@ class RunWriter:
         if plots and measured:
             from . import plots as _plots
 
-            self.plots = _plots.plot_run(measured, self.out_dir, title=title)
+            self.plots = _plots.plot_run(measured, self.out_dir, title=title, not_run=[r for r in results if not r.ok])
         return RunReport(self.out_dir, self.metrics_json, self.metrics_csv, dict(self.predictions), list(self.plots))
 
 

@@ -759,8 +759,9 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
              f"positives within {threshold:g} m (UTM in the image names)" if ground_truth == "utm" else
              f"{'one true place per query' if gt.uses_tolerance else 'positives'} from {Path(ground_truth).name}")
     dataset = Path(db if db else queries).name.split(".")[0]
-    title = (f"{dataset}: N = {n_map}, {Q.shape[0]} queries; "
-             f"budget {_budget_text(budgets)}; {truth}")
+    budget_part = (f"budget {_budget_text(budgets)}" if any(budgets) else
+                   "saved models" + (" and unbudgeted methods" if jobs else "") if saved else "no budget")
+    title = f"{dataset}: N = {n_map}, {Q.shape[0]} queries; {budget_part}; {truth}"
     click.echo(f"map: N = {n_map} places; queries: {Q.shape[0]} × {Q.shape[1]}; ground truth: {truth}")
     pairs = None
     if pairs_path is not None:
