@@ -390,3 +390,19 @@ def test_ctrl_c_exits_130_with_plots_and_resume_skips_the_rows_done(tmp_path: Pa
     np.save(tmp_path / "other.npy", route.queries[::-1].copy())
     wrong = run(*[a if a != tmp_path / "q.npy" else tmp_path / "other.npy" for a in args], "--resume", out)
     assert wrong.exit_code == 2 and "give the same" in wrong.output
+
+
+def test_a_run_of_saved_models_is_titled_as_such(tmp_path: Path, monkeypatch) -> None:
+    import btel.plots as plots
+
+    route = synthetic_route(n_places=80, dim=16, seed=2)
+    np.save(tmp_path / "db.npy", route.map)
+    np.save(tmp_path / "q.npy", route.queries)
+    assert run("train", tmp_path / "db.npy", "-o", tmp_path / "m.npz", "--method", "pq", "--budget", "4KB").exit_code == 0
+    titles: list[str] = []
+    real = plots.plot_run
+    monkeypatch.setattr(plots, "plot_run", lambda *a, **kw: (titles.append(kw["title"]), real(*a, **kw))[1])
+    result = run("evaluate", "--model", tmp_path / "m.npz", "--queries", tmp_path / "q.npy", "--out", tmp_path / "r",
+                 "--no-progress")
+    assert result.exit_code == 0, result.output
+    assert titles and "saved models" in titles[0] and "budget none" not in titles[0]
