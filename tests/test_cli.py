@@ -102,6 +102,11 @@ def test_nordland_extract_train_localize_evaluate(nordland_dir: Path, tmp_path: 
         assert result.exit_code == 0, result.output
     again = run("extract", tmp_path / "summer", "-o", db, "--descriptor", "patchnorm")
     assert "up to date" in again.output  # the cache
+    # The queries described over the map descriptors: refused, naming what would be lost.
+    before = db.read_bytes()
+    wrong = run("extract", tmp_path / "winter", "-o", db, "--descriptor", "patchnorm", "--no-progress")
+    assert wrong.exit_code == 2 and "already exists" in wrong.output and "447 images" in wrong.output
+    assert "--overwrite" in wrong.output and db.read_bytes() == before
     X = np.load(db)
     assert X.shape == (447, 2048) and np.isfinite(X).all()
 
@@ -142,12 +147,67 @@ def test_train_with_code_options_and_localize_with_hmm_and_top_k(small_pair, tmp
     ranked = np.array([[int(v) for v in r[2:]] for r in rows[1:]])
     np.testing.assert_array_equal(ranked, fitted.rank(np.load(q), 3))
     for args, message in ((["--hmm", "--sequence-filter", "3"], "not both"), (["--top-k", "0"], "k")):
-        result = run("localize", model, q, "-o", preds, *args)
+        result = run("localize", model, q, "-o", preds, "--overwrite", *args)
         assert result.exit_code != 0 and message in result.output
     result = run("train", db, "-o", model, "--block-size", "4", "--tolerance", "4")
     assert result.exit_code != 0 and "not both" in result.output
     result = run("train", db, "-o", model, "--method", "pq", "--code-copies", "2")
     assert result.exit_code == 2 and "'code_copies', which pq does not have" in result.output
+
+
+# -- no file is replaced without --overwrite ----------------------------------------------------------------
+def test_train_and_localize_refuse_an_existing_output_without_overwrite(small_pair, tmp_path: Path) -> None:
+    db, q = small_pair
+    model, preds = tmp_path / "m.npz", tmp_path / "p.csv"
+    assert run("train", db, "-o", model, "--budget", "5KB", "--no-progress").exit_code == 0
+    before = model.read_bytes()
+    result = run("train", db, "-o", model, "--method", "pq", "--budget", "5KB")
+    assert result.exit_code == 2 and "already exists" in result.output and "--overwrite" in result.output
+    assert model.read_bytes() == before
+    assert run("train", db, "-o", model, "--method", "pq", "--budget", "5KB", "--overwrite").exit_code == 0
+    assert model.read_bytes() != before
+    preds.write_text("mine\n")
+    result = run("localize", model, q, "-o", preds)
+    assert result.exit_code == 2 and "1 lines" in result.output and preds.read_text() == "mine\n"
+    assert run("localize", model, q, "-o", preds, "--overwrite").exit_code == 0
+    assert preds.read_text().startswith("query,prediction")
+
+
+# -- errors in the command line's words -----------------------------------------------------------------------
+@pytest.mark.parametrize("args, code, words", [
+    (["train", "DB", "-o", "OUT", "--budget", "32"], 2, ["did you mean 32KB?", "32B"]),
+    (["evaluate", "--db", "DB", "--queries", "DB", "--budget", "500KB,64", "--out", "OUT"], 2, ["did you mean 64KB?"]),
+    (["train", "DB", "-o", "OUT", "--method", "nope"], 2, ["unknown method 'nope'", "btel-c", "pq"]),
+    (["evaluate", "--db", "DB", "--queries", "DB", "--methods", "pq,nope", "--out", "OUT"], 2, ["unknown method 'nope'"]),
+    (["info", "MISSING"], 1, ["Train one with `btel train DB -o MODEL`"]),
+])
+def test_errors_speak_cli(args, code, words, small_pair, tmp_path: Path) -> None:
+    db, _ = small_pair
+    subst = {"DB": str(db), "OUT": str(tmp_path / "out"), "MISSING": str(tmp_path / "missing.npz")}
+    result = CliRunner().invoke(main, [subst.get(a, a) for a in args])
+    assert result.exit_code == code, result.output
+    assert "Traceback" not in result.output
+    for w in words:
+        assert w in result.output
+    for python_word in ("BTELocalizer.fit", "fit_on=", "key="):
+        assert python_word not in result.output
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_unitless_budget_from_1000_up_is_bytes(small_pair, tmp_path: Path) -> None:
+    db, _ = small_pair
+    result = run("train", db, "-o", tmp_path / "m.npz", "--budget", "5000", "--no-progress")
+    assert result.exit_code == 0, result.output
+
+
+def test_cli_message_rewrites_library_phrases() -> None:
+    from btel.cli._errors import cli_message
+
+    assert cli_message("descriptor 'densevlad' learns from map images: pass fit_on=<map images> (…)") == \
+        "descriptor 'densevlad' learns from map images: pass --fit-on MAP_IMAGES_DIR (…)"
+    assert "--param dtype=float16" in cli_message("Raise the budget, use dtype='float16', or fewer regions.")
+    assert cli_message("x.npz holds 2 arrays (a, b); choose one: x.npz:a on the command line, key='a' in Python.") \
+        == "x.npz holds 2 arrays (a, b); choose one: x.npz:a."
 
 
 # -- --param: any parameter of any method --------------------------------------------------------------
@@ -173,7 +233,8 @@ def test_train_param_fills_the_same_parameters_as_the_shortcuts(small_pair, tmp_
     assert load(a).get_params() == load(b).get_params()
     assert load(b).dtype == "float16" and load(b).random_state == 1  # progress: a runtime setting, not saved
     # A baseline's own parameters, and the shortcuts it has (--seed is random_state).
-    result = run("train", db, "-o", b, "--method", "pq", "--budget", "5KB", "--seed", "3", "--param", "nbits=4")
+    result = run("train", db, "-o", b, "--method", "pq", "--budget", "5KB", "--seed", "3", "--param", "nbits=4",
+                 "--overwrite")
     assert result.exit_code == 0, result.output
     assert load(b).get_params()["nbits"] == 4 and load(b).get_params()["random_state"] == 3
 
@@ -185,7 +246,6 @@ def test_train_param_fills_the_same_parameters_as_the_shortcuts(small_pair, tmp_
         (["--method", "pq", "--param", "feature_ratio=0.5"], 2, ["pq has no parameter 'feature_ratio'", "nbits"]),
         (["--method", "bruteforce", "--seed", "1"], 2, ["--seed", "'random_state', which bruteforce does not have",
                                                         "budget, delta, n_jobs"]),
-        (["--method", "pq", "--no-progress"], 2, ["which pq does not have"]),
         (["--param", "sparsity"], 2, ["not NAME=VALUE"]),
         (["--param", "pq:nbits=4"], 2, ["'pq', which is not a method of this run"]),
         (["--feature-ratio", "0.2", "--param", "feature_ratio=0.3"], 2, ["both set feature_ratio"]),
@@ -204,6 +264,32 @@ def test_train_param_errors_name_method_parameter_and_choices(args, code, messag
     for part in message:
         assert part in error
     assert not (tmp_path / "m.npz").exists()
+
+
+@pytest.mark.parametrize("method", ["pq", "opq", "itq", "bruteforce", "btel-codes", "btel-c"])
+def test_runtime_flags_apply_where_the_method_has_them_and_are_ignored_elsewhere(method: str, small_pair,
+                                                                                 tmp_path: Path) -> None:
+    from btel import load, make_method
+
+    db, _ = small_pair
+    out = tmp_path / "m.npz"
+    budget = [] if method == "bruteforce" else ["--budget", "20KB"]
+    result = run("train", db, "-o", out, "--method", method, *budget, "--no-progress", "--n-jobs", "1")
+    assert result.exit_code == 0, result.output
+    assert type(load(out)) is type(make_method(method))  # runtime settings are not saved: check what was passed
+    from btel.cli import _params_by_method
+
+    given = _params_by_method([method], (), shortcuts={"progress": ("--no-progress", False),
+                                                       "n_jobs": ("--n-jobs", 1)})[method]
+    valid = make_method(method).get_params()
+    assert given == {k: v for k, v in {"progress": False, "n_jobs": 1}.items() if k in valid}
+
+
+def test_runtime_flags_in_evaluate_for_mixed_methods(small_pair, tmp_path: Path) -> None:
+    db, q = small_pair
+    result = run("evaluate", "--db", db, "--queries", q, "--methods", "btel-c,pq,itq", "--budget", "8KB",
+                 "--no-progress", "--n-jobs", "1", "--out", tmp_path / "run")
+    assert result.exit_code == 0, result.output
 
 
 def test_evaluate_and_demo_params_for_every_method_or_one(small_pair, tmp_path: Path) -> None:
@@ -239,6 +325,31 @@ def test_evaluate_and_demo_params_for_every_method_or_one(small_pair, tmp_path: 
 def test_methods_lists_parameters() -> None:
     result = run("methods", "--params")
     assert result.exit_code == 0
-    lines = result.output.splitlines()
-    params = {lines[i].split()[0]: lines[i + 1].split("params: ", 1)[1] for i in range(0, len(lines), 2)}
-    assert "n_regions=20" in params["btel-r"] and "nbits=null" in params["pq"]
+    params: dict[str, list[str]] = {}
+    for line in result.output.splitlines():
+        if line[:1].strip():
+            method = line.split()[0]
+            params[method] = []
+        else:
+            params[method].append(line.strip())
+    assert any(p.startswith("n_regions=20:") for p in params["btel-r"])
+    # Each parameter: default, allowed values (declared constraints), meaning (docstring).
+    nbits = next(p for p in params["pq"] if p.startswith("nbits="))
+    assert nbits.startswith("nbits=null: None or an integer ≥ 1 and ≤ 8 — Bits per sub-quantiser")
+    assert any(p.startswith("progress=true [runtime]: one of (True, False) — ") for p in params["btel-c"])
+    from btel.methods import METHODS, make_method
+
+    assert set(params) == set(METHODS)
+    for name, lines in params.items():
+        assert len(lines) == len(make_method(name).get_params())
+        assert all(" — " in line for line in lines), name  # every parameter has a meaning
+
+
+def test_info_shows_what_fitting_chose_and_every_stored_array(small_pair, tmp_path: Path) -> None:
+    db, _ = small_pair
+    model = tmp_path / "pq.npz"
+    assert run("train", db, "-o", model, "--method", "pq", "--budget", "20KB", "--whiten", "16").exit_code == 0
+    out = run("info", model).output
+    assert "n_subquantizers=null (chosen: " in out and "nbits=null (chosen: " in out
+    assert "chosen at fit: dim=16" in out
+    assert "stored arrays:" in out and "frontend_whitening" in out and "64 × 16  float32         4,096 B" in out

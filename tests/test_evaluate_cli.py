@@ -193,7 +193,7 @@ def test_positives_give_r_at_k_only_and_tolerances_follow_the_route(route_files,
                  "--ground-truth", tmp_path / "pos.npz", "--out", out, "--no-progress")
     assert result.exit_code == 0, result.output
     header = next(line for line in result.output.splitlines() if line.startswith("method"))
-    assert "recall@" not in header and header.split()[-3:] == ["R@1", "R@5", "R@10"]
+    assert "recall@" not in header and header.split()[-6:] == ["R@1", "R@5", "R@10", "R@20", "AUC-PR", "R@100%P"]
     assert (out / "recall_at_k.png").is_file() and not (out / "recall_vs_tolerance.png").exists()
     result = run("evaluate", "--db", db, "--queries", q, "--ground-truth", tmp_path / "pos.npz", "--tolerances", "0,5",
                  "--out", tmp_path / "x")
@@ -207,12 +207,13 @@ def test_positives_give_r_at_k_only_and_tolerances_follow_the_route(route_files,
     result = run("evaluate", "--db", tmp_path / "db111.npy", "--queries", tmp_path / "q111.npy", "--methods", "pq",
                  "--no-reference", "--out", out, "--no-progress")
     header = next(line for line in result.output.splitlines() if line.startswith("method"))
-    assert header.split()[-8:] == ["recall@0", "recall@1", "recall@2", "recall@5", "recall@10", "R@1", "R@5", "R@10"]
+    assert header.split()[-11:] == ["recall@0", "recall@1", "recall@2", "recall@5", "recall@10", "R@1", "R@5", "R@10",
+                                    "R@20", "AUC-PR", "R@100%P"]
     assert len(json.loads((out / "metrics.json").read_text())["results"][0]["recall_curve"]) == 21
     result = run("evaluate", "--db", tmp_path / "db111.npy", "--queries", tmp_path / "q111.npy", "--methods", "pq",
                  "--no-reference", "--tolerances", "3,0", "--k", "2", "--out", tmp_path / "r111b", "--no-progress")
     header = next(line for line in result.output.splitlines() if line.startswith("method"))
-    assert header.split()[-3:] == ["recall@0", "recall@3", "R@2"]
+    assert header.split()[-5:] == ["recall@0", "recall@3", "R@2", "AUC-PR", "R@100%P"]
 
 
 # -- 8: sequence methods are marked, and refused on independent queries ----------------------------------
@@ -326,3 +327,82 @@ def test_experiment_lines_and_plot_titles_name_metrics_direction_and_budget(tmp_
     plots.plot_experiment(ExperimentRun("accuracy", rows, tmp_path, curves), tmp_path)
     assert len(titles) == 2 and all("≤ 50.0 KB" in t and "N = 300" in t and "2 MB" not in t for _, t in titles)
     assert "seqslam † query sequence" in titles[0][0] and "bruteforce (reference, unbudgeted)" in titles[0][0]
+
+
+def test_evaluate_reports_r_at_20_and_pr_by_default(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    X = rng.standard_normal((120, 16)).astype(np.float32)
+    np.save(tmp_path / "db.npy", X)
+    np.save(tmp_path / "q.npy", X + 0.3 * rng.standard_normal(X.shape).astype(np.float32))
+    out = tmp_path / "run"
+    result = run("evaluate", "--db", tmp_path / "db.npy", "--queries", tmp_path / "q.npy", "--methods", "pq",
+                 "--budget", "5KB", "--out", out, "--no-progress")
+    assert result.exit_code == 0, result.output
+    assert "R@20" in result.output and "AUC-PR" in result.output and "R@100%P" in result.output
+    metrics = json.loads((out / "metrics.json").read_text())
+    for row in metrics["results"]:
+        assert set(row["recall_at_k"]) == {"1", "5", "10", "20"}
+        assert 0 <= row["auc_pr"] <= 1 and 0 <= row["recall_at_100_precision"] <= 1
+        assert row["query_latency_s"] > 0 and row["n_threads"] >= 1
+    assert "auc_pr" in (out / "metrics.csv").read_text().splitlines()[0]
+    assert (out / "precision_recall.png").is_file()
+
+
+def test_ctrl_c_exits_130_with_plots_and_resume_skips_the_rows_done(tmp_path: Path, monkeypatch) -> None:
+    import btel.evaluation as ev
+
+    route = synthetic_route(n_places=120, dim=16, seed=1)
+    np.save(tmp_path / "db.npy", route.map)
+    np.save(tmp_path / "q.npy", route.queries)
+    real = ev.evaluate
+    calls: list[str] = []
+
+    def interrupted_at_itq(method, *args, **kwargs):
+        calls.append(kwargs["name"])
+        if kwargs["name"] == "itq":
+            raise KeyboardInterrupt
+        return real(method, *args, **kwargs)
+
+    monkeypatch.setattr(ev, "evaluate", interrupted_at_itq)
+    out = tmp_path / "run"
+    args = ["evaluate", "--db", tmp_path / "db.npy", "--queries", tmp_path / "q.npy", "--methods", "pq,itq,btel-c",
+            "--budget", "4KB", "--no-progress"]
+    result = run(*args, "--out", out)
+    assert result.exit_code == 130, result.output
+    assert (out / "recall_vs_tolerance.png").is_file()  # the partial run's plots
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["run"]["complete"] is False
+    assert {r["name"]: r["status"] for r in metrics["results"]} == {
+        "pq": "ok", "itq": "not run", "btel-c": "not run", "bruteforce": "not run"}
+    pq_predictions = (out / "predictions_pq.csv").read_text()
+
+    monkeypatch.setattr(ev, "evaluate", lambda method, *a, **kw: (calls.append(kw["name"]), real(method, *a, **kw))[1])
+    calls.clear()
+    result = run(*args, "--resume", out)
+    assert result.exit_code == 0, result.output
+    assert "resuming" in result.output and "1 of 4 rows done (pq)" in result.output
+    assert calls == ["itq", "btel-c", "bruteforce"]  # pq is not run again
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["run"]["complete"] is True
+    assert [r["status"] for r in metrics["results"]] == ["ok"] * 4
+    assert (out / "predictions_pq.csv").read_text() == pq_predictions
+    # Other queries than the run's: refused.
+    np.save(tmp_path / "other.npy", route.queries[::-1].copy())
+    wrong = run(*[a if a != tmp_path / "q.npy" else tmp_path / "other.npy" for a in args], "--resume", out)
+    assert wrong.exit_code == 2 and "give the same" in wrong.output
+
+
+def test_a_run_of_saved_models_is_titled_as_such(tmp_path: Path, monkeypatch) -> None:
+    import btel.plots as plots
+
+    route = synthetic_route(n_places=80, dim=16, seed=2)
+    np.save(tmp_path / "db.npy", route.map)
+    np.save(tmp_path / "q.npy", route.queries)
+    assert run("train", tmp_path / "db.npy", "-o", tmp_path / "m.npz", "--method", "pq", "--budget", "4KB").exit_code == 0
+    titles: list[str] = []
+    real = plots.plot_run
+    monkeypatch.setattr(plots, "plot_run", lambda *a, **kw: (titles.append(kw["title"]), real(*a, **kw))[1])
+    result = run("evaluate", "--model", tmp_path / "m.npz", "--queries", tmp_path / "q.npy", "--out", tmp_path / "r",
+                 "--no-progress")
+    assert result.exit_code == 0, result.output
+    assert titles and "saved models" in titles[0] and "budget none" not in titles[0]

@@ -196,3 +196,132 @@ def test_evaluate_on_nordland_pixels(nordland_pixels: tuple[np.ndarray, np.ndarr
     assert result.recall[0] <= result.recall[10] <= result.recall[20]
     shifted = recall_at_tolerance(result.predictions, np.roll(np.arange(X.shape[0]), 200), (10,))
     assert shifted[10] < result.recall[10] / 2
+
+
+# -- the timing harness ------------------------------------------------------------------------------
+class _Clock:
+    """A fake perf_counter that only the fake method moves: timings become exact, not measured."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+class _SlowFirstCall:
+    """predict costs 100 s the first time (cold caches, thread start-up), 1 s per batch after; a query
+    answered alone costs 0.01 s (0.5 s the first time)."""
+
+    uses_query_sequence = False
+
+    def __init__(self, clock: _Clock) -> None:
+        self.clock = clock
+        self.calls = 0
+
+    def predict(self, Q: np.ndarray) -> np.ndarray:
+        self.calls += 1
+        if Q.shape[0] == 1:
+            self.clock.now += 0.5 if self.calls == 1 else 0.01
+        else:
+            self.clock.now += 100.0 if self.calls == 1 else 1.0
+        return np.arange(Q.shape[0])
+
+
+def test_time_queries_warms_up_then_reports_medians(monkeypatch) -> None:
+    import btel.evaluation as ev
+
+    clock = _Clock()
+    monkeypatch.setattr(ev.time, "perf_counter", clock)
+    method = _SlowFirstCall(clock)
+    Q = np.zeros((10, 4), np.float32)
+    predictions, timing = ev.time_queries(method, Q, repeats=3, n_single=7)
+    np.testing.assert_array_equal(predictions, np.arange(10))
+    assert timing.batch_s_per_query == pytest.approx(1.0 / 10)  # the 100 s first call is not in it
+    assert timing.latency_s == pytest.approx(0.01) and timing.n_single == 7
+    assert timing.repeats == 3 and timing.n_threads >= 1
+    assert method.calls == 1 + 3 + 3 + 7  # first (warm-up, kept), 3 timed, 3 untimed singles, 7 timed
+
+
+def test_evaluate_reports_batch_throughput_and_single_query_latency_apart(monkeypatch) -> None:
+    import btel.evaluation as ev
+
+    rng = np.random.default_rng(0)
+    X = rng.standard_normal((40, 8)).astype(np.float32)
+    result = ev.evaluate(_NearestNeighbour(), X, X, ks=(1,))
+    assert result.query_time_s_per_query > 0 and result.query_latency_s > 0
+    assert result.timing_repeats >= 1 and result.n_threads >= 1
+    summary = result.to_dict()
+    assert {"query_latency_s", "n_threads", "timing_repeats"} <= set(summary)
+    table = ev.format_table([result])
+    assert "batch µs/q" in table and "1-query µs" in table and "threads" in table
+
+
+def test_time_queries_stops_repeating_after_max_seconds(monkeypatch) -> None:
+    import btel.evaluation as ev
+
+    clock = _Clock()
+    monkeypatch.setattr(ev.time, "perf_counter", clock)
+    method = _SlowFirstCall(clock)
+    _, timing = ev.time_queries(method, np.zeros((10, 4), np.float32), repeats=50, n_single=0, max_seconds=2.5)
+    assert timing.repeats == 3 and timing.latency_s is None  # 1 + 1 + 1 s passes 2.5 s
+
+
+# -- precision-recall from the best-match score --------------------------------------------------------
+def test_precision_recall_by_hand() -> None:
+    from btel.evaluation import precision_recall
+
+    # Most confident first: right, right, wrong, right; 5 queries (one wrong match scored lowest).
+    scores = np.array([0.9, 0.8, 0.7, 0.6, 0.1])
+    correct = np.array([True, True, False, True, False])
+    pr = precision_recall(scores, correct)
+    np.testing.assert_allclose(pr["recall"], [0, 0.2, 0.4, 0.4, 0.6, 0.6])
+    np.testing.assert_allclose(pr["precision"], [1, 1, 1, 2 / 3, 3 / 4, 3 / 5])
+    assert pr["recall_at_100_precision"] == pytest.approx(0.4)
+    assert pr["auc_pr"] == pytest.approx(0.2 + 0.2 + 0.2 * 3 / 4)
+    # Only the order of the scores matters (each method's own scale).
+    again = precision_recall(np.exp(scores) * 7 - 3, correct)
+    assert again["auc_pr"] == pytest.approx(pr["auc_pr"])
+    # The most confident match wrong: no recall at 100 % precision; no correct match: zeros.
+    assert precision_recall([0.9, 0.1], [False, True])["recall_at_100_precision"] == 0.0
+    assert precision_recall([0.9, 0.1], [False, False])["auc_pr"] == 0.0
+    with pytest.raises(InvalidParameterError):
+        precision_recall([0.1, 0.2], [True])
+
+
+def test_evaluate_reports_pr_from_search_scores() -> None:
+    from btel.evaluation import format_table, precision_recall
+
+    rng = np.random.default_rng(0)
+    X = rng.standard_normal((60, 8)).astype(np.float32)
+    Q = X + 0.8 * rng.standard_normal(X.shape).astype(np.float32)
+    method = _NearestNeighbour().fit(X)
+    result = evaluate(method, None, Q, fit=False, ks=(1, 5))
+    scores, places = method.search(Q, 1)
+    expected = precision_recall(scores[:, 0], places[:, 0] == np.arange(60))
+    assert result.auc_pr == pytest.approx(expected["auc_pr"])
+    assert result.recall_at_100_precision == pytest.approx(expected["recall_at_100_precision"])
+    assert 0 < result.auc_pr <= result.recall_at_k[1] <= 1
+    summary = json.loads(json.dumps(result.to_dict()))
+    assert summary["auc_pr"] == pytest.approx(result.auc_pr)
+    assert len(summary["pr_curve"]["recall"]) == len(summary["pr_curve"]["precision"]) <= 256
+    assert "AUC-PR" in format_table([result]) and "R@100%P" in format_table([result])
+
+
+def test_time_queries_runs_with_the_thread_count_it_reports() -> None:
+    from threadpoolctl import threadpool_info
+
+    import btel.evaluation as ev
+
+    seen: list[int] = []
+
+    class Probe:
+        uses_query_sequence = False
+
+        def predict(self, Q: np.ndarray) -> np.ndarray:
+            seen.append(max((int(i["num_threads"]) for i in threadpool_info()), default=1))
+            return np.zeros(Q.shape[0], dtype=np.int64)
+
+    np.ones((2, 2)) @ np.ones((2, 2))  # BLAS loaded
+    _, timing = ev.time_queries(Probe(), np.zeros((4, 2), np.float32), repeats=2, n_single=2)
+    assert set(seen) == {1} and timing.n_threads == 1

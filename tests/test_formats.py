@@ -107,6 +107,33 @@ def _write_hloc(path: Path, names: list[str], X: np.ndarray) -> None:
             fh.create_group(name).create_dataset("global_descriptor", data=x)
 
 
+def test_cli_refuses_an_h5_holding_map_and_queries_without_a_prefix(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(40, 8)).astype(np.float32)
+    _write_hloc(tmp_path / "feats.h5", [f"db/{i}.jpg" for i in range(30)] + [f"query/{i}.jpg" for i in range(10)], X)
+    h5 = str(tmp_path / "feats.h5")
+    for args in (["train", h5, "-o", str(tmp_path / "m.npz"), "--method", "pq", "--budget", "2KB"],
+                 ["evaluate", "--db", f"{h5}:db/", "--queries", h5, "--methods", "pq", "--budget", "2KB",
+                  "--out", str(tmp_path / "run")]):
+        result = CliRunner().invoke(main, args)
+        assert result.exit_code == 2, result.output
+        assert "2 prefixes (db/ 30 images, query/ 10 images)" in result.output
+        assert f"{h5}:db/ or {h5}:query/" in result.output
+    assert not (tmp_path / "m.npz").exists()
+    # One prefix only: read as it is.
+    _write_hloc(tmp_path / "map.h5", [f"db/{i}.jpg" for i in range(30)], X[:30])
+    result = CliRunner().invoke(main, ["train", str(tmp_path / "map.h5"), "-o", str(tmp_path / "m.npz"),
+                                       "--method", "pq", "--budget", "2KB"])
+    assert result.exit_code == 0, result.output
+
+
+def test_cli_names_npz_arrays_in_cli_syntax(tmp_path: Path) -> None:
+    np.savez(tmp_path / "both.npz", a=np.ones((5, 4), np.float32), b=np.ones((5, 4), np.float32))
+    result = CliRunner().invoke(main, ["train", str(tmp_path / "both.npz"), "-o", str(tmp_path / "m.npz")])
+    assert result.exit_code == 1 and f"choose one: {tmp_path / 'both.npz'}:a." in result.output
+    assert "key=" not in result.output
+
+
 def test_hloc_global_descriptors_in_natural_name_order(tmp_path: Path) -> None:
     rng = np.random.default_rng(0)
     names = ["db/img10.jpg", "db/img2.jpg", "db/img1.jpg", "query/img1.jpg"]
@@ -145,7 +172,7 @@ def test_evaluate_reads_hloc_and_vpr_bench_files(gardenspoint_netvlad, tmp_path:
     nn = np.argmax((X / np.linalg.norm(X, axis=1, keepdims=True)) @ (Q / np.linalg.norm(Q, axis=1, keepdims=True)).T,
                    axis=0)
     assert rows["bruteforce"]["recall_at_k"]["1"] == pytest.approx(np.mean(np.abs(nn - np.arange(200)) <= 2))
-    assert rows["pq"]["recall"] == {} and set(rows["pq"]["recall_at_k"]) == {"1", "5", "10"}
+    assert rows["pq"]["recall"] == {} and set(rows["pq"]["recall_at_k"]) == {"1", "5", "10", "20"}
 
 
 # -- 10: descriptors say what they did to the images ------------------------------------------------------

@@ -113,3 +113,77 @@ def test_plot_real_gardenspoint_curve(gardenspoint_netvlad: tuple[np.ndarray, np
     y = fig.axes[0].get_lines()[0].get_ydata()
     assert 0 < y[0] < y[-1] <= 1  # real descriptors: imperfect at t=0, better with slack
     assert fig.axes[0].get_legend().get_texts()[0].get_text() == "NetVLAD NN (400.0 KB)"
+
+
+def test_run_plots_include_precision_recall_with_auc_in_the_legend(tmp_path: Path) -> None:
+    from btel.evaluation import precision_recall
+    from btel.plots import plot_run
+
+    rng = np.random.default_rng(0)
+    n = 200
+    rows = []
+    for name, noise in (("sharp", 0.2), ("blunt", 2.0), ("same as sharp", 0.2)):
+        pred = np.clip(np.arange(n) + (rng.integers(-3, 4, size=n) if noise > 1 else 0), 0, n - 1)
+        scores = -np.abs(pred - np.arange(n)) + noise * rng.standard_normal(n)
+        pr = precision_recall(scores, pred == np.arange(n))
+        r = _result(name, pred, 10_000)
+        r.auc_pr, r.recall_at_100_precision = pr["auc_pr"], pr["recall_at_100_precision"]
+        r.pr_curve = {"precision": pr["precision"].tolist(), "recall": pr["recall"].tolist()}
+        rows.append(r)
+    written = plot_run(rows, tmp_path)
+    path = tmp_path / "precision_recall.png"
+    assert path in written and path.stat().st_size > 1000
+    from btel.plots import plot_precision_recall
+
+    fig = plot_precision_recall(rows, tmp_path / "again.png")
+    ax = fig.axes[0]
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert labels[0].startswith("sharp (10.0 KB): AUC ") and "R@100%P" in labels[0]
+    lines = ax.get_lines()
+    assert len({line.get_marker() for line in lines}) == 3  # identical curves stay distinguishable
+    assert ax.get_xlabel().startswith("recall") and ax.get_ylabel() == "precision"
+
+
+def test_run_figure_identical_curves_integer_ticks_and_param_labels(tmp_path: Path) -> None:
+    from btel.plots import plot_run
+
+    n = 60
+    pred = np.arange(n)
+    rows = [_result(name, pred, 3000) for name in ("pq", "opq", "btel-codes")]
+    rows[2].settings = {"code": "random"}
+    plot_run(rows, tmp_path)
+    from btel.plots import _run_figure
+
+    fig = _run_figure(rows, tmp_path / "again.png", kind="tolerance", title="t")
+    ax = fig.axes[0]
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert labels == ["pq (3.0 KB)", "opq (3.0 KB)", "btel-codes code=random (3.0 KB)"]
+    ticks = ax.get_xticks()
+    assert np.all(ticks == np.round(ticks))  # frames: whole numbers only
+    lines = ax.get_lines()
+    assert len({line.get_marker() for line in lines}) == 3
+    marked = [set(np.arange(len(line.get_xdata()))[slice(*line.get_markevery()[:1], None, line.get_markevery()[1])])
+              for line in lines]
+    assert not (marked[0] & marked[1]) and not (marked[1] & marked[2])  # each marks its own points
+
+
+def test_run_figures_name_the_rows_that_did_not_run(tmp_path: Path) -> None:
+    from btel.plots import plot_run
+
+    pred = np.arange(30)
+    missing = EvaluationResult.not_measured("itq", "does not fit", "budget too small", n_queries=30)
+    import btel.plots as plots
+
+    titles: list[str] = []
+    real = plots._run_figure
+
+    def spy(results, path, *, kind, title):
+        titles.append(title)
+        return real(results, path, kind=kind, title=title)
+
+    plots._run_figure = spy
+    try:
+        written = plot_run([_result("pq", pred, 900)], tmp_path, title="toy", not_run=[missing])
+    finally:
+        plots._run_figure = real
+    assert written and titles == ["toy — not shown: itq (does not fit)"]

@@ -46,7 +46,7 @@ def test_write_run_files_and_recomputed_recall(tmp_path: Path) -> None:
     names = sorted(p.name for p in out.iterdir())
     assert names == sorted(
         ["metrics.json", "metrics.csv", "predictions_NN_euclid.csv", "predictions_NN_noisier.csv",
-         "predictions_ahead.csv", "recall_vs_tolerance.png", "recall_vs_storage.png"]
+         "predictions_ahead.csv", "recall_vs_tolerance.png", "recall_vs_storage.png", "precision_recall.png"]
     )
     metrics = json.loads(report.metrics_json.read_text())
     run = metrics["run"]

@@ -2,18 +2,51 @@
 
 >>> from btel import BTELocalizer, load
 >>> from btel.datasets import synthetic_route
+
+The public names below are imported on first use (PEP 562), so ``import btel`` and ``btel --help``
+do not pay for scikit-learn and SciPy until a method is actually needed.
 """
 
 from __future__ import annotations
 
-from .base import PlaceLocalizer
-from .codes import CodeLocalizer
-from .localizer import BTELocalizer
-from .methods import load, make_method
-from .sequence import SequenceFilter, filter_sequence
-from .storage import parse_budget
+import importlib
+from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
 
+#: Public name → the submodule that defines it.
+_LAZY = {
+    "BTELocalizer": ".localizer",
+    "CodeLocalizer": ".codes",
+    "PlaceLocalizer": ".base",
+    "SequenceFilter": ".sequence",
+    "filter_sequence": ".sequence",
+    "load": ".methods",
+    "make_method": ".methods",
+    "parse_budget": ".storage",
+}
+
 __all__ = ["BTELocalizer", "CodeLocalizer", "PlaceLocalizer", "SequenceFilter", "filter_sequence", "load", "make_method", "parse_budget",
            "__version__"]
+
+if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
+    from .base import PlaceLocalizer
+    from .codes import CodeLocalizer
+    from .localizer import BTELocalizer
+    from .methods import load, make_method
+    from .sequence import SequenceFilter, filter_sequence
+    from .storage import parse_budget
+
+
+def __getattr__(name: str) -> Any:
+    """Import a public name's submodule on first access and cache the name in the package."""
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'btel' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))

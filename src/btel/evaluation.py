@@ -13,7 +13,7 @@ Two names, one meaning each, everywhere (tables, CSV, JSON, plots):
   ``k_tolerance`` frames, default 0, or among the positives). Every method ranks, and the first
   candidate is the point prediction, so R@1 = recall@0 (at ``k_tolerance`` 0) for every method.
 - With explicit positives per query (VPR-Bench, GPS radius) the tolerance does not apply: only
-  R@K is reported (R@1/5/10 by default).
+  R@K is reported (R@1/5/10/20 on the command line, the field's convention).
 - Every result carries storage bytes (and their breakdown), fit time and query time per query.
 
 :func:`evaluate_all` is the harness of ``btel evaluate`` and ``btel demo``: it checks every method
@@ -57,6 +57,9 @@ __all__ = [
     "check_ground_truth",
     "format_table",
     "STATUS_OK",
+    "QueryTiming",
+    "time_queries",
+    "precision_recall",
 ]
 
 logger = logging.getLogger(__name__)
@@ -254,6 +257,63 @@ def recall_at_k(
     return {k: float(found[:, k - 1].mean()) for k in points}
 
 
+# -- precision–recall from the best-match score (VPR-Bench, VPR_Tutorial) ----------------------------
+#: Points kept of a PR curve in results (the curve is drawn from them; AUC-PR uses every point).
+PR_CURVE_POINTS = 256
+
+
+def precision_recall(best_scores: Any, correct: Any) -> dict[str, Any]:
+    """The precision–recall curve of accepting a query's top-1 match when its score passes a threshold.
+
+    Each query has one best match and its score (higher = more confident). Sweeping a threshold
+    from the highest score down: precision = correct accepted matches / accepted matches, recall =
+    correct accepted matches / all queries (every query has a true place in the map; VPR-Bench's and
+    VPR_Tutorial's convention). Scores are compared within one method only, so any method's own
+    scale serves (a monotone rescaling changes nothing).
+
+    Parameters
+    ----------
+    best_scores : array-like of float, shape (n_queries,)
+        Score of each query's best match (``search(Q, 1)[0][:, 0]``). NaN counts as least confident.
+    correct : array-like of bool, shape (n_queries,)
+        Whether that best match is a true place.
+
+    Returns
+    -------
+    dict
+        ``precision``, ``recall`` (ndarrays, one point per distinct threshold, recall increasing),
+        ``auc_pr`` (area under the step curve: Σ ΔRecall × precision, i.e. average precision with
+        recall over all queries) and ``recall_at_100_precision`` (the largest recall with no false
+        match accepted; 0 when the most confident match is wrong).
+    """
+    from sklearn.metrics import precision_recall_curve
+
+    scores = np.asarray(best_scores, dtype=np.float64).reshape(-1)
+    correct = np.asarray(correct, dtype=bool).reshape(-1)
+    if scores.shape != correct.shape or scores.size == 0:
+        raise InvalidParameterError(f"best_scores and correct must be 1-D of one length ≥ 1; got {scores.shape} "
+                                    f"and {correct.shape}.")
+    finite = np.isfinite(scores)
+    low = scores[finite].min() - 1.0 if finite.any() else 0.0
+    scores = np.where(np.isnan(scores), low, np.clip(scores, low, None))
+    n_correct = int(correct.sum())
+    if n_correct == 0:
+        return {"precision": np.zeros(1), "recall": np.zeros(1), "auc_pr": 0.0, "recall_at_100_precision": 0.0}
+    precision, recall, _ = precision_recall_curve(correct, scores)
+    # sklearn's recall counts correct top-1 matches only; VPR counts every query (a wrong top-1 is a miss).
+    precision, recall = precision[::-1], recall[::-1] * (n_correct / correct.size)
+    auc = float(np.sum(np.diff(recall) * precision[1:]))
+    perfect = recall[precision >= 1.0]
+    return {"precision": precision, "recall": recall, "auc_pr": auc,
+            "recall_at_100_precision": float(perfect.max()) if perfect.size else 0.0}
+
+
+def _thin_curve(precision: np.ndarray, recall: np.ndarray, n: int = PR_CURVE_POINTS) -> tuple[list[float], list[float]]:
+    """At most ``n`` points of a PR curve, evenly spaced along it (first and last kept)."""
+    keep = np.unique(np.linspace(0, precision.size - 1, min(n, precision.size)).round().astype(int))
+    return [float(v) for v in precision[keep]], [float(v) for v in recall[keep]]
+
+
 # -- evaluation of one method --------------------------------------------------------------------
 def _jsonable(value: Any, depth: int = 0) -> Any:
     """A JSON-safe version of a parameter value (strict JSON: no NaN/inf)."""
@@ -332,9 +392,23 @@ class EvaluationResult:
     fit_time_s : float or None
         Wall-clock seconds of ``fit`` (None when the method was evaluated already fitted).
     query_time_s_per_query : float or None
-        Wall-clock seconds of ``predict`` on all queries divided by the number of queries.
+        Batch throughput: median wall-clock seconds of ``predict`` on all queries (after a warm-up
+        call, over ``timing_repeats`` calls) divided by the number of queries.
     rank_time_s_per_query : float or None
-        Same for ``rank``.
+        Wall-clock seconds of one ``rank`` call on all queries divided by the number of queries.
+    query_latency_s : float or None
+        Single-query latency: median seconds of one query answered alone (:func:`time_queries`).
+    n_threads : int or None
+        Threads the numerical libraries could use while timing.
+    timing_repeats : int or None
+        Timed batch calls behind ``query_time_s_per_query``.
+    auc_pr : float or None
+        Area under the precision–recall curve of accepting each query's top-1 match by its score
+        (:func:`precision_recall`); None when the method gives no scores.
+    recall_at_100_precision : float or None
+        Recall at 100 % precision on that curve.
+    pr_curve : dict or None
+        ``{"precision": [...], "recall": [...]}``, at most :data:`PR_CURVE_POINTS` points.
     predictions : ndarray of shape (n_queries,), dtype int64
         Predicted place per query row (not written to JSON; see ``predictions_<name>.csv``).
     ranked : ndarray of shape (n_queries, k), dtype int64, or None
@@ -361,6 +435,8 @@ class EvaluationResult:
     series : str or None
         The method this row is one point of (``pq`` for the rows ``pq@100KB`` and ``pq@500KB``);
         plots draw one line per series. None: the row's own name.
+    settings : dict or None
+        The parameters set by the user for this row (``--param``), shown in plot legends.
     """
 
     name: str
@@ -375,6 +451,12 @@ class EvaluationResult:
     fit_time_s: float | None
     query_time_s_per_query: float | None
     rank_time_s_per_query: float | None = None
+    query_latency_s: float | None = None
+    n_threads: int | None = None
+    timing_repeats: int | None = None
+    auc_pr: float | None = None
+    recall_at_100_precision: float | None = None
+    pr_curve: dict[str, list[float]] | None = field(default=None, repr=False)
     predictions: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64), repr=False)
     ranked: np.ndarray | None = field(default=None, repr=False)
     ground_truth: GroundTruth | None = field(default=None, repr=False)
@@ -386,6 +468,7 @@ class EvaluationResult:
     uses_query_sequence: bool = False
     minimum_bytes: int | None = None
     series: str | None = None
+    settings: dict[str, Any] | None = None
 
     @property
     def ok(self) -> bool:
@@ -405,6 +488,35 @@ class EvaluationResult:
                      minimum_bytes=minimum_bytes)
         return result
 
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "EvaluationResult":
+        """A row back from :meth:`to_dict` (``metrics.json``): every number, no predictions or ranking.
+
+        Raises
+        ------
+        InvalidParameterError
+            ``data`` lacks a field :meth:`to_dict` writes.
+        """
+        try:
+            result = cls(
+                name=str(data["name"]), params=dict(data.get("params") or {}), n_map=data.get("n_map"),
+                n_queries=int(data["n_queries"]), recall={int(t): float(v) for t, v in (data.get("recall") or {}).items()},
+                recall_curve=np.asarray(data.get("recall_curve") or [], dtype=np.float64),
+                recall_at_k=(None if data.get("recall_at_k") is None
+                             else {int(k): float(v) for k, v in data["recall_at_k"].items()}),
+                nbytes=data.get("nbytes"), storage_breakdown=data.get("storage_breakdown"),
+                fit_time_s=data.get("fit_time_s"), query_time_s_per_query=data.get("query_time_s_per_query"),
+                rank_time_s_per_query=data.get("rank_time_s_per_query"), query_latency_s=data.get("query_latency_s"),
+                n_threads=data.get("n_threads"), timing_repeats=data.get("timing_repeats"), auc_pr=data.get("auc_pr"),
+                recall_at_100_precision=data.get("recall_at_100_precision"), pr_curve=data.get("pr_curve"),
+                tolerance_for_k=int(data.get("tolerance_for_k") or 0), status=str(data["status"]),
+                reason=data.get("reason"), budget=data.get("budget"), reference=bool(data.get("reference")),
+                uses_query_sequence=bool(data.get("uses_query_sequence")), minimum_bytes=data.get("minimum_bytes"),
+                series=data.get("series"), settings=data.get("settings"))
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise InvalidParameterError(f"not a row of metrics.json ({type(exc).__name__}: {exc}).") from exc
+        return result
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary (no predictions). Tolerances and K stay ints here; JSON makes them strings."""
         return {
@@ -412,6 +524,7 @@ class EvaluationResult:
             "status": self.status,
             "reason": self.reason,
             "series": self.series or self.name,
+            "settings": _jsonable(self.settings) if self.settings else None,
             "reference": self.reference,
             "uses_query_sequence": self.uses_query_sequence,
             "budget": self.budget,
@@ -430,6 +543,12 @@ class EvaluationResult:
             "fit_time_s": self.fit_time_s,
             "query_time_s_per_query": self.query_time_s_per_query,
             "rank_time_s_per_query": self.rank_time_s_per_query,
+            "query_latency_s": self.query_latency_s,
+            "n_threads": self.n_threads,
+            "timing_repeats": self.timing_repeats,
+            "auc_pr": self.auc_pr,
+            "recall_at_100_precision": self.recall_at_100_precision,
+            "pr_curve": self.pr_curve,
             "ground_truth": None if self.ground_truth is None else self.ground_truth.kind,
         }
 
@@ -440,6 +559,137 @@ class EvaluationResult:
     def to_row(self) -> dict[str, Any]:
         """A row for :func:`btel.plots.plot_recall_vs_storage` / :func:`~btel.plots.plot_recall_vs_n`."""
         return {"method": self.name, "bytes": self.nbytes, "n_places": self.n_map, "recall": dict(self.recall)}
+
+
+# -- timing ----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class QueryTiming:
+    """How long a fitted method takes to answer queries, measured so that runs agree.
+
+    Attributes
+    ----------
+    batch_s_per_query : float
+        Median over ``repeats`` timed ``predict(Q)`` calls on every query (after a warm-up call),
+        divided by the number of queries: throughput when the queries come as one batch.
+    latency_s : float or None
+        Median wall time of one query answered alone (``stream().search`` — what a robot runs —
+        or ``predict`` on one row), over ``n_single`` queries after a few warm-up queries. None when
+        the method answers batches only.
+    n_threads : int
+        Threads the numerical libraries (BLAS, OpenMP) may use during the measurement.
+    repeats : int
+        Timed batch calls behind the median.
+    n_single : int
+        Queries behind the latency median.
+    """
+
+    batch_s_per_query: float
+    latency_s: float | None
+    n_threads: int
+    repeats: int
+    n_single: int
+
+
+def _n_threads() -> int:
+    """The largest thread count any loaded numerical library (BLAS, OpenMP) may use."""
+    try:
+        from threadpoolctl import threadpool_info
+
+        counts = [int(info.get("num_threads") or 0) for info in threadpool_info()]
+    except Exception:  # noqa: BLE001 - a description of the machine, never a reason to fail a run
+        counts = []
+    import os
+
+    return max(counts, default=0) or (os.cpu_count() or 1)
+
+
+def time_queries(method: Any, Q: np.ndarray, *, repeats: int = 5, n_single: int = 50, warmup: int = 1,
+                 max_seconds: float = 10.0, threads: int | None = 1) -> tuple[np.ndarray, QueryTiming]:
+    """Localize ``Q`` with a fitted ``method`` and time it: warm-up first, then repeats, medians.
+
+    One un-warmed batch call is not a timing: the first call pays for page faults, lazy
+    allocations and thread start-up (a 100× spread between identical runs). Here the first
+    ``warmup`` calls are not timed, the batch is then timed ``repeats`` times (fewer once the timed
+    calls pass ``max_seconds``; at least one) and the median is reported; single-query latency is
+    timed separately, one query at a time.
+
+    Parameters
+    ----------
+    method : fitted estimator with ``predict``
+    Q : ndarray of shape (n_queries, n_features)
+    repeats : int, default 5
+        Timed batch calls.
+    n_single : int, default 50
+        Queries timed one at a time (the first ones of ``Q``); 0 skips the latency.
+    warmup : int, default 1
+        Untimed batch calls before the timed ones (the predictions come from the first).
+    max_seconds : float, default 10
+        Stop repeating once the timed batch calls have taken this long.
+    threads : int or None, default 1
+        BLAS/OpenMP threads while localizing and timing (threadpoolctl). One thread by default:
+        on a shared machine multi-threaded BLAS and faiss calls spin against other processes, and
+        identical runs then differ by 2–100× (benchmarks/bench_timing_stability.py); one thread
+        gives figures that repeat. None leaves the libraries' own setting.
+
+    Returns
+    -------
+    predictions : ndarray of shape (n_queries,)
+        ``method.predict(Q)`` as returned (from the first call).
+    timing : QueryTiming
+    """
+    if threads is not None:
+        from threadpoolctl import threadpool_limits
+
+        with threadpool_limits(limits=int(threads)):
+            return _time_queries(method, Q, repeats, n_single, warmup, max_seconds)
+    return _time_queries(method, Q, repeats, n_single, warmup, max_seconds)
+
+
+def _time_queries(method: Any, Q: np.ndarray, repeats: int, n_single: int, warmup: int,
+                  max_seconds: float) -> tuple[np.ndarray, QueryTiming]:
+    n_queries = Q.shape[0]
+    predictions = method.predict(Q)
+    for _ in range(max(0, warmup - 1)):
+        method.predict(Q)
+    times: list[float] = []
+    for _ in range(max(1, repeats)):
+        start = time.perf_counter()
+        method.predict(Q)
+        times.append(time.perf_counter() - start)
+        if sum(times) > max_seconds:
+            break
+    latency, n_timed = _single_query_latency(method, Q, min(n_single, n_queries), max_seconds)
+    timing = QueryTiming(batch_s_per_query=float(np.median(times)) / n_queries, latency_s=latency,
+                         n_threads=_n_threads(), repeats=len(times), n_single=n_timed)
+    return predictions, timing
+
+
+def _single_query_latency(method: Any, Q: np.ndarray, n: int, max_seconds: float) -> tuple[float | None, int]:
+    """Median seconds of one query answered alone, over up to ``n`` queries (after 3 untimed ones)."""
+    if n <= 0:
+        return None, 0
+    if callable(getattr(method, "stream", None)):
+        stream = method.stream()
+
+        def one(i: int) -> None:
+            stream.search(Q[i])
+    elif getattr(method, "uses_query_sequence", False):
+        return None, 0  # one row alone is not the same question for a sequence method without a stream
+    else:
+        def one(i: int) -> None:
+            method.predict(Q[i:i + 1])
+    for i in range(min(3, n)):
+        one(i)
+    if callable(getattr(method, "stream", None)):
+        stream = method.stream()  # the timed traverse starts afresh
+    times: list[float] = []
+    for i in range(n):
+        start = time.perf_counter()
+        one(i)
+        times.append(time.perf_counter() - start)
+        if sum(times) > max_seconds:
+            break
+    return float(np.median(times)), len(times)
 
 
 def evaluate(
@@ -456,6 +706,8 @@ def evaluate(
     fit: bool = True,
     budget: int | None = None,
     reference: bool = False,
+    timing_repeats: int = 5,
+    timing_threads: int | None = 1,
 ) -> EvaluationResult:
     """Fit ``method`` on the map, localize the queries, and measure everything SPEC §9 asks for.
 
@@ -490,6 +742,12 @@ def evaluate(
         The budget the method was given (recorded in the result only).
     reference : bool, default False
         Mark the result as the unbudgeted reference row.
+    timing_threads : int or None, default 1
+        BLAS/OpenMP threads while localizing and timing (see :func:`time_queries`); reported as
+        ``n_threads``.
+    timing_repeats : int, default 5
+        Timed batch calls behind the query-time median (:func:`time_queries`: warm-up, repeats,
+        and single-query latency timed apart).
 
     Returns
     -------
@@ -520,9 +778,8 @@ def evaluate(
         method.fit(X_map)
         fit_time = time.perf_counter() - start
 
-    start = time.perf_counter()
-    raw = method.predict(Q)
-    query_time = (time.perf_counter() - start) / n_queries
+    raw, timing = time_queries(method, Q, repeats=timing_repeats, threads=timing_threads)
+    query_time = timing.batch_s_per_query
     predictions = check_predictions(raw, n_queries, name=f"{type(method).__name__}.predict(Q)")
     if n_map is not None and predictions.size and (predictions.min() < 0 or predictions.max() >= n_map):
         raise InvalidAnswerError(  # never score an answer outside the map (issue 20)
@@ -532,10 +789,16 @@ def evaluate(
     ranked = None
     rank_time = None
     r_at_k = None
+    best_scores = None
+    has_search = callable(getattr(method, "search", None))
     if ks and getattr(method, "supports_ranking", callable(getattr(method, "rank", None))):
         k = ks[-1] if n_map is None else min(ks[-1], n_map)
         start = time.perf_counter()
-        ranked = np.asarray(method.rank(Q, k=k))
+        if has_search:  # the ranking and each candidate's score in one call
+            scores, ranked = method.search(Q, k=k)
+            best_scores, ranked = np.asarray(scores)[:, 0], np.asarray(ranked)
+        else:
+            ranked = np.asarray(method.rank(Q, k=k))
         rank_time = (time.perf_counter() - start) / n_queries
         if ranked.ndim != 2 or ranked.shape[0] != n_queries:
             raise InvalidParameterError(
@@ -549,6 +812,12 @@ def evaluate(
     elif ks:
         # No ranking: the point prediction is the one candidate, so R@K is known for K = 1 only.
         r_at_k = recall_at_k(predictions[:, None], gt, (1,), tolerance=k_tolerance)
+
+    if best_scores is None and has_search:
+        best_scores = np.asarray(method.search(Q, k=1)[0])[:, 0]
+    pr = None
+    if best_scores is not None and best_scores.shape == (n_queries,):
+        pr = precision_recall(best_scores, gt.is_correct(predictions, k_tolerance))
 
     nbytes, breakdown = _storage_of(method)
     return EvaluationResult(
@@ -564,6 +833,13 @@ def evaluate(
         fit_time_s=fit_time,
         query_time_s_per_query=query_time,
         rank_time_s_per_query=rank_time,
+        query_latency_s=timing.latency_s,
+        n_threads=timing.n_threads,
+        timing_repeats=timing.repeats,
+        auc_pr=None if pr is None else pr["auc_pr"],
+        recall_at_100_precision=None if pr is None else pr["recall_at_100_precision"],
+        pr_curve=None if pr is None else dict(zip(("precision", "recall"), _thin_curve(pr["precision"],
+                                                                                        pr["recall"]))),
         predictions=predictions,
         ranked=ranked,
         ground_truth=gt,
@@ -603,6 +879,9 @@ class Job:
         The unbudgeted reference row (brute force).
     series : str, optional
         The method this row is one point of, when a run has several budgets (``pq`` for ``pq@100KB``).
+    settings : dict, optional
+        The parameters the user set for this row (``--param code=random``), shown in plot legends
+        so that two rows of one method can be told apart.
     """
 
     name: str
@@ -610,6 +889,7 @@ class Job:
     fit: bool = True
     reference: bool = False
     series: str | None = None
+    settings: dict[str, Any] | None = None
 
     @property
     def budget(self) -> int | None:
@@ -753,6 +1033,8 @@ def evaluate_all(
     on_preflight: Callable[[dict[str, EvaluationResult]], None] | None = None,
     on_result: Callable[[list[EvaluationResult]], None] | None = None,
     on_start: Callable[[int, Job], None] | None = None,
+    finished: Sequence[EvaluationResult] = (),
+    timing_threads: int | None = 1,
 ) -> list[EvaluationResult]:
     """Evaluate every job; one that does not fit or fails becomes a row, never an abort.
 
@@ -784,6 +1066,11 @@ def evaluate_all(
         Called with the list of rows so far after each job.
     on_start : callable, optional
         Called with (index, job) before a job is fitted (progress display).
+    timing_threads : int or None, default 1
+        Threads while localizing and timing each method (:func:`time_queries`).
+    finished : sequence of EvaluationResult, optional
+        Rows of an earlier, interrupted run of the same jobs (``btel evaluate --resume``): a job
+        with a row of status ``"ok"`` here is not run again; that row is kept.
 
     Returns
     -------
@@ -805,9 +1092,11 @@ def evaluate_all(
     for job in jobs:
         if job.name in skipped:
             skipped[job.name].series = job.series
+            skipped[job.name].settings = job.settings
     if on_preflight is not None:
         on_preflight(skipped)
     done: dict[str, EvaluationResult] = dict(skipped)
+    done.update({r.name: r for r in finished if r.ok and r.name in names})
 
     def rows() -> list[EvaluationResult]:
         return [done[name] for name in names if name in done]
@@ -822,7 +1111,8 @@ def evaluate_all(
         try:
             done[job.name] = evaluate(job.method, X_map if job.fit else None, Q, ground_truth=gt,
                                       tolerances=tolerances or None, ks=ks, k_tolerance=k_tolerance, name=job.name,
-                                      curve_max=curve_max, fit=job.fit, budget=job.budget, reference=job.reference)
+                                      curve_max=curve_max, fit=job.fit, budget=job.budget, reference=job.reference,
+                                      timing_threads=timing_threads)
         except BudgetTooSmallError as exc:
             done[job.name] = EvaluationResult.not_measured(job.name, STATUS_DOES_NOT_FIT, _short_reason(exc),
                                                            minimum_bytes=exc.minimum, **common)
@@ -842,6 +1132,7 @@ def evaluate_all(
             done[job.name] = EvaluationResult.not_measured(
                 job.name, STATUS_FAILED, f"{type(exc).__name__}: {_short_reason(exc)}", **common)
         done[job.name].series = job.series
+        done[job.name].settings = job.settings
         if on_result is not None:
             on_result(rows())
     return rows()
@@ -855,17 +1146,19 @@ REFERENCE_MARK = "*"
 def format_table(results: Sequence[EvaluationResult]) -> str:
     """The results as a plain-text table, with the metrics the ground truth supports.
 
-    Columns: method, status, bytes, fit seconds, µs per query, recall@t for every tolerance any
+    Columns: method, status, bytes, fit seconds, batch µs per query (median throughput), single-query
+    latency in µs, the thread count, recall@t for every tolerance any
     row has (frame-aligned ground truth only) and R@K for every K. Rows that did not run show
     their status and reason. ``†`` marks methods that use the query sequence (not comparable
     with single-frame methods), ``*`` the unbudgeted reference; a legend line says so.
     """
     tolerances = sorted({t for r in results for t in r.recall})
     ks = sorted({k for r in results for k in (r.recall_at_k or {})})
-    metric_names = [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks]
+    has_pr = any(r.auc_pr is not None for r in results)
+    metric_names = [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks] + (["AUC-PR", "R@100%P"] if has_pr else [])
     width = max([len("method")] + [len(_row_label(r)) for r in results]) + 1
-    header = (f"{'method':<{width}} {'status':<12} {'bytes':>10} {'fit s':>7} {'µs/query':>9} "
-              + " ".join(f"{m:>9}" for m in metric_names))
+    header = (f"{'method':<{width}} {'status':<12} {'bytes':>10} {'fit s':>7} {'batch µs/q':>10} {'1-query µs':>10} "
+              f"{'threads':>7} " + " ".join(f"{m:>9}" for m in metric_names))
     lines = [header.rstrip(), "-" * len(header.rstrip())]
     for r in results:
         label = _row_label(r)
@@ -879,16 +1172,28 @@ def format_table(results: Sequence[EvaluationResult]) -> str:
         size = format_bytes(r.nbytes) if r.nbytes is not None else "?"
         fit = f"{r.fit_time_s:.1f}" if r.fit_time_s is not None else "-"
         values = [r.recall.get(t) for t in tolerances] + [(r.recall_at_k or {}).get(k) for k in ks]
+        if has_pr:
+            values += [r.auc_pr, r.recall_at_100_precision]
         cells = " ".join(f"{v:>9.3f}" if v is not None else f"{'-':>9}" for v in values)
-        query = r.query_time_s_per_query * 1e6 if r.query_time_s_per_query is not None else float("nan")
-        lines.append(f"{label:<{width}} {r.status:<12} {size:>10} {fit:>7} {query:>9.1f} {cells}".rstrip())
+        query = f"{r.query_time_s_per_query * 1e6:.1f}" if r.query_time_s_per_query is not None else "-"
+        latency = f"{r.query_latency_s * 1e6:.1f}" if r.query_latency_s is not None else "-"
+        threads = str(r.n_threads) if r.n_threads is not None else "-"
+        lines.append(f"{label:<{width}} {r.status:<12} {size:>10} {fit:>7} {query:>10} {latency:>10} {threads:>7} "
+                     f"{cells}".rstrip())
     notes = []
+    repeats = {r.timing_repeats for r in results if r.ok and r.timing_repeats}
+    if repeats:
+        notes.append(f"batch µs/q: median of {'/'.join(map(str, sorted(repeats)))} timed predict calls on all queries "
+                     "after a warm-up, per query; 1-query µs: median latency of one query answered alone")
     if tolerances:
         notes.append("recall@t: point prediction within t frames of the true place")
     if ks:
         k_tol = max((r.tolerance_for_k for r in results if r.ok), default=0)
         within = f" (within {k_tol} frames)" if k_tol else ""
         notes.append(f"R@K: a correct place{within} among the top K ranked candidates")
+    if has_pr:
+        notes.append("AUC-PR, R@100%P: precision-recall of accepting each query's top-1 match by its score "
+                     "(recall over all queries)")
     if any(r.reference for r in results):
         notes.append(f"{REFERENCE_MARK} reference (unbudgeted)")
     if any(r.uses_query_sequence for r in results):

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator, NullFormatter
 
 from .exceptions import InvalidParameterError
 from .storage import format_bytes
@@ -38,6 +38,7 @@ __all__ = [
     "plot_experiment",
     "plot_recall_at_k",
     "plot_run",
+    "plot_precision_recall",
 ]
 
 _FIGSIZE = (6.4, 4.4)
@@ -147,6 +148,7 @@ def plot_recall_vs_tolerance(
     ax.set_ylim(0.0, 1.02)
     # The axis ends where the curves end (twice the largest reported tolerance), not at a fixed 80.
     ax.set_xlim(0, max(right, 1))
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # frames: no 2.5 or 7.5
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize="small", loc="lower right")  # recall rises with t: the lower right is free
     if title:
@@ -156,8 +158,12 @@ def plot_recall_vs_tolerance(
 
 
 def _legend_label(r: Any) -> str:
-    """``name (bytes)``; the reference row and sequence methods say what they are."""
+    """``name code=random (bytes)``; the parameters the user set, and what the reference row and
+    sequence methods are."""
     name = str(_field(r, "name", "method"))
+    settings = _field(r, "settings") or {}
+    if settings:
+        name += " " + " ".join(f"{k}={v}" for k, v in sorted(settings.items()))
     nbytes = _field(r, "nbytes")
     notes = [format_bytes(nbytes)] if nbytes is not None else []
     if _field(r, "reference", False):
@@ -260,7 +266,13 @@ def _run_figure(results: Sequence[Any], path: Path, *, kind: str, title: str | N
                 curve = _field(r, "recall_curve")
                 curve = np.asarray(curve if curve is not None else [], dtype=float)
                 if curve.size:
-                    ax.plot(np.arange(curve.size), curve, drawstyle="steps-post", **style)
+                    # Markers at points offset per method: curves that coincide (PQ and OPQ at the same
+                    # bytes) still show one marker of each.
+                    index = series.index(name)
+                    every = max(len(series), curve.size // 6)
+                    start = (index * max(1, every // len(series))) % every
+                    ax.plot(np.arange(curve.size), curve, drawstyle="steps-post", marker="osD^v<>ph*"[index % 10],
+                            markersize=4, markevery=(start, every), **style)
                     right = max(right, curve.size - 1)
             else:
                 pts = sorted((int(k), float(v)) for k, v in (_field(r, "recall_at_k") or {}).items())
@@ -269,6 +281,7 @@ def _run_figure(results: Sequence[Any], path: Path, *, kind: str, title: str | N
                     right = max(right, pts[-1][0])
         if kind == "tolerance":
             ax.set_xlim(0, right)  # twice the largest reported tolerance, not a fixed 80 frames
+            ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # frames: no 2.5 or 7.5
             ax.set_xlabel("tolerance t (frames)")
         else:
             ks = sorted({int(k) for r in members for k in (_field(r, "recall_at_k") or {})})
@@ -287,7 +300,8 @@ def _run_figure(results: Sequence[Any], path: Path, *, kind: str, title: str | N
     return fig
 
 
-def plot_run(results: Sequence[Any], out_dir: str | os.PathLike, *, title: str | None = None) -> list[Path]:
+def plot_run(results: Sequence[Any], out_dir: str | os.PathLike, *, title: str | None = None,
+             not_run: Sequence[Any] = ()) -> list[Path]:
     """The plots of an evaluation run folder (``btel evaluate``, ``btel demo``).
 
     - ``recall_vs_tolerance.png`` when the ground truth has one true place per query (the curve
@@ -295,7 +309,12 @@ def plot_run(results: Sequence[Any], out_dir: str | os.PathLike, *, title: str |
       panel per budget when the run has several, the reference in each;
     - ``recall_vs_storage.png`` when storage is known: recall@t at the middle reported
       tolerance (10 frames when reported), or R@1 with explicit positives, against stored bytes,
-      one line per method through its budgets, the budgets as dotted lines.
+      one line per method through its budgets, the budgets as dotted lines;
+    - ``precision_recall.png`` when the methods give scores: the PR curve of accepting each query's
+      top-1 match by its score, AUC-PR and recall at 100 % precision in the legend.
+
+    ``not_run``: rows without numbers (does not fit, failed, …); each figure names them under its
+    title, so a method never vanishes from a figure without a word.
 
     Returns
     -------
@@ -304,6 +323,9 @@ def plot_run(results: Sequence[Any], out_dir: str | os.PathLike, *, title: str |
     """
     out_dir = Path(out_dir)
     results = list(results)
+    missing = "; ".join(f"{_field(r, 'name')} ({_field(r, 'status')})" for r in not_run)
+    if missing:
+        title = (f"{title} — " if title else "") + f"not shown: {missing}"
     written: list[Path] = []
     if any(len(_field(r, "recall_curve") if _field(r, "recall_curve") is not None else ()) for r in results):
         written.append(out_dir / "recall_vs_tolerance.png")
@@ -336,7 +358,61 @@ def plot_run(results: Sequence[Any], out_dir: str | os.PathLike, *, title: str |
                           and not _field(r, "reference", False)})
         written.append(out_dir / "recall_vs_storage.png")
         plot_recall_vs_storage(rows, written[-1], tolerance=key, title=title, ylabel=ylabel, budgets=budgets)
+    if any(_field(r, "pr_curve") for r in results):
+        written.append(out_dir / "precision_recall.png")
+        plot_precision_recall(results, written[-1], title=title)
     return written
+
+
+def plot_precision_recall(results: Sequence[Any], path: str | os.PathLike, *, title: str | None = None) -> Figure:
+    """Precision (y) against recall (x) of accepting each query's top-1 match by its score, one curve per method.
+
+    The legend gives each method's AUC-PR and recall at 100 % precision. Curves that coincide (two
+    methods with the same answers) stay visible: each method has its own marker, placed at
+    different points along the curve.
+
+    Parameters
+    ----------
+    results : sequence of EvaluationResult or dict
+        Each needs ``name`` and ``pr_curve`` (``{"precision": [...], "recall": [...]}``); rows without
+        one are left out.
+    path : path
+        PNG file to write.
+    title : str, optional
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    series = [r for r in results if _field(r, "pr_curve")]
+    if not series:
+        raise InvalidParameterError("nothing to plot: no result has a precision-recall curve.")
+    fig = Figure(figsize=(_FIGSIZE[0], _FIGSIZE[1] + 0.25 * len(series)), dpi=_DPI)
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot(1, 1, 1)
+    markers = "osD^v<>ph*"
+    for i, r in enumerate(series):
+        curve = _field(r, "pr_curve")
+        recall, precision = np.asarray(curve["recall"], float), np.asarray(curve["precision"], float)
+        auc, perfect = _field(r, "auc_pr"), _field(r, "recall_at_100_precision")
+        label = _legend_label(r) + (f": AUC {auc:.3f}, R@100%P {perfect:.3f}" if auc is not None else "")
+        n_marks = 6
+        start = (i * max(1, recall.size // (n_marks * len(series)))) % max(1, recall.size)
+        ax.plot(recall, precision, drawstyle="steps-post", color=f"C{i % 10}", linestyle=_linestyle(r),
+                marker=markers[i % len(markers)], markevery=(start, max(1, recall.size // n_marks)), markersize=5,
+                label=label)
+    ax.set_xlim(0.0, 1.0)
+    ax.set_ylim(0.0, 1.02)
+    ax.grid(True, alpha=0.3)
+    ax.set_xlabel("recall (correct accepted top-1 matches / all queries)")
+    ax.set_ylabel("precision")
+    ax.legend(fontsize="x-small", loc="upper center", bbox_to_anchor=(0.5, -0.14), frameon=False)  # never on a curve
+    if title:
+        import textwrap
+
+        ax.set_title(textwrap.fill(title, width=70), fontsize="small")
+    _save(fig, path)
+    return fig
 
 
 def _legend_label_short(r: Any) -> str:

@@ -94,7 +94,8 @@ def _safe_name(name: str) -> str:
 
 
 #: Files a run folder may hold; with ``overwrite=True`` these (and only these) are removed first.
-_RUN_FILE_PATTERNS = ("metrics.json", "metrics.csv", "predictions_*.csv", "recall_vs_*.png", "recall_at_k.png")
+_RUN_FILE_PATTERNS = ("metrics.json", "metrics.csv", "predictions_*.csv", "recall_vs_*.png", "recall_at_k.png",
+                      "precision_recall.png", ".metrics.*.tmp")
 
 
 _LOCK_NAME = ".btel-run.lock"
@@ -209,16 +210,18 @@ def _csv_text(results: Sequence[EvaluationResult]) -> str:
     tolerances = sorted({t for r in results for t in r.recall})
     ks = sorted({k for r in results for k in (r.recall_at_k or {})})
     header = ["method", "status", "reference", "uses_query_sequence", "budget", "n_map", "n_queries", "nbytes",
-              "fit_time_s", "query_time_s_per_query"]
-    header += [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks] + ["reason"]
+              "fit_time_s", "query_time_s_per_query", "query_latency_s", "n_threads"]
+    header += [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks] + ["auc_pr", "recall@100%precision", "reason"]
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(header)
     for r in results:
         row = [r.name, r.status, int(r.reference), int(r.uses_query_sequence), _fmt(r.budget), _fmt(r.n_map),
-               r.n_queries, _fmt(r.nbytes), _fmt(r.fit_time_s), _fmt(r.query_time_s_per_query)]
+               r.n_queries, _fmt(r.nbytes), _fmt(r.fit_time_s), _fmt(r.query_time_s_per_query),
+               _fmt(r.query_latency_s), _fmt(r.n_threads)]
         row += [_fmt(r.recall.get(t)) for t in tolerances]
         row += [_fmt((r.recall_at_k or {}).get(k)) for k in ks]
+        row += [_fmt(r.auc_pr), _fmt(r.recall_at_100_precision)]
         row.append(r.reason or "")
         writer.writerow(row)
     return buffer.getvalue()
@@ -308,10 +311,48 @@ class RunWriter:
             if plots and measured:
                 from . import plots as _plots
 
-                self.plots = _plots.plot_run(measured, self.out_dir, title=title)
+                self.plots = _plots.plot_run(measured, self.out_dir, title=title,
+                                             not_run=[r for r in results if not r.ok])
         finally:
             self.close()
         return RunReport(self.out_dir, self.metrics_json, self.metrics_csv, dict(self.predictions), list(self.plots))
+
+
+# -- resuming an interrupted run (btel evaluate --resume) ------------------------------------------------
+def read_unfinished_run(out_dir: str | os.PathLike) -> tuple[dict[str, Any], list[EvaluationResult]]:
+    """The run metadata and rows of a run folder, to go on with it (``btel evaluate --resume RUN``).
+
+    Raises
+    ------
+    DataNotFoundError
+        No ``metrics.json`` in ``out_dir``.
+    InvalidParameterError
+        ``metrics.json`` is not a btel run (unreadable, or rows without their fields).
+    """
+    path = Path(out_dir) / "metrics.json"
+    if not path.is_file():
+        raise DataNotFoundError(f"{str(out_dir)!r} has no metrics.json; it is not a run folder to resume.")
+    try:
+        payload = json.loads(path.read_text(encoding="utf-8"))
+        return dict(payload["run"]), [EvaluationResult.from_dict(r) for r in payload["results"]]
+    except (ValueError, KeyError, TypeError) as exc:
+        raise InvalidParameterError(f"{str(path)!r} is not a btel run's metrics ({exc}).") from exc
+
+
+def resume_writer(out_dir: str | os.PathLike, finished: Sequence[EvaluationResult], *,
+                  command: str | Sequence[str] | None = None, extra: Mapping[str, Any] | None = None) -> "RunWriter":
+    """A :class:`RunWriter` that goes on writing into an existing run folder: the predictions files of
+    the ``finished`` rows are kept (not rewritten), everything else is rewritten as the run goes on."""
+    writer = RunWriter.__new__(RunWriter)
+    writer.out_dir = Path(out_dir)
+    writer.meta = run_metadata(command)
+    if extra:
+        writer.meta["extra"] = _jsonable(dict(extra))
+    writer.metrics_json = writer.out_dir / "metrics.json"
+    writer.metrics_csv = writer.out_dir / "metrics.csv"
+    writer.predictions = {r.name: writer.out_dir / f"predictions_{_safe_name(r.name)}.csv" for r in finished if r.ok}
+    writer.plots = []
+    return writer
 
 
 def write_run(

@@ -79,10 +79,12 @@ class RYTHLocalizer(PlaceLocalizer):
     n_periods : int
         K, the number of co-prime periods (classifiers), 1 … 16.
     classifier : {'svm', 'logistic'}
+        Linear SVM (squared hinge) or logistic regression, as in :class:`btel.BTELocalizer`.
     solver : {'auto', 'newton', 'lbfgs', 'liblinear'}
         As in :class:`btel.BTELocalizer`. A period's p one-vs-rest classifiers share their columns,
         so they are solved together on one standardised copy.
     C : float, optional
+        Regularisation, as in :class:`btel.BTELocalizer`.
     feature_ratio : float in (0, 1], optional
         c = d'/d (default 0.1 without a budget; as large as fits under one).
     n_features : int, optional
@@ -92,7 +94,10 @@ class RYTHLocalizer(PlaceLocalizer):
     budget : int or str, optional
         Bytes; fit picks the largest d' that fits, else raises BudgetTooSmallError.
     dtype : {'float32', 'float16'}
+        Stored weight dtype.
     decode : {'soft', 'crt'}
+        Residue scores → place: the soft decode over every place, or the Chinese remainder theorem
+        on each period's best residue.
     max_iter, n_jobs, random_state
         As in :class:`btel.BTELocalizer` (max_iter None: the solver's default cap; classifiers that
         stop at it are counted in ``n_unconverged_`` and reported by one ``ConvergenceWarning``).

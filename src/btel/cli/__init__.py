@@ -24,20 +24,29 @@ import zipfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
-import numpy as np
 
-from . import __version__
-from .exceptions import BTELError, InvalidParameterError
+if TYPE_CHECKING:  # numpy is imported by the commands that need it: `btel --help` does not wait for it
+    import numpy as np
 
-#: Errors that end a command with one line and exit 1. Besides btel's own: what a hostile or damaged
-#: input file can still raise from a library (zip, csv, deep nesting, huge numbers, missing keys).
-_EXPECTED_ERRORS = (BTELError, OSError, ValueError, zipfile.BadZipFile, csv.Error, RecursionError, OverflowError,
-                    LookupError, MemoryError, EOFError)
+from .. import __version__
+from ._outputs import refuse_existing
+from ._params import _param_text, _param_value
+
+#: Errors that end a command with one line and exit 1, besides btel's own (added when handling, so that
+#: btel.exceptions is imported only then): what a hostile or damaged input file can still raise from a
+#: library (zip, csv, deep nesting, huge numbers, missing keys).
+_LIBRARY_INPUT_ERRORS = (OSError, ValueError, zipfile.BadZipFile, csv.Error, RecursionError, OverflowError,
+                         LookupError, MemoryError, EOFError)
+
+# btel.exceptions (and through it scikit-learn) is imported only when an error is being handled, so
+# that `btel --help` starts in a fraction of a second.
 #: Exit status of a finished evaluate/demo run in which some method did not fit or failed.
 EXIT_SOME_ROWS_FAILED = 3
+#: Exit status after Ctrl-C (128 + SIGINT, what a shell reports for an interrupted program).
+EXIT_INTERRUPTED = 130
 
 
 def _show_warning(message: Any, category: type, filename: str, lineno: int, file: Any = None,
@@ -56,35 +65,67 @@ class _Group(click.Group):
             return super().invoke(ctx)
         except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort):
             raise
-        except _EXPECTED_ERRORS as exc:
-            if os.environ.get("BTEL_DEBUG"):
+        except Exception as exc:
+            from ..exceptions import BTELError
+
+            if not isinstance(exc, (BTELError, *_LIBRARY_INPUT_ERRORS)) or os.environ.get("BTEL_DEBUG"):
                 raise
+            from ._errors import cli_message
+
             message = str(exc) or type(exc).__name__
             if not isinstance(exc, (BTELError, OSError, ValueError)):  # a library's error: say which
                 message = f"{type(exc).__name__}: {message}"
+            message = cli_message(message)
             raise click.ClickException(message.splitlines()[0] if len(message) > 2000 else message) from exc
 
 
 def _load_matrix(path: str, what: str) -> np.ndarray:
-    from .descriptors.npy import load_descriptor_matrix
+    from ..descriptors.npy import load_descriptor_matrix
 
-    return load_descriptor_matrix(path)
+    return _load_whole_h5(path, what) if _is_whole_h5(path) else load_descriptor_matrix(path)
+
+
+def _is_whole_h5(path: str) -> bool:
+    from ..descriptors.npy import HDF5_SUFFIXES, split_prefix
+
+    file, prefix = split_prefix(path)
+    return prefix is None and file.suffix.lower() in HDF5_SUFFIXES
+
+
+def _load_whole_h5(path: str, what: str) -> np.ndarray:
+    """An hloc .h5 given without a PREFIX: refused when its images sit under several prefixes (map and
+    queries in one file, hloc's usual layout), which would otherwise be read as one set."""
+    from ..descriptors.npy import load_hloc_global
+
+    X, names = load_hloc_global(path)
+    counts: dict[str, int] = {}
+    for name in names:
+        head, slash, _ = name.partition("/")
+        counts[head + slash] = counts.get(head + slash, 0) + 1
+    if len(counts) > 1:
+        found = ", ".join(f"{p or '(top level)'} {n} images" for p, n in counts.items())
+        choices = " or ".join(f"{path}:{p}" for p in counts if p)
+        raise click.UsageError(f"{path} ({what}) holds images under {len(counts)} prefixes ({found}); name the "
+                               f"ones you mean, e.g. {choices}.")
+    return X
 
 
 def _load_map(path: str) -> np.ndarray:
-    """Map descriptors for training: a folder of .npy shards, a memory-mapped .npy, or an .npz."""
+    """Map descriptors for training: a folder of .npy shards, a memory-mapped .npy, an .npz or an hloc .h5."""
     if Path(path).is_dir():
-        from .datasets.shards import load_shards
+        from ..datasets.shards import load_shards
 
         return load_shards(path)
-    from .descriptors.npy import load_descriptor_matrix
+    if _is_whole_h5(path):
+        return _load_whole_h5(path, "map descriptors")
+    from ..descriptors.npy import load_descriptor_matrix
 
     # A .npy map is memory-mapped: pages are read as the fit needs them, never copied whole.
     return load_descriptor_matrix(path, mmap_mode="r" if Path(path).suffix.lower() == ".npy" else None)
 
 
 def _echo_storage(model: Any) -> None:
-    from .storage import format_bytes
+    from ..storage import format_bytes
 
     breakdown = model.storage_breakdown()
     width = max(len(k) for k in breakdown) if breakdown else 4
@@ -103,21 +144,18 @@ _PARAMS_HELP = ("A parameter NAME=VALUE of every method in --methods, or METHOD:
                 "(repeatable), e.g. --param btel-r:n_regions=10. " + _VALUE_HELP)
 
 
-def _param_value(text: str) -> Any:
-    """VALUE of ``--param NAME=VALUE``: the JSON literal it spells (``3``, ``0.5``, ``true``, ``null``,
-    ``"x"``, ``[1, 2]``), else the text itself (``auto``, ``float16``). NaN and Infinity stay text."""
-    def reject(constant: str) -> Any:
-        raise ValueError(constant)
+#: Parameters set by runtime flags: given to the methods that have them, silently skipped by the others.
+RUNTIME_PARAMS = frozenset({"progress", "n_jobs"})
 
-    try:
-        return json.loads(text, parse_constant=reject)
-    except ValueError:
-        return text
+
 
 
 def _valid_params(method: str) -> list[str]:
-    """Parameter names of ``method`` (its ``get_params()`` keys), sorted."""
-    from .methods import make_method
+    """Parameter names of ``method`` (its ``get_params()`` keys), sorted; an unknown method is a usage error."""
+    from ..methods import METHODS, make_method
+
+    if method not in METHODS:
+        raise click.UsageError(f"unknown method {method!r}; choose from {', '.join(METHODS)} (see `btel methods`).")
 
     return sorted(make_method(method).get_params())
 
@@ -146,14 +184,14 @@ def _params_by_method(methods: list[str], param_texts: tuple[str, ...], *,
         layer = targeted.setdefault(target, {}) if target else general
         if name in layer:
             raise click.UsageError(f"--param sets {key.strip()} twice; give it once.")
-        if name in shortcuts:
+        if name in shortcuts and name not in RUNTIME_PARAMS:  # a runtime flag yields to an explicit --param
             raise click.UsageError(f"{shortcuts[name][0]} and --param {key.strip()}=… both set {name}; give one of them.")
         layer[name] = _param_value(raw)
     out: dict[str, dict[str, Any]] = {}
     for method in methods:
         valid = _valid_params(method)
         for name, (option, _) in shortcuts.items():
-            if name not in valid:
+            if name not in valid and name not in RUNTIME_PARAMS:
                 raise click.UsageError(f"{option} sets parameter {name!r}, which {method} does not have; "
                                        f"{method} takes: {', '.join(valid)}.")
         given = {**general, **targeted.get(method, {})}
@@ -162,13 +200,18 @@ def _params_by_method(methods: list[str], param_texts: tuple[str, ...], *,
                 hint = (f" (--param {name}=… applies to every method; write METHOD:{name}=… for one)"
                         if name in general and len(methods) > 1 else "")
                 raise click.UsageError(f"{method} has no parameter {name!r}{hint}; {method} takes: {', '.join(valid)}.")
-        out[method] = {**(base or {}).get(method, {}), **{n: v for n, (_, v) in shortcuts.items()}, **given}
+        # Runtime flags (--no-progress, --n-jobs) change how a method runs, not what it computes: they apply
+        # where the method has the parameter and are ignored elsewhere, so one command line fits every method.
+        applied = {n: v for n, (_, v) in shortcuts.items() if n in valid}
+        out[method] = {**(base or {}).get(method, {}), **applied, **given}
     return out
 
 
 @contextmanager
 def _naming(method: str) -> Iterator[None]:
     """A bad parameter value found while building, fitting or evaluating ``method`` names the method."""
+    from ..exceptions import InvalidParameterError
+
     try:
         yield
     except InvalidParameterError as exc:
@@ -192,6 +235,14 @@ def main() -> None:
     """
 
 
+_N_JOBS_HELP = ("Parallel fits (-1 = all cores), for the methods with an n_jobs parameter; the others ignore it "
+                "(a runtime flag: it changes how a method runs, not what it computes).")
+_NO_PROGRESS_HELP = ("No progress bars (btel's own and those of the methods with a progress parameter; the others "
+                     "ignore it).")
+
+_TIMING_THREADS_HELP = ("BLAS/OpenMP threads while localizing and timing the queries (the table's 'threads'). Default 1: "
+                        "on a shared machine multi-threaded calls spin against other processes and identical runs "
+                        "differ by 2-100x; 0 leaves the libraries' own thread count.")
 _BUDGET_HELP = ("Byte budget of every method but the brute-force reference, e.g. 500KB (KB = 1000 B, KiB = 1024 B); "
                 "several, comma-separated (100KB,500KB), give one row per method and budget.")
 _REFERENCE_HELP = ("Brute force (exact nearest neighbour over every map descriptor) is the unbudgeted reference: it is "
@@ -214,10 +265,13 @@ _ORDER_HELP = ("route: the query rows are consecutive frames of one traverse (me
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
               help="Run folder for metrics.json, CSV and plots (default: runs/demo-<time>).")
 @click.option("--overwrite", is_flag=True, help="Replace the run files in an existing run folder.")
-@click.option("--no-progress", is_flag=True, help="No progress bar.")
+@click.option("--no-progress", is_flag=True, help=_NO_PROGRESS_HELP)
+@click.option("--n-jobs", type=int, default=None, help=_N_JOBS_HELP)
+@click.option("--timing-threads", type=click.IntRange(min=0), default=1, show_default=True, help=_TIMING_THREADS_HELP)
 @click.pass_context
 def demo(ctx: click.Context, n_places: int, dim: int, budget: str, methods: str, no_reference: bool, seed: int,
-         param_texts: tuple[str, ...], out_dir: str | None, overwrite: bool, no_progress: bool) -> None:
+         param_texts: tuple[str, ...], out_dir: str | None, overwrite: bool, no_progress: bool,
+         n_jobs: int | None, timing_threads: int) -> None:
     """Run the main job on the embedded default: a synthetic route, several methods, a table and a plot.
 
     The route is generated by btel itself (btel.datasets.synthetic_route): a map traverse and a
@@ -225,13 +279,14 @@ def demo(ctx: click.Context, n_places: int, dim: int, budget: str, methods: str,
     brute force, the unbudgeted reference (see --no-reference); the same rule as `btel evaluate`.
     A method that does not fit the budget becomes a row saying so; exit status 3 then.
     """
-    from .datasets import synthetic_route
+    from ..datasets import synthetic_route
 
     budgets = _budgets(budget)
     route = synthetic_route(n_places, dim, seed=seed)
     out = Path(out_dir) if out_dir else Path("runs") / time.strftime("demo-%Y%m%d-%H%M%S")
-    jobs = _fit_jobs(_split(methods), budgets, param_texts, reference=not no_reference)
-    from .runs import check_run_folder
+    jobs = _fit_jobs(_split(methods), budgets, param_texts, reference=not no_reference,
+                     shortcuts=_runtime_shortcuts(no_progress, n_jobs))
+    from ..runs import check_run_folder
 
     check_run_folder(out, overwrite)
     click.echo(f"synthetic route: N = {n_places} places, d = {dim}, map + 1 query traverse (seed {seed})")
@@ -239,7 +294,7 @@ def demo(ctx: click.Context, n_places: int, dim: int, budget: str, methods: str,
              "frame-aligned")
     failed = _run_jobs(jobs, route.map, route.queries, ground_truth=None, out=out, overwrite=overwrite,
                        title=title, extra={"data": "synthetic_route", "seed": seed, "budget": budgets},
-                       progress=not no_progress)
+                       progress=not no_progress, timing_threads=timing_threads or None)
     if failed:
         ctx.exit(EXIT_SOME_ROWS_FAILED)
 
@@ -268,6 +323,9 @@ _FRONT_END_HELP = ("Front end of every method (default: rows L2-normalised, SeqS
 @click.option("--save-descriptor", type=click.Path(dir_okay=False), default=None,
               help="Write the fitted descriptor (e.g. the DenseVLAD vocabulary) to describe the queries with it.")
 @click.option("--force", is_flag=True, help="Recompute even if OUTPUT is up to date.")
+@click.option("--overwrite", is_flag=True,
+              help="Replace an existing OUTPUT (or --save-descriptor file) that holds other descriptors (other "
+                   "images, descriptor or parameters). An up-to-date OUTPUT is reused without it.")
 @click.option("--delta", "delta", type=int, default=None, metavar="W",
               help="Write delta descriptors of the traverse instead: row j = mean of frames j−W+1…j minus the mean "
                    "of the W before (causal; the first frames count the first image as earlier ones). Needs at "
@@ -275,7 +333,7 @@ _FRONT_END_HELP = ("Front end of every method (default: rows L2-normalised, SeqS
                    "transform as every method's front end, with L2 normalisation around it.)")
 @click.option("--no-progress", is_flag=True, help="No progress bar.")
 def extract(images_dir: str, output: str, descriptor: str, size: str | None, param_texts: tuple[str, ...],
-            fit_on: str | None, save_descriptor: str | None, force: bool, delta: int | None,
+            fit_on: str | None, save_descriptor: str | None, force: bool, overwrite: bool, delta: int | None,
             no_progress: bool) -> None:
     """Describe every image in IMAGES_DIR (natural file-name order = route order) into one .npy matrix.
 
@@ -288,10 +346,18 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
       densevlad       PCA-whitens to n_components (4096), capped at (map images − 1).
     Images of mixed sizes are described as they are, with a Warning.
     """
-    from .descriptors import get_descriptor
-    from .descriptors.base import load_descriptor
-    from .descriptors.extract import extract_cached
-    from .storage import format_bytes
+    from ..datasets.vpr_names import split_dataset_folder
+    from ..descriptors import get_descriptor
+    from ..descriptors.base import load_descriptor
+    from ..descriptors.extract import extract_cached
+    from ..storage import format_bytes
+
+    if split_dataset_folder(images_dir) is not None:
+        root = Path(images_dir)
+        raise click.UsageError(
+            f"{images_dir} is a VPR-methods-evaluation data set (database/ and queries/): describe each folder, "
+            f"`btel extract {root / 'database'} -o db.npy --save-descriptor d.npz` then `btel extract "
+            f"{root / 'queries'} -o q.npy --descriptor d.npz`, and evaluate with --ground-truth utm.")
 
     params: dict[str, Any] = {}
     for text in param_texts:
@@ -312,9 +378,14 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
         model = get_descriptor(descriptor, **params)
         if "size" in params and "size" not in model.get_params():
             raise click.UsageError(f"--size applies to hog and patchnorm; {descriptor} keeps each image's size.")
+    if save_descriptor:
+        refuse_existing(save_descriptor, "--save-descriptor", overwrite)
     if delta is not None:
+        refuse_existing(output, "-o", overwrite)
         _extract_delta(images_dir, output, model, fit_on, no_progress, force, delta)
         return
+    if Path(output).exists() and not overwrite and not _is_cache_of(output, images_dir, model, fit_on):
+        refuse_existing(output, "-o", overwrite)
     X, reused = extract_cached(images_dir, output, model, fit_on=fit_on, progress=not no_progress, force=force)
     if reused:
         click.echo(f"{output} is up to date ({X.shape[0]} images, {descriptor}); use --force to recompute")
@@ -329,13 +400,26 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
                    f"{': ' + parts if parts else ''})")
 
 
+def _is_cache_of(output: str, images_dir: str, model: Any, fit_on: str | None) -> bool:
+    """``output`` was written by an extraction of these images with this descriptor (its JSON sidecar says so):
+    reusing or recomputing it replaces nothing."""
+    from ..descriptors.extract import extraction_key
+    from ..descriptors.images import list_images
+
+    sidecar = Path(str(output) + ".json")
+    try:
+        return json.loads(sidecar.read_text()) == extraction_key(list_images(images_dir), model, fit_on)
+    except (OSError, ValueError):
+        return False
+
+
 def _extract_delta(images_dir: str, output: str, model: Any, fit_on: str | None, no_progress: bool, force: bool,
                    window: int) -> None:
     """``extract --delta W``: the plain descriptors (cached beside OUTPUT), then their delta, written to OUTPUT."""
     import numpy as np
 
-    from .descriptors import delta_descriptors
-    from .descriptors.extract import extract_cached
+    from ..descriptors import delta_descriptors
+    from ..descriptors.extract import extract_cached
 
     plain = Path(output).with_name(Path(output).stem + ".plain.npy")
     X, _ = extract_cached(images_dir, plain, model, fit_on=fit_on, progress=not no_progress, force=force)
@@ -349,6 +433,7 @@ def _extract_delta(images_dir: str, output: str, model: Any, fit_on: str | None,
 @main.command()
 @click.argument("db", type=click.Path())
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Model file to write (.npz).")
+@click.option("--overwrite", is_flag=True, help="Replace an existing OUTPUT model file.")
 @click.option("--method", default="btel-c", show_default=True, help="Method name (see `btel methods`).")
 @click.option("--budget", default=None, help="Byte budget, e.g. 500KB, 2MB, 64KiB.")
 @click.option("--param", "param_texts", multiple=True, metavar="NAME=VALUE", help=_PARAM_HELP)
@@ -357,12 +442,12 @@ def _extract_delta(images_dir: str, output: str, model: Any, fit_on: str | None,
 @click.option("--n-features", type=int, default=None, help="BTEL: d' directly.")
 @click.option("--classifier", type=click.Choice(["svm", "logistic"]), default=None, help="BTEL classifier.")
 @click.option("--dtype", type=click.Choice(["float32", "float16"]), default=None, help="BTEL stored weight dtype.")
-@click.option("--n-jobs", type=int, default=None, help="Parallel fits (-1 = all cores).")
+@click.option("--n-jobs", type=int, default=None, help=_N_JOBS_HELP)
 @click.option("--backend", type=click.Choice(["threads", "loky", "dask"]), default=None,
               help="BTEL: where the classifier fits run — threads (default), loky processes, or a Dask cluster "
                    "(pip install btel[dask]).")
 @click.option("--scheduler", default=None, help="With --backend dask: the scheduler address, e.g. tcp://10.0.0.5:8786.")
-@click.option("--no-progress", is_flag=True, help="BTEL: no progress bar.")
+@click.option("--no-progress", is_flag=True, help=_NO_PROGRESS_HELP)
 @click.option("--seed", "random_state", type=int, default=None, help="Random seed (random_state).")
 @click.option("--block-size", type=int, default=None,
               help="BTEL: tolerance-aware codes, index blocks of B places and answer the block centre.")
@@ -373,7 +458,7 @@ def _extract_delta(images_dir: str, output: str, model: Any, fit_on: str | None,
 @click.option("--normalize", type=click.Choice(["none", "l2", "power"]), default=None, help=_FRONT_END_HELP)
 @click.option("--whiten", type=int, default=None, metavar="P", help="PCA-whiten to P dimensions (front end).")
 @click.option("--delta", type=int, default=None, metavar="W", help=_DELTA_HELP)
-def train(db: str, output: str, method: str, budget: str | None, param_texts: tuple[str, ...], regions: str | None,
+def train(db: str, output: str, overwrite: bool, method: str, budget: str | None, param_texts: tuple[str, ...], regions: str | None,
           feature_ratio: float | None, n_features: int | None, classifier: str | None, dtype: str | None,
           n_jobs: int | None, backend: str | None, scheduler: str | None, no_progress: bool,
           random_state: int | None, block_size: int | None, tolerance: int | None, code_copies: int | None,
@@ -392,14 +477,14 @@ def train(db: str, output: str, method: str, budget: str | None, param_texts: tu
     block_size, the others by their own names). Each must be a parameter of --method (see `btel
     methods --params`), and a shortcut and --param may not set the same one.
     """
-    from .methods import make_method
+    from ..methods import make_method
 
     if scheduler is not None and backend != "dask":
         raise click.UsageError("--scheduler only applies with --backend dask.")
     if block_size is not None and tolerance is not None:
         raise click.UsageError("give --block-size or --tolerance, not both.")
     if tolerance is not None:
-        from .localizer import block_size_for_tolerance
+        from ..localizer import block_size_for_tolerance
 
         block_size = block_size_for_tolerance(tolerance)
     n_regions: Any = None
@@ -415,7 +500,10 @@ def train(db: str, output: str, method: str, budget: str | None, param_texts: tu
              "code_copies": ("--code-copies", code_copies), "exemplar_radius": ("--exemplar-radius", exemplar_radius),
              "normalize": ("--normalize", normalize), "whiten": ("--whiten", whiten), "delta": ("--delta", delta)}
     shortcuts = {name: (option, value) for name, (option, value) in named.items() if value is not None}
+    if budget is not None:
+        _check_budget(budget)
     params = _params_by_method([method], param_texts, shortcuts=shortcuts)[method]
+    refuse_existing(output, "-o", overwrite)
     X = _load_map(db)
     start = time.perf_counter()
     with _naming(method):
@@ -433,6 +521,7 @@ def train(db: str, output: str, method: str, budget: str | None, param_texts: tu
 @click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
 @click.argument("queries", required=False, type=click.Path(dir_okay=False))
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="Predictions CSV to write (not with --stream).")
+@click.option("--overwrite", is_flag=True, help="Replace an existing OUTPUT predictions file.")
 @click.option("--sequence-filter", "window", type=int, default=None,
               help="Apply the paper's sequence filter with window a (queries must be consecutive frames).")
 @click.option("--stream", is_flag=True,
@@ -448,7 +537,7 @@ def train(db: str, output: str, method: str, budget: str | None, param_texts: tu
 @click.option("--follow", is_flag=True, help="With --stream --input: keep reading as the file grows (like tail -f).")
 @click.option("--idle-timeout", type=float, default=None,
               help="With --follow: stop after this many seconds without a new line (default: run until Ctrl-C).")
-def localize(model_path: str, queries: str | None, output: str | None, window: int | None, stream: bool,
+def localize(model_path: str, queries: str | None, output: str | None, overwrite: bool, window: int | None, stream: bool,
              input_path: str | None, hmm: bool, top_k: int | None, follow: bool, idle_timeout: float | None) -> None:
     """Predict the place of every query with a saved MODEL.
 
@@ -460,8 +549,8 @@ def localize(model_path: str, queries: str | None, output: str | None, window: i
     next well-formed input line. A malformed line (wrong count, not a number, NaN) gets a one-line
     error naming its line number on stderr, produces no output line, and the stream goes on.
     """
-    from . import load
-    from .sequence import filter_sequence
+    from .. import load
+    from ..sequence import filter_sequence
 
     if stream:
         if top_k is not None:
@@ -478,6 +567,7 @@ def localize(model_path: str, queries: str | None, output: str | None, window: i
         raise click.UsageError("give QUERIES and -o/--output (or use --stream).")
     if hmm and window is not None:
         raise click.UsageError("choose --hmm or --sequence-filter, not both.")
+    refuse_existing(output, "-o", overwrite)
     model = load(model_path)
     Q = _load_matrix(queries, "query descriptors")
     if top_k is not None and not getattr(model, "supports_ranking", True):
@@ -501,7 +591,7 @@ def localize(model_path: str, queries: str | None, output: str | None, window: i
 def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_timeout: float | None,
                      window: int | None, hmm: bool = False) -> None:
     """The --stream loop: one flushed output line per well-formed input line."""
-    from .streaming import localize_stream
+    from ..streaming import localize_stream
 
     if follow and input_path is None:
         raise click.UsageError("--follow needs --input FILE (stdin already waits for new lines).")
@@ -547,28 +637,45 @@ def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_time
               help="Which map places are correct for each query. Default: frame-aligned (query j is place j). "
                    "Files: .npz (query_places; indptr+indices positives; utmDb+utmQ+posDistThr), .npy (1-D true "
                    "places, or VPR-Bench's ground_truth_new.npy object array), .mat (NetVLAD dbStruct), "
-                   ".csv (header query,positive: one pair per line).")
+                   ".csv (header query,positive: one pair per line). 'utm': VPR-methods-evaluation data (images "
+                   "named @utm_east@utm_north@…, described with btel extract DATASET/database and DATASET/queries): "
+                   "positives within --positive-dist-threshold metres.")
+@click.option("--positive-dist-threshold", type=float, default=None, metavar="METRES",
+              help="With --ground-truth utm: map images within this many metres of a query are its positives "
+                   "(default 25, VPR-methods-evaluation's).")
+@click.option("--pairs", "pairs_path", type=click.Path(dir_okay=False), default=None,
+              help="Also write an hloc retrieval pairs file (query_name db_name per line, each query's top K of the "
+                   "largest --k, best first); with several methods one file each, FILE-<method>.txt. Names come "
+                   "from the inputs (btel extract's .json, hloc .h5), else row numbers.")
 @click.option("--tolerances", default=None, metavar="T,T,…",
               help="recall@t tolerances in frames (one true place per query only). Default: 0,1,2,5,10,20 up "
                    "to a tenth of the map (0,1,2,5,10 on a 111-place route).")
-@click.option("--k", "ks_text", default="1,5,10", show_default=True, metavar="K,K,…",
+@click.option("--k", "ks_text", default="1,5,10,20", show_default=True, metavar="K,K,…",
               help="R@K: a correct place among the top K ranked candidates (every method ranks; R@1 is the point "
                    "prediction). With explicit positives R@K is the only metric.")
 @click.option("--query-order", type=click.Choice(["route", "independent"]), default="route", show_default=True,
               help=_ORDER_HELP)
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Run folder.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default=None,
+              help="Run folder (required unless --resume).")
 @click.option("--overwrite", is_flag=True, help="Replace the run files in an existing run folder.")
+@click.option("--resume", "resume_dir", type=click.Path(file_okay=False), default=None, metavar="RUN",
+              help="Go on with the run folder RUN (interrupted with Ctrl-C): the rows already done (status ok) are "
+                   "kept and not run again, the others run. Give the same --db/--model/--queries and options.")
 @click.option("--normalize", type=click.Choice(["none", "l2", "power"]), default=None,
               help="Every method's front-end normalisation (default l2; SeqSLAM none). Same as --param normalize=…")
 @click.option("--whiten", type=int, default=None, metavar="P",
               help="Every method: PCA-whiten to P dimensions (counted in its bytes). Same as --param whiten=P.")
 @click.option("--delta", type=int, default=None, metavar="W", help=_DELTA_HELP)
-@click.option("--no-progress", is_flag=True, help="No progress bar.")
+@click.option("--no-progress", is_flag=True, help=_NO_PROGRESS_HELP)
+@click.option("--n-jobs", type=int, default=None, help=_N_JOBS_HELP)
+@click.option("--timing-threads", type=click.IntRange(min=0), default=1, show_default=True, help=_TIMING_THREADS_HELP)
 @click.pass_context
 def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...], queries: str, methods: str,
                  budget: str | None, no_reference: bool, param_texts: tuple[str, ...], ground_truth: str | None,
-                 tolerances: str | None, ks_text: str, query_order: str, out_dir: str, overwrite: bool,
-                 normalize: str | None, whiten: int | None, delta: int | None, no_progress: bool) -> None:
+                 positive_dist_threshold: float | None, pairs_path: str | None, tolerances: str | None, ks_text: str, query_order: str, out_dir: str | None, overwrite: bool,
+                 resume_dir: str | None,
+                 normalize: str | None, whiten: int | None, delta: int | None, no_progress: bool,
+                 n_jobs: int | None, timing_threads: int) -> None:
     """Localize QUERIES with each method and write metrics.json, metrics.csv, predictions and plots to --out.
 
     Methods are fitted on --db (by name, --methods, each with --budget and its --param values), or
@@ -589,13 +696,20 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
     Methods marked † use the query sequence (SeqSLAM, delta front ends): not comparable with
     single-frame methods.
     """
-    from . import load
-    from .datasets import GroundTruth
-    from .evaluation import Job, check_ground_truth
-    from .runs import check_run_folder
+    from .. import load
+    from ..datasets import GroundTruth
+    from ..evaluation import Job, check_ground_truth
+    from ..runs import check_run_folder
 
     if db is None and not model_paths:
         raise click.UsageError("give --db (to fit --methods) or at least one --model.")
+    if resume_dir is not None and out_dir is not None and Path(out_dir) != Path(resume_dir):
+        raise click.UsageError("--resume RUN writes into RUN; drop --out (or give the same folder).")
+    if resume_dir is not None and overwrite:
+        raise click.UsageError("--resume keeps the rows of RUN; --overwrite would replace them. Give one.")
+    if out_dir is None and resume_dir is None:
+        raise click.UsageError("give --out RUN_FOLDER (or --resume RUN to go on with an interrupted run).")
+    out_dir = out_dir or resume_dir
     if param_texts and db is None:
         raise click.UsageError("--param sets parameters of the methods fitted on --db; saved --model files keep theirs.")
     budgets = _budgets(budget) if budget else [None]
@@ -606,10 +720,13 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
     if front and db is None:
         raise click.UsageError("--normalize/--whiten/--delta set the front end of methods fitted on --db; saved "
                                "--model files keep theirs.")
-    jobs = _fit_jobs(_split(methods), budgets, param_texts, reference=not no_reference, shortcuts=front) \
+    jobs = _fit_jobs(_split(methods), budgets, param_texts, reference=not no_reference,
+                     shortcuts={**front, **_runtime_shortcuts(no_progress, n_jobs)}) \
         if db is not None else []
     # Cheap checks first, so that nothing is fitted for a run that cannot be written or scored.
-    check_run_folder(Path(out_dir), overwrite)
+    finished = _finished_rows(resume_dir, queries) if resume_dir is not None else None
+    if finished is None:
+        check_run_folder(Path(out_dir), overwrite)
     Q = _load_matrix(queries, "query descriptors")
     X = None
     if db is not None:
@@ -629,20 +746,47 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
         raise click.ClickException(f"the maps differ in size ({sorted(n_maps)} places): --db and every --model "
                                    "must cover the same map for one ground truth to hold.")
     n_map = n_maps.pop()
-    gt = check_ground_truth(GroundTruth.from_file(ground_truth) if ground_truth else None, Q.shape[0], n_map,
-                            option="--ground-truth")
+    if positive_dist_threshold is not None and ground_truth != "utm":
+        raise click.UsageError("--positive-dist-threshold applies with --ground-truth utm (positions in the image "
+                               "names); a ground-truth file says its own positives.")
+    if positive_dist_threshold is not None and not positive_dist_threshold > 0:
+        raise click.UsageError(f"--positive-dist-threshold must be > 0 metres; got {positive_dist_threshold:g}.")
+    if ground_truth == "utm":
+        from ..datasets.vpr_names import DEFAULT_POSITIVE_DIST_THRESHOLD
+        from ._names import utm_ground_truth
+
+        if db is None:
+            raise click.UsageError("--ground-truth utm reads the map's image names from --db; give --db.")
+        threshold = DEFAULT_POSITIVE_DIST_THRESHOLD if positive_dist_threshold is None else positive_dist_threshold
+        given = utm_ground_truth(db, queries, n_map, Q.shape[0], threshold)
+    else:
+        given = GroundTruth.from_file(ground_truth) if ground_truth else None
+    gt = check_ground_truth(given, Q.shape[0], n_map, option="--ground-truth")
     if tolerance_list is not None and not gt.uses_tolerance:
         raise click.UsageError("--tolerances needs one true place per query; --ground-truth lists explicit "
                                "positives, which have no tolerance. Use --k (R@K) instead.")
     truth = ("frame-aligned" if ground_truth is None else
+             f"positives within {threshold:g} m (UTM in the image names)" if ground_truth == "utm" else
              f"{'one true place per query' if gt.uses_tolerance else 'positives'} from {Path(ground_truth).name}")
     dataset = Path(db if db else queries).name.split(".")[0]
-    title = (f"{dataset}: N = {n_map}, {Q.shape[0]} queries; "
-             f"budget {_budget_text(budgets)}; {truth}")
+    budget_part = (f"budget {_budget_text(budgets)}" if any(budgets) else
+                   "saved models" + (" and unbudgeted methods" if jobs else "") if saved else "no budget")
+    title = f"{dataset}: N = {n_map}, {Q.shape[0]} queries; {budget_part}; {truth}"
     click.echo(f"map: N = {n_map} places; queries: {Q.shape[0]} × {Q.shape[1]}; ground truth: {truth}")
+    pairs = None
+    if pairs_path is not None:
+        from ._names import pairs_paths, row_names
+
+        targets = pairs_paths(pairs_path, [j.name for j in saved + jobs])
+        for target in targets.values():
+            refuse_existing(target, "--pairs", overwrite)
+        q_names = row_names(queries) or [str(i) for i in range(Q.shape[0])]
+        db_names = (row_names(db) if db else None) or [str(i) for i in range(n_map)]
+        pairs = (targets, q_names, db_names)
     failed = _run_jobs(saved + jobs, X, Q, ground_truth=gt, out=Path(out_dir), overwrite=overwrite, title=title,
+                       pairs=pairs,
                        tolerances=tolerance_list, ks=ks, queries_are_route=query_order == "route",
-                       progress=not no_progress,
+                       progress=not no_progress, finished=finished, timing_threads=timing_threads or None,
                        extra={"db": str(Path(db).resolve()) if db else None, "models": list(model_paths),
                               "queries": str(Path(queries).resolve()), "budget": budgets,
                               "ground_truth": str(Path(ground_truth).resolve()) if ground_truth else "frame-aligned",
@@ -651,23 +795,60 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
         ctx.exit(EXIT_SOME_ROWS_FAILED)
 
 
+def _finished_rows(run: str, queries: str) -> list[Any]:
+    """The rows of the run folder ``run`` to keep (``--resume``), after checking it ran on ``queries``."""
+    from ..runs import read_unfinished_run
+
+    meta, rows = read_unfinished_run(run)
+    before = (meta.get("extra") or {}).get("queries")
+    if before is not None and before != str(Path(queries).resolve()):
+        raise click.UsageError(f"--resume {run}: that run localized {before}, not {queries}; give the same "
+                               "--queries (and --db/--model, options) as the interrupted run.")
+    done = [r for r in rows if r.ok]
+    click.echo(f"resuming {run}: {len(done)} of {len(rows)} rows done ({', '.join(r.name for r in done) or 'none'}); "
+               "the others run now")
+    return done
+
+
+def _runtime_shortcuts(no_progress: bool, n_jobs: int | None) -> dict[str, tuple[str, Any]]:
+    """The runtime flags given, as shortcuts (parameter → (option, value)) for :func:`_params_by_method`."""
+    out: dict[str, tuple[str, Any]] = {}
+    if no_progress:
+        out["progress"] = ("--no-progress", False)
+    if n_jobs is not None:
+        out["n_jobs"] = ("--n-jobs", n_jobs)
+    return out
+
+
 def _budgets(text: str) -> list[str]:
     """``"100KB, 500KB"`` → ``["100KB", "500KB"]``, each checked by :func:`btel.storage.parse_budget`."""
-    from .storage import parse_budget
+    from ..storage import parse_budget
 
     budgets = [b.strip() for b in text.split(",") if b.strip()]
     if not budgets:
         raise click.UsageError("--budget is empty; give a byte budget such as 500KB.")
     for b in budgets:
-        try:
-            parse_budget(b)
-        except ValueError as exc:
-            raise click.UsageError(f"--budget {b!r}: {exc}") from None
+        _check_budget(b)
     return budgets
 
 
+def _check_budget(text: str) -> None:
+    """A usage error for a budget that is not one, or a unitless number too small to be meant as bytes."""
+    from ..storage import parse_budget
+    from ._errors import unitless_budget_hint
+
+    hint = unitless_budget_hint(text)
+    if hint is not None:
+        raise click.UsageError(f"--budget {text.strip()} has no unit, so it would mean {text.strip()} bytes; did you "
+                               f"mean {hint}? Write {text.strip()}B if you mean bytes (KB = 1000 B, KiB = 1024 B).")
+    try:
+        parse_budget(text)
+    except ValueError as exc:
+        raise click.UsageError(f"--budget {text!r}: {exc}") from None
+
+
 def _budget_text(budgets: list[str | None]) -> str:
-    from .storage import format_bytes, parse_budget
+    from ..storage import format_bytes, parse_budget
 
     given = [format_bytes(parse_budget(b)) for b in budgets if b]
     return ", ".join(given) if given else "none"
@@ -691,8 +872,8 @@ def _fit_jobs(names: list[str], budgets: list[str | None], param_texts: tuple[st
     upper reference, not a contender under the budget. It is run without a budget unless
     ``--param bruteforce:budget=…`` asks for one.
     """
-    from .evaluation import Job
-    from .methods import make_method
+    from ..evaluation import Job
+    from ..methods import make_method
 
     if reference and "bruteforce" not in names:
         names = [*names, "bruteforce"]
@@ -705,14 +886,17 @@ def _fit_jobs(names: list[str], budgets: list[str | None], param_texts: tuple[st
             kwargs = dict(params[name])
             if budget is not None and "budget" not in kwargs:
                 kwargs["budget"] = budget
+            settings = {k: v for k, v in params[name].items() if k != "budget" and k not in RUNTIME_PARAMS}
             with _naming(name):
-                jobs.append(Job(label, make_method(name, **kwargs), reference=is_reference, series=name))
+                jobs.append(Job(label, make_method(name, **kwargs), reference=is_reference, series=name,
+                                settings=settings or None))
     return jobs
 
 
 def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out: Path, overwrite: bool, title: str,
               extra: dict[str, Any], progress: bool, tolerances: list[int] | None = None,
-              ks: list[int] | tuple[int, ...] = (1, 5, 10), queries_are_route: bool = True) -> bool:
+              finished: list[Any] | None = None, timing_threads: int | None = 1, pairs: tuple[dict[str, Path], list[str], list[str]] | None = None,
+              ks: list[int] | tuple[int, ...] = (1, 5, 10, 20), queries_are_route: bool = True) -> bool:
     """Run every job through :func:`btel.evaluation.evaluate_all`, writing the run folder as rows finish.
 
     Prints the rows that cannot run before fitting anything, a progress bar (or one line per job
@@ -720,11 +904,16 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
     """
     from tqdm import tqdm
 
-    from .evaluation import evaluate_all, format_table
-    from .runs import RunWriter
-    from .storage import format_bytes
+    from ..evaluation import evaluate_all, format_table
+    from ..runs import RunWriter
+    from ..storage import format_bytes
 
-    writer = RunWriter(out, command=_command_line(), extra=extra, overwrite=overwrite)
+    if finished is not None:  # --resume: the finished rows and their predictions stay
+        from ..runs import resume_writer
+
+        writer = resume_writer(out, finished, command=_command_line(), extra=extra)
+    else:
+        writer = RunWriter(out, command=_command_line(), extra=extra, overwrite=overwrite)
     bar = tqdm(total=len(jobs), unit="method", disable=None if progress else True, leave=False, file=sys.stderr)
 
     def on_preflight(skipped: dict[str, Any]) -> None:
@@ -742,7 +931,10 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
         else:
             bar.set_description_str(what)
 
+    latest: list[Any] = []
+
     def on_result(rows: list[Any]) -> None:
+        latest[:] = rows
         writer.write(rows)
         if rows and not bar.disable:
             bar.update(1)
@@ -750,15 +942,24 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
     try:
         results = evaluate_all(jobs, X, Q, ground_truth=ground_truth, tolerances=tolerances, ks=ks,
                                queries_are_route=queries_are_route, on_preflight=on_preflight, on_result=on_result,
-                               on_start=on_start)
+                               on_start=on_start, finished=finished or (), timing_threads=timing_threads)
     except KeyboardInterrupt:
         bar.close()
+        _plot_partial_run(latest, out, title)
         click.echo(f"interrupted: the finished rows are in {out}/metrics.csv", err=True)
-        raise
+        raise click.exceptions.Exit(EXIT_INTERRUPTED) from None
     bar.close()
     click.echo(format_table(results))
     report = writer.finish(results, title=title)
     click.echo(f"run folder: {report.out_dir}")
+    if pairs is not None:
+        from ._names import write_pairs
+
+        targets, q_names, db_names = pairs
+        for r in results:
+            if r.name in targets and r.ok and r.ranked is not None:
+                n = write_pairs(targets[r.name], r.ranked, q_names, db_names)
+                click.echo(f"pairs ({r.name}, top {r.ranked.shape[1]}): {n} lines written to {targets[r.name]}")
     failed = [r for r in results if not r.ok]
     if failed:
         click.echo(f"{len(failed)} of {len(results)} rows did not run: "
@@ -766,14 +967,29 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
     return bool(failed)
 
 
+def _plot_partial_run(rows: list[Any], out: Path, title: str) -> None:
+    """The plots of the rows that finished before Ctrl-C (metrics.json stays ``"complete": false``)."""
+    from ..plots import plot_run
+
+    measured = [r for r in rows if r.ok]
+    if not measured:
+        return
+    try:
+        plot_run(measured, out, title=f"{title} — interrupted: {len(measured)} of {len(rows)} rows")
+    except (ValueError, OSError) as exc:  # the rows on disk matter more than a figure
+        click.echo(f"Warning: the plots of the partial run could not be drawn ({exc})", err=True)
+
+
 @main.command(name="methods")
-@click.option("--params", "show_params", is_flag=True, help="Also list each method's parameters and defaults.")
+@click.option("--params", "show_params", is_flag=True,
+              help="Also list each method's parameters: NAME=DEFAULT: allowed values — meaning ([runtime]: how it "
+                   "runs, not what it computes; not saved with a model).")
 def methods_cmd(show_params: bool) -> None:
     """List the registered methods, one line each (and, with --params, what --param can set).
 
     † marks methods that use the query sequence.
     """
-    from .methods import DESCRIPTIONS, METHODS, make_method
+    from ..methods import DESCRIPTIONS, METHODS, make_method
 
     width = max(len(n) for n in METHODS)
     for name in METHODS:
@@ -781,12 +997,15 @@ def methods_cmd(show_params: bool) -> None:
         mark = " †" if model.uses_query_sequence else ""
         click.echo(f"{name:<{width}}  {DESCRIPTIONS.get(name, '')}{mark}")
         if show_params:
-            defaults = sorted(model.get_params().items())
-            click.echo(" " * (width + 2) + "params: " + ", ".join(f"{k}={_param_text(v)}" for k, v in defaults))
+            from ._params import parameter_lines
+
+            runtime = set(getattr(model, "_runtime_params", ()))
+            for line in parameter_lines(model, runtime=runtime):
+                click.echo(" " * (width + 4) + line)
 
 
 def _method_names() -> list[str]:
-    from .methods import METHODS
+    from ..methods import METHODS
 
     return list(METHODS)
 
@@ -796,7 +1015,7 @@ def _registry_name(model: Any) -> str:
     and the parameters the presets of that class differ in (``BTELocalizer (scheme=compressed, n_regions=4)``)."""
     from functools import partial
 
-    from .methods import METHODS
+    from ..methods import METHODS
 
     params = model.get_params(deep=False)
     keys: list[str] = []
@@ -816,7 +1035,7 @@ def _registry_name(model: Any) -> str:
 @click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
 def info(model_path: str) -> None:
     """Show what a saved MODEL is: method, parameters, front end, and the bytes of every stored array."""
-    from . import load
+    from .. import load
 
     model = load(model_path)
     name = _registry_name(model)
@@ -828,10 +1047,40 @@ def info(model_path: str) -> None:
     params = model.get_params(deep=False)
     runtime = set(getattr(model, "_runtime_params", ()))
     shown = {k: v for k, v in sorted(params.items()) if k not in runtime and k not in ("normalize", "whiten", "delta")}
-    click.echo("parameters: " + ", ".join(f"{k}={_param_text(v)}" for k, v in shown.items()))
+    chosen = _chosen_at_fit(model)
+    click.echo("parameters: " + ", ".join(
+        f"{k}={_param_text(v)}" + (f" (chosen: {_param_text(chosen[k])})" if v is None and k in chosen else "")
+        for k, v in shown.items()))
+    if chosen:
+        click.echo("chosen at fit: " + ", ".join(f"{k}={_param_text(v)}" for k, v in chosen.items()))
     _echo_storage(model)
+    _echo_arrays(model)
     size = Path(model_path).stat().st_size
     click.echo(f"file size {size:,d} B (container overhead {size - model.nbytes:,d} B)")
+
+
+def _chosen_at_fit(model: Any) -> dict[str, Any]:
+    """What fitting decided (the budget planner's choices, sizes): the model's saved state, scalars only."""
+    state = model._fitted_state() if callable(getattr(model, "_fitted_state", None)) else {}
+    out = {}
+    for key, value in state.items():
+        if isinstance(value, (bool, int, float, str)) or value is None:
+            out[key] = value
+        elif isinstance(value, (list, tuple)) and len(value) <= 8 and all(isinstance(v, (int, float)) for v in value):
+            out[key] = list(value)
+    return out
+
+
+def _echo_arrays(model: Any) -> None:
+    """Every array the model file stores: name, shape, dtype and bytes (front end included)."""
+    arrays = {**model.front_end_.arrays(), **model._stored_arrays()}
+    if not arrays:
+        return
+    width = max(len(k) for k in arrays)
+    click.echo("stored arrays:")
+    for name, a in arrays.items():
+        shape = " × ".join(map(str, a.shape)) or "scalar"
+        click.echo(f"  {name:<{width}}  {shape:>14}  {str(a.dtype):<8} {a.nbytes:>12,d} B")
 
 
 @main.command()
@@ -857,7 +1106,7 @@ def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | 
     Each writes results.csv, results.json and PNG plots into OUT/NAME/; `btel report` turns the
     latest runs into docs/results.md.
     """
-    from .experiments import EXPERIMENTS, describe_row, run_experiment
+    from ..experiments import EXPERIMENTS, describe_row, run_experiment
 
     names = list(EXPERIMENTS) if name == "all" else [name]
     for n in names:
@@ -874,7 +1123,7 @@ def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | 
 @click.option("--docs", "docs_dir", type=click.Path(file_okay=False), default="docs", show_default=True)
 def report(runs_dir: str, docs_dir: str) -> None:
     """Write docs/results.md and docs/results.json (plus figures) from the latest experiment runs."""
-    from .report import write_report
+    from ..report import write_report
 
     path = write_report(runs_dir, docs_dir)
     click.echo(f"written {path} and {path.with_suffix('.json')}")
@@ -887,14 +1136,6 @@ def _split(methods: str) -> list[str]:
     return names
 
 
-def _param_text(value: Any) -> str:
-    """How to write ``value`` after --param NAME= (text as is unless it would read as JSON)."""
-    if isinstance(value, str) and _param_value(value) == value:
-        return value
-    try:
-        return json.dumps(value)
-    except TypeError:
-        return repr(value)
 
 
 def _int(value: str, flag: str) -> int:

@@ -1,0 +1,5 @@
+"""``python -m btel.cli``: the ``btel`` command."""
+
+from . import main
+
+main()

@@ -1,0 +1,66 @@
+"""Output files of the ``btel`` commands: nothing existing is replaced without ``--overwrite``.
+
+Every command that writes a file checks it before doing any work; the refusal says what the file
+holds (so a user sees what would have been lost) and how to go on.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+
+def describe_file(path: Path) -> str:
+    """A few words on what ``path`` holds: an array's shape, a model's method, a CSV's rows, else its size."""
+    size = path.stat().st_size
+    what = f"{size:,d} B"
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".npy":
+            import numpy as np
+
+            array = np.load(path, mmap_mode="r", allow_pickle=False)
+            what = f"a {' × '.join(map(str, array.shape))} {array.dtype} matrix, {size:,d} B"
+            sidecar = Path(str(path) + ".json")
+            if sidecar.is_file():
+                key = json.loads(sidecar.read_text())
+                images = key.get("images") or []
+                what += f"; {key.get('descriptor', '?')} descriptors of {len(images)} images"
+                if images:
+                    what += f" ({images[0][0]} … {images[-1][0]})"
+        elif suffix == ".npz":
+            import zipfile
+
+            with zipfile.ZipFile(path) as zf:
+                names = [n.removesuffix(".npy") for n in zf.namelist()]
+            what = f"an .npz archive of {len(names)} arrays, {size:,d} B"
+        elif suffix in (".csv", ".txt"):
+            with open(path, "rb") as fh:
+                n_lines = sum(1 for _ in fh)
+            what = f"{n_lines:,d} lines, {size:,d} B"
+    except Exception:  # noqa: BLE001 - a description is best effort; the refusal stands either way
+        pass
+    return what
+
+
+def refuse_existing(path: str | Path, option: str, overwrite: bool) -> None:
+    """Raise a usage error when ``path`` exists and ``overwrite`` is not set.
+
+    Parameters
+    ----------
+    path : path
+        The file the command is about to write.
+    option : str
+        The option that named it (``-o``, ``--pairs``), for the message.
+    overwrite : bool
+        ``--overwrite`` given: replacing is intended.
+    """
+    path = Path(path)
+    if overwrite or not path.exists():
+        return
+    if path.is_dir():
+        raise click.UsageError(f"{option} {path} is a folder; give a file name.")
+    raise click.UsageError(f"{option} {path} already exists ({describe_file(path)}); give --overwrite to replace it, "
+                           "or another file name.")
