@@ -343,8 +343,12 @@ def resume_writer(out_dir: str | os.PathLike, finished: Sequence[EvaluationResul
                   command: str | Sequence[str] | None = None, extra: Mapping[str, Any] | None = None) -> "RunWriter":
     """A :class:`RunWriter` that goes on writing into an existing run folder: the predictions files of
     the ``finished`` rows are kept (not rewritten), everything else is rewritten as the run goes on."""
+    from ._claims import claim
+
     writer = RunWriter.__new__(RunWriter)
     writer.out_dir = Path(out_dir)
+    # The same claim as a new run's: a second run (or a second --resume) into this folder waits its turn.
+    writer._lock = claim(writer.out_dir, _LOCK_NAME)
     writer.meta = run_metadata(command)
     if extra:
         writer.meta["extra"] = _jsonable(dict(extra))
