@@ -38,6 +38,7 @@ import orjson
 
 from .exceptions import DimensionMismatchError, InvalidDescriptorsError, InvalidParameterError
 from .sequence import SequenceFilter
+from .threads import one_blas_thread
 
 __all__ = ["parse_descriptor_line", "read_lines", "localize_stream", "RESET_LINE", "max_line_bytes", "LineTooLong",
            "MAX_LINE_ENV", "DEFAULT_MAX_LINE_BYTES"]
@@ -119,9 +120,14 @@ def parse_descriptor_line(line: str | bytes, n_features: int | None = None) -> n
         Empty line, a value that is not a finite decimal, a value or squared norm outside
         float32's range, or the wrong number of values.
     """
+    return _parse(line, n_features, False)
+
+
+def _parse(line: str | bytes, n_features: int | None, clean: bool) -> np.ndarray:
+    """:func:`parse_descriptor_line`; ``clean``: the bytes are known to hold only :data:`_NUMBER_BYTES`."""
     raw = line if isinstance(line, (bytes, bytearray)) else line.encode("utf-8", "surrogatepass")
     values = None
-    if not raw.translate(None, _NUMBER_BYTES):  # only digits, signs, points, exponents and separators
+    if clean or not raw.translate(None, _NUMBER_BYTES):  # only digits, signs, points, exponents, separators
         text = raw.strip()
         if b"," not in text:
             text = b",".join(text.split())
@@ -265,6 +271,7 @@ def localize_stream(
     (line_number, place) : (int, int)
         1-based line number of the input and the (filtered) place index.
     """
+    source = lines
     if hasattr(lines, "readline"):
         lines = read_lines(lines, follow=follow, idle_timeout=idle_timeout)  # type: ignore[arg-type]
     n_features = getattr(model, "n_features_in_", None)
@@ -277,33 +284,48 @@ def localize_stream(
         from .sequence_decoding import HMMDecoder, zscore_rows
 
         decoder = HMMDecoder(int(model.n_places_))
-    limit = max_line_bytes()
-    for number, line in enumerate(lines, start=1):
-        if isinstance(line, LineTooLong) or len(line) > limit + 1:
-            if on_error is not None:
-                on_error(number, (line if isinstance(line, LineTooLong) else LineTooLong(limit)).message())
+    # A whole file (not followed) through a model whose answer for a frame depends on that frame
+    # alone: lines are parsed one by one (errors keep their line numbers) and predicted in blocks.
+    blocks = (not follow and not hmm and _is_regular_file(source) and hasattr(model, "front_end_")
+              and not model.front_end_.uses_sequence and not model._sequence_context())
+    pending: list[tuple[int, np.ndarray]] = []
+
+    def flush() -> Iterator[tuple[int, int]]:
+        rows = np.concatenate([q for _, q in pending])
+        try:
+            with one_blas_thread():  # a thin product: BLAS threads spinning cost more than they give
+                places = model.search(rows, 1)[1][:, 0]
+        except (InvalidDescriptorsError, DimensionMismatchError):
+            places = None  # find the line at fault one by one below
+        for j, (number, q) in enumerate(pending):
+            if places is None:
+                try:
+                    place = int(stream.search(q, 1)[1][0])
+                except (InvalidDescriptorsError, DimensionMismatchError) as exc:
+                    if on_error is not None:
+                        on_error(number, str(exc))
+                    continue
+            else:
+                place = int(places[j])
+            yield number, (filt.update(place) if filt is not None else place)
+        pending.clear()
+
+    for item in _parsed(lines, n_features, on_error):
+        if item is None:
             continue
-        if isinstance(line, (bytes, bytearray)) and line.translate(None, _NUMBER_BYTES):
-            try:  # only lines with other bytes than a number's need decoding (the fast parser reads bytes)
-                line = bytes(line).decode("utf-8")
-            except UnicodeDecodeError as exc:
-                if on_error is not None:
-                    on_error(number, f"not UTF-8 text (byte 0x{line[exc.start]:02x} at column {exc.start + 1}).")
-                continue
-        if not line.strip():
-            continue
-        if isinstance(line, str) and line.strip().lower() == RESET_LINE:  # a new traverse: forget the sequence state
+        number, q = item
+        if isinstance(q, str):  # RESET_LINE: a new traverse, forget the sequence state
+            yield from flush() if pending else ()
             stream.reset()
             if filt is not None:
                 filt.reset()
             if decoder is not None:
                 decoder.reset()
             continue
-        try:
-            q = parse_descriptor_line(line, n_features)
-        except InvalidDescriptorsError as exc:
-            if on_error is not None:
-                on_error(number, str(exc))
+        if blocks:
+            pending.append((number, q))
+            if len(pending) >= _BLOCK_LINES:
+                yield from flush()
             continue
         try:
             if decoder is not None:
@@ -315,3 +337,50 @@ def localize_stream(
                 on_error(number, str(exc))
             continue
         yield number, (filt.update(place) if filt is not None else place)
+    if pending:
+        yield from flush()
+
+
+#: Lines predicted together when a whole file is localized (:func:`localize_stream`).
+_BLOCK_LINES = 256
+
+
+def _is_regular_file(source: Any) -> bool:
+    try:
+        return hasattr(source, "fileno") and os.path.isfile(f"/proc/self/fd/{source.fileno()}") \
+            if os.path.isdir("/proc/self/fd") else bool(source.seekable())
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def _parsed(lines: Iterator[Any], n_features: int | None,
+            on_error: Callable[[int, str], Any] | None) -> Iterator[tuple[int, Any] | None]:
+    """(line number, (1, d) float32 row or RESET_LINE) per input line; None for a skipped one (reported)."""
+    limit = max_line_bytes()
+    for number, line in enumerate(lines, start=1):
+        if isinstance(line, LineTooLong) or len(line) > limit + 1:
+            if on_error is not None:
+                on_error(number, (line if isinstance(line, LineTooLong) else LineTooLong(limit)).message())
+            yield None
+            continue
+        clean = isinstance(line, (bytes, bytearray)) and not line.translate(None, _NUMBER_BYTES)
+        if isinstance(line, (bytes, bytearray)) and not clean:
+            try:  # only lines with other bytes than a number's need decoding (the fast parser reads bytes)
+                line = bytes(line).decode("utf-8")
+            except UnicodeDecodeError as exc:
+                if on_error is not None:
+                    on_error(number, f"not UTF-8 text (byte 0x{line[exc.start]:02x} at column {exc.start + 1}).")
+                yield None
+                continue
+        if not line.strip():
+            yield None
+            continue
+        if isinstance(line, str) and line.strip().lower() == RESET_LINE:
+            yield number, RESET_LINE
+            continue
+        try:
+            yield number, _parse(line, n_features, clean)
+        except InvalidDescriptorsError as exc:
+            if on_error is not None:
+                on_error(number, str(exc))
+            yield None
