@@ -128,7 +128,8 @@ def test_block_signs_are_the_constant_columns_of_each_block(family, n, block) ->
 def test_rules() -> None:
     assert block_size(100) == 10 and block_size(10**8) == 1024 and block_size(10) == 8
     assert choose_path(10**4, 472, 1, True, True) == "bounded"
-    assert choose_path(10**4, 472, 64, True, True) == "dense"
+    assert choose_path(10**4, 472, 64, True, True) == "bounded"
+    assert choose_path(2000, 472, 64, True, True) == "dense"
     assert choose_path(10**6, 472, 64, True, False) == "bounded"
     assert choose_path(10**6, 472, 1, False, False) == "scan"
     assert choose_path(1000, 472, 1, False, True) == "dense"

@@ -31,12 +31,16 @@ import numpy as np
 from .base import top_k
 from .codebook import Codebook
 
-__all__ = ["BlockDecoder", "DENSE_CACHE_BYTES", "BATCH_DENSE_FROM", "block_size", "choose_path", "BYTE_SIGNS"]
+__all__ = ["BlockDecoder", "DENSE_CACHE_BYTES", "BATCH_DENSE_FROM", "block_size", "choose_path", "BYTE_SIGNS",
+           "DENSE_BATCH_MAX_VALUES"]
 
 #: Largest float32 codeword cache (N × 8⌈K/8⌉ × 4 bytes) kept for the dense product (32 MB).
 DENSE_CACHE_BYTES = 32 << 20
-#: From this many queries in one call a dense product over every place beats the per-query bounded search.
+#: From this many queries in one call a dense product over every place may beat the per-query bounded search
+#: (on maps of at most :data:`DENSE_BATCH_MAX_VALUES` codeword values; :func:`choose_path`).
 BATCH_DENSE_FROM = 16
+#: Largest N × 8⌈K/8⌉ for which a batch is decoded by the dense product (≈ N = 4,400 at K = 470).
+DENSE_BATCH_MAX_VALUES = 1 << 21
 #: Blocks scored in the first round of the bounded search (then 2×, 4×, … more per round).
 FIRST_BLOCKS = 8
 #: The ±1 values of the 8 bits of every byte (bit j → column j), float32 (256, 8).
@@ -57,19 +61,23 @@ def block_size(n_places: int) -> int:
 def choose_path(n_places: int, width: int, n_queries: int, route: bool, dense_cached: bool) -> str:
     """The exact decode to run: 'bounded', 'dense' or 'scan' (faiss' packed scan).
 
-    Rule (measured by ``benchmarks/bench_codes.py`` on the shared 2-core machine, d = 256, K = 470,
-    one thread; figures in ``benchmarks/results/bench_codes.json``):
+    Rule, measured by ``benchmarks/bench_codes.py`` (d = 256, 64 KB: K = 470; results in
+    ``benchmarks/results/bench_codes.json``; a shared 2-core machine at load 7–9, one thread):
 
-    - route families (every family but 'random'), fewer than :data:`BATCH_DENSE_FROM` queries:
-      'bounded' — it scores a few blocks instead of N places (at N = 10⁴ a few tens of µs against
-      ≈ 110 µs for the dense product and ≈ 260 µs for the packed scan);
-    - a batch of :data:`BATCH_DENSE_FROM` queries or more with the float32 codewords cached
-      (N·8⌈K/8⌉·4 ≤ :data:`DENSE_CACHE_BYTES`), or the 'random' family with the cache: 'dense';
-    - otherwise: 'bounded' for route families, 'scan' for 'random' (no block structure to bound).
+    - route families (every family but 'random'): 'bounded', except a batch of
+      :data:`BATCH_DENSE_FROM` queries or more on a map small enough that N·8⌈K/8⌉ ≤
+      :data:`DENSE_BATCH_MAX_VALUES`: 'dense'. At N = 2,000 a batch decoded densely took 0.6× the
+      time of the bounded search; at N = 10⁴ 2.4× (243 against 140 µs/query; the dense product
+      reads every codeword, the bounded search a few blocks). Single queries: bounded 0.18 ms,
+      faiss' packed scan 0.25 ms, dense 2.5 ms at N = 10⁴;
+    - 'random' codes have no blocks to bound: 'dense' while the float32 codewords are cached
+      (N·8⌈K/8⌉·4 ≤ :data:`DENSE_CACHE_BYTES`), else 'scan'.
     """
-    if dense_cached and (n_queries >= BATCH_DENSE_FROM or not route):
+    if not route:
+        return "dense" if dense_cached else "scan"
+    if dense_cached and n_queries >= BATCH_DENSE_FROM and n_places * width <= DENSE_BATCH_MAX_VALUES:
         return "dense"
-    return "bounded" if route else "scan"
+    return "bounded"
 
 
 class BlockDecoder:
