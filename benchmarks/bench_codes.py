@@ -191,6 +191,68 @@ def measure(n: int, n_queries: int, batch: int, repeats: int, single_calls: int)
     return out
 
 
+def real_rows(single_calls: int, repeats: int) -> list[dict[str, Any]]:
+    """btel-codes at 64 KB and 500 KB against faiss.IndexFlatIP on Gardens Point (NetVLAD) and Nordland (HOG).
+
+    The map and queries of ``../shared/data`` (Nordland: HOG of every frame, summer map, winter
+    queries, cached as in the tests); recall@10 = top-1 within 10 places (Gardens Point: 2). Flat
+    search gets the queries L2-normalised inside the timed call, as btel's front end does.
+    """
+    import faiss
+
+    from btel.codes import CodeLocalizer
+    from btel.frontend import normalize_rows
+
+    data_root = HERE.parent.parent / "shared" / "data"
+    if not data_root.is_dir():
+        data_root = Path("/work/shared/data")
+    sets = []
+    gp = data_root / "gardenspoint_netvlad" / "hiddenRepr-GardensPoint.npz"
+    if gp.is_file():
+        with np.load(gp, allow_pickle=False) as z:
+            sets.append(("Gardens Point (NetVLAD)", z["hlrTrain"].astype(np.float32), z["hlrTest"].astype(np.float32), 2))
+    nordland = data_root / "nordland64"
+    if nordland.is_dir():
+        import tempfile
+
+        from btel.descriptors.extract import extract_cached
+
+        cache = Path(os.environ.get("BTEL_TEST_CACHE", Path(tempfile.gettempdir()) / "btel-test-cache"))
+        cache.mkdir(parents=True, exist_ok=True)
+        X, Q = (extract_cached(nordland / s, cache / f"nordland64-{s}-hog.npy", "hog", progress=False)[0]
+                for s in ("summer", "winter"))
+        sets.append(("Nordland (HOG)", np.asarray(X, np.float32), np.asarray(Q, np.float32), 10))
+    out = []
+    for name, X, Q, tol in sets:
+        truth = np.arange(len(Q))
+        flat = faiss.IndexFlatIP(X.shape[1])
+        flat.add(normalize_rows(X))
+        flat_fn = lambda q, flat=flat: flat.search(normalize_rows(q), 1)[1][:, 0]  # noqa: E731
+        rows = {"faiss.IndexFlatIP": (flat_fn, int(X.nbytes))}
+        for budget in ("64KB", "500KB"):
+            model = CodeLocalizer(budget=budget).fit(X)
+            model.predict(Q[:1])
+            rows[f"btel-codes {budget} ({model.exact_path(1)} single)"] = (model.predict, model.nbytes)
+        load = os.getloadavg()
+        timed_rows = {}
+        for method, (fn, nbytes) in rows.items():
+            pred = fn(Q)
+            timed_rows[method] = {"data": name, "method": method, "bytes": nbytes, "n_places": len(X),
+                                  "recall": float(np.mean(np.abs(pred - truth) <= tol)), "tolerance": tol,
+                                  "single_s": single_times(fn, Q, single_calls),
+                                  "batch_s_per_query": batch_times(fn, Q, repeats)}
+        base = timed_rows["faiss.IndexFlatIP"]
+        for r in timed_rows.values():
+            r["single_vs_flat"] = r["single_s"]["median"] / base["single_s"]["median"]
+            r["batch_vs_flat"] = r["batch_s_per_query"]["median"] / base["batch_s_per_query"]["median"]
+            r["load"] = list(load)
+            print(f"  {name:<24} {r['method']:<34} {r['bytes']:>12,d} B  single {r['single_s']['median'] * 1e6:8.1f} µs "
+                  f"({r['single_vs_flat']:.2f}× flat)  batch {r['batch_s_per_query']['median'] * 1e6:8.1f} µs/q "
+                  f"({r['batch_vs_flat']:.2f}× flat)  recall {r['recall']:.3f}  (load {load[0]:.2f})", flush=True)
+            out.append(r)
+    return out
+
+
 def print_ratios(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Single-query latency of every row against faiss.IndexFlatIP's in the same run, with the load now."""
     flat = next(r for r in rows if r["method"] == "faiss.IndexFlatIP")
@@ -264,10 +326,16 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--single", type=int, default=30, help="single-query calls timed")
     parser.add_argument("--sizes", type=int, nargs="+", help="map sizes N (default 10k, 100k, 1M; --quick: 10k, 100k)")
+    parser.add_argument("--real-only", action="store_true",
+                        help="only Gardens Point and Nordland (written to bench_codes_real.json)")
     args = parser.parse_args()
     if args.docs_only:
         payload = json.loads((RESULTS_DIR / "bench_codes.json").read_text())
         print(write_section(section(payload)))
+        return
+    if args.real_only:
+        rows = real_rows(args.single * 5, args.repeats)
+        print(f"wrote {write_results('bench_codes_real', {'rows': rows})}")
         return
     load_before = os.getloadavg()
     start = time.perf_counter()

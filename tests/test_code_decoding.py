@@ -12,7 +12,7 @@ from btel.codebook import FAMILIES, Codebook
 from btel.codes import CodeLocalizer
 from btel.datasets import synthetic_route
 
-PATHS = ("bounded", "dense", "scan")
+PATHS = ("bounded", "dense", "scan", "probe")
 
 
 def _reference(model: CodeLocalizer, M: np.ndarray) -> np.ndarray:
@@ -65,8 +65,8 @@ def test_every_exact_path_gives_the_true_top_k(route, family, seed, k, noise) ->
 
 def test_search_single_queries_and_batches_agree_and_report_the_path(route) -> None:
     X, Q = route
-    model = _model("periodic", X)
-    assert model.exact_path(1) == "bounded" and model.exact_path(64) == "dense"
+    model = CodeLocalizer(n_codes=200, decode="exact").fit(X)  # N·W = 1500 × 200: past the small-map rule
+    assert model.exact_path(1) == "bounded" and model.exact_path(64) == "probe"
     batch = model.search(Q[:40], 5)
     M = model._padded(model._margins(model._check_queries(Q[:40])))
     reference = _reference(model, M)
@@ -107,7 +107,7 @@ def test_a_packed_cache_past_its_limit_generates_codewords(route, monkeypatch) -
 
 def test_the_first_query_fills_only_the_blocks_it_scores(route) -> None:
     X, Q = route
-    model = CodeLocalizer(n_codes=60, decode="exact").fit(X)
+    model = CodeLocalizer(n_codes=200, decode="exact").fit(X)  # past the small-map rule: bounded
     model.predict(Q[:1])
     filled = model._cache.filled
     assert filled is not None and 0 < filled.sum() < filled.size
@@ -128,8 +128,10 @@ def test_block_signs_are_the_constant_columns_of_each_block(family, n, block) ->
 def test_rules() -> None:
     assert block_size(100) == 10 and block_size(10**8) == 1024 and block_size(10) == 8
     assert choose_path(10**4, 472, 1, True, True) == "bounded"
-    assert choose_path(10**4, 472, 64, True, True) == "bounded"
-    assert choose_path(2000, 472, 64, True, True) == "dense"
+    assert choose_path(10**4, 472, 64, True, True) == "probe"
+    assert choose_path(10**4, 472, 64, True, True, visited=0.1) == "bounded"
+    assert choose_path(10**4, 472, 64, True, True, visited=0.9) == "dense"
+    assert choose_path(500, 472, 1, True, True) == "dense"
     assert choose_path(10**6, 472, 64, True, False) == "bounded"
     assert choose_path(10**6, 472, 1, False, False) == "scan"
     assert choose_path(1000, 472, 1, False, True) == "dense"

@@ -32,15 +32,20 @@ from .base import top_k
 from .codebook import Codebook
 
 __all__ = ["BlockDecoder", "DENSE_CACHE_BYTES", "BATCH_DENSE_FROM", "block_size", "choose_path", "BYTE_SIGNS",
-           "DENSE_BATCH_MAX_VALUES"]
+           "DENSE_SMALL_VALUES", "PROBE_QUERIES"]
 
 #: Largest float32 codeword cache (N × 8⌈K/8⌉ × 4 bytes) kept for the dense product (32 MB).
 DENSE_CACHE_BYTES = 32 << 20
 #: From this many queries in one call a dense product over every place may beat the per-query bounded search
 #: (on maps of at most :data:`DENSE_BATCH_MAX_VALUES` codeword values; :func:`choose_path`).
 BATCH_DENSE_FROM = 16
-#: Largest N × 8⌈K/8⌉ for which a batch is decoded by the dense product (≈ N = 4,400 at K = 470).
-DENSE_BATCH_MAX_VALUES = 1 << 21
+#: Up to this many codeword values (N × 8⌈K/8⌉, 1 MB of float32) every query is decoded densely.
+DENSE_SMALL_VALUES = 1 << 18
+#: Queries of a batch decoded by the bounded search to measure how many places it scores.
+PROBE_QUERIES = 8
+#: Measured nanoseconds per codeword value: the dense product (per query of a batch) and the
+#: bounded search (per value of a scored place), plus the bounded search's per-query overhead.
+DENSE_NS, BOUNDED_NS, BOUNDED_OVERHEAD_NS = 0.05, 0.2, 40_000.0
 #: Blocks scored in the first round of the bounded search (then 2×, 4×, … more per round).
 FIRST_BLOCKS = 8
 #: The ±1 values of the 8 bits of every byte (bit j → column j), float32 (256, 8).
@@ -58,25 +63,36 @@ def block_size(n_places: int) -> int:
     return int(min(1024, max(8, round(np.sqrt(n_places)))))
 
 
-def choose_path(n_places: int, width: int, n_queries: int, route: bool, dense_cached: bool) -> str:
-    """The exact decode to run: 'bounded', 'dense' or 'scan' (faiss' packed scan).
+def choose_path(n_places: int, width: int, n_queries: int, route: bool, dense_cached: bool,
+                visited: float | None = None) -> str:
+    """The exact decode to run: 'bounded', 'dense', 'scan' (faiss' packed scan) or 'probe'.
 
-    Rule, measured by ``benchmarks/bench_codes.py`` (d = 256, 64 KB: K = 470; results in
-    ``benchmarks/results/bench_codes.json``; a shared 2-core machine at load 7–9, one thread):
+    Rule, from ``benchmarks/bench_codes.py`` (results in ``benchmarks/results/bench_codes*.json``;
+    a shared 2-core machine at load 6–9, one thread):
 
-    - route families (every family but 'random'): 'bounded', except a batch of
-      :data:`BATCH_DENSE_FROM` queries or more on a map small enough that N·8⌈K/8⌉ ≤
-      :data:`DENSE_BATCH_MAX_VALUES`: 'dense'. At N = 2,000 a batch decoded densely took 0.6× the
-      time of the bounded search; at N = 10⁴ 2.4× (243 against 140 µs/query; the dense product
-      reads every codeword, the bounded search a few blocks). Single queries: bounded 0.18 ms,
-      faiss' packed scan 0.25 ms, dense 2.5 ms at N = 10⁴;
     - 'random' codes have no blocks to bound: 'dense' while the float32 codewords are cached
-      (N·8⌈K/8⌉·4 ≤ :data:`DENSE_CACHE_BYTES`), else 'scan'.
+      (N·8⌈K/8⌉·4 ≤ :data:`DENSE_CACHE_BYTES`), else 'scan';
+    - a small map (N·8⌈K/8⌉ ≤ :data:`DENSE_SMALL_VALUES`, the codewords fit in a core's cache):
+      'dense' (Gardens Point, N = 200: the bounded search's per-query overhead was 7× flat search);
+    - a batch (≥ :data:`BATCH_DENSE_FROM` queries) with the codewords cached: 'probe' — decode the
+      first :data:`PROBE_QUERIES` by the bounded search, then call again with ``visited``, the
+      fraction of places they scored: 'dense' when N·W·:data:`DENSE_NS` is below
+      visited·N·W·:data:`BOUNDED_NS` + :data:`BOUNDED_OVERHEAD_NS` (per query: the dense product
+      reads every codeword at BLAS speed, the bounded search a few blocks by table look-ups; the
+      constants are the measured 243 µs/query dense and 140 µs/query bounded at N = 10⁴, K = 470,
+      where ≈ 10 % of the places were scored), else 'bounded';
+    - otherwise 'bounded' (single queries on larger maps: 0.18 ms at N = 10⁴ against 0.25 ms
+      for faiss' packed scan and 2.5 ms for the dense product).
     """
     if not route:
         return "dense" if dense_cached else "scan"
-    if dense_cached and n_queries >= BATCH_DENSE_FROM and n_places * width <= DENSE_BATCH_MAX_VALUES:
+    if dense_cached and n_places * width <= DENSE_SMALL_VALUES:
         return "dense"
+    if dense_cached and n_queries >= BATCH_DENSE_FROM:
+        if visited is None:
+            return "probe"
+        values = n_places * width
+        return "dense" if values * DENSE_NS < visited * values * BOUNDED_NS + BOUNDED_OVERHEAD_NS else "bounded"
     return "bounded"
 
 

@@ -55,7 +55,8 @@ from ._validation import N_JOBS, RANDOM_STATE, Budget, Interval, Options, String
 from .base import ArraySpec, PlaceLocalizer, top_k
 from .code_planning import CodePlan, code_array_specs, plan_codes
 from .code_solvers import fit_liblinear_codes, fit_ridge_codes
-from .code_decoding import BYTE_SIGNS, DENSE_CACHE_BYTES, BlockDecoder, choose_path
+from .code_decoding import (BATCH_DENSE_FROM, BYTE_SIGNS, DENSE_CACHE_BYTES, PROBE_QUERIES, BlockDecoder,
+                            choose_path)
 from .codebook import FAMILIES, MAX_COLUMNS, ROUTE_FAMILIES, Codebook
 from .distributed import BACKENDS
 from .exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError
@@ -429,19 +430,31 @@ class CodeLocalizer(PlaceLocalizer):
                 block, candidates = self._coarse_shape()
                 if k <= block * candidates:
                     return self._coarse_search(M, k, block, candidates)
-            if self.exact_path(M.shape[0]) == "bounded":
-                scores, places, _ = self._decoder().search(M, k)
-                return scores, places
+            if M.shape[0] < BATCH_DENSE_FROM:  # single queries: the whole decode on one BLAS thread
+                return self._exact_search(M, k)
         return self._exact_search(M, k)
 
     def exact_path(self, n_queries: int = 1) -> str:
-        """The exact decode :meth:`search` runs for a call of ``n_queries`` queries ('bounded', 'dense', 'scan')."""
+        """The exact decode :meth:`search` runs for ``n_queries`` queries: 'bounded', 'dense', 'scan' or 'probe'.
+
+        'probe': a batch whose first queries are decoded by the bounded search, the rest by whichever
+        of 'bounded' and 'dense' the places they scored predict to be cheaper
+        (:func:`~btel.code_decoding.choose_path`).
+        """
         return choose_path(int(self.n_places_), self._width(), n_queries, self.code in ROUTE_FAMILIES,
                            self._dense_codes() is not None)
 
     def _exact_search(self, M: np.ndarray, k: int, path: str | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Top k of m · c_i over every place, by ``path`` (default :func:`~btel.code_decoding.choose_path`)."""
         path = path or self.exact_path(M.shape[0])
+        if path == "probe":  # a batch: the first queries by the bounded search tell which path is cheaper
+            head = min(PROBE_QUERIES, M.shape[0])
+            with _blas_for(1, 0):
+                s_head, p_head, visited = self._decoder().search(M[:head], k)
+            fraction = float(visited.mean()) * self._decoder().block / int(self.n_places_)
+            rest = choose_path(int(self.n_places_), self._width(), M.shape[0], True, True, visited=fraction)
+            s_rest, p_rest = self._exact_search(M[head:], k, rest) if head < M.shape[0] else (s_head[:0], p_head[:0])
+            return np.concatenate([s_head, s_rest]), np.concatenate([p_head, p_rest])
         if path == "bounded":
             with _blas_for(1, 0):
                 scores, places, _ = self._decoder().search(M, k)
@@ -453,6 +466,16 @@ class CodeLocalizer(PlaceLocalizer):
                     scores, places = index.search(M, k)
                 return scores.astype(np.float64), places.astype(np.int64)
         n = M.shape[0]
+        dense = self._dense_codes()
+        if dense is not None and n * dense.shape[0] <= _BLOCK_VALUES:
+            # One product over the cached codewords (small maps, small batches): no blocks, no merging.
+            with _blas_for(1, 0):
+                scores = M @ dense.T
+            if k == 1:  # argmax: the first maximum, i.e. ties to the lower place as top_k
+                places = np.argmax(scores, axis=1)[:, None]
+                return np.take_along_axis(scores, places, axis=1).astype(np.float64), places.astype(np.int64)
+            values, places = top_k(scores, k)
+            return values, places
         best_s = np.empty((n, 0), dtype=np.float32)
         best_p = np.empty((n, 0), dtype=np.int64)
         with _blas_for(n, self.n_codes_ * int(self.n_places_)):

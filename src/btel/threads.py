@@ -49,16 +49,25 @@ def _blas_libs() -> list:
     return _BLAS_LIBS
 
 
+_ACTIVE_LIMIT: int | None = None  # the innermost blas_threads limit in force (nested blocks are free)
+
+
 @contextlib.contextmanager
 def _blas_limit(limit: int) -> Iterator[None]:
+    global _ACTIVE_LIMIT
+    if _ACTIVE_LIMIT is not None and _ACTIVE_LIMIT <= limit:
+        yield  # an enclosing block already limits BLAS at least as much
+        return
     libs = _blas_libs()
     before = [lib.num_threads for lib in libs]
+    outer, _ACTIVE_LIMIT = _ACTIVE_LIMIT, limit
     for lib, n in zip(libs, before):
         if n > limit:
             lib.set_num_threads(limit)
     try:
         yield
     finally:
+        _ACTIVE_LIMIT = outer
         for lib, n in zip(libs, before):
             if n > limit:
                 lib.set_num_threads(n)
