@@ -11,11 +11,16 @@ index to K ≥ b code columns (error-correcting output codes, Dietterich & Bakir
    d' shared columns of largest variance;
 3. the weights are stored at 32, 16, 8 or 4 bits with one scale per column (:mod:`btel.quantise`);
 4. a query's K margins m are decoded softly over every place: score_i = m · c_i (the Gaussian
-   log-likelihood of the margins up to a constant). At inference the codebook is expanded once
-   into packed bits (N·K/8 bytes of memory, never stored), and the top-k search is faiss'
-   inner-product PQ scan with the 256 ±1 patterns of 8 columns as the "centroids" of each byte —
-   ⌈K/8⌉ table look-ups per place; ``place_scores`` is the same sum as a matrix product in blocks
-   of places. ``rank``, the HMM decoder and streaming come from the base class
+   log-likelihood of the margins up to a constant). The exact top k is found by the cheapest
+   exact path for the shape (:func:`btel.code_decoding.choose_path`, a measured rule): on small
+   maps one dense product with the float32 codewords (cached when N·8⌈K/8⌉·4 ≤ 32 MB); on
+   larger ones a bounded search over blocks of consecutive places (:mod:`btel.code_decoding`:
+   per-block upper bounds from the columns constant on the block, blocks scored in order of
+   their bound from packed codewords — N·⌈K/8⌉ bytes of memory, filled on demand, never stored —
+   until no unscored block can beat the k-th best); batches take the dense product when a probe
+   of their first queries says it is cheaper; the 'random' family (no blocks to bound) uses
+   faiss' packed PQ scan past the dense cache. ``place_scores`` is the same sum as a matrix
+   product in blocks of places. ``rank``, the HMM decoder and streaming come from the base class
    (:class:`btel.base.PlaceLocalizer`) on top of them.
 
 Storage is K·d' weights (plus K scales and biases, and d' column indices), independent of N, so it
