@@ -76,8 +76,13 @@ __all__ = ["CodeLocalizer", "SOLVERS", "DECODES", "COARSE_MIN_PLACES"]
 
 SOLVERS = ("ridge", "liblinear")
 DECODES = ("auto", "exact", "coarse")
-#: From this many places ``decode='auto'`` decodes route families coarse to fine.
-COARSE_MIN_PLACES = 1 << 17
+#: From this many places ``decode='auto'`` decodes route families coarse to fine (approximate).
+#: Measured (``benchmarks/bench_codes.py``, 64 KB, d = 256, single queries, load 7–15): N = 10⁴
+#: coarse 0.10 ms against the exact bounded search's 0.18 ms; N = 10⁵ 1.02 against 0.76 ms (the
+#: exact decode faster); N = 10⁶ 4.0 against 9.0 ms (coarse agreeing with the exact answer on
+#: 99.5 % of the queries, but its first query builds the block means from every codeword: 3.6 s).
+#: Exact where it is no slower, so coarse only past 2¹⁹ places.
+COARSE_MIN_PLACES = 1 << 19
 #: The codebook is cached at inference as packed bits (N × ⌈K/8⌉ bytes) up to this size (256 MB).
 PACKED_CACHE_BYTES = 1 << 28
 #: Values (rows × columns) of one block of scores or codes at inference (about 16 MB of float32).
@@ -114,7 +119,8 @@ class CodeLocalizer(PlaceLocalizer):
         liblinear's iteration cap per column.
     decode : {'auto', 'exact', 'coarse'}
         Exact soft decode over every place, or coarse to fine (route families only; module
-        docstring). 'auto': coarse from 131 072 places for route families, else exact.
+        docstring). 'auto': coarse from 524 288 places (:data:`COARSE_MIN_PLACES`) for route
+        families, else exact.
     coarse_block : int, optional
         B, places per block of the coarse decode. None: ≈ √(N / coarse_candidates) (so the coarse
         and the fine pass score about as many rows each).
