@@ -31,7 +31,6 @@ import os
 
 # faiss' OpenMP threads spin while they wait; on a shared machine that slows faiss down several
 # times. Passive waiting gives it its best figures here (set before faiss is loaded).
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import argparse
 import csv
@@ -169,22 +168,9 @@ def pq_bytes(n_places: int, index: Any) -> int:
 
 def _threads(n: int | None):
     """BLAS (numpy's and faiss') and faiss' OpenMP limited to n threads; None = their defaults."""
-    import contextlib
+    from btel.threads import limit_threads
 
-    import faiss
-    from threadpoolctl import threadpool_limits
-
-    @contextlib.contextmanager
-    def limit():
-        default = faiss.omp_get_max_threads()
-        faiss.omp_set_num_threads(n or default)
-        try:
-            with threadpool_limits(limits=n, user_api="blas"):
-                yield
-        finally:
-            faiss.omp_set_num_threads(default)
-
-    return limit()
+    return limit_threads(n)
 
 
 def _measure(method: str, n: int, nbytes: int, fn, Q: np.ndarray, rows: np.ndarray, n_batch: int,
@@ -265,7 +251,7 @@ def target_shape(folder: Path, repeats: int = 7) -> dict[str, Any]:
     validation, front end and decode add. Warm-up, then ``repeats`` batch calls (min and median)
     and one-query calls timed one by one (median).
     """
-    from threadpoolctl import threadpool_limits
+    from btel.threads import blas_threads
 
     model = shaped_model(1_000_000, 4096, 410, folder)
     Q = np.random.default_rng(1).standard_normal((20_000, 4096)).astype(np.float32)
@@ -283,7 +269,7 @@ def target_shape(folder: Path, repeats: int = 7) -> dict[str, Any]:
 
     row = {"n_bits": model.n_bits_, "n_selected": model.n_selected_, "dim": 4096, "bytes": model.nbytes,
            "repeats": repeats, **measure("")}
-    with threadpool_limits(limits=1, user_api="blas"):
+    with blas_threads(1):
         row.update(measure("_1_blas_thread"))
     return row
 
@@ -412,8 +398,8 @@ def results_section(payload: dict[str, Any]) -> str:
     lines += [
         "",
         f"Query throughput, same run and queries ({EVAL_QUERIES:,d} sampled over the route), each method with its "
-        f"libraries' default {payload['faiss_threads']} threads and with one (faiss' OpenMP threads wait passively, "
-        "`OMP_WAIT_POLICY=PASSIVE`: spinning threads are much slower on a shared machine):",
+        f"libraries' default {payload['faiss_threads']} threads and with one (no process-wide OpenMP setting; "
+        "threads limited through `btel.threads`):",
         "",
         "| N | method | bytes | threads | batch queries/s | single query µs | recall@10 |",
         "| ---: | --- | ---: | ---: | ---: | ---: | ---: |",

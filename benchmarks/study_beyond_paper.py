@@ -40,7 +40,6 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg

@@ -239,3 +239,84 @@ def test_nordland_patchnorm_stream_equals_batch(nordland_pixels, tmp_path: Path)
     assert result.exit_code == 0, result.stderr
     expected = filter_sequence(model.predict(Q), 5, n_places=X.shape[0])
     np.testing.assert_array_equal([int(v) for v in result.stdout.split()], expected)
+
+
+# ----------------------------------------------------------------------------- hostile lines (issue #20, point 8)
+@pytest.mark.parametrize(
+    "line, message",
+    [
+        ("1_0,2,3", "'1_0' is not a number"),
+        ("\u0661,2,3", "is not a number"),  # an Arabic-Indic digit: float() would accept it
+        ("0x10,2,3", "'0x10' is not a number"),
+        ("3.5e38,1,1", "value 1 is outside float32's range"),
+        ("1e400,1,1", "value 1 is outside float32's range"),
+        ("3e38,3e38,1", "squared norm"),
+        ("1,NaN,2", "value 2 is 'NaN'"),
+        ("1,2,Infinity", "value 3 is 'Infinity'"),
+        ("true,1,2", "'true' is not a number"),
+        ('"1",2,3', "is not a number"),
+    ],
+)
+def test_parse_rejects_values_that_are_not_finite_float32_decimals(line: str, message: str) -> None:
+    for form in (line, line.encode("utf-8")):
+        with pytest.raises(InvalidDescriptorsError, match=message):
+            parse_descriptor_line(form, 3)
+
+
+@pytest.mark.parametrize("line", ["+1,.5,5.", "1,,2,3", "1e2, -2E-1 ,3", b"1,2,3\r\n", "01 2 3"])
+def test_fast_and_strict_parsers_agree_on_good_lines(line) -> None:
+    values = parse_descriptor_line(line)
+    text = line.decode() if isinstance(line, bytes) else line
+    expected = [float(t) for t in text.replace(",", " ").split()]
+    np.testing.assert_array_equal(values[0], np.float32(expected))
+
+
+def test_a_line_past_the_limit_is_dropped_unread_and_reported(monkeypatch) -> None:
+    from btel.streaming import LineTooLong, max_line_bytes
+
+    good = b"1,2,3\n"
+    data = good + b"4," * 5000 + b"5\n" + good + b"7," * 40  # the last line is long and unterminated
+    got = list(read_lines(io.BytesIO(data), max_line=64))
+    assert got[0] == good and isinstance(got[1], LineTooLong) and got[2] == good and isinstance(got[3], LineTooLong)
+    assert len(got) == 4
+    # A line of exactly the limit passes.
+    assert list(read_lines(io.BytesIO(b"1" * 64 + b"\n"), max_line=64)) == [b"1" * 64 + b"\n"]
+    monkeypatch.setenv("BTEL_MAX_LINE_BYTES", "100")
+    assert max_line_bytes() == 100
+    monkeypatch.setenv("BTEL_MAX_LINE_BYTES", "-3")
+    with pytest.raises(InvalidParameterError, match="BTEL_MAX_LINE_BYTES must be a positive number"):
+        max_line_bytes()
+
+
+def test_cli_stream_reports_an_overlong_line_and_goes_on(route, model_path: Path) -> None:
+    model = load(model_path)
+    lines = as_lines(route.queries[:3])
+    feed = lines[0] + "1," * 3000 + "1\n" + lines[1] + lines[2]
+    result = CliRunner().invoke(main, ["localize", str(model_path), "--stream"], input=feed,
+                                env={"BTEL_MAX_LINE_BYTES": "4096"}, catch_exceptions=False)
+    assert result.exit_code == 0, result.stderr
+    np.testing.assert_array_equal([int(v) for v in result.stdout.split()], model.predict(route.queries[:3]))
+    assert "error: line 2: line longer than 4096 bytes" in result.stderr
+    assert "BTEL_MAX_LINE_BYTES" in result.stderr
+
+
+def test_a_whole_file_is_predicted_in_blocks_with_the_same_answers_and_errors(route, model_path: Path,
+                                                                               tmp_path: Path) -> None:
+    import btel.streaming as streaming
+
+    model = load(model_path)
+    lines = as_lines(route.queries[:300])
+    lines[10] = "1,2\n"
+    lines[200] = "reset\n"
+    path = tmp_path / "frames.txt"
+    path.write_text("".join(lines))
+    errors_file: list[tuple[int, str]] = []
+    errors_pipe: list[tuple[int, str]] = []
+    with open(path, "rb") as source:
+        assert streaming._is_regular_file(source)
+        from_file = list(localize_stream(model, source, window=4, on_error=lambda n, m: errors_file.append((n, m))))
+    piped = io.BytesIO(path.read_bytes())  # not a regular file: line by line
+    assert not streaming._is_regular_file(piped)
+    one_by_one = list(localize_stream(model, piped, window=4, on_error=lambda n, m: errors_pipe.append((n, m))))
+    assert from_file == one_by_one and len(from_file) == 298
+    assert errors_file == errors_pipe == [(11, "expected 32 values, got 2.")]

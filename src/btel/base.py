@@ -43,6 +43,7 @@ from .exceptions import (BudgetTooSmallError, InvalidAnswerError, InvalidDescrip
                          NotEnoughPlacesError)
 from .frontend import FrontEnd, traverse_starts
 from .storage import format_bytes, parse_budget, save_arrays, storage_breakdown
+from .threads import one_blas_thread
 
 __all__ = ["PlaceLocalizer", "ArraySpec", "QueryStream", "top_k", "put_first"]
 
@@ -50,7 +51,6 @@ __all__ = ["PlaceLocalizer", "ArraySpec", "QueryStream", "top_k", "put_first"]
 _SCORE_BLOCK_VALUES = 1 << 22
 #: Batches of at least this many queries are predicted with one BLAS thread (below, no threads start).
 _ONE_BLAS_THREAD_FROM = 512
-_BLAS_CONTROLLER: Any = None
 #: Batches of at least this many queries are predicted in row chunks on every core (linear methods).
 _PARALLEL_PREDICT_FROM = 8192
 _PREDICT_CHUNK_ROWS = 4096
@@ -81,24 +81,6 @@ def _predict_pool(n_threads: int) -> Any:
 
         _PREDICT_POOL = ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="btel-predict")
     return _PREDICT_POOL
-
-
-def one_blas_thread() -> Any:
-    """A context that runs BLAS on one thread (threadpoolctl; the controller is built once).
-
-    Batch inference interleaves a thin product (n × d by d × K, K ≈ 20) with single-threaded numpy
-    work (norms, decoding). OpenBLAS' worker threads keep spinning after each product and take the
-    other core from that work: at b = 20, d' = 410, d = 4096 a 20,000-query batch ran at 123k q/s
-    with the default threads against 203k with one. Large batches of the linear methods go further
-    and run whole row chunks (norms, product, decode) on every core, one BLAS thread each
-    (:meth:`PlaceLocalizer._predict_in_chunks`; ``benchmarks/bench_scale.py --target-shape-only``).
-    """
-    global _BLAS_CONTROLLER
-    if _BLAS_CONTROLLER is None:
-        from threadpoolctl import ThreadpoolController
-
-        _BLAS_CONTROLLER = ThreadpoolController()
-    return _BLAS_CONTROLLER.limit(limits=1, user_api="blas")
 
 
 class ArraySpec:

@@ -39,11 +39,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 import numpy as np
 from joblib import Parallel, delayed
-from threadpoolctl import threadpool_limits
 
 from .codebook import Codebook
 from .distributed import fit_backend
 from .linear import ColumnStats
+from .threads import blas_threads as limit_blas
 from .training import Task, fit_tasks
 
 __all__ = ["CodeFit", "RELATIVE_ALPHA", "ridge_alpha", "fit_ridge_codes", "fit_liblinear_codes"]
@@ -164,7 +164,7 @@ def fit_ridge_codes(X: np.ndarray, cols: np.ndarray, codebook: Codebook, places:
     blas_threads = None if n_jobs in (None, 1) else 1
     calls = [delayed(_column_sums)(X, cols)] + [delayed(_cross_products)(X, cols, codebook, places, g)
                                                 for g in groups]
-    with fit_backend(backend, scheduler, scatter=[X]), threadpool_limits(limits=blas_threads, user_api="blas"):
+    with fit_backend(backend, scheduler, scatter=[X]), limit_blas(blas_threads):
         results = Parallel(n_jobs=n_jobs, prefer="threads")(calls)
     center, gram = results[0]
     cross = np.concatenate([r[0] for r in results[1:]], axis=1)

@@ -319,6 +319,44 @@ class Codebook:
             b = min(stop, a + rows)
             yield a, b, self.codewords(np.arange(a, b))
 
+    def block_signs(self, block: int) -> np.ndarray:
+        """Per block of ``block`` consecutive places: +1 / −1 where a column is constant on it, 0 where it varies.
+
+        The blocks are places [j·B, min(N, (j + 1)·B)). The periodic family is answered in closed form
+        from its fixed-point phases (no codeword is generated: milliseconds at N = 10⁶): column k is
+        constant on a block of L places starting at phase t iff t's offset in its half period plus
+        (L − 1)·F_k stays below 2⁶³. Other families take the block minima and maxima of their codewords.
+
+        Returns
+        -------
+        ndarray of shape (⌈N/B⌉, K), int8 in {−1, 0, +1}
+        """
+        n, block = int(self.n_places), int(block)
+        if block < 1:
+            raise InvalidParameterError(f"block must be ≥ 1; got {block}.")
+        starts = np.arange(0, n, block, dtype=np.int64)
+        if self.family == "periodic":
+            p = self._params
+            lengths = np.minimum(block, n - starts).astype(_U64)[:, None]
+            with np.errstate(over="ignore"):
+                t = starts.astype(_U64)[:, None] * p["frequency"] + p["phase"]
+                half = _U64(1 << 63)
+                # (L − 1)·F < 2⁶³ without overflow: L − 1 ≤ (2⁶³ − 1) // F.
+                short = (lengths - _U64(1)) <= (half - _U64(1)) // p["frequency"]
+                span = np.where(short, (lengths - _U64(1)) * p["frequency"], _U64(0))
+                constant = short & ((t & (half - _U64(1))) + span < half)
+            out = np.where(t < half, np.int8(1), np.int8(-1)).astype(np.int8)
+            out[~constant] = 0
+            return out
+        out = np.empty((starts.size, self.n_codes), dtype=np.int8)
+        rows = max(block, (_BLOCK_ELEMENTS // max(self.n_codes, 1)) // block * block)
+        for a, b, codes in self.iter_blocks(rows=rows):  # a is a multiple of block
+            firsts = np.arange(0, b - a, block)
+            low = np.minimum.reduceat(codes, firsts, axis=0)
+            high = np.maximum.reduceat(codes, firsts, axis=0)
+            out[a // block : a // block + firsts.size] = np.where(low == high, low, 0)
+        return out
+
     def to_header(self) -> dict[str, int | str]:
         """What a model file records to regenerate this codebook."""
         return {"family": self.family, "n_places": int(self.n_places), "n_codes": int(self.n_codes),

@@ -11,11 +11,16 @@ index to K ≥ b code columns (error-correcting output codes, Dietterich & Bakir
    d' shared columns of largest variance;
 3. the weights are stored at 32, 16, 8 or 4 bits with one scale per column (:mod:`btel.quantise`);
 4. a query's K margins m are decoded softly over every place: score_i = m · c_i (the Gaussian
-   log-likelihood of the margins up to a constant). At inference the codebook is expanded once
-   into packed bits (N·K/8 bytes of memory, never stored), and the top-k search is faiss'
-   inner-product PQ scan with the 256 ±1 patterns of 8 columns as the "centroids" of each byte —
-   ⌈K/8⌉ table look-ups per place; ``place_scores`` is the same sum as a matrix product in blocks
-   of places. ``rank``, the HMM decoder and streaming come from the base class
+   log-likelihood of the margins up to a constant). The exact top k is found by the cheapest
+   exact path for the shape (:func:`btel.code_decoding.choose_path`, a measured rule): on small
+   maps one dense product with the float32 codewords (cached when N·8⌈K/8⌉·4 ≤ 32 MB); on
+   larger ones a bounded search over blocks of consecutive places (:mod:`btel.code_decoding`:
+   per-block upper bounds from the columns constant on the block, blocks scored in order of
+   their bound from packed codewords — N·⌈K/8⌉ bytes of memory, filled on demand, never stored —
+   until no unscored block can beat the k-th best); batches take the dense product when a probe
+   of their first queries says it is cheaper; the 'random' family (no blocks to bound) uses
+   faiss' packed PQ scan past the dense cache. ``place_scores`` is the same sum as a matrix
+   product in blocks of places. ``rank``, the HMM decoder and streaming come from the base class
    (:class:`btel.base.PlaceLocalizer`) on top of them.
 
 Storage is K·d' weights (plus K scales and biases, and d' column indices), independent of N, so it
@@ -47,7 +52,6 @@ columns are shared instead. The **sequence filter** and the **HMM decoder** comp
 
 from __future__ import annotations
 
-import contextlib
 from typing import Any
 
 import numpy as np
@@ -56,6 +60,8 @@ from ._validation import N_JOBS, RANDOM_STATE, Budget, Interval, Options, String
 from .base import ArraySpec, PlaceLocalizer, top_k
 from .code_planning import CodePlan, code_array_specs, plan_codes
 from .code_solvers import fit_liblinear_codes, fit_ridge_codes
+from .code_decoding import (BATCH_DENSE_FROM, BYTE_SIGNS, DENSE_CACHE_BYTES, PROBE_QUERIES, BlockDecoder,
+                            choose_path)
 from .codebook import FAMILIES, MAX_COLUMNS, ROUTE_FAMILIES, Codebook
 from .distributed import BACKENDS
 from .exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError
@@ -64,17 +70,25 @@ from .frontend import FRONT_END_CONSTRAINTS
 from .linear import ColumnStats
 from .quantise import WEIGHT_BITS, QuantisedWeights, quantise
 from .storage import format_bytes
+from .threads import blas_threads, faiss_threads, search_threads
 
 __all__ = ["CodeLocalizer", "SOLVERS", "DECODES", "COARSE_MIN_PLACES"]
 
 SOLVERS = ("ridge", "liblinear")
 DECODES = ("auto", "exact", "coarse")
-#: From this many places ``decode='auto'`` decodes route families coarse to fine.
-COARSE_MIN_PLACES = 1 << 17
+#: From this many places ``decode='auto'`` decodes route families coarse to fine (approximate).
+#: Measured (``benchmarks/bench_codes.py``, 64 KB, d = 256, single queries, load 7–15): N = 10⁴
+#: coarse 0.10 ms against the exact bounded search's 0.18 ms; N = 10⁵ 1.02 against 0.76 ms (the
+#: exact decode faster); N = 10⁶ 4.0 against 9.0 ms (coarse agreeing with the exact answer on
+#: 99.5 % of the queries, but its first query builds the block means from every codeword: 3.6 s).
+#: Exact where it is no slower, so coarse only past 2¹⁹ places.
+COARSE_MIN_PLACES = 1 << 19
 #: The codebook is cached at inference as packed bits (N × ⌈K/8⌉ bytes) up to this size (256 MB).
 PACKED_CACHE_BYTES = 1 << 28
 #: Values (rows × columns) of one block of scores or codes at inference (about 16 MB of float32).
 _BLOCK_VALUES = 1 << 22
+#: Places whose packed codewords are generated together when first read.
+_FILL_PLACES = 256
 
 
 class CodeLocalizer(PlaceLocalizer):
@@ -105,7 +119,8 @@ class CodeLocalizer(PlaceLocalizer):
         liblinear's iteration cap per column.
     decode : {'auto', 'exact', 'coarse'}
         Exact soft decode over every place, or coarse to fine (route families only; module
-        docstring). 'auto': coarse from 131 072 places for route families, else exact.
+        docstring). 'auto': coarse from 524 288 places (:data:`COARSE_MIN_PLACES`) for route
+        families, else exact.
     coarse_block : int, optional
         B, places per block of the coarse decode. None: ≈ √(N / coarse_candidates) (so the coarse
         and the fine pass score about as many rows each).
@@ -294,22 +309,52 @@ class CodeLocalizer(PlaceLocalizer):
         """Margins of every code column (positive = +1), shape (n_queries, K), float32."""
         return self._margins(self._check_queries(Q))
 
-    # -- the codebook at inference: packed bits (a runtime cache) and faiss' ADC scan ------------
-    def _packed_codes(self) -> np.ndarray | None:
-        """(N, ⌈K/8⌉) uint8: every codeword as bits (+1 → 1, column j in bit j % 8 of byte j // 8).
+    # -- the codebook at inference: float32 codewords, packed bits filled on demand, faiss' scan --
+    def _dense_codes(self) -> np.ndarray | None:
+        """(N, 8⌈K/8⌉) float32 ±1 codewords when they fit :data:`~btel.code_decoding.DENSE_CACHE_BYTES`, else None.
 
-        Built once from the implicit codebook (N·K/8 bytes of memory, not of storage); None when
-        it would exceed :data:`PACKED_CACHE_BYTES` (the codewords are then generated per block).
+        Built once (a runtime cache; the only copy of the codebook then: no packed bits are kept).
+        """
+        n, width = int(self.n_places_), self._width()
+        if n * width * 4 > DENSE_CACHE_BYTES:
+            return None
+        if self._cache.codes is None:
+            codes = np.ones((n, width), dtype=np.float32)
+            for a, b, block in self.codebook_.iter_blocks():
+                codes[a:b, : self.n_codes_] = block
+            self._cache.codes = codes
+        return self._cache.codes
+
+    def _packed_rows(self, places: np.ndarray) -> np.ndarray | None:
+        """Packed codewords (len(places), ⌈K/8⌉) uint8 of the given places, or None past :data:`PACKED_CACHE_BYTES`.
+
+        The (N, ⌈K/8⌉) array (+1 → bit 1, column j in bit j % 8 of byte j // 8) is allocated once
+        and filled :data:`_FILL_PLACES` places at a time when first read, so the first query after
+        ``load`` generates only the codewords it scores (untouched pages cost no memory).
         """
         n, groups = int(self.n_places_), -(-self.n_codes_ // 8)
         if n * groups > PACKED_CACHE_BYTES:
             return None
-        if self._cache.packed is None:
-            packed = np.empty((n, groups), dtype=np.uint8)
-            for a, b, codes in self.codebook_.iter_blocks():
-                packed[a:b] = np.packbits(codes > 0, axis=1, bitorder="little")
-            self._cache.packed = packed
-        return self._cache.packed
+        cache = self._cache
+        if cache.packed is None:
+            cache.packed = np.empty((n, groups), dtype=np.uint8)
+            cache.filled = np.zeros(-(-n // _FILL_PLACES), dtype=bool)
+        chunk_of = places // _FILL_PLACES
+        if cache.filled[chunk_of].all():
+            return cache.packed[places]
+        chunks = np.unique(chunk_of)
+        for c in chunks[~cache.filled[chunks]]:
+            a, b = int(c) * _FILL_PLACES, min(n, (int(c) + 1) * _FILL_PLACES)
+            cache.packed[a:b] = np.packbits(self.codebook_.codewords(np.arange(a, b)) > 0, axis=1, bitorder="little")
+            cache.filled[c] = True
+        return cache.packed[places]
+
+    def _packed_of(self, places: np.ndarray) -> np.ndarray:
+        """Packed codewords of the given places: from the cache, or generated past its size limit."""
+        packed = self._packed_rows(places)
+        if packed is None:
+            packed = np.packbits(self.codebook_.codewords(places) > 0, axis=1, bitorder="little")
+        return packed
 
     def _width(self) -> int:
         """K rounded up to whole bytes: the width of the codewords and margins the decoders multiply."""
@@ -323,13 +368,17 @@ class CodeLocalizer(PlaceLocalizer):
 
     def _codes_of(self, places: np.ndarray) -> np.ndarray:
         """±1 codewords of the given places, float32 (n, 8⌈K/8⌉): padding columns are +1 (× zero margins)."""
-        packed = self._packed_codes()
+        places = np.asarray(places, dtype=np.intp)
+        dense = self._dense_codes()
+        if dense is not None:
+            return dense[places]
+        packed = self._packed_rows(places)
         if packed is None:
             codes = np.ones((len(places), self._width()), dtype=np.float32)
             codes[:, : self.n_codes_] = self.codebook_.codewords(places)
             return codes
         # One table look-up per byte: the 8 ±1 values of its bits.
-        return _BYTE_SIGNS[packed[places]].reshape(len(places), -1)
+        return BYTE_SIGNS[packed].reshape(len(places), -1)
 
     def _code_blocks(self, rows: int | None = None):
         """Yield (start, stop, codewords float32 (stop − start, 8⌈K/8⌉)) over consecutive blocks of places."""
@@ -345,21 +394,28 @@ class CodeLocalizer(PlaceLocalizer):
         The soft decode is an asymmetric-distance scan: cut the K columns into groups of 8, a group
         of a codeword is one byte, and the 256 "centroids" of every group are the 256 ±1 patterns
         of 8 columns. faiss' inner-product PQ scan then sums, per place, one table entry per group
-        (⌈K/8⌉ look-ups instead of K multiply-adds), multi-threaded and in C++.
+        (⌈K/8⌉ look-ups instead of K multiply-adds). Only for the 'random' family past the dense
+        cache (no blocks to bound): its codes are added block by block, the index holds the only copy.
         """
         if self._cache.index is None:
-            packed = self._packed_codes()
-            if packed is None:
+            n, groups = int(self.n_places_), -(-self.n_codes_ // 8)
+            if n * groups > PACKED_CACHE_BYTES:
                 return None
             import faiss
 
-            groups = packed.shape[1]
             index = faiss.IndexPQ(8 * groups, groups, 8, faiss.METRIC_INNER_PRODUCT)
-            faiss.copy_array_to_vector(np.tile(_BYTE_SIGNS, (groups, 1)).ravel(), index.pq.centroids)
+            faiss.copy_array_to_vector(np.tile(BYTE_SIGNS, (groups, 1)).ravel(), index.pq.centroids)
             index.is_trained = True
-            index.add_sa_codes(packed)
+            for _, _, codes in self.codebook_.iter_blocks():
+                index.add_sa_codes(np.packbits(codes > 0, axis=1, bitorder="little"))
             self._cache.index = index
         return self._cache.index
+
+    def _decoder(self) -> BlockDecoder:
+        """The bounded exact search over blocks of places (:mod:`btel.code_decoding`), built once."""
+        if self._cache.decoder is None:
+            self._cache.decoder = BlockDecoder(self.codebook_, self._width(), self._packed_of)
+        return self._cache.decoder
 
     def _place_scores(self, Q: np.ndarray) -> np.ndarray:
         """m · c_i for every place (the exact soft decode), (n, N) float64."""
@@ -377,34 +433,69 @@ class CodeLocalizer(PlaceLocalizer):
         return self.decode == "coarse" or int(self.n_places_) >= COARSE_MIN_PLACES
 
     def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        # The search's own products are small per query (margins, block means, refined places; the
-        # exact scan runs in faiss): one BLAS thread always.
+        # The search's own products are small per query (margins, bounds, refined blocks): one
+        # BLAS thread, unless a large batch's dense product can use a second one.
         with _blas_for(1, 0):
             M = self._padded(self._margins(Q))
             if self._coarse_default():
                 block, candidates = self._coarse_shape()
                 if k <= block * candidates:
                     return self._coarse_search(M, k, block, candidates)
-            return self._exact_search(M, k)
+            if M.shape[0] < BATCH_DENSE_FROM:  # single queries: the whole decode on one BLAS thread
+                return self._exact_search(M, k)
+        return self._exact_search(M, k)
 
-    def _exact_search(self, M: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """Top k of m · c_i over every place: faiss' ADC scan, or blocked products without a cache."""
-        index = self._adc_index()
-        if index is not None:
-            from .baselines._common import faiss_threads
+    def exact_path(self, n_queries: int = 1) -> str:
+        """The exact decode :meth:`search` runs for ``n_queries`` queries: 'bounded', 'dense', 'scan' or 'probe'.
 
-            with faiss_threads(self.n_jobs):
-                scores, places = index.search(M, k)
-            return scores.astype(np.float64), places.astype(np.int64)
+        'probe': a batch whose first queries are decoded by the bounded search, the rest by whichever
+        of 'bounded' and 'dense' the places they scored predict to be cheaper
+        (:func:`~btel.code_decoding.choose_path`).
+        """
+        return choose_path(int(self.n_places_), self._width(), n_queries, self.code in ROUTE_FAMILIES,
+                           self._dense_codes() is not None)
+
+    def _exact_search(self, M: np.ndarray, k: int, path: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Top k of m · c_i over every place, by ``path`` (default :func:`~btel.code_decoding.choose_path`)."""
+        path = path or self.exact_path(M.shape[0])
+        if path == "probe":  # a batch: the first queries by the bounded search tell which path is cheaper
+            head = min(PROBE_QUERIES, M.shape[0])
+            with _blas_for(1, 0):
+                s_head, p_head, visited = self._decoder().search(M[:head], k)
+            fraction = float(visited.mean()) * self._decoder().block / int(self.n_places_)
+            rest = choose_path(int(self.n_places_), self._width(), M.shape[0], True, True, visited=fraction)
+            s_rest, p_rest = self._exact_search(M[head:], k, rest) if head < M.shape[0] else (s_head[:0], p_head[:0])
+            return np.concatenate([s_head, s_rest]), np.concatenate([p_head, p_rest])
+        if path == "bounded":
+            with _blas_for(1, 0):
+                scores, places, _ = self._decoder().search(M, k)
+            return scores, places
+        if path == "scan":
+            index = self._adc_index()
+            if index is not None:
+                with faiss_threads(search_threads(self.n_jobs, M.shape[0])):
+                    scores, places = index.search(M, k)
+                return scores.astype(np.float64), places.astype(np.int64)
         n = M.shape[0]
+        dense = self._dense_codes()
+        if dense is not None and n * dense.shape[0] <= _BLOCK_VALUES:
+            # One product over the cached codewords (small maps, small batches): no blocks, no merging.
+            with _blas_for(1, 0):
+                scores = M @ dense.T
+            if k == 1:  # argmax: the first maximum, i.e. ties to the lower place as top_k
+                places = np.argmax(scores, axis=1)[:, None]
+                return np.take_along_axis(scores, places, axis=1).astype(np.float64), places.astype(np.int64)
+            values, places = top_k(scores, k)
+            return values, places
         best_s = np.empty((n, 0), dtype=np.float32)
         best_p = np.empty((n, 0), dtype=np.int64)
-        for a, b, codes in self._code_blocks():
-            scores = np.concatenate([best_s, M @ codes.T], axis=1)
-            places = np.concatenate([best_p, np.broadcast_to(np.arange(a, b), (n, b - a))], axis=1)
-            kept_s, cols = top_k(scores, min(k, scores.shape[1]))
-            best_s = kept_s.astype(np.float32)
-            best_p = np.take_along_axis(places, cols, axis=1)
+        with _blas_for(n, self.n_codes_ * int(self.n_places_)):
+            for a, b, codes in self._code_blocks():
+                scores = np.concatenate([best_s, M @ codes.T], axis=1)
+                places = np.concatenate([best_p, np.broadcast_to(np.arange(a, b), (n, b - a))], axis=1)
+                kept_s, cols = top_k(scores, min(k, scores.shape[1]))
+                best_s = kept_s.astype(np.float32)
+                best_p = np.take_along_axis(places, cols, axis=1)
         return best_s.astype(np.float64), best_p
 
     # -- coarse to fine ----------------------------------------------------------------------------
@@ -507,11 +598,8 @@ class CodeLocalizer(PlaceLocalizer):
         return state
 
 
-#: The ±1 values of the 8 bits of every byte (bit j → column j), float32 (256, 8).
-_BYTE_SIGNS = (((np.arange(256)[:, None] >> np.arange(8)) & 1) * 2.0 - 1.0).astype(np.float32)
 #: Below this many multiply-adds a decode runs its BLAS products on one thread (see _blas_for).
 _SMALL_PRODUCT = 1 << 27
-_controller: Any = None
 
 
 def _blas_for(n_queries: int, work_per_query: int) -> Any:
@@ -523,26 +611,26 @@ def _blas_for(n_queries: int, work_per_query: int) -> Any:
     query at N = 10⁶ took 14–21 ms with two threads and 2 ms with one (setting the limit per call
     cost less than the noise).
     """
-    global _controller
     if n_queries > 64 and n_queries * work_per_query >= _SMALL_PRODUCT:
-        return contextlib.nullcontext()
-    if _controller is None:
-        from threadpoolctl import ThreadpoolController
-
-        _controller = ThreadpoolController()
-    return _controller.limit(limits=1, user_api="blas")
+        return blas_threads(None)
+    return blas_threads(1)
 
 
 class _RuntimeCache:
     """What inference derives from the stored arrays once (not stored, not compared: one object per model).
 
-    ``dense``: (d', K) float32 dequantised weights; ``packed``: the (N, ⌈K/8⌉) packed codebook when
-    it has at most :data:`PACKED_CACHE_BYTES` bytes; ``index``: the faiss scan over it; ``means``:
-    (B, the ⌈N/B⌉ × K block-mean codewords of the coarse decode).
+    ``dense``: (d', K) float32 dequantised weights; ``codes``: the (N, 8⌈K/8⌉) float32 codewords
+    when small (:data:`~btel.code_decoding.DENSE_CACHE_BYTES`); else ``packed``: the (N, ⌈K/8⌉)
+    packed codebook up to :data:`PACKED_CACHE_BYTES`, filled on demand (``filled``: which chunks);
+    ``index``: faiss' scan (the 'random' family only); ``decoder``: the bounded search's block
+    bounds; ``means``: (B, the ⌈N/B⌉ × K block-mean codewords of the coarse decode).
     """
 
     def __init__(self) -> None:
         self.dense: np.ndarray | None = None
+        self.codes: np.ndarray | None = None
         self.packed: np.ndarray | None = None
+        self.filled: np.ndarray | None = None
         self.index: Any = None
+        self.decoder: BlockDecoder | None = None
         self.means: tuple[int, np.ndarray] | None = None

@@ -25,11 +25,11 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from joblib import Parallel, delayed
 from sklearn.exceptions import ConvergenceWarning
-from threadpoolctl import threadpool_limits
 
 from .distributed import fit_backend
 from .feature_selection import select_features, select_features_many
 from .linear import ColumnStats, fit_linear_group
+from .threads import blas_threads as limit_blas
 
 __all__ = ["Task", "FitSummary", "fit_tasks", "one_vs_rest_tasks", "convergence_warning"]
 
@@ -210,7 +210,7 @@ def fit_tasks(
     # Unconverged fits are counted from the solvers' iteration counts and reported by the caller
     # in one warning (convergence_warning).
     # With Dask, X is broadcast to the workers once (scatter) and every task refers to that copy.
-    with fit_backend(backend, scheduler, scatter=[X]), threadpool_limits(limits=blas_threads, user_api="blas"), \
+    with fit_backend(backend, scheduler, scatter=[X]), limit_blas(blas_threads), \
             warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         results = Parallel(n_jobs=workers, prefer="threads", return_as="generator")(calls)

@@ -22,6 +22,7 @@ import numpy as np
 from ..base import ArraySpec, PlaceLocalizer
 from ..exceptions import BudgetTooSmallError, InvalidDescriptorsError, InvalidParameterError, ModelFileError
 from ..storage import format_bytes
+from ..threads import faiss_threads, search_threads
 
 __all__ = ["quiet_faiss", "faiss_threads", "smallest_uint_dtype", "rank_unique_places", "raise_budget_too_small",
            "check_magnitude", "check_model_values", "MAX_NORM"]
@@ -57,29 +58,6 @@ def quiet_faiss() -> Iterator[None]:
             kept = [line for line in text.splitlines(keepends=True) if not _FAISS_NOISE.match(line)]
             if kept:
                 sys.stderr.write("".join(kept))
-
-
-@contextlib.contextmanager
-def faiss_threads(n_jobs: int | None) -> Iterator[None]:
-    """Run faiss with ``n_jobs`` OpenMP threads inside the block (None: leave faiss' setting).
-
-    ``-1`` means every core. Small indexes train and search faster on one thread, and OpenMP's
-    busy-waiting makes an oversubscribed machine (parallel tests, several fits at once) much slower.
-    The setting is process-wide while the block runs and is restored afterwards.
-    """
-    if n_jobs is None:
-        yield
-        return
-    import faiss
-
-    if isinstance(n_jobs, bool) or not isinstance(n_jobs, int) or n_jobs == 0 or n_jobs < -1:
-        raise InvalidParameterError(f"n_jobs must be None, -1 (all cores) or a positive integer; got {n_jobs!r}.")
-    previous = faiss.omp_get_max_threads()
-    faiss.omp_set_num_threads((os.cpu_count() or 1) if n_jobs == -1 else n_jobs)
-    try:
-        yield
-    finally:
-        faiss.omp_set_num_threads(previous)
 
 
 def smallest_uint_dtype(max_value: int) -> np.dtype:
@@ -221,7 +199,8 @@ class _RowLocalizer(PlaceLocalizer):
         # k places need at most k·(most rows of one place) rows.
         k_rows = k if self.row_places_ is None else \
             min(n_rows, k * int(np.bincount(self.row_places_.astype(np.int64)).max()))
-        with faiss_threads(self.n_jobs):
+        # Single queries on one faiss thread unless n_jobs says otherwise (btel.threads).
+        with faiss_threads(search_threads(self.n_jobs, Q.shape[0])):
             scores, rows = self._search_rows(Q, k_rows)
         # faiss answers −1 when no distance is finite (overflow, a corrupt index): never a place.
         bad = np.flatnonzero(((rows < 0) | (rows >= n_rows)).any(axis=1))

@@ -27,11 +27,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 from sklearn.base import BaseEstimator
-from threadpoolctl import threadpool_limits
 
 from .._validation import check_is_fitted, check_positive_int
 from ..exceptions import InvalidParameterError, ModelFileError
 from ..storage import load_arrays, save_arrays
+from ..threads import one_blas_thread
 from .images import ImageInput, as_image_list, iter_grey
 
 __all__ = [
@@ -298,7 +298,7 @@ def single_blas_thread() -> Any:
     machine it costs milliseconds each (measured: a 38×128 by 128×128 product took 22 ms with two
     OpenBLAS threads under load against 0.02 ms on one).
     """
-    return threadpool_limits(limits=1, user_api="blas")
+    return one_blas_thread()
 
 
 def get_descriptor(name: str, **params: Any) -> ImageDescriptor:

@@ -362,22 +362,10 @@ def fit_row(name: str, data: NordlandData, *, budget: Any, n_places: int | None,
 @contextlib.contextmanager
 def _one_thread_each() -> Iterator[None]:
     """BLAS and faiss limited to one thread for the parallel section (both are process-wide settings)."""
-    from threadpoolctl import threadpool_limits
+    from ..threads import limit_threads
 
-    faiss = None
-    try:
-        import faiss  # noqa: F811
-    except ImportError:  # pragma: no cover - faiss is a dependency
-        pass
-    before = faiss.omp_get_max_threads() if faiss is not None else None
-    if faiss is not None:
-        faiss.omp_set_num_threads(1)
-    try:
-        with threadpool_limits(limits=1):
-            yield
-    finally:
-        if faiss is not None:
-            faiss.omp_set_num_threads(before)
+    with limit_threads(1):
+        yield
 
 
 def fit_rows(data: NordlandData, jobs: list[dict[str, Any]], *, desc: str = "fits"

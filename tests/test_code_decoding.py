@@ -1,0 +1,140 @@
+"""btel.code_decoding: every exact decode path gives the answer of scoring every place in float64."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from btel.code_decoding import BlockDecoder, block_size, choose_path
+from btel.codebook import FAMILIES, Codebook
+from btel.codes import CodeLocalizer
+from btel.datasets import synthetic_route
+
+PATHS = ("bounded", "dense", "scan", "probe")
+
+
+def _reference(model: CodeLocalizer, M: np.ndarray) -> np.ndarray:
+    codes = model.codebook_.codewords(np.arange(model.n_places_)).astype(np.float64)
+    return M[:, : model.n_codes_].astype(np.float64) @ codes.T
+
+
+def _check_exact(scores: np.ndarray, places: np.ndarray, reference: np.ndarray) -> None:
+    """Scores are the true top-k scores (float32 rounding); places match wherever no near-tie makes them ambiguous."""
+    k = scores.shape[1]
+    ordered = -np.sort(-reference, axis=1)[:, :k]
+    scale = np.abs(reference).max()
+    tol = 1e-4 * scale + 1e-6
+    np.testing.assert_allclose(scores, ordered, rtol=0, atol=tol)
+    np.testing.assert_allclose(np.take_along_axis(reference, places, axis=1), ordered, rtol=0, atol=tol)
+    assert all(len(set(row)) == k for row in places.tolist())
+
+
+@pytest.fixture(scope="module")
+def route() -> tuple[np.ndarray, np.ndarray]:
+    r = synthetic_route(1500, 48, condition_shift=0.5, seed=3)
+    return r.map, r.queries
+
+
+_MODELS: dict[str, CodeLocalizer] = {}
+
+
+def _model(family: str, X: np.ndarray) -> CodeLocalizer:
+    if family not in _MODELS:
+        n_codes = None if family == "binary" else 60  # 60: a padded last byte
+        _MODELS[family] = CodeLocalizer(code=family, n_codes=n_codes, decode="exact").fit(X)
+    return _MODELS[family]
+
+
+@settings(max_examples=25, deadline=None)
+@given(family=st.sampled_from(FAMILIES), seed=st.integers(0, 10_000), k=st.sampled_from([1, 3, 10]),
+       noise=st.floats(0.0, 3.0))
+def test_every_exact_path_gives_the_true_top_k(route, family, seed, k, noise) -> None:
+    X, Q = route
+    model = _model(family, X)
+    rng = np.random.default_rng(seed)
+    # Margins of real queries, with extra noise (noise = 3: mostly wrong margins, loose bounds).
+    M = model._margins(model._check_queries(Q[rng.choice(len(Q), 4)]))
+    M = model._padded(M + noise * rng.normal(size=M.shape).astype(np.float32) * np.abs(M).mean())
+    reference = _reference(model, M)
+    for path in PATHS:
+        scores, places = model._exact_search(M, k, path)
+        _check_exact(scores, places, reference)
+
+
+def test_search_single_queries_and_batches_agree_and_report_the_path(route) -> None:
+    X, Q = route
+    model = CodeLocalizer(n_codes=200, decode="exact").fit(X)  # N·W = 1500 × 200: past the small-map rule
+    assert model.exact_path(1) == "bounded" and model.exact_path(64) == "probe"
+    batch = model.search(Q[:40], 5)
+    M = model._padded(model._margins(model._check_queries(Q[:40])))
+    reference = _reference(model, M)
+    _check_exact(*batch, reference)
+    for j in range(0, 40, 7):
+        single = model.search(Q[j : j + 1], 5)
+        _check_exact(*single, reference[j : j + 1])
+        # Same places unless two scores tie within float32 rounding (summed in another order).
+        assert np.mean(single[1][0] == batch[1][j]) >= 0.6
+
+
+def test_the_bounds_hold_and_the_visited_blocks_shrink_with_good_margins(route) -> None:
+    X, Q = route
+    model = _model("periodic", X)
+    decoder = model._decoder()
+    M = model._padded(model._margins(model._check_queries(Q[:50])))
+    U = decoder.bounds(M)
+    S = _reference(model, M)
+    per_block = np.maximum.reduceat(S, np.arange(0, S.shape[1], decoder.block), axis=1)
+    assert np.all(per_block <= U + 1e-3)
+    _, _, visited = decoder.search(M, 1)
+    assert np.median(visited) < U.shape[1]  # real queries do not need every block
+
+
+def test_a_packed_cache_past_its_limit_generates_codewords(route, monkeypatch) -> None:
+    import btel.codes as codes
+
+    X, Q = route
+    model = CodeLocalizer(n_codes=60, decode="exact").fit(X)
+    M = model._padded(model._margins(model._check_queries(Q[:5])))
+    expected = model._exact_search(M, 3, "bounded")
+    fresh = CodeLocalizer(n_codes=60, decode="exact").fit(X)
+    monkeypatch.setattr(codes, "PACKED_CACHE_BYTES", 10)
+    got = fresh._exact_search(M, 3, "bounded")
+    np.testing.assert_array_equal(got[1], expected[1])
+    assert fresh._cache.packed is None
+
+
+def test_the_first_query_fills_only_the_blocks_it_scores(route) -> None:
+    X, Q = route
+    model = CodeLocalizer(n_codes=200, decode="exact").fit(X)  # past the small-map rule: bounded
+    model.predict(Q[:1])
+    filled = model._cache.filled
+    assert filled is not None and 0 < filled.sum() < filled.size
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+@pytest.mark.parametrize("n, block", [(1000, 7), (777, 1), (5000, 64), (300, 300), (300, 1000), (70_000, 2)])
+def test_block_signs_are_the_constant_columns_of_each_block(family, n, block) -> None:
+    k = int(np.ceil(np.log2(n))) if family == "binary" else 30
+    book = Codebook(family, n, k, seed=n % 7)
+    signs = book.block_signs(block)
+    codes = book.codewords(np.arange(n))
+    low = np.minimum.reduceat(codes, np.arange(0, n, block), axis=0)
+    high = np.maximum.reduceat(codes, np.arange(0, n, block), axis=0)
+    np.testing.assert_array_equal(signs, np.where(low == high, low, 0))
+
+
+def test_rules() -> None:
+    assert block_size(100) == 10 and block_size(10**8) == 1024 and block_size(10) == 8
+    assert choose_path(10**4, 472, 1, True, True) == "bounded"
+    assert choose_path(10**4, 472, 64, True, True) == "probe"
+    assert choose_path(10**4, 472, 64, True, True, visited=0.1) == "bounded"
+    assert choose_path(10**4, 472, 64, True, True, visited=0.9) == "dense"
+    assert choose_path(500, 472, 1, True, True) == "dense"
+    assert choose_path(10**6, 472, 64, True, False) == "bounded"
+    assert choose_path(10**6, 472, 1, False, False) == "scan"
+    assert choose_path(1000, 472, 1, False, True) == "dense"
+    book = Codebook("periodic", 500, 16, 0)
+    decoder = BlockDecoder(book, 16, lambda p: np.packbits(book.codewords(p) > 0, axis=1, bitorder="little"))
+    assert decoder.constant.shape == (-(-500 // decoder.block), 16)
