@@ -51,6 +51,8 @@ DESCRIPTIONS: dict[str, str] = {
     "pq": "product quantisation (faiss), the most code bits that fit the budget",
     "opq": "optimised PQ: a learned rotation, then PQ (faiss)",
     "itq": "iterative quantisation to binary codes, Hamming search (faiss)",
+    "lsh": "seeded sign random projections filling the budget (projection from the seed, 0 B), "
+           "asymmetric scoring (projected query · ±1 codes) or Hamming",
     "seqslam": "SeqSLAM sequence matching over a uint8 map (uses the query sequence)",
 }
 
