@@ -194,6 +194,12 @@ class LSHLocalizer(_RowLocalizer):
             scores[:, start : start + _BLOCK_ROWS] = P @ self._unpack(self.codes_[start : start + _BLOCK_ROWS]).T
         return top_k(scores, k)
 
+    def summary(self) -> str:
+        """One line: bits per row, scoring, seed and the front end."""
+        return (f"lsh: {self.n_bits_} bits per row, {self.scoring} scoring, projection from seed {self.seed_} "
+                f"(0 B), {'centred' if self.mean_ is not None else 'uncentred'}; front end "
+                f"{self.front_end_.describe()}")
+
     def _model_arrays(self) -> dict[str, np.ndarray]:
         return {"codes": self.codes_} if self.mean_ is None else {"codes": self.codes_, "mean": self.mean_}
 
