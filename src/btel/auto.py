@@ -222,6 +222,27 @@ class AutoLocalizer(PlaceLocalizer):
         self.n_places_ = int(n_places)
         return self
 
+    def check_budget(self, n_rows: int, n_features: int, budget: int | None, reserved: int = 0) -> None:
+        """Raise what ``fit`` would raise for this map shape and budget, without fitting.
+
+        Every candidate list of the rule ends with plain ``lsh`` and ``btel-codes`` (the others need
+        more bytes), so auto fits exactly when one of those two does; the minimum is the smaller one.
+        """
+        from .evaluation import _budget_check
+
+        errors: list[BudgetTooSmallError] = []
+        for method, params in (("lsh", {"whiten": self.whiten}), ("btel-codes", {"code": "periodic",
+                                                                               "whiten": self.whiten})):
+            try:
+                _budget_check(self._inner(method, params), n_rows, n_features, budget)
+                return
+            except BudgetTooSmallError as exc:
+                errors.append(exc)
+        smallest = min(errors, key=lambda e: e.minimum or 0)
+        raise BudgetTooSmallError(f"budget {format_bytes(budget or 0)} ({budget} B) is too small for auto: neither "
+                                  f"lsh nor btel-codes fits ({'; '.join(str(e) for e in errors)}).",
+                                  budget=budget, minimum=smallest.minimum)
+
     def summary(self) -> str:
         """One line: what the rule chose and why."""
         c = self.choice_

@@ -141,6 +141,16 @@ class LSHLocalizer(_RowLocalizer):
                                    + (f" + the {n_features}-value float16 mean" if self.center else ""))
         return bits
 
+    def check_budget(self, n_rows: int, n_features: int, budget: int | None, reserved: int = 0) -> None:
+        """Raise what ``fit`` would raise for this map shape and budget, without fitting (BudgetTooSmallError)."""
+        self.choose_bits(n_rows, self.front_end_of_shape(n_features), budget, reserved)
+
+    def front_end_of_shape(self, n_features: int) -> int:
+        """The dimension the front end hands the codes for raw descriptors of ``n_features``."""
+        from ..frontend import FrontEnd
+
+        return FrontEnd.of(self).n_features_out(n_features)
+
     def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
         n_rows, d = X.shape
         bits = self.choose_bits(n_rows, d, budget, reserved)
