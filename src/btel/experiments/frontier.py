@@ -84,7 +84,8 @@ def _row(base: dict[str, Any], label: str, name: str, params: dict[str, Any], X:
     try:
         model.fit(X)
     except BudgetTooSmallError as exc:
-        return {**row, "status": f"does not fit (needs ≥ {exc.minimum} B)", "nbytes": None}
+        return {**row, "status": f"does not fit (needs ≥ {exc.minimum} B)", "nbytes": None,
+                "minimum_bytes": int(exc.minimum or 0)}
     fit_s = time.perf_counter() - start
     check_within_budget(label, model.nbytes, budget)
     start = time.perf_counter()
