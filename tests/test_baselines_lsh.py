@@ -23,9 +23,12 @@ def pair():
 def test_bits_fill_the_budget_and_only_codes_and_mean_are_stored(pair, budget) -> None:
     X, _ = pair
     model = make_method("lsh", budget=budget).fit(X)
-    assert model.n_bits_ == 8 * ((budget - 2 * 64) // 400) and model.nbytes <= budget
+    centred = 2 * 64 <= budget / 8  # center='auto': the float16 mean only when it costs ≤ 1/8 of the budget
+    assert (model.mean_ is not None) == centred
+    assert model.n_bits_ == 8 * ((budget - 2 * 64 * centred) // 400) and model.nbytes <= budget
     assert model.nbytes > budget - 400  # less than one more byte per row is left over
-    assert set(model.storage_breakdown()) == {"codes", "mean"}  # the projection costs 0 bytes
+    # The projection costs 0 bytes.
+    assert set(model.storage_breakdown()) == ({"codes", "mean"} if centred else {"codes"})
 
 
 def test_projection_is_regenerated_from_the_recorded_seed(pair, tmp_path) -> None:
@@ -59,8 +62,11 @@ def test_hamming_scoring_is_minus_the_hamming_distance(pair) -> None:
 def test_errors_name_the_fix(pair) -> None:
     X, _ = pair
     with pytest.raises(BudgetTooSmallError, match="LSH") as info:
-        make_method("lsh", budget=300).fit(X)
+        make_method("lsh", budget=300, center=True).fit(X)
     assert info.value.minimum == 400 + 2 * 64
+    with pytest.raises(BudgetTooSmallError, match="LSH") as info:
+        make_method("lsh", budget=300).fit(X)
+    assert info.value.minimum == 400
     with pytest.raises(InvalidParameterError, match="multiple of 8"):
         LSHLocalizer(n_bits=12).fit(X)
     with pytest.raises(InvalidParameterError, match="scoring"):

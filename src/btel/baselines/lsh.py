@@ -20,7 +20,9 @@ Budget rule: P = 8·⌊(budget − reserved − mean bytes) / n_rows⌋ bits per
 per row that fit), at most :data:`MAX_BITS`; without a budget P = :data:`DEFAULT_BITS`. ``n_bits``
 pins P (a multiple of 8). ``center=True`` subtracts the map mean (d float16, counted) before the
 projection, so the hyperplanes cut through the data rather than past it (L2-normalised global
-descriptors live in a cone around their mean).
+descriptors live in a cone around their mean); ``center='auto'`` (default) does so when the mean
+costs at most :data:`CENTER_SHARE` (1/8) of the budget (always without a budget), so that at 1 KB
+the bits are not spent on a mean. On Gardens Point centring changed recall@2 by −0.045 … +0.01.
 """
 
 from __future__ import annotations
@@ -42,6 +44,8 @@ __all__ = ["LSHLocalizer", "projection_matrix"]
 DEFAULT_BITS = 256
 #: Most bits per row the budget rule gives (beyond this, asymmetric LSH is within noise of cosine).
 MAX_BITS = 8192
+#: ``center='auto'`` centres when the float16 mean costs at most this share of the budget.
+CENTER_SHARE = 1 / 8
 #: The ±1 codes are cached as float32 when N·P is at most this (256 MB).
 CACHE_VALUES = 1 << 26
 #: Map rows unpacked at a time when the codes are not cached.
@@ -69,8 +73,9 @@ class LSHLocalizer(_RowLocalizer):
         Pin P (a multiple of 8).
     scoring : {'asymmetric', 'hamming'}
         Projected query against the ±1 codes (default), or binarised query by Hamming distance.
-    center : bool
-        Subtract the map mean (stored as d float16 values, counted) before projecting.
+    center : bool or 'auto'
+        Subtract the map mean (stored as d float16 values, counted) before projecting; 'auto': when
+        it costs at most 1/8 of the budget.
     random_state : int or None
         Seed of the projection; None draws one. The seed used is recorded (``seed_``) and saved.
     normalize, whiten, delta
@@ -102,14 +107,14 @@ class LSHLocalizer(_RowLocalizer):
         "budget": [Budget()],
         "n_bits": [None, Interval(int, 8, MAX_BITS)],
         "scoring": [Options("asymmetric", "hamming")],
-        "center": [Options(True, False)],
+        "center": [Options(True, False, "auto")],
         "random_state": RANDOM_STATE,
         "n_jobs": N_JOBS,
         **FRONT_END_CONSTRAINTS,
     }
 
     def __init__(self, *, budget: int | str | None = None, n_bits: int | None = None, scoring: str = "asymmetric",
-                 center: bool = True, random_state: int | None = 0, normalize: str = "l2",
+                 center: bool | str = "auto", random_state: int | None = 0, normalize: str = "l2",
                  whiten: int | str | None = None, delta: int | None = None, n_jobs: int | None = None) -> None:
         self.budget = budget
         self.n_bits = n_bits
@@ -123,7 +128,7 @@ class LSHLocalizer(_RowLocalizer):
 
     def choose_bits(self, n_rows: int, n_features: int, budget: int | None, reserved: int = 0) -> int:
         """P, the bits per row ``fit`` uses (module docstring)."""
-        mean_bytes = 2 * n_features if self.center else 0
+        mean_bytes = 2 * n_features if self._centred(n_features, budget) else 0
         if self.n_bits is not None:
             if self.n_bits % 8:
                 raise InvalidParameterError(f"n_bits = {self.n_bits} must be a multiple of 8 (codes are packed "
@@ -138,8 +143,13 @@ class LSHLocalizer(_RowLocalizer):
             minimum = reserved + mean_bytes + n_rows * max(bits if self.n_bits else 8, 8) // 8
             raise_budget_too_small("LSH", budget, minimum,
                                    f"{max(bits, 8) if self.n_bits else 8}-bit codes for {n_rows} rows"
-                                   + (f" + the {n_features}-value float16 mean" if self.center else ""))
+                                   + (f" + the {n_features}-value float16 mean" if mean_bytes else ""))
         return bits
+
+    def _centred(self, n_features: int, budget: int | None) -> bool:
+        if self.center == "auto":
+            return budget is None or 2 * n_features <= CENTER_SHARE * budget
+        return bool(self.center)
 
     def check_budget(self, n_rows: int, n_features: int, budget: int | None, reserved: int = 0) -> None:
         """Raise what ``fit`` would raise for this map shape and budget, without fitting (BudgetTooSmallError)."""
@@ -157,7 +167,7 @@ class LSHLocalizer(_RowLocalizer):
         seed = int(self.random_state) if self.random_state is not None else \
             int(np.random.default_rng().integers(0, 2**31 - 1))
         self.n_bits_, self.seed_ = bits, seed
-        self.mean_ = X.mean(axis=0, dtype=np.float64).astype(np.float16) if self.center else None
+        self.mean_ = X.mean(axis=0, dtype=np.float64).astype(np.float16) if self._centred(d, budget) else None
         self.projection_ = projection_matrix(d, bits, seed)
         codes = np.empty((n_rows, bits // 8), dtype=np.uint8)
         for start in range(0, n_rows, _BLOCK_ROWS):
@@ -221,16 +231,16 @@ class LSHLocalizer(_RowLocalizer):
         if bits % 8:
             raise ModelFileError(f"the LSH model file's n_bits = {bits} is not a multiple of 8.")
         read_state_int(state, "seed", 0, 2**63 - 1)
-        specs = {"codes": ArraySpec((None, bits // 8), np.uint8)}
-        if self.center:
-            specs["mean"] = ArraySpec((d,), np.float16)
-        return specs
+        return {"codes": ArraySpec((None, bits // 8), np.uint8),
+                "mean": ArraySpec((d,), np.float16, required=self.center is True)}
 
     def _n_rows(self) -> int:
         return int(self.codes_.shape[0])
 
     def _restore_model(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
         check_model_values(arrays, ("mean",), "LSH")
+        if self.center is False and "mean" in arrays:
+            raise ModelFileError("the LSH model file holds a mean but its parameters say center=False.")
         self.n_bits_, self.seed_ = int(state["n_bits"]), int(state["seed"])
         self.codes_ = np.ascontiguousarray(arrays["codes"])
         self.mean_ = arrays.get("mean")
