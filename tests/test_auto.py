@@ -85,6 +85,8 @@ def test_cli_train_defaults_to_auto_and_prints_its_choice(smooth_route, tmp_path
                                        "--budget", "4KB"])
     assert result.exit_code == 0, result.output
     assert "auto chose btel-codes" in result.output and "route share" in result.output
+    info = CliRunner().invoke(main, ["info", str(tmp_path / "m.npz")])
+    assert info.exit_code == 0 and "auto chose btel-codes" in info.output
 
 
 @pytest.mark.realdata
