@@ -44,7 +44,7 @@ def fitted(route) -> dict[str, object]:
 
 
 def test_registry_lists_every_baseline_and_registers_it_for_load():
-    assert set(BASELINES) == {"bruteforce", "pq", "opq", "itq", "seqslam"}
+    assert set(BASELINES) == {"bruteforce", "pq", "opq", "itq", "lsh", "seqslam"}
     for cls in BASELINES.values():
         assert MODEL_CLASSES[cls.__name__] is cls
 

@@ -38,7 +38,7 @@ def test_help_everywhere(command: list[str]) -> None:
 def test_train_localize_info(small_pair, tmp_path: Path) -> None:
     db, q = small_pair
     model = tmp_path / "m.btel.npz"
-    result = run("train", db, "-o", model, "--budget", "5KB", "--n-features", "16")
+    result = run("train", db, "-o", model, "--method", "btel-c", "--budget", "5KB", "--n-features", "16")
     assert result.exit_code == 0, result.output
     assert "storage breakdown" in result.output and "total" in result.output
     preds = tmp_path / "p.csv"
@@ -110,7 +110,7 @@ def test_nordland_extract_train_localize_evaluate(nordland_dir: Path, tmp_path: 
     X = np.load(db)
     assert X.shape == (447, 2048) and np.isfinite(X).all()
 
-    result = run("train", db, "-o", model, "--budget", "100KB", "--regions", "4", "--seed", "0")
+    result = run("train", db, "-o", model, "--method", "btel-c", "--budget", "100KB", "--regions", "4", "--seed", "0")
     assert result.exit_code == 0, result.output
     preds = tmp_path / "predictions.csv"
     assert run("localize", model, q, "-o", preds).exit_code == 0
@@ -132,7 +132,7 @@ def test_nordland_extract_train_localize_evaluate(nordland_dir: Path, tmp_path: 
 def test_train_with_code_options_and_localize_with_hmm_and_top_k(small_pair, tmp_path: Path) -> None:
     db, q = small_pair
     model = tmp_path / "m.btel.npz"
-    result = run("train", db, "-o", model, "--budget", "8KB", "--tolerance", "5", "--code-copies", "2",
+    result = run("train", db, "-o", model, "--method", "btel-c", "--budget", "8KB", "--tolerance", "5", "--code-copies", "2",
                  "--exemplar-radius", "1")
     assert result.exit_code == 0, result.output
     from btel import load
@@ -149,7 +149,7 @@ def test_train_with_code_options_and_localize_with_hmm_and_top_k(small_pair, tmp
     for args, message in ((["--hmm", "--sequence-filter", "3"], "not both"), (["--top-k", "0"], "k")):
         result = run("localize", model, q, "-o", preds, "--overwrite", *args)
         assert result.exit_code != 0 and message in result.output
-    result = run("train", db, "-o", model, "--block-size", "4", "--tolerance", "4")
+    result = run("train", db, "-o", model, "--method", "btel-c", "--block-size", "4", "--tolerance", "4")
     assert result.exit_code != 0 and "not both" in result.output
     result = run("train", db, "-o", model, "--method", "pq", "--code-copies", "2")
     assert result.exit_code == 2 and "'code_copies', which pq does not have" in result.output
@@ -225,9 +225,9 @@ def test_train_param_fills_the_same_parameters_as_the_shortcuts(small_pair, tmp_
 
     db, _ = small_pair
     a, b = tmp_path / "a.npz", tmp_path / "b.npz"
-    assert run("train", db, "-o", a, "--budget", "8KB", "--n-features", "16", "--dtype", "float16", "--seed", "1",
+    assert run("train", db, "-o", a, "--method", "btel-c", "--budget", "8KB", "--n-features", "16", "--dtype", "float16", "--seed", "1",
                "--no-progress").exit_code == 0
-    result = run("train", db, "-o", b, "--param", "budget=8KB", "--param", "n_features=16", "--param", "dtype=float16",
+    result = run("train", db, "-o", b, "--method", "btel-c", "--param", "budget=8KB", "--param", "n_features=16", "--param", "dtype=float16",
                  "--param", "random_state=1", "--param", "progress=false")
     assert result.exit_code == 0, result.output
     assert load(a).get_params() == load(b).get_params()
@@ -242,7 +242,7 @@ def test_train_param_fills_the_same_parameters_as_the_shortcuts(small_pair, tmp_
 @pytest.mark.parametrize(
     "args, code, message",
     [
-        (["--param", "foo=1"], 2, ["btel-c has no parameter 'foo'", "feature_ratio", "sparsity"]),
+        (["--method", "btel-c", "--param", "foo=1"], 2, ["btel-c has no parameter 'foo'", "feature_ratio", "sparsity"]),
         (["--method", "pq", "--param", "feature_ratio=0.5"], 2, ["pq has no parameter 'feature_ratio'", "nbits"]),
         (["--method", "bruteforce", "--seed", "1"], 2, ["--seed", "'random_state', which bruteforce does not have",
                                                         "budget, delta, n_jobs"]),
@@ -250,8 +250,8 @@ def test_train_param_fills_the_same_parameters_as_the_shortcuts(small_pair, tmp_
         (["--param", "pq:nbits=4"], 2, ["'pq', which is not a method of this run"]),
         (["--feature-ratio", "0.2", "--param", "feature_ratio=0.3"], 2, ["both set feature_ratio"]),
         (["--param", "n_features=4", "--param", "n_features=5"], 2, ["twice"]),
-        (["--param", "classifier=tree"], 1, ["btel-c: classifier must be one of", "svm", "logistic", "tree"]),
-        (["--param", "feature_ratio=lots"], 1, ["btel-c: feature_ratio must be None or a number > 0 and ≤ 1"]),
+        (["--method", "btel-c", "--param", "classifier=tree"], 1, ["btel-c: classifier must be one of", "svm", "logistic", "tree"]),
+        (["--method", "btel-c", "--param", "feature_ratio=lots"], 1, ["btel-c: feature_ratio must be None or a number > 0 and ≤ 1"]),
     ],
 )
 def test_train_param_errors_name_method_parameter_and_choices(args, code, message, small_pair, tmp_path: Path) -> None:

@@ -106,7 +106,7 @@ def test_cli_missing_dask_is_a_one_line_error(route, monkeypatch, tmp_path: Path
     monkeypatch.setitem(sys.modules, "distributed", None)
     np.save(tmp_path / "db.npy", route.map[:60])
     result = CliRunner().invoke(main, ["train", str(tmp_path / "db.npy"), "-o", str(tmp_path / "m.npz"),
-                                       "--backend", "dask", "--scheduler", "tcp://127.0.0.1:1"])
+                                       "--method", "btel-c", "--backend", "dask", "--scheduler", "tcp://127.0.0.1:1"])
     assert result.exit_code == 1
     assert "pip install btel[dask]" in result.stderr and "Traceback" not in result.output
 

@@ -126,7 +126,7 @@ def test_cli_train_accepts_a_shard_folder(tmp_path: Path, route) -> None:
     write_shards(tmp_path / "shards", route.map, [200, 201, 450], [f"part-{i}.npy" for i in range(4)])
     runner = CliRunner()
     for db, out in ((tmp_path / "db.npy", "a.npz"), (tmp_path / "shards", "b.npz")):
-        result = runner.invoke(main, ["train", str(db), "-o", str(tmp_path / out), "--n-features", "12",
+        result = runner.invoke(main, ["train", str(db), "-o", str(tmp_path / out), "--method", "btel-c", "--n-features", "12",
                                       "--seed", "0", "--no-progress"], catch_exceptions=False)
         assert result.exit_code == 0, result.output
         assert "600 places × 48 dims" in result.output

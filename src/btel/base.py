@@ -272,7 +272,7 @@ class PlaceLocalizer(BaseEstimator, ABC):
             )
         budget = parse_budget(getattr(self, "budget", None))
         front = FrontEnd.of(self)
-        reserved = front.planned_bytes(X.shape[1])
+        reserved = front.planned_bytes(X.shape[1], X.shape[0])
         if budget is not None and reserved >= budget:
             raise BudgetTooSmallError(
                 f"budget {format_bytes(budget)} ({budget} B) is too small for {type(self).__name__} with "

@@ -929,6 +929,9 @@ def _budget_check(method: Any, n_rows: int, n_features: int, budget: int | None)
             f"whiten = {front.whiten}: the whitening matrix alone needs {reserved} B.",
             budget=budget, minimum=reserved + 1)
     d = front.n_features_out(n_features)
+    if hasattr(method, "check_budget"):  # the method states its own rule (lsh, auto)
+        method.check_budget(n_rows, n_features, budget, reserved)
+        return
     if isinstance(method, (BruteForceNN, SeqSLAM)):
         if budget is None:
             return

@@ -20,6 +20,9 @@ stored in the model file and counted by the storage rule, so :func:`btel.load` r
   principal directions, divide by their standard deviations (scikit-learn ``PCA(whiten=True)``),
   then L2 again when ``normalize`` is not ``'none'``. Stores a d×p float32 matrix and a d float32
   mean (counted in the method's bytes).
+- ``whiten = "shrink"`` — shrinkage whitening x ↦ (Σ + λI)^(-1/2)(x − μ), then L2 (λ = 0.05 × the
+  mean eigenvalue; low rank, int8/float16, at most a quarter of the budget: :mod:`btel.shrink`).
+  Keeps the dimension d; its arrays are stored and counted like PCA whitening's.
 
 Measured (``btel experiment front-ends``; docs/results.md has every row): brute force on Gardens
 Point NetVLAD day→night, recall@0/2/10, 0.07/0.235/0.48 raw L2 → 0.155/0.48/0.755 with ``'l2'``;
@@ -50,7 +53,7 @@ MAX_DELTA = 1000
 #: The constraints of the three front-end parameters every method declares.
 FRONT_END_CONSTRAINTS: dict[str, list[Any]] = {
     "normalize": [Options(*NORMALIZATIONS)],
-    "whiten": [None, Interval(int, 1, None)],
+    "whiten": [None, Interval(int, 1, None), Options("shrink")],
     # A window of w frames keeps 2w frames per streamed query (and reads 2w·d values each frame):
     # windows are tens of frames; 1000 bounds what a model file can ask for.
     "delta": [None, Interval(int, 1, MAX_DELTA)],
@@ -263,12 +266,18 @@ class FrontEnd:
     delta: int | None = None
     mean_: np.ndarray | None = field(default=None, repr=False)
     whitening_: np.ndarray | None = field(default=None, repr=False)
+    #: The model's byte budget (sets the rank of ``whiten="shrink"``; not stored).
+    budget: int | None = field(default=None, repr=False)
+    #: ``whiten="shrink"``: mean (float16), basis (int8 d×r), basis scales and gains (float32 r).
+    shrink_: tuple | None = field(default=None, repr=False)
 
     @classmethod
     def of(cls, estimator: Any) -> "FrontEnd":
         """The (unfitted) front end an estimator's ``normalize``/``whiten``/``delta`` parameters ask for."""
+        from .storage import parse_budget
+
         return cls(getattr(estimator, "normalize", "none"), getattr(estimator, "whiten", None),
-                   getattr(estimator, "delta", None))
+                   getattr(estimator, "delta", None), budget=parse_budget(getattr(estimator, "budget", None)))
 
     @property
     def is_identity(self) -> bool:
@@ -295,7 +304,12 @@ class FrontEnd:
     def fit_transform(self, X: np.ndarray, starts: np.ndarray | None = None) -> np.ndarray:
         """Learn the whitening (if any) on the map and return the transformed map, float32 (n, d_out)."""
         Z = self._frames(X, starts)
-        if self.whiten is not None:
+        if self.whiten == "shrink":
+            from .shrink import fit_shrink, shrink_rank
+
+            self.shrink_ = fit_shrink(Z, shrink_rank(Z.shape[1], Z.shape[0], self.budget))
+            self._shrink_basis = None
+        elif self.whiten is not None:
             from sklearn.decomposition import PCA
 
             n, d = Z.shape
@@ -311,6 +325,17 @@ class FrontEnd:
         return self._whitened(Z)
 
     def _whitened(self, Z: np.ndarray) -> np.ndarray:
+        if self.shrink_ is not None:
+            from .shrink import apply_shrink
+
+            mean, basis, scale, gains = self.shrink_
+            if getattr(self, "_shrink_basis", None) is None:  # runtime cache of the dequantised basis
+                self._shrink_basis = basis.astype(np.float32) * scale
+            out = np.empty(Z.shape, dtype=np.float32)
+            for start in range(0, Z.shape[0], _CHUNK_ROWS):
+                out[start : start + _CHUNK_ROWS] = apply_shrink(Z[start : start + _CHUNK_ROWS], mean, basis, scale,
+                                                                gains, self._shrink_basis)
+            return normalize_rows(out, "none" if self.normalize == "none" else "l2")
         if self.whitening_ is None:
             return Z
         out = np.empty((Z.shape[0], self.whitening_.shape[1]), dtype=np.float32)
@@ -343,6 +368,8 @@ class FrontEnd:
     # -- storage --------------------------------------------------------------------------------
     def arrays(self) -> dict[str, np.ndarray]:
         """The stored arrays (empty without whitening)."""
+        if self.shrink_ is not None:
+            return dict(zip(_SHRINK_ARRAYS, self.shrink_))
         if self.whitening_ is None:
             return {}
         return {"frontend_mean": self.mean_, "frontend_whitening": self.whitening_}
@@ -351,15 +378,26 @@ class FrontEnd:
     def nbytes(self) -> int:
         return int(sum(a.nbytes for a in self.arrays().values()))
 
-    def planned_bytes(self, n_features: int) -> int:
+    def planned_bytes(self, n_features: int, n_rows: int | None = None) -> int:
         """Bytes the fitted front end will store for d = ``n_features`` (known before fitting)."""
+        if self.whiten == "shrink":
+            from .shrink import shrink_bytes, shrink_rank
+
+            return shrink_bytes(n_features, shrink_rank(n_features, n_rows, self.budget))
         return 0 if self.whiten is None else int(n_features) * (int(self.whiten) + 1) * 4
 
     def n_features_out(self, n_features: int) -> int:
-        return int(n_features) if self.whiten is None else int(self.whiten)
+        return int(n_features) if self.whiten in (None, "shrink") else int(self.whiten)
 
     def to_header(self) -> dict[str, Any]:
         return {"normalize": self.normalize, "whiten": self.whiten, "delta": self.delta}
+
+    def describe(self) -> str:
+        """One line: the front end's steps (and the shrinkage rank)."""
+        white = self.whiten
+        if self.shrink_ is not None:
+            white = f"shrink (rank {self.shrink_[1].shape[1]}, {self.nbytes} B)"
+        return f"normalize={self.normalize}, whiten={white}, delta={self.delta}"
 
     @classmethod
     def restore(cls, header: Any, arrays: dict[str, np.ndarray], n_features: int) -> "FrontEnd":
@@ -374,6 +412,9 @@ class FrontEnd:
             except InvalidParameterError as exc:
                 raise ModelFileError(f"the model file's front end is invalid: {exc}") from exc
         front = cls(header["normalize"], header["whiten"], header["delta"])
+        if front.whiten == "shrink":
+            front.shrink_ = _restore_shrink(arrays, n_features)
+            return front
         mean, matrix = arrays.pop("frontend_mean", None), arrays.pop("frontend_whitening", None)
         if front.whiten is None:
             if mean is not None or matrix is not None:
@@ -389,6 +430,30 @@ class FrontEnd:
             raise ModelFileError("the model file's whitening arrays contain NaN or infinite values.")
         front.mean_, front.whitening_ = mean, matrix
         return front
+
+
+#: Names of the stored arrays of ``whiten="shrink"``.
+_SHRINK_ARRAYS = ("frontend_shrink_mean", "frontend_shrink_basis", "frontend_shrink_scale", "frontend_shrink_gains")
+
+
+def _restore_shrink(arrays: dict[str, np.ndarray], n_features: int) -> tuple:
+    """The shrinkage arrays of a model file, checked (ModelFileError if not as fit writes them)."""
+    parts = [arrays.pop(name, None) for name in _SHRINK_ARRAYS]
+    if any(p is None for p in parts):
+        raise ModelFileError("the model file says whiten='shrink' but lacks its arrays "
+                             f"({', '.join(n for n, p in zip(_SHRINK_ARRAYS, parts) if p is None)}).")
+    mean, basis, scale, gains = parts
+    if basis.ndim != 2:
+        raise ModelFileError("the model file's shrinkage basis is not a matrix.")
+    r = basis.shape[1]
+    if mean.shape != (n_features,) or mean.dtype != np.float16 or basis.shape != (n_features, r) \
+            or basis.dtype != np.int8 or scale.shape != (r,) or gains.shape != (r,) \
+            or scale.dtype != np.float32 or gains.dtype != np.float32:
+        raise ModelFileError(f"the model file's shrinkage arrays do not match d = {n_features} (float16 mean, "
+                             "int8 d×r basis, float32 scales and gains expected).")
+    if not all(np.isfinite(a).all() and float(np.abs(a).max(initial=0)) <= 1e6 for a in (mean, scale, gains)):
+        raise ModelFileError("the model file's shrinkage arrays contain NaN, infinite or out-of-range values.")
+    return mean, basis, scale, gains
 
 
 class FrontEndStream:

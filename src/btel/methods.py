@@ -18,6 +18,7 @@ from typing import Any, Callable
 
 from ._validation import Instance, check_params, read_state_int
 from .base import PlaceLocalizer
+from .auto import AutoLocalizer
 from .baselines import BASELINES, PQLocalizer
 from .codes import CodeLocalizer
 from .exceptions import BTELError, InvalidParameterError, ModelFileError, ResourceLimitError
@@ -37,6 +38,7 @@ METHODS: dict[str, Callable[..., PlaceLocalizer]] = {
     "btel-codes": partial(CodeLocalizer, code="periodic"),
     "ryth": RYTHLocalizer,
     **BASELINES,
+    "auto": AutoLocalizer,
 }
 
 #: One line per method (``btel methods``).
@@ -52,7 +54,11 @@ DESCRIPTIONS: dict[str, str] = {
     "pq": "product quantisation (faiss), the most code bits that fit the budget",
     "opq": "optimised PQ: a learned rotation, then PQ (faiss)",
     "itq": "iterative quantisation to binary codes, Hamming search (faiss)",
+    "lsh": "seeded sign random projections filling the budget (projection from the seed, 0 B), "
+           "asymmetric scoring (projected query · ±1 codes) or Hamming",
     "seqslam": "SeqSLAM sequence matching over a uint8 map (uses the query sequence)",
+    "auto": "the method, code family and front end chosen from the map and the budget alone (btel.auto): "
+            "output codes on routes, whitened brute force or LSH on independent places",
 }
 
 #: Model classes :func:`load` accepts, by the class name recorded in a file.

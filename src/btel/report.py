@@ -31,6 +31,7 @@ _TITLES = {
     "beyond": "Beyond the paper: BTEL variants vs quantisers at the same bytes (the ladder)",
     "front-ends": "Front ends: normalisation, delta descriptors and whitening, for every method",
     "codes": "Output codes beyond the binary index (btel-codes) vs quantisers, 1 KB … 1 MB",
+    "frontier": "The accuracy-per-byte frontier: every method × 1 KB … 1 MB, routes and independent places, auto",
 }
 _TOLERANCES = (0, 1, 2, 5, 10, 20)
 _MARKER = re.compile(r"<!-- (?P<name>[\w-]+):start -->.*?<!-- (?P=name):end -->", re.S)
@@ -224,6 +225,10 @@ def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path
             from .experiments.codes import report_lines
 
             lines += report_lines(payload, docs_dir)
+        elif name == "frontier":
+            from .experiments.frontier import report_lines as frontier_lines
+
+            lines += frontier_lines(payload, docs_dir)
         else:
             extra = {"accuracy": ["direction"], "sequence-filter": ["window"]}.get(name, [])
             lines += _table(rows, extra) + [""]
@@ -231,7 +236,7 @@ def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path
             target = figures / f"{name}-{png.name}"
             shutil.copyfile(png, target)
             lines += [f"![{name} {png.stem}](figures/{target.name})", ""]
-        reading = [] if name in ("beyond", "front-ends", "codes") else _reading(name, rows)
+        reading = [] if name in ("beyond", "front-ends", "codes", "frontier") else _reading(name, rows)
         if reading:
             lines += ["Reading (computed from the table):", ""] + [f"- {s}" for s in reading] + [""]
     missing = [name for name in EXPERIMENTS if name not in found]

@@ -5,6 +5,13 @@ The storage rule (SPEC §7), for every method in btel: **a model's storage is th
 holds exactly those arrays plus a small JSON header, so ``file size − reported bytes`` is only
 the container overhead (a few hundred bytes per array; checked ≤ 4 KiB in the tests).
 
+The same rule, stated once for every method: **anything regenerated from a recorded seed costs 0
+bytes** (btel-codes' codewords, regenerated from (family, N, K, seed); lsh's d×P Gaussian
+projection, regenerated from its seed), **and anything learned is counted at its stored width**
+(weights, codebooks, rotations, codes, and every front-end array: PCA whitening at float32,
+shrinkage whitening's float16 mean and int8 basis). Runtime caches built from stored arrays
+(dequantised weights, unpacked codes, faiss indexes) are memory, not storage.
+
 Model files are uncompressed ``.npz`` archives. The header is stored as a uint8 array named
 ``__btel_header__`` that holds UTF-8 JSON with the format name, the format version, the model
 class and its parameters. A file is untrusted input: :func:`load_arrays` reads it with its own

@@ -10,6 +10,7 @@ bruteforce :class:`BruteForceNN`        N×d float32; exact L2
 pq         :class:`PQLocalizer`         codes + codebooks (+ d×p PCA); most code bits that fit
 opq        :class:`OPQLocalizer`        codes + codebooks + d×p rotation
 itq        :class:`ITQLocalizer`        binary codes + d×b projection + mean; Hamming distance
+lsh        :class:`LSHLocalizer`        N×P sign bits (+ d float16 mean); projection from its seed, 0 B
 seqslam    :class:`SeqSLAM`             N×d uint8; sequences of ds = 10 frames
 ========== ============================ ==========================================================
 """
@@ -20,6 +21,7 @@ from ..base import PlaceLocalizer
 from ._common import quiet_faiss
 from .bruteforce import BruteForceNN
 from .itq import ITQLocalizer
+from .lsh import LSHLocalizer
 from .opq import OPQLocalizer
 from .pq import PQConfig, PQLocalizer
 from .seqslam import SeqSLAM, enhance_contrast, seqslam_match, sequence_costs
@@ -31,6 +33,7 @@ __all__ = [
     "PQConfig",
     "OPQLocalizer",
     "ITQLocalizer",
+    "LSHLocalizer",
     "SeqSLAM",
     "seqslam_match",
     "enhance_contrast",
@@ -44,5 +47,6 @@ BASELINES: dict[str, type[PlaceLocalizer]] = {
     "pq": PQLocalizer,
     "opq": OPQLocalizer,
     "itq": ITQLocalizer,
+    "lsh": LSHLocalizer,
     "seqslam": SeqSLAM,
 }

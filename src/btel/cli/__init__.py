@@ -434,7 +434,7 @@ def _extract_delta(images_dir: str, output: str, model: Any, fit_on: str | None,
 @click.argument("db", type=click.Path())
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Model file to write (.npz).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing OUTPUT model file.")
-@click.option("--method", default="btel-c", show_default=True, help="Method name (see `btel methods`).")
+@click.option("--method", default="auto", show_default=True, help="Method name (see `btel methods`).")
 @click.option("--budget", default=None, help="Byte budget, e.g. 500KB, 2MB, 64KiB.")
 @click.option("--param", "param_texts", multiple=True, metavar="NAME=VALUE", help=_PARAM_HELP)
 @click.option("--regions", default=None, help="BTEL: number of regions r, or 'auto'.")
@@ -629,7 +629,7 @@ def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_time
               help="A saved model to evaluate instead of fitting (repeatable).")
 @click.option("--queries", required=True, type=click.Path(dir_okay=False),
               help="Query descriptors, one query per row (same formats as --db).")
-@click.option("--methods", default="btel-c", show_default=True, help="Comma-separated method names (with --db).")
+@click.option("--methods", default="auto", show_default=True, help="Comma-separated method names (with --db).")
 @click.option("--budget", default=None, help=_BUDGET_HELP)
 @click.option("--no-reference", is_flag=True, help=_REFERENCE_HELP)
 @click.option("--param", "param_texts", multiple=True, metavar="[METHOD:]NAME=VALUE", help=_PARAMS_HELP)

@@ -17,6 +17,7 @@ name                module                          what
 ``beyond``          :mod:`.beyond`                  the paper's variants against quantisation at the same bytes
 ``front-ends``      :mod:`.front_ends`              every front end (normalisation, delta, whitening) × method × read-out
 ``codes``           :mod:`.codes`                   output codes (btel-codes, every family and width) vs quantisers, 1 KB … 1 MB
+``frontier``        :mod:`.frontier`                every method × 1 KB … 1 MB on routes and independent places; auto vs the oracle
 =================== =============================== ====================================================================
 
 Every row carries the method's bytes. A method that cannot fit a budget is reported as such (with
@@ -43,6 +44,7 @@ from .beyond import exp_beyond
 from .codes import exp_codes
 from .feature_ratio import exp_feature_ratio
 from .front_ends import exp_front_ends
+from .frontier import exp_frontier
 from .regions import exp_regions
 from .sequence_filter import exp_sequence_filter
 from .vs_budget import exp_vs_budget
@@ -60,11 +62,12 @@ EXPERIMENTS: dict[str, Callable[[NordlandData, Path, bool], ExperimentRun]] = {
     "beyond": exp_beyond,
     "front-ends": exp_front_ends,
     "codes": exp_codes,
+    "frontier": exp_frontier,
 }
 
 
 #: Experiments that choose every method's front end themselves (they refuse a global override).
-SELF_CONTAINED = ("beyond", "front-ends", "codes")
+SELF_CONTAINED = ("beyond", "front-ends", "codes", "frontier")
 
 
 def run_experiment(name: str, *, data_root: str | Path | None = None, out_dir: str | Path = "runs/experiments",

@@ -1,0 +1,276 @@
+"""Experiment "frontier": every method × budgets on routes and on independent places, and auto's choice (issue #21).
+
+``btel experiment frontier`` measures, in one run, the key recall of every registered method (plus
+asymmetric / Hamming LSH, LSH and brute force on shrinkage-whitened rows, and random output codes)
+at budgets 1 KB … 1 MB on six maps:
+
+============================== ======================= ============ ==================================
+data set                       map                     key          why
+============================== ======================= ============ ==================================
+Gardens Point day→night        NetVLAD 500-D, N = 200  recall@2     a route (the issue's target)
+Gardens Point, permuted        the same rows, map and  recall@0     a real map of independent places
+                               queries permuted alike
+Nordland summer→winter, and    HOG 3780-D, N = 3576    recall@10    the paper's route (10 frames ≈ 2 km)
+winter→summer
+synthetic route                256-D, N = 2048         recall@2     a route with regions
+synthetic independent places   256-D, N = 1000,        recall@0     independent places
+                               rows permuted
+============================== ======================= ============ ==================================
+
+Per map and budget the *oracle* is the best row of the table at that budget (every method and
+variant that fits); ``auto`` (:mod:`btel.auto`) chooses from the map and the budget alone, and the
+run reports its choice, its recall, the oracle's and their ratio (the issue's target: ≥ 0.95 × the
+best and ≥ asymmetric LSH). Brute force (cosine, and on shrinkage-whitened rows) is the unbudgeted
+reference of every map.
+
+Cost control (≤ 15 min on 2 cores): the registered methods whose fit takes tens of seconds to
+minutes on the larger maps (BTE-C, BTE-F, BTEL with regions, btel-auto, RYTH, OPQ, SeqSLAM) run at
+64 KB only, and on Nordland in the summer→winter direction only (the codes and beyond experiments
+have their other budgets); the fast ones (auto, LSH, btel-codes, PQ, ITQ, brute force) run at every
+budget on every map. Every finished row is appended to ``rows.jsonl`` as it comes.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..evaluation import recall_at_tolerance
+from ..exceptions import BudgetTooSmallError
+from ..methods import make_method
+from ..storage import check_within_budget, format_bytes, parse_budget
+from ._common import SEASONS, ExperimentRun, NordlandData
+
+__all__ = ["exp_frontier", "auto_vs_oracle", "DATASETS"]
+
+BUDGETS = ("1KB", "4KB", "16KB", "64KB", "256KB", "1MB")
+SLOW_BUDGETS = ("64KB",)
+#: (label, registry name, params): run at every budget on every map.
+FAST = (
+    ("auto", "auto", {}),
+    ("lsh", "lsh", {}),
+    ("lsh shrink", "lsh", {"whiten": "shrink"}),
+    ("lsh hamming", "lsh", {"scoring": "hamming"}),
+    ("btel-codes", "btel-codes", {}),
+    ("btel-codes random", "btel-codes", {"code": "random"}),
+    ("pq", "pq", {}),
+    ("itq", "itq", {}),
+    ("bruteforce", "bruteforce", {}),
+    ("bruteforce shrink", "bruteforce", {"whiten": "shrink"}),
+)
+#: Registered methods whose fit is slow on large maps (module docstring).
+SLOW = (
+    ("btel-c", "btel-c", {}),
+    ("btel-f", "btel-f", {}),
+    ("btel-r", "btel-r", {}),
+    ("btel-auto", "btel-auto", {}),
+    ("ryth", "ryth", {}),
+    ("opq", "opq", {}),
+    ("seqslam", "seqslam", {}),
+)
+DATASETS = ("gardens-point", "gardens-point-permuted", "nordland summer→winter", "nordland winter→summer",
+            "synthetic route", "synthetic independent")
+
+
+def _row(base: dict[str, Any], label: str, name: str, params: dict[str, Any], X: np.ndarray, Q: np.ndarray,
+         budget: int | None) -> dict[str, Any]:
+    row = {**base, "direction": base["dataset"], "method": label, "registry_name": name, "options": dict(params), "budget": budget}
+    model = make_method(name, **({"budget": budget} if budget is not None else {}), **params)
+    if "progress" in model.get_params(deep=False):
+        model.set_params(progress=False)
+    start = time.perf_counter()
+    try:
+        model.fit(X)
+    except BudgetTooSmallError as exc:
+        return {**row, "status": f"does not fit (needs ≥ {exc.minimum} B)", "nbytes": None,
+                "minimum_bytes": int(exc.minimum or 0)}
+    fit_s = time.perf_counter() - start
+    check_within_budget(label, model.nbytes, budget)
+    start = time.perf_counter()
+    pred = model.predict(Q)
+    query_us = (time.perf_counter() - start) / Q.shape[0] * 1e6
+    recalls = {f"recall@{t}": v for t, v in recall_at_tolerance(pred, np.arange(Q.shape[0]), (0, 2, 10, 20)).items()}
+    out = {**row, "status": "ok", "nbytes": int(model.nbytes), "bytes_per_place": model.nbytes / X.shape[0],
+           "fit_s": fit_s, "query_us": query_us, **recalls, "value": recalls[base["key"]],
+           "uses_query_sequence": bool(model.uses_query_sequence)}
+    if name == "auto":
+        out["chose"] = model.choice_["method"] + "".join(f" {k}={v}" for k, v in model.choice_["params"].items())
+        out["route_share"] = model.choice_["route_share"]
+        out["reason"] = model.choice_["reason"]
+    return out
+
+
+def _maps(data: NordlandData, quick: bool) -> list[tuple[dict[str, Any], np.ndarray, np.ndarray]]:
+    from ..datasets import synthetic_route
+
+    out = []
+    gp = data.root.parent / "gardenspoint_netvlad" / "hiddenRepr-GardensPoint.npz"
+    if gp.is_file():
+        with np.load(gp, allow_pickle=False) as z:
+            X, Q = z["hlrTrain"].astype(np.float32), z["hlrTest"].astype(np.float32)
+        out.append(({"dataset": "gardens-point", "regime": "route", "key": "recall@2",
+                     "descriptor": "NetVLAD 500-D"}, X, Q))
+        perm = np.random.default_rng(0).permutation(X.shape[0])
+        out.append(({"dataset": "gardens-point-permuted", "regime": "independent", "key": "recall@0",
+                     "descriptor": "NetVLAD 500-D"}, X[perm], Q[perm]))
+    if not quick:
+        for map_season in SEASONS:
+            query_season = SEASONS[1 - SEASONS.index(map_season)]
+            X, Q = data.features(map_season, "hog"), data.features(query_season, "hog")
+            n = min(len(X), len(Q))
+            out.append(({"dataset": f"nordland {map_season}→{query_season}", "regime": "route", "key": "recall@10",
+                         "descriptor": "HOG 3780-D"}, X[:n], Q[:n]))
+    n_route, n_indep = (256, 200) if quick else (2048, 1000)
+    route = synthetic_route(n_route, 64 if quick else 256, condition_shift=1.0, seed=7)
+    out.append(({"dataset": "synthetic route", "regime": "route", "key": "recall@2",
+                 "descriptor": f"synthetic {route.map.shape[1]}-D"}, route.map, route.queries))
+    other = synthetic_route(n_indep, 64 if quick else 256, condition_shift=1.0, seed=11)
+    perm = np.random.default_rng(1).permutation(n_indep)
+    out.append(({"dataset": "synthetic independent", "regime": "independent", "key": "recall@0",
+                 "descriptor": f"synthetic {other.map.shape[1]}-D, rows permuted"}, other.map[perm],
+                other.queries[perm]))
+    return out
+
+
+def auto_vs_oracle(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per map and budget: auto's choice and value, the oracle (best row), asymmetric LSH, and the targets."""
+    out = []
+    for dataset in dict.fromkeys(r["dataset"] for r in rows):
+        sub = [r for r in rows if r["dataset"] == dataset and r.get("budget") and r.get("status") == "ok"]
+        for budget in sorted({r["budget"] for r in sub}):
+            here = [r for r in sub if r["budget"] == budget]
+            auto = next((r for r in here if r["method"] == "auto"), None)
+            others = [r for r in here if r["method"] != "auto"] or here
+            best = max(others, key=lambda r: r["value"])  # auto refits one of the others: never its own oracle
+            registered = [r for r in here if r["method"] == r["registry_name"] and r["method"] != "auto"]
+            best_registered = max(registered, key=lambda r: r["value"]) if registered else None
+            lsh = next((r for r in here if r["method"] == "lsh"), None)
+            entry = {"dataset": dataset, "budget": budget, "key": here[0]["key"],
+                     "best": best["method"], "best_value": best["value"],
+                     "best_registered": best_registered["method"] if best_registered else None,
+                     "best_registered_value": best_registered["value"] if best_registered else None,
+                     "lsh": lsh["value"] if lsh else None}
+            if auto is not None:
+                entry.update({"auto": auto["value"], "auto_chose": auto["chose"], "route_share": auto["route_share"],
+                              "ratio": auto["value"] / best["value"] if best["value"] > 0 else 1.0,
+                              "meets_0.95": auto["value"] >= 0.95 * best["value"] - 1e-12,
+                              "meets_lsh": lsh is None or auto["value"] >= lsh["value"] - 1e-12})
+            out.append(entry)
+    return out
+
+
+def _plots(rows: list[dict[str, Any]], out: Path) -> None:
+    """Key recall vs stored bytes and vs bytes per place, one panel per map."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+    from matplotlib.ticker import FuncFormatter
+
+    datasets = list(dict.fromkeys(r["dataset"] for r in rows))
+    for xkey, fname, xlabel in (("nbytes", "frontier_recall_vs_bytes.png", "stored bytes"),
+                                ("bytes_per_place", "frontier_recall_vs_bytes_per_place.png", "stored bytes per place")):
+        cols = 3
+        fig = Figure(figsize=(15, 4.2 * ((len(datasets) + cols - 1) // cols)), dpi=100)
+        FigureCanvasAgg(fig)
+        for i, dataset in enumerate(datasets):
+            ax = fig.add_subplot((len(datasets) + cols - 1) // cols, cols, i + 1)
+            sub = [r for r in rows if r["dataset"] == dataset and r.get("status") == "ok"]
+            for label in dict.fromkeys(r["method"] for r in sub):
+                pts = sorted((r[xkey], r["value"]) for r in sub if r["method"] == label)
+                style = {"linewidth": 3, "color": "black"} if label == "auto" else {"linewidth": 1}
+                ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="*" if label.startswith("brute") else "o",
+                        markersize=4, label=label, **style)
+            ax.set_xscale("log")
+            if xkey == "nbytes":
+                ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _p: format_bytes(v)))
+            ax.set_title(f"{dataset} ({sub[0]['key'] if sub else ''})", fontsize="medium")
+            ax.set_xlabel(xlabel)
+            ax.set_ylim(0, 1.02)
+            ax.grid(True, which="both", alpha=0.3)
+            if i == 0:
+                ax.legend(fontsize="xx-small", ncol=2)
+        fig.tight_layout()
+        fig.savefig(out / fname)
+
+
+def exp_frontier(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:
+    """Every method × budgets on six maps, auto against the oracle (module docstring)."""
+    out.mkdir(parents=True, exist_ok=True)
+    log = (lambda msg: print(f"  {msg}", flush=True)) if data.progress else (lambda msg: None)
+    budgets = ("4KB", "64KB") if quick else BUDGETS
+    rows: list[dict[str, Any]] = []
+    seconds: dict[str, float] = {}
+    journal = out / "rows.jsonl"
+    journal.write_text("")
+
+    def keep(row: dict[str, Any]) -> None:
+        import json
+
+        with open(journal, "a") as fh:
+            fh.write(json.dumps(row, default=str) + "\n")
+
+    for base, X, Q in _maps(data, quick):
+        start = time.perf_counter()
+        base = {**base, "n_places": int(X.shape[0])}
+        for label, name, params in FAST[:5] if quick else FAST:
+            for budget in budgets:
+                rows.append(_row(base, label, name, params, X, Q, parse_budget(budget)))
+                keep(rows[-1])
+        slow_budgets = () if quick or base["dataset"] == "nordland winter→summer" else SLOW_BUDGETS
+        for label, name, params in SLOW:
+            for budget in slow_budgets:
+                rows.append(_row(base, label, name, params, X, Q, parse_budget(budget)))
+                keep(rows[-1])
+        for label, params in (("brute force (cosine)", {}), ("brute force shrink", {"whiten": "shrink"})):
+            rows.append(_row(base, label, "bruteforce", params, X, Q, None))
+            keep(rows[-1])
+        seconds[base["dataset"]] = time.perf_counter() - start
+        auto = [r for r in rows if r["dataset"] == base["dataset"] and r["method"] == "auto" and r["status"] == "ok"]
+        log(f"{base['dataset']}: {seconds[base['dataset']]:.0f} s; auto " +
+            ", ".join(f"{format_bytes(r['budget'])} {r['chose']} {r['value']:.3f}" for r in auto))
+    _plots(rows, out)
+    run = ExperimentRun("frontier", rows, out)
+    run.extra = {"auto_vs_oracle": auto_vs_oracle(rows), "part_seconds": seconds}
+    return run
+
+
+# -- the docs/results.md section (called by btel.report) ---------------------------------------------
+def report_lines(payload: dict[str, Any], docs_dir: Path) -> list[str]:
+    """The "frontier" section of docs/results.md: who wins where, auto against the oracle, every table."""
+    rows = payload["rows"]
+    verdicts = payload.get("auto_vs_oracle", [])
+    lines = ["Key recall per map (route maps: recall within 2 frames, Nordland within 10; independent places: "
+             "exact place, recall@0). Oracle = the best row of the table at that budget (every method and variant "
+             "that fits); auto chooses from the map and budget alone.", "",
+             "| map | budget | best (oracle) | best registered method | asymmetric LSH | auto's choice | auto | "
+             "auto / best | ≥ 0.95 × best | ≥ LSH |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for v in verdicts:
+        reg = "" if v["best_registered"] is None else f"{v['best_registered']} {v['best_registered_value']:.3f}"
+        lsh = "" if v["lsh"] is None else f"{v['lsh']:.3f}"
+        if "auto" in v:
+            lines.append(f"| {v['dataset']} | {format_bytes(v['budget'])} | {v['best']} {v['best_value']:.3f} | {reg} | "
+                         f"{lsh} | {v['auto_chose']} | {v['auto']:.3f} | {v['ratio']:.2f} | "
+                         f"{'yes' if v['meets_0.95'] else '**no**'} | {'yes' if v['meets_lsh'] else '**no**'} |")
+        else:
+            lines.append(f"| {v['dataset']} | {format_bytes(v['budget'])} | {v['best']} {v['best_value']:.3f} | {reg} | "
+                         f"{lsh} | does not fit | | | | |")
+    lines.append("")
+    for dataset in dict.fromkeys(r["dataset"] for r in rows):
+        sub = [r for r in rows if r["dataset"] == dataset]
+        budgets = sorted({r["budget"] for r in sub if r.get("budget")})
+        key = sub[0]["key"]
+        lines += [f"### {dataset} ({sub[0]['descriptor']}, N = {sub[0]['n_places']}): {key}", "",
+                  "| method | " + " | ".join(format_bytes(b) for b in budgets) + " |", "|---|" + "---|" * len(budgets)]
+        for method in dict.fromkeys(r["method"] for r in sub if r.get("budget")):
+            cells = []
+            for b in budgets:
+                r = next((r for r in sub if r["method"] == method and r.get("budget") == b), None)
+                cells.append("" if r is None else (f"{r['value']:.3f}" if r["status"] == "ok" else "–"))
+            lines.append(f"| {method} | " + " | ".join(cells) + " |")
+        refs = [r for r in sub if r.get("budget") is None and r.get("status") == "ok"]
+        lines.append("")
+        lines += [f"Reference (no budget): {r['method']} {r[key]:.3f} at {format_bytes(r['nbytes'])}." for r in refs]
+        lines.append("")
+    return lines

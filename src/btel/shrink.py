@@ -1,0 +1,111 @@
+"""Shrinkage whitening (``whiten="shrink"``): x ↦ (Σ + λI)^(-1/2)(x − μ), then L2, low-rank and counted.
+
+Σ is the covariance of the (normalised) map rows, μ their mean. The rule, fixed in advance (issue
+#21) and the same for every method and map:
+
+- λ = :data:`SHRINK_LAMBDA` (1.0) × the mean eigenvalue of Σ (its trace / d);
+- rank r: the top r eigenvalues s_1 ≥ … ≥ s_r of Σ are shrunk exactly; every other eigenvalue is
+  taken to equal s_{r+1} (a partial whitening: the r dominant directions are flattened down to the
+  level of the next one, the rest of the space is scaled uniformly). r is the largest rank whose
+  stored arrays fit in :data:`SHRINK_BUDGET_SHARE` (a quarter) of the model's budget, at most
+  :data:`SHRINK_MAX_RANK` (32) and at most min(d, n_rows − 2); without a budget r is that cap.
+  With r = 0 the transform is centring only.
+
+The rule was fixed on Gardens Point NetVLAD (day→night, N = 200, d = 500) and Nordland HOG
+(summer→winter, N = 3576, d = 3780) with brute force on the whitened rows, before the frontier
+experiment ran: taking the discarded eigenvalues as their *mean* (the first version) fell to
+R@2 0.30 at r = 32 on Gardens Point, while s_{r+1} gave 0.545 / 0.555 / 0.52 at r = 8 / 32 / 199
+(cosine 0.48) for λ = 1 × mean eigenvalue; λ = 0.05 gave 0.425 at full rank. On Nordland R@10
+(tolerance 10) went 0.381 (cosine) → 0.480 / 0.468 / 0.406 at r = 8 / 32 / 255: a small rank is
+what helps, hence the cap of 32.
+
+Because the result is L2-normalised, a global scale does not matter and the transform is stored as
+
+    y ∝ z + U (g ⊙ (Uᵀ z)),   z = x − μ,   g_j = sqrt((ρ + λ) / (s_j + λ)) − 1,
+
+with U the d×r eigenvectors. Stored (all counted by the storage rule): μ as d float16 values,
+U as d×r int8 with one float32 scale per column, g as r float32 values — d·2 + r·(d + 8) bytes.
+
+Measured: ``btel experiment frontier`` (docs/results.md), brute force on shrinkage-whitened rows
+beside cosine brute force.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["SHRINK_LAMBDA", "SHRINK_BUDGET_SHARE", "SHRINK_MAX_RANK", "shrink_rank", "shrink_bytes",
+           "fit_shrink", "apply_shrink"]
+
+#: λ as a fraction of the mean eigenvalue of the map covariance.
+SHRINK_LAMBDA = 1.0
+#: At most this share of a model's budget goes to the whitening arrays.
+SHRINK_BUDGET_SHARE = 0.25
+#: Most eigenvectors kept.
+SHRINK_MAX_RANK = 32
+
+
+def shrink_bytes(n_features: int, rank: int) -> int:
+    """Stored bytes of a rank-r shrinkage whitening of d features: 2d + r(d + 8)."""
+    return 2 * int(n_features) + int(rank) * (int(n_features) + 8)
+
+
+def shrink_rank(n_features: int, n_rows: int | None, budget: int | None) -> int:
+    """The rank r the rule gives (module docstring)."""
+    cap = min(SHRINK_MAX_RANK, int(n_features))
+    if n_rows is not None:
+        cap = min(cap, max(int(n_rows) - 2, 0))
+    if budget is None:
+        return cap
+    share = int(SHRINK_BUDGET_SHARE * budget) - 2 * int(n_features)
+    return int(max(0, min(cap, share // (int(n_features) + 8))))
+
+
+def fit_shrink(Z: np.ndarray, rank: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Learn the stored arrays from the map rows ``Z`` (n, d) float32.
+
+    Returns
+    -------
+    mean : ndarray of shape (d,), float16
+    basis : ndarray of shape (d, r), int8
+    basis_scale : ndarray of shape (r,), float32
+    gains : ndarray of shape (r,), float32
+    """
+    n, d = Z.shape
+    mean64 = Z.mean(axis=0, dtype=np.float64)
+    mean = mean64.astype(np.float16)
+    centred = np.asarray(Z, dtype=np.float64) - mean.astype(np.float64)
+    trace = float(np.einsum("ij,ij->", centred, centred)) / max(n - 1, 1)
+    lam = SHRINK_LAMBDA * trace / d
+    if rank == 0:
+        empty = np.zeros((d, 0), dtype=np.int8)
+        return mean, empty, np.zeros(0, dtype=np.float32), np.zeros(0, dtype=np.float32)
+    # Top eigenvectors of the covariance = right singular vectors of the centred rows.
+    if rank + 1 < min(n, d) // 2 and min(n, d) > 500:
+        from sklearn.utils.extmath import randomized_svd
+
+        _, sv, vt = randomized_svd(centred, rank + 1, random_state=0)
+    else:
+        _, sv, vt = np.linalg.svd(centred, full_matrices=False)
+    eig_all = sv**2 / max(n - 1, 1)
+    eig, vt = eig_all[:rank], vt[:rank]
+    rest = float(eig_all[rank]) if eig_all.size > rank else 0.0
+    gains = (np.sqrt((rest + lam) / (eig + lam)) - 1.0).astype(np.float32)
+    U = vt.T  # (d, r), orthonormal columns
+    scale = np.maximum(np.abs(U).max(axis=0), 1e-12) / 127.0
+    basis = np.clip(np.rint(U / scale), -127, 127).astype(np.int8)
+    return mean, basis, scale.astype(np.float32), gains
+
+
+def apply_shrink(Z: np.ndarray, mean: np.ndarray, basis: np.ndarray, basis_scale: np.ndarray,
+                 gains: np.ndarray, U: np.ndarray | None = None) -> np.ndarray:
+    """The (unnormalised) whitened rows z + U(g ⊙ Uᵀz), z = Z − μ, float32 (n, d).
+
+    ``U`` is the dequantised basis (a runtime cache; built from ``basis`` and ``basis_scale`` when None).
+    """
+    z = np.asarray(Z, dtype=np.float32) - mean.astype(np.float32)
+    if basis.shape[1] == 0:
+        return z
+    if U is None:
+        U = basis.astype(np.float32) * basis_scale
+    return z + ((z @ U) * gains) @ U.T

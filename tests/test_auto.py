@@ -1,0 +1,96 @@
+"""auto: the method chosen from the map and budget alone, recorded in the model file and summary."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import btel
+from btel.auto import ROUTE_SHARE, choose_method, route_share
+from btel.exceptions import BudgetTooSmallError, ModelFileError
+from btel.methods import make_method
+
+
+@pytest.fixture(scope="module")
+def smooth_route():
+    """A route whose consecutive rows look alike (a random walk), and the same rows permuted."""
+    rng = np.random.default_rng(0)
+    X = np.cumsum(rng.normal(size=(300, 32)), axis=0).astype(np.float32) + 20
+    Q = X + 0.3 * rng.normal(size=X.shape).astype(np.float32)
+    return X, Q
+
+
+def test_route_share_separates_a_route_from_its_permutation(smooth_route) -> None:
+    X, _ = smooth_route
+    perm = np.random.default_rng(1).permutation(X.shape[0])
+    assert route_share(X) > 0.9 and route_share(X[perm]) < 0.1
+    # Place labels count, not row numbers: two traverses of one route are still a route.
+    assert route_share(np.concatenate([X, X + 0.01]), np.concatenate([np.arange(300)] * 2)) > 0.9
+
+
+def test_the_rule_uses_no_queries_and_records_why(smooth_route) -> None:
+    X, _ = smooth_route
+    route = choose_method(X, None, 300, 4_000)
+    assert route[0]["method"] == "btel-codes" and route[0]["route_share"] >= ROUTE_SHARE
+    perm = np.random.default_rng(1).permutation(300)
+    independent = choose_method(X[perm], None, 300, 4_000)
+    assert independent[0]["method"] == "lsh" and "independent places" in independent[0]["reason"]
+    assert choose_method(X[perm], None, 300, None)[0]["method"] == "bruteforce"
+
+
+@pytest.mark.parametrize("budget", [2_000, 20_000, None])
+def test_auto_fits_within_budget_round_trips_and_says_what_it_chose(smooth_route, budget, tmp_path) -> None:
+    X, Q = smooth_route
+    model = make_method("auto", **({"budget": budget} if budget else {})).fit(X)
+    if budget:
+        assert model.nbytes <= budget
+    assert model.choice_["method"] in model.summary() and "route share" in model.summary()
+    again = btel.load(model.save(tmp_path / "m.npz"))
+    assert again.choice_["method"] == model.choice_["method"] and again.summary() == model.summary()
+    np.testing.assert_array_equal(again.search(Q, 5)[1], model.search(Q, 5)[1])
+    assert again.nbytes == model.nbytes
+
+
+def test_a_budget_no_candidate_fits_names_the_minimum(smooth_route) -> None:
+    with pytest.raises(BudgetTooSmallError, match="auto") as info:
+        make_method("auto", budget=10).fit(smooth_route[0])
+    assert info.value.minimum > 10
+
+
+def test_an_edited_choice_is_a_model_file_error(smooth_route, tmp_path) -> None:
+    import json
+    import zipfile
+
+    model = make_method("auto", budget=4_000).fit(smooth_route[0])
+    path = model.save(tmp_path / "m.npz")
+    with np.load(path) as z:
+        arrays = dict(z)
+    header = json.loads(bytes(arrays["__btel_header__"]).decode())
+    header["state"]["choice"]["method"] = "auto"
+    arrays["__btel_header__"] = np.frombuffer(json.dumps(header).encode(), dtype=np.uint8)
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, **arrays)
+    assert zipfile.is_zipfile(bad)
+    with pytest.raises(ModelFileError, match="registered method"):
+        btel.load(bad)
+
+
+def test_cli_train_defaults_to_auto_and_prints_its_choice(smooth_route, tmp_path) -> None:
+    from click.testing import CliRunner
+
+    from btel.cli import main
+
+    np.save(tmp_path / "db.npy", smooth_route[0])
+    result = CliRunner().invoke(main, ["train", str(tmp_path / "db.npy"), "-o", str(tmp_path / "m.npz"),
+                                       "--budget", "4KB"])
+    assert result.exit_code == 0, result.output
+    assert "auto chose btel-codes" in result.output and "route share" in result.output
+    info = CliRunner().invoke(main, ["info", str(tmp_path / "m.npz")])
+    assert info.exit_code == 0 and "auto chose btel-codes" in info.output
+
+
+@pytest.mark.realdata
+def test_gardens_point_is_a_route_and_permuted_it_is_not(gardenspoint_netvlad) -> None:
+    X, _ = gardenspoint_netvlad
+    assert route_share(X) >= ROUTE_SHARE
+    assert route_share(X[np.random.default_rng(0).permutation(X.shape[0])]) < ROUTE_SHARE
