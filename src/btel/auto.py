@@ -162,6 +162,9 @@ class AutoLocalizer(PlaceLocalizer):
     _parameter_constraints = {"budget": [Budget()], "random_state": RANDOM_STATE, "n_jobs": N_JOBS,
                               **FRONT_END_CONSTRAINTS}
     _runtime_params = ("n_jobs",)
+    #: The method registry (:mod:`btel.methods` sets it when it registers this class; this module
+    #: does not import the registry, which imports it).
+    _registry: Any = None
 
     def __init__(self, *, budget: int | str | None = None, normalize: str = "l2", whiten: int | str | None = None,
                  delta: int | None = None, random_state: int | None = 0, n_jobs: int | None = None) -> None:
@@ -173,9 +176,7 @@ class AutoLocalizer(PlaceLocalizer):
         self.n_jobs = n_jobs
 
     def _inner(self, method: str, params: dict[str, Any]) -> PlaceLocalizer:
-        from .methods import make_method
-
-        model = make_method(method)
+        model = self._registry.make_method(method)
         valid = model.get_params(deep=False)
         extra = {"budget": self.budget, "normalize": self.normalize, "delta": self.delta,
                  "random_state": self.random_state, "n_jobs": self.n_jobs, "progress": False}
@@ -285,8 +286,7 @@ class AutoLocalizer(PlaceLocalizer):
         return {"choice": self.choice_, "inner_params": params, "inner_state": self.model_._fitted_state()}
 
     def _inner_from_state(self, state: dict[str, Any]) -> PlaceLocalizer:
-        from .methods import METHODS, _params_from_file
-
+        METHODS, _params_from_file = self._registry.METHODS, self._registry._params_from_file
         choice = state.get("choice")
         if not isinstance(choice, dict) or choice.get("method") not in METHODS or choice.get("method") == "auto":
             raise ModelFileError("the auto model file does not name a registered method it chose.")

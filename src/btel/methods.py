@@ -13,6 +13,7 @@ the method sees it, and raises :class:`~btel.exceptions.ModelFileError` for anyt
 from __future__ import annotations
 
 import os
+import sys
 from functools import partial
 from typing import Any, Callable
 
@@ -60,6 +61,9 @@ DESCRIPTIONS: dict[str, str] = {
     "auto": "the method, code family and front end chosen from the map and the budget alone (btel.auto): "
             "output codes on routes, whitened brute force or LSH on independent places",
 }
+
+#: auto picks among the registered methods: it is handed the registry (no import back from btel.auto).
+AutoLocalizer._registry = sys.modules[__name__]
 
 #: Model classes :func:`load` accepts, by the class name recorded in a file.
 MODEL_CLASSES: dict[str, type[PlaceLocalizer]] = {}
