@@ -457,6 +457,9 @@ class CodeLocalizer(PlaceLocalizer):
 
     def _exact_search(self, M: np.ndarray, k: int, path: str | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Top k of m · c_i over every place, by ``path`` (default :func:`~btel.code_decoding.choose_path`)."""
+        # Non-finite margins (a model file with huge but finite weights) are an error naming the cause,
+        # not an answer: argmax over NaN scores would return a place.
+        self._check_answers(None, M)
         path = path or self.exact_path(M.shape[0])
         if path == "probe":  # a batch: the first queries by the bounded search tell which path is cheaper
             head = min(PROBE_QUERIES, M.shape[0])
@@ -484,9 +487,11 @@ class CodeLocalizer(PlaceLocalizer):
                 scores = M @ dense.T
             if k == 1:  # argmax: the first maximum, i.e. ties to the lower place as top_k
                 places = np.argmax(scores, axis=1)[:, None]
-                return np.take_along_axis(scores, places, axis=1).astype(np.float64), places.astype(np.int64)
-            values, places = top_k(scores, k)
-            return values, places
+                values = np.take_along_axis(scores, places, axis=1).astype(np.float64)
+            else:
+                values, places = top_k(scores, k)
+            self._check_answers(None, values)  # finite margins can still overflow float32 in the product
+            return values, places.astype(np.int64)
         best_s = np.empty((n, 0), dtype=np.float32)
         best_p = np.empty((n, 0), dtype=np.int64)
         with _blas_for(n, self.n_codes_ * int(self.n_places_)):
