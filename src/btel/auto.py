@@ -224,19 +224,18 @@ class AutoLocalizer(PlaceLocalizer):
         self.n_places_ = int(n_places)
         return self
 
-    def check_budget(self, n_rows: int, n_features: int, budget: int | None, reserved: int = 0) -> None:
+    def check_budget(self, n_rows: int, n_features: int, budget: int | None,
+                     reserved: int | None = None) -> None:
         """Raise what ``fit`` would raise for this map shape and budget, without fitting.
 
         Every candidate list of the rule ends with plain ``lsh`` and ``btel-codes`` (the others need
         more bytes), so auto fits exactly when one of those two does; the minimum is the smaller one.
         """
-        from .evaluation import _budget_check
-
         errors: list[BudgetTooSmallError] = []
         for method, params in (("lsh", {"whiten": self.whiten}), ("btel-codes", {"code": "periodic",
                                                                                "whiten": self.whiten})):
             try:
-                _budget_check(self._inner(method, params), n_rows, n_features, budget)
+                self._inner(method, params).check_budget(n_rows, n_features, budget)
                 return
             except BudgetTooSmallError as exc:
                 errors.append(exc)
@@ -249,7 +248,7 @@ class AutoLocalizer(PlaceLocalizer):
         """One line: what the rule chose and why."""
         c = self.choice_
         params = ", ".join(f"{k}={v}" for k, v in c["params"].items())
-        inner = self.model_.summary() if hasattr(self.model_, "summary") else ""
+        inner = self.model_.summary()
         return (f"auto chose {c['method']}{f' ({params})' if params else ''}: {c['reason']}"
                 + (f" — {inner}" if inner else "") + (f" [refused: {'; '.join(c['refused'])}]" if c["refused"] else ""))
 

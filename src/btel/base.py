@@ -272,13 +272,7 @@ class PlaceLocalizer(BaseEstimator, ABC):
             )
         budget = parse_budget(getattr(self, "budget", None))
         front = FrontEnd.of(self)
-        reserved = front.planned_bytes(X.shape[1], X.shape[0])
-        if budget is not None and reserved >= budget:
-            raise BudgetTooSmallError(
-                f"budget {format_bytes(budget)} ({budget} B) is too small for {type(self).__name__} with "
-                f"whiten = {front.whiten}: the whitening matrix alone needs {reserved} B. Raise the budget or "
-                "whiten to fewer dimensions.", budget=budget, minimum=reserved + 1,
-            )
+        reserved = self._front_end_bytes(X.shape[0], X.shape[1], budget)
         Z = front.fit_transform(X, traverse_starts(labels))
         self._fit(Z, labels, n_places, budget, reserved)
         self.front_end_ = front
@@ -286,6 +280,61 @@ class PlaceLocalizer(BaseEstimator, ABC):
         self.fit_time_ = time.perf_counter() - start
         setattr(self, self._fitted_marker, int(n_places))  # the fitted marker: set last
         return self
+
+    def check_budget(self, n_rows: int, n_features: int, budget: int | None,
+                     reserved: int | None = None) -> None:
+        """Raise now what :meth:`fit` would raise for a map of this shape under ``budget``, without fitting.
+
+        The same planner ``fit`` uses, applied to the shapes alone: the evaluation's pre-check and the
+        experiments call this and nothing else. Where the storage depends on what fitting finds (BTEL
+        with a fixed r ≥ 2: the region sizes come from KTS), nothing is raised and the fit decides.
+
+        Parameters
+        ----------
+        n_rows : int
+            Map rows (one place each).
+        n_features : int
+            Raw descriptor dimension d, before the front end.
+        budget : int or None
+            Bytes (None: unbudgeted).
+        reserved : int, optional
+            Bytes the front end takes; None: computed here, raising its own too-small error.
+
+        Raises
+        ------
+        BudgetTooSmallError
+            Nothing fits; ``minimum`` says how many bytes would.
+        NotEnoughPlacesError
+            Too few places for the method's parameters (regions, periods).
+        """
+        if reserved is None:
+            reserved = self._front_end_bytes(n_rows, n_features, budget)
+        self._check_plan(n_rows, FrontEnd.of(self).n_features_out(n_features), budget, reserved)
+
+    def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
+        """The method's own planner on shapes alone (see :meth:`check_budget`). Default: the storage is
+        decided only by fitting, so nothing can be said before it."""
+
+    def _front_end_bytes(self, n_rows: int, n_features: int, budget: int | None) -> int:
+        """Bytes of the front end's stored arrays, or the error ``fit`` raises when they alone fill the budget."""
+        front = FrontEnd.of(self)
+        reserved = front.planned_bytes(n_features, n_rows)
+        if budget is not None and reserved >= budget:
+            raise BudgetTooSmallError(
+                f"budget {format_bytes(budget)} ({budget} B) is too small for {type(self).__name__} with "
+                f"whiten = {front.whiten}: the whitening matrix alone needs {reserved} B. Raise the budget or "
+                "whiten to fewer dimensions.", budget=budget, minimum=reserved + 1,
+            )
+        return reserved
+
+    def budget_saturated(self) -> bool:
+        """True when this fitted model is as large as its parameters allow, so any larger budget gives the
+        same model (the experiments then reuse it). Default: False (every budget may change the model)."""
+        return False
+
+    def summary(self) -> str:
+        """One line on what fitting chose (planner values, the rule); empty when there is nothing to add."""
+        return ""
 
     @staticmethod
     def _check_places(places: Any, n_rows: int) -> tuple[np.ndarray | None, int]:

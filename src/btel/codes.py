@@ -235,13 +235,11 @@ class CodeLocalizer(PlaceLocalizer):
                 f"decode='coarse' needs codes that change slowly along the route ({', '.join(ROUTE_FAMILIES)}); "
                 f"the {self.code} family has none. Use decode='exact'.")
 
-    def _fit(self, X: np.ndarray, places: np.ndarray | None, n_places: int, budget: int | None,
-             reserved: int) -> None:
-        self._check_combinations()
-        d = X.shape[1]
+    def _plan(self, n_places: int, d: int, budget: int | None, reserved: int) -> CodePlan:
+        """K, d' and the weight width ``fit`` uses (:func:`~btel.code_planning.plan_codes`)."""
         available = None if budget is None else budget - reserved
         try:
-            plan = plan_codes(available, d, n_places, self.code, n_codes=self.n_codes,
+            return plan_codes(available, d, n_places, self.code, n_codes=self.n_codes,
                               n_selected=self.n_features, bits=self.weight_bits)
         except BudgetTooSmallError as exc:
             minimum = int(exc.minimum or 0) + reserved
@@ -250,6 +248,16 @@ class CodeLocalizer(PlaceLocalizer):
                 f"N = {n_places}): the smallest model needs {minimum} B ({format_bytes(minimum)}), front end "
                 f"included. Raise the budget or fix fewer codes (n_codes).", budget=budget, minimum=minimum,
             ) from None
+
+    def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
+        self._check_combinations()
+        self._plan(n_rows, n_features_out, budget, reserved)
+
+    def _fit(self, X: np.ndarray, places: np.ndarray | None, n_places: int, budget: int | None,
+             reserved: int) -> None:
+        self._check_combinations()
+        d = X.shape[1]
+        plan = self._plan(n_places, d, budget, reserved)
         seed = int(self.random_state) if self.random_state is not None else \
             int(np.random.default_rng().integers(0, 2**32 - 1))
         codebook = Codebook(self.code, n_places, plan.n_codes, seed)

@@ -904,78 +904,12 @@ STATUS_NOT_RUN = "not run"
 
 
 def _budget_check(method: Any, n_rows: int, n_features: int, budget: int | None) -> None:
-    """Raise what the method's own fit would raise for this map shape and budget, without fitting.
-
-    Every rule here is the method's own (``planned_bytes``, ``choose_config``, ``choose_code_bits``,
-    :func:`btel.planning.largest_fitting`, the KTS and RYTH minimum sizes) applied to the shapes
-    alone. Where the storage depends on what fitting finds (BTEL with a fixed r ≥ 2: the region
-    sizes come from KTS), nothing is raised and the fit decides.
-    """
-    from .baselines import BruteForceNN, ITQLocalizer, OPQLocalizer, PQLocalizer, SeqSLAM
-    from .baselines._common import raise_budget_too_small
-    from .exceptions import NotEnoughPlacesError
-    from .frontend import FrontEnd
-    from .localizer import BTELocalizer
-    from .planning import largest_fitting, planned_bytes
-    from .planning import raise_budget_too_small as raise_btel_too_small
-    from .ryth import RYTHLocalizer, coprime_periods
-    from .segmentation import _check_count
-
-    front = FrontEnd.of(method)
-    reserved = front.planned_bytes(n_features)
-    if budget is not None and reserved >= budget:
-        raise BudgetTooSmallError(
-            f"budget {format_bytes(budget)} ({budget} B) is too small for {type(method).__name__} with "
-            f"whiten = {front.whiten}: the whitening matrix alone needs {reserved} B.",
-            budget=budget, minimum=reserved + 1)
-    d = front.n_features_out(n_features)
-    if hasattr(method, "check_budget"):  # the method states its own rule (lsh, auto)
-        method.check_budget(n_rows, n_features, budget, reserved)
-        return
-    if isinstance(method, (BruteForceNN, SeqSLAM)):
-        if budget is None:
-            return
-        what, detail = (("brute-force NN", f"all {n_rows} descriptors × {d} float32 values")
-                        if isinstance(method, BruteForceNN) else ("SeqSLAM", f"{n_rows} × {d} bytes of map + 8"))
-        needed = type(method).planned_bytes(n_rows, d) + reserved
-        if needed > budget:
-            raise_budget_too_small(what, budget, needed, detail)
-    elif isinstance(method, ITQLocalizer):
-        method.choose_code_bits(n_rows, d, budget, reserved)
-    elif isinstance(method, OPQLocalizer):
-        method._quantiser().choose_config(n_rows, d, budget, reserved, method_name="OPQ", always_project=True)
-    elif isinstance(method, PQLocalizer):
-        method.choose_config(n_rows, d, budget, reserved)
-    elif isinstance(method, BTELocalizer):
-        n_codes = -(-n_rows // int(method.block_size))
-        if method.n_regions != "auto" and int(method.n_regions) > 1:
-            if n_codes <= int(method.kts_max_points):  # longer routes are averaged in blocks first
-                _check_count(n_codes, int(method.n_regions))
-            return
-        if budget is None:
-            return
-        dtype = str(np.dtype(method.dtype))
-        kw = dict(scheme=method.scheme, dtype=dtype, code_copies=int(method.code_copies))
-        if largest_fitting([n_codes], d, method._cap(d, budget), budget - reserved, method.scheme, dtype,
-                           int(method.code_copies)) < 1:
-            raise_btel_too_small(f"BTEL ({method.scheme}, N = {n_rows}, r = 1)", budget,
-                                 planned_bytes([n_codes], 1, d, **kw) + reserved,
-                                 "Raise the budget, use dtype='float16', or fewer regions.")
-    elif isinstance(method, RYTHLocalizer):
-        periods = coprime_periods(n_rows, int(method.n_periods))
-        if max(periods) > n_rows:
-            raise NotEnoughPlacesError(
-                f"RYTH with K = {method.n_periods} co-prime periods {periods} needs N ≥ {max(periods)} places; got "
-                f"N = {n_rows}. Use fewer periods (n_periods) or a longer route.")
-        if budget is None:
-            return
-        dtype = str(np.dtype(method.dtype))
-        minimum = RYTHLocalizer.planned_bytes(periods, 1, d, dtype) + reserved
-        if minimum > budget:
-            raise BudgetTooSmallError(
-                f"budget {format_bytes(budget)} ({budget} B) is too small for RYTH with periods {periods}: "
-                f"the smallest model (d' = 1) needs {minimum} B. Raise the budget or use fewer periods.",
-                budget=budget, minimum=minimum)
+    """Raise what the method's own fit would raise for this map shape and budget, without fitting:
+    the method answers (:meth:`btel.base.PlaceLocalizer.check_budget`, its own planner). An object
+    outside btel's base class without that method is left to its fit."""
+    check = getattr(method, "check_budget", None)
+    if check is not None:
+        check(n_rows, n_features, budget)
 
 
 def preflight(jobs: Sequence[Job], n_map: int | None, n_features: int | None, *,

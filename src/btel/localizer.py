@@ -35,7 +35,7 @@ from .planning import (
 )
 from .ranking import code_costs, deficits_from_scores, merge_region_kbest
 from .regions import predict_regions, segment_route
-from .segmentation import region_of
+from .segmentation import check_segment_count, region_of
 from .training import Task, convergence_warning, fit_tasks, one_vs_rest_tasks
 
 __all__ = ["BTELocalizer", "planned_bytes", "block_centres", "block_size_for_tolerance"]
@@ -309,6 +309,32 @@ class BTELocalizer(PlaceLocalizer):
         return d if ratio is None else int(min(d, max(1, round(ratio * d))))
 
     # ------------------------------------------------------------------ fit
+    def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
+        """The planner of ``fit`` on shapes alone. With a fixed r ≥ 2 the region sizes come from KTS, so
+        only KTS' minimum is checked and the fit decides the bytes."""
+        n_codes = -(-n_rows // int(self.block_size))
+        if self.n_regions != "auto" and int(self.n_regions) > 1:
+            if n_codes <= int(self.kts_max_points):  # longer routes are averaged in blocks first
+                check_segment_count(n_codes, int(self.n_regions))
+            return
+        if budget is None:
+            return
+        d = n_features_out
+        dtype = str(np.dtype(self.dtype))
+        kw = dict(scheme=self.scheme, dtype=dtype, code_copies=int(self.code_copies))
+        if largest_fitting([n_codes], d, self._cap(d, budget), budget - reserved, self.scheme, dtype,
+                           int(self.code_copies)) < 1:
+            raise_budget_too_small(f"BTEL ({self.scheme}, N = {n_rows}, r = 1)", budget,
+                                   planned_bytes([n_codes], 1, d, **kw) + reserved,
+                                   "Raise the budget, use dtype='float16', or fewer regions.")
+
+    def budget_saturated(self) -> bool:
+        """d' reached the parameters' cap (r fixed), so a larger budget gives the same model."""
+        if not hasattr(self, "n_selected_") or self.n_regions == "auto":
+            return False
+        d = self.front_end_.n_features_out(int(self.n_features_in_))
+        return int(self.n_selected_) == int(self._cap(d, None if self.budget is None else 1))
+
     def _fit(self, X: np.ndarray, places: np.ndarray | None, n_places: int, budget: int | None,
              reserved: int) -> None:
         self._check_combinations()

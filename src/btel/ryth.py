@@ -24,7 +24,7 @@ from .exceptions import BudgetTooSmallError, ModelFileError, NotEnoughPlacesErro
 from .feature_selection import column_index_dtype
 from .frontend import FRONT_END_CONSTRAINTS
 from .linear import CLASSIFIERS, SOLVERS, ColumnStats, Hyperplanes, default_C
-from .storage import format_bytes
+from .storage import format_bytes, parse_budget
 from .training import convergence_warning, fit_tasks, one_vs_rest_tasks
 
 __all__ = ["RYTHLocalizer", "coprime_periods", "crt"]
@@ -174,12 +174,15 @@ class RYTHLocalizer(PlaceLocalizer):
         """Bytes for these periods and d': the sum of :func:`ryth_specs`."""
         return int(sum(s.nbytes for s in ryth_specs(periods, n_selected, n_features_in, dtype).values()))
 
-    def _fit(self, X: np.ndarray, places: np.ndarray | None, n_places: int, budget: int | None,
-             reserved: int) -> None:
-        """Fit the K residue classifiers on the (front-end) map."""
-        C = default_C(self.classifier) if self.C is None else float(self.C)
-        places_arr = np.arange(n_places, dtype=np.int64) if places is None else places
-        d = X.shape[1]
+    def _cap(self, d: int, budget: int | None) -> int:
+        """The most descriptor columns the parameters allow (the budget may select fewer)."""
+        if self.n_features is not None:
+            return min(int(self.n_features), d)
+        ratio = self.feature_ratio if self.feature_ratio is not None else (None if budget else 0.1)
+        return d if ratio is None else int(min(d, max(1, round(ratio * d))))
+
+    def _plan(self, n_places: int, d: int, budget: int | None, reserved: int) -> tuple[list[int], int]:
+        """The periods and d' ``fit`` uses: the most columns (up to :meth:`_cap`) that fit the budget."""
         periods = coprime_periods(n_places, self.n_periods)
         if max(periods) > n_places:  # a residue class with no place cannot be learnt
             raise NotEnoughPlacesError(
@@ -187,22 +190,38 @@ class RYTHLocalizer(PlaceLocalizer):
                 f"residue class must hold one); got N = {n_places}. Use fewer periods (n_periods) or a longer route."
             )
         dtype = np.dtype(self.dtype).name
-        if self.n_features is not None:
-            cap = min(int(self.n_features), d)
-        else:
-            ratio = self.feature_ratio if self.feature_ratio is not None else (None if budget else 0.1)
-            cap = d if ratio is None else int(min(d, max(1, round(ratio * d))))
-        n_selected = cap
-        if budget is not None:
-            n_selected = next((m for m in range(cap, 0, -1)
-                               if self.planned_bytes(periods, m, d, dtype) + reserved <= budget), 0)
-            if n_selected == 0:
-                minimum = self.planned_bytes(periods, 1, d, dtype) + reserved
-                raise BudgetTooSmallError(
-                    f"budget {format_bytes(budget)} ({budget} B) is too small for RYTH with periods {periods}: "
-                    f"the smallest model (d' = 1) needs {minimum} B. Raise the budget or use fewer periods.",
-                    budget=budget, minimum=minimum,
-                )
+        cap = self._cap(d, budget)
+        if budget is None:
+            return periods, cap
+        n_selected = next((m for m in range(cap, 0, -1)
+                           if self.planned_bytes(periods, m, d, dtype) + reserved <= budget), 0)
+        if n_selected == 0:
+            minimum = self.planned_bytes(periods, 1, d, dtype) + reserved
+            raise BudgetTooSmallError(
+                f"budget {format_bytes(budget)} ({budget} B) is too small for RYTH with periods {periods}: "
+                f"the smallest model (d' = 1) needs {minimum} B. Raise the budget or use fewer periods.",
+                budget=budget, minimum=minimum,
+            )
+        return periods, n_selected
+
+    def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
+        self._plan(n_rows, n_features_out, budget, reserved)
+
+    def budget_saturated(self) -> bool:
+        """d' reached the parameters' cap, so a larger budget gives the same model."""
+        if not hasattr(self, "n_selected_"):
+            return False
+        d = self.front_end_.n_features_out(int(self.n_features_in_))
+        return int(self.n_selected_) == self._cap(d, parse_budget(self.budget))
+
+    def _fit(self, X: np.ndarray, places: np.ndarray | None, n_places: int, budget: int | None,
+             reserved: int) -> None:
+        """Fit the K residue classifiers on the (front-end) map."""
+        C = default_C(self.classifier) if self.C is None else float(self.C)
+        places_arr = np.arange(n_places, dtype=np.int64) if places is None else places
+        d = X.shape[1]
+        periods, n_selected = self._plan(n_places, d, budget, reserved)
+        dtype = np.dtype(self.dtype).name
         stats = ColumnStats.of(X)
         tasks = []
         for p in periods:

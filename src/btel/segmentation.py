@@ -162,7 +162,7 @@ class _Blocks:
         return np.asarray(starts, dtype=np.int64) * self.size
 
 
-def _check_count(n: int, n_regions: int) -> None:
+def check_segment_count(n: int, n_regions: int) -> None:
     if n_regions * MIN_REGION_LENGTH > n:
         raise NotEnoughPlacesError(
             f"cannot split {n} places into {n_regions} regions of at least {MIN_REGION_LENGTH} places; "
@@ -211,7 +211,7 @@ def kts_regions(
     """
     r = check_positive_int(n_regions, "n_regions")
     n = X.shape[0]
-    _check_count(n, r)
+    check_segment_count(n, r)
     if r == 1:
         return np.zeros(1, dtype=np.int64)
     max_points = check_positive_int(max_points, "max_points", minimum=4)

@@ -75,12 +75,15 @@ class BruteForceNN(_RowLocalizer):
         """Storage of a map of ``n_rows`` descriptors of dimension ``n_features``: N·d·4 bytes."""
         return int(n_rows) * int(n_features) * 4
 
-    def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
-        needed = self.planned_bytes(*X.shape) + reserved
+    def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
+        needed = self.planned_bytes(n_rows, n_features_out) + reserved
         if budget is not None and needed > budget:
             raise_budget_too_small(
-                "brute-force NN", budget, needed, f"all {X.shape[0]} descriptors × {X.shape[1]} float32 values"
+                "brute-force NN", budget, needed, f"all {n_rows} descriptors × {n_features_out} float32 values"
             )
+
+    def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
+        self._check_plan(*X.shape, budget, reserved)
         # A private copy: the index must not change if the caller later edits X.
         self.descriptors_ = np.array(X, dtype=np.float32, order="C", copy=True)
         self._index = self._build_index()

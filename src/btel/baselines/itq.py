@@ -126,6 +126,9 @@ class ITQLocalizer(_RowLocalizer):
             raise_budget_too_small("ITQ", budget, minimum, detail)
         return max(fitting)
 
+    def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
+        self.choose_code_bits(n_rows, n_features_out, budget, reserved)
+
     def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
         n_rows, n_features = X.shape
         bits = self.choose_code_bits(n_rows, n_features, budget, reserved)

@@ -151,15 +151,8 @@ class LSHLocalizer(_RowLocalizer):
             return budget is None or 2 * n_features <= CENTER_SHARE * budget
         return bool(self.center)
 
-    def check_budget(self, n_rows: int, n_features: int, budget: int | None, reserved: int = 0) -> None:
-        """Raise what ``fit`` would raise for this map shape and budget, without fitting (BudgetTooSmallError)."""
-        self.choose_bits(n_rows, self.front_end_of_shape(n_features), budget, reserved)
-
-    def front_end_of_shape(self, n_features: int) -> int:
-        """The dimension the front end hands the codes for raw descriptors of ``n_features``."""
-        from ..frontend import FrontEnd
-
-        return FrontEnd.of(self).n_features_out(n_features)
+    def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
+        self.choose_bits(n_rows, n_features_out, budget, reserved)
 
     def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
         n_rows, d = X.shape

@@ -105,9 +105,17 @@ class OPQLocalizer(_RowLocalizer):
         """The chosen (p, M, nbits): the contained quantiser's."""
         return self.pq_.config_
 
+    def _choose_config(self, pq: PQLocalizer, n_rows: int, n_features: int, budget: int | None,
+                       reserved: int) -> PQConfig:
+        """The contained quantiser's planner with the d × p rotation counted at every p."""
+        return pq.choose_config(n_rows, n_features, budget, reserved, method_name="OPQ", always_project=True)
+
+    def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
+        self._choose_config(self._quantiser(), n_rows, n_features_out, budget, reserved)
+
     def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
         pq = self._quantiser()
-        config = pq.choose_config(X.shape[0], X.shape[1], budget, reserved, method_name="OPQ", always_project=True)
+        config = self._choose_config(pq, X.shape[0], X.shape[1], budget, reserved)
         projection = self._learn_projection(X, config, pq.random_state)
         Y = np.ascontiguousarray(X @ projection, dtype=np.float32)
         pq.set_params(budget=None, n_subquantizers=config.n_subquantizers, nbits=config.nbits, pca_dim=config.dim,

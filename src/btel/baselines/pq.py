@@ -280,6 +280,9 @@ class PQLocalizer(_RowLocalizer):
             )
         return max(fitting, key=lambda cb: (cb[0].code_bits, -cb[1], cb[0].dim, cb[0].nbits))[0]
 
+    def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
+        self.choose_config(n_rows, n_features_out, budget, reserved)
+
     # -- fitting -------------------------------------------------------------------------------
     def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
         n_rows, n_features = X.shape

@@ -307,11 +307,14 @@ class SeqSLAM(_RowLocalizer):
         velocities(self.vmin, self.vmax, self.vskip)  # at most MAX_VELOCITIES of them
         _check_window(self.window)
 
+    def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
+        needed = self.planned_bytes(n_rows, n_features_out) + reserved
+        if budget is not None and needed > budget:
+            raise_budget_too_small("SeqSLAM", budget, needed, f"{n_rows} × {n_features_out} bytes of map + 8")
+
     def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
         self._check_params()
-        needed = self.planned_bytes(*X.shape) + reserved
-        if budget is not None and needed > budget:
-            raise_budget_too_small("SeqSLAM", budget, needed, f"{X.shape[0]} × {X.shape[1]} bytes of map + 8")
+        self._check_plan(*X.shape, budget, reserved)
         lo, hi = float(X.min()), float(X.max())
         scale = (hi - lo) / 255.0 if hi > lo else 1.0
         self.value_range_ = np.array([lo, scale], dtype=np.float32)

@@ -129,8 +129,9 @@ def _echo_storage(model: Any) -> None:
 
     breakdown = model.storage_breakdown()
     width = max(len(k) for k in breakdown) if breakdown else 4
-    if hasattr(model, "summary"):  # what a budget planner chose (btel-codes)
-        click.echo(model.summary())
+    summary = model.summary()  # what a budget planner chose (empty for methods with nothing to add)
+    if summary:
+        click.echo(summary)
     click.echo("storage breakdown:")
     for name, n in breakdown.items():
         click.echo(f"  {name:<{width}}  {n:>12,d} B")

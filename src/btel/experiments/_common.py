@@ -278,31 +278,9 @@ class ModelCache:
 
 
 def _budget_saturated(model: Any) -> bool:
-    """True when a fitted BTEL/RYTH model is as large as its parameters allow, so its budget did not shape it.
-
-    Then every budget ≥ its bytes gives the same model: the budget only picks the largest d'
-    (and, with ``n_regions='auto'``, lowers r — never counted as saturated here).
-    """
-    from ..localizer import BTELocalizer
-    from ..ryth import RYTHLocalizer
-
-    if not hasattr(model, "n_selected_"):
-        return False
-    d = model.front_end_.n_features_out(int(model.n_features_in_))
-    if isinstance(model, BTELocalizer):
-        if model.n_regions == "auto":
-            return False
-        cap = model._cap(d, None if model.budget is None else 1)
-    elif isinstance(model, RYTHLocalizer):
-        if model.n_features is not None:
-            cap = min(int(model.n_features), d)
-        elif model.feature_ratio is not None:
-            cap = int(min(d, max(1, round(model.feature_ratio * d))))
-        else:
-            cap = d
-    else:
-        return False
-    return int(model.n_selected_) == int(cap)
+    """True when a fitted model is as large as its parameters allow, so its budget did not shape it
+    (the model answers: :meth:`btel.base.PlaceLocalizer.budget_saturated`)."""
+    return bool(model.budget_saturated())
 
 
 _CACHES: dict[str, ModelCache] = {}

@@ -87,7 +87,7 @@ def _row(base: dict[str, Any], name: str, params: dict[str, Any], X: np.ndarray,
     query_us = (time.perf_counter() - start) / Q.shape[0] * 1e6
     out = {**row, "status": "ok", "nbytes": int(model.nbytes), "fit_s": fit_s, "query_us": query_us,
            **_recalls(pred, np.arange(Q.shape[0]))}
-    if hasattr(model, "summary"):
+    if model.summary():
         out["configuration"] = model.summary()
     return out
 
