@@ -102,3 +102,32 @@ def test_a_nan_in_a_chunked_batch_is_named_by_its_row_in_the_whole_batch(route) 
     big[8500, 3] = np.nan
     with pytest.raises(InvalidDescriptorsError, match="row 8500, column 3"):
         model.predict(big)
+
+
+def test_check_budget_refuses_btel_codes_before_fitting() -> None:
+    """btel-codes had no branch in the old pre-fit chain: it was never checked before fitting."""
+    from btel.exceptions import BudgetTooSmallError
+
+    model = make_method("btel-codes", budget=40)
+    with pytest.raises(BudgetTooSmallError, match="output codes") as info:
+        model.check_budget(1000, 512, 40)
+    assert info.value.minimum > 40
+    X = np.random.default_rng(0).normal(size=(1000, 512)).astype(np.float32)
+    with pytest.raises(BudgetTooSmallError) as fitted:  # the same minimum as fit's
+        make_method("btel-codes", budget=40).fit(X)
+    assert fitted.value.minimum == info.value.minimum
+    make_method("btel-codes", budget="64KB").check_budget(1000, 512, 64_000)  # fits: no error
+
+
+def test_shared_layers_ask_the_method_not_its_class() -> None:
+    """The evaluation pre-check and the experiments' cache never name a method class (issue 19)."""
+    import inspect
+
+    import btel.evaluation
+    import btel.experiments._common
+
+    for module in (btel.evaluation, btel.experiments._common):
+        source = inspect.getsource(module)
+        for name in ("BTELocalizer", "RYTHLocalizer", "PQLocalizer", "ITQLocalizer", "BruteForceNN", "CodeLocalizer"):
+            assert f"isinstance(method, {name}" not in source and f"isinstance(model, {name}" not in source, \
+                (module.__name__, name)
