@@ -267,7 +267,10 @@ def report_lines(payload: dict[str, Any], docs_dir: Path) -> list[str]:
               + ", ".join(f"{k} {v:.0f} s" for k, v in parts.items()) + ".") if parts else "", "",
              "Key recall per map (route maps: recall within 2 frames, Nordland within 10; independent places: "
              "exact place, recall@0). Oracle = the best row of the table at that budget (every method and variant "
-             "that fits); auto chooses from the map and budget alone.", "",
+             "that fits); auto chooses from the map and budget alone. To keep the run within 15 min, BTE-C, BTE-F, "
+             "BTEL with regions, btel-auto, RYTH, OPQ and SeqSLAM run at 64 KB only and not on Nordland winter→summer "
+             "(empty cells); a budget larger than the map itself in float32 is not run for any method (Gardens Point "
+             "at 1 MB: brute force stores its 400 KB map in less); – = does not fit the budget.", "",
              "| map | budget | best (oracle) | best registered method | asymmetric LSH | auto's choice | auto | "
              "auto / best | ≥ 0.95 × best | ≥ LSH |", "|---|---|---|---|---|---|---|---|---|---|"]
     for v in verdicts:
