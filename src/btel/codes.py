@@ -96,9 +96,12 @@ class CodeLocalizer(PlaceLocalizer):
 
     Parameters
     ----------
-    code : {'periodic', 'blocks', 'random', 'binary', 'offset'}
+    code : {'auto', 'periodic', 'blocks', 'random', 'binary', 'offset'}
         Code family (:mod:`btel.codebook`). 'periodic' (multi-scale square waves) for maps that
         are routes; 'random' for maps of independent places; 'binary' / 'offset' are BTE-C's codes.
+        'auto' chooses periodic or random from the map alone by the statistic ``auto`` uses
+        (:func:`btel.auto.route_share` ≥ :data:`btel.auto.ROUTE_SHARE`: a route); the family
+        chosen is ``code_``, recorded in the model file and restored on load.
     n_codes : int, optional
         K, code columns (binary: exactly ⌈log2 N⌉). None: chosen by the planner.
     n_features : int, optional
@@ -137,6 +140,8 @@ class CodeLocalizer(PlaceLocalizer):
 
     Attributes
     ----------
+    code_ : str
+        The code family used (``code`` itself, or what 'auto' chose); ``code_reason_`` says why.
     codebook_ : Codebook
         The implicit codewords (family, N, K, seed).
     plan_ : CodePlan
@@ -163,7 +168,7 @@ class CodeLocalizer(PlaceLocalizer):
     """
 
     _parameter_constraints = {
-        "code": [Options(*FAMILIES)],
+        "code": [Options("auto", *FAMILIES)],
         "n_codes": [None, Interval(int, 1, MAX_COLUMNS)],
         "n_features": [None, Interval(int, 1, None)],
         "weight_bits": [None, Options(*WEIGHT_BITS)],
@@ -230,37 +235,66 @@ class CodeLocalizer(PlaceLocalizer):
     def _check_combinations(self) -> None:
         if self.scheduler is not None and self.backend != "dask":
             raise InvalidParameterError("scheduler only applies with backend='dask'.")
-        if self.decode == "coarse" and self.code not in ROUTE_FAMILIES:
+        if self.decode == "coarse" and self.code != "auto" and self.code not in ROUTE_FAMILIES:
             raise InvalidParameterError(
                 f"decode='coarse' needs codes that change slowly along the route ({', '.join(ROUTE_FAMILIES)}); "
                 f"the {self.code} family has none. Use decode='exact'.")
 
-    def _plan(self, n_places: int, d: int, budget: int | None, reserved: int) -> CodePlan:
+    def _choose_family(self, X: np.ndarray, places: np.ndarray | None) -> tuple[str, str]:
+        """The code family and why: ``code`` itself, or for 'auto' periodic on a route, random otherwise."""
+        if self.code != "auto":
+            return self.code, "given"
+        from .auto import ROUTE_SHARE, route_share
+
+        share = route_share(X, places)
+        family = "periodic" if share >= ROUTE_SHARE else "random"
+        return family, (f"code='auto': route share {share:.2f} {'≥' if share >= ROUTE_SHARE else '<'} "
+                        f"{ROUTE_SHARE} → {family}")
+
+    def _plan(self, n_places: int, d: int, budget: int | None, reserved: int,
+              family: str | None = None) -> CodePlan:
         """K, d' and the weight width ``fit`` uses (:func:`~btel.code_planning.plan_codes`)."""
+        family = self.code if family is None else family
         available = None if budget is None else budget - reserved
         try:
-            return plan_codes(available, d, n_places, self.code, n_codes=self.n_codes,
+            return plan_codes(available, d, n_places, family, n_codes=self.n_codes,
                               n_selected=self.n_features, bits=self.weight_bits)
         except BudgetTooSmallError as exc:
             minimum = int(exc.minimum or 0) + reserved
             raise BudgetTooSmallError(
-                f"budget {format_bytes(budget)} ({budget} B) is too small for output codes ({self.code}, "
+                f"budget {format_bytes(budget)} ({budget} B) is too small for output codes ({family}, "
                 f"N = {n_places}): the smallest model needs {minimum} B ({format_bytes(minimum)}), front end "
                 f"included. Raise the budget or fix fewer codes (n_codes).", budget=budget, minimum=minimum,
             ) from None
 
     def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
         self._check_combinations()
-        self._plan(n_rows, n_features_out, budget, reserved)
+        if self.code != "auto":
+            self._plan(n_rows, n_features_out, budget, reserved)
+            return
+        # code='auto' picks its family from the map's rows, not its shape: raise only when neither fits.
+        errors = []
+        for family in ("periodic", "random"):
+            try:
+                self._plan(n_rows, n_features_out, budget, reserved, family)
+                return
+            except BudgetTooSmallError as exc:
+                errors.append(exc)
+        raise min(errors, key=lambda exc: exc.minimum or 0)
 
     def _fit(self, X: np.ndarray, places: np.ndarray | None, n_places: int, budget: int | None,
              reserved: int) -> None:
         self._check_combinations()
+        family, self.code_reason_ = self._choose_family(X, places)
+        if self.decode == "coarse" and family not in ROUTE_FAMILIES:
+            raise InvalidParameterError(f"decode='coarse' needs a route code family; {self.code_reason_}. "
+                                        "Use decode='auto' or 'exact', or pass code='periodic'.")
+        self.code_ = family
         d = X.shape[1]
-        plan = self._plan(n_places, d, budget, reserved)
+        plan = self._plan(n_places, d, budget, reserved, family)
         seed = int(self.random_state) if self.random_state is not None else \
             int(np.random.default_rng().integers(0, 2**32 - 1))
-        codebook = Codebook(self.code, n_places, plan.n_codes, seed)
+        codebook = Codebook(family, n_places, plan.n_codes, seed)
         if plan.n_selected < d:
             variance = ColumnStats.of(X).scale ** 2
             order = np.lexsort((np.arange(d), -variance))  # largest variance first, ties to the lower index
@@ -299,7 +333,8 @@ class CodeLocalizer(PlaceLocalizer):
     def summary(self) -> str:
         """One line on what was fitted: family, K, d', width, the planner's rule, α."""
         alpha = f", ridge α = {self.alpha_:.4g}" if self.alpha_ is not None else ", liblinear"
-        return f"{self.code} codes (seed {self.code_seed_}): {self.plan_.describe()}{alpha}"
+        why = f" [{self.code_reason_}]" if self.code == "auto" else ""
+        return f"{self.code_} codes{why} (seed {self.code_seed_}): {self.plan_.describe()}{alpha}"
 
     # ------------------------------------------------------------------ inference
     def _weights_dense(self) -> np.ndarray:
@@ -436,7 +471,7 @@ class CodeLocalizer(PlaceLocalizer):
 
     def _coarse_default(self) -> bool:
         """Whether ``search`` decodes coarse to fine (``decode`` and the family; 'auto': long maps only)."""
-        if self.code not in ROUTE_FAMILIES or self.decode == "exact":
+        if self.code_ not in ROUTE_FAMILIES or self.decode == "exact":
             return False
         return self.decode == "coarse" or int(self.n_places_) >= COARSE_MIN_PLACES
 
@@ -460,7 +495,7 @@ class CodeLocalizer(PlaceLocalizer):
         of 'bounded' and 'dense' the places they scored predict to be cheaper
         (:func:`~btel.code_decoding.choose_path`).
         """
-        return choose_path(int(self.n_places_), self._width(), n_queries, self.code in ROUTE_FAMILIES,
+        return choose_path(int(self.n_places_), self._width(), n_queries, self.code_ in ROUTE_FAMILIES,
                            self._dense_codes() is not None)
 
     def _exact_search(self, M: np.ndarray, k: int, path: str | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -564,7 +599,7 @@ class CodeLocalizer(PlaceLocalizer):
 
     def _fitted_state(self) -> dict[str, Any]:
         return {"n_codes": self.n_codes_, "n_selected": self.n_selected_, "weight_bits": self.weight_bits_,
-                "code_seed": self.code_seed_, "alpha": self.alpha_, "n_unconverged": self.n_unconverged_,
+                "code": self.code_, "code_reason": self.code_reason_, "code_seed": self.code_seed_, "alpha": self.alpha_, "n_unconverged": self.n_unconverged_,
                 "plan_rule": self.plan_.rule, "plan_budget": self.plan_.budget}
 
     def _array_specs(self, state: dict[str, Any]) -> dict[str, ArraySpec]:
@@ -584,7 +619,17 @@ class CodeLocalizer(PlaceLocalizer):
         d = self.front_end_.n_features_out(int(state["n_features_in"]))
         K, d_sel = int(state["n_codes"]), int(state["n_selected"])
         seed = read_state_int(state, "code_seed", 0, 2**32 - 1)
-        codebook = Codebook(self.code, int(state["n_places"]), K, seed)  # InvalidParameterError → ModelFileError
+        family = state.get("code", self.code)  # files written before code='auto' record only the parameter
+        if family not in FAMILIES or (self.code != "auto" and family != self.code):
+            raise ModelFileError(f"the model file's code family {family!r} is not one of {FAMILIES}"
+                                 + ("" if self.code == "auto" else f" or contradicts its parameter code={self.code!r}")
+                                 + "; the file is damaged or from another version. Refit and save it again.")
+        if self.decode == "coarse" and family not in ROUTE_FAMILIES:
+            raise ModelFileError(f"the model file asks for decode='coarse' with {family} codes, which have no "
+                                 "route order; the file is damaged. Refit and save it again.")
+        reason = state.get("code_reason")
+        self.code_, self.code_reason_ = family, reason if isinstance(reason, str) else "given"
+        codebook = Codebook(family, int(state["n_places"]), K, seed)  # InvalidParameterError → ModelFileError
         columns = arrays.get("columns")
         if columns is not None and (int(columns.max()) >= d or np.any(np.diff(columns.astype(np.int64)) <= 0)):
             raise ModelFileError("the model file's kept columns are not increasing indices below d.")
