@@ -773,18 +773,18 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
                    "saved models" + (" and unbudgeted methods" if jobs else "") if saved else "no budget")
     title = f"{dataset}: N = {n_map}, {Q.shape[0]} queries; {budget_part}; {truth}"
     click.echo(f"map: N = {n_map} places; queries: {Q.shape[0]} × {Q.shape[1]}; ground truth: {truth}")
-    pairs = None
+    from ._gallery import input_names
+
+    pairs, names = None, input_names(db, queries, n_map, Q.shape[0])
     if pairs_path is not None:
-        from ._names import pairs_paths, row_names
+        from ._names import pairs_paths
 
         targets = pairs_paths(pairs_path, [j.name for j in saved + jobs])
         for target in targets.values():
             refuse_existing(target, "--pairs", overwrite)
-        q_names = row_names(queries) or [str(i) for i in range(Q.shape[0])]
-        db_names = (row_names(db) if db else None) or [str(i) for i in range(n_map)]
-        pairs = (targets, q_names, db_names)
+        pairs = (targets, names[0] or [str(i) for i in range(Q.shape[0])], names[1] or [str(i) for i in range(n_map)])
     failed = _run_jobs(saved + jobs, X, Q, ground_truth=gt, out=Path(out_dir), overwrite=overwrite, title=title,
-                       pairs=pairs,
+                       pairs=pairs, names=names,
                        tolerances=tolerance_list, ks=ks, queries_are_route=query_order == "route",
                        progress=not no_progress, finished=finished, timing_threads=timing_threads or None,
                        extra={"db": str(Path(db).resolve()) if db else None, "models": list(model_paths),
@@ -896,6 +896,7 @@ def _fit_jobs(names: list[str], budgets: list[str | None], param_texts: tuple[st
 def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out: Path, overwrite: bool, title: str,
               extra: dict[str, Any], progress: bool, tolerances: list[int] | None = None,
               finished: list[Any] | None = None, timing_threads: int | None = 1, pairs: tuple[dict[str, Path], list[str], list[str]] | None = None,
+              names: tuple[list[str] | None, list[str] | None] = (None, None),
               ks: list[int] | tuple[int, ...] = (1, 5, 10, 20), queries_are_route: bool = True) -> bool:
     """Run every job through :func:`btel.evaluation.evaluate_all`, writing the run folder as rows finish.
 
@@ -914,6 +915,7 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
         writer = resume_writer(out, finished, command=_command_line(), extra=extra)
     else:
         writer = RunWriter(out, command=_command_line(), extra=extra, overwrite=overwrite)
+    writer.query_names, writer.db_names = names  # image names in the predictions files
     bar = tqdm(total=len(jobs), unit="method", disable=None if progress else True, leave=False, file=sys.stderr)
 
     def on_preflight(skipped: dict[str, Any]) -> None:
@@ -952,6 +954,11 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
     click.echo(format_table(results))
     report = writer.finish(results, title=title)
     click.echo(f"run folder: {report.out_dir}")
+    from ._gallery import row_images, write_galleries
+
+    if row_images(extra.get("queries")) and row_images(extra.get("db")):  # image inputs: show what was retrieved
+        for path in write_galleries(out):
+            click.echo(f"match gallery: {path}")
     if pairs is not None:
         from ._names import write_pairs
 
@@ -1148,6 +1155,10 @@ def _int(value: str, flag: str) -> int:
 def _command_line() -> str:
     return shlex.join(["btel", *sys.argv[1:]])
 
+
+from ._gallery import show_cmd  # noqa: E402 - btel show RUN: the match gallery of a finished run
+
+main.add_command(show_cmd)
 
 if __name__ == "__main__":  # pragma: no cover
     main()

@@ -98,12 +98,15 @@ def extraction_key(paths: list[Path], model: ImageDescriptor, fit_on: Any = None
     params = {k: (list(v) if isinstance(v, tuple) else v) for k, v in model.get_params().items()}
     files = [[p.name, p.stat().st_size, int(p.stat().st_mtime_ns)] for p in paths]
     prefitted = bool(getattr(model, "dim_", None)) and bool(getattr(model, "requires_fit", False))
+    parents = {p.parent for p in paths}
     return {
         "descriptor": type(model).__name__,
         "params": json.loads(json.dumps(params, default=str)),
         "fit_on": str(Path(fit_on).resolve()) if isinstance(fit_on, (str, os.PathLike)) else None,
         "prefitted": prefitted,
         "images": files,
+        # Where the images are, so that a run can show them (btel evaluate's match gallery).
+        "folder": str(parents.pop().resolve()) if len(parents) == 1 else None,
     }
 
 
