@@ -333,8 +333,12 @@ class RunWriter:
         release(self._lock)
         self._lock = None
 
-    def finish(self, results: Sequence[EvaluationResult], *, plots: bool = True, title: str | None = None) -> "RunReport":
-        """Write the final metrics (``"complete": true``) and the plots; return what was written."""
+    def finish(self, results: Sequence[EvaluationResult], *, plots: bool = True, title: str | None = None,
+               tolerance_unit: str = "frames") -> "RunReport":
+        """Write the final metrics (``"complete": true``) and the plots; return what was written.
+
+        ``tolerance_unit``: ``"frames"`` (queries along a route) or ``"map places"`` (independent
+        queries), for the plots' axis labels (:func:`btel.plots.plot_run`)."""
         results = list(results)
         try:
             self.write(results, complete=True)
@@ -343,7 +347,7 @@ class RunWriter:
                 from . import plots as _plots
 
                 self.plots = _plots.plot_run(measured, self.out_dir, title=title,
-                                             not_run=[r for r in results if not r.ok])
+                                             not_run=[r for r in results if not r.ok], tolerance_unit=tolerance_unit)
         finally:
             self.close()
         return RunReport(self.out_dir, self.metrics_json, self.metrics_csv, dict(self.predictions), list(self.plots))

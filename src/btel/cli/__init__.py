@@ -916,6 +916,7 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
     else:
         writer = RunWriter(out, command=_command_line(), extra=extra, overwrite=overwrite)
     writer.query_names, writer.db_names = names  # image names in the predictions files
+    unit = "frames" if queries_are_route else "map places"  # no "frames" on independent places
     bar = tqdm(total=len(jobs), unit="method", disable=None if progress else True, leave=False, file=sys.stderr)
 
     def on_preflight(skipped: dict[str, Any]) -> None:
@@ -947,12 +948,12 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
                                on_start=on_start, finished=finished or (), timing_threads=timing_threads)
     except KeyboardInterrupt:
         bar.close()
-        _plot_partial_run(latest, out, title)
+        _plot_partial_run(latest, out, title, unit)
         click.echo(f"interrupted: the finished rows are in {out}/metrics.csv", err=True)
         raise click.exceptions.Exit(EXIT_INTERRUPTED) from None
     bar.close()
     click.echo(format_table(results))
-    report = writer.finish(results, title=title)
+    report = writer.finish(results, title=title, tolerance_unit=unit)
     click.echo(f"run folder: {report.out_dir}")
     from ._gallery import row_images, write_galleries
 
@@ -974,7 +975,7 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
     return bool(failed)
 
 
-def _plot_partial_run(rows: list[Any], out: Path, title: str) -> None:
+def _plot_partial_run(rows: list[Any], out: Path, title: str, unit: str = "frames") -> None:
     """The plots of the rows that finished before Ctrl-C (metrics.json stays ``"complete": false``)."""
     from ..plots import plot_run
 
@@ -982,7 +983,8 @@ def _plot_partial_run(rows: list[Any], out: Path, title: str) -> None:
     if not measured:
         return
     try:
-        plot_run(measured, out, title=f"{title} — interrupted: {len(measured)} of {len(rows)} rows")
+        plot_run(measured, out, title=f"{title} — interrupted: {len(measured)} of {len(rows)} rows",
+                 tolerance_unit=unit)
     except (ValueError, OSError) as exc:  # the rows on disk matter more than a figure
         click.echo(f"Warning: the plots of the partial run could not be drawn ({exc})", err=True)
 
