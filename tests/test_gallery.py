@@ -162,3 +162,24 @@ def test_hloc_group_names_in_predictions(gardenspoint_netvlad: tuple[np.ndarray,
         assert r["prediction_name"].endswith(f"{int(r['prediction']):03d}.png")
         assert r["true_name"].endswith(f"{int(r['true']):03d}.png")
     assert not list(run.glob("gallery_*"))  # names, but no image files to show
+
+
+@pytest.mark.realdata
+def test_unreadable_image_warns_and_keeps_the_run(gardenspoint_sample_dir: Path, tmp_path: Path) -> None:
+    """The run is written before the gallery; an image that cannot be decoded costs the figure only."""
+    folder = tmp_path / "ref"
+    folder.mkdir()
+    for image in (gardenspoint_sample_dir / "ref").glob("*.jpg"):
+        (folder / image.name).write_bytes(image.read_bytes())
+    runner = CliRunner()
+    db, q = tmp_path / "db.npy", tmp_path / "q.npy"
+    _extract(runner, folder, db)
+    _extract(runner, gardenspoint_sample_dir / "query", q)
+    for image in folder.glob("*.jpg"):
+        image.write_bytes(b"not a jpeg")  # damaged after extraction
+    run = tmp_path / "run"
+    result = runner.invoke(main, ["evaluate", "--db", str(db), "--queries", str(q), "--methods", "bruteforce",
+                                  "--no-progress", "--out", str(run)])
+    assert result.exit_code == 0, result.output
+    assert "match gallery could not be drawn" in result.output and "cannot decode" in result.output
+    assert (run / "metrics.json").is_file() and not list(run.glob("gallery_*"))

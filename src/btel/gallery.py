@@ -127,6 +127,26 @@ def plot_match_gallery(
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(len(chosen), 3, figsize=(9.0, 2.3 * len(chosen) + 0.6), squeeze=False)
+    try:
+        _draw_rows(axes, chosen, query_images, db_images, predictions, true_places, correct)
+    except BaseException:
+        plt.close(fig)
+        raise
+    n_ok = int(correct[chosen].sum())
+    fig.suptitle((f"{title}\n" if title else "")
+                 + f"{len(chosen)} of {n} queries: {n_ok} correct (green), {len(chosen) - n_ok} wrong (red); "
+                 f"top-1 over all queries {correct.mean():.0%}", fontsize=9)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def _draw_rows(axes: Any, chosen: np.ndarray, query_images: Sequence[Any], db_images: Sequence[Any],
+               predictions: np.ndarray, true_places: np.ndarray, correct: np.ndarray) -> None:
+    """One row of the gallery per chosen query: query | top-1 (framed by its verdict) | true place."""
     for row, j in zip(axes, chosen.tolist()):
         ok = bool(correct[j])
         colour = "#1a9641" if ok else "#d7191c"
@@ -148,13 +168,3 @@ def plot_match_gallery(
         for spine in row[1].spines.values():  # the retrieved image carries the verdict as its frame
             spine.set_edgecolor(colour)
             spine.set_linewidth(4)
-    n_ok = int(correct[chosen].sum())
-    fig.suptitle((f"{title}\n" if title else "")
-                 + f"{len(chosen)} of {n} queries: {n_ok} correct (green), {len(chosen) - n_ok} wrong (red); "
-                 f"top-1 over all queries {correct.mean():.0%}", fontsize=9)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path

@@ -955,11 +955,15 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
     click.echo(format_table(results))
     report = writer.finish(results, title=title, tolerance_unit=unit)
     click.echo(f"run folder: {report.out_dir}")
+    from ..exceptions import BTELError
     from ._gallery import row_images, write_galleries
 
     if row_images(extra.get("queries")) and row_images(extra.get("db")):  # image inputs: show what was retrieved
-        for path in write_galleries(out):
-            click.echo(f"match gallery: {path}")
+        try:
+            for path in write_galleries(out):
+                click.echo(f"match gallery: {path}")
+        except (click.ClickException, BTELError, OSError) as exc:  # the run is written; a figure is extra
+            click.echo(f"Warning: the match gallery could not be drawn ({getattr(exc, 'message', exc)})", err=True)
     if pairs is not None:
         from ._names import write_pairs
 
@@ -1158,7 +1162,7 @@ def _command_line() -> str:
     return shlex.join(["btel", *sys.argv[1:]])
 
 
-from ._gallery import show_cmd  # noqa: E402 - btel show RUN: the match gallery of a finished run
+from ._gallery import show_cmd  # btel show RUN: the match gallery of a finished run
 
 main.add_command(show_cmd)
 
