@@ -107,7 +107,7 @@ def test_show_says_why_without_images(gardenspoint_netvlad: tuple[np.ndarray, np
     assert result.exit_code == 0, result.output
     assert not list(run.glob("gallery_*")) and "query_name" not in (run / "predictions_bruteforce.csv").read_text()
     shown = runner.invoke(main, ["show", str(run)])
-    assert shown.exit_code == 1 and "records none on disk" in shown.output and "Traceback" not in shown.output
+    assert shown.exit_code == 1 and "record none on disk" in shown.output and "Traceback" not in shown.output
     missing = runner.invoke(main, ["show", str(tmp_path / "nowhere")])
     assert missing.exit_code == 1 and "no metrics.json" in missing.output
 

@@ -88,12 +88,12 @@ def write_galleries(run: Path, *, n_rows: int = GALLERY_ROWS, overwrite: bool = 
     db, queries = extra.get("db"), extra.get("queries")
     q_images, db_images = row_images(queries), row_images(db)
     if q_images is None or db_images is None:
-        missing = [f"{option} {path}" for option, path, images in (("--db", db, db_images),
+        missing = [f"{option} {path}" if path else f"{option} (not given)" for option, path, images in (("--db", db, db_images),
                                                                     ("--queries", queries, q_images))
                    if images is None]
         raise click.ClickException(
-            f"the match gallery needs the images of the run's inputs, and {', '.join(missing) or 'a saved --model'} "
-            "records none on disk (descriptors written by btel extract record their image folder in the .json "
+            f"the match gallery needs the images of the run's inputs, and {' and '.join(missing)} "
+            f"{'records' if len(missing) == 1 else 'record'} none on disk (descriptors written by btel extract record their image folder in the .json "
             "beside them; a --model run has no --db images).")
     from ..runs import _safe_name
 
