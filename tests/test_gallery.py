@@ -183,3 +183,19 @@ def test_unreadable_image_warns_and_keeps_the_run(gardenspoint_sample_dir: Path,
     assert result.exit_code == 0, result.output
     assert "match gallery could not be drawn" in result.output and "cannot decode" in result.output
     assert (run / "metrics.json").is_file() and not list(run.glob("gallery_*"))
+
+
+@pytest.mark.realdata
+def test_extraction_before_the_folder_was_recorded_is_reused_and_completed(gardenspoint_sample_dir: Path,
+                                                                          tmp_path: Path) -> None:
+    runner = CliRunner()
+    db = tmp_path / "db.npy"
+    _extract(runner, gardenspoint_sample_dir / "ref", db)
+    sidecar = Path(str(db) + ".json")
+    old = json.loads(sidecar.read_text())
+    del old["folder"]  # as written by the previous version
+    sidecar.write_text(json.dumps(old))
+    again = runner.invoke(main, ["extract", str(gardenspoint_sample_dir / "ref"), "-o", str(db), "--descriptor",
+                                 "patchnorm", "--size", "56x32", "--no-progress"])
+    assert again.exit_code == 0 and "already exists" not in again.output, again.output
+    assert json.loads(sidecar.read_text())["folder"] == str((gardenspoint_sample_dir / "ref").resolve())

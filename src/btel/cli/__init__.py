@@ -403,12 +403,12 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
 def _is_cache_of(output: str, images_dir: str, model: Any, fit_on: str | None) -> bool:
     """``output`` was written by an extraction of these images with this descriptor (its JSON sidecar says so):
     reusing or recomputing it replaces nothing."""
-    from ..descriptors.extract import extraction_key
+    from ..descriptors.extract import extraction_key, same_extraction
     from ..descriptors.images import list_images
 
     sidecar = Path(str(output) + ".json")
     try:
-        return json.loads(sidecar.read_text()) == extraction_key(list_images(images_dir), model, fit_on)
+        return same_extraction(json.loads(sidecar.read_text()), extraction_key(list_images(images_dir), model, fit_on))
     except (OSError, ValueError):
         return False
 

@@ -110,6 +110,16 @@ def extraction_key(paths: list[Path], model: ImageDescriptor, fit_on: Any = None
     }
 
 
+def same_extraction(cached: Any, key: dict[str, Any]) -> bool:
+    """The sidecar ``cached`` records the extraction ``key``; a sidecar written before the image
+    folder was recorded (no ``"folder"``) still matches on everything else."""
+    if not isinstance(cached, dict):
+        return False
+    if "folder" not in cached:
+        return cached == {k: v for k, v in key.items() if k != "folder"}
+    return cached == key
+
+
 def extract_cached(
     images: str | os.PathLike | list[Path],
     output: str | os.PathLike,
@@ -143,7 +153,11 @@ def extract_cached(
             cached = json.loads(sidecar.read_text())
         except (OSError, json.JSONDecodeError):
             cached = None
-        if cached == key:
+        if same_extraction(cached, key):
+            if cached != key:  # written before the folder was recorded: record it now
+                tmp_sidecar = sidecar.with_name(f"{sidecar.name}.{os.getpid()}.part")
+                tmp_sidecar.write_text(json.dumps(key, indent=1))
+                os.replace(tmp_sidecar, sidecar)
             return np.load(output, allow_pickle=False), True
     X = extract_descriptors(paths, model, fit_on=fit_on, progress=progress)
     output.parent.mkdir(parents=True, exist_ok=True)
