@@ -76,6 +76,7 @@ def plot_match_gallery(
     *,
     n_rows: int = 8,
     title: str | None = None,
+    true_label: str = "true place",
 ) -> Path:
     """Draw the match gallery of one method to ``path`` (PNG).
 
@@ -95,6 +96,8 @@ def plot_match_gallery(
         Most queries shown (chosen by :func:`choose_gallery_queries`).
     title : str, optional
         Figure title (method and run).
+    true_label : str, default "true place"
+        What the third image is (``"a positive"`` when the ground truth lists several per query).
 
     Returns
     -------
@@ -128,7 +131,7 @@ def plot_match_gallery(
 
     fig, axes = plt.subplots(len(chosen), 3, figsize=(9.0, 2.3 * len(chosen) + 0.6), squeeze=False)
     try:
-        _draw_rows(axes, chosen, query_images, db_images, predictions, true_places, correct)
+        _draw_rows(axes, chosen, query_images, db_images, predictions, true_places, correct, true_label)
     except BaseException:
         plt.close(fig)
         raise
@@ -145,7 +148,7 @@ def plot_match_gallery(
 
 
 def _draw_rows(axes: Any, chosen: np.ndarray, query_images: Sequence[Any], db_images: Sequence[Any],
-               predictions: np.ndarray, true_places: np.ndarray, correct: np.ndarray) -> None:
+               predictions: np.ndarray, true_places: np.ndarray, correct: np.ndarray, true_label: str) -> None:
     """One row of the gallery per chosen query: query | top-1 (framed by its verdict) | true place."""
     for row, j in zip(axes, chosen.tolist()):
         ok = bool(correct[j])
@@ -154,7 +157,7 @@ def _draw_rows(axes: Any, chosen: np.ndarray, query_images: Sequence[Any], db_im
                  (Path(db_images[predictions[j]]) if predictions[j] >= 0 else None,
                   f"top-1: map {predictions[j]} — {'correct' if ok else 'wrong'}", colour),
                  (Path(db_images[true_places[j]]) if true_places[j] >= 0 else None,
-                  f"true place: map {true_places[j]}" if true_places[j] >= 0 else "no true place", "black")]
+                  f"{true_label}: map {true_places[j]}" if true_places[j] >= 0 else f"no {true_label}", "black")]
         for ax, (image_path, label, text_colour) in zip(row, cells):
             image = _thumbnail(image_path)
             if image is not None:

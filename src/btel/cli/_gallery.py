@@ -61,7 +61,8 @@ def _read_predictions(path: Path) -> dict[str, Any] | None:
         return None
     true = np.array([int(r[true_field]) for r in rows], dtype=np.int64)
     correct = (np.array([int(r["correct"]) for r in rows], dtype=bool) if "correct" in fields else pred == true)
-    return {"pred": pred, "true": true, "correct": correct}
+    return {"pred": pred, "true": true, "correct": correct,
+            "label": "true place" if true_field == "true" else "a positive"}
 
 
 def write_galleries(run: Path, *, n_rows: int = GALLERY_ROWS, overwrite: bool = True) -> list[Path]:
@@ -107,7 +108,8 @@ def write_galleries(run: Path, *, n_rows: int = GALLERY_ROWS, overwrite: bool = 
         if target.exists() and not overwrite:
             raise click.UsageError(f"{target} already exists; give --overwrite to draw it again.")
         written.append(plot_match_gallery(q_images, db_images, read["pred"], read["true"], read["correct"], target,
-                                          n_rows=n_rows, title=f"{name} — {run.name}"))
+                                          n_rows=n_rows, title=f"{name} — {run.name}",
+                                          true_label=read["label"]))
     return written
 
 
