@@ -955,15 +955,9 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
     click.echo(format_table(results))
     report = writer.finish(results, title=title, tolerance_unit=unit)
     click.echo(f"run folder: {report.out_dir}")
-    from ..exceptions import BTELError
-    from ._gallery import row_images, write_galleries
+    from ._gallery import galleries_after_run
 
-    if row_images(extra.get("queries")) and row_images(extra.get("db")):  # image inputs: show what was retrieved
-        try:
-            for path in write_galleries(out):
-                click.echo(f"match gallery: {path}")
-        except (click.ClickException, BTELError, OSError) as exc:  # the run is written; a figure is extra
-            click.echo(f"Warning: the match gallery could not be drawn ({getattr(exc, 'message', exc)})", err=True)
+    galleries_after_run(out, extra)
     if pairs is not None:
         from ._names import write_pairs
 

@@ -113,6 +113,20 @@ def write_galleries(run: Path, *, n_rows: int = GALLERY_ROWS, overwrite: bool = 
     return written
 
 
+def galleries_after_run(run: Path, extra: dict[str, Any]) -> None:
+    """``btel evaluate`` on image inputs: draw the galleries of the finished run ``run``. An image
+    that cannot be read costs the figure only (a warning): the run is already written."""
+    from ..exceptions import BTELError
+
+    if not (row_images(extra.get("queries")) and row_images(extra.get("db"))):
+        return
+    try:
+        for path in write_galleries(run):
+            click.echo(f"match gallery: {path}")
+    except (click.ClickException, BTELError, OSError) as exc:
+        click.echo(f"Warning: the match gallery could not be drawn ({getattr(exc, 'message', exc)})", err=True)
+
+
 @click.command(name="show")
 @click.argument("run", type=click.Path(file_okay=False))
 @click.option("--rows", "n_rows", type=click.IntRange(min=1, max=50), default=GALLERY_ROWS, show_default=True,
