@@ -406,3 +406,36 @@ def test_a_run_of_saved_models_is_titled_as_such(tmp_path: Path, monkeypatch) ->
                  "--no-progress")
     assert result.exit_code == 0, result.output
     assert titles and "saved models" in titles[0] and "budget none" not in titles[0]
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("order", ["route", "independent"])
+def test_plots_of_independent_queries_do_not_speak_of_frames(order: str, gardenspoint_netvlad, tmp_path: Path,
+                                                             monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 23: with --query-order independent the plots said "recall within t frames"."""
+    import matplotlib.text
+
+    import btel.plots
+
+    texts: dict[str, list[str]] = {}
+    save = btel.plots._save
+
+    def recording_save(fig, path):  # every word drawn in every figure of the run
+        texts[Path(path).name] = [t.get_text() for t in fig.findobj(matplotlib.text.Text)]
+        save(fig, path)
+
+    monkeypatch.setattr(btel.plots, "_save", recording_save)
+    X, Q = gardenspoint_netvlad
+    db, q = tmp_path / "db.npy", tmp_path / "q.npy"
+    np.save(db, X[:100])
+    np.save(q, Q[:100])
+    result = run("evaluate", "--db", db, "--queries", q, "--methods", "pq", "--budget", "8KB", "--query-order", order,
+                 "--no-progress", "--out", tmp_path / "run")
+    assert result.exit_code == 0, result.output
+    assert {"recall_vs_tolerance.png", "recall_vs_storage.png"} <= set(texts)
+    words = " ".join(t for name in ("recall_vs_tolerance.png", "recall_vs_storage.png") for t in texts[name])
+    if order == "route":
+        assert "tolerance t (frames)" in words and "within 10 frames" in words
+    else:
+        assert "frames" not in words
+        assert "tolerance t (map places)" in words and "within 10 map places" in words

@@ -177,9 +177,9 @@ def test_run_figures_name_the_rows_that_did_not_run(tmp_path: Path) -> None:
     titles: list[str] = []
     real = plots._run_figure
 
-    def spy(results, path, *, kind, title):
+    def spy(results, path, *, kind, title, **kwargs):
         titles.append(title)
-        return real(results, path, kind=kind, title=title)
+        return real(results, path, kind=kind, title=title, **kwargs)
 
     plots._run_figure = spy
     try:

@@ -74,7 +74,7 @@ def test_write_run_files_and_recomputed_recall(tmp_path: Path) -> None:
     assert float(rows[1]["R@5"]) == results[1].recall_at_k[5] and rows[2]["R@5"] == ""  # no rank(): R@1 only
     with open(report.predictions["ahead"], newline="") as fh:
         first = next(csv.DictReader(fh))
-    assert first == {"query": "0", "prediction": "1", "true": "0"}
+    assert first == {"query": "0", "prediction": "1", "true": "0", "correct": "0"}
 
 
 def test_predictions_carry_an_explicit_true_place(tmp_path: Path) -> None:

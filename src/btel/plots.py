@@ -240,7 +240,8 @@ def _panels(results: Sequence[Any]) -> list[tuple[int | None, list[Any]]]:
     return [(b, [r for r in results if _field(r, "budget") == b and r not in shared] + shared) for b in budgets]
 
 
-def _run_figure(results: Sequence[Any], path: Path, *, kind: str, title: str | None) -> Figure:
+def _run_figure(results: Sequence[Any], path: Path, *, kind: str, title: str | None,
+                unit: str = "frames") -> Figure:
     """recall@t curves (``kind="tolerance"``) or R@K lines (``kind="k"``), one panel per budget.
 
     A method keeps its colour in every panel; each panel's legend sits below it (two columns), so
@@ -282,7 +283,7 @@ def _run_figure(results: Sequence[Any], path: Path, *, kind: str, title: str | N
         if kind == "tolerance":
             ax.set_xlim(0, right)  # twice the largest reported tolerance, not a fixed 80 frames
             ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # frames: no 2.5 or 7.5
-            ax.set_xlabel("tolerance t (frames)")
+            ax.set_xlabel(f"tolerance t ({unit})")
         else:
             ks = sorted({int(k) for r in members for k in (_field(r, "recall_at_k") or {})})
             ax.set_xticks(ks)  # R@K exists only at the K that were measured
@@ -301,7 +302,7 @@ def _run_figure(results: Sequence[Any], path: Path, *, kind: str, title: str | N
 
 
 def plot_run(results: Sequence[Any], out_dir: str | os.PathLike, *, title: str | None = None,
-             not_run: Sequence[Any] = ()) -> list[Path]:
+             not_run: Sequence[Any] = (), tolerance_unit: str = "frames") -> list[Path]:
     """The plots of an evaluation run folder (``btel evaluate``, ``btel demo``).
 
     - ``recall_vs_tolerance.png`` when the ground truth has one true place per query (the curve
@@ -316,6 +317,10 @@ def plot_run(results: Sequence[Any], out_dir: str | os.PathLike, *, title: str |
     ``not_run``: rows without numbers (does not fit, failed, …); each figure names them under its
     title, so a method never vanishes from a figure without a word.
 
+    ``tolerance_unit``: what a tolerance step is, in the axis labels — ``"frames"`` when the
+    queries run along a route, ``"map places"`` when they are independent places (``btel evaluate
+    --query-order independent``), so no figure speaks of frames on a map of independent places.
+
     Returns
     -------
     list of Path
@@ -329,7 +334,7 @@ def plot_run(results: Sequence[Any], out_dir: str | os.PathLike, *, title: str |
     written: list[Path] = []
     if any(len(_field(r, "recall_curve") if _field(r, "recall_curve") is not None else ()) for r in results):
         written.append(out_dir / "recall_vs_tolerance.png")
-        _run_figure(results, written[-1], kind="tolerance", title=title)
+        _run_figure(results, written[-1], kind="tolerance", title=title, unit=tolerance_unit)
     elif any(_field(r, "recall_at_k") for r in results):
         written.append(out_dir / "recall_at_k.png")
         _run_figure(results, written[-1], kind="k", title=title)
@@ -353,7 +358,7 @@ def plot_run(results: Sequence[Any], out_dir: str | os.PathLike, *, title: str |
         else:
             ordered = sorted(common)
             key = 10 if 10 in common else ordered[len(ordered) // 2]
-            ylabel = f"recall@{key} (within {key} frames)"
+            ylabel = f"recall@{key} (within {key} {tolerance_unit})"
         budgets = sorted({int(b) for r in results if (b := _field(r, "budget")) is not None
                           and not _field(r, "reference", False)})
         written.append(out_dir / "recall_vs_storage.png")

@@ -94,7 +94,7 @@ def _safe_name(name: str) -> str:
 
 
 #: Files a run folder may hold; with ``overwrite=True`` these (and only these) are removed first.
-_RUN_FILE_PATTERNS = ("metrics.json", "metrics.csv", "predictions_*.csv", "recall_vs_*.png", "recall_at_k.png",
+_RUN_FILE_PATTERNS = ("metrics.json", "metrics.csv", "predictions_*.csv", "gallery_*.png", "recall_vs_*.png", "recall_at_k.png",
                       "precision_recall.png", ".metrics.*.tmp")
 
 
@@ -227,6 +227,45 @@ def _csv_text(results: Sequence[EvaluationResult]) -> str:
     return buffer.getvalue()
 
 
+def predictions_csv_text(r: EvaluationResult, query_names: Sequence[str] | None = None,
+                         db_names: Sequence[str] | None = None) -> str:
+    """The ``predictions_<method>.csv`` of the row ``r``.
+
+    Columns: ``query,prediction``; ``true`` (one true place per query) or ``positive`` (one of the
+    query's positives, -1 for none) and ``correct`` (0/1, the top-1 is a true place) when the
+    ground truth is known; ``rank_1…rank_K`` when the method ranked more than one candidate; and,
+    when the inputs name their rows (``btel extract``'s .json, hloc .h5), ``query_name``,
+    ``prediction_name`` and ``true_name`` / ``positive_name``. Row numbers always stay.
+    """
+    n = r.n_queries
+    columns: list[tuple[str, Sequence[Any]]] = [("query", np.arange(n)), ("prediction", r.predictions)]
+    gt = r.ground_truth
+    reference = None
+    if gt is not None and gt.kind == "places":
+        reference = ("true", np.asarray(gt.query_places))
+    elif gt is not None:
+        first = np.where(np.diff(gt.indptr) > 0, gt.indices[np.minimum(gt.indptr[:-1], max(gt.indices.size - 1, 0))], -1)
+        reference = ("positive", first)
+    if reference is not None:
+        columns.append(reference)
+        columns.append(("correct", gt.is_correct(r.predictions).astype(np.int64)))
+    if r.ranked is not None and r.ranked.shape[1] > 1:
+        columns += [(f"rank_{j + 1}", r.ranked[:, j]) for j in range(r.ranked.shape[1])]
+    if query_names is not None and len(query_names) == n:
+        columns.append(("query_name", list(query_names)))
+        if db_names is not None:
+            named = np.asarray(list(db_names) + [""], dtype=object)  # -1 (no place) → ""
+            columns.append(("prediction_name", named[np.asarray(r.predictions)]))
+            if reference is not None:
+                columns.append((f"{reference[0]}_name", named[reference[1]]))
+    buffer = io.StringIO()
+    out = csv.writer(buffer, lineterminator="\n")
+    out.writerow([name for name, _ in columns])
+    for i in range(n):
+        out.writerow([int(v[i]) if isinstance(v, np.ndarray) and v.dtype.kind in "iub" else v[i] for _, v in columns])
+    return buffer.getvalue()
+
+
 class RunWriter:
     """A run folder written as an evaluation goes: metrics after every method, plots at the end.
 
@@ -264,6 +303,8 @@ class RunWriter:
         self.metrics_csv = self.out_dir / "metrics.csv"
         self.predictions: dict[str, Path] = {}
         self.plots: list[Path] = []
+        self.query_names: Sequence[str] | None = None
+        self.db_names: Sequence[str] | None = None
 
     def write(self, results: Sequence[EvaluationResult], *, complete: bool = False) -> None:
         """Write the metrics of every row so far, and the predictions of rows not written yet."""
@@ -281,17 +322,7 @@ class RunWriter:
             if not r.ok or r.name in self.predictions:
                 continue
             path = self.out_dir / f"predictions_{stem}.csv"
-            columns = [np.arange(r.n_queries), r.predictions]
-            names = ["query", "prediction"]
-            if r.ground_truth is not None and r.ground_truth.kind == "places":
-                columns.append(r.ground_truth.query_places)
-                names.append("true")
-            if r.ranked is not None and r.ranked.shape[1] > 1:
-                columns.append(r.ranked)
-                names += [f"rank_{j + 1}" for j in range(r.ranked.shape[1])]
-            buffer = io.StringIO()
-            np.savetxt(buffer, np.column_stack(columns), fmt="%d", delimiter=",", header=",".join(names), comments="")
-            _atomic_write_text(path, buffer.getvalue())
+            _atomic_write_text(path, predictions_csv_text(r, self.query_names, self.db_names))
             self.predictions[r.name] = path
 
     def close(self) -> None:
@@ -302,8 +333,12 @@ class RunWriter:
         release(self._lock)
         self._lock = None
 
-    def finish(self, results: Sequence[EvaluationResult], *, plots: bool = True, title: str | None = None) -> "RunReport":
-        """Write the final metrics (``"complete": true``) and the plots; return what was written."""
+    def finish(self, results: Sequence[EvaluationResult], *, plots: bool = True, title: str | None = None,
+               tolerance_unit: str = "frames") -> "RunReport":
+        """Write the final metrics (``"complete": true``) and the plots; return what was written.
+
+        ``tolerance_unit``: ``"frames"`` (queries along a route) or ``"map places"`` (independent
+        queries), for the plots' axis labels (:func:`btel.plots.plot_run`)."""
         results = list(results)
         try:
             self.write(results, complete=True)
@@ -312,7 +347,7 @@ class RunWriter:
                 from . import plots as _plots
 
                 self.plots = _plots.plot_run(measured, self.out_dir, title=title,
-                                             not_run=[r for r in results if not r.ok])
+                                             not_run=[r for r in results if not r.ok], tolerance_unit=tolerance_unit)
         finally:
             self.close()
         return RunReport(self.out_dir, self.metrics_json, self.metrics_csv, dict(self.predictions), list(self.plots))
@@ -356,6 +391,7 @@ def resume_writer(out_dir: str | os.PathLike, finished: Sequence[EvaluationResul
     writer.metrics_csv = writer.out_dir / "metrics.csv"
     writer.predictions = {r.name: writer.out_dir / f"predictions_{_safe_name(r.name)}.csv" for r in finished if r.ok}
     writer.plots = []
+    writer.query_names = writer.db_names = None
     return writer
 
 

@@ -404,12 +404,12 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
 def _is_cache_of(output: str, images_dir: str, model: Any, fit_on: str | None) -> bool:
     """``output`` was written by an extraction of these images with this descriptor (its JSON sidecar says so):
     reusing or recomputing it replaces nothing."""
-    from ..descriptors.extract import extraction_key
+    from ..descriptors.extract import extraction_key, same_extraction
     from ..descriptors.images import list_images
 
     sidecar = Path(str(output) + ".json")
     try:
-        return json.loads(sidecar.read_text()) == extraction_key(list_images(images_dir), model, fit_on)
+        return same_extraction(json.loads(sidecar.read_text()), extraction_key(list_images(images_dir), model, fit_on))
     except (OSError, ValueError):
         return False
 
@@ -774,18 +774,18 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
                    "saved models" + (" and unbudgeted methods" if jobs else "") if saved else "no budget")
     title = f"{dataset}: N = {n_map}, {Q.shape[0]} queries; {budget_part}; {truth}"
     click.echo(f"map: N = {n_map} places; queries: {Q.shape[0]} × {Q.shape[1]}; ground truth: {truth}")
-    pairs = None
+    from ._gallery import input_names
+
+    pairs, names = None, input_names(db, queries, n_map, Q.shape[0])
     if pairs_path is not None:
-        from ._names import pairs_paths, row_names
+        from ._names import pairs_paths
 
         targets = pairs_paths(pairs_path, [j.name for j in saved + jobs])
         for target in targets.values():
             refuse_existing(target, "--pairs", overwrite)
-        q_names = row_names(queries) or [str(i) for i in range(Q.shape[0])]
-        db_names = (row_names(db) if db else None) or [str(i) for i in range(n_map)]
-        pairs = (targets, q_names, db_names)
+        pairs = (targets, names[0] or [str(i) for i in range(Q.shape[0])], names[1] or [str(i) for i in range(n_map)])
     failed = _run_jobs(saved + jobs, X, Q, ground_truth=gt, out=Path(out_dir), overwrite=overwrite, title=title,
-                       pairs=pairs,
+                       pairs=pairs, names=names,
                        tolerances=tolerance_list, ks=ks, queries_are_route=query_order == "route",
                        progress=not no_progress, finished=finished, timing_threads=timing_threads or None,
                        extra={"db": str(Path(db).resolve()) if db else None, "models": list(model_paths),
@@ -897,6 +897,7 @@ def _fit_jobs(names: list[str], budgets: list[str | None], param_texts: tuple[st
 def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out: Path, overwrite: bool, title: str,
               extra: dict[str, Any], progress: bool, tolerances: list[int] | None = None,
               finished: list[Any] | None = None, timing_threads: int | None = 1, pairs: tuple[dict[str, Path], list[str], list[str]] | None = None,
+              names: tuple[list[str] | None, list[str] | None] = (None, None),
               ks: list[int] | tuple[int, ...] = (1, 5, 10, 20), queries_are_route: bool = True) -> bool:
     """Run every job through :func:`btel.evaluation.evaluate_all`, writing the run folder as rows finish.
 
@@ -915,6 +916,8 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
         writer = resume_writer(out, finished, command=_command_line(), extra=extra)
     else:
         writer = RunWriter(out, command=_command_line(), extra=extra, overwrite=overwrite)
+    writer.query_names, writer.db_names = names  # image names in the predictions files
+    unit = "frames" if queries_are_route else "map places"  # no "frames" on independent places
     bar = tqdm(total=len(jobs), unit="method", disable=None if progress else True, leave=False, file=sys.stderr)
 
     def on_preflight(skipped: dict[str, Any]) -> None:
@@ -946,13 +949,16 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
                                on_start=on_start, finished=finished or (), timing_threads=timing_threads)
     except KeyboardInterrupt:
         bar.close()
-        _plot_partial_run(latest, out, title)
+        _plot_partial_run(latest, out, title, unit)
         click.echo(f"interrupted: the finished rows are in {out}/metrics.csv", err=True)
         raise click.exceptions.Exit(EXIT_INTERRUPTED) from None
     bar.close()
     click.echo(format_table(results))
-    report = writer.finish(results, title=title)
+    report = writer.finish(results, title=title, tolerance_unit=unit)
     click.echo(f"run folder: {report.out_dir}")
+    from ._gallery import galleries_after_run
+
+    galleries_after_run(out, extra)
     if pairs is not None:
         from ._names import write_pairs
 
@@ -968,7 +974,7 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
     return bool(failed)
 
 
-def _plot_partial_run(rows: list[Any], out: Path, title: str) -> None:
+def _plot_partial_run(rows: list[Any], out: Path, title: str, unit: str = "frames") -> None:
     """The plots of the rows that finished before Ctrl-C (metrics.json stays ``"complete": false``)."""
     from ..plots import plot_run
 
@@ -976,7 +982,8 @@ def _plot_partial_run(rows: list[Any], out: Path, title: str) -> None:
     if not measured:
         return
     try:
-        plot_run(measured, out, title=f"{title} — interrupted: {len(measured)} of {len(rows)} rows")
+        plot_run(measured, out, title=f"{title} — interrupted: {len(measured)} of {len(rows)} rows",
+                 tolerance_unit=unit)
     except (ValueError, OSError) as exc:  # the rows on disk matter more than a figure
         click.echo(f"Warning: the plots of the partial run could not be drawn ({exc})", err=True)
 
@@ -1149,6 +1156,10 @@ def _int(value: str, flag: str) -> int:
 def _command_line() -> str:
     return shlex.join(["btel", *sys.argv[1:]])
 
+
+from ._gallery import show_cmd  # btel show RUN: the match gallery of a finished run
+
+main.add_command(show_cmd)
 
 if __name__ == "__main__":  # pragma: no cover
     main()

@@ -98,13 +98,26 @@ def extraction_key(paths: list[Path], model: ImageDescriptor, fit_on: Any = None
     params = {k: (list(v) if isinstance(v, tuple) else v) for k, v in model.get_params().items()}
     files = [[p.name, p.stat().st_size, int(p.stat().st_mtime_ns)] for p in paths]
     prefitted = bool(getattr(model, "dim_", None)) and bool(getattr(model, "requires_fit", False))
+    parents = {p.parent for p in paths}
     return {
         "descriptor": type(model).__name__,
         "params": json.loads(json.dumps(params, default=str)),
         "fit_on": str(Path(fit_on).resolve()) if isinstance(fit_on, (str, os.PathLike)) else None,
         "prefitted": prefitted,
         "images": files,
+        # Where the images are, so that a run can show them (btel evaluate's match gallery).
+        "folder": str(parents.pop().resolve()) if len(parents) == 1 else None,
     }
+
+
+def same_extraction(cached: Any, key: dict[str, Any]) -> bool:
+    """The sidecar ``cached`` records the extraction ``key``; a sidecar written before the image
+    folder was recorded (no ``"folder"``) still matches on everything else."""
+    if not isinstance(cached, dict):
+        return False
+    if "folder" not in cached:
+        return cached == {k: v for k, v in key.items() if k != "folder"}
+    return cached == key
 
 
 def extract_cached(
@@ -140,7 +153,11 @@ def extract_cached(
             cached = json.loads(sidecar.read_text())
         except (OSError, json.JSONDecodeError):
             cached = None
-        if cached == key:
+        if same_extraction(cached, key):
+            if cached != key:  # written before the folder was recorded: record it now
+                tmp_sidecar = sidecar.with_name(f"{sidecar.name}.{os.getpid()}.part")
+                tmp_sidecar.write_text(json.dumps(key, indent=1))
+                os.replace(tmp_sidecar, sidecar)
             return np.load(output, allow_pickle=False), True
     X = extract_descriptors(paths, model, fit_on=fit_on, progress=progress)
     output.parent.mkdir(parents=True, exist_ok=True)
