@@ -131,3 +131,13 @@ def test_shared_layers_ask_the_method_not_its_class() -> None:
         for name in ("BTELocalizer", "RYTHLocalizer", "PQLocalizer", "ITQLocalizer", "BruteForceNN", "CodeLocalizer"):
             assert f"isinstance(method, {name}" not in source and f"isinstance(model, {name}" not in source, \
                 (module.__name__, name)
+
+
+def test_registry_holds_one_factory_and_description_per_method() -> None:
+    from btel.base import PlaceLocalizer
+    from btel.methods import DESCRIPTIONS, REGISTRY
+
+    assert list(REGISTRY) == list(METHODS) == list(DESCRIPTIONS)
+    for name, (factory, description) in REGISTRY.items():
+        assert isinstance(factory(), PlaceLocalizer), name
+        assert description and "\n" not in description, name

@@ -1,7 +1,7 @@
 """Every localization method by name, and :func:`load` for the model files they save.
 
 ``make_method("btel-c", budget="500KB")`` builds an unfitted estimator. Adding a method is one
-class (a :class:`btel.base.PlaceLocalizer`) and one line in :data:`METHODS`.
+class (a :class:`btel.base.PlaceLocalizer`) and one line in :data:`REGISTRY` (factory and description).
 
 A model file is untrusted input: :func:`load` reads only plain arrays and JSON
 (:func:`btel.storage.load_arrays`), accepts only the classes registered here, restores only the
@@ -29,28 +29,9 @@ from .localizer import BTELocalizer
 from .ryth import RYTHLocalizer
 from .storage import load_arrays
 
-__all__ = ["METHODS", "DESCRIPTIONS", "MODEL_CLASSES", "make_method", "method_names", "load"]
+__all__ = ["REGISTRY", "METHODS", "DESCRIPTIONS", "MODEL_CLASSES", "make_method", "method_names", "load"]
 
-METHODS: dict[str, Callable[..., PlaceLocalizer]] = {
-    "btel-c": partial(BTELocalizer, scheme="compressed", n_regions=1),
-    "btel-f": partial(BTELocalizer, scheme="full", n_regions=1),
-    "btel-r": partial(BTELocalizer, scheme="compressed", n_regions=20),
-    "btel-auto": partial(BTELocalizer, scheme="compressed", n_regions="auto"),
-    "btel-codes": partial(CodeLocalizer, code="periodic"),
-    "ryth": RYTHLocalizer,
-    **BASELINES,
-    "auto": AutoLocalizer,
-}
-
-#: One line per method (``btel methods``).
-DESCRIPTIONS: dict[str, str] = {
-    "btel-c": "BTE-C: one linear classifier per bit of the place index, O(log N) bytes (the paper)",
-    "btel-f": "BTE-F: one classifier per tree node, O(N) bytes (the paper's foil)",
-    "btel-r": "BTEL with 20 KTS regions, a region classifier and one BTE-C tree each",
-    "btel-auto": "BTEL with the number of regions chosen by the KTS penalty",
-    "btel-codes": "BTEL beyond the binary index: K ≥ log2 N implicit periodic output codes, ridge-fitted, "
-                  "4-bit weights, K and d' chosen to fill the budget",
-    "ryth": "RYTH: residues of the place index modulo co-prime periods (Yu et al. 2018)",
+_BASELINE_DESCRIPTIONS: dict[str, str] = {
     "bruteforce": "exact nearest neighbour over every map descriptor (the unbudgeted reference)",
     "pq": "product quantisation (faiss), the most code bits that fit the budget",
     "opq": "optimised PQ: a learned rotation, then PQ (faiss)",
@@ -58,9 +39,32 @@ DESCRIPTIONS: dict[str, str] = {
     "lsh": "seeded sign random projections filling the budget (projection from the seed, 0 B), "
            "asymmetric scoring (projected query · ±1 codes) or Hamming",
     "seqslam": "SeqSLAM sequence matching over a uint8 map (uses the query sequence)",
-    "auto": "the method, code family and front end chosen from the map and the budget alone (btel.auto): "
-            "output codes on routes, whitened brute force or LSH on independent places",
 }
+
+#: Every method: ``name → (factory, one-line description)``. Adding a method is one class and one line here.
+REGISTRY: dict[str, tuple[Callable[..., PlaceLocalizer], str]] = {
+    "btel-c": (partial(BTELocalizer, scheme="compressed", n_regions=1),
+               "BTE-C: one linear classifier per bit of the place index, O(log N) bytes (the paper)"),
+    "btel-f": (partial(BTELocalizer, scheme="full", n_regions=1),
+               "BTE-F: one classifier per tree node, O(N) bytes (the paper's foil)"),
+    "btel-r": (partial(BTELocalizer, scheme="compressed", n_regions=20),
+               "BTEL with 20 KTS regions, a region classifier and one BTE-C tree each"),
+    "btel-auto": (partial(BTELocalizer, scheme="compressed", n_regions="auto"),
+                  "BTEL with the number of regions chosen by the KTS penalty"),
+    "btel-codes": (partial(CodeLocalizer, code="periodic"),
+                   "BTEL beyond the binary index: K ≥ log2 N implicit periodic output codes, ridge-fitted, "
+                   "4-bit weights, K and d' chosen to fill the budget"),
+    "ryth": (RYTHLocalizer, "RYTH: residues of the place index modulo co-prime periods (Yu et al. 2018)"),
+    **{name: (factory, _BASELINE_DESCRIPTIONS[name]) for name, factory in BASELINES.items()},
+    "auto": (AutoLocalizer, "the method, code family and front end chosen from the map and the budget alone "
+                            "(btel.auto): output codes on routes, whitened brute force or LSH on independent places"),
+}
+
+#: Unfitted-estimator factories by name (derived from :data:`REGISTRY`).
+METHODS: dict[str, Callable[..., PlaceLocalizer]] = {name: entry[0] for name, entry in REGISTRY.items()}
+
+#: One line per method (``btel methods``), derived from :data:`REGISTRY`.
+DESCRIPTIONS: dict[str, str] = {name: entry[1] for name, entry in REGISTRY.items()}
 
 #: auto picks among the registered methods: it is handed the registry (no import back from btel.auto).
 AutoLocalizer._registry = sys.modules[__name__]
