@@ -39,9 +39,9 @@ from typing import Any
 
 import numpy as np
 
-from ._validation import N_JOBS, RANDOM_STATE, Budget, check_descriptors, check_params
+from ._validation import N_JOBS, RANDOM_STATE, Budget, check_params
 from .base import ArraySpec, PlaceLocalizer
-from .exceptions import BudgetTooSmallError, ModelFileError, NotEnoughPlacesError
+from .exceptions import BudgetTooSmallError, ModelFileError
 from .frontend import FRONT_END_CONSTRAINTS, normalize_rows
 from .storage import format_bytes, parse_budget
 
@@ -191,12 +191,7 @@ class AutoLocalizer(PlaceLocalizer):
         self
         """
         start = time.perf_counter()
-        check_params(self)
-        X = check_descriptors(X, name="X")
-        labels, n_places = self._check_places(places, X.shape[0])
-        if X.shape[0] < self._min_rows:
-            raise NotEnoughPlacesError(f"AutoLocalizer needs at least {self._min_rows} map descriptors; "
-                                       f"got {X.shape[0]}.")
+        X, labels, n_places = self._check_fit_input(X, places)
         budget = parse_budget(self.budget)
         candidates = choose_method(X, labels, n_places, budget, self.whiten)
         refused: list[str] = []

@@ -263,13 +263,7 @@ class PlaceLocalizer(BaseEstimator, ABC):
         self
         """
         start = time.perf_counter()
-        check_params(self)
-        X = check_descriptors(X, name="X")
-        labels, n_places = self._check_places(places, X.shape[0])
-        if X.shape[0] < self._min_rows:
-            raise NotEnoughPlacesError(
-                f"{type(self).__name__} needs at least {self._min_rows} map descriptors; got {X.shape[0]}."
-            )
+        X, labels, n_places = self._check_fit_input(X, places)
         budget = parse_budget(getattr(self, "budget", None))
         front = FrontEnd.of(self)
         reserved = self._front_end_bytes(X.shape[0], X.shape[1], budget)
@@ -280,6 +274,17 @@ class PlaceLocalizer(BaseEstimator, ABC):
         self.fit_time_ = time.perf_counter() - start
         setattr(self, self._fitted_marker, int(n_places))  # the fitted marker: set last
         return self
+
+    def _check_fit_input(self, X: Any, places: Any) -> tuple[np.ndarray, np.ndarray | None, int]:
+        """Parameters, descriptors and places checked as every ``fit`` does: ``(X, labels, n_places)``."""
+        check_params(self)
+        X = check_descriptors(X, name="X")
+        labels, n_places = self._check_places(places, X.shape[0])
+        if X.shape[0] < self._min_rows:
+            raise NotEnoughPlacesError(
+                f"{type(self).__name__} needs at least {self._min_rows} map descriptors; got {X.shape[0]}."
+            )
+        return X, labels, n_places
 
     def check_budget(self, n_rows: int, n_features: int, budget: int | None,
                      reserved: int | None = None) -> None:

@@ -232,7 +232,7 @@ class ModelCache:
         """(fitted model, fit seconds, from the cache?) of ``make_method(name, **params)`` on X.
 
         A budget that only caps the model: when a model with the same parameters but another
-        budget reached its configuration's cap (:func:`_budget_saturated`: d' as large as the
+        budget reached its configuration's cap (``model.budget_saturated()``: d' as large as the
         parameters allow, so its budget did not shape it) and fits this budget too, it *is* the
         model this budget gives — BTE-C at d' = d under 5 MB … 256 KB, RYTH under 5 MB … 1 MB —
         and is reused. Raises whatever ``fit`` raises (e.g. BudgetTooSmallError); such outcomes
@@ -260,7 +260,7 @@ class ModelCache:
             model.fit(X)
             fit_s = time.perf_counter() - start
             self.put(key, model, fit_s, {"method": name, "params": params, "n_places": int(X.shape[0])})
-            if alias is not None and self.enabled and _budget_saturated(model):
+            if alias is not None and self.enabled and model.budget_saturated():
                 self._aliases[alias] = (key, int(model.nbytes))
                 if self.folder is not None and fit_s >= self.min_fit_seconds:
                     (self.folder / f"{alias}.json").write_text(json.dumps({"key": key, "nbytes": int(model.nbytes)}))
@@ -277,10 +277,39 @@ class ModelCache:
             return None
 
 
-def _budget_saturated(model: Any) -> bool:
-    """True when a fitted model is as large as its parameters allow, so its budget did not shape it
-    (the model answers: :meth:`btel.base.PlaceLocalizer.budget_saturated`)."""
-    return bool(model.budget_saturated())
+@dataclass
+class FittedRow:
+    """A method fitted under a budget and its answers to every query (:func:`fit_and_predict`)."""
+
+    model: Any
+    pred: np.ndarray
+    fit_s: float
+    query_us: float
+
+
+def fit_and_predict(name: str, params: dict[str, Any], X: np.ndarray, Q: np.ndarray, budget: int | None,
+                    label: str, *, progress: bool | None = None) -> FittedRow | dict[str, Any]:
+    """Fit one registered method under ``budget`` and predict every query, timing both.
+
+    A warm-up call builds the runtime caches (dequantised weights, codebook, faiss index) before the
+    timed prediction. Returns the fields of a "does not fit" row (with the minimum bytes) when the
+    budget is too small; ``progress`` (when given) is set on methods that have that parameter.
+    """
+    model = make_method(name, **({"budget": budget} if budget is not None else {}), **params)
+    if progress is not None and "progress" in model.get_params(deep=False):
+        model.set_params(progress=progress)
+    start = time.perf_counter()
+    try:
+        model.fit(X)
+    except BudgetTooSmallError as exc:
+        return {"status": f"does not fit (needs ≥ {exc.minimum} B)", "nbytes": None,
+                "minimum_bytes": int(exc.minimum or 0)}
+    fit_s = time.perf_counter() - start
+    check_within_budget(label, model.nbytes, budget)
+    model.predict(Q[:8])
+    start = time.perf_counter()
+    pred = model.predict(Q)
+    return FittedRow(model, pred, fit_s, (time.perf_counter() - start) / Q.shape[0] * 1e6)
 
 
 _CACHES: dict[str, ModelCache] = {}

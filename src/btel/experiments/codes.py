@@ -36,10 +36,8 @@ from typing import Any
 import numpy as np
 
 from ..evaluation import DEFAULT_TOLERANCES, recall_at_tolerance
-from ..exceptions import BudgetTooSmallError
-from ..methods import make_method
-from ..storage import check_within_budget, format_bytes, parse_budget
-from ._common import SEASONS, ExperimentRun, NordlandData
+from ..storage import format_bytes, parse_budget
+from ._common import SEASONS, ExperimentRun, FittedRow, NordlandData, fit_and_predict
 
 __all__ = ["exp_codes", "TARGETS", "check_targets"]
 
@@ -72,23 +70,13 @@ def _row(base: dict[str, Any], name: str, params: dict[str, Any], X: np.ndarray,
          budget: int | None) -> dict[str, Any]:
     """Fit one method (or record that it does not fit), predict every query, time both."""
     row = {**base, "registry_name": name, "budget": budget, "options": {k: v for k, v in params.items()}}
-    model = make_method(name, **({"budget": budget} if budget is not None else {}), **params)
-    start = time.perf_counter()
-    try:
-        model.fit(X)
-    except BudgetTooSmallError as exc:
-        return {**row, "status": f"does not fit (needs ≥ {exc.minimum} B)", "nbytes": None,
-                "minimum_bytes": int(exc.minimum or 0)}
-    fit_s = time.perf_counter() - start
-    check_within_budget(base["method"], model.nbytes, budget)
-    model.predict(Q[:8])  # warm-up: runtime caches (dequantised weights, codebook, faiss index) are built once
-    start = time.perf_counter()
-    pred = model.predict(Q)
-    query_us = (time.perf_counter() - start) / Q.shape[0] * 1e6
-    out = {**row, "status": "ok", "nbytes": int(model.nbytes), "fit_s": fit_s, "query_us": query_us,
-           **_recalls(pred, np.arange(Q.shape[0]))}
-    if model.summary():
-        out["configuration"] = model.summary()
+    fitted = fit_and_predict(name, params, X, Q, budget, base["method"])
+    if not isinstance(fitted, FittedRow):
+        return {**row, **fitted}
+    out = {**row, "status": "ok", "nbytes": int(fitted.model.nbytes), "fit_s": fitted.fit_s,
+           "query_us": fitted.query_us, **_recalls(fitted.pred, np.arange(Q.shape[0]))}
+    if fitted.model.summary():
+        out["configuration"] = fitted.model.summary()
     return out
 
 

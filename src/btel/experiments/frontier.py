@@ -49,11 +49,9 @@ from typing import Any
 import numpy as np
 
 from ..evaluation import recall_at_tolerance
-from ..exceptions import BudgetTooSmallError
-from ..methods import make_method
-from ..storage import check_within_budget, format_bytes, parse_budget
+from ..storage import format_bytes, parse_budget
 from ..threads import limit_threads
-from ._common import SEASONS, ExperimentRun, NordlandData
+from ._common import SEASONS, ExperimentRun, FittedRow, NordlandData, fit_and_predict
 
 __all__ = ["DATASETS", "auto_vs_oracle", "exp_frontier"]
 
@@ -89,23 +87,14 @@ DATASETS = ("gardens-point", "gardens-point-permuted", "nordland summer→winter
 def _row(base: dict[str, Any], label: str, name: str, params: dict[str, Any], X: np.ndarray, Q: np.ndarray,
          budget: int | None) -> dict[str, Any]:
     row = {**base, "direction": base["dataset"], "method": label, "registry_name": name, "options": dict(params), "budget": budget}
-    model = make_method(name, **({"budget": budget} if budget is not None else {}), **params)
-    if "progress" in model.get_params(deep=False):
-        model.set_params(progress=False)
-    start = time.perf_counter()
-    try:
-        model.fit(X)
-    except BudgetTooSmallError as exc:
-        return {**row, "status": f"does not fit (needs ≥ {exc.minimum} B)", "nbytes": None,
-                "minimum_bytes": int(exc.minimum or 0)}
-    fit_s = time.perf_counter() - start
-    check_within_budget(label, model.nbytes, budget)
-    start = time.perf_counter()
-    pred = model.predict(Q)
-    query_us = (time.perf_counter() - start) / Q.shape[0] * 1e6
-    recalls = {f"recall@{t}": v for t, v in recall_at_tolerance(pred, np.arange(Q.shape[0]), (0, 2, 10, 20)).items()}
+    fitted = fit_and_predict(name, params, X, Q, budget, label, progress=False)
+    if not isinstance(fitted, FittedRow):
+        return {**row, **fitted}
+    model = fitted.model
+    recalls = {f"recall@{t}": v
+               for t, v in recall_at_tolerance(fitted.pred, np.arange(Q.shape[0]), (0, 2, 10, 20)).items()}
     out = {**row, "status": "ok", "nbytes": int(model.nbytes), "bytes_per_place": model.nbytes / X.shape[0],
-           "fit_s": fit_s, "query_us": query_us, **recalls, "value": recalls[base["key"]],
+           "fit_s": fitted.fit_s, "query_us": fitted.query_us, **recalls, "value": recalls[base["key"]],
            "uses_query_sequence": bool(model.uses_query_sequence)}
     if name == "auto":
         out["chose"] = model.choice_["method"] + "".join(f" {k}={v}" for k, v in model.choice_["params"].items())
