@@ -125,7 +125,7 @@ def recall(pred: np.ndarray, truth: np.ndarray) -> dict[str, float]:
 def measure(n: int, n_queries: int, batch: int, repeats: int, single_calls: int) -> list[dict[str, Any]]:
     import faiss
 
-    from btel.codes import CodeLocalizer
+    from btel.methods.codes.estimator import CodeLocalizer
 
     print(f"N = {n:,d}: generating the route …", flush=True)
     X, Q, truth = route(n, n_queries)
@@ -201,7 +201,7 @@ def real_rows(single_calls: int, repeats: int) -> list[dict[str, Any]]:
     """
     import faiss
 
-    from btel.codes import CodeLocalizer
+    from btel.methods.codes.estimator import CodeLocalizer
     from btel.frontend import normalize_rows
 
     data_root = HERE.parent.parent / "shared" / "data"

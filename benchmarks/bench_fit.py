@@ -80,8 +80,8 @@ def certified(model: Any, X: np.ndarray) -> tuple[float, float]:
 
     Recomputed from the stored hyperplanes: standardised coefficients w·σ, intercept b + w·μ.
     """
-    from btel.encoding import encode, n_bits_for
-    from btel.linear import ColumnStats, standardised_columns
+    from btel.methods.btel.encoding import encode, n_bits_for
+    from btel.learning.linear import ColumnStats, standardised_columns
 
     Z = model.front_end_.transform(np.asarray(X, dtype=np.float32))
     stats = ColumnStats.of(Z)
@@ -125,7 +125,7 @@ def pq_peer(X: np.ndarray) -> dict[str, Any]:
 
 
 def run_solver(shape: dict[str, Any], solver: str, n_jobs: int) -> dict[str, Any]:
-    import btel.linear as linear
+    import btel.learning.linear as linear
     from btel import BTELocalizer
 
     trace: list[tuple[float, int, float]] = []

@@ -306,7 +306,7 @@ def kts_timing(map_path: Path, n: int) -> dict[str, Any]:
     Also how the r = 20 segmentation compares with the route's 20 true regions: true boundaries
     found within one block, and KTS' objective for both (lower is what KTS looks for).
     """
-    from btel.segmentation import DEFAULT_MAX_POINTS, kts_regions, kts_segmentations
+    from btel.methods.btel.segmentation import DEFAULT_MAX_POINTS, kts_regions, kts_segmentations
 
     X = np.load(map_path, mmap_mode="r", allow_pickle=False)[:n]
     true_starts = np.load(map_path.parent / "region_starts.npy")

@@ -1,7 +1,7 @@
 """Storage against N: BTE-C grows with log N, BTE-F (and brute force) linearly.
 
 Fits BTE-C for real at every N (fixed d'), and BTE-F for real up to --full-max (its fit time grows
-with N); beyond that BTE-F's bytes are the planned bytes (``btel.localizer.planned_bytes``, which
+with N); beyond that BTE-F's bytes are the planned bytes (``btel.methods.btel.localizer.planned_bytes``, which
 the tests check equals the fitted ``nbytes``).
 
     python benchmarks/bench_storage.py
@@ -15,7 +15,7 @@ import time
 
 from btel import BTELocalizer
 from btel.datasets import synthetic_route
-from btel.localizer import planned_bytes
+from btel.methods.btel.localizer import planned_bytes
 
 from _common import write_results
 

@@ -37,7 +37,7 @@ from _common import write_results  # noqa: E402
 
 from btel import BTELocalizer  # noqa: E402
 from btel.descriptors import augmented_views, extract_descriptors, get_descriptor, list_images  # noqa: E402
-from btel.diagnostics import localizer_bit_accuracy  # noqa: E402
+from btel.methods.btel.diagnostics import localizer_bit_accuracy  # noqa: E402
 from btel.methods import make_method  # noqa: E402
 
 ROOT = Path("..") / "shared" / "data" / "nordland64"

@@ -49,12 +49,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import RESULTS_DIR, write_results  # noqa: E402
 
 from btel import BTELocalizer  # noqa: E402
-from btel.baselines import SeqSLAM, seqslam_match  # noqa: E402
-from btel.diagnostics import localizer_bit_accuracy, plot_bit_accuracy  # noqa: E402
+from btel.methods.baselines import SeqSLAM, seqslam_match  # noqa: E402
+from btel.methods.btel.diagnostics import localizer_bit_accuracy, plot_bit_accuracy  # noqa: E402
 from btel.evaluation import recall_at_k  # noqa: E402
 from btel.exceptions import BudgetTooSmallError  # noqa: E402
 from btel.methods import make_method  # noqa: E402
-from btel.ranking import rank_places  # noqa: E402
+from btel.methods.btel.ranking import rank_places  # noqa: E402
 from btel.sequence import filter_sequence  # noqa: E402
 from btel.sequence_decoding import decode_sequence, emission_scores  # noqa: E402
 from btel.storage import format_bytes, parse_budget  # noqa: E402

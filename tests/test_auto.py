@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import btel
-from btel.auto import ROUTE_SHARE, choose_method, route_share
+from btel.methods.auto import ROUTE_SHARE, choose_method, route_share
 from btel.exceptions import BudgetTooSmallError, ModelFileError
 from btel.methods import make_method
 

@@ -9,8 +9,8 @@ import pytest
 from sklearn.base import clone
 
 from btel.methods import MODEL_CLASSES, load
-from btel.baselines import BASELINES, BruteForceNN, ITQLocalizer, OPQLocalizer, PQLocalizer, SeqSLAM
-from btel.baselines._common import rank_unique_places
+from btel.methods.baselines import BASELINES, BruteForceNN, ITQLocalizer, OPQLocalizer, PQLocalizer, SeqSLAM
+from btel.methods.baselines._common import rank_unique_places
 from btel.exceptions import (
     BudgetTooSmallError,
     DimensionMismatchError,

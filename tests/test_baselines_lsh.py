@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import btel
-from btel.baselines.lsh import LSHLocalizer, projection_matrix
+from btel.methods.baselines.lsh import LSHLocalizer, projection_matrix
 from btel.exceptions import BudgetTooSmallError, InvalidParameterError
 from btel.methods import make_method
 

@@ -8,8 +8,8 @@ import faiss
 import numpy as np
 import pytest
 
-from btel.baselines import ITQLocalizer, OPQLocalizer, PQConfig, PQLocalizer, quiet_faiss
-from btel.baselines._common import faiss_threads
+from btel.methods.baselines import ITQLocalizer, OPQLocalizer, PQConfig, PQLocalizer, quiet_faiss
+from btel.methods.baselines._common import faiss_threads
 from btel.exceptions import BudgetTooSmallError, InvalidParameterError, NotEnoughPlacesError
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from btel.baselines import BASELINES
+from btel.methods.baselines import BASELINES
 from btel.storage import parse_budget
 
 pytestmark = pytest.mark.realdata

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from btel.baselines import SeqSLAM, enhance_contrast, seqslam_match, sequence_costs
-from btel.baselines.seqslam import velocities
+from btel.methods.baselines import SeqSLAM, enhance_contrast, seqslam_match, sequence_costs
+from btel.methods.baselines.seqslam import velocities
 from btel.exceptions import InvalidDescriptorsError, InvalidParameterError
 
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from btel.baselines import BruteForceNN, PQConfig, PQLocalizer
+from btel.methods.baselines import BruteForceNN, PQConfig, PQLocalizer
 
 pytestmark = pytest.mark.realdata
 

@@ -1,4 +1,4 @@
-"""btel.code_decoding: every exact decode path gives the answer of scoring every place in float64."""
+"""btel.methods.codes.decoding: every exact decode path gives the answer of scoring every place in float64."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from btel.code_decoding import BlockDecoder, block_size, choose_path
-from btel.codebook import FAMILIES, Codebook
-from btel.codes import CodeLocalizer
+from btel.methods.codes.decoding import BlockDecoder, block_size, choose_path
+from btel.methods.codes.codebook import FAMILIES, Codebook
+from btel.methods.codes.estimator import CodeLocalizer
 from btel.datasets import synthetic_route
 
 PATHS = ("bounded", "dense", "scan", "probe")
@@ -92,7 +92,7 @@ def test_the_bounds_hold_and_the_visited_blocks_shrink_with_good_margins(route) 
 
 
 def test_a_packed_cache_past_its_limit_generates_codewords(route, monkeypatch) -> None:
-    import btel.codes as codes
+    import btel.methods.codes.estimator as codes
 
     X, Q = route
     model = CodeLocalizer(n_codes=60, decode="exact").fit(X)

@@ -10,11 +10,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from btel import BTELocalizer, load
-from btel.compressed import code_signs, compressed_code, compressed_n_classifiers, exemplar_weights
+from btel.methods.btel.compressed import code_signs, compressed_code, compressed_n_classifiers, exemplar_weights
 from btel.datasets import synthetic_route
-from btel.encoding import encode, n_bits_for
+from btel.methods.btel.encoding import encode, n_bits_for
 from btel.exceptions import InvalidParameterError, ModelFileError
-from btel.localizer import block_centres, block_size_for_tolerance, planned_bytes
+from btel.methods.btel.localizer import block_centres, block_size_for_tolerance, planned_bytes
 from btel.storage import load_arrays, save_arrays
 
 

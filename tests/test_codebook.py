@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from btel.codebook import FAMILIES, Codebook, keyed_permutation, max_columns, min_columns
-from btel.compressed import code_signs, compressed_n_classifiers
+from btel.methods.codes.codebook import FAMILIES, Codebook, keyed_permutation, max_columns, min_columns
+from btel.methods.btel.compressed import code_signs, compressed_n_classifiers
 from btel.exceptions import InvalidParameterError
 
 FREE = ("periodic", "blocks", "random")

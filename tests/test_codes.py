@@ -10,9 +10,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from btel import load
-from btel.code_planning import code_planned_bytes, plan_codes
-from btel.codebook import FAMILIES, Codebook
-from btel.codes import CodeLocalizer
+from btel.methods.codes.planning import code_planned_bytes, plan_codes
+from btel.methods.codes.codebook import FAMILIES, Codebook
+from btel.methods.codes.estimator import CodeLocalizer
 from btel.datasets import synthetic_route
 from btel.exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError
 from btel.methods import make_method
@@ -198,7 +198,7 @@ def test_ridge_columns_fitted_in_parallel_equal_a_serial_fit() -> None:
 
 
 def test_primal_and_dual_ridge_agree() -> None:
-    from btel.code_solvers import fit_ridge_codes
+    from btel.methods.codes.solvers import fit_ridge_codes
 
     X = np.random.default_rng(0).normal(size=(40, 30)).astype(np.float32)
     book = Codebook("periodic", 40, 16)

@@ -1,4 +1,4 @@
-"""Per-bit diagnostics (btel.diagnostics)."""
+"""Per-bit diagnostics (btel.methods.btel.diagnostics)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import pytest
 
 from btel import BTELocalizer
 from btel.datasets import synthetic_route
-from btel.diagnostics import bit_accuracy, localizer_bit_accuracy, plot_bit_accuracy
-from btel.encoding import encode
+from btel.methods.btel.diagnostics import bit_accuracy, localizer_bit_accuracy, plot_bit_accuracy
+from btel.methods.btel.encoding import encode
 from btel.exceptions import InvalidParameterError
 
 

@@ -12,7 +12,7 @@ from click.testing import CliRunner
 from btel import BTELocalizer, load
 from btel.cli import main
 from btel.datasets import synthetic_route
-from btel.distributed import dask_backend, fit_backend
+from btel.learning.distributed import dask_backend, fit_backend
 from btel.exceptions import InvalidParameterError, MissingDependencyError
 
 try:

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from btel.encoding import bit_codes, decode, decode_constrained, decode_soft, encode, n_bits_for
+from btel.methods.btel.encoding import bit_codes, decode, decode_constrained, decode_soft, encode, n_bits_for
 from btel.exceptions import InvalidParameterError, NotEnoughPlacesError
 
 # N from 2 to 2**16, and for each N a list of valid indices.

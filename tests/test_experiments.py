@@ -62,7 +62,7 @@ def test_report_has_every_section_and_keeps_marked_blocks(quick_runs: Path, tmp_
 
 @pytest.mark.realdata
 def test_a_method_over_its_budget_fails_the_run(nordland_dir: Path, tmp_path: Path, monkeypatch) -> None:
-    from btel.localizer import BTELocalizer
+    from btel.methods.btel.localizer import BTELocalizer
 
     data = NordlandData(nordland_dir, tmp_path / "cache", progress=False, max_frames=100)
     monkeypatch.setattr(BTELocalizer, "nbytes", property(lambda self: 10**9))

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from btel.exceptions import InvalidParameterError
-from btel.feature_selection import between_cluster_ss, column_index_dtype, select_features, sparse_weights
+from btel.learning.feature_selection import between_cluster_ss, column_index_dtype, select_features, sparse_weights
 
 finite = st.floats(min_value=-1e3, max_value=1e3, allow_nan=False, allow_infinity=False, allow_subnormal=False)
 

@@ -91,7 +91,7 @@ def test_every_method_round_trips_its_front_end(name, front, route, tmp_path) ->
     X, Q = route.map, route.queries
     model = make_method(name, **front).fit(X)
     expected = {**{"normalize": model.normalize, "whiten": None, "delta": None}, **front}
-    if name == "auto" and "whiten" not in front:  # auto chooses the whitening itself (btel.auto)
+    if name == "auto" and "whiten" not in front:  # auto chooses the whitening itself (btel.methods.auto)
         assert model.front_end_.whiten in (None, "shrink")
         expected["whiten"] = model.front_end_.whiten
     assert model.front_end_.to_header() == expected

@@ -9,11 +9,11 @@ from hypothesis import strategies as st
 
 from btel import BTELocalizer
 from btel.datasets import synthetic_route
-from btel.encoding import encode, n_bits_for
+from btel.methods.btel.encoding import encode, n_bits_for
 from btel.exceptions import InvalidParameterError
-from btel.full import full_n_classifiers, full_nodes, full_tasks, predict_full
-from btel.linear import Hyperplanes
-from btel.localizer import planned_bytes
+from btel.methods.btel.full import full_n_classifiers, full_nodes, full_tasks, predict_full
+from btel.learning.linear import Hyperplanes
+from btel.methods.btel.localizer import planned_bytes
 
 
 def brute_force_stored_nodes(n: int) -> list[tuple[int, int]]:

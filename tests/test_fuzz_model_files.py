@@ -48,7 +48,7 @@ def test_cases_are_reproducible_from_their_seed(harness, tmp_path) -> None:
 
 
 def _small_model_file(tmp_path: Path) -> bytes:
-    from btel.baselines import BruteForceNN
+    from btel.methods.baselines import BruteForceNN
 
     X = np.random.default_rng(0).standard_normal((20, 8)).astype(np.float32)
     return BruteForceNN().fit(X).save(tmp_path / "m.npz").read_bytes()

@@ -13,8 +13,8 @@ from btel._validation import check_descriptors
 from btel.cli import main
 from btel.datasets import list_shards, load_shards, synthetic_route
 from btel.exceptions import DataNotFoundError, DimensionMismatchError, InvalidDescriptorsError
-from btel.feature_selection import between_cluster_ss
-from btel.linear import ColumnStats, standardised_columns
+from btel.learning.feature_selection import between_cluster_ss
+from btel.learning.linear import ColumnStats, standardised_columns
 
 
 @pytest.fixture(scope="module")

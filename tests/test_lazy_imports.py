@@ -38,7 +38,7 @@ def test_public_names_are_unchanged_and_listed() -> None:
              "make_method", "parse_budget", "__version__"}
     assert set(btel.__all__) == names
     assert names <= set(dir(btel))
-    from btel.localizer import BTELocalizer
+    from btel.methods.btel.localizer import BTELocalizer
 
     assert btel.BTELocalizer is BTELocalizer
     from btel import load, make_method  # noqa: F401  (from-imports resolve through __getattr__)

@@ -14,12 +14,12 @@ from sklearn.linear_model import LogisticRegression
 from sklearn.svm import LinearSVC
 
 from btel import BTELocalizer
-from btel.compressed import compressed_n_classifiers, compressed_tasks
+from btel.methods.btel.compressed import compressed_n_classifiers, compressed_tasks
 from btel.datasets import synthetic_route
-from btel.encoding import decode_constrained, decode_soft, encode, n_bits_for
+from btel.methods.btel.encoding import decode_constrained, decode_soft, encode, n_bits_for
 from btel.exceptions import BudgetTooSmallError
-from btel.linear import ColumnStats, Hyperplanes, fit_linear
-from btel.localizer import planned_bytes
+from btel.learning.linear import ColumnStats, Hyperplanes, fit_linear
+from btel.methods.btel.localizer import planned_bytes
 
 
 @pytest.fixture(scope="module")

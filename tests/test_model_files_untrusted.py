@@ -207,7 +207,7 @@ def test_seqslam_lines_longer_than_the_map_cost_no_more_than_the_map(files, quer
 
 
 def test_sequence_costs_with_offsets_past_the_map_equal_the_loop() -> None:
-    from btel.baselines.seqslam import sequence_costs, velocities
+    from btel.methods.baselines.seqslam import sequence_costs, velocities
 
     D = np.random.default_rng(0).random((7, 12))
     vs = velocities(0.0, 30.0, 7.5)  # offsets up to 30·6 = 180 map rows, the map has 12
@@ -222,7 +222,7 @@ def test_sequence_costs_with_offsets_past_the_map_equal_the_loop() -> None:
 
 
 def test_velocities_are_counted_before_they_are_listed() -> None:
-    from btel.baselines.seqslam import velocities
+    from btel.methods.baselines.seqslam import velocities
 
     with pytest.raises(InvalidParameterError, match="more than 1000 velocities"):
         velocities(0.0, 1e6, 1e-300)

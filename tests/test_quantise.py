@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from btel.exceptions import InvalidParameterError, ModelFileError
-from btel.quantise import WEIGHT_BITS, QuantisedWeights, pack_nibbles, quantise, unpack_nibbles, weight_bytes
+from btel.methods.codes.quantise import WEIGHT_BITS, QuantisedWeights, pack_nibbles, quantise, unpack_nibbles, weight_bytes
 
 shapes = st.tuples(st.integers(1, 12), st.integers(1, 33))
 finite = st.floats(-1e3, 1e3, allow_nan=False, width=32)

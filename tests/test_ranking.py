@@ -1,4 +1,4 @@
-"""Ranked output of BTEL (btel.ranking): k-best codes by flip cost, regions, R@K."""
+"""Ranked output of BTEL (btel.methods.btel.ranking): k-best codes by flip cost, regions, R@K."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ from hypothesis import strategies as st
 
 from btel import BTELocalizer
 from btel.datasets import synthetic_route
-from btel.encoding import decode_constrained, decode_soft, n_bits_for
+from btel.methods.btel.encoding import decode_constrained, decode_soft, n_bits_for
 from btel.evaluation import recall_at_k
 from btel.exceptions import InvalidParameterError, NotEnoughPlacesError, NotFittedError
-from btel.ranking import code_costs, kbest_codes, merge_region_kbest, soft_scores
+from btel.methods.btel.ranking import code_costs, kbest_codes, merge_region_kbest, soft_scores
 
 
 def brute_force_top(margins: np.ndarray, n: int, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -121,7 +121,7 @@ def regional(route):
 
 def _layout(model, Q):
     """(column margins, region deficits) of a fitted BTEL model, what the pure functions take."""
-    from btel.ranking import deficits_from_scores
+    from btel.methods.btel.ranking import deficits_from_scores
 
     Qt = model.front_end_.transform(Q)
     scores = None if model.n_regions_ == 1 else model.region_hyperplanes_.margins(Qt)

@@ -16,9 +16,9 @@ import pytest
 
 import btel
 from btel import BTELocalizer
-from btel.encoding import n_bits_for
+from btel.methods.btel.encoding import n_bits_for
 from btel.evaluation import recall_at_tolerance
-from btel.localizer import planned_bytes
+from btel.methods.btel.localizer import planned_bytes
 
 pytestmark = pytest.mark.realdata
 

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from btel import BTELocalizer
 from btel.datasets import synthetic_route
 from btel.exceptions import InvalidParameterError, NotEnoughPlacesError
-from btel.segmentation import (
+from btel.methods.btel.segmentation import (
     MIN_REGION_LENGTH,
     kts_auto_regions,
     kts_penalised_costs,

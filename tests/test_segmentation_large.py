@@ -7,7 +7,7 @@ import pytest
 
 from btel import BTELocalizer
 from btel.datasets import synthetic_route
-from btel.segmentation import (
+from btel.methods.btel.segmentation import (
     MIN_REGION_LENGTH,
     kts_auto_regions,
     kts_penalised_costs,

@@ -8,11 +8,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from btel import BTELocalizer
-from btel.baselines import BruteForceNN, ITQLocalizer, PQLocalizer
+from btel.methods.baselines import BruteForceNN, ITQLocalizer, PQLocalizer
 from btel.datasets import synthetic_route
-from btel.encoding import decode_soft
+from btel.methods.btel.encoding import decode_soft
 from btel.exceptions import InvalidParameterError, NotFittedError
-from btel.ranking import soft_scores
+from btel.methods.btel.ranking import soft_scores
 from btel.sequence import filter_sequence
 from btel.sequence_decoding import HMMDecoder, decode_sequence, transition_kernel, zscore_rows
 
@@ -194,7 +194,7 @@ def test_place_scores_argmax_is_each_methods_prediction(route):
 
 
 def test_place_scores_of_ryth_are_its_soft_decode_scores(route):
-    from btel.ryth import RYTHLocalizer
+    from btel.methods.ryth import RYTHLocalizer
 
     model = RYTHLocalizer(decode="soft", feature_ratio=0.5, random_state=0).fit(route.map)
     S = model.place_scores(route.queries)

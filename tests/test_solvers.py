@@ -1,4 +1,4 @@
-"""The linear solvers (btel.linear): same optimum as liblinear run to convergence, shared work, honest stops."""
+"""The linear solvers (btel.learning.linear): same optimum as liblinear run to convergence, shared work, honest stops."""
 
 from __future__ import annotations
 
@@ -14,10 +14,10 @@ from sklearn.svm import LinearSVC
 from btel import BTELocalizer
 from btel.datasets import synthetic_route
 from btel.exceptions import InvalidParameterError
-from btel.feature_selection import between_cluster_ss, between_cluster_ss_binary, select_features, select_features_many
-from btel.linear import choose_solver, linear_objective, solve_linear
-from btel.linear import _solve_submatrices  # noqa: PLC2701 - the shared-inverse path, checked directly
-from btel.ryth import RYTHLocalizer
+from btel.learning.feature_selection import between_cluster_ss, between_cluster_ss_binary, select_features, select_features_many
+from btel.learning.linear import choose_solver, linear_objective, solve_linear
+from btel.learning.linear import _solve_submatrices  # noqa: PLC2701 - the shared-inverse path, checked directly
+from btel.methods.ryth import RYTHLocalizer
 
 
 def _reference(X, y, w, classifier):

@@ -17,7 +17,7 @@ from click.testing import CliRunner
 from btel import BTELocalizer, filter_sequence, load
 from btel.cli import main
 from btel.datasets import synthetic_route
-from btel.encoding import decode_constrained, n_bits_for
+from btel.methods.btel.encoding import decode_constrained, n_bits_for
 from btel.exceptions import InvalidDescriptorsError, InvalidParameterError
 from btel.streaming import localize_stream, parse_descriptor_line, read_lines
 

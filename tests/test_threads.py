@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from threadpoolctl import threadpool_info
 
-from btel.baselines import BruteForceNN as BruteForce
+from btel.methods.baselines import BruteForceNN as BruteForce
 from btel.exceptions import InvalidParameterError
 from btel.threads import SINGLE_QUERY_MAX, blas_threads, faiss_threads, limit_threads, search_threads
 

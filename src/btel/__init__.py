@@ -16,13 +16,13 @@ __version__ = "0.1.0"
 
 #: Public name → the submodule that defines it.
 _LAZY = {
-    "BTELocalizer": ".localizer",
-    "CodeLocalizer": ".codes",
+    "BTELocalizer": ".methods.btel.localizer",
+    "CodeLocalizer": ".methods.codes.estimator",
     "PlaceLocalizer": ".base",
     "SequenceFilter": ".sequence",
     "filter_sequence": ".sequence",
-    "load": ".methods",
-    "make_method": ".methods",
+    "load": ".methods.registry",
+    "make_method": ".methods.registry",
     "parse_budget": ".storage",
 }
 
@@ -31,9 +31,9 @@ __all__ = ["BTELocalizer", "CodeLocalizer", "PlaceLocalizer", "SequenceFilter", 
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .base import PlaceLocalizer
-    from .codes import CodeLocalizer
-    from .localizer import BTELocalizer
-    from .methods import load, make_method
+    from .methods.codes.estimator import CodeLocalizer
+    from .methods.btel.localizer import BTELocalizer
+    from .methods.registry import load, make_method
     from .sequence import SequenceFilter, filter_sequence
     from .storage import parse_budget
 

@@ -19,7 +19,7 @@ likely path so far (max-product). :func:`decode_sequence` runs it over a whole s
 
 Compare with the paper's median filter (:func:`btel.sequence.filter_sequence`), which sees only
 each frame's single prediction, and with SeqSLAM's straight-line search
-(:func:`btel.baselines.seqslam_match`), which needs the whole difference matrix of the last ds
+(:func:`btel.methods.baselines.seqslam_match`), which needs the whole difference matrix of the last ds
 frames (O(N·ds) memory).
 """
 
@@ -215,7 +215,7 @@ def decode_sequence(
     Parameters
     ----------
     scores : array-like of shape (n_queries, N)
-        Per-place scores, higher = more likely (e.g. ``-btel.ranking.place_costs(model, Q)``).
+        Per-place scores, higher = more likely (e.g. ``-btel.methods.btel.ranking.place_costs(model, Q)``).
     temperature, vmin, vmax, backward, teleport, mode
         As in :class:`HMMDecoder`.
     resets : array-like of int, optional

@@ -153,7 +153,7 @@ RUNTIME_PARAMS = frozenset({"progress", "n_jobs"})
 
 def _valid_params(method: str) -> list[str]:
     """Parameter names of ``method`` (its ``get_params()`` keys), sorted; an unknown method is a usage error."""
-    from ..methods import METHODS, make_method
+    from ..methods.registry import METHODS, make_method
 
     if method not in METHODS:
         raise click.UsageError(f"unknown method {method!r}; choose from {', '.join(METHODS)} (see `btel methods`).")
@@ -478,14 +478,14 @@ def train(db: str, output: str, overwrite: bool, method: str, budget: str | None
     block_size, the others by their own names). Each must be a parameter of --method (see `btel
     methods --params`), and a shortcut and --param may not set the same one.
     """
-    from ..methods import make_method
+    from ..methods.registry import make_method
 
     if scheduler is not None and backend != "dask":
         raise click.UsageError("--scheduler only applies with --backend dask.")
     if block_size is not None and tolerance is not None:
         raise click.UsageError("give --block-size or --tolerance, not both.")
     if tolerance is not None:
-        from ..localizer import block_size_for_tolerance
+        from ..methods.btel.localizer import block_size_for_tolerance
 
         block_size = block_size_for_tolerance(tolerance)
     n_regions: Any = None
@@ -874,7 +874,7 @@ def _fit_jobs(names: list[str], budgets: list[str | None], param_texts: tuple[st
     ``--param bruteforce:budget=…`` asks for one.
     """
     from ..evaluation import Job
-    from ..methods import make_method
+    from ..methods.registry import make_method
 
     if reference and "bruteforce" not in names:
         names = [*names, "bruteforce"]
@@ -997,7 +997,7 @@ def methods_cmd(show_params: bool) -> None:
 
     † marks methods that use the query sequence.
     """
-    from ..methods import DESCRIPTIONS, METHODS, make_method
+    from ..methods.registry import DESCRIPTIONS, METHODS, make_method
 
     width = max(len(n) for n in METHODS)
     for name in METHODS:
@@ -1013,7 +1013,7 @@ def methods_cmd(show_params: bool) -> None:
 
 
 def _method_names() -> list[str]:
-    from ..methods import METHODS
+    from ..methods.registry import METHODS
 
     return list(METHODS)
 
@@ -1023,7 +1023,7 @@ def _registry_name(model: Any) -> str:
     and the parameters the presets of that class differ in (``BTELocalizer (scheme=compressed, n_regions=4)``)."""
     from functools import partial
 
-    from ..methods import METHODS
+    from ..methods.registry import METHODS
 
     params = model.get_params(deep=False)
     keys: list[str] = []

@@ -38,7 +38,7 @@ import numpy as np
 
 from ..evaluation import DEFAULT_TOLERANCES, EvaluationResult, evaluate
 from ..exceptions import BudgetTooSmallError, DataNotFoundError
-from ..methods import make_method
+from ..methods.registry import make_method
 from ..storage import check_within_budget, format_bytes, parse_budget
 
 __all__ = ["SEASONS", "QUICK_FRAMES", "NordlandData", "ExperimentRun", "default_nordland_root", "fit_row",
@@ -199,7 +199,7 @@ class ModelCache:
         if self.folder is not None:
             model_path, meta_path = self.folder / f"{key}.btel.npz", self.folder / f"{key}.json"
             if model_path.is_file() and meta_path.is_file():
-                from ..methods import load
+                from ..methods.registry import load
 
                 try:
                     model, fit_s = load(model_path), float(json.loads(meta_path.read_text())["fit_s"])

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from ..evaluation import DEFAULT_TOLERANCES, recall_at_k, recall_at_tolerance
-from ..methods import make_method
+from ..methods.registry import make_method
 from ..exceptions import BudgetTooSmallError
 from ..storage import check_within_budget, parse_budget
 from ._common import SEASONS, ExperimentRun, NordlandData, fit_model
@@ -278,8 +278,8 @@ def _synthetic_rows(quick: bool, log: Any) -> list[dict[str, Any]]:
 def _diagnostics(data: NordlandData, root: Path, budget: int, out: Path,
                  hog_models: dict[str, Any]) -> dict[str, Any]:
     """Part 4: per-bit accuracy plots, one per descriptor, one line per variant; returns their numbers."""
-    from ..diagnostics import bit_accuracy, localizer_bit_accuracy, plot_bit_accuracy
-    from ..encoding import encode, n_bits_for
+    from ..methods.btel.diagnostics import bit_accuracy, localizer_bit_accuracy, plot_bit_accuracy
+    from ..methods.btel.encoding import encode, n_bits_for
 
     def nearest_neighbour_bits(X: np.ndarray, Q: np.ndarray) -> Any:
         """Bits of the brute-force nearest neighbour's place against the true place's bits."""

@@ -21,8 +21,8 @@ carries its bytes (the one storage rule), fit seconds and query time per query i
 
 Validation protocol: nothing is tuned on any query. ``btel-codes`` is fixed in advance —
 periodic codes (the family for route-ordered maps), ridge α by the rule of
-:mod:`btel.code_solvers` (chosen on synthetic routes of other seeds before this experiment ran),
-the planner's square rule and 4-bit weights (:mod:`btel.code_planning`). The baselines run at their
+:mod:`btel.methods.codes.solvers` (chosen on synthetic routes of other seeds before this experiment ran),
+the planner's square rule and 4-bit weights (:mod:`btel.methods.codes.planning`). The baselines run at their
 own budget rules. The targets are read off the ``btel-codes`` rows alone; the other families and
 widths are reported beside it, not picked from.
 """

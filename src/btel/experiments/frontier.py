@@ -21,7 +21,7 @@ The "btel-codes" rows are the periodic family (btel-codes' default) and "btel-co
 one; ``code='auto'`` is one of the two by the map's route share (the same statistic auto uses).
 
 Per map and budget the *oracle* is the best row of the table at that budget (every method and
-variant that fits); ``auto`` (:mod:`btel.auto`) chooses from the map and the budget alone, and the
+variant that fits); ``auto`` (:mod:`btel.methods.auto`) chooses from the map and the budget alone, and the
 run reports its choice, its recall, the oracle's and their ratio (the issue's target: ≥ 0.95 × the
 best and ≥ asymmetric LSH). Brute force (cosine, and on shrinkage-whitened rows) is the unbudgeted
 reference of every map.

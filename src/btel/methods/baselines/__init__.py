@@ -1,0 +1,52 @@
+"""The baselines BTEL is compared with (SPEC §8), each a :class:`btel.base.PlaceLocalizer`.
+
+Every baseline takes ``budget`` (bytes or ``"500KB"``), counts its storage by the one rule of
+SPEC §7 and ranks candidate places (``rank(Q, k)``). RYTH lives in :mod:`btel.methods.ryth`.
+
+========== ============================ ==========================================================
+name       class                        storage
+========== ============================ ==========================================================
+bruteforce :class:`BruteForceNN`        N×d float32; exact L2
+pq         :class:`PQLocalizer`         codes + codebooks (+ d×p PCA); most code bits that fit
+opq        :class:`OPQLocalizer`        codes + codebooks + d×p rotation
+itq        :class:`ITQLocalizer`        binary codes + d×b projection + mean; Hamming distance
+lsh        :class:`LSHLocalizer`        N×P sign bits (+ d float16 mean); projection from its seed, 0 B
+seqslam    :class:`SeqSLAM`             N×d uint8; sequences of ds = 10 frames
+========== ============================ ==========================================================
+"""
+
+from __future__ import annotations
+
+from ...base import PlaceLocalizer
+from ._common import quiet_faiss
+from .bruteforce import BruteForceNN
+from .itq import ITQLocalizer
+from .lsh import LSHLocalizer
+from .opq import OPQLocalizer
+from .pq import PQConfig, PQLocalizer
+from .seqslam import SeqSLAM, enhance_contrast, seqslam_match, sequence_costs
+
+__all__ = [
+    "BASELINES",
+    "BruteForceNN",
+    "PQLocalizer",
+    "PQConfig",
+    "OPQLocalizer",
+    "ITQLocalizer",
+    "LSHLocalizer",
+    "SeqSLAM",
+    "seqslam_match",
+    "enhance_contrast",
+    "sequence_costs",
+    "quiet_faiss",
+]
+
+#: Baselines by short name (merged into :data:`btel.methods.METHODS` by the lead).
+BASELINES: dict[str, type[PlaceLocalizer]] = {
+    "bruteforce": BruteForceNN,
+    "pq": PQLocalizer,
+    "opq": OPQLocalizer,
+    "itq": ITQLocalizer,
+    "lsh": LSHLocalizer,
+    "seqslam": SeqSLAM,
+}

@@ -1,0 +1,265 @@
+"""What every baseline shares: place labels of map rows, ranking, budgets and quiet faiss training.
+
+A baseline indexes map *rows* (descriptors) and answers with *places*. With ``places`` given to
+``fit`` several rows may belong to one place; the row → place table is then stored (smallest
+unsigned dtype, counted in storage, since inference reads it) and the search returns unique
+places, best first (a place scores its best row). Without ``places`` row i is place i and nothing
+extra is stored.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import sys
+import tempfile
+from abc import abstractmethod
+from typing import Any, Iterator
+
+import numpy as np
+
+from ...base import ArraySpec, PlaceLocalizer
+from ...exceptions import BudgetTooSmallError, InvalidDescriptorsError, InvalidParameterError, ModelFileError
+from ...storage import format_bytes
+from ...threads import faiss_threads, search_threads
+
+__all__ = ["quiet_faiss", "faiss_threads", "smallest_uint_dtype", "rank_unique_places", "raise_budget_too_small",
+           "check_magnitude", "check_model_values", "MAX_NORM"]
+
+#: faiss' k-means prints this from C++ whenever it has fewer than 39 points per centroid, which is
+#: the normal case for a map of a few thousand places; it is not actionable for a btel user.
+_FAISS_NOISE = re.compile(r"^WARNING clustering \d+ points to \d+ centroids")
+
+
+@contextlib.contextmanager
+def quiet_faiss() -> Iterator[None]:
+    """Hide faiss' "WARNING clustering N points to K centroids" lines written to file descriptor 2.
+
+    faiss writes from C++ straight to fd 2, past ``sys.stderr``, so the descriptor itself is
+    redirected to a temporary file for the duration of the block. Every other line written
+    meanwhile (by faiss or anything else) is passed on to ``sys.stderr`` afterwards, not lost.
+    """
+    sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:  # no fd 2 (embedded interpreters): nothing to silence
+        yield
+        return
+    with tempfile.TemporaryFile() as capture:
+        os.dup2(capture.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            capture.seek(0)
+            text = capture.read().decode("utf-8", errors="replace")
+            kept = [line for line in text.splitlines(keepends=True) if not _FAISS_NOISE.match(line)]
+            if kept:
+                sys.stderr.write("".join(kept))
+
+
+def smallest_uint_dtype(max_value: int) -> np.dtype:
+    """The smallest unsigned integer dtype that holds ``max_value``."""
+    for dtype in (np.uint8, np.uint16, np.uint32):
+        if max_value <= np.iinfo(dtype).max:
+            return np.dtype(dtype)
+    return np.dtype(np.uint64)
+
+
+def rank_unique_places(row_ranking: np.ndarray, row_places: np.ndarray, k: int,
+                       row_scores: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Turn ranked map rows into the first ``k`` distinct places per query, best first.
+
+    Parameters
+    ----------
+    row_ranking : ndarray of shape (n_queries, k_rows), int
+        Map rows per query, best first. Each row must name at least ``k`` distinct places.
+    row_places : ndarray of shape (n_rows,), int
+        Place label of every map row.
+    k : int
+    row_scores : ndarray of shape (n_queries, k_rows), optional
+        Score of each ranked row (a place scores its best row).
+
+    Returns
+    -------
+    places : ndarray of shape (n_queries, k), int64
+    scores : ndarray of shape (n_queries, k), float64 (zeros without ``row_scores``)
+    """
+    labels = np.asarray(row_places, dtype=np.int64)[row_ranking]
+    # First occurrence of each label within a query row: sort stably, mark label changes,
+    # scatter the marks back to the original (ranked) positions.
+    order = np.argsort(labels, axis=1, kind="stable")
+    sorted_labels = np.take_along_axis(labels, order, axis=1)
+    first_sorted = np.ones(sorted_labels.shape, dtype=bool)
+    first_sorted[:, 1:] = sorted_labels[:, 1:] != sorted_labels[:, :-1]
+    first = np.empty_like(first_sorted)
+    np.put_along_axis(first, order, first_sorted, axis=1)
+    keep = first & (np.cumsum(first, axis=1) <= k)
+    places = labels[keep].reshape(labels.shape[0], k)
+    scores = np.zeros(places.shape) if row_scores is None else \
+        np.asarray(row_scores, dtype=np.float64)[keep].reshape(labels.shape[0], k)
+    return places, scores
+
+
+#: Largest L2 norm of a descriptor (after the front end) a row index searches: squared distances
+#: of such vectors stay far below float32's maximum (3.4e38), where faiss' distances overflow.
+MAX_NORM = 1e18
+
+
+def check_magnitude(X: np.ndarray, name: str, *, error: type[Exception] = InvalidDescriptorsError,
+                    chunk_rows: int = 65536) -> None:
+    """``error`` naming the first row of ``X`` that is not finite or whose L2 norm exceeds :data:`MAX_NORM`.
+
+    Squared norms are summed in X's own float32: one that overflows is far beyond the bound anyway.
+    """
+    for start in range(0, X.shape[0], chunk_rows):
+        block = X[start : start + chunk_rows]
+        with np.errstate(over="ignore", invalid="ignore"):
+            squares = np.einsum("ij,ij->i", block, block)
+        bad = np.flatnonzero(~(squares <= MAX_NORM**2))
+        if bad.size:
+            row = start + int(bad[0])
+            raise error(
+                f"{name} row {row} has length {float(np.sqrt(np.float64(squares[bad[0]]))):.3g} (after the front "
+                f"end); squared distances of descriptors longer than {MAX_NORM:.0e} overflow float32. Scale the "
+                "descriptors down (or use normalize='l2')."
+            )
+
+
+def check_model_values(arrays: dict[str, np.ndarray], names: tuple[str, ...], method: str) -> None:
+    """ModelFileError when a float array of a model file holds NaN, infinity or values beyond MAX_NORM."""
+    for name in names:
+        a = arrays.get(name)
+        if a is not None and a.size and not (np.isfinite(a).all() and float(np.abs(a).max()) <= MAX_NORM):
+            raise ModelFileError(f"the {method} model file's {name} contain NaN, infinite or out-of-range values.")
+
+
+def raise_budget_too_small(method: str, budget: int, minimum: int, detail: str) -> None:
+    """Raise :class:`BudgetTooSmallError` naming the minimum bytes and the smallest configuration."""
+    raise BudgetTooSmallError(
+        f"budget {format_bytes(budget)} ({budget} B) is too small for {method}: its smallest configuration "
+        f"({detail}) needs {minimum} B ({format_bytes(minimum)}). Raise the budget to at least {minimum} B "
+        "or choose a method whose storage grows more slowly with the map.",
+        budget=budget,
+        minimum=minimum,
+    )
+
+
+class _RowLocalizer(PlaceLocalizer):
+    """Shared plumbing of the baselines that index map rows (see module docstring).
+
+    A subclass implements ``_fit_rows(X, budget, reserved)`` (``reserved`` bytes of the budget are
+    taken already: front end and row → place table), ``_search_rows(Q, k) -> (scores, rows)``
+    (the k best map rows per query, best first, higher score = better), ``_model_arrays``,
+    ``_model_state``, ``_model_specs(state, n_rows)`` and ``_restore_model``.
+    """
+
+    _runtime_params = ("n_jobs",)
+
+    # -- to implement ------------------------------------------------------------------------
+    @abstractmethod
+    def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
+        """Fit the row index on ``X`` within ``budget − reserved`` bytes (``budget`` may be None)."""
+
+    @abstractmethod
+    def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """(scores, rows): the ``k`` best map rows per query, best first, float64 and int64 (n_queries, k)."""
+
+    @abstractmethod
+    def _model_arrays(self) -> dict[str, np.ndarray]:
+        """The arrays of the row index."""
+
+    def _model_state(self) -> dict[str, Any]:
+        return {}
+
+    @abstractmethod
+    def _model_specs(self, state: dict[str, Any], d: int) -> dict[str, ArraySpec]:
+        """Shape and dtype of every array of the row index (``None`` for the number of rows)."""
+
+    @abstractmethod
+    def _restore_model(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
+        """Set the row index from checked arrays."""
+
+    # -- shared ------------------------------------------------------------------------------
+    def _fit(self, X: np.ndarray, places: np.ndarray | None, n_places: int, budget: int | None,
+             reserved: int) -> None:
+        # Row i = place i needs no table; any other labelling is stored for inference.
+        row_places = None if places is None else places.astype(smallest_uint_dtype(n_places - 1))
+        extra = reserved + (0 if row_places is None else int(row_places.nbytes))
+        check_magnitude(X, "X")
+        with faiss_threads(self.n_jobs):
+            self._fit_rows(X, budget, extra)
+        self.row_places_ = row_places
+
+    def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        check_magnitude(Q, "Q")
+        n_rows = self._n_rows()
+        # k places need at most k·(most rows of one place) rows.
+        k_rows = k if self.row_places_ is None else \
+            min(n_rows, k * int(np.bincount(self.row_places_.astype(np.int64)).max()))
+        # Single queries on one faiss thread unless n_jobs says otherwise (btel.threads).
+        with faiss_threads(search_threads(self.n_jobs, Q.shape[0])):
+            scores, rows = self._search_rows(Q, k_rows)
+        # faiss answers −1 when no distance is finite (overflow, a corrupt index): never a place.
+        bad = np.flatnonzero(((rows < 0) | (rows >= n_rows)).any(axis=1))
+        if bad.size:
+            raise InvalidDescriptorsError(
+                f"query row {int(bad[0])} has no finite distance to the map ({type(self).__name__}): its values are "
+                "too large for float32 arithmetic, or the model holds invalid values. Check the descriptors."
+            )
+        if self.row_places_ is None:
+            return scores, rows
+        places, place_scores = rank_unique_places(rows, self.row_places_, k, scores)
+        return place_scores, places
+
+    def _stored_arrays(self) -> dict[str, np.ndarray]:
+        arrays = dict(self._model_arrays())
+        if self.row_places_ is not None:
+            arrays["row_places"] = self.row_places_
+        return arrays
+
+    def _fitted_state(self) -> dict[str, Any]:
+        return dict(self._model_state())
+
+    def _array_specs(self, state: dict[str, Any]) -> dict[str, ArraySpec]:
+        d = self.front_end_.n_features_out(int(state["n_features_in"]))
+        specs = dict(self._model_specs(state, d))
+        specs["row_places"] = ArraySpec((None,), (np.uint8, np.uint16, np.uint32, np.uint64), required=False)
+        return specs
+
+    def _restore(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
+        row_places = arrays.get("row_places")
+        n_places = int(state["n_places"])
+        self._restore_model(arrays, state)
+        n_rows = self._n_rows()
+        if row_places is None:
+            if n_rows != n_places:
+                raise ModelFileError(f"the model file indexes {n_rows} map rows but says N = {n_places} places "
+                                     "and has no row → place table.")
+        else:
+            if row_places.shape != (n_rows,) or int(row_places.max()) >= n_places \
+                    or np.unique(row_places).size != n_places:
+                raise ModelFileError(f"the model file's row_places table does not fit {n_rows} rows and N = "
+                                     f"{n_places} places.")
+        self.row_places_ = row_places
+
+    @abstractmethod
+    def _n_rows(self) -> int:
+        """Map rows in the (restored) index."""
+
+    def __getstate__(self) -> dict[str, Any]:
+        # A faiss index does not pickle (joblib/dask workers); it is rebuilt on unpickling.
+        state = dict(super().__getstate__())  # a copy: object.__getstate__ returns the live __dict__
+        state.pop("_index", None)
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        super().__setstate__(state)
+        if hasattr(self, "n_places_"):
+            self._index = self._build_index()
+
+    def _build_index(self) -> Any:
+        """The faiss index of the fitted row index (None for methods that search without one)."""
+        return None

@@ -1,0 +1,247 @@
+"""Seeded sign random projections (locality-sensitive hashing, Charikar 2002) filling the byte budget.
+
+Fit: draw a d×P Gaussian matrix R from the recorded seed, store the P signs of ``x_i R`` of every
+(front-end transformed) map row, packed 8 to a byte. Nothing else is stored: R is regenerated from
+the seed at fit and at load (the storage rule: anything regenerated from a recorded seed costs 0
+bytes, as btel-codes' codewords), so the model is the codes plus, with ``center=True``, the map
+mean at float16.
+
+Scoring (``scoring``):
+
+- ``'asymmetric'`` (default): the query is projected but not binarised,
+  score_i = (qR) · sign(x_i R) — the inner product of the projected query with the ±1 code of row i
+  (Gordo et al. 2014; the query's own quantisation error is avoided). The ±1 codes are unpacked
+  once into a float32 runtime cache (N·P·4 bytes of memory, never stored) when that is at most
+  :data:`CACHE_VALUES` values; otherwise they are unpacked block by block at each search.
+- ``'hamming'``: the query is binarised too and the map is searched by Hamming distance (faiss
+  ``IndexBinaryFlat``, an exact popcount scan); score = −distance.
+
+Budget rule: P = 8·⌊(budget − reserved − mean bytes) / n_rows⌋ bits per row (the most whole bytes
+per row that fit), at most :data:`MAX_BITS`; without a budget P = :data:`DEFAULT_BITS`. ``n_bits``
+pins P (a multiple of 8). ``center=True`` subtracts the map mean (d float16, counted) before the
+projection, so the hyperplanes cut through the data rather than past it (L2-normalised global
+descriptors live in a cone around their mean); ``center='auto'`` (default) does so when the mean
+costs at most :data:`CENTER_SHARE` (1/8) of the budget (always without a budget), so that at 1 KB
+the bits are not spent on a mean. On Gardens Point centring changed recall@2 by −0.045 … +0.01.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import faiss
+import numpy as np
+
+from ..._validation import N_JOBS, RANDOM_STATE, Budget, Interval, Options, read_state_int
+from ...base import ArraySpec
+from ...exceptions import InvalidParameterError, ModelFileError
+from ...frontend import FRONT_END_CONSTRAINTS
+from ._common import _RowLocalizer, check_model_values, raise_budget_too_small
+
+__all__ = ["LSHLocalizer", "projection_matrix"]
+
+#: Without a budget, codes have this many bits.
+DEFAULT_BITS = 256
+#: Most bits per row the budget rule gives (beyond this, asymmetric LSH is within noise of cosine).
+MAX_BITS = 8192
+#: ``center='auto'`` centres when the float16 mean costs at most this share of the budget.
+CENTER_SHARE = 1 / 8
+#: The ±1 codes are cached as float32 when N·P is at most this (256 MB).
+CACHE_VALUES = 1 << 26
+#: Map rows unpacked at a time when the codes are not cached.
+_BLOCK_ROWS = 4096
+
+
+def projection_matrix(n_features: int, n_bits: int, seed: int) -> np.ndarray:
+    """The d×P Gaussian projection of a seed (numpy's PCG64 ``standard_normal``), float32.
+
+    Deterministic across platforms for a given numpy bit generator, so it is regenerated rather
+    than stored.
+    """
+    rng = np.random.default_rng(int(seed))
+    return rng.standard_normal((int(n_features), int(n_bits)), dtype=np.float32)
+
+
+class LSHLocalizer(_RowLocalizer):
+    """Sign random projections of the map, P bits per row filling the budget, asymmetric or Hamming search.
+
+    Parameters
+    ----------
+    budget : int or str, optional
+        Bytes (or ``"64KB"``); P is the most whole bytes per row that fit (module docstring).
+    n_bits : int, optional
+        Pin P (a multiple of 8).
+    scoring : {'asymmetric', 'hamming'}
+        Projected query against the ±1 codes (default), or binarised query by Hamming distance.
+    center : bool or 'auto'
+        Subtract the map mean (stored as d float16 values, counted) before projecting; 'auto': when
+        it costs at most 1/8 of the budget.
+    random_state : int or None
+        Seed of the projection; None draws one. The seed used is recorded (``seed_``) and saved.
+    normalize, whiten, delta
+        The front end (:mod:`btel.frontend`).
+    n_jobs : int, optional
+        faiss threads for the Hamming search.
+
+    Attributes
+    ----------
+    n_bits_ : int
+    seed_ : int
+    codes_ : ndarray of shape (n_rows, n_bits_ // 8), uint8
+    mean_ : ndarray of shape (n_features,), float16, or None
+    projection_ : ndarray of shape (n_features, n_bits_), float32
+        Regenerated from ``seed_`` (not stored).
+    n_places_, n_features_in_ : int
+    row_places_ : ndarray of shape (n_rows,) or None
+    fit_time_ : float
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> X = np.random.default_rng(0).normal(size=(100, 32)).astype(np.float32)
+    >>> LSHLocalizer(budget=2000).fit(X).predict(X[:3]).tolist()
+    [0, 1, 2]
+    """
+
+    _parameter_constraints = {
+        "budget": [Budget()],
+        "n_bits": [None, Interval(int, 8, MAX_BITS)],
+        "scoring": [Options("asymmetric", "hamming")],
+        "center": [Options(True, False, "auto")],
+        "random_state": RANDOM_STATE,
+        "n_jobs": N_JOBS,
+        **FRONT_END_CONSTRAINTS,
+    }
+
+    def __init__(self, *, budget: int | str | None = None, n_bits: int | None = None, scoring: str = "asymmetric",
+                 center: bool | str = "auto", random_state: int | None = 0, normalize: str = "l2",
+                 whiten: int | str | None = None, delta: int | None = None, n_jobs: int | None = None) -> None:
+        self.budget = budget
+        self.n_bits = n_bits
+        self.scoring = scoring
+        self.center = center
+        self.random_state = random_state
+        self.normalize = normalize
+        self.whiten = whiten
+        self.delta = delta
+        self.n_jobs = n_jobs
+
+    def choose_bits(self, n_rows: int, n_features: int, budget: int | None, reserved: int = 0) -> int:
+        """P, the bits per row ``fit`` uses (module docstring)."""
+        mean_bytes = 2 * n_features if self._centred(n_features, budget) else 0
+        if self.n_bits is not None:
+            if self.n_bits % 8:
+                raise InvalidParameterError(f"n_bits = {self.n_bits} must be a multiple of 8 (codes are packed "
+                                            f"in bytes); use {max(8, self.n_bits // 8 * 8)}.")
+            bits = int(self.n_bits)
+        elif budget is None:
+            bits = DEFAULT_BITS
+        else:
+            bits = min(MAX_BITS, 8 * ((budget - reserved - mean_bytes) // n_rows))
+        needed = reserved + mean_bytes + n_rows * max(bits, 8) // 8
+        if budget is not None and (bits < 8 or needed > budget):
+            minimum = reserved + mean_bytes + n_rows * max(bits if self.n_bits else 8, 8) // 8
+            raise_budget_too_small("LSH", budget, minimum,
+                                   f"{max(bits, 8) if self.n_bits else 8}-bit codes for {n_rows} rows"
+                                   + (f" + the {n_features}-value float16 mean" if mean_bytes else ""))
+        return bits
+
+    def _centred(self, n_features: int, budget: int | None) -> bool:
+        if self.center == "auto":
+            return budget is None or 2 * n_features <= CENTER_SHARE * budget
+        return bool(self.center)
+
+    def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
+        self.choose_bits(n_rows, n_features_out, budget, reserved)
+
+    def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
+        n_rows, d = X.shape
+        bits = self.choose_bits(n_rows, d, budget, reserved)
+        seed = int(self.random_state) if self.random_state is not None else \
+            int(np.random.default_rng().integers(0, 2**31 - 1))
+        self.n_bits_, self.seed_ = bits, seed
+        self.mean_ = X.mean(axis=0, dtype=np.float64).astype(np.float16) if self._centred(d, budget) else None
+        self.projection_ = projection_matrix(d, bits, seed)
+        codes = np.empty((n_rows, bits // 8), dtype=np.uint8)
+        for start in range(0, n_rows, _BLOCK_ROWS):
+            codes[start : start + _BLOCK_ROWS] = np.packbits(self._project(X[start : start + _BLOCK_ROWS]) > 0, axis=1)
+        self.codes_ = codes
+        self._prepare()
+
+    def _project(self, X: np.ndarray) -> np.ndarray:
+        Z = np.asarray(X, dtype=np.float32)
+        if self.mean_ is not None:
+            Z = Z - self.mean_.astype(np.float32)
+        return Z @ self.projection_
+
+    def _prepare(self) -> None:
+        """Runtime caches (never stored): the faiss binary index or the ±1 codes as float32."""
+        self._index = self._build_index()
+
+    def _build_index(self) -> Any:
+        self._signs = None
+        if self.scoring == "hamming":
+            index = faiss.IndexBinaryFlat(int(self.n_bits_))
+            index.add(np.ascontiguousarray(self.codes_))
+            return index
+        if self.codes_.shape[0] * int(self.n_bits_) <= CACHE_VALUES:
+            self._signs = self._unpack(self.codes_)
+        return None
+
+    def _unpack(self, codes: np.ndarray) -> np.ndarray:
+        bits = np.unpackbits(codes, axis=1, count=int(self.n_bits_)).astype(np.float32)
+        return bits * 2.0 - 1.0
+
+    def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        from ...base import top_k
+
+        if self.scoring == "hamming":
+            dist, rows = self._index.search(np.packbits(self._project(Q) > 0, axis=1), k)
+            return -dist.astype(np.float64), rows.astype(np.int64)
+        P = self._project(Q)
+        if self._signs is not None:
+            return top_k(P @ self._signs.T, k)
+        n_rows = self.codes_.shape[0]
+        scores = np.empty((Q.shape[0], n_rows), dtype=np.float32)
+        for start in range(0, n_rows, _BLOCK_ROWS):
+            scores[:, start : start + _BLOCK_ROWS] = P @ self._unpack(self.codes_[start : start + _BLOCK_ROWS]).T
+        return top_k(scores, k)
+
+    def summary(self) -> str:
+        """One line: bits per row, scoring, seed and the front end."""
+        return (f"lsh: {self.n_bits_} bits per row, {self.scoring} scoring, projection from seed {self.seed_} "
+                f"(0 B), {'centred' if self.mean_ is not None else 'uncentred'}; front end "
+                f"{self.front_end_.describe()}")
+
+    def _model_arrays(self) -> dict[str, np.ndarray]:
+        return {"codes": self.codes_} if self.mean_ is None else {"codes": self.codes_, "mean": self.mean_}
+
+    def _model_state(self) -> dict[str, Any]:
+        return {"n_bits": int(self.n_bits_), "seed": int(self.seed_)}
+
+    def _model_specs(self, state: dict[str, Any], d: int) -> dict[str, ArraySpec]:
+        bits = read_state_int(state, "n_bits", 8, MAX_BITS)
+        if bits % 8:
+            raise ModelFileError(f"the LSH model file's n_bits = {bits} is not a multiple of 8.")
+        read_state_int(state, "seed", 0, 2**63 - 1)
+        return {"codes": ArraySpec((None, bits // 8), np.uint8),
+                "mean": ArraySpec((d,), np.float16, required=self.center is True)}
+
+    def _n_rows(self) -> int:
+        return int(self.codes_.shape[0])
+
+    def _restore_model(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
+        check_model_values(arrays, ("mean",), "LSH")
+        if self.center is False and "mean" in arrays:
+            raise ModelFileError("the LSH model file holds a mean but its parameters say center=False.")
+        self.n_bits_, self.seed_ = int(state["n_bits"]), int(state["seed"])
+        self.codes_ = np.ascontiguousarray(arrays["codes"])
+        self.mean_ = arrays.get("mean")
+        self.projection_ = projection_matrix(self.front_end_.n_features_out(int(state["n_features_in"])),
+                                             self.n_bits_, self.seed_)
+        self._prepare()
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = super().__getstate__()
+        state.pop("_signs", None)
+        return state

@@ -1,0 +1,385 @@
+"""Product quantisation (Jégou et al. 2011) with faiss, under a storage budget (SPEC §8).
+
+Each map descriptor, optionally projected to p dimensions, is cut into M sub-vectors of p/M
+dimensions; each sub-vector is replaced by the index of its nearest centroid in a 2^nbits-entry
+codebook learned by k-means. A query is compared with every code by asymmetric distance
+computation (faiss ``IndexPQ``: an exact linear scan over the codes; the query stays in float).
+
+Storage (SPEC §7), at stored dtype:
+
+- codes: ``n_rows × ceil(M·nbits/8)`` bytes (faiss ``sa_code_size()`` per row);
+- codebooks: ``M × 2^nbits × (p/M)`` float32 = ``2^nbits · p · 4`` bytes;
+- the projection, when p < d: a d×p float32 PCA matrix. No mean is stored: L2 distances are
+  translation invariant, so the codebooks are learned on the un-centred projection ``X @ P`` and
+  a query is projected the same way (faiss' own PCA file would hold the full d×d eigenvectors).
+
+Budget rule (deterministic): enumerate every configuration (p, M, nbits) with
+
+- p ∈ {d (no projection)} ∪ {2, 4, 8, … < d, ≤ number of map rows} (PCA needs as many rows as
+  components);
+- M dividing p;
+- nbits ∈ {8, 4} with 2^nbits ≤ number of map rows (k-means needs a point per centroid);
+
+keep those whose bytes fit, and take the one with the most code bits per row (M·nbits); ties go
+to fewer bytes, then larger p, then larger nbits. Explicit ``pca_dim``, ``n_subquantizers`` or
+``nbits`` pin that part of the configuration and the rule chooses the rest. On raw 3780-D HOG of
+3576 Nordland frames, 500 KB selects no PCA, M = 140, nbits = 4: 492 240 B (SPEC §10).
+
+Without a budget: p = d when d ≤ 256, else PCA to the largest power of two ≤ min(256, rows);
+nbits = 8 (4 when there are fewer than 256 map rows); M = the largest divisor of p that is ≤ 32.
+Fewer than 16 map rows: no automatic configuration exists (NotEnoughPlacesError); pass a smaller
+``nbits`` explicitly or use :class:`~btel.methods.baselines.BruteForceNN`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Iterator
+
+import faiss
+import numpy as np
+from sklearn.decomposition import PCA
+
+from ..._validation import N_JOBS, RANDOM_STATE, Budget, Interval, check_positive_int, read_state_int
+from ...base import ArraySpec
+from ...exceptions import InvalidParameterError, ModelFileError, NotEnoughPlacesError
+from ...frontend import FRONT_END_CONSTRAINTS
+from ._common import _RowLocalizer, check_model_values, quiet_faiss, raise_budget_too_small
+
+__all__ = ["PQConfig", "PQLocalizer", "pca_projection"]
+
+#: Sub-quantiser sizes the budget rule considers (bits per sub-quantiser).
+AUTO_NBITS: tuple[int, ...] = (8, 4)
+#: Without a budget, descriptors wider than this are reduced by PCA.
+DEFAULT_MAX_DIM = 256
+#: Without a budget, the number of sub-quantisers is the largest divisor of p up to this.
+DEFAULT_MAX_SUBQUANTIZERS = 32
+
+
+@dataclass(frozen=True)
+class PQConfig:
+    """One product-quantiser configuration: code dimension p, M sub-quantisers of nbits bits."""
+
+    dim: int
+    n_subquantizers: int
+    nbits: int
+
+    @property
+    def code_size(self) -> int:
+        """Bytes per code (faiss ``sa_code_size()``)."""
+        return (self.n_subquantizers * self.nbits + 7) // 8
+
+    @property
+    def code_bits(self) -> int:
+        return self.n_subquantizers * self.nbits
+
+    @property
+    def codebook_bytes(self) -> int:
+        """M codebooks of 2^nbits centroids of p/M float32 values."""
+        return (1 << self.nbits) * self.dim * 4
+
+
+def pca_projection(X: np.ndarray, dim: int, random_state: int | None) -> np.ndarray:
+    """The d×p matrix of the top ``dim`` principal directions of ``X`` (columns orthonormal).
+
+    scikit-learn's PCA (its 'auto' solver: randomized SVD for few components of a large matrix),
+    not faiss' ``PCAMatrix``, which eigen-decomposes the full d×d covariance (minutes at d = 3780).
+
+    Returns
+    -------
+    ndarray of shape (n_features, dim), float32
+    """
+    pca = PCA(n_components=dim, random_state=random_state).fit(X)
+    return np.ascontiguousarray(pca.components_.T, dtype=np.float32)
+
+
+def _powers_of_two_below(limit: int, cap: int) -> list[int]:
+    dims, p = [], 2
+    while p < limit and p <= cap:
+        dims.append(p)
+        p *= 2
+    return dims
+
+
+def _divisors(n: int) -> list[int]:
+    small = [m for m in range(1, int(n**0.5) + 1) if n % m == 0]
+    return sorted(set(small + [n // m for m in small]))
+
+
+class PQLocalizer(_RowLocalizer):
+    """Product quantisation with an optional PCA projection, fitted to a byte budget.
+
+    Parameters
+    ----------
+    budget : int or str, optional
+        Bytes (or ``"500KB"``); ``fit`` picks the configuration by the rule in
+        :mod:`btel.methods.baselines.pq` (most code bits that fit) and raises
+        :class:`~btel.exceptions.BudgetTooSmallError` with the minimum when nothing fits.
+    n_subquantizers : int, optional
+        M; must divide the code dimension. None: chosen by the rule / default.
+    nbits : int, optional
+        Bits per sub-quantiser, 1 … 8 (2^nbits centroids, at most the number of map rows).
+    pca_dim : int, optional
+        Code dimension p; ``pca_dim == n_features`` means no projection.
+    random_state : int or None
+        Seed of k-means and of the randomized PCA.
+    normalize, whiten, delta
+        The front end (:mod:`btel.frontend`).
+    n_jobs : int, optional
+        faiss threads for fitting and searching (None: faiss' default, all cores; -1: all cores).
+
+    Attributes
+    ----------
+    config_ : PQConfig
+        The chosen (p, M, nbits).
+    codes_ : ndarray of shape (n_rows, code_size), uint8
+    codebooks_ : ndarray of shape (M, 2**nbits, p // M), float32
+    projection_ : ndarray of shape (n_features, p), float32, or None
+    n_places_, n_features_in_ : int
+    row_places_ : ndarray of shape (n_rows,) or None
+    front_end_ : FrontEnd
+    fit_time_ : float
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> X = np.random.default_rng(0).normal(size=(300, 32)).astype(np.float32)
+    >>> model = PQLocalizer(budget="20KB").fit(X)
+    >>> model.nbytes <= 20_000
+    True
+    """
+
+    _parameter_constraints = {
+        "budget": [Budget()],
+        "n_subquantizers": [None, Interval(int, 1, 1 << 16)],
+        "nbits": [None, Interval(int, 1, 8)],
+        "pca_dim": [None, Interval(int, 1, None)],
+        "random_state": RANDOM_STATE,
+        "n_jobs": N_JOBS,
+        **FRONT_END_CONSTRAINTS,
+    }
+
+    def __init__(
+        self,
+        *,
+        budget: int | str | None = None,
+        n_subquantizers: int | None = None,
+        nbits: int | None = None,
+        pca_dim: int | None = None,
+        random_state: int | None = 0,
+        normalize: str = "l2",
+        whiten: int | None = None,
+        delta: int | None = None,
+        n_jobs: int | None = None,
+    ) -> None:
+        self.budget = budget
+        self.n_subquantizers = n_subquantizers
+        self.nbits = nbits
+        self.pca_dim = pca_dim
+        self.random_state = random_state
+        self.normalize = normalize
+        self.whiten = whiten
+        self.delta = delta
+        self.n_jobs = n_jobs
+
+    # -- configuration -------------------------------------------------------------------------
+    @staticmethod
+    def projection_bytes(n_features: int, dim: int, always: bool = False) -> int:
+        """Bytes of the stored d×p projection (0 when p = d, unless a rotation is ``always`` stored)."""
+        return 0 if dim == n_features and not always else n_features * dim * 4
+
+    def planned_bytes(self, config: PQConfig, n_rows: int, n_features: int, *, always_project: bool = False) -> int:
+        """Storage of ``config`` for ``n_rows`` map rows of dimension ``n_features`` (no row table)."""
+        return n_rows * config.code_size + config.codebook_bytes + \
+            self.projection_bytes(n_features, config.dim, always_project)
+
+    def _check_explicit(self, n_rows: int, n_features: int) -> tuple[int | None, int | None, int | None]:
+        dim = m = nbits = None
+        if self.pca_dim is not None:
+            dim = check_positive_int(self.pca_dim, "pca_dim")
+            if dim > n_features:
+                raise InvalidParameterError(
+                    f"pca_dim={dim} exceeds the descriptor dimension {n_features}; use pca_dim ≤ {n_features} "
+                    f"(pca_dim={n_features} keeps the descriptors unprojected for PQ)."
+                )
+            if dim < n_features and dim > n_rows:
+                raise InvalidParameterError(
+                    f"pca_dim={dim} needs at least {dim} map descriptors to learn {dim} principal directions; "
+                    f"got {n_rows}. Use pca_dim ≤ {n_rows}."
+                )
+        if self.n_subquantizers is not None:
+            m = check_positive_int(self.n_subquantizers, "n_subquantizers")
+        if self.nbits is not None:
+            nbits = check_positive_int(self.nbits, "nbits")
+            if nbits > 8:
+                raise InvalidParameterError(f"nbits must be between 1 and 8; got {nbits}.")
+            if (1 << nbits) > n_rows:
+                raise InvalidParameterError(
+                    f"nbits={nbits} needs at least {1 << nbits} map descriptors to train {1 << nbits} centroids "
+                    f"per sub-quantiser; got {n_rows}. Use nbits ≤ {n_rows.bit_length() - 1}."
+                )
+        return dim, m, nbits
+
+    def candidates(self, n_rows: int, n_features: int) -> Iterator[PQConfig]:
+        """Every configuration the budget rule considers, given the explicit parameters."""
+        dim, m, nbits = self._check_explicit(n_rows, n_features)
+        dims = [dim] if dim is not None else [n_features] + _powers_of_two_below(n_features, n_rows)
+        bits = [nbits] if nbits is not None else [b for b in AUTO_NBITS if (1 << b) <= n_rows]
+        for p in dims:
+            for b in bits:
+                for mm in ([m] if m is not None else _divisors(p)):
+                    if mm <= p and p % mm == 0:
+                        yield PQConfig(p, mm, b)
+
+    def _default_config(self, n_rows: int, n_features: int) -> PQConfig:
+        dim, m, nbits = self._check_explicit(n_rows, n_features)
+        if dim is None:
+            if n_features <= DEFAULT_MAX_DIM:
+                dim = n_features
+            else:
+                dim = max(_powers_of_two_below(n_features, min(DEFAULT_MAX_DIM, n_rows)), default=n_features)
+        if nbits is None:
+            nbits = 8 if n_rows >= 256 else 4
+        if m is None:
+            m = max(q for q in _divisors(dim) if q <= DEFAULT_MAX_SUBQUANTIZERS)
+        if dim % m:
+            raise InvalidParameterError(
+                f"n_subquantizers={m} must divide the code dimension {dim}; choose a divisor of {dim} "
+                "or set pca_dim to a multiple of n_subquantizers."
+            )
+        return PQConfig(dim, m, nbits)
+
+    def choose_config(self, n_rows: int, n_features: int, budget: int | None, extra_bytes: int = 0, *,
+                      method_name: str = "PQ", always_project: bool = False) -> PQConfig:
+        """The configuration ``fit`` uses (see the module docstring for the rule).
+
+        ``always_project`` counts a d×p matrix for every p (OPQ's rotation).
+        """
+        if self.nbits is None and n_rows < (1 << min(AUTO_NBITS)):
+            raise NotEnoughPlacesError(
+                f"{method_name} needs at least {1 << min(AUTO_NBITS)} map descriptors to train "
+                f"{min(AUTO_NBITS)}-bit sub-quantisers; got {n_rows}. Pass a smaller nbits or use BruteForceNN."
+            )
+        if budget is None:
+            return self._default_config(n_rows, n_features)
+        options = [
+            (c, self.planned_bytes(c, n_rows, n_features, always_project=always_project) + extra_bytes)
+            for c in self.candidates(n_rows, n_features)
+        ]
+        if not options:
+            raise InvalidParameterError(
+                f"no {method_name} configuration matches n_subquantizers={self.n_subquantizers}, "
+                f"pca_dim={self.pca_dim}: n_subquantizers must divide the code dimension."
+            )
+        fitting = [(c, b) for c, b in options if b <= budget]
+        if not fitting:
+            smallest, minimum = min(options, key=lambda cb: (cb[1], -cb[0].code_bits))
+            raise_budget_too_small(
+                method_name, budget, minimum,
+                f"p = {smallest.dim}, {smallest.n_subquantizers} sub-quantiser(s) × {smallest.nbits} bits",
+            )
+        return max(fitting, key=lambda cb: (cb[0].code_bits, -cb[1], cb[0].dim, cb[0].nbits))[0]
+
+    def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
+        self.choose_config(n_rows, n_features_out, budget, reserved)
+
+    # -- fitting -------------------------------------------------------------------------------
+    def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
+        n_rows, n_features = X.shape
+        config = self.choose_config(n_rows, n_features, budget, reserved)
+        projection = None if config.dim == n_features else pca_projection(X, config.dim, self.random_state)
+        Y = X if projection is None else np.ascontiguousarray(X @ projection, dtype=np.float32)
+        index = faiss.IndexPQ(config.dim, config.n_subquantizers, config.nbits)
+        if self.random_state is not None:
+            index.pq.cp.seed = int(self.random_state)
+        with quiet_faiss():
+            index.train(Y)
+        index.add(Y)
+        self.projection_ = projection
+        self.codebooks_ = faiss.vector_to_array(index.pq.centroids).reshape(
+            config.n_subquantizers, 1 << config.nbits, config.dim // config.n_subquantizers
+        ).astype(np.float32)
+        self.codes_ = faiss.vector_to_array(index.codes).reshape(n_rows, index.sa_code_size())
+        self.config_ = config
+        self._index = index
+
+    def _build_index(self) -> faiss.IndexPQ:
+        c = self.config_
+        index = faiss.IndexPQ(c.dim, c.n_subquantizers, c.nbits)
+        faiss.copy_array_to_vector(np.ascontiguousarray(self.codebooks_).ravel(), index.pq.centroids)
+        index.is_trained = True
+        index.add_sa_codes(np.ascontiguousarray(self.codes_))
+        return index
+
+    # -- inference -----------------------------------------------------------------------------
+    def project(self, Q: Any) -> np.ndarray:
+        """Queries in the code space: front end, then the projection (identity when none is stored).
+
+        Returns
+        -------
+        ndarray of shape (n_queries, p), float32
+        """
+        return self._projected(self._check_queries(Q))
+
+    def _projected(self, Q: np.ndarray) -> np.ndarray:
+        return Q if self.projection_ is None else np.ascontiguousarray(Q @ self.projection_, dtype=np.float32)
+
+    def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        dist, rows = self._index.search(self._projected(Q), k)
+        return -dist.astype(np.float64), rows.astype(np.int64)
+
+    # -- storage and files ---------------------------------------------------------------------
+    def _model_arrays(self) -> dict[str, np.ndarray]:
+        arrays = {"codes": self.codes_, "codebooks": self.codebooks_}
+        if self.projection_ is not None:
+            arrays["projection"] = self.projection_
+        return arrays
+
+    def _model_state(self) -> dict[str, Any]:
+        c = self.config_
+        return {"dim": c.dim, "n_subquantizers": c.n_subquantizers, "nbits": c.nbits}
+
+    def _model_specs(self, state: dict[str, Any], d: int) -> dict[str, ArraySpec]:
+        config = read_config(state, d)
+        specs = pq_specs(config)
+        if config.dim != d:
+            specs["projection"] = ArraySpec((d, config.dim), np.float32)
+        return specs
+
+    def _n_rows(self) -> int:
+        return int(self.codes_.shape[0])
+
+    def _restore_model(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
+        d = self.front_end_.n_features_out(int(state["n_features_in"]))
+        projection = arrays.get("projection")
+        check_finite(arrays, ("codebooks", "projection"), "PQ")
+        self._set_codes(read_config(state, d), arrays["codes"], arrays["codebooks"], projection)
+
+    def _set_codes(self, config: PQConfig, codes: np.ndarray, codebooks: np.ndarray,
+                   projection: np.ndarray | None) -> "PQLocalizer":
+        """Adopt trained codes and codebooks (a loaded file, or OPQ's quantiser) and build the index."""
+        self.config_, self.codes_, self.codebooks_, self.projection_ = config, codes, codebooks, projection
+        self._index = self._build_index()
+        return self
+
+
+def read_config(state: dict[str, Any], d: int) -> PQConfig:
+    """The (p, M, nbits) recorded in a model file, checked (ModelFileError) against the dimension d."""
+    dim = read_state_int(state, "dim", 1, d)
+    m = read_state_int(state, "n_subquantizers", 1, dim)
+    nbits = read_state_int(state, "nbits", 1, 8)
+    if dim % m:
+        raise ModelFileError(f"the model file's n_subquantizers = {m} does not divide its code dimension {dim}.")
+    return PQConfig(dim, m, nbits)
+
+
+def pq_specs(config: PQConfig) -> dict[str, ArraySpec]:
+    """Codes and codebooks of a product quantiser (the number of codes is free)."""
+    return {"codes": ArraySpec((None, config.code_size), np.uint8),
+            "codebooks": ArraySpec((config.n_subquantizers, 1 << config.nbits,
+                                    config.dim // config.n_subquantizers), np.float32)}
+
+
+def check_finite(arrays: dict[str, np.ndarray], names: tuple[str, ...], method: str) -> None:
+    """ModelFileError when a float array of a model file holds NaN, infinity or values beyond MAX_NORM."""
+    check_model_values(arrays, names, method)

@@ -1,0 +1,22 @@
+"""BTEL (SPEC §2–§6): b ≈ log2 N linear classifiers predict the bits of a place's index.
+
+=================== ===========================================================================
+module              what
+=================== ===========================================================================
+``localizer``       :class:`BTELocalizer`, the estimator (schemes BTE-C / BTE-F, regions)
+``encoding``        place index ↔ bit code; constrained decoding to indices < N
+``compressed``      BTE-C: one classifier per bit, decoded by sign or margin
+``full``            BTE-F: every bit block's full code table
+``planning``        the budget planner: largest (bits, features, regions) that fits
+``ranking``         candidate places ranked by code distance
+``regions``         BTE-R: KTS segments plus a region classifier
+``segmentation``    kernel temporal segmentation (ruptures) and region lookup
+``diagnostics``     per-bit accuracy and error analysis of a fitted model
+=================== ===========================================================================
+"""
+
+from __future__ import annotations
+
+from .localizer import BTELocalizer
+
+__all__ = ["BTELocalizer"]

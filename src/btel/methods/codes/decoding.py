@@ -1,0 +1,181 @@
+"""Exact top-k soft decoding of output codes: a bounded search over blocks of places, or one dense product.
+
+A query's K margins m score place i as m · c_i (:mod:`btel.methods.codes.estimator`). Scoring every place costs N·K
+multiply-adds, more than flat search's N·d when K > d (the 64 KB model at d = 256 has K = 470).
+Route codes need not score every place to be exact:
+
+**Bound and refine** (:class:`BlockDecoder`). Cut the route into blocks of B consecutive places.
+On a block a column is either constant (sign s_jk) or varies; then for every place i of block j
+
+    m · c_i ≤ U_j = Σ_{k constant} m_k s_jk + Σ_{k varying} |m_k|,
+
+two small products over the ⌈N/B⌉ blocks (:meth:`btel.methods.codes.codebook.Codebook.block_signs`, computed
+in closed form for the periodic family). Blocks are scored exactly in decreasing order of U_j
+(a doubling number at a time) until the k-th best exact score exceeds the next block's bound
+(plus twice the float32 rounding bound of a K-term sum, so rounding cannot change the answer):
+no unscored place can then enter the top k. The answer is that of scoring every place (up to
+ties within float32 rounding); only the work depends on how tight the bounds are (a query whose
+margins are mostly wrong visits more blocks, at worst all of them, never fewer than needed).
+
+**One dense product**: ``M @ C.T`` over the ±1 codewords expanded once to float32 (N·8⌈K/8⌉·4
+bytes, kept only up to :data:`DENSE_CACHE_BYTES`). BLAS-3, the cheapest for batches.
+
+Which one runs (:func:`choose_path`) is a measured rule: ``benchmarks/bench_codes.py`` times
+both (and faiss' packed scan) per N; see :func:`choose_path`'s docstring.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...base import top_k
+from .codebook import Codebook
+
+__all__ = ["BlockDecoder", "DENSE_CACHE_BYTES", "BATCH_DENSE_FROM", "block_size", "choose_path", "BYTE_SIGNS",
+           "DENSE_SMALL_VALUES", "PROBE_QUERIES"]
+
+#: Largest float32 codeword cache (N × 8⌈K/8⌉ × 4 bytes) kept for the dense product (32 MB).
+DENSE_CACHE_BYTES = 32 << 20
+#: From this many queries in one call a dense product over every place may beat the per-query bounded search
+#: (on maps of at most :data:`DENSE_BATCH_MAX_VALUES` codeword values; :func:`choose_path`).
+BATCH_DENSE_FROM = 16
+#: Up to this many codeword values (N × 8⌈K/8⌉, 1 MB of float32) every query is decoded densely.
+DENSE_SMALL_VALUES = 1 << 18
+#: Queries of a batch decoded by the bounded search to measure how many places it scores.
+PROBE_QUERIES = 8
+#: Measured nanoseconds per codeword value: the dense product (per query of a batch) and the
+#: bounded search (per value of a scored place), plus the bounded search's per-query overhead.
+DENSE_NS, BOUNDED_NS, BOUNDED_OVERHEAD_NS = 0.05, 0.2, 40_000.0
+#: Blocks scored in the first round of the bounded search (then 2×, 4×, … more per round).
+FIRST_BLOCKS = 8
+#: The ±1 values of the 8 bits of every byte (bit j → column j), float32 (256, 8).
+BYTE_SIGNS = (((np.arange(256)[:, None] >> np.arange(8)) & 1) * 2.0 - 1.0).astype(np.float32)
+
+
+def block_size(n_places: int) -> int:
+    """B, places per block of the bounded search: ≈ √N, within [8, 1024].
+
+    Bounds cost 2·(N/B)·K per query and the visited blocks v·B·K. Measured on the synthetic route
+    (d = 256, K = 470): the blocks needed fall slowly with B (N = 10⁵: 45 at B = 50, 17 at B = 200;
+    N = 10⁴: 12 at B = 50, 7 at B = 100), and every round of blocks costs Python overhead, so
+    B ≈ √N (a few rounds of ≈ 8–16 blocks) was fastest.
+    """
+    return int(min(1024, max(8, round(np.sqrt(n_places)))))
+
+
+def choose_path(n_places: int, width: int, n_queries: int, route: bool, dense_cached: bool,
+                visited: float | None = None) -> str:
+    """The exact decode to run: 'bounded', 'dense', 'scan' (faiss' packed scan) or 'probe'.
+
+    Rule, from ``benchmarks/bench_codes.py`` (results in ``benchmarks/results/bench_codes*.json``;
+    a shared 2-core machine at load 6–9, one thread):
+
+    - 'random' codes have no blocks to bound: 'dense' while the float32 codewords are cached
+      (N·8⌈K/8⌉·4 ≤ :data:`DENSE_CACHE_BYTES`), else 'scan';
+    - a small map (N·8⌈K/8⌉ ≤ :data:`DENSE_SMALL_VALUES`, the codewords fit in a core's cache):
+      'dense' (Gardens Point, N = 200: the bounded search's per-query overhead was 7× flat search);
+    - a batch (≥ :data:`BATCH_DENSE_FROM` queries) with the codewords cached: 'probe' — decode the
+      first :data:`PROBE_QUERIES` by the bounded search, then call again with ``visited``, the
+      fraction of places they scored: 'dense' when N·W·:data:`DENSE_NS` is below
+      visited·N·W·:data:`BOUNDED_NS` + :data:`BOUNDED_OVERHEAD_NS` (per query: the dense product
+      reads every codeword at BLAS speed, the bounded search a few blocks by table look-ups; the
+      constants are the measured 243 µs/query dense and 140 µs/query bounded at N = 10⁴, K = 470,
+      where ≈ 10 % of the places were scored), else 'bounded';
+    - otherwise 'bounded' (single queries on larger maps: 0.18 ms at N = 10⁴ against 0.25 ms
+      for faiss' packed scan and 2.5 ms for the dense product).
+    """
+    if not route:
+        return "dense" if dense_cached else "scan"
+    if dense_cached and n_places * width <= DENSE_SMALL_VALUES:
+        return "dense"
+    if dense_cached and n_queries >= BATCH_DENSE_FROM:
+        if visited is None:
+            return "probe"
+        values = n_places * width
+        return "dense" if values * DENSE_NS < visited * values * BOUNDED_NS + BOUNDED_OVERHEAD_NS else "bounded"
+    return "bounded"
+
+
+class BlockDecoder:
+    """Bounded exact top-k over blocks of places (module docstring), codewords read from a source.
+
+    Parameters
+    ----------
+    codebook : Codebook
+    width : int
+        8⌈K/8⌉: margins and codewords are zero-padded / +1-padded to whole bytes.
+    packed_of : callable
+        ``packed_of(places)`` → uint8 (len(places), width / 8) packed codewords (bit j % 8 of
+        byte j // 8 is column j); a place is scored by one table look-up per byte (the query's
+        256 partial sums of every 8 columns): 1/32 of the memory traffic of float32 codewords,
+        which is what a scattered block costs (the dense float32 rows were 4× slower at N = 10⁴).
+    block : int, optional
+        B (default :func:`block_size`).
+    """
+
+    def __init__(self, codebook: Codebook, width: int, packed_of, block: int | None = None) -> None:
+        n, K = int(codebook.n_places), int(codebook.n_codes)
+        self.n_places = n
+        self.block = int(block) if block is not None else block_size(n)
+        signs = codebook.block_signs(self.block)
+        self.constant = np.zeros((signs.shape[0], width), dtype=np.float32)
+        self.constant[:, :K] = signs
+        self.varying = np.zeros_like(self.constant)
+        self.varying[:, :K] = signs == 0
+        self.packed_of, self.width = packed_of, width
+        self._table_rows = (np.arange(width // 8) * 256).astype(np.uint16)
+        self._offsets = np.arange(self.block)
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.constant.nbytes + self.varying.nbytes)
+
+    def bounds(self, M: np.ndarray) -> np.ndarray:
+        """U (n, ⌈N/B⌉) float32: an upper bound of m · c_i over every place of each block."""
+        return M @ self.constant.T + np.abs(M) @ self.varying.T
+
+    def search(self, M: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Exact top k of m · c_i per row of M (n, width) float32.
+
+        Returns
+        -------
+        scores : (n, k) float64; places : (n, k) int64; visited : (n,) int64, blocks scored per query
+        """
+        n_blocks = self.constant.shape[0]
+        U = self.bounds(M)
+        out_s = np.empty((M.shape[0], k))
+        out_p = np.empty((M.shape[0], k), dtype=np.int64)
+        visited = np.empty(M.shape[0], dtype=np.int64)
+        first = max(FIRST_BLOCKS, -(-k // self.block))
+        for q in range(M.shape[0]):
+            m, u = M[q], U[q]
+            # Twice the worst rounding of a float32 sum of `width` terms of size ≤ |m_k| (bound and score).
+            slack = 2.0 * self.width * 2.0**-23 * float(np.abs(m).sum())
+            table = (m.reshape(-1, 8) @ BYTE_SIGNS.T).ravel()  # m's 256 partial sums of every 8 columns
+            step = min(first, n_blocks)
+            # Round 1: the blocks of highest bound. Round 2: every other block whose bound exceeds the
+            # k-th best score found (the k-th best only rises, so nothing past round 2 can enter).
+            take = np.argpartition(-u, step - 1)[:step] if step < n_blocks else np.arange(n_blocks)
+            places, scores = self._score_blocks(np.sort(take), m, table)
+            done = take.size
+            if done < n_blocks:
+                kth = np.partition(scores, scores.size - k)[scores.size - k] if scores.size >= k else -np.inf
+                left = np.ones(n_blocks, dtype=bool)
+                left[take] = False
+                more = np.flatnonzero(left & (u >= kth - slack))
+                if more.size:
+                    p2, s2 = self._score_blocks(more, m, table)
+                    places, scores = np.concatenate([places, p2]), np.concatenate([scores, s2])
+                    done += more.size
+            # Places ascend within a round: sorted, ties go to the lower place as in a full scan.
+            by_place = np.argsort(places, kind="stable")
+            kept_s, cols = top_k(scores[by_place].astype(np.float64)[None], k)
+            out_s[q], out_p[q], visited[q] = kept_s[0], places[by_place][cols[0]], done
+        return out_s, out_p, visited
+
+    def _score_blocks(self, take: np.ndarray, m: np.ndarray, table: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(places, float32 m · c_i) of every place of the given sorted blocks: one look-up per byte."""
+        places = (take[:, None] * self.block + self._offsets).ravel()
+        places = places[places < self.n_places]
+        codes = self.packed_of(places) + self._table_rows  # uint16: byte value + 256 × its group
+        return places, table[codes].sum(axis=1)

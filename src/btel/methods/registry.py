@@ -1,0 +1,207 @@
+"""Every localization method by name, and :func:`load` for the model files they save.
+
+``make_method("btel-c", budget="500KB")`` builds an unfitted estimator. Adding a method is one
+class (a :class:`btel.base.PlaceLocalizer`) and one line in :data:`REGISTRY` (factory and description).
+
+A model file is untrusted input: :func:`load` reads only plain arrays and JSON
+(:func:`btel.storage.load_arrays`), accepts only the classes registered here, restores only the
+declared parameters (never runtime settings such as ``n_jobs``) after checking each against its
+constraints, checks every array's shape and dtype against what the recorded state implies before
+the method sees it, and raises :class:`~btel.exceptions.ModelFileError` for anything else.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from functools import partial
+from typing import Any, Callable
+
+from .._validation import Instance, check_params, read_state_int
+from ..base import PlaceLocalizer
+from .auto import AutoLocalizer
+from .baselines import BASELINES, PQLocalizer
+from .codes.estimator import CodeLocalizer
+from ..exceptions import BTELError, InvalidParameterError, ModelFileError, ResourceLimitError
+from ..frontend import FrontEnd
+from ..limits import check_places
+from .btel.localizer import BTELocalizer
+from .ryth import RYTHLocalizer
+from ..storage import load_arrays
+
+__all__ = ["REGISTRY", "METHODS", "DESCRIPTIONS", "MODEL_CLASSES", "make_method", "method_names", "load"]
+
+_BASELINE_DESCRIPTIONS: dict[str, str] = {
+    "bruteforce": "exact nearest neighbour over every map descriptor (the unbudgeted reference)",
+    "pq": "product quantisation (faiss), the most code bits that fit the budget",
+    "opq": "optimised PQ: a learned rotation, then PQ (faiss)",
+    "itq": "iterative quantisation to binary codes, Hamming search (faiss)",
+    "lsh": "seeded sign random projections filling the budget (projection from the seed, 0 B), "
+           "asymmetric scoring (projected query · ±1 codes) or Hamming",
+    "seqslam": "SeqSLAM sequence matching over a uint8 map (uses the query sequence)",
+}
+
+#: Every method: ``name → (factory, one-line description)``. Adding a method is one class and one line here.
+REGISTRY: dict[str, tuple[Callable[..., PlaceLocalizer], str]] = {
+    "btel-c": (partial(BTELocalizer, scheme="compressed", n_regions=1),
+               "BTE-C: one linear classifier per bit of the place index, O(log N) bytes (the paper)"),
+    "btel-f": (partial(BTELocalizer, scheme="full", n_regions=1),
+               "BTE-F: one classifier per tree node, O(N) bytes (the paper's foil)"),
+    "btel-r": (partial(BTELocalizer, scheme="compressed", n_regions=20),
+               "BTEL with 20 KTS regions, a region classifier and one BTE-C tree each"),
+    "btel-auto": (partial(BTELocalizer, scheme="compressed", n_regions="auto"),
+                  "BTEL with the number of regions chosen by the KTS penalty"),
+    "btel-codes": (partial(CodeLocalizer, code="periodic"),
+                   "BTEL beyond the binary index: K ≥ log2 N implicit periodic output codes, ridge-fitted, "
+                   "4-bit weights, K and d' chosen to fill the budget"),
+    "ryth": (RYTHLocalizer, "RYTH: residues of the place index modulo co-prime periods (Yu et al. 2018)"),
+    **{name: (factory, _BASELINE_DESCRIPTIONS[name]) for name, factory in BASELINES.items()},
+    "auto": (AutoLocalizer, "the method, code family and front end chosen from the map and the budget alone "
+                            "(btel.methods.auto): output codes on routes, whitened brute force or LSH on independent places"),
+}
+
+#: Unfitted-estimator factories by name (derived from :data:`REGISTRY`).
+METHODS: dict[str, Callable[..., PlaceLocalizer]] = {name: entry[0] for name, entry in REGISTRY.items()}
+
+#: One line per method (``btel methods``), derived from :data:`REGISTRY`.
+DESCRIPTIONS: dict[str, str] = {name: entry[1] for name, entry in REGISTRY.items()}
+
+#: auto picks among the registered methods: it is handed the registry (no import back from btel.methods.auto).
+AutoLocalizer._registry = sys.modules[__name__]
+
+#: Model classes :func:`load` accepts, by the class name recorded in a file.
+MODEL_CLASSES: dict[str, type[PlaceLocalizer]] = {}
+for _factory in METHODS.values():
+    _cls = _factory.func if isinstance(_factory, partial) else _factory
+    MODEL_CLASSES[_cls.__name__] = _cls
+MODEL_CLASSES[PQLocalizer.__name__] = PQLocalizer
+
+
+def method_names() -> list[str]:
+    """Registered method names, in registry order."""
+    return list(METHODS)
+
+
+def make_method(name: str, **params: Any) -> PlaceLocalizer:
+    """An unfitted method by registry name, with ``params`` overriding its defaults.
+
+    Unknown parameter names and values outside a parameter's declared range raise
+    :class:`~btel.exceptions.InvalidParameterError` at once (naming the method and parameter).
+    """
+    if name not in METHODS:
+        raise InvalidParameterError(f"unknown method {name!r}; choose from {', '.join(METHODS)}.")
+    model = METHODS[name]()
+    valid = model.get_params(deep=True)
+    unknown = sorted(set(params) - set(valid))
+    if unknown:
+        raise InvalidParameterError(
+            f"{name} has no parameter {', '.join(repr(u) for u in unknown)}; it takes: {', '.join(sorted(valid))}."
+        )
+    model.set_params(**params)
+    check_params(model)
+    return model
+
+
+def load(path: str | os.PathLike) -> PlaceLocalizer:
+    """Load a model saved by ``save``; the class is read from the file's header.
+
+    Raises
+    ------
+    ModelFileError
+        Missing, corrupt, truncated, edited or foreign file, or an unknown model class. Nothing
+        else escapes: any other failure while reading or checking the file becomes this error.
+    UnsupportedModelVersionError
+        A file from a newer btel.
+    """
+    arrays, header = load_arrays(path)
+    where = repr(str(path))
+    if header.get("kind") == "image-descriptor":
+        raise ModelFileError(
+            f"{where} is a saved image descriptor, not a localization model; "
+            "load it with btel.descriptors.load_descriptor(path)."
+        )
+    name = header.get("model")
+    cls = MODEL_CLASSES.get(name) if isinstance(name, str) else None
+    if cls is None:
+        raise ModelFileError(f"{where} holds a model of unknown type {str(name)[:60]!r}; it was not written by this btel.")
+    params, state = header.get("params"), header.get("state")
+    if not isinstance(params, dict) or not isinstance(state, dict):
+        raise ModelFileError(f"{where} has a corrupt header (params/state are not objects).")
+    try:
+        model = cls(**_params_from_file(cls, params))
+        check_params(model)
+        _restore(model, arrays, state)
+    except ModelFileError as exc:
+        raise ModelFileError(f"{where}: {exc}") from exc
+    except ResourceLimitError as exc:  # N beyond the memory-tied ceiling: still a ModelFileError
+        raise ModelFileError(f"{where}: {exc}") from None
+    except BTELError as exc:
+        raise ModelFileError(f"{where} is inconsistent with a {name} model: {exc}") from exc
+    except Exception as exc:  # a file is untrusted input: whatever else goes wrong, it is a bad file
+        raise ModelFileError(
+            f"{where} is inconsistent with a {name} model ({type(exc).__name__}: {str(exc)[:200]}); "
+            "the file is corrupt or was edited."
+        ) from exc
+    return model
+
+
+def _params_from_file(cls: type[PlaceLocalizer], params: dict[str, Any]) -> dict[str, Any]:
+    """The declared, non-runtime parameters of a header (a nested estimator rebuilt from its params).
+
+    A parameter may hold an estimator only where its constraints declare one
+    (:class:`~btel._validation.Instance`, e.g. OPQ's ``pq``), and only of that class.
+    """
+    declared = set(cls._parameter_constraints) - set(cls._runtime_params)
+    unknown = sorted(set(params) - declared - set(cls._runtime_params))
+    if unknown:
+        raise ModelFileError(f"the model file has parameters {[u[:40] for u in unknown[:5]]} that {cls.__name__} "
+                             "does not take.")
+    out = {}
+    for key in declared & set(params):
+        value = params[key]
+        if isinstance(value, dict):  # a nested estimator (OPQ's pq), saved as {"estimator", "params"}
+            allowed = [c.cls for c in cls._parameter_constraints[key] if isinstance(c, Instance)]
+            estimator = value.get("estimator")
+            nested = MODEL_CLASSES.get(estimator) if isinstance(estimator, str) else None
+            if nested is None or nested not in allowed or set(value) != {"estimator", "params"} \
+                    or not isinstance(value["params"], dict):
+                raise ModelFileError(f"the model file's parameter {key!r} is not a "
+                                     f"{' or '.join(a.__name__ for a in allowed) or 'plain value'}.")
+            value = nested(**_params_from_file(nested, value["params"]))
+            check_params(value)
+        out[key] = value
+    return out
+
+
+#: Most places a model file may declare: a place index fits in uint32 (the largest map measured has 10⁶).
+#: A lower, memory-tied ceiling applies too: :func:`btel.limits.check_places` (``BTEL_MEMORY_LIMIT``).
+MAX_PLACES = 2**32
+
+
+def _restore(model: PlaceLocalizer, arrays: dict[str, Any], state: dict[str, Any]) -> None:
+    """Check the common state, the front end and every array's shape and dtype; then restore."""
+    n_places = read_state_int(state, "n_places", 2, MAX_PLACES)
+    n_features = read_state_int(state, "n_features_in", 1, 2**31)
+    arrays = dict(arrays)
+    model.front_end_ = FrontEnd.restore(state.get("front_end"), arrays, n_features)
+    specs = model._array_specs(state)
+    unexpected = sorted(set(arrays) - set(specs))
+    if unexpected:
+        raise ModelFileError(f"the file holds arrays {[u[:40] for u in unexpected[:5]]} that a {type(model).__name__} "
+                             "does not store.")
+    for key, spec in specs.items():
+        if key not in arrays:
+            if spec.required:
+                raise ModelFileError(f"the file lacks the array {key!r} ({spec.describe()}).")
+            continue
+        if not spec.matches(arrays[key]):
+            a = arrays[key]
+            raise ModelFileError(f"the file's array {key!r} has shape {a.shape} and dtype {a.dtype}; "
+                                 f"expected {spec.describe()}.")
+    check_places(n_places, f"a {type(model).__name__}")  # before anything sized by N is built
+    model._restore(arrays, state)
+    model.n_features_in_ = n_features
+    fit_time = state.get("fit_time")
+    model.fit_time_ = float(fit_time) if isinstance(fit_time, (int, float)) and not isinstance(fit_time, bool) \
+        else float("nan")
+    setattr(model, model._fitted_marker, n_places)  # the fitted marker: set last
