@@ -124,7 +124,8 @@ def test_evaluate_localizer_with_ranking_and_storage() -> None:
     method = _NearestNeighbour()
     result = evaluate(method, X, Q, name="nn", curve_max=30)
     assert result.name == "nn" and result.n_map == 60 and result.n_queries == 60
-    assert result.params == {"metric": "euclidean"}
+    # Every method has the front end's three parameters (declared once in PlaceLocalizer).
+    assert result.params == {"metric": "euclidean", "normalize": "l2", "whiten": None, "delta": None}
     np.testing.assert_array_equal(result.predictions, method.predict(Q))
     # 60 places: tolerances up to a tenth of the route are reported by default.
     assert list(result.recall) == [0, 1, 2, 5]

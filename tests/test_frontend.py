@@ -247,3 +247,30 @@ def test_shrinkage_whitening_on_gardens_point_beats_cosine_brute_force(gardenspo
     white = make_method("bruteforce", whiten="shrink").fit(X).predict(Q)
     # Measured 0.48 → 0.555 recall@2 (btel.shrink docstring); the test asks for a real gain.
     assert (np.abs(white - truth) <= 2).mean() > (np.abs(plain - truth) <= 2).mean() + 0.03
+
+
+# -- the front end's parameters, declared once in PlaceLocalizer ----------------------------------
+@pytest.mark.parametrize("name", sorted(METHODS))
+def test_every_method_has_the_front_end_parameters_once(name: str) -> None:
+    import inspect
+
+    model = make_method(name)
+    params = inspect.signature(type(model).__init__).parameters
+    for key in ("normalize", "whiten", "delta"):
+        assert params[key].kind is inspect.Parameter.KEYWORD_ONLY
+        assert key in type(model)._parameter_constraints
+    expected = "none" if name == "seqslam" else "l2"
+    assert model.get_params()["normalize"] == expected
+    assert make_method(name, whiten="shrink", delta=3).get_params()["whiten"] == "shrink"
+
+
+def test_a_method_declaring_a_front_end_parameter_itself_is_refused() -> None:
+    from btel.base import PlaceLocalizer
+
+    with pytest.raises(TypeError, match="declared once"):
+        class _Copy(PlaceLocalizer):  # noqa: F841 - the class statement itself raises
+            def __init__(self, *, normalize: str = "l2") -> None:
+                self.normalize = normalize
+
+            def _place_scores(self, Q):  # pragma: no cover - never reached
+                return Q

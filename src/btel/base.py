@@ -30,6 +30,7 @@ shape and dtype of every stored array implied by the state, checked on load) and
 
 from __future__ import annotations
 
+import functools
 import inspect
 import time
 from abc import ABC, abstractmethod
@@ -41,7 +42,7 @@ from sklearn.base import BaseEstimator
 from ._validation import check_descriptors, check_is_fitted, check_params, check_places, check_positive_int
 from .exceptions import (BudgetTooSmallError, InvalidAnswerError, InvalidDescriptorsError, InvalidParameterError,
                          NotEnoughPlacesError)
-from .frontend import FrontEnd, traverse_starts
+from .frontend import FRONT_END_CONSTRAINTS, FrontEnd, traverse_starts
 from .storage import format_bytes, parse_budget, save_arrays, storage_breakdown
 from .threads import one_blas_thread
 
@@ -153,6 +154,32 @@ def put_first(scores: np.ndarray, places: np.ndarray, first_scores: np.ndarray,
     return out_scores, out_places
 
 
+def _with_front_end(init: Any, defaults: dict[str, Any]) -> Any:
+    """``init`` taking the front end's parameters too (keyword-only, with ``defaults``), stored as attributes.
+
+    Its signature lists them, so scikit-learn's ``get_params`` (which reads the signature of
+    ``__init__``) and ``clone`` treat them as the method's own parameters.
+    """
+    signature = inspect.signature(init)
+    clash = set(defaults) & set(signature.parameters)
+    if clash:
+        raise TypeError(f"{init.__qualname__} declares {sorted(clash)}: the front end's parameters are "
+                        "declared once, in PlaceLocalizer.front_end_defaults.")
+    front = [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=value)
+             for name, value in defaults.items()]
+
+    @functools.wraps(init)
+    def __init__(self: Any, *args: Any, **params: Any) -> None:
+        values = {name: params.pop(name, default) for name, default in defaults.items()}
+        init(self, *args, **params)
+        for name, value in values.items():
+            setattr(self, name, value)
+
+    __init__.__signature__ = signature.replace(  # type: ignore[attr-defined]
+        parameters=[*signature.parameters.values(), *front])
+    return __init__
+
+
 class PlaceLocalizer(BaseEstimator, ABC):
     """Base class of every localization method (module docstring)."""
 
@@ -171,11 +198,20 @@ class PlaceLocalizer(BaseEstimator, ABC):
     #: selections: it then takes :class:`btel.frontend.ScaledRows` (no normalised copy of a batch).
     _linear_in_queries: ClassVar[bool] = False
 
+    #: The front end's three parameters and their defaults (:mod:`btel.frontend`), declared here once
+    #: for every method: each subclass's ``__init__`` gets them as keyword-only parameters (so
+    #: ``get_params``, ``clone`` and model files see them) and their constraints. A method whose
+    #: defaults differ overrides this mapping (SeqSLAM does not normalise).
+    front_end_defaults: ClassVar[dict[str, Any]] = {"normalize": "l2", "whiten": None, "delta": None}
+
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
         if not inspect.isabstract(cls) and cls._search is PlaceLocalizer._search \
                 and cls._place_scores is PlaceLocalizer._place_scores:
             raise TypeError(f"{cls.__name__} must implement _search or _place_scores (the method's primitive).")
+        if "__init__" in cls.__dict__:
+            cls.__init__ = _with_front_end(cls.__dict__["__init__"], dict(cls.front_end_defaults))
+        cls._parameter_constraints = {**cls._parameter_constraints, **FRONT_END_CONSTRAINTS}
 
     # -- to implement ---------------------------------------------------------------------------
     @abstractmethod
@@ -359,7 +395,7 @@ class PlaceLocalizer(BaseEstimator, ABC):
     @property
     def uses_query_sequence(self) -> bool:
         """True when answers depend on the query sequence (SeqSLAM, or a delta front end)."""
-        return bool(self.uses_sequence or getattr(self, "delta", None))
+        return bool(self.uses_sequence or self.delta)
 
     def _check_queries(self, Q: Any) -> np.ndarray:
         """Validated queries (float32, 2-D, finite, the fitted dimension) through the front end."""

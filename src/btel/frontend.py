@@ -273,11 +273,12 @@ class FrontEnd:
 
     @classmethod
     def of(cls, estimator: Any) -> "FrontEnd":
-        """The (unfitted) front end an estimator's ``normalize``/``whiten``/``delta`` parameters ask for."""
+        """The (unfitted) front end an estimator's ``normalize``/``whiten``/``delta`` parameters ask for
+        (declared once for every method in :class:`btel.base.PlaceLocalizer`)."""
         from .storage import parse_budget
 
-        return cls(getattr(estimator, "normalize", "none"), getattr(estimator, "whiten", None),
-                   getattr(estimator, "delta", None), budget=parse_budget(getattr(estimator, "budget", None)))
+        return cls(estimator.normalize, estimator.whiten, estimator.delta,
+                   budget=parse_budget(getattr(estimator, "budget", None)))
 
     @property
     def is_identity(self) -> bool:

@@ -42,7 +42,7 @@ import numpy as np
 from .._validation import N_JOBS, RANDOM_STATE, Budget, check_params
 from ..base import ArraySpec, PlaceLocalizer
 from ..exceptions import BudgetTooSmallError, ModelFileError
-from ..frontend import FRONT_END_CONSTRAINTS, normalize_rows
+from ..frontend import normalize_rows
 from ..storage import format_bytes, parse_budget
 
 __all__ = ["AutoLocalizer", "route_share", "choose_method", "ROUTE_SHARE", "ROUTE_WINDOW"]
@@ -159,19 +159,14 @@ class AutoLocalizer(PlaceLocalizer):
     fit_time_ : float
     """
 
-    _parameter_constraints = {"budget": [Budget()], "random_state": RANDOM_STATE, "n_jobs": N_JOBS,
-                              **FRONT_END_CONSTRAINTS}
+    _parameter_constraints = {"budget": [Budget()], "random_state": RANDOM_STATE, "n_jobs": N_JOBS}
     _runtime_params = ("n_jobs",)
     #: The method registry (:mod:`btel.methods` sets it when it registers this class; this module
     #: does not import the registry, which imports it).
     _registry: Any = None
 
-    def __init__(self, *, budget: int | str | None = None, normalize: str = "l2", whiten: int | str | None = None,
-                 delta: int | None = None, random_state: int | None = 0, n_jobs: int | None = None) -> None:
+    def __init__(self, *, budget: int | str | None = None, random_state: int | None = 0, n_jobs: int | None = None) -> None:
         self.budget = budget
-        self.normalize = normalize
-        self.whiten = whiten
-        self.delta = delta
         self.random_state = random_state
         self.n_jobs = n_jobs
 

@@ -22,7 +22,6 @@ from .._validation import N_JOBS, RANDOM_STATE, Budget, DType, Interval, Options
 from ..base import ArraySpec, PlaceLocalizer
 from ..exceptions import BudgetTooSmallError, ModelFileError, NotEnoughPlacesError
 from ..learning.feature_selection import column_index_dtype
-from ..frontend import FRONT_END_CONSTRAINTS
 from ..learning.linear import CLASSIFIERS, SOLVERS, ColumnStats, Hyperplanes, default_C
 from ..storage import format_bytes, parse_budget
 from ..learning.training import convergence_warning, fit_tasks, one_vs_rest_tasks
@@ -128,7 +127,6 @@ class RYTHLocalizer(PlaceLocalizer):
         "max_iter": [None, Interval(int, 1, 2**31 - 1)],  # None: the solver's own cap; liblinear takes a C int
         "n_jobs": N_JOBS,
         "random_state": RANDOM_STATE,
-        **FRONT_END_CONSTRAINTS,
     }
     _runtime_params = ("n_jobs",)
 
@@ -148,9 +146,6 @@ class RYTHLocalizer(PlaceLocalizer):
         max_iter: int | None = None,
         n_jobs: int | None = None,
         random_state: int | None = 0,
-        normalize: str = "l2",
-        whiten: int | None = None,
-        delta: int | None = None,
     ) -> None:
         self.n_periods = n_periods
         self.classifier = classifier
@@ -165,9 +160,6 @@ class RYTHLocalizer(PlaceLocalizer):
         self.max_iter = max_iter
         self.n_jobs = n_jobs
         self.random_state = random_state
-        self.normalize = normalize
-        self.whiten = whiten
-        self.delta = delta
 
     @staticmethod
     def planned_bytes(periods: list[int], n_selected: int, n_features_in: int, dtype: str = "float32") -> int:

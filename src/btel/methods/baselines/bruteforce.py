@@ -21,7 +21,6 @@ import numpy as np
 from ..._validation import N_JOBS, Budget
 from ...base import ArraySpec
 from ...exceptions import ModelFileError
-from ...frontend import FRONT_END_CONSTRAINTS
 from ._common import _RowLocalizer, check_magnitude, raise_budget_too_small
 
 __all__ = ["BruteForceNN"]
@@ -60,14 +59,10 @@ class BruteForceNN(_RowLocalizer):
     [0, 1, 2]
     """
 
-    _parameter_constraints = {"budget": [Budget()], "n_jobs": N_JOBS, **FRONT_END_CONSTRAINTS}
+    _parameter_constraints = {"budget": [Budget()], "n_jobs": N_JOBS}
 
-    def __init__(self, *, budget: int | str | None = None, normalize: str = "l2", whiten: int | None = None,
-                 delta: int | None = None, n_jobs: int | None = None) -> None:
+    def __init__(self, *, budget: int | str | None = None, n_jobs: int | None = None) -> None:
         self.budget = budget
-        self.normalize = normalize
-        self.whiten = whiten
-        self.delta = delta
         self.n_jobs = n_jobs
 
     @staticmethod

@@ -26,7 +26,6 @@ import numpy as np
 from ..._validation import N_JOBS, RANDOM_STATE, Budget, Interval, check_positive_int, read_state_int
 from ...base import ArraySpec
 from ...exceptions import InvalidParameterError, ModelFileError, NotEnoughPlacesError
-from ...frontend import FRONT_END_CONSTRAINTS
 from ._common import _RowLocalizer, quiet_faiss, raise_budget_too_small
 from .pq import check_finite, pca_projection
 
@@ -70,7 +69,6 @@ class ITQLocalizer(_RowLocalizer):
         "code_bits": [None, Interval(int, 8, None)],
         "random_state": RANDOM_STATE,
         "n_jobs": N_JOBS,
-        **FRONT_END_CONSTRAINTS,
     }
 
     def __init__(
@@ -79,17 +77,11 @@ class ITQLocalizer(_RowLocalizer):
         budget: int | str | None = None,
         code_bits: int | None = None,
         random_state: int | None = 0,
-        normalize: str = "l2",
-        whiten: int | None = None,
-        delta: int | None = None,
         n_jobs: int | None = None,
     ) -> None:
         self.budget = budget
         self.code_bits = code_bits
         self.random_state = random_state
-        self.normalize = normalize
-        self.whiten = whiten
-        self.delta = delta
         self.n_jobs = n_jobs
 
     @staticmethod

@@ -35,7 +35,6 @@ import numpy as np
 from ..._validation import N_JOBS, RANDOM_STATE, Budget, Interval, Options, read_state_int
 from ...base import ArraySpec
 from ...exceptions import InvalidParameterError, ModelFileError
-from ...frontend import FRONT_END_CONSTRAINTS
 from ._common import _RowLocalizer, check_model_values, raise_budget_too_small
 
 __all__ = ["LSHLocalizer", "projection_matrix"]
@@ -110,20 +109,15 @@ class LSHLocalizer(_RowLocalizer):
         "center": [Options(True, False, "auto")],
         "random_state": RANDOM_STATE,
         "n_jobs": N_JOBS,
-        **FRONT_END_CONSTRAINTS,
     }
 
     def __init__(self, *, budget: int | str | None = None, n_bits: int | None = None, scoring: str = "asymmetric",
-                 center: bool | str = "auto", random_state: int | None = 0, normalize: str = "l2",
-                 whiten: int | str | None = None, delta: int | None = None, n_jobs: int | None = None) -> None:
+                 center: bool | str = "auto", random_state: int | None = 0, n_jobs: int | None = None) -> None:
         self.budget = budget
         self.n_bits = n_bits
         self.scoring = scoring
         self.center = center
         self.random_state = random_state
-        self.normalize = normalize
-        self.whiten = whiten
-        self.delta = delta
         self.n_jobs = n_jobs
 
     def choose_bits(self, n_rows: int, n_features: int, budget: int | None, reserved: int = 0) -> int:

@@ -30,7 +30,7 @@ from sklearn.base import clone
 
 from ..._validation import N_JOBS, Budget, Instance, Interval
 from ...base import ArraySpec
-from ...frontend import FRONT_END_CONSTRAINTS, FrontEnd
+from ...frontend import FrontEnd
 from ._common import _RowLocalizer, quiet_faiss
 from .pq import PQConfig, PQLocalizer, check_finite, pca_projection, pq_specs, read_config
 
@@ -74,7 +74,6 @@ class OPQLocalizer(_RowLocalizer):
         "pq": [None, Instance(PQLocalizer)],
         "n_iter": [Interval(int, 1, 10_000)],
         "n_jobs": N_JOBS,
-        **FRONT_END_CONSTRAINTS,
     }
 
     def __init__(
@@ -83,17 +82,11 @@ class OPQLocalizer(_RowLocalizer):
         budget: int | str | None = None,
         pq: PQLocalizer | None = None,
         n_iter: int = 20,
-        normalize: str = "l2",
-        whiten: int | None = None,
-        delta: int | None = None,
         n_jobs: int | None = None,
     ) -> None:
         self.budget = budget
         self.pq = pq
         self.n_iter = n_iter
-        self.normalize = normalize
-        self.whiten = whiten
-        self.delta = delta
         self.n_jobs = n_jobs
 
     def _quantiser(self) -> PQLocalizer:

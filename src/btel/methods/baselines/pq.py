@@ -43,7 +43,6 @@ from sklearn.decomposition import PCA
 from ..._validation import N_JOBS, RANDOM_STATE, Budget, Interval, check_positive_int, read_state_int
 from ...base import ArraySpec
 from ...exceptions import InvalidParameterError, ModelFileError, NotEnoughPlacesError
-from ...frontend import FRONT_END_CONSTRAINTS
 from ._common import _RowLocalizer, check_model_values, quiet_faiss, raise_budget_too_small
 
 __all__ = ["PQConfig", "PQLocalizer", "pca_projection"]
@@ -156,7 +155,6 @@ class PQLocalizer(_RowLocalizer):
         "pca_dim": [None, Interval(int, 1, None)],
         "random_state": RANDOM_STATE,
         "n_jobs": N_JOBS,
-        **FRONT_END_CONSTRAINTS,
     }
 
     def __init__(
@@ -167,9 +165,6 @@ class PQLocalizer(_RowLocalizer):
         nbits: int | None = None,
         pca_dim: int | None = None,
         random_state: int | None = 0,
-        normalize: str = "l2",
-        whiten: int | None = None,
-        delta: int | None = None,
         n_jobs: int | None = None,
     ) -> None:
         self.budget = budget
@@ -177,9 +172,6 @@ class PQLocalizer(_RowLocalizer):
         self.nbits = nbits
         self.pca_dim = pca_dim
         self.random_state = random_state
-        self.normalize = normalize
-        self.whiten = whiten
-        self.delta = delta
         self.n_jobs = n_jobs
 
     # -- configuration -------------------------------------------------------------------------

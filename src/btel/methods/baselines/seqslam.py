@@ -35,7 +35,6 @@ import numpy as np
 from ..._validation import N_JOBS, Budget, Interval, check_positive_int
 from ...base import ArraySpec
 from ...exceptions import InvalidDescriptorsError, InvalidParameterError, ModelFileError
-from ...frontend import FRONT_END_CONSTRAINTS
 from ._common import _RowLocalizer, raise_budget_too_small
 
 __all__ = ["SeqSLAM", "seqslam_match", "enhance_contrast", "sequence_costs", "velocities"]
@@ -261,6 +260,8 @@ class SeqSLAM(_RowLocalizer):
     """
 
     uses_sequence = True
+    #: SeqSLAM's own front end is the thumbnail and its contrast enhancement: no normalisation.
+    front_end_defaults = {"normalize": "none", "whiten": None, "delta": None}
     _parameter_constraints = {
         "budget": [Budget()],
         "ds": [Interval(int, 1, 10_000)],
@@ -269,7 +270,6 @@ class SeqSLAM(_RowLocalizer):
         "vskip": [Interval(float, 0, 1e6, closed="right")],
         "window": [Interval(int, 2, 1_000_000)],
         "n_jobs": N_JOBS,
-        **FRONT_END_CONSTRAINTS,
     }
 
     def __init__(
@@ -281,9 +281,6 @@ class SeqSLAM(_RowLocalizer):
         vmax: float = 1.2,
         vskip: float = 0.1,
         window: int = 10,
-        normalize: str = "none",
-        whiten: int | None = None,
-        delta: int | None = None,
         n_jobs: int | None = None,
     ) -> None:
         self.budget = budget
@@ -292,9 +289,6 @@ class SeqSLAM(_RowLocalizer):
         self.vmax = vmax
         self.vskip = vskip
         self.window = window
-        self.normalize = normalize
-        self.whiten = whiten
-        self.delta = delta
         self.n_jobs = n_jobs
 
     @staticmethod

@@ -20,7 +20,6 @@ from ...learning.distributed import BACKENDS
 from .encoding import _decode_constrained, n_bits_for
 from ...exceptions import InvalidParameterError, ModelFileError
 from ...learning.feature_selection import column_index_dtype
-from ...frontend import FRONT_END_CONSTRAINTS
 from .full import full_costs, full_tasks, predict_full
 from ...learning.linear import CLASSIFIERS, SOLVERS, ColumnStats, Hyperplanes, default_C
 from .planning import (
@@ -225,7 +224,6 @@ class BTELocalizer(PlaceLocalizer):
         "block_size": [Interval(int, 1, None)],
         "code_copies": [Interval(int, 1, MAX_CODE_COPIES)],
         "exemplar_radius": [Interval(int, 0, None)],
-        **FRONT_END_CONSTRAINTS,
     }
     _runtime_params = ("n_jobs", "backend", "scheduler", "progress")
 
@@ -256,9 +254,6 @@ class BTELocalizer(PlaceLocalizer):
         block_size: int = 1,
         code_copies: int = 1,
         exemplar_radius: int = 0,
-        normalize: str = "l2",
-        whiten: int | None = None,
-        delta: int | None = None,
     ) -> None:
         self.scheme = scheme
         self.classifier = classifier
@@ -284,9 +279,6 @@ class BTELocalizer(PlaceLocalizer):
         self.block_size = block_size
         self.code_copies = code_copies
         self.exemplar_radius = exemplar_radius
-        self.normalize = normalize
-        self.whiten = whiten
-        self.delta = delta
 
     # ------------------------------------------------------------------ parameters
     def _check_combinations(self) -> None:

@@ -66,7 +66,6 @@ from .codebook import FAMILIES, MAX_COLUMNS, ROUTE_FAMILIES, Codebook
 from ...learning.distributed import BACKENDS
 from ...exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError
 from ...learning.feature_selection import column_index_dtype
-from ...frontend import FRONT_END_CONSTRAINTS
 from ...learning.linear import ColumnStats
 from .quantise import WEIGHT_BITS, QuantisedWeights, quantise
 from ...storage import format_bytes
@@ -184,7 +183,6 @@ class CodeLocalizer(PlaceLocalizer):
         "n_jobs": N_JOBS,
         "backend": [None, Options(*BACKENDS)],
         "scheduler": [None, String()],
-        **FRONT_END_CONSTRAINTS,
     }
     _runtime_params = ("n_jobs", "backend", "scheduler")
 
@@ -207,9 +205,6 @@ class CodeLocalizer(PlaceLocalizer):
         n_jobs: int | None = None,
         backend: str | None = None,
         scheduler: str | None = None,
-        normalize: str = "l2",
-        whiten: int | None = None,
-        delta: int | None = None,
     ) -> None:
         self.code = code
         self.n_codes = n_codes
@@ -227,9 +222,6 @@ class CodeLocalizer(PlaceLocalizer):
         self.n_jobs = n_jobs
         self.backend = backend
         self.scheduler = scheduler
-        self.normalize = normalize
-        self.whiten = whiten
-        self.delta = delta
 
     # ------------------------------------------------------------------ fit
     def _check_combinations(self) -> None:
