@@ -13,7 +13,7 @@ One run measures, on a synthetic route (d = 256, c = 0.25 → d' = 64):
 3. **Target shape** — single-query latency and batch throughput of BTE-C at b = 20, d' = 410,
    d = 4096. No map of 2^19+ places at d = 4096 fits this machine (8 GB), and inference cost
    depends only on (b, d', d): this model has those shapes and random weights, written with
-   ``btel.storage.save_arrays`` and read back with ``btel.load`` like any model file.
+   ``btel.modelfile.save_arrays`` and read back with ``btel.load`` like any model file.
 
 Writes ``benchmarks/results/bench_scale.{json,csv,png}`` and the Scale section of
 ``docs/results.md`` (between ``<!-- scale:start -->`` and ``<!-- scale:end -->``).
@@ -224,7 +224,7 @@ def throughput(n: int, paths: tuple[Path, Path], model_path: Path) -> list[dict[
 def shaped_model(n_places: int, d: int, d_sel: int, folder: Path, seed: int = 0):
     """A BTE-C model file with b = ⌈log2 N⌉ random hyperplanes of d' columns each (see module doc)."""
     from btel import BTELocalizer, load
-    from btel.storage import save_arrays
+    from btel.modelfile import save_arrays
 
     rng = np.random.default_rng(seed)
     b = int(n_places - 1).bit_length()

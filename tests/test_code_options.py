@@ -15,7 +15,7 @@ from btel.datasets import synthetic_route
 from btel.methods.btel.encoding import encode, n_bits_for
 from btel.exceptions import InvalidParameterError, ModelFileError
 from btel.methods.btel.localizer import block_centres, block_size_for_tolerance, planned_bytes
-from btel.storage import load_arrays, save_arrays
+from btel.modelfile import load_arrays, save_arrays
 
 
 @pytest.fixture(scope="module")

@@ -16,7 +16,7 @@ from btel.methods.codes.estimator import CodeLocalizer
 from btel.datasets import synthetic_route
 from btel.exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError
 from btel.methods import make_method
-from btel.storage import load_arrays, save_arrays
+from btel.modelfile import load_arrays, save_arrays
 
 
 @pytest.fixture(scope="module")

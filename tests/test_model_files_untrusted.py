@@ -18,7 +18,7 @@ import pytest
 from click.testing import CliRunner
 
 import btel
-from btel import storage
+from btel import modelfile
 from btel.cli import main
 from btel.datasets import synthetic_route
 from btel.exceptions import (
@@ -30,7 +30,7 @@ from btel.exceptions import (
     NotFittedError,
 )
 from btel.methods import make_method
-from btel.storage import HEADER_KEY, load_arrays
+from btel.modelfile import HEADER_KEY, load_arrays
 
 N_PLACES, DIM = 64, 16
 
@@ -503,7 +503,7 @@ def test_a_failed_save_leaves_the_old_file_and_no_temporary(interruption, route,
         fh.write(b"PK\x03\x04 half a model")
         raise interruption("interrupted")
 
-    monkeypatch.setattr(storage.np, "savez", broken_savez)
+    monkeypatch.setattr(modelfile.np, "savez", broken_savez)
     with pytest.raises(KeyboardInterrupt if interruption is KeyboardInterrupt else ModelFileError):
         model.save(path)
     assert path.read_bytes() == before

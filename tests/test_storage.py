@@ -19,15 +19,8 @@ from btel.exceptions import (
     NotFittedError,
     UnsupportedModelVersionError,
 )
-from btel.storage import (
-    FORMAT_VERSION,
-    HEADER_KEY,
-    format_bytes,
-    load_arrays,
-    parse_budget,
-    save_arrays,
-    storage_breakdown,
-)
+from btel.storage import format_bytes, parse_budget, storage_breakdown
+from btel.modelfile import FORMAT_VERSION, HEADER_KEY, load_arrays, save_arrays
 
 MAX_OVERHEAD = 4096  # file size − reported bytes (SPEC §7: "a few KiB")
 

@@ -381,3 +381,17 @@ class Instance:
 
     def describe(self) -> str:
         return f"a {self.cls.__name__}"
+
+
+def map_places(places: Any, n_rows: int) -> tuple[np.ndarray | None, int]:
+    """A map's place labels checked: ``(labels, N)``, labels None when row i is place i (the common case)."""
+    if places is None:
+        if n_rows < 2:
+            raise NotEnoughPlacesError(
+                f"X has {n_rows} row (N = 1 place): an index needs at least 2 places. Fit on a longer route."
+            )
+        return None, n_rows
+    labels, n_places = check_places(places, n_rows)
+    if n_places == n_rows and np.array_equal(labels, np.arange(n_rows)):
+        return None, n_places
+    return labels, n_places

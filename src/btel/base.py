@@ -13,15 +13,14 @@ Everything else is built here on that primitive alone, so it behaves the same fo
 - ``place_scores(Q)`` — (n_queries, N) scores, higher = more likely;
 - ``predict_sequence(Q, 'hmm' | 'median')`` — decoding over an ordered traverse
   (:mod:`btel.sequence_decoding`, :mod:`btel.sequence`), in blocks of queries (O(block × N) memory);
-- :meth:`storage_breakdown` / :attr:`nbytes` — the storage rule (:func:`btel.storage.storage_breakdown`);
-- :meth:`save` — plain arrays + a JSON header (``btel.load`` reads it back, :mod:`btel.methods`).
+- :meth:`storage_breakdown` / :attr:`nbytes` / :meth:`save` — the storage rule (:mod:`btel.storage`) and
+  the model file (:mod:`btel.modelfile`; ``btel.load`` reads it back).
 
 ``fit(X, places=None)`` is a template: it validates the parameters against the class's declared
 ``_parameter_constraints``, validates the descriptors and place labels, fits the front end
 (:mod:`btel.frontend`: normalisation, delta descriptors, whitening — every method has one and stores
 it) and calls the method's ``_fit(X, places, n_places, budget, reserved)`` on the transformed map,
 with ``reserved`` bytes of the budget already taken by the front end and the row → place table.
-
 A subclass implements ``_fit``, ``_search`` or ``_place_scores``, ``_stored_arrays`` (name → array,
 exactly what inference reads), ``_fitted_state`` (JSON scalars), ``_array_specs(state)`` (the
 shape and dtype of every stored array implied by the state, checked on load) and
@@ -30,7 +29,6 @@ shape and dtype of every stored array implied by the state, checked on load) and
 
 from __future__ import annotations
 
-import functools
 import inspect
 import time
 from abc import ABC, abstractmethod
@@ -39,12 +37,15 @@ from typing import Any, ClassVar
 import numpy as np
 from sklearn.base import BaseEstimator
 
-from ._validation import check_descriptors, check_is_fitted, check_params, check_places, check_positive_int
-from .exceptions import (BudgetTooSmallError, InvalidAnswerError, InvalidDescriptorsError, InvalidParameterError,
+from ._validation import check_descriptors, check_is_fitted, check_params, check_positive_int, map_places
+from .exceptions import (BudgetTooSmallError, InvalidAnswerError, InvalidDescriptorsError,
                          NotEnoughPlacesError)
-from .frontend import FRONT_END_CONSTRAINTS, FrontEnd, traverse_starts
-from .storage import format_bytes, parse_budget, save_arrays, storage_breakdown
-from .threads import one_blas_thread
+from .frontend import FRONT_END_CONSTRAINTS, FrontEnd, traverse_starts, with_front_end_parameters
+from .storage import format_bytes, parse_budget, storage_breakdown
+from .modelfile import ArraySpec, jsonable, save_arrays
+from .querystream import QueryStream
+from .topk import put_first, top_k
+from .threads import one_blas_thread, predict_pool, predict_threads
 
 __all__ = ["PlaceLocalizer", "ArraySpec", "QueryStream", "top_k", "put_first"]
 
@@ -55,129 +56,6 @@ _ONE_BLAS_THREAD_FROM = 512
 #: Batches of at least this many queries are predicted in row chunks on every core (linear methods).
 _PARALLEL_PREDICT_FROM = 8192
 _PREDICT_CHUNK_ROWS = 4096
-_PREDICT_POOL: Any = None
-
-
-_PREDICT_THREADS: int | None = None
-
-
-def _predict_threads() -> int:
-    """Cores this process may use (its CPU affinity at first call), at most 8."""
-    global _PREDICT_THREADS
-    if _PREDICT_THREADS is None:
-        import os
-
-        try:
-            _PREDICT_THREADS = min(8, len(os.sched_getaffinity(0)))
-        except AttributeError:  # not on Linux
-            _PREDICT_THREADS = min(8, os.cpu_count() or 1)
-    return _PREDICT_THREADS
-
-
-def _predict_pool(n_threads: int) -> Any:
-    """One thread pool for chunked batch prediction, made at first use and kept."""
-    global _PREDICT_POOL
-    if _PREDICT_POOL is None or _PREDICT_POOL._max_workers != n_threads:
-        from concurrent.futures import ThreadPoolExecutor
-
-        _PREDICT_POOL = ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="btel-predict")
-    return _PREDICT_POOL
-
-
-class ArraySpec:
-    """Shape and dtype a stored array must have (``None`` in the shape: any length on that axis).
-
-    ``dtype`` may be a tuple of allowed dtypes (e.g. the smallest unsigned integer of a table).
-    """
-
-    def __init__(self, shape: tuple[int | None, ...], dtype: Any, *, required: bool = True) -> None:
-        self.shape = tuple(shape)
-        self.dtypes = tuple(np.dtype(t) for t in (dtype if isinstance(dtype, tuple) else (dtype,)))
-        self.required = required
-
-    @property
-    def nbytes(self) -> int:
-        """Bytes of an array of this spec (all axes known; the first allowed dtype)."""
-        return int(np.prod(self.shape, dtype=np.int64)) * self.dtypes[0].itemsize
-
-    def matches(self, array: np.ndarray) -> bool:
-        return array.dtype in self.dtypes and array.ndim == len(self.shape) and all(
-            want is None or want == got for want, got in zip(self.shape, array.shape))
-
-    def describe(self) -> str:
-        dims = ", ".join("n" if s is None else str(s) for s in self.shape)
-        return f"({dims}){',' if len(self.shape) == 1 else ''} {'/'.join(t.name for t in self.dtypes)}"
-
-
-def top_k(scores: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """The k highest scores per row and their columns, best first (ties: lowest column first).
-
-    Returns
-    -------
-    values : ndarray of shape (n, k), float64
-    columns : ndarray of shape (n, k), int64
-    """
-    n_cols = scores.shape[1]
-    if k < n_cols:
-        part = np.argpartition(-scores, k - 1, axis=1)[:, :k]
-    else:
-        part = np.broadcast_to(np.arange(n_cols), scores.shape).copy()
-    values = np.take_along_axis(scores, part, axis=1)
-    order = np.lexsort((part, -values), axis=1)
-    columns = np.take_along_axis(part, order, axis=1).astype(np.int64)
-    return np.take_along_axis(values, order, axis=1).astype(np.float64), columns
-
-
-def put_first(scores: np.ndarray, places: np.ndarray, first_scores: np.ndarray,
-              first_places: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A ranking that starts with a method's point decode, then its other candidates in order.
-
-    For decoders whose answer is not simply the best-scoring place (BTEL's constrained decode,
-    RYTH's Chinese remainder theorem), so that ``rank(Q, k)[:, 0] == predict(Q)`` and R@1 is the
-    recall of the point prediction. The point is dropped from later in the list (no duplicates).
-
-    Parameters
-    ----------
-    scores, places : ndarray of shape (n, k)
-    first_scores, first_places : ndarray of shape (n,)
-
-    Returns
-    -------
-    scores, places : ndarray of shape (n, k)
-    """
-    k = places.shape[1]
-    others = places != first_places[:, None]
-    # The first k − 1 candidates that are not the point, in their order (stable sort of the mask).
-    keep = np.argsort(~others, axis=1, kind="stable")[:, : k - 1]
-    out_places = np.concatenate([first_places[:, None], np.take_along_axis(places, keep, axis=1)], axis=1)
-    out_scores = np.concatenate([first_scores[:, None], np.take_along_axis(scores, keep, axis=1)], axis=1)
-    return out_scores, out_places
-
-
-def _with_front_end(init: Any, defaults: dict[str, Any]) -> Any:
-    """``init`` taking the front end's parameters too (keyword-only, with ``defaults``), stored as attributes.
-
-    Its signature lists them, so scikit-learn's ``get_params`` (which reads the signature of
-    ``__init__``) and ``clone`` treat them as the method's own parameters.
-    """
-    signature = inspect.signature(init)
-    clash = set(defaults) & set(signature.parameters)
-    if clash:
-        raise TypeError(f"{init.__qualname__} declares {sorted(clash)}: the front end's parameters are "
-                        "declared once, in PlaceLocalizer.front_end_defaults.")
-    front = [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=value)
-             for name, value in defaults.items()]
-
-    @functools.wraps(init)
-    def __init__(self: Any, *args: Any, **params: Any) -> None:
-        values = {name: params.pop(name, default) for name, default in defaults.items()}
-        init(self, *args, **params)
-        for name, value in values.items():
-            setattr(self, name, value)
-
-    __init__.__signature__ = signature.replace(  # type: ignore[attr-defined]
-        parameters=[*signature.parameters.values(), *front])
-    return __init__
 
 
 class PlaceLocalizer(BaseEstimator, ABC):
@@ -210,7 +88,7 @@ class PlaceLocalizer(BaseEstimator, ABC):
                 and cls._place_scores is PlaceLocalizer._place_scores:
             raise TypeError(f"{cls.__name__} must implement _search or _place_scores (the method's primitive).")
         if "__init__" in cls.__dict__:
-            cls.__init__ = _with_front_end(cls.__dict__["__init__"], dict(cls.front_end_defaults))
+            cls.__init__ = with_front_end_parameters(cls.__dict__["__init__"], dict(cls.front_end_defaults))
         cls._parameter_constraints = {**cls._parameter_constraints, **FRONT_END_CONSTRAINTS}
 
     # -- to implement ---------------------------------------------------------------------------
@@ -315,7 +193,7 @@ class PlaceLocalizer(BaseEstimator, ABC):
         """Parameters, descriptors and places checked as every ``fit`` does: ``(X, labels, n_places)``."""
         check_params(self)
         X = check_descriptors(X, name="X")
-        labels, n_places = self._check_places(places, X.shape[0])
+        labels, n_places = map_places(places, X.shape[0])
         if X.shape[0] < self._min_rows:
             raise NotEnoughPlacesError(
                 f"{type(self).__name__} needs at least {self._min_rows} map descriptors; got {X.shape[0]}."
@@ -377,20 +255,6 @@ class PlaceLocalizer(BaseEstimator, ABC):
         """One line on what fitting chose (planner values, the rule); empty when there is nothing to add."""
         return ""
 
-    @staticmethod
-    def _check_places(places: Any, n_rows: int) -> tuple[np.ndarray | None, int]:
-        """(labels or None for row i = place i, N)."""
-        if places is None:
-            if n_rows < 2:
-                raise NotEnoughPlacesError(
-                    f"X has {n_rows} row (N = 1 place): an index needs at least 2 places. Fit on a longer route."
-                )
-            return None, n_rows
-        labels, n_places = check_places(places, n_rows)
-        if n_places == n_rows and np.array_equal(labels, np.arange(n_rows)):
-            return None, n_places
-        return labels, n_places
-
     # -- inference --------------------------------------------------------------------------------
     @property
     def uses_query_sequence(self) -> bool:
@@ -442,8 +306,8 @@ class PlaceLocalizer(BaseEstimator, ABC):
         ndarray of shape (n_queries,), int64, every value in [0, N)
         """
         if (self._linear_in_queries and getattr(Q, "ndim", 0) == 2 and Q.shape[0] >= _PARALLEL_PREDICT_FROM
-                and _predict_threads() > 1 and not self.front_end_.uses_sequence):
-            return self._predict_in_chunks(Q, _predict_threads())
+                and predict_threads() > 1 and not self.front_end_.uses_sequence):
+            return self._predict_in_chunks(Q, predict_threads())
         Q = self._check_queries(Q)
         if Q.shape[0] < _ONE_BLAS_THREAD_FROM:
             return self._check_answers(self._predict(Q))
@@ -451,13 +315,9 @@ class PlaceLocalizer(BaseEstimator, ABC):
             return self._check_answers(self._predict(Q))
 
     def _predict_in_chunks(self, Q: Any, n_threads: int) -> np.ndarray:
-        """:meth:`predict` of a large batch as row chunks on ``n_threads`` threads (one BLAS thread each).
-
-        Only for methods whose prediction of a row depends on that row alone (``_linear_in_queries``,
-        and a front end without delta descriptors): the chunks' answers are the whole batch's. The
-        front end, the product and the decode of each chunk run in one thread, so the
-        single-threaded numpy passes (row norms, decoding) use every core, not just the product.
-        """
+        """:meth:`predict` of a large batch as row chunks on ``n_threads`` threads (one BLAS thread each):
+        only where a row's answer depends on that row alone, so single-threaded numpy passes (row
+        norms, decoding) use every core, not just the product."""
         check_is_fitted(self, self._fitted_marker)
         front = self.front_end_
         Q = check_descriptors(Q, name="Q", n_features=self.n_features_in_, check_finite=not front.checks_finite)
@@ -469,7 +329,7 @@ class PlaceLocalizer(BaseEstimator, ABC):
 
         try:
             with one_blas_thread():
-                return self._check_answers(np.concatenate(list(_predict_pool(n_threads).map(one, slices))))
+                return self._check_answers(np.concatenate(list(predict_pool(n_threads).map(one, slices))))
         except InvalidDescriptorsError:
             self._check_queries(Q)  # the same error, with row numbers counted over the whole batch
             raise
@@ -494,7 +354,7 @@ class PlaceLocalizer(BaseEstimator, ABC):
         return scores
 
     def _check_answers(self, places: np.ndarray | None, scores: np.ndarray | None = None) -> np.ndarray | None:
-        """Every answer a place in [0, N) and every score finite, for every method (issue 20).
+        """Every answer a place in [0, N) and every score finite, for every method.
 
         Raises
         ------
@@ -543,30 +403,9 @@ class PlaceLocalizer(BaseEstimator, ABC):
         -------
         ndarray of shape (n_queries,), int64 in [0, N)
         """
-        if decoder == "median":
-            from .sequence import filter_sequence
+        from .sequence_decoding import predict_sequence
 
-            unknown = set(options) - {"window"}
-            if unknown:
-                raise InvalidParameterError(f"decoder='median' takes only window; got {sorted(unknown)}.")
-            return self._check_answers(
-                filter_sequence(self.predict(Q), options.get("window", 5), n_places=int(self.n_places_)))
-        if decoder == "hmm":
-            from .sequence_decoding import HMM_OPTIONS, HMMDecoder, zscore_rows
-
-            unknown = set(options) - set(HMM_OPTIONS)
-            if unknown:
-                raise InvalidParameterError(
-                    f"decoder='hmm' takes {', '.join(HMM_OPTIONS)}; got {', '.join(sorted(unknown))}.")
-            check_is_fitted(self, self._fitted_marker)
-            decoder_ = HMMDecoder(int(self.n_places_), **options)
-            Qt = self._check_queries(Q)
-            out = np.empty(Qt.shape[0], dtype=np.int64)
-            for start, _, block in self._score_blocks(Qt):
-                for j, scores in enumerate(zscore_rows(block)):
-                    out[start + j] = decoder_.update(scores)
-            return self._check_answers(out)
-        raise InvalidParameterError(f"decoder must be 'hmm' or 'median'; got {decoder!r}.")
+        return predict_sequence(self, Q, decoder, **options)
 
     # -- storage and files --------------------------------------------------------------------------
     def storage_breakdown(self) -> dict[str, int]:
@@ -596,7 +435,7 @@ class PlaceLocalizer(BaseEstimator, ABC):
         pathlib.Path
         """
         check_is_fitted(self, self._fitted_marker)
-        params = {k: _jsonable(v) for k, v in self.get_params(deep=False).items() if k not in self._runtime_params}
+        params = {k: jsonable(v) for k, v in self.get_params(deep=False).items() if k not in self._runtime_params}
         state = {"n_places": int(self.n_places_), "n_features_in": int(self.n_features_in_),
                  # JSON has no NaN: a loaded model's unknown fit time is saved as null.
                  "fit_time": float(self.fit_time_) if np.isfinite(self.fit_time_) else None,
@@ -609,62 +448,3 @@ class PlaceLocalizer(BaseEstimator, ABC):
         tags = super().__sklearn_tags__()
         tags.requires_fit = True
         return tags
-
-
-class QueryStream:
-    """One query at a time through a fitted model (what a robot runs; ``btel localize --stream``).
-
-    Keeps what answering the next frame needs from the frames before it: the front end's delta
-    history (the last 2w frames) and a sequence method's context (SeqSLAM's last ds − 1 frames).
-    ``search(x)`` on each frame of a traverse gives what ``model.search(Q)`` gives on the whole
-    traverse, row by row. :meth:`reset` starts a new traverse (the robot was moved, a new run).
-    """
-
-    def __init__(self, model: PlaceLocalizer) -> None:
-        self.model = model
-        self._front = model.front_end_.stream()
-        self._context = model._sequence_context()
-        self._past: list[np.ndarray] = []
-
-    def reset(self) -> None:
-        self._front.reset()
-        self._past = []
-
-    def _rows(self, x: Any) -> np.ndarray:
-        q = check_descriptors(np.asarray(x).reshape(1, -1) if np.ndim(x) == 1 else x, name="query",
-                              n_features=self.model.n_features_in_)
-        if q.shape[0] != 1:
-            raise InvalidParameterError(f"a stream takes one descriptor at a time; got {q.shape[0]} rows.")
-        z = self._front.update(q)
-        if not self._context:
-            return z
-        self._past = (self._past + [z[0]])[-(self._context + 1):]
-        return np.asarray(self._past, dtype=np.float32)
-
-    def search(self, x: Any, k: int = 1) -> tuple[np.ndarray, np.ndarray]:
-        """(scores, places) of the k best places for the next frame, shapes (k,), best first."""
-        scores, places = self.model._search(self._rows(x), self.model._check_k(k))
-        self.model._check_answers(places[-1:], scores[-1:])
-        return scores[-1], places[-1]
-
-    def place_scores(self, x: Any) -> np.ndarray:
-        """Scores of every place for the next frame, shape (N,), float64."""
-        scores = self.model._place_scores(self._rows(x))[-1]
-        self.model._check_answers(None, scores)
-        return scores
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, PlaceLocalizer):  # a nested estimator (OPQ's pq): its class and parameters
-        return {"estimator": type(value).__name__,
-                "params": {k: _jsonable(v) for k, v in value.get_params(deep=False).items()
-                           if k not in value._runtime_params}}
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (np.floating,)):
-        return float(value)
-    if isinstance(value, type):
-        return np.dtype(value).name
-    if isinstance(value, np.dtype):
-        return value.name
-    return value

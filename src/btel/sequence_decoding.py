@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from ._validation import check_positive_int
+from ._validation import check_is_fitted, check_positive_int
 from .exceptions import InvalidParameterError
 
 __all__ = ["HMMDecoder", "HMM_OPTIONS", "decode_sequence", "zscore_rows", "emission_scores", "transition_kernel",
@@ -263,3 +263,29 @@ def emission_scores(model: Any, Q: Any) -> np.ndarray:
     ndarray of shape (n_queries, N), float64
     """
     return zscore_rows(model.place_scores(Q))
+
+
+def predict_sequence(model: Any, Q: Any, decoder: str = "hmm", **options: Any) -> np.ndarray:
+    """:meth:`btel.base.PlaceLocalizer.predict_sequence` of a fitted ``model`` (its docstring)."""
+    if decoder == "median":
+        from .sequence import filter_sequence
+
+        unknown = set(options) - {"window"}
+        if unknown:
+            raise InvalidParameterError(f"decoder='median' takes only window; got {sorted(unknown)}.")
+        return model._check_answers(
+            filter_sequence(model.predict(Q), options.get("window", 5), n_places=int(model.n_places_)))
+    if decoder == "hmm":
+        unknown = set(options) - set(HMM_OPTIONS)
+        if unknown:
+            raise InvalidParameterError(
+                f"decoder='hmm' takes {', '.join(HMM_OPTIONS)}; got {', '.join(sorted(unknown))}.")
+        check_is_fitted(model, model._fitted_marker)
+        decoder_ = HMMDecoder(int(model.n_places_), **options)
+        Qt = model._check_queries(Q)
+        out = np.empty(Qt.shape[0], dtype=np.int64)
+        for start, _, block in model._score_blocks(Qt):
+            for j, scores in enumerate(zscore_rows(block)):
+                out[start + j] = decoder_.update(scores)
+        return model._check_answers(out)
+    raise InvalidParameterError(f"decoder must be 'hmm' or 'median'; got {decoder!r}.")

@@ -129,3 +129,33 @@ def limit_threads(n: int | None) -> Iterator[None]:
     """BLAS and faiss' OpenMP both limited to ``n`` threads inside the block (None: their defaults)."""
     with faiss_threads(n), blas_threads(n):
         yield
+
+
+#: The pool of chunked batch prediction (made at first use, kept).
+_PREDICT_POOL: Any = None
+
+
+_PREDICT_THREADS: int | None = None
+
+
+def predict_threads() -> int:
+    """Cores this process may use (its CPU affinity at first call), at most 8."""
+    global _PREDICT_THREADS
+    if _PREDICT_THREADS is None:
+        import os
+
+        try:
+            _PREDICT_THREADS = min(8, len(os.sched_getaffinity(0)))
+        except AttributeError:  # not on Linux
+            _PREDICT_THREADS = min(8, os.cpu_count() or 1)
+    return _PREDICT_THREADS
+
+
+def predict_pool(n_threads: int) -> Any:
+    """One thread pool for chunked batch prediction, made at first use and kept."""
+    global _PREDICT_POOL
+    if _PREDICT_POOL is None or _PREDICT_POOL._max_workers != n_threads:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _PREDICT_POOL = ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="btel-predict")
+    return _PREDICT_POOL

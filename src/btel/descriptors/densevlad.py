@@ -26,13 +26,10 @@ Choices and deviations from the paper, each deliberate:
 - ``vl_phow`` sets low-contrast descriptors to zero and keeps them; OpenCV has no contrast
   threshold. Descriptors that are exactly zero (no gradient under the region: sky, black frames)
   carry no information and are dropped; an image without any descriptor gets a zero VLAD.
-- **PCA cap**: PCA cannot have more components than the training data has directions of
-  variance. Centring n training vectors leaves at most n − 1 of them, and whitening divides by
-  the square root of each component's variance, so a zero-variance component would divide by
-  zero. The number kept, ``n_components_``, is therefore
-  ``min(n_components, n_train_images − 1, K·128, #components with variance > max(1e-6 × the
-  largest, 1e-10))`` — duplicate map frames (tunnels, a stopped train) lower it further. On the 10-image Gardens Point sample that is at most 9; the paper's 4096 needs at
-  least 4097 distinct map images. ``n_components=None`` skips PCA (dim = K·128 = 16,384).
+- **PCA cap**: n centred training vectors have at most n − 1 directions of variance, and
+  whitening divides by each one's standard deviation, so ``n_components_`` is ``min(n_components,
+  n_train_images − 1, K·128, #components with variance > max(1e-6 × the largest, 1e-10))``:
+  the paper's 4096 needs 4097 distinct map images; ``n_components=None`` skips PCA (K·128 = 16,384).
 """
 
 from __future__ import annotations

@@ -268,9 +268,9 @@ class AutoLocalizer(PlaceLocalizer):
         return self.model_._stored_arrays()
 
     def _fitted_state(self) -> dict[str, Any]:
-        from ..base import _jsonable
+        from ..modelfile import jsonable
 
-        params = {k: _jsonable(v) for k, v in self.model_.get_params(deep=False).items()
+        params = {k: jsonable(v) for k, v in self.model_.get_params(deep=False).items()
                   if k not in self.model_._runtime_params}
         return {"choice": self.choice_, "inner_params": params, "inner_state": self.model_._fitted_state()}
 

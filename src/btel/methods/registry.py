@@ -4,7 +4,7 @@
 class (a :class:`btel.base.PlaceLocalizer`) and one line in :data:`REGISTRY` (factory and description).
 
 A model file is untrusted input: :func:`load` reads only plain arrays and JSON
-(:func:`btel.storage.load_arrays`), accepts only the classes registered here, restores only the
+(:func:`btel.modelfile.load_arrays`), accepts only the classes registered here, restores only the
 declared parameters (never runtime settings such as ``n_jobs``) after checking each against its
 constraints, checks every array's shape and dtype against what the recorded state implies before
 the method sees it, and raises :class:`~btel.exceptions.ModelFileError` for anything else.
@@ -27,7 +27,7 @@ from ..frontend import FrontEnd
 from ..limits import check_places
 from .btel.localizer import BTELocalizer
 from .ryth import RYTHLocalizer
-from ..storage import load_arrays
+from ..modelfile import load_arrays
 
 __all__ = ["REGISTRY", "METHODS", "DESCRIPTIONS", "MODEL_CLASSES", "make_method", "method_names", "load"]
 

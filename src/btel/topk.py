@@ -1,0 +1,52 @@
+"""The k best columns of a score matrix, and putting a known answer first: how every method ranks."""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["top_k", "put_first"]
+
+
+def top_k(scores: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The k highest scores per row and their columns, best first (ties: lowest column first).
+
+    Returns
+    -------
+    values : ndarray of shape (n, k), float64
+    columns : ndarray of shape (n, k), int64
+    """
+    n_cols = scores.shape[1]
+    if k < n_cols:
+        part = np.argpartition(-scores, k - 1, axis=1)[:, :k]
+    else:
+        part = np.broadcast_to(np.arange(n_cols), scores.shape).copy()
+    values = np.take_along_axis(scores, part, axis=1)
+    order = np.lexsort((part, -values), axis=1)
+    columns = np.take_along_axis(part, order, axis=1).astype(np.int64)
+    return np.take_along_axis(values, order, axis=1).astype(np.float64), columns
+
+
+def put_first(scores: np.ndarray, places: np.ndarray, first_scores: np.ndarray,
+              first_places: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A ranking that starts with a method's point decode, then its other candidates in order.
+
+    For decoders whose answer is not simply the best-scoring place (BTEL's constrained decode,
+    RYTH's Chinese remainder theorem), so that ``rank(Q, k)[:, 0] == predict(Q)`` and R@1 is the
+    recall of the point prediction. The point is dropped from later in the list (no duplicates).
+
+    Parameters
+    ----------
+    scores, places : ndarray of shape (n, k)
+    first_scores, first_places : ndarray of shape (n,)
+
+    Returns
+    -------
+    scores, places : ndarray of shape (n, k)
+    """
+    k = places.shape[1]
+    others = places != first_places[:, None]
+    # The first k − 1 candidates that are not the point, in their order (stable sort of the mask).
+    keep = np.argsort(~others, axis=1, kind="stable")[:, : k - 1]
+    out_places = np.concatenate([first_places[:, None], np.take_along_axis(places, keep, axis=1)], axis=1)
+    out_scores = np.concatenate([first_scores[:, None], np.take_along_axis(scores, keep, axis=1)], axis=1)
+    return out_scores, out_places
