@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ..exceptions import BTELError, DataNotFoundError, InvalidParameterError, ResourceLimitError
+from ..exceptions import BTELError, DataNotFoundError, ResourceLimitError
 from ..limits import check_bytes, check_count, check_numpy_file, memory_limit, open_regular
 
 __all__ = ["read_object_npy", "read_ground_truth"]

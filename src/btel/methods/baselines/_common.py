@@ -20,7 +20,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from ...base import ArraySpec, PlaceLocalizer
-from ...exceptions import BudgetTooSmallError, InvalidDescriptorsError, InvalidParameterError, ModelFileError
+from ...exceptions import BudgetTooSmallError, InvalidDescriptorsError, ModelFileError
 from ...storage import format_bytes
 from ...threads import faiss_threads, search_threads
 
