@@ -215,7 +215,7 @@ def test_cli_message_rewrites_library_phrases() -> None:
                                          ("[1, 2]", [1, 2]), ("auto", "auto"), ("float16", "float16"),
                                          ("NaN", "NaN"), ("", ""), ("tcp://host:8786", "tcp://host:8786")])
 def test_param_values_are_json_literals_or_text(text: str, value: object) -> None:
-    from btel.cli import _param_value
+    from btel.cli._params import _param_value
 
     assert _param_value(text) == value and type(_param_value(text)) is type(value)
 
@@ -277,7 +277,7 @@ def test_runtime_flags_apply_where_the_method_has_them_and_are_ignored_elsewhere
     result = run("train", db, "-o", out, "--method", method, *budget, "--no-progress", "--n-jobs", "1")
     assert result.exit_code == 0, result.output
     assert type(load(out)) is type(make_method(method))  # runtime settings are not saved: check what was passed
-    from btel.cli import _params_by_method
+    from btel.cli._jobs import _params_by_method
 
     given = _params_by_method([method], (), shortcuts={"progress": ("--no-progress", False),
                                                        "n_jobs": ("--n-jobs", 1)})[method]

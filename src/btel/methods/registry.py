@@ -17,6 +17,7 @@ import sys
 from functools import partial
 from typing import Any, Callable
 
+from .._method_roles import DEFAULT_METHOD, DEMO_METHODS, REFERENCE_METHOD
 from .._validation import Instance, check_params, read_state_int
 from ..base import PlaceLocalizer
 from .auto import AutoLocalizer
@@ -25,11 +26,12 @@ from .codes.estimator import CodeLocalizer
 from ..exceptions import BTELError, InvalidParameterError, ModelFileError, ResourceLimitError
 from ..frontend import FrontEnd
 from ..limits import check_places
-from .btel.localizer import BTELocalizer
+from .btel.localizer import BTELocalizer, block_size_for_tolerance
 from .ryth import RYTHLocalizer
 from ..modelfile import load_arrays
 
-__all__ = ["REGISTRY", "METHODS", "DESCRIPTIONS", "MODEL_CLASSES", "make_method", "method_names", "load"]
+__all__ = ["REGISTRY", "METHODS", "DESCRIPTIONS", "MODEL_CLASSES", "make_method", "method_names", "load",
+           "DEFAULT_METHOD", "REFERENCE_METHOD", "DEMO_METHODS", "block_size_for_tolerance"]
 
 _BASELINE_DESCRIPTIONS: dict[str, str] = {
     "bruteforce": "exact nearest neighbour over every map descriptor (the unbudgeted reference)",

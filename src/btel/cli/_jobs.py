@@ -1,0 +1,221 @@
+"""Methods by name with their parameters, one job per (method, budget), and the run that evaluates them.
+
+``--param`` values are checked against each method's ``get_params()`` before anything is fitted;
+the jobs go to :func:`btel.evaluation.evaluate_all`, whose rows a :class:`btel.runs.RunWriter`
+writes as they finish (``demo`` and ``evaluate`` share all of it).
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import click
+
+from ._options import EXIT_INTERRUPTED, _command_line
+from ._params import _param_value
+
+if TYPE_CHECKING:  # numpy is imported by the commands that need it: `btel --help` does not wait for it
+    import numpy as np
+
+
+#: Parameters set by runtime flags: given to the methods that have them, silently skipped by the others.
+RUNTIME_PARAMS = frozenset({"progress", "n_jobs"})
+
+
+def _valid_params(method: str) -> list[str]:
+    """Parameter names of ``method`` (its ``get_params()`` keys), sorted; an unknown method is a usage error."""
+    from ..methods.registry import METHODS, make_method
+
+    if method not in METHODS:
+        raise click.UsageError(f"unknown method {method!r}; choose from {', '.join(METHODS)} (see `btel methods`).")
+
+    return sorted(make_method(method).get_params())
+
+
+def _params_by_method(methods: list[str], param_texts: tuple[str, ...], *,
+                      shortcuts: dict[str, tuple[str, Any]] | None = None,
+                      base: dict[str, dict[str, Any]] | None = None) -> dict[str, dict[str, Any]]:
+    """Each method's parameters, every name checked against its ``get_params()`` before anything is fitted.
+
+    Layers, later ones overriding: ``base`` (per method, the command's own defaults), ``shortcuts``
+    (parameter name → (option, value) of each named option given), ``--param NAME=VALUE`` (every
+    method), ``--param METHOD:NAME=VALUE`` (that method). A shortcut and ``--param`` setting the same
+    name, or one name given twice in one layer, is a usage error; so is a name a method does not have.
+    """
+    shortcuts = shortcuts or {}
+    general: dict[str, Any] = {}
+    targeted: dict[str, dict[str, Any]] = {}
+    for text in param_texts:
+        key, eq, raw = text.partition("=")
+        target, _, name = key.strip().rpartition(":")
+        if not eq or not name.isidentifier():
+            raise click.UsageError(f"--param {text!r} is not NAME=VALUE (or METHOD:NAME=VALUE), e.g. feature_ratio=0.25.")
+        if target and target not in methods:
+            raise click.UsageError(f"--param {text!r} is for {target!r}, which is not a method of this run "
+                                   f"({', '.join(methods)}).")
+        layer = targeted.setdefault(target, {}) if target else general
+        if name in layer:
+            raise click.UsageError(f"--param sets {key.strip()} twice; give it once.")
+        if name in shortcuts and name not in RUNTIME_PARAMS:  # a runtime flag yields to an explicit --param
+            raise click.UsageError(f"{shortcuts[name][0]} and --param {key.strip()}=… both set {name}; give one of them.")
+        layer[name] = _param_value(raw)
+    out: dict[str, dict[str, Any]] = {}
+    for method in methods:
+        valid = _valid_params(method)
+        for name, (option, _) in shortcuts.items():
+            if name not in valid and name not in RUNTIME_PARAMS:
+                raise click.UsageError(f"{option} sets parameter {name!r}, which {method} does not have; "
+                                       f"{method} takes: {', '.join(valid)}.")
+        given = {**general, **targeted.get(method, {})}
+        for name in given:
+            if name not in valid:
+                hint = (f" (--param {name}=… applies to every method; write METHOD:{name}=… for one)"
+                        if name in general and len(methods) > 1 else "")
+                raise click.UsageError(f"{method} has no parameter {name!r}{hint}; {method} takes: {', '.join(valid)}.")
+        # Runtime flags (--no-progress, --n-jobs) change how a method runs, not what it computes: they apply
+        # where the method has the parameter and are ignored elsewhere, so one command line fits every method.
+        applied = {n: v for n, (_, v) in shortcuts.items() if n in valid}
+        out[method] = {**(base or {}).get(method, {}), **applied, **given}
+    return out
+
+
+@contextmanager
+def _naming(method: str) -> Iterator[None]:
+    """A bad parameter value found while building, fitting or evaluating ``method`` names the method."""
+    from ..exceptions import InvalidParameterError
+
+    try:
+        yield
+    except InvalidParameterError as exc:
+        # The estimator names its class ("BTELocalizer: C must be …"); the user chose a method name.
+        message = re.sub(r"^[A-Z][A-Za-z]+: ", "", str(exc))
+        raise InvalidParameterError(f"{method}: {message}") from exc
+
+
+def _fit_jobs(names: list[str], budgets: list[str | None], param_texts: tuple[str, ...], *,
+              reference: bool, shortcuts: dict[str, tuple[str, Any]] | None = None) -> list[Any]:
+    """One job per (method, budget); the reference method (brute force) once, unbudgeted, as the reference row.
+
+    The rule (the same in demo and evaluate): brute force stores every map descriptor, so it is the
+    upper reference, not a contender under the budget. It is run without a budget unless
+    ``--param METHOD:budget=…`` names it and asks for one. Which method it is,
+    :data:`btel.methods.registry.REFERENCE_METHOD` says.
+    """
+    from ..evaluation import Job
+    from ..methods.registry import REFERENCE_METHOD, make_method
+
+    if reference and REFERENCE_METHOD not in names:
+        names = [*names, REFERENCE_METHOD]
+    params = _params_by_method(names, param_texts, shortcuts=shortcuts)
+    jobs = []
+    for name in names:
+        is_reference = name == REFERENCE_METHOD and "budget" not in params[name]
+        for budget in ([None] if is_reference else budgets):
+            label = name if len(budgets) == 1 or is_reference else f"{name}@{budget}"
+            kwargs = dict(params[name])
+            if budget is not None and "budget" not in kwargs:
+                kwargs["budget"] = budget
+            settings = {k: v for k, v in params[name].items() if k != "budget" and k not in RUNTIME_PARAMS}
+            with _naming(name):
+                jobs.append(Job(label, make_method(name, **kwargs), reference=is_reference, series=name,
+                                settings=settings or None))
+    return jobs
+
+
+def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out: Path, overwrite: bool, title: str,
+              extra: dict[str, Any], progress: bool, tolerances: list[int] | None = None,
+              finished: list[Any] | None = None, timing_threads: int | None = 1, pairs: tuple[dict[str, Path], list[str], list[str]] | None = None,
+              names: tuple[list[str] | None, list[str] | None] = (None, None),
+              ks: list[int] | tuple[int, ...] = (1, 5, 10, 20), queries_are_route: bool = True) -> bool:
+    """Run every job through :func:`btel.evaluation.evaluate_all`, writing the run folder as rows finish.
+
+    Prints the rows that cannot run before fitting anything, a progress bar (or one line per job
+    off a terminal), the table and where the files are. Returns True when some row did not run.
+    """
+    from tqdm import tqdm
+
+    from ..evaluation import evaluate_all, format_table
+    from ..runs import RunWriter
+    from ..storage import format_bytes
+
+    if finished is not None:  # --resume: the finished rows and their predictions stay
+        from ..runs import resume_writer
+
+        writer = resume_writer(out, finished, command=_command_line(), extra=extra)
+    else:
+        writer = RunWriter(out, command=_command_line(), extra=extra, overwrite=overwrite)
+    writer.query_names, writer.db_names = names  # image names in the predictions files
+    unit = "frames" if queries_are_route else "map places"  # no "frames" on independent places
+    bar = tqdm(total=len(jobs), unit="method", disable=None if progress else True, leave=False, file=sys.stderr)
+
+    def on_preflight(skipped: dict[str, Any]) -> None:
+        if skipped:
+            click.echo(f"{len(skipped)} of {len(jobs)} rows cannot run (found before fitting; every other row runs):")
+            for name, r in skipped.items():
+                click.echo(f"  {name}: {r.status}: {r.reason}")
+            bar.update(len(skipped))
+
+    def on_start(index: int, job: Any) -> None:
+        budget = job.budget
+        what = f"{job.name} ({'reference, unbudgeted' if job.reference else format_bytes(budget) if budget else 'no budget'})"
+        if bar.disable:
+            click.echo(f"[{index + 1}/{len(jobs)}] {'fitting' if job.fit else 'evaluating'} {what} …")
+        else:
+            bar.set_description_str(what)
+
+    latest: list[Any] = []
+
+    def on_result(rows: list[Any]) -> None:
+        latest[:] = rows
+        writer.write(rows)
+        if rows and not bar.disable:
+            bar.update(1)
+
+    try:
+        results = evaluate_all(jobs, X, Q, ground_truth=ground_truth, tolerances=tolerances, ks=ks,
+                               queries_are_route=queries_are_route, on_preflight=on_preflight, on_result=on_result,
+                               on_start=on_start, finished=finished or (), timing_threads=timing_threads)
+    except KeyboardInterrupt:
+        bar.close()
+        _plot_partial_run(latest, out, title, unit)
+        click.echo(f"interrupted: the finished rows are in {out}/metrics.csv", err=True)
+        raise click.exceptions.Exit(EXIT_INTERRUPTED) from None
+    bar.close()
+    click.echo(format_table(results))
+    report = writer.finish(results, title=title, tolerance_unit=unit)
+    click.echo(f"run folder: {report.out_dir}")
+    from ._gallery import galleries_after_run
+
+    galleries_after_run(out, extra)
+    if pairs is not None:
+        from ._names import write_pairs
+
+        targets, q_names, db_names = pairs
+        for r in results:
+            if r.name in targets and r.ok and r.ranked is not None:
+                n = write_pairs(targets[r.name], r.ranked, q_names, db_names)
+                click.echo(f"pairs ({r.name}, top {r.ranked.shape[1]}): {n} lines written to {targets[r.name]}")
+    failed = [r for r in results if not r.ok]
+    if failed:
+        click.echo(f"{len(failed)} of {len(results)} rows did not run: "
+                   + "; ".join(f"{r.name} ({r.status})" for r in failed) + "; see their reason in the table.", err=True)
+    return bool(failed)
+
+
+def _plot_partial_run(rows: list[Any], out: Path, title: str, unit: str = "frames") -> None:
+    """The plots of the rows that finished before Ctrl-C (metrics.json stays ``"complete": false``)."""
+    from ..plots import plot_run
+
+    measured = [r for r in rows if r.ok]
+    if not measured:
+        return
+    try:
+        plot_run(measured, out, title=f"{title} — interrupted: {len(measured)} of {len(rows)} rows",
+                 tolerance_unit=unit)
+    except (ValueError, OSError) as exc:  # the rows on disk matter more than a figure
+        click.echo(f"Warning: the plots of the partial run could not be drawn ({exc})", err=True)

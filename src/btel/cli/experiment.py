@@ -1,0 +1,42 @@
+"""``btel experiment``: run one of the paper's experiments on Nordland."""
+
+from __future__ import annotations
+
+import click
+
+from ._options import _command_line
+
+
+@click.command()
+@click.argument("name", metavar="NAME")
+@click.option("--data", "data_root", type=click.Path(file_okay=False), default=None,
+              help="Folder with summer/ and winter/ (default ../shared/data/nordland64).")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default="runs/experiments", show_default=True,
+              help="Runs folder; results go to OUT/NAME/.")
+@click.option("--cache", "cache_dir", type=click.Path(file_okay=False), default=None,
+              help="Descriptor cache (default OUT/cache).")
+@click.option("--quick", is_flag=True, help="Small version (first 300 frames, few points): for tests and smoke runs.")
+@click.option("--delta", type=int, default=None, metavar="W",
+              help="Run every method with delta descriptors over W frames (front end; results go to "
+                   "OUT/NAME-delta-W/ so they sit beside the default runs).")
+def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | None, quick: bool,
+               delta: int | None) -> None:
+    """Run one of the paper's experiments on Nordland (or 'all').
+
+    \b
+    NAME: accuracy | vs-n | vs-budget | feature-ratio | regions | sequence-filter | beyond |
+          front-ends | codes | all
+    Every method runs with its default front end (rows L2-normalised; SeqSLAM none) unless --delta.
+    Each writes results.csv, results.json and PNG plots into OUT/NAME/; `btel report` turns the
+    latest runs into docs/results.md.
+    """
+    from ..experiments import EXPERIMENTS, describe_row, run_experiment
+
+    names = list(EXPERIMENTS) if name == "all" else [name]
+    for n in names:
+        click.echo(f"experiment {n}{' (quick)' if quick else ''} …")
+        run = run_experiment(n, data_root=data_root, out_dir=out_dir, cache_dir=cache_dir, quick=quick,
+                             command=_command_line(), front_end={"delta": delta} if delta else None)
+        for row in run.rows:
+            click.echo("  " + describe_row(row))
+        click.echo(f"  written to {run.out_dir}")

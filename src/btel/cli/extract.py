@@ -1,0 +1,138 @@
+"""``btel extract``: describe a folder of images into one descriptor matrix (cached beside it)."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import click
+
+from ._options import _VALUE_HELP
+from ._outputs import refuse_existing
+from ._params import _param_value
+
+
+@click.command()
+@click.argument("images_dir", type=click.Path(file_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Descriptor matrix to write (.npy).")
+@click.option("--descriptor", default="hog", show_default=True,
+              help="hog | patchnorm | densevlad, or a descriptor file saved with --save-descriptor.")
+@click.option("--size", default=None, metavar="WxH",
+              help="hog / patchnorm: the thumbnail every image is resized to, whatever its aspect (default 64x32, "
+                   "Nordland's; a Warning says when it stretches the images, e.g. use 56x32 for 16:9 frames).")
+@click.option("--param", "param_texts", multiple=True, metavar="NAME=VALUE",
+              help="A parameter of the descriptor, e.g. --param n_components=256 or --param n_clusters=64 "
+                   "(densevlad: PCA to n_components, capped at the number of map images − 1, with a Warning). "
+                   + _VALUE_HELP)
+@click.option("--fit-on", type=click.Path(file_okay=False), default=None,
+              help="Map image folder to learn from (DenseVLAD vocabulary + PCA). Never the queries.")
+@click.option("--save-descriptor", type=click.Path(dir_okay=False), default=None,
+              help="Write the fitted descriptor (e.g. the DenseVLAD vocabulary) to describe the queries with it.")
+@click.option("--force", is_flag=True, help="Recompute even if OUTPUT is up to date.")
+@click.option("--overwrite", is_flag=True,
+              help="Replace an existing OUTPUT (or --save-descriptor file) that holds other descriptors (other "
+                   "images, descriptor or parameters). An up-to-date OUTPUT is reused without it.")
+@click.option("--delta", "delta", type=int, default=None, metavar="W",
+              help="Write delta descriptors of the traverse instead: row j = mean of frames j−W+1…j minus the mean "
+                   "of the W before (causal; the first frames count the first image as earlier ones). Needs at "
+                   "least 2W images. (Or keep plain descriptors and give --delta W to train/evaluate: the same "
+                   "transform as every method's front end, with L2 normalisation around it.)")
+@click.option("--no-progress", is_flag=True, help="No progress bar.")
+def extract(images_dir: str, output: str, descriptor: str, size: str | None, param_texts: tuple[str, ...],
+            fit_on: str | None, save_descriptor: str | None, force: bool, overwrite: bool, delta: int | None,
+            no_progress: bool) -> None:
+    """Describe every image in IMAGES_DIR (natural file-name order = route order) into one .npy matrix.
+
+    Row i of OUTPUT is the i-th image. A JSON file beside OUTPUT records the descriptor and the
+    images; when nothing changed, the existing OUTPUT is reused (a cache) unless --force.
+
+    \b
+    What each descriptor does to the images (each prints a Warning when it happens):
+      hog, patchnorm  resize every image to --size (64x32); other aspects are stretched.
+      densevlad       PCA-whitens to n_components (4096), capped at (map images − 1).
+    Images of mixed sizes are described as they are, with a Warning.
+    """
+    from ..datasets.vpr_names import split_dataset_folder
+    from ..descriptors import get_descriptor
+    from ..descriptors.base import load_descriptor
+    from ..descriptors.extract import extract_cached
+    from ..storage import format_bytes
+
+    if split_dataset_folder(images_dir) is not None:
+        root = Path(images_dir)
+        raise click.UsageError(
+            f"{images_dir} is a VPR-methods-evaluation data set (database/ and queries/): describe each folder, "
+            f"`btel extract {root / 'database'} -o db.npy --save-descriptor d.npz` then `btel extract "
+            f"{root / 'queries'} -o q.npy --descriptor d.npz`, and evaluate with --ground-truth utm.")
+
+    params: dict[str, Any] = {}
+    for text in param_texts:
+        name, eq, raw = text.partition("=")
+        if not eq or not name.strip().isidentifier():
+            raise click.UsageError(f"--param {text!r} is not NAME=VALUE, e.g. n_components=256.")
+        params[name.strip()] = _param_value(raw)
+    if size is not None:
+        match = re.fullmatch(r"\s*(\d+)\s*[xX×]\s*(\d+)\s*", size)
+        if not match:
+            raise click.UsageError(f"--size {size!r} is not WIDTHxHEIGHT, e.g. 64x32.")
+        params["size"] = (int(match.group(1)), int(match.group(2)))
+    if Path(descriptor).is_file():
+        if params:
+            raise click.UsageError("--size and --param set a new descriptor; a saved descriptor file keeps its own.")
+        model = load_descriptor(descriptor)
+    else:
+        model = get_descriptor(descriptor, **params)
+        if "size" in params and "size" not in model.get_params():
+            raise click.UsageError(f"--size applies to hog and patchnorm; {descriptor} keeps each image's size.")
+    if save_descriptor:
+        refuse_existing(save_descriptor, "--save-descriptor", overwrite)
+    if delta is not None:
+        refuse_existing(output, "-o", overwrite)
+        _extract_delta(images_dir, output, model, fit_on, no_progress, force, delta)
+        return
+    if Path(output).exists() and not overwrite and not _is_cache_of(output, images_dir, model, fit_on):
+        refuse_existing(output, "-o", overwrite)
+    X, reused = extract_cached(images_dir, output, model, fit_on=fit_on, progress=not no_progress, force=force)
+    if reused:
+        click.echo(f"{output} is up to date ({X.shape[0]} images, {descriptor}); use --force to recompute")
+        return
+    resize = getattr(model, "thumbnail_size", None)
+    how = f" (every image resized to {resize[0]}×{resize[1]})" if resize else ""
+    click.echo(f"{X.shape[0]} images → {X.shape[1]}-D {type(model).__name__} descriptors{how} written to {output}")
+    if save_descriptor:
+        path = model.save(save_descriptor)
+        parts = ", ".join(f"{k} {format_bytes(v.nbytes)}" for k, v in model._stored_arrays().items())
+        click.echo(f"fitted descriptor written to {path} ({format_bytes(path.stat().st_size)}"
+                   f"{': ' + parts if parts else ''})")
+
+
+def _is_cache_of(output: str, images_dir: str, model: Any, fit_on: str | None) -> bool:
+    """``output`` was written by an extraction of these images with this descriptor (its JSON sidecar says so):
+    reusing or recomputing it replaces nothing."""
+    from ..descriptors.extract import extraction_key, same_extraction
+    from ..descriptors.images import list_images
+
+    sidecar = Path(str(output) + ".json")
+    try:
+        return same_extraction(json.loads(sidecar.read_text()), extraction_key(list_images(images_dir), model, fit_on))
+    except (OSError, ValueError):
+        return False
+
+
+def _extract_delta(images_dir: str, output: str, model: Any, fit_on: str | None, no_progress: bool, force: bool,
+                   window: int) -> None:
+    """``extract --delta W``: the plain descriptors (cached beside OUTPUT), then their delta, written to OUTPUT."""
+    import numpy as np
+
+    from ..descriptors import delta_descriptors
+    from ..descriptors.extract import extract_cached
+
+    plain = Path(output).with_name(Path(output).stem + ".plain.npy")
+    X, _ = extract_cached(images_dir, plain, model, fit_on=fit_on, progress=not no_progress, force=force)
+    D = delta_descriptors(X, window)
+    Path(output).parent.mkdir(parents=True, exist_ok=True)
+    np.save(output, D)
+    click.echo(f"{X.shape[0]} images → {D.shape[1]}-D delta descriptors (W = {window}) of {type(model).__name__} "
+               f"written to {output} (plain descriptors kept in {plain})")
