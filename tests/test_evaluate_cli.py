@@ -265,13 +265,14 @@ def test_plots_have_titles_byte_labels_and_a_fitting_tolerance_axis(tmp_path: Pa
     import btel.plots as plots
 
     seen = {}
-    original_save = plots._save
+    original_save = plots.run._save
 
     def keep(fig, path):
         seen[Path(path).name] = fig
         original_save(fig, path)
 
-    monkeypatch.setattr(plots, "_save", keep)
+    for module in (plots.run, plots.sweeps, plots._figure):  # the modules that save the figures
+        monkeypatch.setattr(module, "_save", keep)
     route = synthetic_route(n_places=120, dim=16, seed=0)
     jobs = [Job("pq", make_method("pq", budget="3KB")), Job("pq-b", make_method("pq", budget="3.2KB")),
             Job("nn", make_method("bruteforce"), reference=True)]
@@ -308,23 +309,25 @@ def test_failed_rows_in_the_table_say_why() -> None:
 
 # -- 7: one name per metric in the experiments too; titles from the run itself -----------------------------
 def test_experiment_lines_and_plot_titles_name_metrics_direction_and_budget(tmp_path: Path, monkeypatch) -> None:
-    import btel.plots as plots
+    import btel.experiments.accuracy as accuracy
     from btel.experiments import ExperimentRun, describe_row
+    from btel.records import EvaluationResult
 
     rows = [{"method": m, "n_places": 300, "budget": None if m == "bruteforce" else 50_000, "nbytes": 1000,
              "direction": d, "status": "ok", "uses_query_sequence": m == "seqslam", "recall@0": 0.1,
              "recall@10": 0.2, "recall@20": 0.3, "R@1": 0.1, "R@10": 0.4}
             for d in ("summer→winter", "winter→summer") for m in ("btel-c", "seqslam", "bruteforce")]
-    lines = [describe_row(r) for r in rows]
+    records = [EvaluationResult.from_row(r) for r in rows]
+    lines = [describe_row(r) for r in records]
     assert lines[0].startswith("btel-c [summer→winter]") and lines[3].startswith("btel-c [winter→summer]")
     assert lines[1].startswith("seqslam † [summer→winter]")
     assert "recall@0=0.100" in lines[0] and "R@1=0.100" in lines[0] and "R@10=0.400" in lines[0]
     assert " R@0=" not in lines[0] and " R@20=" not in lines[0]  # R@ is only ever the ranked metric
 
     titles = []
-    monkeypatch.setattr(plots, "plot_curves", lambda curves, path, **kw: titles.append((list(curves), kw["title"])))
+    monkeypatch.setattr(accuracy, "plot_curves", lambda curves, path, **kw: titles.append((list(curves), kw["title"])))
     curves = {f"{r['method']} {r['direction']}": [0.1, 0.2] for r in rows}
-    plots.plot_experiment(ExperimentRun("accuracy", rows, tmp_path, curves), tmp_path)
+    accuracy.plot(ExperimentRun("accuracy", records, tmp_path, curves), tmp_path)
     assert len(titles) == 2 and all("≤ 50.0 KB" in t and "N = 300" in t and "2 MB" not in t for _, t in titles)
     assert "seqslam † query sequence" in titles[0][0] and "bruteforce (reference, unbudgeted)" in titles[0][0]
 
@@ -418,13 +421,14 @@ def test_plots_of_independent_queries_do_not_speak_of_frames(order: str, gardens
     import btel.plots
 
     texts: dict[str, list[str]] = {}
-    save = btel.plots._save
+    save = btel.plots.run._save
 
     def recording_save(fig, path):  # every word drawn in every figure of the run
         texts[Path(path).name] = [t.get_text() for t in fig.findobj(matplotlib.text.Text)]
         save(fig, path)
 
-    monkeypatch.setattr(btel.plots, "_save", recording_save)
+    for module in (btel.plots.run, btel.plots.sweeps, btel.plots._figure):  # the modules that save the figures
+        monkeypatch.setattr(module, "_save", recording_save)
     X, Q = gardenspoint_netvlad
     db, q = tmp_path / "db.npy", tmp_path / "q.npy"
     np.save(db, X[:100])

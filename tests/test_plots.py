@@ -33,13 +33,13 @@ def _result(name: str, predictions: np.ndarray, nbytes: int | None) -> Evaluatio
     )
 
 
-def _rows() -> list[dict]:
-    return [
-        {"method": "BTE-C", "bytes": 50_000, "n_places": 3576, "recall": {0: 0.01, 10: 0.02}},
-        {"method": "BTE-C", "bytes": 5_000, "n_places": 64, "recall": {0: 0.05, 10: 0.3}},
-        {"method": "PQ", "bytes": 500_000, "n_places": 1000, "recall": {"0": 0.3, "10": 0.38}},  # keys as in JSON
-        {"method": "PQ", "bytes": 292_000, "n_places": 3576, "recall": {"0": 0.2, "10": 0.24}},
-    ]
+def _rows() -> list[EvaluationResult]:
+    return [EvaluationResult.from_row(row) for row in (
+        {"method": "BTE-C", "nbytes": 50_000, "n_places": 3576, "recall@0": 0.01, "recall@10": 0.02},
+        {"method": "BTE-C", "nbytes": 5_000, "n_places": 64, "recall@0": 0.05, "recall@10": 0.3},
+        {"method": "PQ", "nbytes": 500_000, "n_places": 1000, "recall@0": 0.3, "recall@10": 0.38},
+        {"method": "PQ", "nbytes": 292_000, "n_places": 3576, "recall@0": 0.2, "recall@10": 0.24},
+    )]
 
 
 def test_recall_vs_tolerance_png_and_legend(tmp_path: Path) -> None:
@@ -61,10 +61,12 @@ def test_recall_vs_tolerance_png_and_legend(tmp_path: Path) -> None:
 def test_recall_vs_tolerance_from_json_dicts_and_points(tmp_path: Path) -> None:
     # Results as read back from metrics.json: string keys; one without a curve is drawn as points.
     results = [
-        {"name": "a", "nbytes": 1000, "recall_curve": [0.1, 0.2, 0.4], "recall": {"0": 0.1}},
-        {"name": "b", "nbytes": None, "recall": {"0": 0.3, "5": 0.5, "10": 0.9}},
+        {"name": "a", "nbytes": 1000, "recall_curve": [0.1, 0.2, 0.4], "recall": {"0": 0.1}, "n_queries": 3,
+         "status": "ok"},
+        {"name": "b", "nbytes": None, "recall": {"0": 0.3, "5": 0.5, "10": 0.9}, "n_queries": 3, "status": "ok"},
     ]
-    fig = plot_recall_vs_tolerance(json.loads(json.dumps(results)), tmp_path / "p.png", max_tolerance=5)
+    records = [EvaluationResult.from_dict(r) for r in json.loads(json.dumps(results))]
+    fig = plot_recall_vs_tolerance(records, tmp_path / "p.png", max_tolerance=5)
     lines = fig.axes[0].get_lines()
     np.testing.assert_array_equal(lines[1].get_xdata(), [0, 5])
     np.testing.assert_allclose(lines[1].get_ydata(), [0.3, 0.5])
@@ -74,7 +76,7 @@ def test_recall_vs_tolerance_from_json_dicts_and_points(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize(
     ("plot", "x_key", "xlabel"),
-    [(plot_recall_vs_storage, "bytes", "storage (bytes, log scale)"), (plot_recall_vs_n, "n_places", "N (map places)")],
+    [(plot_recall_vs_storage, "nbytes", "storage (bytes, log scale)"), (plot_recall_vs_n, "n_places", "N (map places)")],
 )
 def test_rows_plots_series_sorted_on_log_axis(tmp_path: Path, plot, x_key: str, xlabel: str) -> None:
     path = tmp_path / f"{x_key}.png"
@@ -85,18 +87,18 @@ def test_rows_plots_series_sorted_on_log_axis(tmp_path: Path, plot, x_key: str, 
     series = {line.get_label(): line for line in ax.get_lines()}
     assert set(series) == {"BTE-C", "PQ"}
     for method, line in series.items():
-        rows = sorted((r for r in _rows() if r["method"] == method), key=lambda r: r[x_key])
+        rows = sorted((r.to_row() for r in _rows() if r.name == method), key=lambda r: r[x_key])
         np.testing.assert_array_equal(line.get_xdata(), [r[x_key] for r in rows])
-        np.testing.assert_allclose(line.get_ydata(), [r["recall"].get(10, r["recall"].get("10")) for r in rows])
+        np.testing.assert_allclose(line.get_ydata(), [r["recall@10"] for r in rows])
 
 
 def test_rows_errors(tmp_path: Path) -> None:
     with pytest.raises(InvalidParameterError, match=r"no recall at tolerance 5 \(available: \[0, 10\]\)"):
         plot_recall_vs_storage(_rows(), tmp_path / "x.png", tolerance=5)
-    with pytest.raises(InvalidParameterError, match="lacks \\['bytes'\\]"):
-        plot_recall_vs_storage([{"method": "a", "recall": {10: 0.1}}], tmp_path / "x.png")
-    with pytest.raises(InvalidParameterError, match="log axis"):
-        plot_recall_vs_n([{"method": "a", "n_places": 0, "recall": {10: 0.1}}], tmp_path / "x.png")
+    with pytest.raises(InvalidParameterError, match="has nbytes=None; a log axis"):
+        plot_recall_vs_storage([EvaluationResult(name="a", recall={10: 0.1})], tmp_path / "x.png")
+    with pytest.raises(InvalidParameterError, match="has n_places=0; a log axis"):
+        plot_recall_vs_n([EvaluationResult(name="a", n_map=0, recall={10: 0.1})], tmp_path / "x.png")
     assert not (tmp_path / "x.png").exists()
 
 
@@ -152,7 +154,7 @@ def test_run_figure_identical_curves_integer_ticks_and_param_labels(tmp_path: Pa
     rows = [_result(name, pred, 3000) for name in ("pq", "opq", "btel-codes")]
     rows[2].settings = {"code": "random"}
     plot_run(rows, tmp_path)
-    from btel.plots import _run_figure
+    from btel.plots.run import _run_figure
 
     fig = _run_figure(rows, tmp_path / "again.png", kind="tolerance", title="t")
     ax = fig.axes[0]
@@ -172,7 +174,7 @@ def test_run_figures_name_the_rows_that_did_not_run(tmp_path: Path) -> None:
 
     pred = np.arange(30)
     missing = EvaluationResult.not_measured("itq", "does not fit", "budget too small", n_queries=30)
-    import btel.plots as plots
+    import btel.plots.run as plots
 
     titles: list[str] = []
     real = plots._run_figure

@@ -416,17 +416,27 @@ def _check_values(value: Any) -> None:
 
 
 def jsonable(value: Any) -> Any:
-    """A parameter value as the JSON a model file's header holds (numpy scalars, dtypes, nested methods)."""
+    """A JSON-safe form of a parameter value (model files, result records): numpy scalars as Python
+    numbers, non-finite floats as None, types and dtypes by name, a nested method as its class and
+    parameters, containers element by element, a large array by its shape."""
     if hasattr(value, "get_params") and hasattr(value, "_runtime_params"):  # a nested method (OPQ's pq)
         return {"estimator": type(value).__name__,
                 "params": {k: jsonable(v) for k, v in value.get_params(deep=False).items()
                            if k not in value._runtime_params}}
+    if isinstance(value, np.bool_):
+        return bool(value)
     if isinstance(value, (np.integer,)):
         return int(value)
-    if isinstance(value, (np.floating,)):
-        return float(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value) if np.isfinite(value) else None
     if isinstance(value, type):
         return np.dtype(value).name
     if isinstance(value, np.dtype):
         return value.name
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return jsonable(value.tolist()) if value.size <= 64 else f"ndarray(shape={value.shape}, dtype={value.dtype})"
     return value

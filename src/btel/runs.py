@@ -1,6 +1,6 @@
 """Run folders: the files one evaluation writes, and where and how the run was made.
 
-:func:`write_run` turns :class:`~btel.evaluation.EvaluationResult` objects into a run folder —
+:func:`write_run` turns :class:`~btel.records.EvaluationResult` objects into a run folder —
 ``metrics.json``, ``metrics.csv``, ``predictions_<method>.csv`` and the plots;
 :func:`run_metadata` records the command line, library versions, platform and date (the
 experiments' ``results.json`` carries it too); :func:`recompute_recall_from_csv` checks a folder
@@ -13,7 +13,6 @@ import contextlib
 import csv
 import datetime as _dt
 import importlib.metadata
-import io
 import json
 import os
 import platform
@@ -27,7 +26,10 @@ from typing import Any
 
 import numpy as np
 
-from .evaluation import DEFAULT_TOLERANCES, EvaluationResult, _jsonable, recall_at_tolerance
+from .modelfile import jsonable
+from .metrics import DEFAULT_TOLERANCES, recall_at_tolerance
+from .records import EvaluationResult
+from .tables import metrics_csv_text, predictions_csv_text
 from .exceptions import DataNotFoundError, InvalidParameterError
 
 __all__ = ["RunReport", "RunWriter", "check_run_folder", "run_metadata", "write_run", "recompute_recall_from_csv"]
@@ -176,12 +178,6 @@ def _prepare_out_dir(out_dir: Path, overwrite: bool) -> Path:
     return lock
 
 
-def _fmt(value: float | int | None) -> str:
-    if value is None:
-        return ""
-    return repr(float(value)) if isinstance(value, float) else str(value)
-
-
 def _atomic_write_text(path: Path, text: str) -> None:
     """Write ``text`` to ``path`` through a uniquely named temporary and a rename: a reader (or a
     crash, or a full disk) sees the old file or the new one, never half of one, and a failed
@@ -204,66 +200,6 @@ def _atomic_write_text(path: Path, text: str) -> None:
             raise OSError(exc.errno, f"could not write {str(path)!r} ({exc.strerror or exc}); the rows finished "
                                      "before are kept in the run folder") from None
         raise
-
-
-def _csv_text(results: Sequence[EvaluationResult]) -> str:
-    tolerances = sorted({t for r in results for t in r.recall})
-    ks = sorted({k for r in results for k in (r.recall_at_k or {})})
-    header = ["method", "status", "reference", "uses_query_sequence", "budget", "n_map", "n_queries", "nbytes",
-              "fit_time_s", "query_time_s_per_query", "query_latency_s", "n_threads"]
-    header += [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks] + ["auc_pr", "recall@100%precision", "reason"]
-    buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(header)
-    for r in results:
-        row = [r.name, r.status, int(r.reference), int(r.uses_query_sequence), _fmt(r.budget), _fmt(r.n_map),
-               r.n_queries, _fmt(r.nbytes), _fmt(r.fit_time_s), _fmt(r.query_time_s_per_query),
-               _fmt(r.query_latency_s), _fmt(r.n_threads)]
-        row += [_fmt(r.recall.get(t)) for t in tolerances]
-        row += [_fmt((r.recall_at_k or {}).get(k)) for k in ks]
-        row += [_fmt(r.auc_pr), _fmt(r.recall_at_100_precision)]
-        row.append(r.reason or "")
-        writer.writerow(row)
-    return buffer.getvalue()
-
-
-def predictions_csv_text(r: EvaluationResult, query_names: Sequence[str] | None = None,
-                         db_names: Sequence[str] | None = None) -> str:
-    """The ``predictions_<method>.csv`` of the row ``r``.
-
-    Columns: ``query,prediction``; ``true`` (one true place per query) or ``positive`` (one of the
-    query's positives, -1 for none) and ``correct`` (0/1, the top-1 is a true place) when the
-    ground truth is known; ``rank_1…rank_K`` when the method ranked more than one candidate; and,
-    when the inputs name their rows (``btel extract``'s .json, hloc .h5), ``query_name``,
-    ``prediction_name`` and ``true_name`` / ``positive_name``. Row numbers always stay.
-    """
-    n = r.n_queries
-    columns: list[tuple[str, Sequence[Any]]] = [("query", np.arange(n)), ("prediction", r.predictions)]
-    gt = r.ground_truth
-    reference = None
-    if gt is not None and gt.kind == "places":
-        reference = ("true", np.asarray(gt.query_places))
-    elif gt is not None:
-        first = np.where(np.diff(gt.indptr) > 0, gt.indices[np.minimum(gt.indptr[:-1], max(gt.indices.size - 1, 0))], -1)
-        reference = ("positive", first)
-    if reference is not None:
-        columns.append(reference)
-        columns.append(("correct", gt.is_correct(r.predictions).astype(np.int64)))
-    if r.ranked is not None and r.ranked.shape[1] > 1:
-        columns += [(f"rank_{j + 1}", r.ranked[:, j]) for j in range(r.ranked.shape[1])]
-    if query_names is not None and len(query_names) == n:
-        columns.append(("query_name", list(query_names)))
-        if db_names is not None:
-            named = np.asarray(list(db_names) + [""], dtype=object)  # -1 (no place) → ""
-            columns.append(("prediction_name", named[np.asarray(r.predictions)]))
-            if reference is not None:
-                columns.append((f"{reference[0]}_name", named[reference[1]]))
-    buffer = io.StringIO()
-    out = csv.writer(buffer, lineterminator="\n")
-    out.writerow([name for name, _ in columns])
-    for i in range(n):
-        out.writerow([int(v[i]) if isinstance(v, np.ndarray) and v.dtype.kind in "iub" else v[i] for _, v in columns])
-    return buffer.getvalue()
 
 
 class RunWriter:
@@ -298,7 +234,7 @@ class RunWriter:
         self._lock: Path | None = _prepare_out_dir(self.out_dir, overwrite)
         self.meta = run_metadata(command)
         if extra:
-            self.meta["extra"] = _jsonable(dict(extra))
+            self.meta["extra"] = jsonable(dict(extra))
         self.metrics_json = self.out_dir / "metrics.json"
         self.metrics_csv = self.out_dir / "metrics.csv"
         self.predictions: dict[str, Path] = {}
@@ -316,8 +252,8 @@ class RunWriter:
                 "give each evaluate(...) call its own name=."
             )
         payload = {"run": {**self.meta, "complete": bool(complete)}, "results": [r.to_dict() for r in results]}
-        _atomic_write_text(self.metrics_json, json.dumps(payload, indent=2, allow_nan=False) + "\n")
-        _atomic_write_text(self.metrics_csv, _csv_text(results))
+        _atomic_write_text(self.metrics_json, json.dumps(payload, indent=2, allow_nan=False, default=repr) + "\n")
+        _atomic_write_text(self.metrics_csv, metrics_csv_text(results))
         for r, stem in zip(results, safe):
             if not r.ok or r.name in self.predictions:
                 continue
@@ -386,7 +322,7 @@ def resume_writer(out_dir: str | os.PathLike, finished: Sequence[EvaluationResul
     writer._lock = claim(writer.out_dir, _LOCK_NAME)
     writer.meta = run_metadata(command)
     if extra:
-        writer.meta["extra"] = _jsonable(dict(extra))
+        writer.meta["extra"] = jsonable(dict(extra))
     writer.metrics_json = writer.out_dir / "metrics.json"
     writer.metrics_csv = writer.out_dir / "metrics.csv"
     writer.predictions = {r.name: writer.out_dir / f"predictions_{_safe_name(r.name)}.csv" for r in finished if r.ok}

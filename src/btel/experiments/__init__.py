@@ -25,8 +25,9 @@ its minimum), never run over it; a fitted method whose bytes exceed its budget f
 (:class:`~btel.exceptions.BudgetExceededError`). Brute force is the unbudgeted upper reference.
 ``quick=True`` shrinks every experiment (first 300 frames, few points) for the tests.
 
-Adding an experiment is one module with a function ``(data, out, quick) -> ExperimentRun`` and one
-line in :data:`EXPERIMENTS`. The modules import :mod:`._common` only; nothing imports this package
+Adding an experiment is one module with a function ``(data, out, quick) -> ExperimentRun`` (its
+rows :class:`~btel.records.EvaluationResult` records, its figure the run's ``plot``) and one line in
+:data:`EXPERIMENTS`. The modules import :mod:`._common` only; nothing imports this package
 back.
 """
 
@@ -38,7 +39,8 @@ from typing import Any, Callable
 
 from ..exceptions import InvalidParameterError
 from ..runs import run_metadata
-from ._common import QUICK_FRAMES, ExperimentRun, NordlandData, default_nordland_root, describe_row, write_results
+from ..tables import describe_row
+from ._common import QUICK_FRAMES, ExperimentRun, NordlandData, default_nordland_root, write_results
 from .accuracy import exp_accuracy
 from .beyond import exp_beyond
 from .codes import exp_codes

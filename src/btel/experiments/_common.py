@@ -1,7 +1,9 @@
 """What every experiment shares: the Nordland descriptors, fitted rows, and the result files.
 
-An experiment is a function ``(data: NordlandData, out: Path, quick: bool) -> ExperimentRun``;
-:func:`write_results` turns its run into ``results.json``, ``results.csv`` and its plot(s).
+An experiment is a function ``(data: NordlandData, out: Path, quick: bool) -> ExperimentRun`` whose
+rows are :class:`~btel.records.EvaluationResult` records (the experiment's own cells in their
+``labels``) and whose ``plot`` draws its figure(s); :func:`write_results` turns the run into
+``results.json``, ``results.csv`` (the records' flat rows) and those figures.
 
 Fitting is shared too (:func:`fit_rows`, :func:`fit_model`):
 
@@ -22,8 +24,6 @@ Fitting is shared too (:func:`fit_rows`, :func:`fit_model`):
 from __future__ import annotations
 
 import contextlib
-import csv
-import dataclasses
 import hashlib
 import json
 import os
@@ -32,18 +32,21 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from ..evaluation import DEFAULT_TOLERANCES, EvaluationResult, evaluate
+from ..evaluation import evaluate
+from ..metrics import DEFAULT_TOLERANCES
+from ..records import EvaluationResult
 from ..exceptions import BudgetTooSmallError, DataNotFoundError
 from ..methods.registry import make_method
-from ..storage import check_within_budget, format_bytes, parse_budget
+from ..storage import check_within_budget, parse_budget
+from ..tables import describe_row, rows_csv_text
 
 __all__ = ["SEASONS", "QUICK_FRAMES", "NordlandData", "ExperimentRun", "default_nordland_root", "fit_row",
            "fit_rows", "fit_model", "ModelCache", "full_or_quick", "write_results", "describe_row",
-           "data_fingerprint", "experiment_jobs"]
+           "data_fingerprint", "experiment_jobs", "fit_and_predict", "FittedRow"]
 
 SEASONS = ("summer", "winter")
 #: Frames per season read in quick mode.
@@ -114,14 +117,21 @@ class NordlandData:
 
 @dataclass
 class ExperimentRun:
-    """Rows of one experiment and where they were written."""
+    """Rows of one experiment, where they were written, and how the experiment draws them."""
 
     name: str
-    rows: list[dict[str, Any]]
+    rows: list[EvaluationResult]
     out_dir: Path
     curves: dict[str, list[float]] = field(default_factory=dict)
     #: Anything else an experiment reports (the "beyond" ladder, diagnostics, protocol).
     extra: dict[str, Any] = field(default_factory=dict)
+    #: The experiment's figure(s): ``plot(run, out_dir) -> [PNG paths]``; None draws nothing.
+    plot: Callable[["ExperimentRun", Path], list[Path]] | None = field(default=None, repr=False)
+
+    @classmethod
+    def from_rows(cls, name: str, rows: list[dict[str, Any]], out_dir: Path, **kwargs: Any) -> "ExperimentRun":
+        """A run from the flat rows an experiment assembled (:meth:`EvaluationResult.from_row` each)."""
+        return cls(name, [EvaluationResult.from_row(r) for r in rows], out_dir, **kwargs)
 
 
 def experiment_jobs() -> int:
@@ -332,8 +342,13 @@ def fit_model(name: str, params: dict[str, Any], X: np.ndarray, data: "NordlandD
 
 def fit_row(name: str, data: NordlandData, *, budget: Any, n_places: int | None, map_season: str = "summer",
             params: dict[str, Any] | None = None, label: str | None = None,
-            extra: dict[str, Any] | None = None) -> tuple[dict[str, Any], EvaluationResult | None]:
-    """Fit one method under a budget and evaluate it; a budget it cannot meet becomes a row, not an error."""
+            extra: dict[str, Any] | None = None) -> EvaluationResult:
+    """Fit one method under a budget and evaluate it; a budget it cannot meet becomes a row, not an error.
+
+    The record's cells: method, registry_name, n_places, map, budget, front_end,
+    uses_query_sequence, ``extra``, status, nbytes, fit_s, query_us, recall@t (the paper's fixed
+    tolerances and 0..80 curve whatever N), cached, n_unconverged, R@K.
+    """
     X, Q = data.pair(name, map_season, n_places)
     kwargs = dict(params or {})
     budget_bytes = parse_budget(budget)
@@ -349,13 +364,10 @@ def fit_row(name: str, data: NordlandData, *, budget: Any, n_places: int | None,
         model, fit_s, cached = fit_model(name, kwargs, X, data)
     except BudgetTooSmallError as exc:
         row.update(status=f"does not fit (needs ≥ {exc.minimum} B)", nbytes=None, minimum_bytes=exc.minimum)
-        return row, None
-    # The paper's fixed tolerances and 0..80 curve, whatever N (the experiments compare across N).
-    result = dataclasses.replace(evaluate(model, None, Q, name=label or name, fit=False,
-                                          tolerances=DEFAULT_TOLERANCES, curve_max=80), fit_time_s=fit_s)
+        return EvaluationResult.from_row(row)
+    result = evaluate(model, None, Q, name=label or name, fit=False, tolerances=DEFAULT_TOLERANCES, curve_max=80)
     check_within_budget(label or name, result.nbytes, budget_bytes)
-    row.update(status="ok", nbytes=result.nbytes, fit_s=result.fit_time_s,
-               query_us=result.query_time_s_per_query * 1e6,
+    row.update(status="ok", nbytes=result.nbytes, fit_s=fit_s, query_us=None,
                **{f"recall@{t}": result.recall[t] for t in result.recall})
     if cached:
         row["cached"] = True
@@ -363,7 +375,9 @@ def fit_row(name: str, data: NordlandData, *, budget: Any, n_places: int | None,
         row["n_unconverged"] = int(model.n_unconverged_)
     if result.recall_at_k:
         row.update({f"R@{k}": v for k, v in result.recall_at_k.items()})
-    return row, result
+    record = EvaluationResult.from_row(row, measured=result)
+    record.query_time_s_per_query = result.query_time_s_per_query
+    return record
 
 
 @contextlib.contextmanager
@@ -375,8 +389,7 @@ def _one_thread_each() -> Iterator[None]:
         yield
 
 
-def fit_rows(data: NordlandData, jobs: list[dict[str, Any]], *, desc: str = "fits"
-             ) -> list[tuple[dict[str, Any], EvaluationResult | None]]:
+def fit_rows(data: NordlandData, jobs: list[dict[str, Any]], *, desc: str = "fits") -> list[EvaluationResult]:
     """:func:`fit_row` for every job (its keyword arguments, ``name`` included), in parallel, in order.
 
     Independent fits run in :func:`experiment_jobs` threads with one BLAS/faiss thread each; a
@@ -414,14 +427,14 @@ def full_or_quick(quick: bool, full: list[Any], small: list[Any]) -> list[Any]:
 
 def write_results(run: ExperimentRun, out: Path, meta: dict[str, Any]) -> None:
     """Write ``out/results.json`` (``{"run": meta, "rows", "curves", **run.extra}``), ``out/results.csv``
-    (one column per key any row has, in order of first appearance) and the experiment's plot(s)."""
+    (one column per cell any row has, in order of first appearance) and the experiment's figure(s)."""
     out.mkdir(parents=True, exist_ok=True)
-    (out / "results.json").write_text(json.dumps({"run": meta, "rows": run.rows, "curves": run.curves, **run.extra},
+    rows = [r.to_row() for r in run.rows]
+    (out / "results.json").write_text(json.dumps({"run": meta, "rows": rows, "curves": run.curves, **run.extra},
                                                  indent=1, default=_json_default) + "\n")
-    _write_csv(out / "results.csv", run.rows)
-    from ..plots import plot_experiment
-
-    plot_experiment(run, out)
+    (out / "results.csv").write_text(rows_csv_text(run.rows), newline="")
+    if run.plot is not None:
+        run.plot(run, out)
 
 
 def _json_default(value: Any) -> Any:
@@ -430,37 +443,3 @@ def _json_default(value: Any) -> Any:
     if isinstance(value, (np.floating,)):
         return float(value)
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
-
-
-def _write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
-    columns: list[str] = []
-    for row in rows:
-        columns.extend(k for k in row if k not in columns)
-    with open(path, "w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=columns)
-        writer.writeheader()
-        writer.writerows(rows)
-
-
-def describe_row(row: dict[str, Any]) -> str:
-    """One human line for a result row (used by the CLI).
-
-    Metric names as everywhere in btel: ``recall@t`` is the point prediction within t frames,
-    ``R@K`` a correct place among the top K ranked candidates. ``†`` marks methods that use the
-    query sequence; the map→query direction is named when the row has one.
-    """
-    name = row["method"] + (" †" if row.get("uses_query_sequence") else "")
-    if row.get("direction") and "part" not in row:
-        name += f" [{row['direction']}]"
-    if row.get("status", "ok") != "ok":
-        return f"{name:<30} {row['status']}"
-    if "decoder" in row or "part" in row:  # the "beyond" experiment: say which read-out and where
-        where = row.get("direction") or f"shift {row.get('condition_shift')}"
-        label = f"{name} [{row.get('decoder', 'single')}, {where}]"
-        ranked = f" R@10={row['R@10']:.3f}" if row.get("R@10") is not None else ""
-        return (f"{label:<52} N={row['n_places']:<5} {format_bytes(row['nbytes']):>10}  "
-                f"recall@10={row['recall@10']:.3f}{ranked}")
-    size = format_bytes(row["nbytes"]) if row.get("nbytes") is not None else "-"
-    ranked = "".join(f" R@{k}={row[f'R@{k}']:.3f}" for k in (1, 10) if row.get(f"R@{k}") is not None)
-    return (f"{name:<30} N={row['n_places']:<5} {size:>10}  recall@0={row['recall@0']:.3f} "
-            f"recall@10={row['recall@10']:.3f} recall@20={row['recall@20']:.3f}{ranked}")

@@ -40,13 +40,15 @@ from typing import Any
 
 import numpy as np
 
-from ..evaluation import DEFAULT_TOLERANCES, recall_at_k, recall_at_tolerance
+from ..metrics import DEFAULT_TOLERANCES, recall_at_k, recall_at_tolerance
 from ..methods.registry import make_method
 from ..exceptions import BudgetTooSmallError
-from ..storage import check_within_budget, parse_budget
+from ..plots import NORDLAND_CREDIT, finish_recall_plot, new_figure, plot_method_bars, plot_recall_vs_storage
+from ..records import EvaluationResult
+from ..storage import check_within_budget, format_bytes, parse_budget
 from ._common import SEASONS, ExperimentRun, NordlandData, fit_model
 
-__all__ = ["exp_beyond", "BTEL_VARIANTS", "stretch_split"]
+__all__ = ["exp_beyond", "plot", "BTEL_VARIANTS", "stretch_split"]
 
 #: label → BTELocalizer options of each variant (all through ``make_method("btel-c", ...)``).
 BTEL_VARIANTS: dict[str, dict[str, Any]] = {
@@ -142,12 +144,11 @@ def _nordland_rows(data: NordlandData, budget: int, quick: bool, log: Any,
                 keep[label] = model
             common = {**base, "nbytes": int(model.nbytes), "fit_s": fit_s, "status": "ok"}
             single = model.predict(Q)
-            ranked = model.rank(Q, 10) if getattr(model, "supports_ranking", True) else None
+            ranked = model.rank(Q, 10)
             row = {**common, "decoder": "single", **_recalls(single[rep], rep),
-                   "val_recall@10": float(np.mean(np.abs(single[val] - val) <= TOLERANCE))}
-            if ranked is not None:
-                row["R@10"] = recall_at_k(ranked[rep], rep, (10,), tolerance=TOLERANCE)[10]
-                row["val_R@10"] = recall_at_k(ranked[val], val, (10,), tolerance=TOLERANCE)[10]
+                   "val_recall@10": float(np.mean(np.abs(single[val] - val) <= TOLERANCE)),
+                   "R@10": recall_at_k(ranked[rep], rep, (10,), tolerance=TOLERANCE)[10],
+                   "val_R@10": recall_at_k(ranked[val], val, (10,), tolerance=TOLERANCE)[10]}
             rows.append(row)
             median = _median_by_stretch(single, resets, n)
             rows.append({**common, "decoder": f"median a={MEDIAN_WINDOW}", **_recalls(median[rep], rep),
@@ -278,14 +279,12 @@ def _synthetic_rows(quick: bool, log: Any) -> list[dict[str, Any]]:
 def _diagnostics(data: NordlandData, root: Path, budget: int, out: Path,
                  hog_models: dict[str, Any]) -> dict[str, Any]:
     """Part 4: per-bit accuracy plots, one per descriptor, one line per variant; returns their numbers."""
-    from ..methods.btel.diagnostics import bit_accuracy, localizer_bit_accuracy, plot_bit_accuracy
-    from ..methods.btel.encoding import encode, n_bits_for
+    btel = make_method("btel-c")  # BTEL's per-bit diagnostics, asked of the method (its code, its figure)
 
     def nearest_neighbour_bits(X: np.ndarray, Q: np.ndarray) -> Any:
         """Bits of the brute-force nearest neighbour's place against the true place's bits."""
         nn = make_method("bruteforce").fit(X).predict(Q)
-        b = n_bits_for(len(X))
-        return bit_accuracy(2.0 * encode(nn, b) - 1.0, encode(np.arange(len(Q)), b))
+        return btel.answer_bit_accuracy(nn, np.arange(len(Q)), len(X))
 
     summary: dict[str, Any] = {}
     per_descriptor: dict[str, dict[str, Any]] = {}
@@ -295,17 +294,17 @@ def _diagnostics(data: NordlandData, root: Path, budget: int, out: Path,
         curves = {}
         if descriptor == "hog":  # the models of part 1 (summer map), not refitted
             for name, model in hog_models.items():
-                curves[name] = localizer_bit_accuracy(model, Q[:n], np.arange(n))
+                curves[name] = model.bit_accuracy(Q[:n], np.arange(n))
             # Within-season generalisation: place k = summer frames 2k (fitted) and 2k + 1 (queried).
             half = n // 2
             fitted = _fit("btel-c", {}, X[0 : 2 * half : 2], budget, data)
             if not isinstance(fitted, int):
-                curves["BTE-C, next summer frame (held out)"] = localizer_bit_accuracy(
-                    fitted[0], X[1 : 2 * half : 2], np.arange(half))
+                curves["BTE-C, next summer frame (held out)"] = fitted[0].bit_accuracy(
+                    X[1 : 2 * half : 2], np.arange(half))
         else:
             fitted = _fit("btel-c", {}, X[:n], budget, data)
             if not isinstance(fitted, int):
-                curves["BTE-C"] = localizer_bit_accuracy(fitted[0], Q[:n], np.arange(n))
+                curves["BTE-C"] = fitted[0].bit_accuracy(Q[:n], np.arange(n))
         curves["nearest neighbour's place (unbudgeted)"] = nearest_neighbour_bits(X[:n], Q[:n])
         per_descriptor[label + " summer→winter"] = curves
     gp = root.parent / "gardenspoint_netvlad" / "hiddenRepr-GardensPoint.npz"
@@ -316,14 +315,14 @@ def _diagnostics(data: NordlandData, root: Path, budget: int, out: Path,
         for name, opts in (("BTE-C", {}), ("BTE-C offset codes m=2", {"code_copies": 2})):
             fitted = _fit("btel-c", opts, X, parse_budget("16KB"))
             if not isinstance(fitted, int):
-                curves[name] = localizer_bit_accuracy(fitted[0], Q, np.arange(len(Q)))
+                curves[name] = fitted[0].bit_accuracy(Q, np.arange(len(Q)))
         curves["nearest neighbour's place (unbudgeted)"] = nearest_neighbour_bits(X, Q)
         per_descriptor["Gardens Point NetVLAD day→night (16 KB)"] = curves
     for title, curves in per_descriptor.items():
         if not curves:
             continue
         slug = title.split(" (")[0].lower().replace(" ", "_").replace("→", "_to_").replace("-", "")
-        plot_bit_accuracy(curves, out / f"bits_{slug}.png", title=f"per-bit accuracy: {title}", balanced=True)
+        btel.plot_bit_accuracy(curves, out / f"bits_{slug}.png", title=f"per-bit accuracy: {title}", balanced=True)
         summary[title] = {name: d.to_dict() for name, d in curves.items()}
     return summary
 
@@ -341,6 +340,38 @@ def exp_beyond(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:
     protocol = {"stretch": 50 if quick else STRETCH, "validation_every": VALIDATION_EVERY,
                 "tolerance": TOLERANCE, "hmm_grid": HMM_GRID, "median_window": MEDIAN_WINDOW,
                 "text": __doc__.split("Validation protocol", 1)[1].strip()}
-    run = ExperimentRun("beyond", rows, out)
+    run = ExperimentRun.from_rows("beyond", rows, out, plot=plot)
     run.extra = {"ladder": ladder, "diagnostics": diagnostics, "protocol": protocol, "budget": budget}
     return run
+
+
+def plot(run: ExperimentRun, out_dir: Path) -> list[Path]:
+    """The "beyond" experiment: Nordland read-outs per method, Gardens Point vs bytes, synthetic crossover."""
+    rows = [r.to_row() for r in run.rows]
+    written = []
+    for direction in sorted({r["direction"] for r in rows if r.get("part") == "nordland"}):
+        part = [r for r in rows if r.get("part") == "nordland" and r["direction"] == direction]
+        path = out_dir / f"nordland_{direction.replace('→', '_to_')}.png"
+        plot_method_bars([EvaluationResult.from_row(r) for r in part], path, group_key="decoder",
+                         title=f"Nordland {direction}, HOG, same budget: recall@10 (reported stretches)",
+                         credit=NORDLAND_CREDIT)
+        written.append(path)
+    gp = [r for r in rows if r.get("part") == "gardens-point" and r.get("status") == "ok" and r.get("budget")]
+    if gp:
+        path = out_dir / "gardens_point_recall_vs_bytes.png"
+        plot_recall_vs_storage([EvaluationResult.from_row(r) for r in gp], path, tolerance=5,
+                               title="Gardens Point day→night, NetVLAD 500-D: recall@5 vs stored bytes")
+        written.append(path)
+    synth = [r for r in rows if r.get("part") == "synthetic" and r.get("status") == "ok"]
+    if synth:
+        fig, ax = new_figure()
+        for method in dict.fromkeys(r["method"] for r in synth):
+            pts = sorted((float(r["condition_shift"]), float(r["recall@10"])) for r in synth if r["method"] == method)
+            ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=method)
+        budget = synth[0].get("budget")
+        path = out_dir / "synthetic_crossover.png"
+        finish_recall_plot(fig, ax, path, xlabel="appearance change between map and query traverse (condition_shift)",
+                            ylabel="recall@10",
+                            title=f"Synthetic route, N = {synth[0]['n_places']}, ≤ {format_bytes(budget) if budget else '?'}")
+        written.append(path)
+    return written

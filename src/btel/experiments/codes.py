@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from ..evaluation import DEFAULT_TOLERANCES, recall_at_tolerance
+from ..metrics import DEFAULT_TOLERANCES, recall_at_tolerance
 from ..storage import format_bytes, parse_budget
 from ._common import SEASONS, ExperimentRun, FittedRow, NordlandData, fit_and_predict
 
@@ -231,6 +231,13 @@ def check_targets(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+def plot(run: ExperimentRun, out: Path) -> list[Path]:
+    """The experiment's figures, from its rows (:func:`_plots`)."""
+    before = set(out.glob("*.png"))
+    _plots([r.to_row() for r in run.rows], out)
+    return sorted(set(out.glob("*.png")) - before)
+
+
 def _plots(rows: list[dict[str, Any]], out: Path) -> None:
     """Recall against bytes, one figure per data set and tolerance (plus the weight widths on Gardens Point)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -294,8 +301,7 @@ def exp_codes(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:
     start = time.perf_counter()
     rows += _synthetic(quick, log)
     timings["synthetic"] = time.perf_counter() - start
-    _plots(rows, out)
-    run = ExperimentRun("codes", rows, out)
+    run = ExperimentRun.from_rows("codes", rows, out, plot=plot)
     run.extra = {"targets": check_targets(rows), "seeds": seeds, "part_seconds": timings,
                  "protocol": " ".join(__doc__.split("Validation protocol:", 1)[1].split())}
     return run

@@ -25,12 +25,14 @@ from typing import Any
 
 import numpy as np
 
-from ..evaluation import DEFAULT_TOLERANCES, recall_at_k, recall_at_tolerance
+from ..metrics import DEFAULT_TOLERANCES, recall_at_k, recall_at_tolerance
 from ..exceptions import BudgetTooSmallError
-from ..storage import check_within_budget, parse_budget
+from ..plots import NORDLAND_CREDIT, plot_method_bars
+from ..records import EvaluationResult
+from ..storage import check_within_budget, format_bytes, parse_budget
 from ._common import SEASONS, ExperimentRun, NordlandData, fit_model
 
-__all__ = ["exp_front_ends", "FRONT_ENDS"]
+__all__ = ["exp_front_ends", "plot", "FRONT_ENDS"]
 
 #: Front end label → parameters (Nordland windows; Gardens Point uses its own delta window).
 FRONT_ENDS: dict[str, dict[str, Any]] = {
@@ -125,7 +127,27 @@ def exp_front_ends(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:
     """Every front end × method × read-out on Nordland HOG and Gardens Point NetVLAD (module docstring)."""
     log = (lambda msg: print(f"  {msg}", flush=True)) if data.progress else (lambda msg: None)
     rows = _nordland(data, quick, log) + _gardens_point(data, quick, log)
-    run = ExperimentRun("front-ends", rows, out)
+    run = ExperimentRun.from_rows("front-ends", rows, out, plot=plot)
     run.extra = {"front_ends": FRONT_ENDS, "gardens_point_front_ends": GARDENS_POINT_FRONT_ENDS,
                  "protocol": "front-end settings and HMM options fixed in advance; nothing tuned on the queries"}
     return run
+
+
+def plot(run: ExperimentRun, out_dir: Path) -> list[Path]:
+    """The "front-ends" experiment: one bar group per method (and budget), one bar per front end."""
+    rows = [r.to_row() for r in run.rows]
+    written = []
+    for part, direction in dict.fromkeys((r.get("part"), r.get("direction")) for r in rows if r.get("direction")):
+        single = [{**r, "method": f"{r['method']} ({format_bytes(r['budget']) if r.get('budget') else 'no budget'})"}
+                  for r in rows if r.get("part") == part and r.get("direction") == direction
+                  and r.get("decoder") == "single"]
+        if not any(r.get("status") == "ok" for r in single):
+            continue
+        t = 10 if part == "nordland" else 2
+        path = out_dir / f"{part}_{direction.replace('→', '_to_')}.png"
+        what = "Nordland HOG" if part == "nordland" else "Gardens Point NetVLAD"
+        plot_method_bars([EvaluationResult.from_row(r) for r in single], path, group_key="front", value_key=f"recall@{t}",
+                         title=f"{what} {direction}: single-frame recall@{t} by front end",
+                         credit=NORDLAND_CREDIT if part == "nordland" else None)
+        written.append(path)
+    return written

@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from ..evaluation import recall_at_tolerance
+from ..metrics import recall_at_tolerance
 from ..storage import format_bytes, parse_budget
 from ..threads import limit_threads
 from ._common import SEASONS, ExperimentRun, FittedRow, NordlandData, fit_and_predict
@@ -162,6 +162,13 @@ def auto_vs_oracle(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     return out
 
 
+def plot(run: ExperimentRun, out: Path) -> list[Path]:
+    """The experiment's figures, from its rows (:func:`_plots`)."""
+    before = set(out.glob("*.png"))
+    _plots([r.to_row() for r in run.rows], out)
+    return sorted(set(out.glob("*.png")) - before)
+
+
 def _plots(rows: list[dict[str, Any]], out: Path) -> None:
     """Key recall vs stored bytes and vs bytes per place, one panel per map."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -214,8 +221,7 @@ def exp_frontier(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:
     with limit_threads(1):
         for base, X, Q in _maps(data, quick):
             _one_map(base, X, Q, budgets, quick, rows, seconds, keep, log)
-    _plots(rows, out)
-    run = ExperimentRun("frontier", rows, out)
+    run = ExperimentRun.from_rows("frontier", rows, out, plot=plot)
     run.extra = {"auto_vs_oracle": auto_vs_oracle(rows), "part_seconds": seconds,
                  "total_seconds": sum(seconds.values())}
     return run

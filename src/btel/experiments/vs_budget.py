@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..plots import plot_recall_vs_storage
 from ._common import ExperimentRun, NordlandData, fit_rows, full_or_quick
 
-__all__ = ["exp_vs_budget"]
+__all__ = ["exp_vs_budget", "plot"]
 
 
 def exp_vs_budget(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:
@@ -15,5 +16,11 @@ def exp_vs_budget(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:
     methods = full_or_quick(quick, ["btel-c", "btel-r", "pq", "opq", "itq", "ryth"], ["btel-c", "pq"])
     n = 300 if quick else None
     jobs = [dict(name=name, budget=b, n_places=n) for b in budgets for name in methods]
-    rows = [row for row, _ in fit_rows(data, jobs, desc="vs-budget")]
-    return ExperimentRun("vs-budget", rows, out)
+    return ExperimentRun("vs-budget", fit_rows(data, jobs, desc="vs-budget"), out, plot=plot)
+
+
+def plot(run: ExperimentRun, out: Path) -> list[Path]:
+    """recall@10 against stored bytes, one line per method."""
+    path = out / "recall_vs_storage.png"
+    plot_recall_vs_storage([r for r in run.rows if r.ok], path, tolerance=10, title="recall@10 vs stored bytes")
+    return [path]

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..plots import plot_recall_vs_n
 from ._common import ExperimentRun, NordlandData, fit_rows, full_or_quick
 
-__all__ = ["exp_vs_n"]
+__all__ = ["exp_vs_n", "plot"]
 
 
 def exp_vs_n(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:
@@ -15,5 +16,11 @@ def exp_vs_n(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:
     methods = full_or_quick(quick, ["btel-c", "btel-r", "pq", "opq", "ryth"], ["btel-c", "pq"])
     budget = "50KB" if quick else "500KB"
     jobs = [dict(name=name, budget=budget, n_places=n) for n in sizes for name in methods]
-    rows = [row for row, _ in fit_rows(data, jobs, desc="vs-n")]
-    return ExperimentRun("vs-n", rows, out)
+    return ExperimentRun("vs-n", fit_rows(data, jobs, desc="vs-n"), out, plot=plot)
+
+
+def plot(run: ExperimentRun, out: Path) -> list[Path]:
+    """recall@10 against the number of map places, one line per method."""
+    path = out / "recall_vs_n.png"
+    plot_recall_vs_n([r for r in run.rows if r.ok], path, tolerance=10, title="recall@10 vs N")
+    return [path]

@@ -177,6 +177,27 @@ def localizer_bit_accuracy(model: Any, Q: Any, true_places: Any) -> BitDiagnosti
     return out
 
 
+def answer_bit_accuracy(predictions: Any, true_places: Any, n_places: int) -> BitDiagnostics:
+    """Per-level accuracy of the bits of predicted places against the true places' bits.
+
+    The bits are BTEL's code of ``n_bits_for(n_places)`` bits; any method's answers can be scored
+    (the unbudgeted nearest neighbour's place says what the descriptor itself carries across a
+    condition change).
+
+    Parameters
+    ----------
+    predictions, true_places : array-like of int, shape (n_queries,)
+    n_places : int
+        Map places N.
+
+    Returns
+    -------
+    BitDiagnostics
+    """
+    b = n_bits_for(int(n_places))
+    return bit_accuracy(2.0 * encode(np.asarray(predictions), b) - 1.0, encode(np.asarray(true_places), b))
+
+
 def plot_bit_accuracy(
     curves: Mapping[str, BitDiagnostics],
     path: str | os.PathLike,

@@ -517,6 +517,26 @@ class BTELocalizer(PlaceLocalizer):
         """
         return self.hyperplanes_.margins(self._check_queries(Q))
 
+    def bit_accuracy(self, Q: Any, true_places: Any) -> Any:
+        """Per-level accuracy of the bit classifiers on queries (:func:`.diagnostics.localizer_bit_accuracy`)."""
+        from .diagnostics import localizer_bit_accuracy
+
+        return localizer_bit_accuracy(self, Q, true_places)
+
+    @staticmethod
+    def answer_bit_accuracy(predictions: Any, true_places: Any, n_places: int) -> Any:
+        """Per-level accuracy of the bits of any method's answers (:func:`.diagnostics.answer_bit_accuracy`)."""
+        from .diagnostics import answer_bit_accuracy
+
+        return answer_bit_accuracy(predictions, true_places, n_places)
+
+    @staticmethod
+    def plot_bit_accuracy(curves: Any, path: Any, **options: Any) -> Any:
+        """Per-bit accuracy against bit level, one line per curve (:func:`.diagnostics.plot_bit_accuracy`)."""
+        from .diagnostics import plot_bit_accuracy
+
+        return plot_bit_accuracy(curves, path, **options)
+
     def _code_costs(self, Q: np.ndarray, region_weight: float = 1.0) -> np.ndarray:
         """Cost of every code (n_queries, n_codes): tree cost + region_weight × region deficit."""
         margins = self.hyperplanes_.margins(Q).astype(np.float64)  # every tree's columns: one product
