@@ -22,7 +22,9 @@ from ...exceptions import InvalidParameterError, ModelFileError
 from ...learning.feature_selection import column_index_dtype
 from ...frontend import FRONT_END_CONSTRAINTS
 from .full import full_costs, full_tasks, predict_full
-from ...learning.linear import CLASSIFIERS, SOLVERS, ColumnStats, Hyperplanes, default_C
+from ...learning.hyperplanes import Hyperplanes
+from ...learning.linear import ColumnStats, default_C
+from ...learning.solvers import CLASSIFIERS, SOLVERS
 from .planning import (
     SCHEMES,
     WEIGHT_DTYPES,
@@ -78,9 +80,9 @@ class BTELocalizer(PlaceLocalizer):
         internal tree node, O(N) storage (the paper's foil).
     classifier : {'svm', 'logistic'}
         L2-regularised linear SVM with the squared hinge loss, or L2 logistic regression (the
-        objectives of liblinear; :mod:`btel.learning.linear`).
+        objectives of liblinear; :mod:`btel.learning.solvers`).
     solver : {'auto', 'newton', 'lbfgs', 'liblinear'}
-        How the classifiers are solved (:mod:`btel.learning.linear`). 'newton': Newton's method with exact
+        How the classifiers are solved (:mod:`btel.learning.solvers`). 'newton': Newton's method with exact
         line search, to a relative gradient norm of 1e-5 (the exact optimum for the squared hinge);
         'lbfgs': L-BFGS over all classifiers that share rows and columns; 'liblinear':
         scikit-learn's liblinear (what btel used before, which stops unconverged on maps with
