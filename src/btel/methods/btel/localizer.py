@@ -165,9 +165,9 @@ class BTELocalizer(PlaceLocalizer):
     ----------
     n_places_ : int
         N.
-    n_codes_ : int
-        Places the trees index: ⌈N / block_size⌉ (N when block_size = 1); region starts and
-        sizes count these.
+    n_blocks_ : int
+        Blocks of ``block_size`` consecutive places, what the trees index: ⌈N / block_size⌉ (N
+        when block_size = 1); region starts and sizes count these.
     n_features_in_ : int
         d, the dimension of the descriptors given to fit and predict.
     n_selected_ : int
@@ -314,20 +314,20 @@ class BTELocalizer(PlaceLocalizer):
     def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
         """The planner of ``fit`` on shapes alone. With a fixed r ≥ 2 the region sizes come from KTS, so
         only KTS' minimum is checked and the fit decides the bytes."""
-        n_codes = -(-n_rows // int(self.block_size))
+        n_blocks = -(-n_rows // int(self.block_size))
         if self.n_regions != "auto" and int(self.n_regions) > 1:
-            if n_codes <= int(self.kts_max_points):  # longer routes are averaged in blocks first
-                check_segment_count(n_codes, int(self.n_regions))
+            if n_blocks <= int(self.kts_max_points):  # longer routes are averaged in blocks first
+                check_segment_count(n_blocks, int(self.n_regions))
             return
         if budget is None:
             return
         d = n_features_out
         dtype = str(np.dtype(self.dtype))
         kw = dict(scheme=self.scheme, dtype=dtype, code_copies=int(self.code_copies))
-        if largest_fitting([n_codes], d, self._cap(d, budget), budget - reserved, self.scheme, dtype,
+        if largest_fitting([n_blocks], d, self._cap(d, budget), budget - reserved, self.scheme, dtype,
                            int(self.code_copies)) < 1:
             raise_budget_too_small(f"BTEL ({self.scheme}, N = {n_rows}, r = 1)", budget,
-                                   planned_bytes([n_codes], 1, d, **kw) + reserved,
+                                   planned_bytes([n_blocks], 1, d, **kw) + reserved,
                                    "Raise the budget, use dtype='float16', or fewer regions.")
 
     def budget_saturated(self) -> bool:
@@ -345,10 +345,10 @@ class BTELocalizer(PlaceLocalizer):
         places_arr = np.arange(n_places, dtype=np.int64) if places is None else places
         # Tolerance-aware codes: everything below works on block indices ("codes").
         block_size, copies = int(self.block_size), int(self.code_copies)
-        n_codes = -(-n_places // block_size)
-        if n_codes < 2:
+        n_blocks = -(-n_places // block_size)
+        if n_blocks < 2:
             raise InvalidParameterError(
-                f"block_size = {block_size} leaves {n_codes} block of N = {n_places} places; an index needs at "
+                f"block_size = {block_size} leaves {n_blocks} block of N = {n_places} places; an index needs at "
                 f"least 2. Use block_size ≤ {max(1, (n_places - 1))}."
             )
         codes_arr = places_arr // block_size if block_size > 1 else places_arr
@@ -360,11 +360,11 @@ class BTELocalizer(PlaceLocalizer):
         def fits(sizes: list[int]) -> bool:
             return largest_fitting(sizes, d, cap, available, self.scheme, dtype, copies) >= 1
 
-        starts = segment_route(X, codes_arr, n_codes, self.n_regions, max_regions=int(self.max_regions),
+        starts = segment_route(X, codes_arr, n_blocks, self.n_regions, max_regions=int(self.max_regions),
                                penalty=float(self.kts_penalty), pca_dims=self.kts_pca_dims,
                                random_state=self.random_state, max_points=int(self.kts_max_points),
                                fits=None if available is None else fits)
-        sizes = tree_sizes(starts, n_codes)
+        sizes = tree_sizes(starts, n_blocks)
         n_selected = cap
         if available is not None:
             n_selected = largest_fitting(list(sizes), d, cap, available, self.scheme, dtype, copies)
@@ -417,15 +417,15 @@ class BTELocalizer(PlaceLocalizer):
         starts = np.asarray(starts, dtype=np.int64)
         self.block_size_ = int(self.block_size)
         self.code_copies_ = int(self.code_copies)
-        n_codes = -(-int(n_places) // self.block_size_)
-        sizes = tree_sizes(starts, n_codes)
+        n_blocks = -(-int(n_places) // self.block_size_)
+        sizes = tree_sizes(starts, n_blocks)
         n_classifiers = [n_tree_classifiers(self.scheme, int(n), self.code_copies_) for n in sizes]
-        self.n_codes_ = int(n_codes)
+        self.n_blocks_ = int(n_blocks)
         self.n_selected_ = int(n_selected)
         self.n_regions_ = int(starts.size)
         self.region_starts_ = starts
         self.region_sizes_ = sizes
-        self.n_bits_ = n_bits_for(n_codes)
+        self.n_bits_ = n_bits_for(n_blocks)
         self.tree_offsets_ = np.concatenate([[0], np.cumsum(n_classifiers)]).astype(np.int64)
         self._tree_width = max(self.n_bits_, int(max(n_classifiers))) if self.scheme == "compressed" \
             else self.n_bits_
@@ -528,11 +528,11 @@ class BTELocalizer(PlaceLocalizer):
         return self.hyperplanes_.margins(self._check_queries(Q))
 
     def _code_costs(self, Q: np.ndarray, region_weight: float = 1.0) -> np.ndarray:
-        """Cost of every code (n_queries, n_codes): tree cost + region_weight × region deficit."""
+        """Cost of every code (n_queries, n_blocks): tree cost + region_weight × region deficit."""
         margins = self.hyperplanes_.margins(Q).astype(np.float64)  # every tree's columns: one product
         deficits = deficits_from_scores(self._region_scores(Q), self.n_regions_, Q.shape[0])
         if self.scheme == "full":
-            out = np.empty((Q.shape[0], self.n_codes_))
+            out = np.empty((Q.shape[0], self.n_blocks_))
             for k, (s, n_k) in enumerate(zip(self.region_starts_.tolist(), self.region_sizes_.tolist())):
                 tree = full_costs(margins[:, self.tree_offsets_[k] : self.tree_offsets_[k + 1]], n_k)
                 out[:, s : s + n_k] = tree + region_weight * deficits[:, k : k + 1]
@@ -557,7 +557,7 @@ class BTELocalizer(PlaceLocalizer):
         point, _, point_costs = self._decode(Q)
         if k == 1:
             return -point_costs[:, None], self._places_of_codes(point)[:, None]
-        k_codes = min(k, self.n_codes_)
+        k_codes = min(k, self.n_blocks_)
         if self.scheme == "compressed" and self.code_copies_ == 1:
             margins = self.hyperplanes_.margins(Q).astype(np.float64)
             deficits = deficits_from_scores(self._region_scores(Q), self.n_regions_, Q.shape[0])
@@ -578,7 +578,7 @@ class BTELocalizer(PlaceLocalizer):
             from .planning import starts_dtype
 
             arrays.update(self.region_hyperplanes_.arrays("region_"))
-            arrays["region_starts"] = self.region_starts_.astype(starts_dtype(self.n_codes_))
+            arrays["region_starts"] = self.region_starts_.astype(starts_dtype(self.n_blocks_))
         return arrays
 
     def _fitted_state(self) -> dict[str, Any]:
@@ -587,16 +587,16 @@ class BTELocalizer(PlaceLocalizer):
     def _array_specs(self, state: dict[str, Any]) -> dict[str, ArraySpec]:
         n_places = int(state["n_places"])
         d = self.front_end_.n_features_out(int(state["n_features_in"]))
-        n_codes = -(-n_places // int(self.block_size))
-        if n_codes < 2:
+        n_blocks = -(-n_places // int(self.block_size))
+        if n_blocks < 2:
             raise ModelFileError(f"the model file's N = {n_places} and block_size = {self.block_size} leave "
-                                 f"{n_codes} code; an index needs at least 2.")
+                                 f"{n_blocks} block; an index needs at least 2.")
         n_selected = read_state_int(state, "n_selected", 1, d)
-        r = read_state_int(state, "n_regions", 1, min(n_codes, MAX_REGIONS_IN_FILE))
+        r = read_state_int(state, "n_regions", 1, min(n_blocks, MAX_REGIONS_IN_FILE))
         self._check_combinations_from_file()
         # The region sizes are read from region_starts; the specs need only their count and total,
         # except for the number of tree classifiers, checked in _restore once the starts are known.
-        specs = array_specs([n_codes] if r == 1 else [1] * (r - 1) + [n_codes - r + 1], n_selected, d,
+        specs = array_specs([n_blocks] if r == 1 else [1] * (r - 1) + [n_blocks - r + 1], n_selected, d,
                             scheme=self.scheme, dtype=np.dtype(self.dtype).name, code_copies=int(self.code_copies))
         for name in ("weights", "bias", "columns"):
             if name in specs:
@@ -613,9 +613,9 @@ class BTELocalizer(PlaceLocalizer):
         n_places = int(state["n_places"])
         d = self.front_end_.n_features_out(int(state["n_features_in"]))
         n_selected = int(state["n_selected"])
-        n_codes = -(-n_places // int(self.block_size))
+        n_blocks = -(-n_places // int(self.block_size))
         starts = arrays.get("region_starts", np.zeros(1, dtype=np.int64)).astype(np.int64)
-        if starts[0] != 0 or np.any(np.diff(starts) < 1) or starts[-1] >= n_codes:
+        if starts[0] != 0 or np.any(np.diff(starts) < 1) or starts[-1] >= n_blocks:
             raise ModelFileError("the model file's region starts are not increasing within the route's codes.")
         self._set_structure(n_places, n_selected, starts)
         if arrays["weights"].shape[0] != self.tree_offsets_[-1]:
