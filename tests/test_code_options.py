@@ -14,7 +14,8 @@ from btel.methods.btel.compressed import code_signs, compressed_code, compressed
 from btel.datasets import synthetic_route
 from btel.methods.btel.encoding import encode, n_bits_for
 from btel.exceptions import InvalidParameterError, ModelFileError
-from btel.methods.btel.localizer import block_centres, block_size_for_tolerance, planned_bytes
+from btel.methods.btel.decoding import block_centres
+from btel.methods.btel.localizer import block_size_for_tolerance, planned_bytes
 from btel.storage import load_arrays, save_arrays
 
 
