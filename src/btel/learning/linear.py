@@ -23,7 +23,7 @@ __all__ = ["ColumnStats", "fit_linear", "fit_linear_group", "standardised_column
 
 
 def default_C(classifier: str) -> float:
-    """C when the user gives none: 1.0 for the SVM, 4.0 for logistic (the authors' earlier code)."""
+    """C when the user gives none: 1.0 for the SVM, 4.0 for logistic (as in the BTEL authors' code)."""
     return 4.0 if classifier == "logistic" else 1.0
 
 
@@ -61,7 +61,7 @@ def standardised_columns(
     """``(X[:, cols] − mean) / scale`` as a new array (float64 by default), built in row chunks.
 
     The one (n, d') float64 array liblinear needs is the only large allocation: gathering,
-    converting and standardising the whole block at once held three such arrays
+    converting and standardising the whole block at once would hold three such arrays
     (1.3 GB at N = 1M, d' = 64) per concurrent fit. X may be memory-mapped.
     """
     n = X.shape[0]

@@ -66,7 +66,7 @@ class BTELocalizer(TreeDecoding, TreeModelFile, PlaceLocalizer):
         How the classifiers are solved (:mod:`btel.learning.solvers`). 'newton': Newton's method with exact
         line search, to a relative gradient norm of 1e-5 (the exact optimum for the squared hinge);
         'lbfgs': L-BFGS over all classifiers that share rows and columns; 'liblinear':
-        scikit-learn's liblinear (what btel used before, which stops unconverged on maps with
+        scikit-learn's liblinear (which can stop unconverged, far from the optimum, on maps with
         N ≈ d). 'auto' (default): 'newton' when min(rows, d' + 1) ≤ 4096, else 'lbfgs'.
     C : float, optional
         Regularisation; default 1.0 for 'svm', 4.0 for 'logistic'.
