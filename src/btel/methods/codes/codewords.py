@@ -32,7 +32,7 @@ from ...threads import blas_threads
 from .codebook import Codebook
 from .decoding import BYTE_SIGNS, DENSE_CACHE_BYTES, BlockDecoder
 
-__all__ = ["Codewords", "blas_for", "BLOCK_VALUES", "PACKED_CACHE_BYTES"]
+__all__ = ["Codewords", "RuntimeCache", "blas_for", "BLOCK_VALUES", "PACKED_CACHE_BYTES"]
 
 #: The codebook is cached at inference as packed bits (N × ⌈K/8⌉ bytes) up to this size (256 MB).
 PACKED_CACHE_BYTES = 1 << 28
@@ -228,3 +228,16 @@ class Codewords:
             out_s[a : a + step] = values
             out_p[a : a + step] = np.take_along_axis(places, cols, axis=1)
         return out_s, out_p
+
+
+class RuntimeCache:
+    """What inference derives from a fitted model once (not stored, not compared: one object per model).
+
+    ``weights``: the (d', K) float32 dequantised weights, built at the first query;
+    ``codewords``: the codebook at inference (:class:`Codewords`). Queries fill these in place, so
+    predicting leaves the estimator's ``__dict__`` unchanged (the scikit-learn contract).
+    """
+
+    def __init__(self, codebook: Codebook) -> None:
+        self.weights: np.ndarray | None = None
+        self.codewords = Codewords(codebook)

@@ -59,7 +59,7 @@ from ...learning.linear import ColumnStats
 from ...storage import format_bytes
 from ...threads import faiss_threads, search_threads
 from .codebook import FAMILIES, MAX_COLUMNS, ROUTE_FAMILIES, Codebook
-from .codewords import BLOCK_VALUES, Codewords, blas_for
+from .codewords import BLOCK_VALUES, Codewords, RuntimeCache, blas_for
 from .decoding import BATCH_DENSE_FROM, PROBE_QUERIES, choose_path
 from .model_file import CodeModelFile
 from .planning import CodePlan, plan_codes
@@ -313,9 +313,12 @@ class CodeLocalizer(CodeModelFile, PlaceLocalizer):
         self._reset_caches()
 
     def _reset_caches(self) -> None:
-        """Runtime caches (not stored, not compared): the dense weights and the codebook at inference."""
-        self._dense_weights: np.ndarray | None = None
-        self._codewords = Codewords(self.codebook_)
+        self._cache = RuntimeCache(self.codebook_)
+
+    @property
+    def _codewords(self) -> Codewords:
+        """The codebook at inference (:mod:`btel.methods.codes.codewords`), built on demand."""
+        return self._cache.codewords
 
     def summary(self) -> str:
         """One line on what was fitted: family, K, d', width, the planner's rule, α."""
@@ -326,9 +329,9 @@ class CodeLocalizer(CodeModelFile, PlaceLocalizer):
     # ------------------------------------------------------------------ inference
     def _weights_dense(self) -> np.ndarray:
         """(d', K) float32 dequantised weights (a runtime cache, not stored)."""
-        if self._dense_weights is None:
-            self._dense_weights = np.ascontiguousarray(self.weights_.dequantise().T)
-        return self._dense_weights
+        if self._cache.weights is None:
+            self._cache.weights = np.ascontiguousarray(self.weights_.dequantise().T)
+        return self._cache.weights
 
     def _margins(self, Q: np.ndarray) -> np.ndarray:
         """(n, K) float32 margins of transformed queries."""
@@ -440,6 +443,6 @@ class CodeLocalizer(CodeModelFile, PlaceLocalizer):
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(super().__getstate__())
-        if "_codewords" in state:  # runtime caches are rebuilt on demand, not shipped to workers
-            state["_dense_weights"], state["_codewords"] = None, Codewords(self.codebook_)
+        if "_cache" in state:  # runtime caches are rebuilt on demand, not shipped to workers
+            state["_cache"] = RuntimeCache(self.codebook_)
         return state
