@@ -151,11 +151,11 @@ def measure(n: int, n_queries: int, batch: int, repeats: int, single_calls: int)
         _, first_s = timed(lambda: model.predict(Q[:1]))
         record(f"btel-codes {budget}, exact (auto: {model.exact_path(1)} single / {model.exact_path(len(Q))} batch)",
                model.nbytes, fit_s, model.predict, first_query_s=first_s, configuration=model.summary(),
-               block=model._decoder().block)
+               block=model._codewords.decoder().block)
         exact_pred = model.predict(Q)
         margins = model._padded(model._margins(model._check_queries(Q)))
         # 'dense' without the float32 cache (large N) regenerates every codeword per query: not a contender.
-        for path in ("bounded", "dense", "scan") if model._dense_codes() is not None else ("bounded", "scan"):
+        for path in ("bounded", "dense", "scan") if model._codewords.dense() is not None else ("bounded", "scan"):
             fn = (lambda q, path=path: model._exact_search(model._padded(model._margins(model._check_queries(q))),
                                                           1, path)[1][:, 0])
             agree = float(np.mean(model._exact_search(margins, 1, path)[1][:, 0] == exact_pred))

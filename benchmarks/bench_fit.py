@@ -124,27 +124,57 @@ def pq_peer(X: np.ndarray) -> dict[str, Any]:
             "faiss_threads": faiss.omp_get_max_threads()}
 
 
+def traced_line_search(record):
+    """A wrapper of :meth:`btel.learning.primal.Problem.line_search` that calls ``record(iteration, objective)``.
+
+    Newton's method and L-BFGS take one line search per iteration; after it, the objective of the
+    group (summed over its classifiers, converged ones at their last value) is recorded — at the
+    start point too (w = 0). Installed by monkeypatching, so the library carries no hook.
+    """
+    from btel.learning.primal import Problem
+
+    original = Problem.line_search
+
+    def line_search(self, V, margins, step_margins, P, cols, t0=1.0):
+        t = original(self, V, margins, step_margins, P, cols, t0)
+        if not hasattr(self, "_bench_objective"):  # the first step of this group starts from w = 0
+            self._bench_objective = self.terms(np.zeros_like(self.Y))[0]
+            self._bench_iteration = 0
+            record(0, float(self._bench_objective.sum()))
+        moved = V + t * P
+        self._bench_objective[cols] = 0.5 * (moved * moved).sum(axis=0) + self.terms(margins + t * step_margins, cols)[0]
+        self._bench_iteration += 1
+        record(self._bench_iteration, float(self._bench_objective.sum()))
+        return t
+
+    return original, line_search
+
+
 def run_solver(shape: dict[str, Any], solver: str, n_jobs: int) -> dict[str, Any]:
-    import btel.learning.linear as linear
     from btel import BTELocalizer
+    from btel.learning.primal import Problem
 
     trace: list[tuple[float, int, float]] = []
     start = time.perf_counter()
 
-    def record(name: str, it: int, objective: np.ndarray, violators: np.ndarray) -> None:
-        trace.append((time.perf_counter() - start, it, float(objective.sum())))
+    def record(it: int, objective: float) -> None:
+        trace.append((time.perf_counter() - start, it, objective))
 
-    linear.TRACE = record if solver != "liblinear" else None
+    original, traced = traced_line_search(record)
+    if solver != "liblinear":
+        Problem.line_search = traced
     model = BTELocalizer(feature_ratio=shape["feature_ratio"], solver=solver, n_jobs=n_jobs, random_state=0,
                          progress=False)
     import warnings
 
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        start, cpu_start = time.perf_counter(), time.process_time()
-        model.fit(shape["X"])
-        fit_s, cpu_s = time.perf_counter() - start, time.process_time() - cpu_start
-    linear.TRACE = None
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            start, cpu_start = time.perf_counter(), time.process_time()
+            model.fit(shape["X"])
+            fit_s, cpu_s = time.perf_counter() - start, time.process_time() - cpu_start
+    finally:
+        Problem.line_search = original
     primal, dual = certified(model, shape["X"])
     pred = model.predict(shape["Q"])
     truth = np.arange(len(shape["Q"]))

@@ -81,7 +81,7 @@ def test_search_single_queries_and_batches_agree_and_report_the_path(route) -> N
 def test_the_bounds_hold_and_the_visited_blocks_shrink_with_good_margins(route) -> None:
     X, Q = route
     model = _model("periodic", X)
-    decoder = model._decoder()
+    decoder = model._codewords.decoder()
     M = model._padded(model._margins(model._check_queries(Q[:50])))
     U = decoder.bounds(M)
     S = _reference(model, M)
@@ -92,24 +92,24 @@ def test_the_bounds_hold_and_the_visited_blocks_shrink_with_good_margins(route) 
 
 
 def test_a_packed_cache_past_its_limit_generates_codewords(route, monkeypatch) -> None:
-    import btel.methods.codes.estimator as codes
+    import btel.methods.codes.codewords as codewords
 
     X, Q = route
     model = CodeLocalizer(n_codes=60, decode="exact").fit(X)
     M = model._padded(model._margins(model._check_queries(Q[:5])))
     expected = model._exact_search(M, 3, "bounded")
     fresh = CodeLocalizer(n_codes=60, decode="exact").fit(X)
-    monkeypatch.setattr(codes, "PACKED_CACHE_BYTES", 10)
+    monkeypatch.setattr(codewords, "PACKED_CACHE_BYTES", 10)
     got = fresh._exact_search(M, 3, "bounded")
     np.testing.assert_array_equal(got[1], expected[1])
-    assert fresh._cache.packed is None
+    assert fresh._codewords.packed is None
 
 
 def test_the_first_query_fills_only_the_blocks_it_scores(route) -> None:
     X, Q = route
     model = CodeLocalizer(n_codes=200, decode="exact").fit(X)  # past the small-map rule: bounded
     model.predict(Q[:1])
-    filled = model._cache.filled
+    filled = model._codewords.filled
     assert filled is not None and 0 < filled.sum() < filled.size
 
 

@@ -14,7 +14,8 @@ from btel.methods.btel.compressed import code_signs, compressed_code, compressed
 from btel.datasets import synthetic_route
 from btel.methods.btel.encoding import encode, n_bits_for
 from btel.exceptions import InvalidParameterError, ModelFileError
-from btel.methods.btel.localizer import block_centres, block_size_for_tolerance, planned_bytes
+from btel.methods.btel.decoding import block_centres
+from btel.methods.btel.localizer import block_size_for_tolerance, planned_bytes
 from btel.modelfile import load_arrays, save_arrays
 
 
@@ -78,7 +79,7 @@ def test_same_budget_buys_more_features_per_bit(route):
     budget = 2000  # plain (9 bits): d' = 36 of 64 columns; the 50-block tree (6 bits) affords all 64
     plain = _fit(route.map, budget=budget)
     tol = _fit(route.map, budget=budget, block_size=8)
-    assert tol.n_codes_ == 50 and tol.n_bits_ == 6 and plain.n_bits_ == 9
+    assert tol.n_blocks_ == 50 and tol.n_bits_ == 6 and plain.n_bits_ == 9
     assert tol.nbytes <= budget and plain.nbytes <= budget
     assert tol.n_selected_ > plain.n_selected_
     assert tol.nbytes == planned_bytes([50], tol.n_selected_, 64)
@@ -101,8 +102,24 @@ def test_blocks_with_regions_and_full_scheme(route):
         model = _fit(route.map, block_size=4, feature_ratio=0.5, **kw)
         pred = model.predict(route.queries)
         assert pred.min() >= 0 and pred.max() < 400 and np.all(pred % 4 == 1)
-        assert model.region_sizes_.sum() == model.n_codes_ == 100
+        assert model.region_sizes_.sum() == model.n_blocks_ == 100
 
+
+
+def test_a_model_file_saved_before_n_blocks_loads_and_answers_as_a_refit():
+    # Saved by the release that still called n_blocks_ "n_codes_" (block_size = 4, r = 2, N = 120,
+    # synthetic_route(120, 32, seed=0)). The count of blocks was never a key of the file: it is
+    # derived from N and block_size on load, so the file reads unchanged.
+    from pathlib import Path
+
+    path = Path(__file__).parent / "data" / "btel-c-blocks-saved-before-n_blocks.btel"
+    assert "n_codes" not in load_arrays(path)[1]["state"]
+    old = load(path)
+    route = synthetic_route(120, 32, seed=0)
+    refit = _fit(route.map, block_size=4, n_regions=2)
+    assert old.n_blocks_ == refit.n_blocks_ == 30 and not hasattr(old, "n_codes_")
+    np.testing.assert_array_equal(old.predict(route.queries), refit.predict(route.queries))
+    np.testing.assert_array_equal(old.search(route.queries, 5)[1], refit.search(route.queries, 5)[1])
 
 # -- offset codes --------------------------------------------------------------------------------
 def test_offset_codes_store_more_classifiers_and_decode_softly(route):

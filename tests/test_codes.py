@@ -168,7 +168,7 @@ def test_block_means_are_the_means_of_the_codewords(harder) -> None:
     model = CodeLocalizer(n_codes=24, coarse_block=7).fit(X)  # 600 = 85 × 7 + 5: a short last block
     codes = model.codebook_.codewords(np.arange(600)).astype(np.float64)
     expected = np.array([codes[i : i + 7].mean(axis=0) for i in range(0, 600, 7)])
-    np.testing.assert_allclose(model._block_means(), expected, atol=1e-6)
+    np.testing.assert_allclose(model._codewords.block_means(model._coarse_shape()[0]), expected, atol=1e-6)
 
 
 def test_coarse_decode_needs_a_route_family() -> None:

@@ -12,7 +12,7 @@ from btel.datasets import synthetic_route
 from btel.methods.btel.encoding import encode, n_bits_for
 from btel.exceptions import InvalidParameterError
 from btel.methods.btel.full import full_n_classifiers, full_nodes, full_tasks, predict_full
-from btel.learning.linear import Hyperplanes
+from btel.learning.hyperplanes import Hyperplanes
 from btel.methods.btel.localizer import planned_bytes
 
 

@@ -18,7 +18,8 @@ from btel.methods.btel.compressed import compressed_n_classifiers, compressed_ta
 from btel.datasets import synthetic_route
 from btel.methods.btel.encoding import decode_constrained, decode_soft, encode, n_bits_for
 from btel.exceptions import BudgetTooSmallError
-from btel.learning.linear import ColumnStats, Hyperplanes, fit_linear
+from btel.learning.hyperplanes import Hyperplanes
+from btel.learning.linear import ColumnStats, fit_linear
 from btel.methods.btel.localizer import planned_bytes
 
 

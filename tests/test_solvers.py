@@ -1,4 +1,4 @@
-"""The linear solvers (btel.learning.linear): same optimum as liblinear run to convergence, shared work, honest stops."""
+"""The linear solvers (btel.learning.solvers, btel.learning.primal): same optimum as liblinear run to convergence, shared work, honest stops."""
 
 from __future__ import annotations
 
@@ -15,8 +15,8 @@ from btel import BTELocalizer
 from btel.datasets import synthetic_route
 from btel.exceptions import InvalidParameterError
 from btel.learning.feature_selection import between_cluster_ss, between_cluster_ss_binary, select_features, select_features_many
-from btel.learning.linear import choose_solver, linear_objective, solve_linear
-from btel.learning.linear import _solve_submatrices  # noqa: PLC2701 - the shared-inverse path, checked directly
+from btel.learning.solvers import choose_solver, linear_objective, solve_linear
+from btel.learning.primal import _solve_submatrices  # noqa: PLC2701 - the shared-inverse path, checked directly
 from btel.methods.ryth import RYTHLocalizer
 
 

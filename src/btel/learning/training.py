@@ -91,7 +91,7 @@ class FitSummary:
     n_unconverged : int
         Hyperplanes whose solver stopped at its iteration cap.
     objective : float
-        Sum of the solvers' primal objectives (:func:`btel.learning.linear.linear_objective`).
+        Sum of the solvers' primal objectives (:func:`btel.learning.solvers.linear_objective`).
     max_iter_used : int
         Most iterations any group took.
     solvers : tuple of str
@@ -223,7 +223,7 @@ def fit_tasks(
                 objective += value
             if progress is not None:
                 progress(len(idx))
-    from .linear import choose_solver
+    from .solvers import choose_solver
 
     solver = fit_kwargs.get("solver", "auto")
     rows_of = [X.shape[0] if tasks[idx[0]].rows is None else len(tasks[idx[0]].rows) for idx in members]

@@ -1,4 +1,4 @@
-"""``auto``: the method, code family and front end chosen from the map and the budget alone (issue #21).
+"""``auto``: the method, code family and front end chosen from the map and the budget alone.
 
 No query and no label of a query is read: the choice depends on the map descriptors, their place
 labels, N, d and the byte budget. The rule was fixed on the development data (Gardens Point
@@ -10,8 +10,8 @@ per map:
    map row (cosine, on L2-normalised rows; up to :data:`STAT_ROWS` rows sampled evenly) lies within
    :data:`ROUTE_WINDOW` = 2 places of it. Consecutive frames of a route look alike (Gardens Point
    0.975); a map of independent places does not (Gardens Point permuted 0.05, synthetic independent
-   places 0.00). Route when the share is at least :data:`ROUTE_SHARE` = 0.5. The issue measured
-   0.14–0.40 on two NetVLAD sets of independent places, so 0.5 keeps them on the LSH side; Nordland
+   places 0.00). Route when the share is at least :data:`ROUTE_SHARE` = 0.5: two NetVLAD sets of
+   independent places have 0.14–0.40, so 0.5 keeps them on the LSH side; Nordland
    HOG (every 10th frame, 0.27 / 0.31) and the synthetic route (0.12) fall on that side too.
 2. **Route** → ``btel-codes`` with periodic codes (route-ordered codewords; the planner fills the
    budget) at every budget: on Gardens Point they beat every other method from 1 KB to 1 MB.

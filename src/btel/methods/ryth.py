@@ -22,7 +22,9 @@ from .._validation import N_JOBS, RANDOM_STATE, Budget, DType, Interval, Options
 from ..base import ArraySpec, PlaceLocalizer
 from ..exceptions import BudgetTooSmallError, ModelFileError, NotEnoughPlacesError
 from ..learning.feature_selection import column_index_dtype
-from ..learning.linear import CLASSIFIERS, SOLVERS, ColumnStats, Hyperplanes, default_C
+from ..learning.hyperplanes import Hyperplanes
+from ..learning.linear import ColumnStats, default_C
+from ..learning.solvers import CLASSIFIERS, SOLVERS
 from ..storage import format_bytes, parse_budget
 from ..learning.training import convergence_warning, fit_tasks, one_vs_rest_tasks
 

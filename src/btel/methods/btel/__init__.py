@@ -4,6 +4,8 @@
 module              what
 =================== ===========================================================================
 ``localizer``       :class:`BTELocalizer`, the estimator (schemes BTE-C / BTE-F, regions)
+``decoding``        inference: region, then the tree's code; every code ranked by cost
+``model_file``      the stored arrays and header state, checked on load
 ``encoding``        place index ↔ bit code; constrained decoding to indices < N
 ``compressed``      BTE-C: one classifier per bit, decoded by sign or margin
 ``full``            BTE-F: every bit block's full code table

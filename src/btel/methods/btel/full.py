@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from .encoding import encode, n_bits_for
-from ...learning.linear import Hyperplanes
+from ...learning.hyperplanes import Hyperplanes
 from ...learning.training import Task
 
 __all__ = ["full_nodes", "full_n_classifiers", "full_tasks", "predict_full", "full_path_matrices", "full_costs"]

@@ -1,9 +1,11 @@
 """The BTEL estimator (SPEC §2–§7): regions, one binary tree per region, under a byte budget.
 
-The ideas live in their own modules — the codes and their decoding (:mod:`btel.methods.btel.compressed`,
-:mod:`btel.methods.btel.full`, :mod:`btel.methods.btel.encoding`), ranking over bit flips (:mod:`btel.methods.btel.ranking`), the storage
-layout and budget planner (:mod:`btel.methods.btel.planning`), the regions (:mod:`btel.methods.btel.regions`) and the
-classifier fits (:mod:`btel.learning.training`); this file wires them into one scikit-learn estimator.
+The ideas live in their own modules — the codes (:mod:`btel.methods.btel.compressed`,
+:mod:`btel.methods.btel.full`, :mod:`btel.methods.btel.encoding`), inference and ranking over bit
+flips (:mod:`btel.methods.btel.decoding`, :mod:`btel.methods.btel.ranking`), the storage layout and
+budget planner (:mod:`btel.methods.btel.planning`), the model file (:mod:`btel.methods.btel.model_file`),
+the regions (:mod:`btel.methods.btel.regions`) and the classifier fits (:mod:`btel.learning.training`);
+this file wires them into one scikit-learn estimator: its parameters and ``fit``.
 """
 
 from __future__ import annotations
@@ -13,48 +15,29 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
-from ..._validation import BOOLEAN, N_JOBS, RANDOM_STATE, Budget, DType, Interval, Options, String, check_positive_int, read_state_int
-from ...base import ArraySpec, PlaceLocalizer, put_first
-from .compressed import DECODERS, compressed_tasks, decode_code, decode_margins
+from ..._validation import BOOLEAN, N_JOBS, RANDOM_STATE, Budget, DType, Interval, Options, String, check_positive_int
+from ...base import PlaceLocalizer
+from ...exceptions import InvalidParameterError
 from ...learning.distributed import BACKENDS
-from .encoding import _decode_constrained, n_bits_for
-from ...exceptions import InvalidParameterError, ModelFileError
 from ...learning.feature_selection import column_index_dtype
-from .full import full_costs, full_tasks, predict_full
-from ...learning.linear import CLASSIFIERS, SOLVERS, ColumnStats, Hyperplanes, default_C
-from .planning import (
-    SCHEMES,
-    WEIGHT_DTYPES,
-    array_specs,
-    largest_fitting,
-    n_tree_classifiers,
-    planned_bytes,
-    raise_budget_too_small,
-    tree_sizes,
-)
-from .ranking import code_costs, deficits_from_scores, merge_region_kbest
+from ...learning.hyperplanes import Hyperplanes
+from ...learning.linear import ColumnStats, default_C
+from ...learning.solvers import CLASSIFIERS, SOLVERS
+from ...learning.training import Task, convergence_warning, fit_tasks, one_vs_rest_tasks
+from .compressed import DECODERS, compressed_tasks
+from .decoding import TreeDecoding
+from .encoding import n_bits_for
+from .full import full_tasks
+from .model_file import TreeModelFile
+from .planning import (SCHEMES, WEIGHT_DTYPES, largest_fitting, n_tree_classifiers, planned_bytes,
+                       raise_budget_too_small, tree_sizes)
 from .regions import predict_regions, segment_route
 from .segmentation import check_segment_count, region_of
-from ...learning.training import Task, convergence_warning, fit_tasks, one_vs_rest_tasks
 
-__all__ = ["BTELocalizer", "planned_bytes", "block_centres", "block_size_for_tolerance"]
+__all__ = ["BTELocalizer", "planned_bytes", "block_size_for_tolerance"]
 
 #: Most offset-code copies accepted (beyond ~log2 of the block sizes extra copies repeat shifts).
 MAX_CODE_COPIES = 256
-#: Most regions a model file may declare (its region list is built before the arrays are checked).
-MAX_REGIONS_IN_FILE = 1 << 16
-
-
-def block_centres(codes: np.ndarray, block_size: int, n_places: int) -> np.ndarray:
-    """Centre place of each block of ``block_size`` consecutive places (the last may be shorter).
-
-    Returns
-    -------
-    ndarray of the shape of ``codes``, int64, in [0, N)
-    """
-    first = np.asarray(codes, dtype=np.int64) * int(block_size)
-    last = np.minimum(first + int(block_size), int(n_places)) - 1
-    return (first + last) // 2
 
 
 def block_size_for_tolerance(tolerance: int) -> int:
@@ -63,7 +46,7 @@ def block_size_for_tolerance(tolerance: int) -> int:
     return 1 if t == 0 else 1 << (t.bit_length() - 1)
 
 
-class BTELocalizer(PlaceLocalizer):
+class BTELocalizer(TreeDecoding, TreeModelFile, PlaceLocalizer):
     """Binary tree encoding for visual localization (BTEL; Le, Hoang & Milford).
 
     Learns b = ceil(log2 N) linear classifiers that predict the bits of a place's index, so the
@@ -77,12 +60,12 @@ class BTELocalizer(PlaceLocalizer):
         internal tree node, O(N) storage (the paper's foil).
     classifier : {'svm', 'logistic'}
         L2-regularised linear SVM with the squared hinge loss, or L2 logistic regression (the
-        objectives of liblinear; :mod:`btel.learning.linear`).
+        objectives of liblinear; :mod:`btel.learning.solvers`).
     solver : {'auto', 'newton', 'lbfgs', 'liblinear'}
-        How the classifiers are solved (:mod:`btel.learning.linear`). 'newton': Newton's method with exact
+        How the classifiers are solved (:mod:`btel.learning.solvers`). 'newton': Newton's method with exact
         line search, to a relative gradient norm of 1e-5 (the exact optimum for the squared hinge);
         'lbfgs': L-BFGS over all classifiers that share rows and columns; 'liblinear':
-        scikit-learn's liblinear (what btel used before, which stops unconverged on maps with
+        scikit-learn's liblinear (which can stop unconverged, far from the optimum, on maps with
         N ≈ d). 'auto' (default): 'newton' when min(rows, d' + 1) ≤ 4096, else 'lbfgs'.
     C : float, optional
         Regularisation; default 1.0 for 'svm', 4.0 for 'logistic'.
@@ -162,9 +145,9 @@ class BTELocalizer(PlaceLocalizer):
     ----------
     n_places_ : int
         N.
-    n_codes_ : int
-        Places the trees index: ⌈N / block_size⌉ (N when block_size = 1); region starts and
-        sizes count these.
+    n_blocks_ : int
+        Blocks of ``block_size`` consecutive places, what the trees index: ⌈N / block_size⌉ (N
+        when block_size = 1); region starts and sizes count these.
     n_features_in_ : int
         d, the dimension of the descriptors given to fit and predict.
     n_selected_ : int
@@ -304,20 +287,20 @@ class BTELocalizer(PlaceLocalizer):
     def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
         """The planner of ``fit`` on shapes alone. With a fixed r ≥ 2 the region sizes come from KTS, so
         only KTS' minimum is checked and the fit decides the bytes."""
-        n_codes = -(-n_rows // int(self.block_size))
+        n_blocks = -(-n_rows // int(self.block_size))
         if self.n_regions != "auto" and int(self.n_regions) > 1:
-            if n_codes <= int(self.kts_max_points):  # longer routes are averaged in blocks first
-                check_segment_count(n_codes, int(self.n_regions))
+            if n_blocks <= int(self.kts_max_points):  # longer routes are averaged in blocks first
+                check_segment_count(n_blocks, int(self.n_regions))
             return
         if budget is None:
             return
         d = n_features_out
         dtype = str(np.dtype(self.dtype))
         kw = dict(scheme=self.scheme, dtype=dtype, code_copies=int(self.code_copies))
-        if largest_fitting([n_codes], d, self._cap(d, budget), budget - reserved, self.scheme, dtype,
+        if largest_fitting([n_blocks], d, self._cap(d, budget), budget - reserved, self.scheme, dtype,
                            int(self.code_copies)) < 1:
             raise_budget_too_small(f"BTEL ({self.scheme}, N = {n_rows}, r = 1)", budget,
-                                   planned_bytes([n_codes], 1, d, **kw) + reserved,
+                                   planned_bytes([n_blocks], 1, d, **kw) + reserved,
                                    "Raise the budget, use dtype='float16', or fewer regions.")
 
     def budget_saturated(self) -> bool:
@@ -335,10 +318,10 @@ class BTELocalizer(PlaceLocalizer):
         places_arr = np.arange(n_places, dtype=np.int64) if places is None else places
         # Tolerance-aware codes: everything below works on block indices ("codes").
         block_size, copies = int(self.block_size), int(self.code_copies)
-        n_codes = -(-n_places // block_size)
-        if n_codes < 2:
+        n_blocks = -(-n_places // block_size)
+        if n_blocks < 2:
             raise InvalidParameterError(
-                f"block_size = {block_size} leaves {n_codes} block of N = {n_places} places; an index needs at "
+                f"block_size = {block_size} leaves {n_blocks} block of N = {n_places} places; an index needs at "
                 f"least 2. Use block_size ≤ {max(1, (n_places - 1))}."
             )
         codes_arr = places_arr // block_size if block_size > 1 else places_arr
@@ -350,11 +333,11 @@ class BTELocalizer(PlaceLocalizer):
         def fits(sizes: list[int]) -> bool:
             return largest_fitting(sizes, d, cap, available, self.scheme, dtype, copies) >= 1
 
-        starts = segment_route(X, codes_arr, n_codes, self.n_regions, max_regions=int(self.max_regions),
+        starts = segment_route(X, codes_arr, n_blocks, self.n_regions, max_regions=int(self.max_regions),
                                penalty=float(self.kts_penalty), pca_dims=self.kts_pca_dims,
                                random_state=self.random_state, max_points=int(self.kts_max_points),
                                fits=None if available is None else fits)
-        sizes = tree_sizes(starts, n_codes)
+        sizes = tree_sizes(starts, n_blocks)
         n_selected = cap
         if available is not None:
             n_selected = largest_fitting(list(sizes), d, cap, available, self.scheme, dtype, copies)
@@ -407,93 +390,24 @@ class BTELocalizer(PlaceLocalizer):
         starts = np.asarray(starts, dtype=np.int64)
         self.block_size_ = int(self.block_size)
         self.code_copies_ = int(self.code_copies)
-        n_codes = -(-int(n_places) // self.block_size_)
-        sizes = tree_sizes(starts, n_codes)
+        n_blocks = -(-int(n_places) // self.block_size_)
+        sizes = tree_sizes(starts, n_blocks)
         n_classifiers = [n_tree_classifiers(self.scheme, int(n), self.code_copies_) for n in sizes]
-        self.n_codes_ = int(n_codes)
+        self.n_blocks_ = int(n_blocks)
         self.n_selected_ = int(n_selected)
         self.n_regions_ = int(starts.size)
         self.region_starts_ = starts
         self.region_sizes_ = sizes
-        self.n_bits_ = n_bits_for(n_codes)
+        self.n_bits_ = n_bits_for(n_blocks)
         self.tree_offsets_ = np.concatenate([[0], np.cumsum(n_classifiers)]).astype(np.int64)
         self._tree_width = max(self.n_bits_, int(max(n_classifiers))) if self.scheme == "compressed" \
             else self.n_bits_
 
     # ------------------------------------------------------------------ inference
-    def _region_scores(self, Q: np.ndarray) -> np.ndarray | None:
-        return None if self.n_regions_ == 1 else self.region_hyperplanes_.margins(Q)
-
     def predict_region(self, Q: Any) -> np.ndarray:
         """Region of each query (int64, shape (n_queries,); all 0 when r = 1)."""
         Q = self._check_queries(Q)
         return predict_regions(self._region_scores(Q), self.n_regions_, Q.shape[0])
-
-    def _tree_decode(self, Q: np.ndarray, region: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(local codes, column margins, tree costs of those codes) of queries Q under one region's tree."""
-        n_k = int(self.region_sizes_[region])
-        first = int(self.tree_offsets_[region])
-        if self.scheme == "full":
-            codes, margins = predict_full(Q, self.hyperplanes_, first, n_k)
-            return codes, margins, np.zeros(Q.shape[0])  # the greedy leaf follows every sign: cost 0
-        rows = slice(first, int(self.tree_offsets_[region + 1]))
-        margins = self.hyperplanes_.margins(Q, rows if self.n_regions_ > 1 else None)
-        if self.code_copies_ > 1:
-            codes = decode_code(margins, n_k, self.code_copies_)
-        else:
-            codes = decode_margins(margins, n_k, self.decode)
-        return codes, margins, self._flip_costs(margins, codes, n_k)
-
-    def _flip_costs(self, margins: np.ndarray, codes: np.ndarray, n_k: int) -> np.ndarray:
-        """Cost ``Σ|m| − Σ m·sign(code)`` of one code per query (0 for the hard code)."""
-        if n_k == 1:
-            return np.zeros(margins.shape[0])
-        from .compressed import compressed_code
-
-        levels, shifts = compressed_code(n_k, self.code_copies_)
-        b = n_bits_for(n_k)
-        shifted = codes[:, None] if self.code_copies_ == 1 else (codes[:, None] + shifts[None, :]) & ((1 << b) - 1)
-        bits = ((shifted >> (b - 1 - levels)[None, :]) & 1).astype(bool)
-        # A column costs 2|m| where the code's bit disagrees with the margin's sign, else nothing.
-        flipped = bits != (margins > 0)
-        return 2.0 * np.einsum("ij,ij->i", np.abs(margins, dtype=np.float64), flipped, dtype=np.float64)
-
-    def _decode(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(codes, margins padded to the widest tree, cost) of each query: region, then its tree."""
-        if self.n_regions_ == 1:  # one tree over all codes: its local codes are global
-            return self._tree_decode(Q, 0)
-        regions = predict_regions(self._region_scores(Q), self.n_regions_, Q.shape[0])
-        codes = np.empty(Q.shape[0], dtype=np.int64)
-        costs = np.empty(Q.shape[0])
-        margins = np.full((Q.shape[0], self._tree_width), np.nan, dtype=np.float32)
-        present = np.unique(regions) if Q.shape[0] > 1 else regions
-        for k in present:
-            rows = slice(None) if present.size == 1 else np.flatnonzero(regions == k)
-            local, m, cost = self._tree_decode(Q[rows], int(k))
-            codes[rows] = self.region_starts_[k] + local
-            margins[rows, : m.shape[1]] = m
-            costs[rows] = cost  # the predicted region's deficit is 0
-        return codes, margins, costs
-
-    def _predict(self, Q: np.ndarray) -> np.ndarray:
-        """The decode alone (no scores): what ``_search(Q, 1)`` answers, without the flip costs."""
-        if self.n_regions_ == 1 and self.scheme == "compressed":
-            margins = self.hyperplanes_.margins(Q)
-            n_k = int(self.region_sizes_[0])
-            if self.code_copies_ > 1:
-                codes = decode_code(margins, n_k, self.code_copies_)
-            elif self.decode == "constrained":  # the hot path (streaming, batches): margins are ours
-                codes = _decode_constrained(margins, n_k)
-            else:
-                codes = decode_margins(margins, n_k, self.decode)
-            return self._places_of_codes(codes)
-        return self._places_of_codes(self._decode(Q)[0])
-
-    def _places_of_codes(self, codes: np.ndarray) -> np.ndarray:
-        """Place answered for each code: the code itself, or its block's centre (block_size > 1)."""
-        if self.block_size_ == 1:
-            return codes
-        return block_centres(codes, self.block_size_, self.n_places_)
 
     def decision_function(self, Q: Any) -> np.ndarray:
         """Bit margins of each query's tree (positive = bit 1), MSB first.
@@ -517,124 +431,20 @@ class BTELocalizer(PlaceLocalizer):
         """
         return self.hyperplanes_.margins(self._check_queries(Q))
 
+    # -- bit diagnostics (the beyond experiment asks the model for these) -------------------------
     def bit_accuracy(self, Q: Any, true_places: Any) -> Any:
         """Per-level accuracy of the bit classifiers on queries (:func:`.diagnostics.localizer_bit_accuracy`)."""
         from .diagnostics import localizer_bit_accuracy
-
         return localizer_bit_accuracy(self, Q, true_places)
 
     @staticmethod
     def answer_bit_accuracy(predictions: Any, true_places: Any, n_places: int) -> Any:
         """Per-level accuracy of the bits of any method's answers (:func:`.diagnostics.answer_bit_accuracy`)."""
         from .diagnostics import answer_bit_accuracy
-
         return answer_bit_accuracy(predictions, true_places, n_places)
 
     @staticmethod
     def plot_bit_accuracy(curves: Any, path: Any, **options: Any) -> Any:
         """Per-bit accuracy against bit level, one line per curve (:func:`.diagnostics.plot_bit_accuracy`)."""
         from .diagnostics import plot_bit_accuracy
-
         return plot_bit_accuracy(curves, path, **options)
-
-    def _code_costs(self, Q: np.ndarray, region_weight: float = 1.0) -> np.ndarray:
-        """Cost of every code (n_queries, n_codes): tree cost + region_weight × region deficit."""
-        margins = self.hyperplanes_.margins(Q).astype(np.float64)  # every tree's columns: one product
-        deficits = deficits_from_scores(self._region_scores(Q), self.n_regions_, Q.shape[0])
-        if self.scheme == "full":
-            out = np.empty((Q.shape[0], self.n_codes_))
-            for k, (s, n_k) in enumerate(zip(self.region_starts_.tolist(), self.region_sizes_.tolist())):
-                tree = full_costs(margins[:, self.tree_offsets_[k] : self.tree_offsets_[k + 1]], n_k)
-                out[:, s : s + n_k] = tree + region_weight * deficits[:, k : k + 1]
-            return out
-        return code_costs(margins, deficits, self.region_starts_, self.region_sizes_, self.tree_offsets_,
-                          code_copies=self.code_copies_, region_weight=region_weight)
-
-    def _place_scores(self, Q: np.ndarray) -> np.ndarray:
-        """−cost of every place (tree flip cost + region deficit; a block's places share its cost)."""
-        scores = -self._code_costs(Q)
-        if self.block_size_ > 1:  # every place scores what its block scores
-            scores = scores[:, np.arange(int(self.n_places_)) // self.block_size_]
-        return scores
-
-    def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """The decode, then the other codes by cost (lowest first), as places (distinct block centres).
-
-        The first candidate is always the decode (``predict``): with ``decode='constrained'`` a
-        hard code ≥ N is mapped to a valid one by the paper's MSB-first rule, which need not be the
-        cheapest valid code, so the ranking by cost follows it.
-        """
-        point, _, point_costs = self._decode(Q)
-        if k == 1:
-            return -point_costs[:, None], self._places_of_codes(point)[:, None]
-        k_codes = min(k, self.n_codes_)
-        if self.scheme == "compressed" and self.code_copies_ == 1:
-            margins = self.hyperplanes_.margins(Q).astype(np.float64)
-            deficits = deficits_from_scores(self._region_scores(Q), self.n_regions_, Q.shape[0])
-            codes, costs = merge_region_kbest(margins, deficits, self.region_starts_, self.region_sizes_,
-                                              self.tree_offsets_, k_codes)
-        else:  # offset codes and BTE-F: every code's cost (O(N·K) per query)
-            from ...base import top_k
-
-            neg, codes = top_k(-self._code_costs(Q), k_codes)
-            costs = -neg
-        scores, codes = put_first(-costs, codes, -point_costs, point)
-        return scores, self._places_of_codes(codes)
-
-    # ------------------------------------------------------------------ storage and files
-    def _stored_arrays(self) -> dict[str, np.ndarray]:
-        arrays = self.hyperplanes_.arrays("")
-        if self.region_hyperplanes_ is not None:
-            from .planning import starts_dtype
-
-            arrays.update(self.region_hyperplanes_.arrays("region_"))
-            arrays["region_starts"] = self.region_starts_.astype(starts_dtype(self.n_codes_))
-        return arrays
-
-    def _fitted_state(self) -> dict[str, Any]:
-        return {"n_selected": self.n_selected_, "n_regions": self.n_regions_, "n_unconverged": self.n_unconverged_}
-
-    def _array_specs(self, state: dict[str, Any]) -> dict[str, ArraySpec]:
-        n_places = int(state["n_places"])
-        d = self.front_end_.n_features_out(int(state["n_features_in"]))
-        n_codes = -(-n_places // int(self.block_size))
-        if n_codes < 2:
-            raise ModelFileError(f"the model file's N = {n_places} and block_size = {self.block_size} leave "
-                                 f"{n_codes} code; an index needs at least 2.")
-        n_selected = read_state_int(state, "n_selected", 1, d)
-        r = read_state_int(state, "n_regions", 1, min(n_codes, MAX_REGIONS_IN_FILE))
-        self._check_combinations_from_file()
-        # The region sizes are read from region_starts; the specs need only their count and total,
-        # except for the number of tree classifiers, checked in _restore once the starts are known.
-        specs = array_specs([n_codes] if r == 1 else [1] * (r - 1) + [n_codes - r + 1], n_selected, d,
-                            scheme=self.scheme, dtype=np.dtype(self.dtype).name, code_copies=int(self.code_copies))
-        for name in ("weights", "bias", "columns"):
-            if name in specs:
-                specs[name].shape = (None,) + specs[name].shape[1:]
-        return specs
-
-    def _check_combinations_from_file(self) -> None:
-        try:
-            self._check_combinations()
-        except InvalidParameterError as exc:
-            raise ModelFileError(f"the model file's parameters contradict each other: {exc}") from exc
-
-    def _restore(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
-        n_places = int(state["n_places"])
-        d = self.front_end_.n_features_out(int(state["n_features_in"]))
-        n_selected = int(state["n_selected"])
-        n_codes = -(-n_places // int(self.block_size))
-        starts = arrays.get("region_starts", np.zeros(1, dtype=np.int64)).astype(np.int64)
-        if starts[0] != 0 or np.any(np.diff(starts) < 1) or starts[-1] >= n_codes:
-            raise ModelFileError("the model file's region starts are not increasing within the route's codes.")
-        self._set_structure(n_places, n_selected, starts)
-        if arrays["weights"].shape[0] != self.tree_offsets_[-1]:
-            raise ModelFileError(
-                f"model file holds {arrays['weights'].shape[0]} classifiers; its regions imply {self.tree_offsets_[-1]}."
-            )
-        k = int(self.tree_offsets_[-1])
-        if arrays["bias"].shape[0] != k or ("columns" in arrays and arrays["columns"].shape[0] != k):
-            raise ModelFileError(f"the model file's bias or columns do not hold one row per classifier ({k}).")
-        self.hyperplanes_ = Hyperplanes.from_arrays(arrays, "", d)
-        self.region_hyperplanes_ = Hyperplanes.from_arrays(arrays, "region_", d) if self.n_regions_ >= 2 else None
-        self.n_unconverged_ = read_state_int(state, "n_unconverged", 0, int(self.tree_offsets_[-1]) + self.n_regions_)

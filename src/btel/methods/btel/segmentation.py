@@ -26,9 +26,8 @@ O(n·(d + r)) memory: 25 s at n = 8192 on one core, days at n = 10⁶. Routes lo
 3. refine each change point within ±B places by the exact frame-level cost (in the same PCA
    space) with its neighbours fixed, one pass left to right, O(r·B·d·p).
 
-In total O(n·d + M²·(p + r) + r·B·d·p): at n = 10⁶, d = 256, r = 20 it took 10–14 s (every
-r ≤ 50, for the automatic choice, 13–19 s) on a shared 2-core machine and found all 19 true
-boundaries of the synthetic route (``benchmarks/bench_scale.py``). A change point can differ from the
+In total O(n·d + M²·(p + r) + r·B·d·p), linear in n (``benchmarks/bench_scale.py`` times it at
+n = 10⁶ and checks the true boundaries of the synthetic route are found). A change point can differ from the
 exact one only where the coarse DP put it in the wrong block; ``tests/test_segmentation_large.py``
 checks that both paths find the true boundaries of a synthetic route.
 """

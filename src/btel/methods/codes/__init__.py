@@ -8,7 +8,9 @@ module              what
 ``planning``        the budget planner: K columns, selected features, weight bits
 ``solvers``         liblinear / ridge fitting of the K columns
 ``quantise``        weight quantisation to the planned bits
-``decoding``        the exact decode paths (dense, bounded, scan) and the coarse one
+``decoding``        the bounded exact search over blocks and the rule choosing a decode path
+``codewords``       the codebook at inference (dense / packed codewords, faiss scan); coarse to fine
+``model_file``      the stored arrays and header state, checked on load
 =================== ===========================================================================
 """
 

@@ -23,8 +23,7 @@ Families (``c_ik`` is column k of place i):
   64-bit fixed point (i·F_h + Φ_h mod 2^64, exact integer arithmetic). Neighbouring
   places share most of their codeword (errors stay local), and the quadrature pair makes the
   code's kernel E[c_i·c_j] a function of |i − j| only. Stratified periods and quadrature pairs
-  approximate that kernel with fewer columns than independent draws (measured on Gardens Point:
-  recall within 2 frames 0.54 against 0.51 at K = 64).
+  approximate that kernel with fewer columns than independent draws.
 - ``blocks`` — random contiguous-block codes at many scales: column k cuts the route into blocks
   of L_k places (log-uniform stratified in [1, N/8], so at least 8 blocks) at a random offset, and
   colours exactly half of the blocks +1 (a keyed permutation of the blocks). L = 1 is a random code; long blocks are

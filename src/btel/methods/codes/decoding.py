@@ -43,8 +43,8 @@ BATCH_DENSE_FROM = 16
 DENSE_SMALL_VALUES = 1 << 18
 #: Queries of a batch decoded by the bounded search to measure how many places it scores.
 PROBE_QUERIES = 8
-#: Measured nanoseconds per codeword value: the dense product (per query of a batch) and the
-#: bounded search (per value of a scored place), plus the bounded search's per-query overhead.
+#: Nanoseconds per codeword value (from ``benchmarks/bench_codes.py``): the dense product (per query of a
+#: batch) and the bounded search (per value of a scored place), plus the bounded search's per-query overhead.
 DENSE_NS, BOUNDED_NS, BOUNDED_OVERHEAD_NS = 0.05, 0.2, 40_000.0
 #: Blocks scored in the first round of the bounded search (then 2×, 4×, … more per round).
 FIRST_BLOCKS = 8
@@ -55,10 +55,9 @@ BYTE_SIGNS = (((np.arange(256)[:, None] >> np.arange(8)) & 1) * 2.0 - 1.0).astyp
 def block_size(n_places: int) -> int:
     """B, places per block of the bounded search: ≈ √N, within [8, 1024].
 
-    Bounds cost 2·(N/B)·K per query and the visited blocks v·B·K. Measured on the synthetic route
-    (d = 256, K = 470): the blocks needed fall slowly with B (N = 10⁵: 45 at B = 50, 17 at B = 200;
-    N = 10⁴: 12 at B = 50, 7 at B = 100), and every round of blocks costs Python overhead, so
-    B ≈ √N (a few rounds of ≈ 8–16 blocks) was fastest.
+    Bounds cost 2·(N/B)·K per query and the visited blocks v·B·K. The blocks a query needs fall
+    slowly as B grows, and every round of blocks costs Python overhead, so B ≈ √N (a few rounds
+    of ≈ 8–16 blocks) balances the two (``benchmarks/bench_codes.py``).
     """
     return int(min(1024, max(8, round(np.sqrt(n_places)))))
 
@@ -68,21 +67,20 @@ def choose_path(n_places: int, width: int, n_queries: int, route: bool, dense_ca
     """The exact decode to run: 'bounded', 'dense', 'scan' (faiss' packed scan) or 'probe'.
 
     Rule, from ``benchmarks/bench_codes.py`` (results in ``benchmarks/results/bench_codes*.json``;
-    a shared 2-core machine at load 6–9, one thread):
+    one BLAS thread):
 
     - 'random' codes have no blocks to bound: 'dense' while the float32 codewords are cached
       (N·8⌈K/8⌉·4 ≤ :data:`DENSE_CACHE_BYTES`), else 'scan';
     - a small map (N·8⌈K/8⌉ ≤ :data:`DENSE_SMALL_VALUES`, the codewords fit in a core's cache):
-      'dense' (Gardens Point, N = 200: the bounded search's per-query overhead was 7× flat search);
+      'dense' (the bounded search's per-query overhead would cost more than scoring every place);
     - a batch (≥ :data:`BATCH_DENSE_FROM` queries) with the codewords cached: 'probe' — decode the
       first :data:`PROBE_QUERIES` by the bounded search, then call again with ``visited``, the
       fraction of places they scored: 'dense' when N·W·:data:`DENSE_NS` is below
       visited·N·W·:data:`BOUNDED_NS` + :data:`BOUNDED_OVERHEAD_NS` (per query: the dense product
-      reads every codeword at BLAS speed, the bounded search a few blocks by table look-ups; the
-      constants are the measured 243 µs/query dense and 140 µs/query bounded at N = 10⁴, K = 470,
-      where ≈ 10 % of the places were scored), else 'bounded';
-    - otherwise 'bounded' (single queries on larger maps: 0.18 ms at N = 10⁴ against 0.25 ms
-      for faiss' packed scan and 2.5 ms for the dense product).
+      reads every codeword at BLAS speed, the bounded search a few blocks by table look-ups),
+      else 'bounded';
+    - otherwise 'bounded' (single queries on larger maps: faster than faiss' packed scan and the
+      dense product).
     """
     if not route:
         return "dense" if dense_cached else "scan"

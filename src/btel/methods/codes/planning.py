@@ -16,10 +16,10 @@ descriptor dimension d after the front end, and whatever the user fixed (K, d', 
    32 bits (``btel experiment codes``), so 4 bits buys 8× more weights for the same bytes.
 2. K and d' grow together, K = d', until d' reaches d ("square rule"); the bytes left over at the
    largest fitting square go to more code columns K (never more kept columns). Once d' = d, all
-   further bytes go to K. Measured (Gardens Point and synthetic routes, ``btel experiment codes``
-   and the study in the PR): at a fixed budget, K ≈ d' was the best split or within noise of it;
-   both a tall (K ≫ d') and a wide (d' ≫ K) split lost — more columns per code cannot make up for
-   too few codes to tell N places apart, and many codes on few columns all see the same projection.
+   further bytes go to K. On Gardens Point and synthetic routes (``btel experiment codes``), at
+   a fixed budget, K ≈ d' was the best split or within noise of it; both a tall (K ≫ d') and a
+   wide (d' ≫ K) split lost — more columns per code cannot make up for too few codes to tell N
+   places apart, and many codes on few columns all see the same projection.
 3. K stays within the family's range: at least b = ⌈log2 N⌉, at most :data:`MAX_AUTO_CODES`
    (binary: exactly b; offset: its number of distinct columns). When K is at its maximum and
    d' = d, the width is raised (8, 16, 32 bits) while it fits — the only bytes left to spend.

@@ -1,0 +1,243 @@
+"""The codebook at inference: codewords derived once from (family, N, K, seed) and kept while queries come.
+
+Nothing here is stored in a model file: :class:`Codewords` regenerates what the decoders of
+:class:`~btel.methods.codes.estimator.CodeLocalizer` multiply by, in the cheapest form for the map —
+
+- ``dense()``: the (N, 8⌈K/8⌉) float32 ±1 codewords, when small
+  (:data:`~btel.methods.codes.decoding.DENSE_CACHE_BYTES`): one BLAS product scores every place;
+- ``packed_rows()``: the (N, ⌈K/8⌉) packed codebook up to :data:`PACKED_CACHE_BYTES`, filled
+  :data:`FILL_PLACES` places at a time when first read, so the first query after ``load``
+  generates only the codewords it scores;
+- ``adc_index()``: faiss' packed PQ scan, for the 'random' family past the dense cache;
+- ``decoder()``: the bounded search's block bounds (:class:`~btel.methods.codes.decoding.BlockDecoder`);
+- ``block_means()`` and :meth:`Codewords.coarse_search`: the coarse-to-fine decode of long maps.
+
+**Coarse to fine.** The exact decode costs N·K per query. For route families on long maps the
+route is cut into blocks of B consecutive places, each block is scored by its *mean* codeword
+(⌈N/B⌉ × K values), which equals the mean score of the block's places, and only the places of
+the best blocks are scored exactly. Long-period columns are nearly constant on a block, so they
+carry the coarse score; short-period ones average out. It is approximate: the true best place may
+sit in a block whose mean is not among the best (``benchmarks/bench_codes.py`` measures the loss).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+
+from ...base import top_k
+from ...threads import blas_threads
+from .codebook import Codebook
+from .decoding import BYTE_SIGNS, DENSE_CACHE_BYTES, BlockDecoder
+
+__all__ = ["Codewords", "RuntimeCache", "blas_for", "BLOCK_VALUES", "PACKED_CACHE_BYTES"]
+
+#: The codebook is cached at inference as packed bits (N × ⌈K/8⌉ bytes) up to this size (256 MB).
+PACKED_CACHE_BYTES = 1 << 28
+#: Values (rows × columns) of one block of scores or codes at inference (about 16 MB of float32).
+BLOCK_VALUES = 1 << 22
+#: Places whose packed codewords are generated together when first read.
+FILL_PLACES = 256
+#: Below this many multiply-adds a decode runs its BLAS products on one thread (see blas_for).
+_SMALL_PRODUCT = 1 << 27
+
+
+def blas_for(n_queries: int, work_per_query: int) -> Any:
+    """One BLAS thread for the decode's products, unless a large batch (where a second thread can pay).
+
+    The decode's products are small (a batch's margins, one query's coarse scores): BLAS' own
+    threads spin against other processes on a shared machine and cost more than they save, while
+    setting the limit per call costs less than the timing noise.
+    """
+    if n_queries > 64 and n_queries * work_per_query >= _SMALL_PRODUCT:
+        return blas_threads(None)
+    return blas_threads(1)
+
+
+class Codewords:
+    """The codewords of one fitted codebook in the forms inference reads (a runtime cache, one per model).
+
+    Parameters
+    ----------
+    codebook : Codebook
+
+    Attributes
+    ----------
+    width : int
+        8⌈K/8⌉: K rounded up to whole bytes, the width of the codewords and margins the decoders
+        multiply (padding columns are +1 codewords against zero margins, so they add nothing).
+    packed : ndarray of shape (N, ⌈K/8⌉), uint8, or None
+        Packed codewords (+1 → bit 1, column j in bit j % 8 of byte j // 8), filled on demand.
+    filled : ndarray of shape (⌈N / FILL_PLACES⌉,), bool, or None
+        Which chunks of ``packed`` are filled.
+    """
+
+    def __init__(self, codebook: Codebook) -> None:
+        self.codebook = codebook
+        self.n_places = int(codebook.n_places)
+        self.n_codes = int(codebook.n_codes)
+        self.width = 8 * -(-self.n_codes // 8)
+        self.codes: np.ndarray | None = None
+        self.packed: np.ndarray | None = None
+        self.filled: np.ndarray | None = None
+        self.index: Any = None
+        self._decoder: BlockDecoder | None = None
+        self.means: tuple[int, np.ndarray] | None = None
+
+    def dense(self) -> np.ndarray | None:
+        """(N, 8⌈K/8⌉) float32 ±1 codewords when they fit :data:`~btel.methods.codes.decoding.DENSE_CACHE_BYTES`, else None.
+
+        Built once (the only copy of the codebook then: no packed bits are kept).
+        """
+        n, width = self.n_places, self.width
+        if n * width * 4 > DENSE_CACHE_BYTES:
+            return None
+        if self.codes is None:
+            codes = np.ones((n, width), dtype=np.float32)
+            for a, b, block in self.codebook.iter_blocks():
+                codes[a:b, : self.n_codes] = block
+            self.codes = codes
+        return self.codes
+
+    def packed_rows(self, places: np.ndarray) -> np.ndarray | None:
+        """Packed codewords (len(places), ⌈K/8⌉) uint8 of the given places, or None past :data:`PACKED_CACHE_BYTES`.
+
+        The (N, ⌈K/8⌉) array is allocated once and filled :data:`FILL_PLACES` places at a time
+        when first read (untouched pages cost no memory).
+        """
+        n, groups = self.n_places, -(-self.n_codes // 8)
+        if n * groups > PACKED_CACHE_BYTES:
+            return None
+        if self.packed is None:
+            self.packed = np.empty((n, groups), dtype=np.uint8)
+            self.filled = np.zeros(-(-n // FILL_PLACES), dtype=bool)
+        chunk_of = places // FILL_PLACES
+        if self.filled[chunk_of].all():
+            return self.packed[places]
+        chunks = np.unique(chunk_of)
+        for c in chunks[~self.filled[chunks]]:
+            a, b = int(c) * FILL_PLACES, min(n, (int(c) + 1) * FILL_PLACES)
+            self.packed[a:b] = np.packbits(self.codebook.codewords(np.arange(a, b)) > 0, axis=1, bitorder="little")
+            self.filled[c] = True
+        return self.packed[places]
+
+    def packed_of(self, places: np.ndarray) -> np.ndarray:
+        """Packed codewords of the given places: from the cache, or generated past its size limit."""
+        packed = self.packed_rows(places)
+        if packed is None:
+            packed = np.packbits(self.codebook.codewords(places) > 0, axis=1, bitorder="little")
+        return packed
+
+    def of(self, places: np.ndarray) -> np.ndarray:
+        """±1 codewords of the given places, float32 (n, 8⌈K/8⌉): padding columns are +1 (× zero margins)."""
+        places = np.asarray(places, dtype=np.intp)
+        dense = self.dense()
+        if dense is not None:
+            return dense[places]
+        packed = self.packed_rows(places)
+        if packed is None:
+            codes = np.ones((len(places), self.width), dtype=np.float32)
+            codes[:, : self.n_codes] = self.codebook.codewords(places)
+            return codes
+        # One table look-up per byte: the 8 ±1 values of its bits.
+        return BYTE_SIGNS[packed].reshape(len(places), -1)
+
+    def blocks(self, rows: int | None = None) -> Iterator[tuple[int, int, np.ndarray]]:
+        """Yield (start, stop, codewords float32 (stop − start, 8⌈K/8⌉)) over consecutive blocks of places."""
+        n = self.n_places
+        rows = rows or max(1, BLOCK_VALUES // self.n_codes)
+        for a in range(0, n, rows):
+            b = min(n, a + rows)
+            yield a, b, self.of(np.arange(a, b))
+
+    def adc_index(self) -> Any:
+        """faiss.IndexPQ over the packed codewords whose scan computes m · c_i exactly (or None).
+
+        The soft decode is an asymmetric-distance scan: cut the K columns into groups of 8, a group
+        of a codeword is one byte, and the 256 "centroids" of every group are the 256 ±1 patterns
+        of 8 columns. faiss' inner-product PQ scan then sums, per place, one table entry per group
+        (⌈K/8⌉ look-ups instead of K multiply-adds). Only for the 'random' family past the dense
+        cache (no blocks to bound): its codes are added block by block, the index holds the only copy.
+        """
+        if self.index is None:
+            n, groups = self.n_places, -(-self.n_codes // 8)
+            if n * groups > PACKED_CACHE_BYTES:
+                return None
+            import faiss
+
+            index = faiss.IndexPQ(8 * groups, groups, 8, faiss.METRIC_INNER_PRODUCT)
+            faiss.copy_array_to_vector(np.tile(BYTE_SIGNS, (groups, 1)).ravel(), index.pq.centroids)
+            index.is_trained = True
+            for _, _, codes in self.codebook.iter_blocks():
+                index.add_sa_codes(np.packbits(codes > 0, axis=1, bitorder="little"))
+            self.index = index
+        return self.index
+
+    def decoder(self) -> BlockDecoder:
+        """The bounded exact search over blocks of places (:mod:`btel.methods.codes.decoding`), built once."""
+        if self._decoder is None:
+            self._decoder = BlockDecoder(self.codebook, self.width, self.packed_of)
+        return self._decoder
+
+    def block_means(self, block: int) -> np.ndarray:
+        """(⌈N/B⌉, 8⌈K/8⌉) float32 mean codeword of every block of B consecutive places (the last may be shorter)."""
+        if self.means is None or self.means[0] != block:
+            n_blocks = -(-self.n_places // block)
+            means = np.empty((n_blocks, self.width), dtype=np.float32)
+            rows = max(block, (BLOCK_VALUES // self.n_codes) // block * block)
+            for a, b, codes in self.blocks(rows):  # a is a multiple of block
+                starts = np.arange(0, b - a, block)
+                counts = np.diff(np.append(starts, b - a)).astype(np.float32)
+                means[a // block : a // block + starts.size] = np.add.reduceat(codes, starts, axis=0) / counts[:, None]
+            self.means = (block, means)
+        return self.means[1]
+
+    def coarse_search(self, M: np.ndarray, k: int, block: int, candidates: int) -> tuple[np.ndarray, np.ndarray]:
+        """Score blocks by their mean codeword, then every place of the ``candidates`` best blocks exactly.
+
+        Parameters
+        ----------
+        M : ndarray of shape (n, 8⌈K/8⌉), float32
+            Padded margins.
+
+        Returns
+        -------
+        scores : ndarray of shape (n, k), float64
+        places : ndarray of shape (n, k), int64
+        """
+        n_places = self.n_places
+        means = self.block_means(block)
+        width = candidates * block
+        out_s = np.empty((M.shape[0], k))
+        out_p = np.empty((M.shape[0], k), dtype=np.int64)
+        step = max(1, BLOCK_VALUES // (width * self.n_codes))
+        for a in range(0, M.shape[0], step):
+            m = M[a : a + step]
+            coarse = m @ means.T
+            blocks = np.argpartition(-coarse, candidates - 1, axis=1)[:, :candidates] if candidates < coarse.shape[1] \
+                else np.broadcast_to(np.arange(coarse.shape[1]), coarse.shape)
+            # Candidates in place order, so that ties go to the lower place as in the exact decode.
+            places = np.sort((blocks[:, :, None] * block + np.arange(block)).reshape(m.shape[0], width), axis=1)
+            valid = places < n_places
+            codes = self.of(np.where(valid, places, 0).ravel()).reshape(m.shape[0], width, -1)
+            scores = np.matmul(codes, m[:, :, None])[:, :, 0].astype(np.float64)
+            scores[~valid] = -np.inf
+            values, cols = top_k(scores, k)
+            out_s[a : a + step] = values
+            out_p[a : a + step] = np.take_along_axis(places, cols, axis=1)
+        return out_s, out_p
+
+
+class RuntimeCache:
+    """What inference derives from a fitted model once (not stored, not compared: one object per model).
+
+    ``weights``: the (d', K) float32 dequantised weights, built at the first query;
+    ``codewords``: the codebook at inference (:class:`Codewords`). Queries fill these in place, so
+    predicting leaves the estimator's ``__dict__`` unchanged (the scikit-learn contract).
+    """
+
+    def __init__(self, codebook: Codebook) -> None:
+        self.weights: np.ndarray | None = None
+        self.codewords = Codewords(codebook)
