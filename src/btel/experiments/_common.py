@@ -367,6 +367,7 @@ def fit_row(name: str, data: NordlandData, *, budget: Any, n_places: int | None,
         return EvaluationResult.from_row(row)
     result = evaluate(model, None, Q, name=label or name, fit=False, tolerances=DEFAULT_TOLERANCES, curve_max=80)
     check_within_budget(label or name, result.nbytes, budget_bytes)
+    # query_us holds its place in the row; its value is the measured record's (set below, exact).
     row.update(status="ok", nbytes=result.nbytes, fit_s=fit_s, query_us=None,
                **{f"recall@{t}": result.recall[t] for t in result.recall})
     if cached:

@@ -347,31 +347,32 @@ def exp_beyond(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:
 
 def plot(run: ExperimentRun, out_dir: Path) -> list[Path]:
     """The "beyond" experiment: Nordland read-outs per method, Gardens Point vs bytes, synthetic crossover."""
-    rows = [r.to_row() for r in run.rows]
+    def part(name: str) -> list[EvaluationResult]:
+        return [r for r in run.rows if r.labels.get("part") == name]
+
     written = []
-    for direction in sorted({r["direction"] for r in rows if r.get("part") == "nordland"}):
-        part = [r for r in rows if r.get("part") == "nordland" and r["direction"] == direction]
+    for direction in sorted({r.labels["direction"] for r in part("nordland")}):
         path = out_dir / f"nordland_{direction.replace('→', '_to_')}.png"
-        plot_method_bars([EvaluationResult.from_row(r) for r in part], path, group_key="decoder",
+        plot_method_bars([r for r in part("nordland") if r.labels["direction"] == direction], path, group_key="decoder",
                          title=f"Nordland {direction}, HOG, same budget: recall@10 (reported stretches)",
                          credit=NORDLAND_CREDIT)
         written.append(path)
-    gp = [r for r in rows if r.get("part") == "gardens-point" and r.get("status") == "ok" and r.get("budget")]
+    gp = [r for r in part("gardens-point") if r.ok and r.budget]
     if gp:
         path = out_dir / "gardens_point_recall_vs_bytes.png"
-        plot_recall_vs_storage([EvaluationResult.from_row(r) for r in gp], path, tolerance=5,
+        plot_recall_vs_storage(gp, path, tolerance=5,
                                title="Gardens Point day→night, NetVLAD 500-D: recall@5 vs stored bytes")
         written.append(path)
-    synth = [r for r in rows if r.get("part") == "synthetic" and r.get("status") == "ok"]
+    synth = [r for r in part("synthetic") if r.ok]
     if synth:
         fig, ax = new_figure()
-        for method in dict.fromkeys(r["method"] for r in synth):
-            pts = sorted((float(r["condition_shift"]), float(r["recall@10"])) for r in synth if r["method"] == method)
+        for method in dict.fromkeys(r.name for r in synth):
+            pts = sorted((float(r.labels["condition_shift"]), float(r.recall[10])) for r in synth if r.name == method)
             ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=method)
-        budget = synth[0].get("budget")
+        budget = synth[0].budget
         path = out_dir / "synthetic_crossover.png"
         finish_recall_plot(fig, ax, path, xlabel="appearance change between map and query traverse (condition_shift)",
-                            ylabel="recall@10",
-                            title=f"Synthetic route, N = {synth[0]['n_places']}, ≤ {format_bytes(budget) if budget else '?'}")
+                           ylabel="recall@10",
+                           title=f"Synthetic route, N = {synth[0].n_map}, ≤ {format_bytes(budget) if budget else '?'}")
         written.append(path)
     return written

@@ -233,16 +233,16 @@ def check_targets(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 def plot(run: ExperimentRun, out: Path) -> list[Path]:
     """The experiment's figures, from its rows (:func:`_plots`)."""
-    before = set(out.glob("*.png"))
-    _plots([r.to_row() for r in run.rows], out)
-    return sorted(set(out.glob("*.png")) - before)
+    return _plots([r.to_row() for r in run.rows], out)
 
 
-def _plots(rows: list[dict[str, Any]], out: Path) -> None:
+def _plots(rows: list[dict[str, Any]], out: Path) -> list[Path]:
     """Recall against bytes, one figure per data set and tolerance (plus the weight widths on Gardens Point)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     from matplotlib.ticker import FuncFormatter
+
+    written: list[Path] = []
 
     def figure(select, path: Path, key: str, title: str) -> None:
         fig = Figure(figsize=(7.5, 5), dpi=110)
@@ -269,6 +269,7 @@ def _plots(rows: list[dict[str, Any]], out: Path) -> None:
         ax.legend(fontsize="x-small", ncol=2)
         fig.tight_layout()
         fig.savefig(path)
+        written.append(path)
 
     main_like = {MAIN, "codes blocks", "codes random", "brute force", "brute force, raw rows (L2)",
                  *(label for label, _ in QUANTISERS), *(label for label, _, _ in TODAY)}
@@ -285,6 +286,7 @@ def _plots(rows: list[dict[str, Any]], out: Path) -> None:
             slug = direction.replace("→", "_to_").replace(" ", "_").replace(".", "")
             figure(lambda r, d=direction: r["part"] == part and r.get("direction") == d and r["method"] in main_like,
                    out / f"{part}_{slug}_recall10_vs_bytes.png", "recall@10", f"{label} {direction}: R@10 vs bytes")
+    return written
 
 
 def exp_codes(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:

@@ -20,6 +20,7 @@ single-frame results.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -28,7 +29,6 @@ import numpy as np
 from ..metrics import DEFAULT_TOLERANCES, recall_at_k, recall_at_tolerance
 from ..exceptions import BudgetTooSmallError
 from ..plots import NORDLAND_CREDIT, plot_method_bars
-from ..records import EvaluationResult
 from ..storage import check_within_budget, format_bytes, parse_budget
 from ._common import SEASONS, ExperimentRun, NordlandData, fit_model
 
@@ -135,18 +135,18 @@ def exp_front_ends(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:
 
 def plot(run: ExperimentRun, out_dir: Path) -> list[Path]:
     """The "front-ends" experiment: one bar group per method (and budget), one bar per front end."""
-    rows = [r.to_row() for r in run.rows]
     written = []
-    for part, direction in dict.fromkeys((r.get("part"), r.get("direction")) for r in rows if r.get("direction")):
-        single = [{**r, "method": f"{r['method']} ({format_bytes(r['budget']) if r.get('budget') else 'no budget'})"}
-                  for r in rows if r.get("part") == part and r.get("direction") == direction
-                  and r.get("decoder") == "single"]
-        if not any(r.get("status") == "ok" for r in single):
+    for part, direction in dict.fromkeys((r.labels.get("part"), r.labels.get("direction")) for r in run.rows
+                                         if r.labels.get("direction")):
+        single = [replace(r, name=f"{r.name} ({format_bytes(r.budget) if r.budget else 'no budget'})")
+                  for r in run.rows if r.labels.get("part") == part and r.labels.get("direction") == direction
+                  and r.labels.get("decoder") == "single"]
+        if not any(r.ok for r in single):
             continue
         t = 10 if part == "nordland" else 2
         path = out_dir / f"{part}_{direction.replace('→', '_to_')}.png"
         what = "Nordland HOG" if part == "nordland" else "Gardens Point NetVLAD"
-        plot_method_bars([EvaluationResult.from_row(r) for r in single], path, group_key="front", value_key=f"recall@{t}",
+        plot_method_bars(single, path, group_key="front", value_key=f"recall@{t}",
                          title=f"{what} {direction}: single-frame recall@{t} by front end",
                          credit=NORDLAND_CREDIT if part == "nordland" else None)
         written.append(path)

@@ -164,16 +164,16 @@ def auto_vs_oracle(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 def plot(run: ExperimentRun, out: Path) -> list[Path]:
     """The experiment's figures, from its rows (:func:`_plots`)."""
-    before = set(out.glob("*.png"))
-    _plots([r.to_row() for r in run.rows], out)
-    return sorted(set(out.glob("*.png")) - before)
+    return _plots([r.to_row() for r in run.rows], out)
 
 
-def _plots(rows: list[dict[str, Any]], out: Path) -> None:
+def _plots(rows: list[dict[str, Any]], out: Path) -> list[Path]:
     """Key recall vs stored bytes and vs bytes per place, one panel per map."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     from matplotlib.ticker import FuncFormatter
+
+    written: list[Path] = []
 
     datasets = list(dict.fromkeys(r["dataset"] for r in rows))
     for xkey, fname, xlabel in (("nbytes", "frontier_recall_vs_bytes.png", "stored bytes"),
@@ -200,6 +200,8 @@ def _plots(rows: list[dict[str, Any]], out: Path) -> None:
                 ax.legend(fontsize="xx-small", ncol=2)
         fig.tight_layout()
         fig.savefig(out / fname)
+        written.append(out / fname)
+    return written
 
 
 def exp_frontier(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:
