@@ -21,7 +21,7 @@ from .._method_roles import DEFAULT_METHOD, DEMO_METHODS, REFERENCE_METHOD
 from .._validation import Instance, check_params, read_state_int
 from ..base import PlaceLocalizer
 from .auto import AutoLocalizer
-from .baselines import BASELINES, PQLocalizer
+from .baselines import BASELINES, PQLocalizer, RaBitQLocalizer
 from .codes.estimator import CodeLocalizer
 from ..exceptions import BTELError, InvalidParameterError, ModelFileError, ResourceLimitError
 from ..frontend import FrontEnd
@@ -58,6 +58,7 @@ REGISTRY: dict[str, tuple[Callable[..., PlaceLocalizer], str]] = {
                    "4-bit weights, K and d' chosen to fill the budget"),
     "ryth": (RYTHLocalizer, "RYTH: residues of the place index modulo co-prime periods (Yu et al. 2018)"),
     **{name: (factory, _BASELINE_DESCRIPTIONS[name]) for name, factory in BASELINES.items()},
+    "rabitq": (RaBitQLocalizer, "RaBitQ: seeded rotation (0 B), D dims × B bits + row factors, filling the budget"),
     "auto": (AutoLocalizer, "the method, code family and front end chosen from the map and the budget alone "
                             "(btel.methods.auto): output codes on routes, whitened brute force or LSH on independent places"),
 }

@@ -11,6 +11,7 @@ pq         :class:`PQLocalizer`         codes + codebooks (+ d×p PCA); most cod
 opq        :class:`OPQLocalizer`        codes + codebooks + d×p rotation
 itq        :class:`ITQLocalizer`        binary codes + d×b projection + mean; Hamming distance
 lsh        :class:`LSHLocalizer`        N×P sign bits (+ d float16 mean); projection from its seed, 0 B
+rabitq     :class:`RaBitQLocalizer`     N×(D·B bits + factors) + D centroid; rotation from its seed, 0 B
 seqslam    :class:`SeqSLAM`             N×d uint8; sequences of ds = 10 frames
 ========== ============================ ==========================================================
 """
@@ -24,6 +25,7 @@ from .itq import ITQLocalizer
 from .lsh import LSHLocalizer
 from .opq import OPQLocalizer
 from .pq import PQConfig, PQLocalizer
+from .rabitq import RaBitQLocalizer
 from .seqslam import SeqSLAM, enhance_contrast, seqslam_match, sequence_costs
 
 __all__ = [
@@ -34,6 +36,7 @@ __all__ = [
     "OPQLocalizer",
     "ITQLocalizer",
     "LSHLocalizer",
+    "RaBitQLocalizer",
     "SeqSLAM",
     "seqslam_match",
     "enhance_contrast",

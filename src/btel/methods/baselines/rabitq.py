@@ -1,0 +1,282 @@
+"""RaBitQ (Gao & Long, SIGMOD 2024; extended to B bits per dimension, Gao et al. 2025) under a byte budget.
+
+Fit: rotate the (front-end transformed) map by a random d×D matrix with orthonormal columns drawn
+from the recorded seed, subtract the mean of the rotated map (the centroid c) and quantise each
+residual r = x − c: one sign bit per dimension, plus B − 1 magnitude bits when B > 1, plus the
+per-row correction factors that make RaBitQ's distance estimate unbiased (‖r‖², ‖r‖ / ⟨x̄, r/‖r‖⟩,
+and for B > 1 an error bound and two factors of the extra bits). The query is rotated the same way
+and kept in float (faiss ``IndexRaBitQ`` with ``qb = 0``): an exact linear scan of the estimated
+L2 distances, score = −estimate.
+
+Storage (the one rule, SPEC §7): the rotation is regenerated from the seed (0 bytes, as LSH's
+projection and btel-codes' codewords); everything learned is counted at its stored width:
+
+- ``signs``: n_rows × ⌈D/8⌉ bytes; ``ex_codes`` (B > 1): n_rows × ⌈D(B−1)/8⌉ bytes;
+- ``factors``: n_rows × 2 values (B = 1) or × 5 (B > 1);
+- ``centroid``: D values.
+
+Factors and centroid are float16 when the front end L2-normalises its output (``normalize`` is
+not ``'none'``: every value is then bounded by a few times √D), else float32. The model is always
+searched from these stored arrays (at fit as after :func:`btel.load`), so rounding is part of
+the measured method, and a model file never reaches faiss' own deserialiser: the codes are
+re-assembled from checked arrays (no value in them is an index, so any bytes are safe).
+
+Budget rule (fixed before any measurement): first dimensions, then bits — D is the largest
+multiple of 8 up to d (or d itself) that fits with B = 1; once D = d fits, B is the largest in
+1 … 9 that fits. A rotation to D < d keeps only a D-dimensional random view of the map, while
+more bits per dimension only refine what is kept, so dimensions are bought first. ``dim`` or
+``nbits`` pins that part; the rule chooses the rest. Without a budget: D = d, B = 1 (the original
+RaBitQ). Nothing fits (D = 8, B = 1): :class:`~btel.exceptions.BudgetTooSmallError`.
+
+Measured (``benchmarks/bench_rabitq.py``) against asymmetric LSH at the same budget. Gardens Point
+recall@2: 0.295 / 0.475 / 0.48 / 0.48 / 0.47 / 0.48 at 4 / 8 / 16 / 32 / 64 / 128 KB against
+0.425 / 0.44 / 0.45 / 0.43 / 0.48 / 0.46. 1000 synthetic independent places, R@1: – / 0.085 / 0.535 /
+0.933 / 0.980 / 1.0 against 0.171 / 0.243 / 0.605 / 0.908 / 0.996 / 1.0. Nordland HOG (3576 places,
+3780-D): nothing fits below 18 KB, R@1 0.004 / 0.027 / 0.083 at 32 / 64 / 128 KB against 0.006 /
+0.043 / 0.110. Where it loses, the 4 factor bytes per row and a rotation to D ≤ d dimensions cost
+more than LSH's extra bits.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import faiss
+import numpy as np
+
+from ..._validation import N_JOBS, RANDOM_STATE, Budget, Interval, read_state_int
+from ...base import ArraySpec
+from ...exceptions import BTELError, InvalidParameterError, ModelFileError
+from ...frontend import FRONT_END_CONSTRAINTS
+from ._common import _RowLocalizer, check_model_values, raise_budget_too_small
+
+__all__ = ["RaBitQLocalizer", "rotation_matrix"]
+
+#: Most bits per dimension faiss' RaBitQ quantiser takes.
+MAX_NBITS = 9
+
+
+def rotation_matrix(n_features: int, dim: int, seed: int) -> np.ndarray:
+    """The d×D matrix with orthonormal columns of a seed (QR of numpy PCG64 Gaussians), float32.
+
+    Regenerated from the seed, not stored. Columns are sign-fixed (R's diagonal made positive)
+    so that the matrix is the unique Q of its Gaussian draw.
+    """
+    rng = np.random.default_rng(int(seed))
+    q, r = np.linalg.qr(rng.standard_normal((int(n_features), int(dim))))
+    signs = np.where(np.diag(r) < 0, -1.0, 1.0)
+    return np.ascontiguousarray(q * signs, dtype=np.float32)
+
+
+def _dims(n_features: int) -> list[int]:
+    """Every D the budget rule considers, increasing: multiples of 8 below d, then d."""
+    return [D for D in range(8, n_features, 8)] + [n_features]
+
+
+class RaBitQLocalizer(_RowLocalizer):
+    """RaBitQ codes of the map (seeded rotation, D dimensions × B bits) filling the budget; faiss search.
+
+    Parameters
+    ----------
+    budget : int or str, optional
+        Bytes (or ``"64KB"``); D and B by the rule in the module docstring.
+    dim : int, optional
+        Pin D, the rotated dimensions (at most d after the front end).
+    nbits : int, optional
+        Pin B, bits per dimension (1 … 9).
+    random_state : int or None
+        Seed of the rotation; None draws one. The seed used is recorded (``seed_``) and saved.
+    normalize, whiten, delta
+        The front end (:mod:`btel.frontend`).
+    n_jobs : int, optional
+        faiss threads for searching.
+
+    Attributes
+    ----------
+    dim_, nbits_, seed_ : int
+    signs_ : ndarray of shape (n_rows, ceil(dim_ / 8)), uint8
+    ex_codes_ : ndarray of shape (n_rows, ceil(dim_ * (nbits_ - 1) / 8)), uint8, or None (B = 1)
+    factors_ : ndarray of shape (n_rows, 2 or 5), float16 or float32
+    centroid_ : ndarray of shape (dim_,), float16 or float32
+    rotation_ : ndarray of shape (n_features, dim_), float32
+        Regenerated from ``seed_`` (not stored).
+    n_places_, n_features_in_ : int
+    row_places_ : ndarray of shape (n_rows,) or None
+    fit_time_ : float
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> X = np.random.default_rng(0).normal(size=(100, 32)).astype(np.float32)
+    >>> RaBitQLocalizer(budget=3000).fit(X).predict(X[:3]).tolist()
+    [0, 1, 2]
+    """
+
+    _parameter_constraints = {
+        "budget": [Budget()],
+        "dim": [None, Interval(int, 1, None)],
+        "nbits": [None, Interval(int, 1, MAX_NBITS)],
+        "random_state": RANDOM_STATE,
+        "n_jobs": N_JOBS,
+        **FRONT_END_CONSTRAINTS,
+    }
+
+    def __init__(self, *, budget: int | str | None = None, dim: int | None = None, nbits: int | None = None,
+                 random_state: int | None = 0, normalize: str = "l2", whiten: int | str | None = None,
+                 delta: int | None = None, n_jobs: int | None = None) -> None:
+        self.budget = budget
+        self.dim = dim
+        self.nbits = nbits
+        self.random_state = random_state
+        self.normalize = normalize
+        self.whiten = whiten
+        self.delta = delta
+        self.n_jobs = n_jobs
+
+    # -- configuration -------------------------------------------------------------------------
+    def _value_dtype(self) -> np.dtype:
+        """float16 when the front end's rows are unit length (bounded factors), else float32."""
+        return np.dtype(np.float32 if self.normalize == "none" else np.float16)
+
+    @staticmethod
+    def _n_factors(nbits: int) -> int:
+        return 2 if nbits == 1 else 5
+
+    def planned_bytes(self, dim: int, nbits: int, n_rows: int) -> int:
+        """Codes, factors and centroid of D dimensions × B bits for ``n_rows`` rows (no row table)."""
+        width = self._value_dtype().itemsize
+        per_row = -(-dim // 8) + -(-dim * (nbits - 1) // 8) + self._n_factors(nbits) * width
+        return n_rows * per_row + dim * width
+
+    def choose_config(self, n_rows: int, n_features: int, budget: int | None, reserved: int = 0) -> tuple[int, int]:
+        """(D, B), the rotated dimensions and bits per dimension ``fit`` uses (module docstring)."""
+        if self.dim is not None and self.dim > n_features:
+            raise InvalidParameterError(f"dim = {self.dim} exceeds the descriptor dimension {n_features} (after the "
+                                        f"front end); use dim ≤ {n_features}.")
+        dims = [int(self.dim)] if self.dim is not None else _dims(n_features)
+        bits = [int(self.nbits)] if self.nbits is not None else list(range(1, MAX_NBITS + 1))
+        if budget is None:
+            return dims[-1], bits[0]
+
+        def fits(D: int, B: int) -> bool:
+            return reserved + self.planned_bytes(D, B, n_rows) <= budget
+
+        fitting = [D for D in dims if fits(D, bits[0])]
+        if not fitting:
+            minimum = reserved + self.planned_bytes(dims[0], bits[0], n_rows)
+            raise_budget_too_small("RaBitQ", budget, minimum,
+                                   f"D = {dims[0]} dimensions × {bits[0]} bit(s) for {n_rows} rows + "
+                                   f"{self._n_factors(bits[0])} {self._value_dtype().name} factors each")
+        D = max(fitting)
+        return D, max(B for B in bits if fits(D, B))
+
+    def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
+        self.choose_config(n_rows, n_features_out, budget, reserved)
+
+    def budget_saturated(self) -> bool:
+        """True when D and B are the largest the parameters allow (a larger budget gives the same model)."""
+        d = self.rotation_.shape[0]
+        return self.dim_ == (self.dim or d) and self.nbits_ == (self.nbits or MAX_NBITS)
+
+    # -- fitting -------------------------------------------------------------------------------
+    def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
+        n_rows, d = X.shape
+        D, B = self.choose_config(n_rows, d, budget, reserved)
+        seed = int(self.random_state) if self.random_state is not None else \
+            int(np.random.default_rng().integers(0, 2**31 - 1))
+        self.dim_, self.nbits_, self.seed_ = D, B, seed
+        self.rotation_ = rotation_matrix(d, D, seed)
+        Y = np.ascontiguousarray(X @ self.rotation_, dtype=np.float32)
+        dtype = self._value_dtype()
+        self.centroid_ = Y.mean(axis=0, dtype=np.float64).astype(dtype)
+        index = self._empty_index()
+        index.add(Y)
+        codes = faiss.vector_to_array(index.codes).reshape(n_rows, index.code_size)
+        s, e = -(-D // 8), -(-D * (B - 1) // 8)
+        factors = codes[:, s : s + 12].copy().view(np.float32) if B > 1 else codes[:, s:].copy().view(np.float32)
+        if B > 1:
+            factors = np.hstack([factors, codes[:, s + 12 + e :].copy().view(np.float32)])
+        with np.errstate(over="ignore"):
+            stored = factors.astype(dtype)
+        if not np.isfinite(stored).all():
+            raise BTELError("RaBitQ correction factors overflow their stored width; fit with normalize='none' "
+                            "(float32 factors) or scale the descriptors down.")
+        self.signs_ = np.ascontiguousarray(codes[:, :s])
+        self.ex_codes_ = np.ascontiguousarray(codes[:, s + 12 : s + 12 + e]) if B > 1 else None
+        self.factors_ = stored
+        self._index = self._build_index()
+
+    def _empty_index(self) -> Any:
+        """A trained, empty faiss index of the model's D, B and (stored) centroid; layout checked."""
+        D, B = int(self.dim_), int(self.nbits_)
+        index = faiss.IndexRaBitQ(D, faiss.METRIC_L2, B)
+        expected = -(-D // 8) + -(-D * (B - 1) // 8) + 4 * self._n_factors(B)
+        if index.code_size != expected:
+            raise BTELError(f"this faiss ({faiss.__version__}) lays out RaBitQ codes in {index.code_size} bytes, "
+                            f"not {expected}; btel's RaBitQ needs faiss-cpu ≥ 1.13.2 (verified on 1.15.1).")
+        index.qb = 0  # the query stays in float
+        faiss.copy_array_to_vector(self.centroid_.astype(np.float32), index.center)
+        index.is_trained = True
+        return index
+
+    def _build_index(self) -> Any:
+        """The faiss index re-assembled from the stored arrays (codes = signs | factors | ex-codes | ex-factors)."""
+        index = self._empty_index()
+        f = np.ascontiguousarray(self.factors_, dtype=np.float32)
+        if self.nbits_ == 1:
+            parts = [self.signs_, f.view(np.uint8)]
+        else:
+            parts = [self.signs_, np.ascontiguousarray(f[:, :3]).view(np.uint8), self.ex_codes_,
+                     np.ascontiguousarray(f[:, 3:]).view(np.uint8)]
+        index.add_sa_codes(np.ascontiguousarray(np.hstack(parts)))
+        return index
+
+    # -- inference -----------------------------------------------------------------------------
+    def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        dist, rows = self._index.search(np.ascontiguousarray(np.asarray(Q, dtype=np.float32) @ self.rotation_), k)
+        return -dist.astype(np.float64), rows.astype(np.int64)
+
+    def summary(self) -> str:
+        """One line: D, B, seed, factor width and the front end."""
+        return (f"rabitq: {self.dim_} rotated dimensions × {self.nbits_} bit(s), rotation from seed {self.seed_} "
+                f"(0 B), {self.factors_.dtype.name} factors; front end {self.front_end_.describe()}")
+
+    # -- storage and files ---------------------------------------------------------------------
+    def _model_arrays(self) -> dict[str, np.ndarray]:
+        arrays = {"signs": self.signs_, "factors": self.factors_, "centroid": self.centroid_}
+        if self.ex_codes_ is not None:
+            arrays["ex_codes"] = self.ex_codes_
+        return arrays
+
+    def _model_state(self) -> dict[str, Any]:
+        return {"dim": int(self.dim_), "nbits": int(self.nbits_), "seed": int(self.seed_)}
+
+    def _model_specs(self, state: dict[str, Any], d: int) -> dict[str, ArraySpec]:
+        D = read_state_int(state, "dim", 1, d)
+        B = read_state_int(state, "nbits", 1, MAX_NBITS)
+        read_state_int(state, "seed", 0, 2**63 - 1)
+        dtype = self._value_dtype()
+        return {"signs": ArraySpec((None, -(-D // 8)), np.uint8),
+                "factors": ArraySpec((None, self._n_factors(B)), dtype),
+                "centroid": ArraySpec((D,), dtype),
+                "ex_codes": ArraySpec((None, -(-D * (B - 1) // 8)), np.uint8, required=B > 1)}
+
+    def _n_rows(self) -> int:
+        return int(self.signs_.shape[0])
+
+    def _restore_model(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
+        check_model_values(arrays, ("factors", "centroid"), "RaBitQ")
+        B = int(state["nbits"])
+        n_rows = arrays["signs"].shape[0]
+        if arrays["factors"].shape[0] != n_rows or (B > 1 and arrays["ex_codes"].shape[0] != n_rows) \
+                or (B == 1 and "ex_codes" in arrays):
+            raise ModelFileError("the RaBitQ model file's signs, factors and ex_codes do not have one row per map "
+                                 "row each (or it holds ex_codes for 1-bit codes).")
+        self.dim_, self.nbits_, self.seed_ = int(state["dim"]), B, int(state["seed"])
+        self.signs_ = np.ascontiguousarray(arrays["signs"])
+        self.ex_codes_ = np.ascontiguousarray(arrays["ex_codes"]) if B > 1 else None
+        self.factors_ = np.ascontiguousarray(arrays["factors"])
+        self.centroid_ = np.ascontiguousarray(arrays["centroid"])
+        self.rotation_ = rotation_matrix(self.front_end_.n_features_out(int(state["n_features_in"])),
+                                         self.dim_, self.seed_)
+        self._index = self._build_index()

@@ -1,0 +1,121 @@
+"""RaBitQ: seeded rotation (0 B), codes and per-row factors filling the budget, searched from the stored arrays."""
+
+from __future__ import annotations
+
+import faiss
+import numpy as np
+import pytest
+
+import btel
+from btel.exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError
+from btel.methods import make_method
+from btel.methods.baselines.rabitq import MAX_NBITS, RaBitQLocalizer, rotation_matrix
+from btel.storage import load_arrays, save_arrays
+
+
+@pytest.fixture(scope="module")
+def pair():
+    from btel.datasets import synthetic_route
+
+    r = synthetic_route(400, 64, condition_shift=0.5, seed=5)
+    return r.map, r.queries
+
+
+def per_row(D: int, B: int, width: int = 2) -> int:
+    """Bytes per row: sign bits, extra bits, 2 (B = 1) or 5 factors."""
+    return -(-D // 8) + -(-D * (B - 1) // 8) + (2 if B == 1 else 5) * width
+
+
+@pytest.mark.parametrize("budget", [3_000, 8_000, 40_000, 400_000])
+def test_dimensions_then_bits_fill_the_budget_and_the_rotation_costs_nothing(pair, budget) -> None:
+    X, _ = pair
+    model = make_method("rabitq", budget=budget).fit(X)
+    D, B = model.dim_, model.nbits_
+    assert model.nbytes == 400 * per_row(D, B) + 2 * D <= budget
+    assert set(model.storage_breakdown()) == ({"signs", "factors", "centroid"} | ({"ex_codes"} if B > 1 else set()))
+    if D < 64:  # dimensions first: B = 1 and the next multiple of 8 would not fit
+        assert B == 1 and 400 * per_row(D + 8, 1) + 2 * (D + 8) > budget
+    elif B < MAX_NBITS:  # then bits: one more would not fit
+        assert 400 * per_row(64, B + 1) + 2 * 64 > budget
+    else:
+        assert model.budget_saturated()
+
+
+def test_pinned_parameters_and_the_unbudgeted_default(pair) -> None:
+    X, _ = pair
+    assert (RaBitQLocalizer().fit(X).dim_, RaBitQLocalizer().fit(X).nbits_) == (64, 1)
+    model = RaBitQLocalizer(budget=40_000, nbits=2).fit(X)
+    assert model.nbits_ == 2 and model.dim_ == 64
+    model = RaBitQLocalizer(budget=40_000, dim=32).fit(X)
+    assert model.dim_ == 32 and model.nbytes <= 40_000 and model.nbits_ > 1
+
+
+def test_search_equals_faiss_own_index_with_float32_factors(pair) -> None:
+    """The re-assembled codes are faiss' own: the split into arrays and back loses nothing (float32)."""
+    X, Q = pair
+    for B in (1, 3):
+        model = RaBitQLocalizer(nbits=B, normalize="none").fit(X)
+        assert model.factors_.dtype == np.float32
+        Y = X @ model.rotation_
+        index = faiss.IndexRaBitQ(64, faiss.METRIC_L2, B)
+        index.qb = 0
+        index.train(Y)
+        index.add(Y)
+        dist, rows = index.search(Q @ model.rotation_, 5)
+        scores, places = model.search(Q, 5)
+        np.testing.assert_array_equal(places, rows)
+        np.testing.assert_allclose(-scores, dist, rtol=1e-4, atol=1e-4)
+
+
+def test_rotation_is_orthonormal_and_regenerated_from_the_recorded_seed(pair, tmp_path) -> None:
+    X, Q = pair
+    R = rotation_matrix(64, 24, 3)
+    np.testing.assert_allclose(R.T @ R, np.eye(24), atol=1e-5)
+    model = RaBitQLocalizer(budget=20_000, random_state=None).fit(X)
+    again = btel.load(model.save(tmp_path / "m.npz"))
+    assert (again.seed_, again.dim_, again.nbits_) == (model.seed_, model.dim_, model.nbits_)
+    np.testing.assert_array_equal(again.rotation_, rotation_matrix(64, model.dim_, model.seed_))
+    s1, p1 = model.search(Q, 5)
+    s2, p2 = again.search(Q, 5)
+    np.testing.assert_array_equal(p1, p2)
+    np.testing.assert_array_equal(s1, s2)
+
+
+def test_edited_files_are_model_file_errors(pair, tmp_path) -> None:
+    X, _ = pair
+    path = RaBitQLocalizer(budget=40_000).fit(X).save(tmp_path / "m.npz")
+    arrays, header = load_arrays(path)
+    bad = dict(arrays, factors=np.full_like(arrays["factors"], np.inf))
+    with pytest.raises(ModelFileError, match="factors"):
+        btel.load(save_arrays(tmp_path / "inf.npz", bad, header))
+    bad = dict(arrays, factors=arrays["factors"][:-1])
+    with pytest.raises(ModelFileError, match="one row per map row"):
+        btel.load(save_arrays(tmp_path / "rows.npz", bad, header))
+    bad = {k: v for k, v in arrays.items() if k != "ex_codes"}
+    with pytest.raises(ModelFileError, match="ex_codes"):
+        btel.load(save_arrays(tmp_path / "missing.npz", bad, header))
+
+
+def test_errors_name_the_fix(pair) -> None:
+    X, _ = pair
+    with pytest.raises(BudgetTooSmallError, match="RaBitQ") as info:
+        make_method("rabitq", budget=1_000).fit(X)
+    assert info.value.minimum == 400 * per_row(8, 1) + 2 * 8
+    make_method("rabitq").check_budget(400, 64, info.value.minimum)  # the minimum fits
+    with pytest.raises(InvalidParameterError, match="dim = 65"):
+        RaBitQLocalizer(dim=65).fit(X)
+    with pytest.raises(InvalidParameterError, match="nbits"):
+        make_method("rabitq", nbits=10)
+
+
+@pytest.mark.realdata
+def test_gardens_point_rabitq_is_near_brute_force_from_16kb(gardenspoint_netvlad) -> None:
+    X, Q = gardenspoint_netvlad
+    truth = np.arange(Q.shape[0])
+
+    def r2(model):
+        return float((np.abs(model.fit(X).predict(Q) - truth) <= 2).mean())
+
+    rabitq, brute = r2(make_method("rabitq", budget="16KB")), r2(make_method("bruteforce"))
+    # Measured (benchmarks/bench_rabitq.py): 0.480 against brute force 0.480; the rule chose D = d = 500, B = 1.
+    assert rabitq >= 0.9 * brute
