@@ -66,8 +66,6 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
     refuse_existing(output, "-o", overwrite)
     model = load(model_path)
     Q = _load_matrix(queries, "query descriptors")
-    if top_k is not None and not getattr(model, "supports_ranking", True):
-        raise click.UsageError(f"{type(model).__name__} does not rank candidates; drop --top-k.")
     predictions = model.predict_sequence(Q, "hmm") if hmm else model.predict(Q)
     if window is not None:
         predictions = filter_sequence(predictions, window, n_places=model.n_places_)

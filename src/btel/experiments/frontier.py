@@ -66,6 +66,8 @@ FAST = (
     ("btel-codes", "btel-codes", {"code": "periodic"}),
     ("btel-codes random", "btel-codes", {"code": "random"}),
     ("pq", "pq", {}),
+    ("rabitq", "rabitq", {}),
+    ("rabitq shrink", "rabitq", {"whiten": "shrink"}),
     ("itq", "itq", {}),
     ("bruteforce", "bruteforce", {}),
     ("bruteforce shrink", "bruteforce", {"whiten": "shrink"}),

@@ -47,7 +47,6 @@ import numpy as np
 from ..._validation import N_JOBS, RANDOM_STATE, Budget, Interval, read_state_int
 from ...base import ArraySpec
 from ...exceptions import BTELError, InvalidParameterError, ModelFileError
-from ...frontend import FRONT_END_CONSTRAINTS
 from ._common import _RowLocalizer, check_model_values, raise_budget_too_small
 
 __all__ = ["RaBitQLocalizer", "rotation_matrix"]
@@ -118,19 +117,14 @@ class RaBitQLocalizer(_RowLocalizer):
         "nbits": [None, Interval(int, 1, MAX_NBITS)],
         "random_state": RANDOM_STATE,
         "n_jobs": N_JOBS,
-        **FRONT_END_CONSTRAINTS,
     }
 
     def __init__(self, *, budget: int | str | None = None, dim: int | None = None, nbits: int | None = None,
-                 random_state: int | None = 0, normalize: str = "l2", whiten: int | str | None = None,
-                 delta: int | None = None, n_jobs: int | None = None) -> None:
+                 random_state: int | None = 0, n_jobs: int | None = None) -> None:
         self.budget = budget
         self.dim = dim
         self.nbits = nbits
         self.random_state = random_state
-        self.normalize = normalize
-        self.whiten = whiten
-        self.delta = delta
         self.n_jobs = n_jobs
 
     # -- configuration -------------------------------------------------------------------------
