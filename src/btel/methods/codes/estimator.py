@@ -16,8 +16,8 @@ index to K ≥ b code columns (error-correcting output codes, Dietterich & Bakir
    maps one dense product with the float32 codewords (cached when N·8⌈K/8⌉·4 ≤ 32 MB); on
    larger ones a bounded search over blocks of consecutive places (:mod:`btel.methods.codes.decoding`:
    per-block upper bounds from the columns constant on the block, blocks scored in order of
-   their bound from packed codewords — N·⌈K/8⌉ bytes of memory, filled on demand, never stored —
-   until no unscored block can beat the k-th best); batches take the dense product when a probe
+   their bound — from the float32 codewords while cached, else from packed ones, N·⌈K/8⌉ bytes
+   filled on demand, never stored — until no unscored block can beat the k-th best); batches take the dense product when a probe
    of their first queries says it is cheaper; the 'random' family (no blocks to bound) uses
    faiss' packed PQ scan past the dense cache. ``place_scores`` is the same sum as a matrix
    product in blocks of places. ``rank``, the HMM decoder and streaming come from the base class
