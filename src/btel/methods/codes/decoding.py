@@ -79,7 +79,9 @@ def choose_path(n_places: int, width: int, n_queries: int, route: bool, dense_ca
       first :data:`PROBE_QUERIES` by the bounded search, then call again with ``visited``, the
       fraction of places they scored: 'dense' when N·W·:data:`DENSE_NS` is below
       visited·N·W·:data:`BOUNDED_NS` + :data:`BOUNDED_OVERHEAD_NS` (per query: the dense product
-      reads every codeword at BLAS speed, the bounded search a few blocks by table look-ups),
+      reads every codeword at BLAS speed, the bounded search a few blocks and their bounds;
+      :data:`BOUNDED_NS` was measured with the blocks scored by table look-ups, which the
+      float32 products now replace while the codewords are cached, so it overstates that cost),
       else 'bounded';
     - otherwise 'bounded' (single queries on larger maps: faster than faiss' packed scan and the
       dense product).
