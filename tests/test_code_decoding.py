@@ -65,7 +65,7 @@ def test_every_exact_path_gives_the_true_top_k(route, family, seed, k, noise) ->
 
 def test_search_single_queries_and_batches_agree_and_report_the_path(route) -> None:
     X, Q = route
-    model = CodeLocalizer(n_codes=200, decode="exact").fit(X)  # N·W = 1500 × 200: past the small-map rule
+    model = CodeLocalizer(n_codes=400, decode="exact").fit(X)  # N·W = 1500 × 400: past the small-map rule
     assert model.exact_path(1) == "bounded" and model.exact_path(64) == "probe"
     batch = model.search(Q[:40], 5)
     M = model._padded(model._margins(model._check_queries(Q[:40])))
@@ -105,9 +105,44 @@ def test_a_packed_cache_past_its_limit_generates_codewords(route, monkeypatch) -
     assert fresh._codewords.packed is None
 
 
-def test_the_first_query_fills_only_the_blocks_it_scores(route) -> None:
+def test_the_bounded_search_scores_the_same_from_float32_and_from_packed_codewords(route) -> None:
     X, Q = route
-    model = CodeLocalizer(n_codes=200, decode="exact").fit(X)  # past the small-map rule: bounded
+    model = CodeLocalizer(n_codes=60, decode="exact").fit(X)
+    M = model._padded(model._margins(model._check_queries(Q[:30])))
+    codewords = model._codewords
+    from_dense = codewords.decoder()
+    from_packed = BlockDecoder(model.codebook_, codewords.width, codewords.packed_of)
+    assert from_dense.dense is not None and from_packed.dense is None
+    reference = _reference(model, M)
+    for k in (1, 4):
+        dense_s, dense_p, dense_v = from_dense.search(M, k)
+        packed_s, packed_p, packed_v = from_packed.search(M, k)
+        _check_exact(dense_s, dense_p, reference)
+        _check_exact(packed_s, packed_p, reference)
+        np.testing.assert_allclose(dense_s, packed_s, rtol=0, atol=1e-4 * np.abs(reference).max())
+        assert np.mean(dense_p == packed_p) >= 0.9  # the same places but for ties within float32 rounding
+        np.testing.assert_array_equal(dense_v, packed_v)  # the same bounds: the same blocks visited
+
+
+@pytest.mark.parametrize("path", ["bounded", "dense"])
+def test_margins_that_overflow_in_the_sums_are_an_error_on_every_path(route, path) -> None:
+    from btel.exceptions import InvalidAnswerError
+
+    X, Q = route
+    model = CodeLocalizer(n_codes=400, decode="exact").fit(X)
+    M = np.full((1, model._codewords.width), 1e37, dtype=np.float32)  # finite, but 400 of them overflow
+    M[0, ::3] = -1e37
+    with pytest.raises(InvalidAnswerError, match="non-finite"):
+        model._exact_search(M, 1, path)
+
+
+def test_the_first_query_fills_only_the_blocks_it_scores(route, monkeypatch) -> None:
+    import btel.methods.codes.codewords as codewords
+
+    X, Q = route
+    monkeypatch.setattr(codewords, "DENSE_CACHE_BYTES", 10)  # no float32 codewords: packed ones, filled on demand
+    model = CodeLocalizer(n_codes=400, decode="exact").fit(X)  # past the small-map rule: bounded
+    assert model.exact_path(1) == "bounded"
     model.predict(Q[:1])
     filled = model._codewords.filled
     assert filled is not None and 0 < filled.sum() < filled.size

@@ -9,7 +9,8 @@ from threadpoolctl import threadpool_info
 
 from btel.methods.baselines import BruteForceNN as BruteForce
 from btel.exceptions import InvalidParameterError
-from btel.threads import SINGLE_QUERY_MAX, blas_threads, faiss_threads, limit_threads, search_threads
+from btel.threads import (GEMV_ONE_THREAD_BELOW, SINGLE_QUERY_MAX, blas_threads, blas_threads_for_vector, faiss_threads,
+                          limit_threads, search_threads)
 
 
 def _blas_counts() -> list[int]:
@@ -23,6 +24,18 @@ def test_blas_limit_is_applied_and_restored() -> None:
     assert _blas_counts() == before
     with blas_threads(None):
         assert _blas_counts() == before
+
+
+def test_nested_limits_and_one_query_products_below_the_gemv_threshold() -> None:
+    before = _blas_counts()
+    with blas_threads_for_vector(GEMV_ONE_THREAD_BELOW - 1):  # BLAS uses one thread anyway: nothing set
+        assert _blas_counts() == before
+    with blas_threads_for_vector(GEMV_ONE_THREAD_BELOW):
+        assert all(n == 1 for n in _blas_counts())
+        with blas_threads(1), blas_threads(2):  # inside a tighter limit: nothing changes
+            assert all(n == 1 for n in _blas_counts())
+        assert all(n == 1 for n in _blas_counts())
+    assert _blas_counts() == before
 
 
 def test_faiss_and_both_limits_are_restored() -> None:

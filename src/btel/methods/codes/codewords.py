@@ -28,11 +28,11 @@ from typing import Any
 import numpy as np
 
 from ...base import top_k
-from ...threads import blas_threads
+from ...threads import blas_threads, blas_threads_for_vector
 from .codebook import Codebook
 from .decoding import BYTE_SIGNS, DENSE_CACHE_BYTES, BlockDecoder
 
-__all__ = ["Codewords", "RuntimeCache", "blas_for", "BLOCK_VALUES", "PACKED_CACHE_BYTES"]
+__all__ = ["Codewords", "RuntimeCache", "blas_for", "blas_for_decode", "BLOCK_VALUES", "PACKED_CACHE_BYTES"]
 
 #: The codebook is cached at inference as packed bits (N × ⌈K/8⌉ bytes) up to this size (256 MB).
 PACKED_CACHE_BYTES = 1 << 28
@@ -54,6 +54,13 @@ def blas_for(n_queries: int, work_per_query: int) -> Any:
     if n_queries > 64 and n_queries * work_per_query >= _SMALL_PRODUCT:
         return blas_threads(None)
     return blas_threads(1)
+
+
+def blas_for_decode(n_queries: int, largest_product: int) -> Any:
+    """One BLAS thread for a decode's small products; for one query, none set while its largest
+    matrix-vector product (``largest_product`` multiply-adds) is one BLAS runs on one thread anyway
+    (:func:`~btel.threads.blas_threads_for_vector`: setting and restoring a limit costs ≈ 4–5 µs)."""
+    return blas_threads_for_vector(largest_product) if n_queries == 1 else blas_threads(1)
 
 
 class Codewords:
@@ -178,7 +185,7 @@ class Codewords:
     def decoder(self) -> BlockDecoder:
         """The bounded exact search over blocks of places (:mod:`btel.methods.codes.decoding`), built once."""
         if self._decoder is None:
-            self._decoder = BlockDecoder(self.codebook, self.width, self.packed_of)
+            self._decoder = BlockDecoder(self.codebook, self.width, self.packed_of, dense=self.dense())
         return self._decoder
 
     def block_means(self, block: int) -> np.ndarray:

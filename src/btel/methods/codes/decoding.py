@@ -39,8 +39,10 @@ DENSE_CACHE_BYTES = 32 << 20
 #: From this many queries in one call a dense product over every place may beat the per-query bounded search
 #: (on maps of at most :data:`DENSE_BATCH_MAX_VALUES` codeword values; :func:`choose_path`).
 BATCH_DENSE_FROM = 16
-#: Up to this many codeword values (N × 8⌈K/8⌉, 1 MB of float32) every query is decoded densely.
-DENSE_SMALL_VALUES = 1 << 18
+#: Up to this many codeword values (N × 8⌈K/8⌉, 2 MB of float32) every query is decoded densely: one
+#: query's dense product and bounded search cost the same at about 0.7–1 M values (one BLAS thread,
+#: ``benchmarks/bench_codes.py``: at 472 000 values 30 against 40 µs, at 944 000 49 against 46 µs).
+DENSE_SMALL_VALUES = 1 << 19
 #: Queries of a batch decoded by the bounded search to measure how many places it scores.
 PROBE_QUERIES = 8
 #: Nanoseconds per codeword value (from ``benchmarks/bench_codes.py``): the dense product (per query of a
@@ -71,13 +73,15 @@ def choose_path(n_places: int, width: int, n_queries: int, route: bool, dense_ca
 
     - 'random' codes have no blocks to bound: 'dense' while the float32 codewords are cached
       (N·8⌈K/8⌉·4 ≤ :data:`DENSE_CACHE_BYTES`), else 'scan';
-    - a small map (N·8⌈K/8⌉ ≤ :data:`DENSE_SMALL_VALUES`, the codewords fit in a core's cache):
-      'dense' (the bounded search's per-query overhead would cost more than scoring every place);
+    - a small map (N·8⌈K/8⌉ ≤ :data:`DENSE_SMALL_VALUES`): 'dense' (the bounded search's bounds
+      and rounds would cost more than scoring every place);
     - a batch (≥ :data:`BATCH_DENSE_FROM` queries) with the codewords cached: 'probe' — decode the
       first :data:`PROBE_QUERIES` by the bounded search, then call again with ``visited``, the
       fraction of places they scored: 'dense' when N·W·:data:`DENSE_NS` is below
       visited·N·W·:data:`BOUNDED_NS` + :data:`BOUNDED_OVERHEAD_NS` (per query: the dense product
-      reads every codeword at BLAS speed, the bounded search a few blocks by table look-ups),
+      reads every codeword at BLAS speed, the bounded search a few blocks and their bounds;
+      :data:`BOUNDED_NS` was measured with the blocks scored by table look-ups, which the
+      float32 products now replace while the codewords are cached, so it overstates that cost),
       else 'bounded';
     - otherwise 'bounded' (single queries on larger maps: faster than faiss' packed scan and the
       dense product).
@@ -104,14 +108,19 @@ class BlockDecoder:
         8⌈K/8⌉: margins and codewords are zero-padded / +1-padded to whole bytes.
     packed_of : callable
         ``packed_of(places)`` → uint8 (len(places), width / 8) packed codewords (bit j % 8 of
-        byte j // 8 is column j); a place is scored by one table look-up per byte (the query's
-        256 partial sums of every 8 columns): 1/32 of the memory traffic of float32 codewords,
-        which is what a scattered block costs (the dense float32 rows were 4× slower at N = 10⁴).
+        byte j // 8 is column j), read when the float32 codewords are not cached (``dense``): a
+        place is scored by one table look-up per byte (the query's 256 partial sums of every 8
+        columns), 1/32 of the memory traffic of float32 codewords gathered row by row.
     block : int, optional
         B (default :func:`block_size`).
+    dense : ndarray of shape (N, width), float32, optional
+        The float32 codewords when cached: a block is then B consecutive rows, scored by one
+        matrix-vector product per run of consecutive blocks without a copy (3–4× faster than the
+        table look-ups at N = 10⁴, ``benchmarks/bench_codes.py``).
     """
 
-    def __init__(self, codebook: Codebook, width: int, packed_of, block: int | None = None) -> None:
+    def __init__(self, codebook: Codebook, width: int, packed_of, block: int | None = None,
+                 dense: np.ndarray | None = None) -> None:
         n, K = int(codebook.n_places), int(codebook.n_codes)
         self.n_places = n
         self.block = int(block) if block is not None else block_size(n)
@@ -120,7 +129,7 @@ class BlockDecoder:
         self.constant[:, :K] = signs
         self.varying = np.zeros_like(self.constant)
         self.varying[:, :K] = signs == 0
-        self.packed_of, self.width = packed_of, width
+        self.packed_of, self.width, self.dense = packed_of, width, dense
         self._table_rows = (np.arange(width // 8) * 256).astype(np.uint16)
         self._offsets = np.arange(self.block)
 
@@ -149,7 +158,8 @@ class BlockDecoder:
             m, u = M[q], U[q]
             # Twice the worst rounding of a float32 sum of `width` terms of size ≤ |m_k| (bound and score).
             slack = 2.0 * self.width * 2.0**-23 * float(np.abs(m).sum())
-            table = (m.reshape(-1, 8) @ BYTE_SIGNS.T).ravel()  # m's 256 partial sums of every 8 columns
+            # m's 256 partial sums of every 8 columns (the packed codewords' look-up table)
+            table = (m.reshape(-1, 8) @ BYTE_SIGNS.T).ravel() if self.dense is None else None
             step = min(first, n_blocks)
             # Round 1: the blocks of highest bound. Round 2: every other block whose bound exceeds the
             # k-th best score found (the k-th best only rises, so nothing past round 2 can enter).
@@ -165,14 +175,31 @@ class BlockDecoder:
                     p2, s2 = self._score_blocks(more, m, table)
                     places, scores = np.concatenate([places, p2]), np.concatenate([scores, s2])
                     done += more.size
-            # Places ascend within a round: sorted, ties go to the lower place as in a full scan.
-            by_place = np.argsort(places, kind="stable")
-            kept_s, cols = top_k(scores[by_place].astype(np.float64)[None], k)
-            out_s[q], out_p[q], visited[q] = kept_s[0], places[by_place][cols[0]], done
+            if k == 1:  # the best score, ties to the lower place as in a full scan (NaN: the first, as argmax)
+                best = scores[np.argmax(scores)]
+                out_s[q, 0], out_p[q, 0] = best, places[scores == best].min() if best == best else places[0]
+            else:  # places ascend within a round: sorted, ties go to the lower place as in a full scan
+                by_place = np.argsort(places, kind="stable")
+                kept_s, cols = top_k(scores[by_place].astype(np.float64)[None], k)
+                out_s[q], out_p[q] = kept_s[0], places[by_place][cols[0]]
+            visited[q] = done
         return out_s, out_p, visited
 
     def _score_blocks(self, take: np.ndarray, m: np.ndarray, table: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(places, float32 m · c_i) of every place of the given sorted blocks: one look-up per byte."""
+        """(places, float32 m · c_i) of every place of the given sorted blocks.
+
+        From the float32 codewords when cached (one product per run of consecutive blocks), else
+        one table look-up per byte of the packed codewords.
+        """
+        if self.dense is not None:
+            B, n = self.block, self.n_places
+            cuts = np.flatnonzero(np.diff(take) != 1) + 1  # runs of consecutive blocks
+            starts, stops = take[np.r_[0, cuts]] * B, np.minimum((take[np.r_[cuts - 1, -1]] + 1) * B, n)
+            if starts.size == 1:
+                a, b = int(starts[0]), int(stops[0])
+                return np.arange(a, b), self.dense[a:b] @ m
+            return (np.concatenate([np.arange(a, b) for a, b in zip(starts.tolist(), stops.tolist())]),
+                    np.concatenate([self.dense[a:b] @ m for a, b in zip(starts.tolist(), stops.tolist())]))
         places = (take[:, None] * self.block + self._offsets).ravel()
         places = places[places < self.n_places]
         codes = self.packed_of(places) + self._table_rows  # uint16: byte value + 256 × its group

@@ -16,8 +16,8 @@ index to K ≥ b code columns (error-correcting output codes, Dietterich & Bakir
    maps one dense product with the float32 codewords (cached when N·8⌈K/8⌉·4 ≤ 32 MB); on
    larger ones a bounded search over blocks of consecutive places (:mod:`btel.methods.codes.decoding`:
    per-block upper bounds from the columns constant on the block, blocks scored in order of
-   their bound from packed codewords — N·⌈K/8⌉ bytes of memory, filled on demand, never stored —
-   until no unscored block can beat the k-th best); batches take the dense product when a probe
+   their bound — from the float32 codewords while cached, else from packed ones, N·⌈K/8⌉ bytes
+   filled on demand, never stored — until no unscored block can beat the k-th best); batches take the dense product when a probe
    of their first queries says it is cheaper; the 'random' family (no blocks to bound) uses
    faiss' packed PQ scan past the dense cache. ``place_scores`` is the same sum as a matrix
    product in blocks of places. ``rank``, the HMM decoder and streaming come from the base class
@@ -58,7 +58,7 @@ from ...learning.linear import ColumnStats
 from ...storage import format_bytes
 from ...threads import faiss_threads, search_threads
 from .codebook import FAMILIES, MAX_COLUMNS, ROUTE_FAMILIES, Codebook
-from .codewords import BLOCK_VALUES, Codewords, RuntimeCache, blas_for
+from .codewords import BLOCK_VALUES, Codewords, RuntimeCache, blas_for, blas_for_decode
 from .decoding import BATCH_DENSE_FROM, PROBE_QUERIES, choose_path
 from .model_file import CodeModelFile
 from .planning import CodePlan, plan_codes
@@ -356,9 +356,9 @@ class CodeLocalizer(CodeModelFile, PlaceLocalizer):
         return self.decode == "coarse" or int(self.n_places_) >= COARSE_MIN_PLACES
 
     def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        # The search's own products are small per query (margins, bounds, refined blocks): one
-        # BLAS thread, unless a large batch's dense product can use a second one.
-        with blas_for(1, 0):
+        # The search's products are small per query (margins, bounds, refined blocks): one BLAS thread
+        # (none set when BLAS uses one anyway), unless a large batch's dense product can use a second one.
+        with blas_for_decode(Q.shape[0], self._codewords.width * max(self.n_selected_, int(self.n_places_))):
             M = self._padded(self._margins(Q))
             if self._coarse_default():
                 block, candidates = self._coarse_shape()
@@ -393,8 +393,9 @@ class CodeLocalizer(CodeModelFile, PlaceLocalizer):
             s_rest, p_rest = self._exact_search(M[head:], k, rest) if head < M.shape[0] else (s_head[:0], p_head[:0])
             return np.concatenate([s_head, s_rest]), np.concatenate([p_head, p_rest])
         if path == "bounded":
-            with blas_for(1, 0):
+            with blas_for_decode(M.shape[0], self._codewords.width * int(self.n_places_)):
                 scores, places, _ = self._codewords.decoder().search(M, k)
+            self._check_answers(None, scores)  # finite margins can still overflow float32 in the sums
             return scores, places
         if path == "scan":
             index = self._codewords.adc_index()
@@ -406,11 +407,11 @@ class CodeLocalizer(CodeModelFile, PlaceLocalizer):
         dense = self._codewords.dense()
         if dense is not None and n * dense.shape[0] <= BLOCK_VALUES:
             # One product over the cached codewords (small maps, small batches): no blocks, no merging.
-            with blas_for(1, 0):
+            with blas_for_decode(n, self._codewords.width * int(self.n_places_)):
                 scores = M @ dense.T
             if k == 1:  # argmax: the first maximum, i.e. ties to the lower place as top_k
                 places = np.argmax(scores, axis=1)[:, None]
-                values = np.take_along_axis(scores, places, axis=1).astype(np.float64)
+                values = scores[np.arange(n)[:, None], places].astype(np.float64)
             else:
                 values, places = top_k(scores, k)
             self._check_answers(None, values)  # finite margins can still overflow float32 in the product
