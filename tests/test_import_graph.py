@@ -163,3 +163,24 @@ def test_the_method_interface_does_not_import_its_implementations() -> None:
     below = {"btel.methods", "btel.methods.btel.localizer", "btel.methods.ryth", "btel.methods.baselines", *UPPER}
     bad = sorted(m for m in GRAPH.get("btel.base", ()) if within(m, below))
     assert not bad, f"btel.base imports {bad}"
+
+
+def test_no_module_is_above_450_lines() -> None:
+    """A module is read in one sitting: what grows past 450 lines splits along its ideas."""
+    long = {str(p.relative_to(SRC)): n for p in SRC.rglob("*.py")
+            if (n := len(p.read_text(encoding="utf-8").splitlines())) > 450}
+    assert not long, f"modules above 450 lines: {long}"
+
+
+def test_outside_the_methods_only_the_registry_is_imported() -> None:
+    """Shared layers reach a method through btel.methods.registry (make_method, load), never its module;
+    only the package's lazy public names (btel/__init__) point at the two estimators users import."""
+    public = {"btel.methods.btel.localizer", "btel.methods.codes.estimator"}
+    bad = {m: sorted(e for e in edges if within(e, ["btel.methods"]) and e != "btel.methods.registry"
+                     and not (m == "btel" and e in public))
+           for m, edges in GRAPH.items() if not within(m, ["btel.methods"])}
+    bad = {m: e for m, e in bad.items() if e}
+    assert not bad, f"modules outside btel.methods importing a method module: {bad}"
+    # and no method module imports a layer above the methods
+    upward = {m: sorted(e for e in edges if within(e, UPPER)) for m, edges in GRAPH.items() if within(m, ["btel.methods"])}
+    assert not {m: e for m, e in upward.items() if e}
