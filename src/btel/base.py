@@ -266,7 +266,7 @@ class PlaceLocalizer(BaseEstimator, ABC):
         check_is_fitted(self, self._fitted_marker)
         front = self.front_end_
         # A normalising front end checks NaN/inf in its own pass over Q (the row norms): one
-        # read of the queries instead of two (issue #15: the check was ~30 % of batch predict).
+        # read of the queries instead of two.
         Q = check_descriptors(Q, name="Q", n_features=self.n_features_in_, check_finite=not front.checks_finite)
         return front.transform(Q, check_finite=True, lazy=self._linear_in_queries)
 

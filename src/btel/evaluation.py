@@ -151,7 +151,7 @@ def evaluate(
     query_time = timing.batch_s_per_query
     predictions = check_predictions(raw, n_queries, name=f"{type(method).__name__}.predict(Q)")
     if n_map is not None and predictions.size and (predictions.min() < 0 or predictions.max() >= n_map):
-        raise InvalidAnswerError(  # never score an answer outside the map (issue 20)
+        raise InvalidAnswerError(  # never score an answer outside the map
             f"{type(method).__name__}.predict(Q) answered place {int(predictions[(predictions < 0) | (predictions >= n_map)][0])}, "
             f"outside the map's 0..{int(n_map) - 1}.")
 

@@ -1,7 +1,7 @@
 """Shrinkage whitening (``whiten="shrink"``): x ↦ (Σ + λI)^(-1/2)(x − μ), then L2, low-rank and counted.
 
-Σ is the covariance of the (normalised) map rows, μ their mean. The rule, fixed in advance (issue
-#21) and the same for every method and map:
+Σ is the covariance of the (normalised) map rows, μ their mean. The rule, fixed in advance and the same
+for every method and map:
 
 - λ = :data:`SHRINK_LAMBDA` (1.0) × the mean eigenvalue of Σ (its trace / d);
 - rank r: the top r eigenvalues s_1 ≥ … ≥ s_r of Σ are shrunk exactly; every other eigenvalue is

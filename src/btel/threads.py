@@ -7,9 +7,8 @@ change every library in the process, the benchmarks' peers included).
 
 **Single queries run on one thread.** A faiss search of fewer than :data:`SINGLE_QUERY_MAX`
 queries (the size below which faiss' flat search does not use BLAS either) runs on one OpenMP
-thread unless the caller asks for more (``n_jobs``). Measured on the shared 2-core machine: flat
-search over 10⁶ places took 203 ms with two threads against 46 ms with one, PQ on Nordland 4.6 ms
-against 0.94 ms (issue #22); waking and joining worker threads costs more than a small search.
+thread unless the caller asks for more (``n_jobs``): waking and joining worker threads costs more
+than a small search (``benchmarks/bench_codes.py`` times faiss' flat search both ways).
 """
 
 from __future__ import annotations

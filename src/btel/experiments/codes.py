@@ -1,4 +1,4 @@
-"""Experiment "codes": recall against bytes for BTEL's output codes against quantisers (issue #11).
+"""Experiment "codes": recall against bytes for BTEL's output codes against quantisers.
 
 ``btel experiment codes`` measures, in one run, recall at tolerances 0…20 frames (single
 prediction) against stored bytes from 1 KB to 1 MB:

@@ -1,4 +1,4 @@
-"""Experiment "frontier": every method × budgets on routes and on independent places, and auto's choice (issue #21).
+"""Experiment "frontier": every method × budgets on routes and on independent places, and auto's choice.
 
 ``btel experiment frontier`` measures, in one run, the key recall of every registered method (plus
 asymmetric / Hamming LSH, LSH and brute force on shrinkage-whitened rows, and random output codes)

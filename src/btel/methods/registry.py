@@ -176,7 +176,7 @@ def _params_from_file(cls: type[PlaceLocalizer], params: dict[str, Any]) -> dict
     return out
 
 
-#: Most places a model file may declare: a place index fits in uint32 (the largest map measured has 10⁶).
+#: Most places a model file may declare: a place index fits in uint32.
 #: A lower, memory-tied ceiling applies too: :func:`btel.limits.check_places` (``BTEL_MEMORY_LIMIT``).
 MAX_PLACES = 2**32
 
