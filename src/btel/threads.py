@@ -187,3 +187,14 @@ def predict_pool(n_threads: int) -> Any:
 
         _PREDICT_POOL = ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="btel-predict")
     return _PREDICT_POOL
+
+
+def max_threads() -> int:
+    """The largest thread count any loaded numerical library (BLAS, OpenMP) may use."""
+    try:
+        from threadpoolctl import threadpool_info
+
+        counts = [int(info.get("num_threads") or 0) for info in threadpool_info()]
+    except Exception:  # noqa: BLE001 - a description of the machine, never a reason to fail a run
+        counts = []
+    return max(counts, default=0) or (os.cpu_count() or 1)

@@ -6,12 +6,13 @@
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+from .threads import limit_threads, max_threads
 
 __all__ = ["QueryTiming", "time_queries"]
 
@@ -44,17 +45,6 @@ class QueryTiming:
     n_single: int
 
 
-def _n_threads() -> int:
-    """The largest thread count any loaded numerical library (BLAS, OpenMP) may use."""
-    try:
-        from threadpoolctl import threadpool_info
-
-        counts = [int(info.get("num_threads") or 0) for info in threadpool_info()]
-    except Exception:  # noqa: BLE001 - a description of the machine, never a reason to fail a run
-        counts = []
-    return max(counts, default=0) or (os.cpu_count() or 1)
-
-
 def time_queries(method: Any, Q: np.ndarray, *, repeats: int = 5, n_single: int = 50, warmup: int = 1,
                  max_seconds: float = 10.0, threads: int | None = 1) -> tuple[np.ndarray, QueryTiming]:
     """Localize ``Q`` with a fitted ``method`` and time it: warm-up first, then repeats, medians.
@@ -78,7 +68,7 @@ def time_queries(method: Any, Q: np.ndarray, *, repeats: int = 5, n_single: int 
     max_seconds : float, default 10
         Stop repeating once the timed batch calls have taken this long.
     threads : int or None, default 1
-        BLAS/OpenMP threads while localizing and timing (threadpoolctl). One thread by default:
+        BLAS and faiss threads while localizing and timing (:func:`btel.threads.limit_threads`). One thread by default:
         on a shared machine multi-threaded BLAS and faiss calls spin against other processes, and
         identical runs then differ by 2–100× (benchmarks/bench_timing_stability.py); one thread
         gives figures that repeat. None leaves the libraries' own setting.
@@ -90,9 +80,7 @@ def time_queries(method: Any, Q: np.ndarray, *, repeats: int = 5, n_single: int 
     timing : QueryTiming
     """
     if threads is not None:
-        from threadpoolctl import threadpool_limits
-
-        with threadpool_limits(limits=int(threads)):
+        with limit_threads(int(threads)):
             return _time_queries(method, Q, repeats, n_single, warmup, max_seconds)
     return _time_queries(method, Q, repeats, n_single, warmup, max_seconds)
 
@@ -112,7 +100,7 @@ def _time_queries(method: Any, Q: np.ndarray, repeats: int, n_single: int, warmu
             break
     latency, n_timed = _single_query_latency(method, Q, min(n_single, n_queries), max_seconds)
     timing = QueryTiming(batch_s_per_query=float(np.median(times)) / n_queries, latency_s=latency,
-                         n_threads=_n_threads(), repeats=len(times), n_single=n_timed)
+                         n_threads=max_threads(), repeats=len(times), n_single=n_timed)
     return predictions, timing
 
 
