@@ -20,6 +20,7 @@ import pytest
 import btel
 import btel.cli
 from btel.methods import MODEL_CLASSES, REGISTRY
+from test_import_graph import import_source
 
 CLI = Path(btel.cli.__file__).resolve().parent
 SRC = CLI.parents[1]
@@ -41,12 +42,7 @@ def imported_modules(tree: ast.AST, module: str, is_package: bool) -> list[tuple
         if isinstance(node, ast.Import):
             out += [(node.lineno, alias.name) for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = module.split(".") if is_package else module.split(".")[:-1]
-                base = base[: len(base) - (node.level - 1)]
-                source = ".".join(base + ([node.module] if node.module else []))
-            else:
-                source = node.module or ""
+            source = import_source(node, module, is_package)
             for alias in node.names:  # `from btel.methods import btel` imports the submodule
                 sub = f"{source}.{alias.name}"
                 out.append((node.lineno, sub if is_module(sub) else source))

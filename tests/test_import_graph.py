@@ -39,6 +39,15 @@ def module_files(root: Path, package: str) -> dict[str, Path]:
     return out
 
 
+def import_source(node: ast.ImportFrom, module: str, is_package: bool) -> str:
+    """The absolute module a ``from … import`` statement in ``module`` reads from (relative levels resolved)."""
+    if not node.level:
+        return node.module or ""
+    base = module.split(".") if is_package else module.split(".")[:-1]
+    base = base[: len(base) - (node.level - 1)]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
 def import_graph(root: Path, package: str) -> dict[str, set[str]]:
     """Module → the modules of ``package`` it imports (see the module docstring for the rules)."""
     files = module_files(root, package)
@@ -57,12 +66,7 @@ def import_graph(root: Path, package: str) -> dict[str, set[str]]:
             if isinstance(node, ast.Import):
                 edges.update(filter(None, (resolve(alias.name) for alias in node.names)))
             elif isinstance(node, ast.ImportFrom):
-                if node.level:
-                    base = module.split(".") if is_package else module.split(".")[:-1]
-                    base = base[: len(base) - (node.level - 1)]
-                    source = ".".join(base + ([node.module] if node.module else []))
-                else:
-                    source = node.module or ""
+                source = import_source(node, module, is_package)
                 if source != package and not source.startswith(package + "."):
                     continue
                 for alias in node.names:

@@ -21,6 +21,7 @@ import pytest
 
 import btel
 from btel.methods import REGISTRY
+from test_import_graph import import_source
 
 SRC = Path(btel.__file__).resolve().parent
 
@@ -63,12 +64,7 @@ def _imported(node: ast.AST, module: str, is_package: bool) -> list[str]:
     if isinstance(node, ast.Import):
         return [alias.name for alias in node.names]
     if isinstance(node, ast.ImportFrom):
-        if node.level:
-            base = module.split(".") if is_package else module.split(".")[:-1]
-            base = base[: len(base) - (node.level - 1)]
-            source = ".".join(base + ([node.module] if node.module else []))
-        else:
-            source = node.module or ""
+        source = import_source(node, module, is_package)
         return [source] + [f"{source}.{alias.name}" for alias in node.names]
     return []
 

@@ -29,7 +29,7 @@ from .metrics import (DEFAULT_KS, DEFAULT_TOLERANCES, PR_CURVE_POINTS, TABLE_KS,
                       check_points, default_curve_max, default_ks, default_tolerances, precision_recall,
                       recall_at_k, recall_at_tolerance, recall_curve, thin_curve)
 from .records import (STATUS_DOES_NOT_FIT, STATUS_FAILED, STATUS_NOT_RUN, STATUS_OK, STATUS_REFUSED,
-                      EvaluationResult, _params_of)
+                      EvaluationResult, _params_of, _storage_of)
 from .storage import parse_budget
 from .tables import format_table
 from .timing import QueryTiming, time_queries
@@ -41,23 +41,6 @@ __all__ = ["DEFAULT_TOLERANCES", "DEFAULT_KS", "TABLE_KS", "PR_CURVE_POINTS", "r
            "precision_recall"]
 
 logger = logging.getLogger(__name__)
-
-
-def _storage_of(method: Any) -> tuple[int | None, dict[str, int] | None]:
-    """(nbytes, breakdown) of a fitted method, None where the method does not report them."""
-    breakdown = None
-    if callable(getattr(method, "storage_breakdown", None)):
-        try:
-            breakdown = {str(k): int(v) for k, v in method.storage_breakdown().items()}
-        except NotImplementedError:
-            breakdown = None
-    try:
-        nbytes = getattr(method, "nbytes", None)
-    except NotImplementedError:
-        nbytes = None
-    if nbytes is None and breakdown is not None:
-        nbytes = sum(breakdown.values())
-    return (None if nbytes is None else int(nbytes)), breakdown
 
 
 
