@@ -173,3 +173,59 @@ def test_rules() -> None:
     book = Codebook("periodic", 500, 16, 0)
     decoder = BlockDecoder(book, 16, lambda p: np.packbits(book.codewords(p) > 0, axis=1, bitorder="little"))
     assert decoder.constant.shape == (-(-500 // decoder.block), 16)
+
+
+def _reference_from_queries(model: CodeLocalizer, Q: np.ndarray) -> np.ndarray:
+    """m · c_i in float64 from the queries: margins (q'·W + b) in float64, then every codeword."""
+    Z = np.asarray(model._check_queries(Q), dtype=np.float64)
+    if model.columns_ is not None:
+        Z = Z[:, model.columns_.astype(np.intp)]
+    margins = Z @ model.weights_.dequantise().T.astype(np.float64) + model.bias_.astype(np.float64)
+    codes = model.codebook_.codewords(np.arange(model.n_places_)).astype(np.float64)
+    return margins @ codes.T
+
+
+@pytest.mark.parametrize("family", ["periodic", "random"])
+@pytest.mark.parametrize("normalize", ["l2", "none"])
+def test_the_composed_map_gives_the_true_top_k_on_maps_with_few_places_per_code(family, normalize) -> None:
+    # N = 150 places, K = 200 codes: scoring every place by V = W·Cᵀ (d' × N) is the cheaper product.
+    r = synthetic_route(150, 40, condition_shift=0.5, seed=5)
+    model = CodeLocalizer(code=family, n_codes=200, n_features=30, decode="exact", normalize=normalize).fit(r.map)
+    assert model.exact_path(1) == "composed" and model.exact_path(64) == "composed"
+    reference = _reference_from_queries(model, r.queries)
+    for k in (1, 5):
+        _check_exact(*model.search(r.queries, k), reference)
+        for j in range(0, 150, 37):
+            _check_exact(*model.search(r.queries[j : j + 1], k), reference[j : j + 1])
+    single = np.concatenate([model.predict(r.queries[j : j + 1]) for j in range(150)])
+    np.testing.assert_array_equal(single, model.predict(r.queries))
+    np.testing.assert_array_equal(model.predict(r.queries), model.search(r.queries, 1)[1][:, 0])
+    np.testing.assert_allclose(model.place_scores(r.queries), reference, rtol=0, atol=1e-4 * np.abs(reference).max())
+
+
+def test_the_composed_map_refuses_scores_that_overflow() -> None:
+    from btel.exceptions import InvalidAnswerError
+
+    r = synthetic_route(150, 40, seed=5)
+    model = CodeLocalizer(n_codes=200, decode="exact", normalize="none").fit(r.map)
+    assert model.exact_path(1) == "composed"
+    Q = np.full((2, 40), 3e38, dtype=np.float32)  # finite queries whose scores overflow float32
+    with pytest.raises(InvalidAnswerError, match="non-finite"):
+        model.predict(Q[:1])
+    with pytest.raises(InvalidAnswerError, match="non-finite"):
+        model.predict(Q)
+    with pytest.raises(InvalidAnswerError, match="non-finite"):
+        model.search(Q, 3)
+
+
+def test_decode_coarse_is_kept_where_the_composed_map_would_serve() -> None:
+    r = synthetic_route(150, 40, seed=5)
+    model = CodeLocalizer(n_codes=200, decode="coarse", coarse_block=10, coarse_candidates=2).fit(r.map)
+    assert model._coarse_plan(1) == (10, 2)
+    calls = []
+    codewords = model._codewords
+    original = codewords.coarse_search
+    codewords.coarse_search = lambda *a, **kw: calls.append(1) or original(*a, **kw)
+    model.predict(r.queries[:3])
+    model.search(r.queries[:1], 4)
+    assert len(calls) == 2

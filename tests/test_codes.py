@@ -368,3 +368,15 @@ def test_code_auto_on_gardens_point_and_the_same_rows_permuted(gardenspoint_netv
     shuffled = CodeLocalizer(code="auto", budget="32KB").fit(X[perm])
     assert route.code_ == "periodic" and shuffled.code_ == "random"
     assert np.mean(np.abs(route.predict(Q) - np.arange(200)) <= 2) >= 0.55
+
+
+def test_coarse_decode_answers_k_distinct_places_when_the_short_last_block_is_refined() -> None:
+    # 600 = 85 × 7 + 5: the refined blocks may hold 3 × 7 + 5 = 26 places, fewer than 4 × 7 = 28.
+    X = synthetic_route(600, 64, seed=4).map
+    model = CodeLocalizer(n_codes=128, decode="coarse", coarse_block=7, coarse_candidates=4).fit(X)
+    M = model._padded_margins(model._check_queries(X[-5:]))
+    coarse = M @ model._codewords.block_means(7).T
+    assert (np.argsort(-coarse, axis=1)[:, :4] == 85).any(axis=1).all()  # the short block is refined
+    scores, places = model.search(X[-5:], 28)
+    assert places.shape == (5, 28) and all(len(set(row)) == 28 for row in places.tolist())
+    assert np.isfinite(scores).all()

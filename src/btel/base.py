@@ -72,9 +72,11 @@ class PlaceLocalizer(BaseEstimator, ABC):
     _fitted_marker: ClassVar[str] = "n_places_"
     #: Fewest map rows the method can index.
     _min_rows: ClassVar[int] = 2
-    #: True when the method reads transformed queries only through products ``Q @ W`` and row
-    #: selections: it then takes :class:`btel.frontend.ScaledRows` (no normalised copy of a batch).
+    #: True when the method reads transformed queries only through products ``Q @ W`` and row selections:
+    #: it then takes :class:`btel.frontend.ScaledRows` (no normalised copy of a batch).
     _linear_in_queries: ClassVar[bool] = False
+    #: False when ``_predict`` fills runtime caches that threads must not share: no row chunks then.
+    _predict_in_threads: ClassVar[bool] = True
 
     #: The front end's three parameters and their defaults (:mod:`btel.frontend`), declared here once
     #: for every method: each subclass's ``__init__`` gets them as keyword-only parameters (so
@@ -265,8 +267,7 @@ class PlaceLocalizer(BaseEstimator, ABC):
         """Validated queries (float32, 2-D, finite, the fitted dimension) through the front end."""
         check_is_fitted(self, self._fitted_marker)
         front = self.front_end_
-        # A normalising front end checks NaN/inf in its own pass over Q (the row norms): one
-        # read of the queries instead of two.
+        # A normalising front end checks NaN/inf in its own pass over Q (the row norms): one read.
         Q = check_descriptors(Q, name="Q", n_features=self.n_features_in_, check_finite=not front.checks_finite)
         return front.transform(Q, check_finite=True, lazy=self._linear_in_queries)
 
@@ -305,8 +306,8 @@ class PlaceLocalizer(BaseEstimator, ABC):
         -------
         ndarray of shape (n_queries,), int64, every value in [0, N)
         """
-        if (self._linear_in_queries and getattr(Q, "ndim", 0) == 2 and Q.shape[0] >= _PARALLEL_PREDICT_FROM
-                and predict_threads() > 1 and not self.front_end_.uses_sequence):
+        if (self._linear_in_queries and self._predict_in_threads and getattr(Q, "ndim", 0) == 2
+                and Q.shape[0] >= _PARALLEL_PREDICT_FROM and predict_threads() > 1 and not self.front_end_.uses_sequence):
             return self._predict_in_chunks(Q, predict_threads())
         Q = self._check_queries(Q)
         if Q.shape[0] < _ONE_BLAS_THREAD_FROM:
@@ -315,9 +316,8 @@ class PlaceLocalizer(BaseEstimator, ABC):
             return self._check_answers(self._predict(Q))
 
     def _predict_in_chunks(self, Q: Any, n_threads: int) -> np.ndarray:
-        """:meth:`predict` of a large batch as row chunks on ``n_threads`` threads (one BLAS thread each):
-        only where a row's answer depends on that row alone, so single-threaded numpy passes (row
-        norms, decoding) use every core, not just the product."""
+        """:meth:`predict` of a large batch as row chunks on ``n_threads`` threads (one BLAS thread each) where a row's
+        answer depends on that row alone: single-threaded numpy passes (norms, decoding) use every core."""
         check_is_fitted(self, self._fitted_marker)
         front = self.front_end_
         Q = check_descriptors(Q, name="Q", n_features=self.n_features_in_, check_finite=not front.checks_finite)
@@ -359,8 +359,7 @@ class PlaceLocalizer(BaseEstimator, ABC):
         Raises
         ------
         InvalidAnswerError
-            Naming the cause: scores that overflow (weights beyond float32, usually from a damaged
-            or hostile model file) or a place outside the map.
+            Naming the cause: overflowing scores (a damaged or hostile model file) or a place outside the map.
         """
         n = int(self.n_places_)
         if scores is not None and scores.size and not np.isfinite(scores).all():
@@ -369,7 +368,8 @@ class PlaceLocalizer(BaseEstimator, ABC):
                 f"{type(self).__name__} produced non-finite scores (first at query row {bad}): its stored weights "
                 "overflow float arithmetic, which a damaged or hostile model file causes. Refit the model or "
                 "check where the file came from.")
-        if places is not None and places.size and (places.min() < 0 or places.max() >= n):
+        if places is not None and places.size and not (places.size == 1 and 0 <= int(places.flat[0]) < n) \
+                and (places.min() < 0 or places.max() >= n):  # one valid answer: no reductions
             wrong = places[(places < 0) | (places >= n)][0]
             raise InvalidAnswerError(
                 f"{type(self).__name__} answered place {int(wrong)}, outside the map's 0..{n - 1}: its stored "

@@ -216,35 +216,53 @@ class Codewords:
         """
         n_places = self.n_places
         means = self.block_means(block)
-        width = candidates * block
         out_s = np.empty((M.shape[0], k))
         out_p = np.empty((M.shape[0], k), dtype=np.int64)
-        step = max(1, BLOCK_VALUES // (width * self.n_codes))
+        n_blocks = means.shape[0]
+        offsets = np.arange(block)
+        table_rows = (np.arange(self.width // 8) * 256).astype(np.uint16)
+        step = max(1, BLOCK_VALUES // n_blocks)  # queries whose coarse scores are held at once
         for a in range(0, M.shape[0], step):
-            m = M[a : a + step]
-            coarse = m @ means.T
-            blocks = np.argpartition(-coarse, candidates - 1, axis=1)[:, :candidates] if candidates < coarse.shape[1] \
-                else np.broadcast_to(np.arange(coarse.shape[1]), coarse.shape)
-            # Candidates in place order, so that ties go to the lower place as in the exact decode.
-            places = np.sort((blocks[:, :, None] * block + np.arange(block)).reshape(m.shape[0], width), axis=1)
-            valid = places < n_places
-            codes = self.of(np.where(valid, places, 0).ravel()).reshape(m.shape[0], width, -1)
-            scores = np.matmul(codes, m[:, :, None])[:, :, 0].astype(np.float64)
-            scores[~valid] = -np.inf
-            values, cols = top_k(scores, k)
-            out_s[a : a + step] = values
-            out_p[a : a + step] = np.take_along_axis(places, cols, axis=1)
+            coarse = M[a : a + step] @ means.T
+            for q in range(coarse.shape[0]):
+                m = M[a + q]
+                blocks = np.sort(np.argpartition(coarse[q], n_blocks - candidates)[n_blocks - candidates :]) \
+                    if candidates < n_blocks else np.arange(n_blocks)
+                # Candidates in place order, so that ties go to the lower place as in the exact decode.
+                places = (blocks[:, None] * block + offsets).ravel()
+                places = places[places < n_places]
+                packed = self.packed_rows(places)
+                if packed is None:
+                    scores = self.of(places) @ m
+                else:  # one table look-up per byte: m's 256 partial sums of every 8 columns
+                    table = (m.reshape(-1, 8) @ BYTE_SIGNS.T).ravel()
+                    scores = np.take(table, packed + table_rows).sum(axis=1)
+                values, cols = top_k(scores.astype(np.float64)[None], k)
+                out_s[a + q], out_p[a + q] = values[0], places[cols[0]]
         return out_s, out_p
 
 
 class RuntimeCache:
     """What inference derives from a fitted model once (not stored, not compared: one object per model).
 
-    ``weights``: the (d', K) float32 dequantised weights, built at the first query;
-    ``codewords``: the codebook at inference (:class:`Codewords`). Queries fill these in place, so
+    ``weights``: the padded float32 dequantised weights and biases, built at the first query; ``columns``:
+    the kept descriptor columns as intp; ``codewords``: the codebook at inference (:class:`Codewords`);
+    ``composed``: :meth:`composed_map`. Queries fill these in place, so
     predicting leaves the estimator's ``__dict__`` unchanged (the scikit-learn contract).
     """
 
     def __init__(self, codebook: Codebook) -> None:
-        self.weights: np.ndarray | None = None
+        self.weights: tuple[np.ndarray, np.ndarray] | None = None
+        self.columns: np.ndarray | None = None
         self.codewords = Codewords(codebook)
+        #: The composed map (V, v0) once decided: False where it is not the cheaper product, None before.
+        self.composed: tuple[np.ndarray, np.ndarray] | bool | None = None
+
+    def composed_map(self, weights: np.ndarray, bias: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(V, v0): V = W·Cᵀ (d', N) and v0 = b·Cᵀ (N,), float32, the scores of every place as one linear map
+        of the query (:func:`~btel.methods.codes.decoding.composes`), from the (d', 8⌈K/8⌉) weights and biases
+        (zero in the padding columns)."""
+        codes = self.codewords.dense()  # cached wherever composes() holds
+        with blas_threads(1):
+            V = np.ascontiguousarray(weights @ codes.T)
+        return V, (codes @ bias).astype(np.float32)

@@ -31,7 +31,7 @@ import numpy as np
 from ...base import top_k
 from .codebook import Codebook
 
-__all__ = ["BlockDecoder", "DENSE_CACHE_BYTES", "BATCH_DENSE_FROM", "block_size", "choose_path", "BYTE_SIGNS",
+__all__ = ["BlockDecoder", "DENSE_CACHE_BYTES", "BATCH_DENSE_FROM", "block_size", "choose_path", "composes", "best_of", "BYTE_SIGNS",
            "DENSE_SMALL_VALUES", "PROBE_QUERIES"]
 
 #: Largest float32 codeword cache (N × 8⌈K/8⌉ × 4 bytes) kept for the dense product (32 MB).
@@ -62,6 +62,32 @@ def block_size(n_places: int) -> int:
     of ≈ 8–16 blocks) balances the two (``benchmarks/bench_codes.py``).
     """
     return int(min(1024, max(8, round(np.sqrt(n_places)))))
+
+
+def best_of(scores: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Top k of every row of (n, N) scores: (float64 scores, int64 places), ties to the lower place."""
+    if k == 1:  # argmax: the first maximum, i.e. ties to the lower place as top_k
+        places = np.argmax(scores, axis=1)[:, None]
+        return np.take_along_axis(scores, places, axis=1).astype(np.float64), places.astype(np.int64)
+    values, places = top_k(scores, k)
+    return values.astype(np.float64, copy=False), places.astype(np.int64, copy=False)
+
+
+def composes(n_places: int, n_selected: int, n_codes: int, width: int) -> bool:
+    """Whether to score places by one composed linear map of the query, V = W·Cᵀ (d' × N), not margins then codewords.
+
+    A place's score m · c_i = (q·W + b) · c_i = q · (W c_i) + b · c_i is linear in the query, so
+    V = W·Cᵀ and v0 = b·Cᵀ (derived at the first query from the stored weights and the regenerated
+    codewords: a runtime cache, no stored byte) score every place with d'·N multiply-adds, against
+    d'·K + N·8⌈K/8⌉ for the margins and the dense decode. Used where that is fewer (maps with fewer
+    places than code columns: the margins alone cost more than scoring every place) on maps the
+    dense decode serves (N·8⌈K/8⌉ ≤ :data:`DENSE_SMALL_VALUES`) and while V fits
+    :data:`DENSE_CACHE_BYTES`. The sums run in another order than the two products', so scores
+    differ within float32 rounding (exact answers up to near-ties, as the other paths).
+    """
+    if n_places * width > DENSE_SMALL_VALUES or n_selected * n_places * 4 > DENSE_CACHE_BYTES:
+        return False
+    return n_selected * n_places < n_selected * n_codes + n_places * width
 
 
 def choose_path(n_places: int, width: int, n_queries: int, route: bool, dense_cached: bool,
@@ -149,35 +175,41 @@ class BlockDecoder:
         scores : (n, k) float64; places : (n, k) int64; visited : (n,) int64, blocks scored per query
         """
         n_blocks = self.constant.shape[0]
-        U = self.bounds(M)
+        absolute = np.abs(M)
+        U = M @ self.constant.T + absolute @ self.varying.T  # self.bounds(M), reusing |M|
+        # Twice the worst rounding of a float32 sum of `width` terms of size ≤ |m_k| (bound and score).
+        slacks = (2.0 * self.width * 2.0**-23) * absolute.sum(axis=1, dtype=np.float64)
         out_s = np.empty((M.shape[0], k))
         out_p = np.empty((M.shape[0], k), dtype=np.int64)
         visited = np.empty(M.shape[0], dtype=np.int64)
-        first = max(FIRST_BLOCKS, -(-k // self.block))
+        step = min(max(FIRST_BLOCKS, -(-k // self.block)), n_blocks)
         for q in range(M.shape[0]):
             m, u = M[q], U[q]
-            # Twice the worst rounding of a float32 sum of `width` terms of size ≤ |m_k| (bound and score).
-            slack = 2.0 * self.width * 2.0**-23 * float(np.abs(m).sum())
             # m's 256 partial sums of every 8 columns (the packed codewords' look-up table)
             table = (m.reshape(-1, 8) @ BYTE_SIGNS.T).ravel() if self.dense is None else None
-            step = min(first, n_blocks)
             # Round 1: the blocks of highest bound. Round 2: every other block whose bound exceeds the
             # k-th best score found (the k-th best only rises, so nothing past round 2 can enter).
-            take = np.argpartition(-u, step - 1)[:step] if step < n_blocks else np.arange(n_blocks)
-            places, scores = self._score_blocks(np.sort(take), m, table)
-            done = take.size
+            take = np.sort(np.argpartition(u, n_blocks - step)[n_blocks - step :]) if step < n_blocks \
+                else np.arange(n_blocks)
+            places, scores = self._score_blocks(take, m, table)
+            done, merged = take.size, False
             if done < n_blocks:
-                kth = np.partition(scores, scores.size - k)[scores.size - k] if scores.size >= k else -np.inf
-                left = np.ones(n_blocks, dtype=bool)
-                left[take] = False
-                more = np.flatnonzero(left & (u >= kth - slack))
+                if k == 1:
+                    kth = scores.max()
+                else:
+                    kth = np.partition(scores, scores.size - k)[scores.size - k] if scores.size >= k else -np.inf
+                u[take] = -np.inf  # U is this call's own array: scored blocks leave the race
+                more = np.flatnonzero(u >= kth - slacks[q])
                 if more.size:
                     p2, s2 = self._score_blocks(more, m, table)
                     places, scores = np.concatenate([places, p2]), np.concatenate([scores, s2])
-                    done += more.size
+                    done, merged = done + more.size, True
             if k == 1:  # the best score, ties to the lower place as in a full scan (NaN: the first, as argmax)
-                best = scores[np.argmax(scores)]
-                out_s[q, 0], out_p[q, 0] = best, places[scores == best].min() if best == best else places[0]
+                i = int(np.argmax(scores))
+                best = scores[i]
+                # Places ascend within a round; after two rounds a tie may sit at a lower place.
+                place = places[scores == best].min() if merged and best == best else places[i]
+                out_s[q, 0], out_p[q, 0] = best, place
             else:  # places ascend within a round: sorted, ties go to the lower place as in a full scan
                 by_place = np.argsort(places, kind="stable")
                 kept_s, cols = top_k(scores[by_place].astype(np.float64)[None], k)
@@ -192,14 +224,18 @@ class BlockDecoder:
         one table look-up per byte of the packed codewords.
         """
         if self.dense is not None:
-            B, n = self.block, self.n_places
-            cuts = np.flatnonzero(np.diff(take) != 1) + 1  # runs of consecutive blocks
-            starts, stops = take[np.r_[0, cuts]] * B, np.minimum((take[np.r_[cuts - 1, -1]] + 1) * B, n)
-            if starts.size == 1:
-                a, b = int(starts[0]), int(stops[0])
-                return np.arange(a, b), self.dense[a:b] @ m
-            return (np.concatenate([np.arange(a, b) for a, b in zip(starts.tolist(), stops.tolist())]),
-                    np.concatenate([self.dense[a:b] @ m for a, b in zip(starts.tolist(), stops.tolist())]))
+            B, n, dense = self.block, self.n_places, self.dense
+            runs: list[list[int]] = []  # [start, stop) of runs of consecutive blocks
+            for j in take.tolist():
+                if runs and runs[-1][1] == j * B:
+                    runs[-1][1] = min(n, (j + 1) * B)
+                else:
+                    runs.append([j * B, min(n, (j + 1) * B)])
+            if len(runs) == 1:
+                a, b = runs[0]
+                return np.arange(a, b), dense[a:b] @ m
+            return (np.concatenate([np.arange(a, b) for a, b in runs]),
+                    np.concatenate([dense[a:b] @ m for a, b in runs]))
         places = (take[:, None] * self.block + self._offsets).ravel()
         places = places[places < self.n_places]
         codes = self.packed_of(places) + self._table_rows  # uint16: byte value + 256 × its group

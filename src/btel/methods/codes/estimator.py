@@ -50,17 +50,16 @@ from typing import Any
 import numpy as np
 
 from ..._validation import N_JOBS, RANDOM_STATE, Budget, Interval, Options, String
-from ...base import PlaceLocalizer, top_k
+from ...base import PlaceLocalizer
 from ...exceptions import BudgetTooSmallError, InvalidParameterError
 from ...learning.distributed import BACKENDS
 from ...learning.feature_selection import column_index_dtype
 from ...learning.linear import ColumnStats
 from ...storage import format_bytes
-from ...threads import faiss_threads, search_threads
 from .codebook import FAMILIES, MAX_COLUMNS, ROUTE_FAMILIES, Codebook
-from .codewords import BLOCK_VALUES, Codewords, RuntimeCache, blas_for, blas_for_decode
-from .decoding import BATCH_DENSE_FROM, PROBE_QUERIES, choose_path
+from .codewords import RuntimeCache
 from .model_file import CodeModelFile
+from .search import COARSE_MIN_PLACES, CodeSearch
 from .planning import CodePlan, plan_codes
 from .quantise import WEIGHT_BITS, quantise
 from .solvers import fit_liblinear_codes, fit_ridge_codes
@@ -69,13 +68,9 @@ __all__ = ["CodeLocalizer", "SOLVERS", "DECODES", "COARSE_MIN_PLACES"]
 
 SOLVERS = ("ridge", "liblinear")
 DECODES = ("auto", "exact", "coarse")
-#: From this many places ``decode='auto'`` decodes route families coarse to fine (approximate):
-#: below it the exact bounded search is no slower, and exact is the better answer
-#: (``benchmarks/bench_codes.py`` times both against N).
-COARSE_MIN_PLACES = 1 << 19
 
 
-class CodeLocalizer(CodeModelFile, PlaceLocalizer):
+class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
     """Output-code localization: K implicit ±1 code columns per place, predicted linearly, decoded softly.
 
     Parameters
@@ -307,132 +302,11 @@ class CodeLocalizer(CodeModelFile, PlaceLocalizer):
     def _reset_caches(self) -> None:
         self._cache = RuntimeCache(self.codebook_)
 
-    @property
-    def _codewords(self) -> Codewords:
-        """The codebook at inference (:mod:`btel.methods.codes.codewords`), built on demand."""
-        return self._cache.codewords
-
     def summary(self) -> str:
         """One line on what was fitted: family, K, d', width, the planner's rule, α."""
         alpha = f", ridge α = {self.alpha_:.4g}" if self.alpha_ is not None else ", liblinear"
         why = f" [{self.code_reason_}]" if self.code == "auto" else ""
         return f"{self.code_} codes{why} (seed {self.code_seed_}): {self.plan_.describe()}{alpha}"
-
-    # ------------------------------------------------------------------ inference
-    def _weights_dense(self) -> np.ndarray:
-        """(d', K) float32 dequantised weights (a runtime cache, not stored)."""
-        if self._cache.weights is None:
-            self._cache.weights = np.ascontiguousarray(self.weights_.dequantise().T)
-        return self._cache.weights
-
-    def _margins(self, Q: np.ndarray) -> np.ndarray:
-        """(n, K) float32 margins of transformed queries."""
-        q = Q if self.columns_ is None else Q[:, self.columns_.astype(np.intp)]
-        return (q @ self._weights_dense() + self.bias_).astype(np.float32, copy=False)
-
-    def decision_function(self, Q: Any) -> np.ndarray:
-        """Margins of every code column (positive = +1), shape (n_queries, K), float32."""
-        return self._margins(self._check_queries(Q))
-
-    def _padded(self, M: np.ndarray) -> np.ndarray:
-        """Margins (n, K) → (n, 8⌈K/8⌉) float32, zeros in the padding columns (which then add nothing)."""
-        out = np.zeros((M.shape[0], self._codewords.width), dtype=np.float32)
-        out[:, : self.n_codes_] = M
-        return out
-
-    def _place_scores(self, Q: np.ndarray) -> np.ndarray:
-        """m · c_i for every place (the exact soft decode), (n, N) float64."""
-        with blas_for(Q.shape[0], self.n_codes_ * (self.n_selected_ + int(self.n_places_))):
-            M = self._padded(self._margins(Q))
-            out = np.empty((Q.shape[0], int(self.n_places_)))
-            for a, b, codes in self._codewords.blocks():
-                out[:, a:b] = M @ codes.T
-        return out
-
-    def _coarse_default(self) -> bool:
-        """Whether ``search`` decodes coarse to fine (``decode`` and the family; 'auto': long maps only)."""
-        if self.code_ not in ROUTE_FAMILIES or self.decode == "exact":
-            return False
-        return self.decode == "coarse" or int(self.n_places_) >= COARSE_MIN_PLACES
-
-    def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        # The search's products are small per query (margins, bounds, refined blocks): one BLAS thread
-        # (none set when BLAS uses one anyway), unless a large batch's dense product can use a second one.
-        with blas_for_decode(Q.shape[0], self._codewords.width * max(self.n_selected_, int(self.n_places_))):
-            M = self._padded(self._margins(Q))
-            if self._coarse_default():
-                block, candidates = self._coarse_shape()
-                if k <= block * candidates:
-                    return self._codewords.coarse_search(M, k, block, candidates)
-            if M.shape[0] < BATCH_DENSE_FROM:  # single queries: the whole decode on one BLAS thread
-                return self._exact_search(M, k)
-        return self._exact_search(M, k)
-
-    def exact_path(self, n_queries: int = 1) -> str:
-        """The exact decode :meth:`search` runs for ``n_queries`` queries: 'bounded', 'dense', 'scan' or 'probe'.
-
-        'probe': a batch whose first queries are decoded by the bounded search, the rest by whichever
-        of 'bounded' and 'dense' the places they scored predict to be cheaper
-        (:func:`~btel.methods.codes.decoding.choose_path`).
-        """
-        return choose_path(int(self.n_places_), self._codewords.width, n_queries, self.code_ in ROUTE_FAMILIES,
-                           self._codewords.dense() is not None)
-
-    def _exact_search(self, M: np.ndarray, k: int, path: str | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Top k of m · c_i over every place, by ``path`` (default :func:`~btel.methods.codes.decoding.choose_path`)."""
-        # Non-finite margins (a model file with huge but finite weights) are an error naming the cause,
-        # not an answer: argmax over NaN scores would return a place.
-        self._check_answers(None, M)
-        path = path or self.exact_path(M.shape[0])
-        if path == "probe":  # a batch: the first queries by the bounded search tell which path is cheaper
-            head = min(PROBE_QUERIES, M.shape[0])
-            with blas_for(1, 0):
-                s_head, p_head, visited = self._codewords.decoder().search(M[:head], k)
-            fraction = float(visited.mean()) * self._codewords.decoder().block / int(self.n_places_)
-            rest = choose_path(int(self.n_places_), self._codewords.width, M.shape[0], True, True, visited=fraction)
-            s_rest, p_rest = self._exact_search(M[head:], k, rest) if head < M.shape[0] else (s_head[:0], p_head[:0])
-            return np.concatenate([s_head, s_rest]), np.concatenate([p_head, p_rest])
-        if path == "bounded":
-            with blas_for_decode(M.shape[0], self._codewords.width * int(self.n_places_)):
-                scores, places, _ = self._codewords.decoder().search(M, k)
-            self._check_answers(None, scores)  # finite margins can still overflow float32 in the sums
-            return scores, places
-        if path == "scan":
-            index = self._codewords.adc_index()
-            if index is not None:
-                with faiss_threads(search_threads(self.n_jobs, M.shape[0])):
-                    scores, places = index.search(M, k)
-                return scores.astype(np.float64), places.astype(np.int64)
-        n = M.shape[0]
-        dense = self._codewords.dense()
-        if dense is not None and n * dense.shape[0] <= BLOCK_VALUES:
-            # One product over the cached codewords (small maps, small batches): no blocks, no merging.
-            with blas_for_decode(n, self._codewords.width * int(self.n_places_)):
-                scores = M @ dense.T
-            if k == 1:  # argmax: the first maximum, i.e. ties to the lower place as top_k
-                places = np.argmax(scores, axis=1)[:, None]
-                values = scores[np.arange(n)[:, None], places].astype(np.float64)
-            else:
-                values, places = top_k(scores, k)
-            self._check_answers(None, values)  # finite margins can still overflow float32 in the product
-            return values, places.astype(np.int64)
-        best_s = np.empty((n, 0), dtype=np.float32)
-        best_p = np.empty((n, 0), dtype=np.int64)
-        with blas_for(n, self.n_codes_ * int(self.n_places_)):
-            for a, b, codes in self._codewords.blocks():
-                scores = np.concatenate([best_s, M @ codes.T], axis=1)
-                places = np.concatenate([best_p, np.broadcast_to(np.arange(a, b), (n, b - a))], axis=1)
-                kept_s, cols = top_k(scores, min(k, scores.shape[1]))
-                best_s = kept_s.astype(np.float32)
-                best_p = np.take_along_axis(places, cols, axis=1)
-        return best_s.astype(np.float64), best_p
-
-    # -- coarse to fine ----------------------------------------------------------------------------
-    def _coarse_shape(self) -> tuple[int, int]:
-        """(B places per block, blocks refined)."""
-        n, t = int(self.n_places_), int(self.coarse_candidates)
-        block = int(self.coarse_block) if self.coarse_block is not None else max(1, int(round(np.sqrt(n / t))))
-        return min(block, n), min(t, -(-n // min(block, n)))
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(super().__getstate__())
