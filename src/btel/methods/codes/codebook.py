@@ -73,6 +73,9 @@ _STREAMS = {"period": 1, "phase": 2, "scale": 3, "offset": 4, "permutation": 5}
 _FAMILY_IDS = {name: i + 1 for i, name in enumerate(FAMILIES)}
 #: Elements (rows × columns) generated at a time by :meth:`Codebook.iter_blocks`.
 _BLOCK_ELEMENTS = 1 << 22
+#: Shortest block whose periodic sums :meth:`Codebook.block_sums` counts in closed form (shorter: summing
+#: the codewords is as fast, as the closed form's binary searches then cost about one per place).
+_CLOSED_FORM_BLOCK = 8
 
 
 def _splitmix(z: np.ndarray) -> np.ndarray:
@@ -354,6 +357,69 @@ class Codebook:
             low = np.minimum.reduceat(codes, firsts, axis=0)
             high = np.maximum.reduceat(codes, firsts, axis=0)
             out[a // block : a // block + firsts.size] = np.where(low == high, low, 0)
+        return out
+
+    def block_sums(self, block: int) -> np.ndarray:
+        """Per block of ``block`` consecutive places: the sum of its ±1 codewords (B × its mean codeword).
+
+        The blocks are places [j·B, min(N, (j + 1)·B)). The periodic family is counted in closed form
+        (:meth:`_periodic_counts`: no codeword of a whole block is generated); the other families
+        sum their int8 codewords block by block.
+
+        Returns
+        -------
+        ndarray of shape (⌈N/B⌉, K), int32
+        """
+        n, block = int(self.n_places), int(block)
+        if block < 1:
+            raise InvalidParameterError(f"block must be ≥ 1; got {block}.")
+        n_blocks = -(-n // block)
+        out = np.empty((n_blocks, self.n_codes), dtype=np.int32)
+        whole = n // block  # blocks of exactly B places
+        if self.family == "periodic" and block >= _CLOSED_FORM_BLOCK and whole:
+            out[:whole] = 2 * self._periodic_counts(block, whole) - block
+            if whole < n_blocks:  # the shorter last block
+                out[whole] = self.codewords(np.arange(whole * block, n)).sum(axis=0, dtype=np.int32)
+            return out
+        rows = max(block, (_BLOCK_ELEMENTS // max(self.n_codes, 1)) // block * block)
+        for a, b, codes in self.iter_blocks(rows=rows):  # a is a multiple of block
+            full = (b - a) // block
+            j = a // block
+            out[j : j + full] = codes[: full * block].reshape(full, block, self.n_codes).sum(axis=1, dtype=np.int32)
+            if full * block < b - a:  # the shorter last block
+                out[j + full] = codes[full * block :].sum(axis=0, dtype=np.int32)
+        return out
+
+    def _periodic_counts(self, block: int, n_blocks: int) -> np.ndarray:
+        """Positive places per (block, column) of the periodic family, for the first ``n_blocks`` blocks of B places.
+
+        Place a + i of column k is positive iff (T + i·F) mod 2⁶⁴ < 2⁶³, with T = a·F + Φ the
+        block's start phase. As a function of T, place i is positive on the circular half-open
+        interval [s_i, s_i + 2⁶³) with s_i = −i·F mod 2⁶⁴: it turns on at s_i and off at
+        e_i = s_i + 2⁶³ mod 2⁶⁴. So count(T) = count(0) + #{i: 0 < s_i ≤ T} − #{i: 0 < e_i ≤ T}, a step
+        function read with one binary search per block over the B sorted switch points (exact
+        integers: O(B log B + (N/B)·log B) per column instead of N codeword evaluations).
+
+        Returns
+        -------
+        ndarray of shape (n_blocks, K), int32
+        """
+        p = self._params
+        half = _U64(1 << 63)
+        i = np.arange(block, dtype=np.int64).astype(_U64)
+        a = np.arange(n_blocks, dtype=np.int64).astype(_U64) * _U64(block)
+        out = np.empty((n_blocks, self.n_codes), dtype=np.int32)
+        with np.errstate(over="ignore"):
+            for k in range(self.n_codes):
+                f, phi = p["frequency"][k], p["phase"][k]
+                step = i * f  # i·F mod 2⁶⁴
+                on = np.sort(_U64(0) - step)
+                off = np.sort(on + half)
+                # count(0) − #{s_i = 0} + #{e_i = 0}: then #{s_i ≤ T} − #{e_i ≤ T} adds the rest.
+                base = int(np.count_nonzero(step < half)) - int(np.count_nonzero(on == 0)) \
+                    + int(np.count_nonzero(off == 0))
+                t = a * f + phi
+                out[:, k] = base + np.searchsorted(on, t, side="right") - np.searchsorted(off, t, side="right")
         return out
 
     def to_header(self) -> dict[str, int | str]:

@@ -189,15 +189,16 @@ class Codewords:
         return self._decoder
 
     def block_means(self, block: int) -> np.ndarray:
-        """(⌈N/B⌉, 8⌈K/8⌉) float32 mean codeword of every block of B consecutive places (the last may be shorter)."""
+        """(⌈N/B⌉, 8⌈K/8⌉) float32 mean codeword of every block of B consecutive places (the last may be shorter).
+
+        From the exact integer sums of :meth:`Codebook.block_sums` (closed form for the periodic
+        family), each divided by its block's length in float32; padding columns are +1.
+        """
         if self.means is None or self.means[0] != block:
             n_blocks = -(-self.n_places // block)
-            means = np.empty((n_blocks, self.width), dtype=np.float32)
-            rows = max(block, (BLOCK_VALUES // self.n_codes) // block * block)
-            for a, b, codes in self.blocks(rows):  # a is a multiple of block
-                starts = np.arange(0, b - a, block)
-                counts = np.diff(np.append(starts, b - a)).astype(np.float32)
-                means[a // block : a // block + starts.size] = np.add.reduceat(codes, starts, axis=0) / counts[:, None]
+            lengths = np.minimum(block, self.n_places - block * np.arange(n_blocks)).astype(np.float32)
+            means = np.ones((n_blocks, self.width), dtype=np.float32)
+            np.divide(self.codebook.block_sums(block), lengths[:, None], out=means[:, : self.n_codes], dtype=np.float32)
             self.means = (block, means)
         return self.means[1]
 
