@@ -173,3 +173,21 @@ def test_rules() -> None:
     book = Codebook("periodic", 500, 16, 0)
     decoder = BlockDecoder(book, 16, lambda p: np.packbits(book.codewords(p) > 0, axis=1, bitorder="little"))
     assert decoder.constant.shape == (-(-500 // decoder.block), 16)
+
+
+def test_the_scan_index_holds_every_codeword_once_when_filled_block_by_block(route, monkeypatch) -> None:
+    import faiss
+
+    import btel.methods.codes.codebook as codebook
+    from btel.methods.codes.codewords import Codewords
+
+    X, Q = route
+    model = _model("random", X)
+    monkeypatch.setattr(codebook, "_BLOCK_ELEMENTS", 97 * 60)  # 97 places per block: 16 blocks, a short last one
+    index = Codewords(model.codebook_).adc_index()
+    packed = np.packbits(model.codebook_.codewords(np.arange(1500)) > 0, axis=1, bitorder="little")
+    assert index.ntotal == 1500 and index.codes.size() == packed.size
+    np.testing.assert_array_equal(faiss.vector_to_array(index.codes).reshape(packed.shape), packed)
+    M = model._padded(model._margins(model._check_queries(Q[:6])))
+    scores, places = index.search(M, 4)
+    _check_exact(scores.astype(np.float64), places.astype(np.int64), _reference(model, M))

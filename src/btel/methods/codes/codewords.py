@@ -63,6 +63,19 @@ def blas_for_decode(n_queries: int, largest_product: int) -> Any:
     return blas_threads_for_vector(largest_product) if n_queries == 1 else blas_threads(1)
 
 
+def _codes_view(index: Any, n: int, code_size: int) -> np.ndarray:
+    """A writable (n, code_size) uint8 view of a faiss flat-codes index's code array, resized to n codes.
+
+    The array is allocated once at its final size (adding codes in batches grows faiss' vector,
+    and each growth briefly holds the old and the new buffer). The caller fills the view, then sets
+    ``index.ntotal``; the view is valid until the index's codes are resized again.
+    """
+    import faiss
+
+    index.codes.resize(n * code_size)
+    return faiss.rev_swig_ptr(index.codes.data(), n * code_size).reshape(n, code_size)
+
+
 class Codewords:
     """The codewords of one fitted codebook in the forms inference reads (a runtime cache, one per model).
 
@@ -166,7 +179,9 @@ class Codewords:
         of a codeword is one byte, and the 256 "centroids" of every group are the 256 ±1 patterns
         of 8 columns. faiss' inner-product PQ scan then sums, per place, one table entry per group
         (⌈K/8⌉ look-ups instead of K multiply-adds). Only for the 'random' family past the dense
-        cache (no blocks to bound): its codes are added block by block, the index holds the only copy.
+        cache (no blocks to bound). The index's code array is sized once and its codes are written
+        in place block by block (:func:`_codes_view`): it holds the only copy, and no growth of
+        faiss' vector ever holds two.
         """
         if self.index is None:
             n, groups = self.n_places, -(-self.n_codes // 8)
@@ -177,8 +192,10 @@ class Codewords:
             index = faiss.IndexPQ(8 * groups, groups, 8, faiss.METRIC_INNER_PRODUCT)
             faiss.copy_array_to_vector(np.tile(BYTE_SIGNS, (groups, 1)).ravel(), index.pq.centroids)
             index.is_trained = True
-            for _, _, codes in self.codebook.iter_blocks():
-                index.add_sa_codes(np.packbits(codes > 0, axis=1, bitorder="little"))
+            codes_out = _codes_view(index, n, groups)
+            for a, b, codes in self.codebook.iter_blocks():
+                codes_out[a:b] = np.packbits(codes > 0, axis=1, bitorder="little")
+            index.ntotal = n
             self.index = index
         return self.index
 
