@@ -32,12 +32,15 @@ from ...threads import blas_threads, blas_threads_for_vector
 from .codebook import Codebook
 from .decoding import BYTE_SIGNS, DENSE_CACHE_BYTES, BlockDecoder
 
-__all__ = ["Codewords", "RuntimeCache", "blas_for", "blas_for_decode", "BLOCK_VALUES", "PACKED_CACHE_BYTES"]
+__all__ = ["Codewords", "PackedScan", "RuntimeCache", "blas_for", "blas_for_decode", "BLOCK_VALUES", "PACKED_CACHE_BYTES",
+           "SCAN_TABLE_VALUES"]
 
 #: The codebook is cached at inference as packed bits (N × ⌈K/8⌉ bytes) up to this size (256 MB).
 PACKED_CACHE_BYTES = 1 << 28
 #: Values (rows × columns) of one block of scores or codes at inference (about 16 MB of float32).
 BLOCK_VALUES = 1 << 22
+#: Look-up table values (queries × ⌈K/8⌉ × 256) of one call to faiss' packed scan (4 MB of float32).
+SCAN_TABLE_VALUES = 1 << 20
 #: Places whose packed codewords are generated together when first read.
 FILL_PLACES = 256
 #: Below this many multiply-adds a decode runs its BLAS products on one thread (see blas_for).
@@ -61,6 +64,27 @@ def blas_for_decode(n_queries: int, largest_product: int) -> Any:
     matrix-vector product (``largest_product`` multiply-adds) is one BLAS runs on one thread anyway
     (:func:`~btel.threads.blas_threads_for_vector`: setting and restoring a limit costs ≈ 4–5 µs)."""
     return blas_threads_for_vector(largest_product) if n_queries == 1 else blas_threads(1)
+
+
+class PackedScan:
+    """faiss' packed PQ scan (``index``, an IndexPQ) searched a few queries at a time.
+
+    faiss builds the look-up tables of every query of a call at once (⌈K/8⌉ × 256 float32 per
+    query: 60 MB for 1,000 queries at K = 470, as much as the codes themselves), so a batch is cut
+    into chunks whose tables hold about :data:`SCAN_TABLE_VALUES` values. Queries are independent:
+    the answers are those of one call.
+    """
+
+    def __init__(self, index: Any) -> None:
+        self.index = index
+
+    def search(self, M: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """faiss' ``search`` (scores (n, k) float32, places (n, k) int64), chunk by chunk."""
+        step = max(1, SCAN_TABLE_VALUES // (int(self.index.pq.M) * int(self.index.pq.ksub)))
+        if M.shape[0] <= step:
+            return self.index.search(M, k)
+        parts = [self.index.search(M[a : a + step], k) for a in range(0, M.shape[0], step)]
+        return np.concatenate([s for s, _ in parts]), np.concatenate([p for _, p in parts])
 
 
 def _codes_view(index: Any, n: int, code_size: int) -> np.ndarray:
@@ -102,7 +126,7 @@ class Codewords:
         self.codes: np.ndarray | None = None
         self.packed: np.ndarray | None = None
         self.filled: np.ndarray | None = None
-        self.index: Any = None
+        self.index: PackedScan | None = None
         self._decoder: BlockDecoder | None = None
         self.means: tuple[int, np.ndarray] | None = None
 
@@ -172,8 +196,8 @@ class Codewords:
             b = min(n, a + rows)
             yield a, b, self.of(np.arange(a, b))
 
-    def adc_index(self) -> Any:
-        """faiss.IndexPQ over the packed codewords whose scan computes m · c_i exactly (or None).
+    def adc_index(self) -> PackedScan | None:
+        """faiss.IndexPQ over the packed codewords whose scan computes m · c_i exactly (or None), in a :class:`PackedScan`.
 
         The soft decode is an asymmetric-distance scan: cut the K columns into groups of 8, a group
         of a codeword is one byte, and the 256 "centroids" of every group are the 256 ±1 patterns
@@ -196,7 +220,7 @@ class Codewords:
             for a, b, codes in self.codebook.iter_blocks():
                 codes_out[a:b] = np.packbits(codes > 0, axis=1, bitorder="little")
             index.ntotal = n
-            self.index = index
+            self.index = PackedScan(index)
         return self.index
 
     def decoder(self) -> BlockDecoder:
