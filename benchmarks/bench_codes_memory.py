@@ -12,7 +12,8 @@ process. Then, each in a fresh process (so that every peak is that process' own)
 
 Resident memory is read from ``/proc/self/statm`` (current) and ``getrusage(RUSAGE_SELF).ru_maxrss``
 (peak) after each step. Inference memory = resident memory after the queries − the baseline's,
-reported against N·K/8 + 32 MB (N·K/8: the packed codebook). Writes
+reported against N·K/8 + 32 MB (N·K/8: the packed codebook), beside the peaks after the first
+query, the 100 single queries and the batch (− the baseline's peak). Writes
 ``benchmarks/results/bench_codes_memory.json`` and prints a table with the load average::
 
     python benchmarks/bench_codes_memory.py            # N = 10⁶ (the fit takes ≈ 0.5–1 min)
@@ -136,12 +137,15 @@ def main(argv: list[str] | None = None) -> int:
 
     print(f"baseline (imports + queries, no model): RSS {base['rss_start'] / MB:.1f} MB, peak {base['peak_start'] / MB:.1f} MB")
     print(f"{'decode':<8} {'load s':>7} {'first s':>8} {'1 query ms':>10} {'batch s':>8} | RSS − baseline MB: "
-          f"{'load':>7} {'first':>7} {'100':>7} {'batch':>7} {'peak':>7} | {'N·K/8+32':>8} ok   load avg")
+          f"{'load':>7} {'first':>7} {'100':>7} {'batch':>7} | peak − baseline MB: {'first':>6} {'100':>6} "
+          f"{'batch':>6} | {'N·K/8+32':>8} ok   load avg")
     for r in rows:
         d = {k: (r[k] - base["rss_start"]) / MB for k in ("rss_load", "rss_first", "rss_single", "rss_batch")}
+        p = {k: (r[k] - base["peak_start"]) / MB for k in ("peak_first", "peak_single")}
         print(f"{r['decode']:<8} {r['load_s']:7.3f} {r['first_query_s']:8.3f} {r['single_s'] * 1e3:10.3f} "
               f"{r['batch_s']:8.3f} | {'':>17} {d['rss_load']:7.1f} {d['rss_first']:7.1f} {d['rss_single']:7.1f} "
-              f"{d['rss_batch']:7.1f} {r['inference_peak_bytes'] / MB:7.1f} | {r['bound_bytes'] / MB:8.1f} "
+              f"{d['rss_batch']:7.1f} | {'':>18} {p['peak_first']:6.1f} {p['peak_single']:6.1f} "
+              f"{r['inference_peak_bytes'] / MB:6.1f} | {r['bound_bytes'] / MB:8.1f} "
               f"{'yes' if r['within_bound'] else 'NO ':<4} {r['load_average'][0]:.2f}")
     print(f"N = {n:,d}, K = {rows[0]['n_codes'] if rows else '?'}, {rows[0]['configuration'] if rows else ''}; fit {fit_s:.1f} s; load average "
           f"{load_before[0]:.2f} before, {payload['load_after'][0]:.2f} after; wrote {path}")

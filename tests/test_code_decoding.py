@@ -229,3 +229,35 @@ def test_decode_coarse_is_kept_where_the_composed_map_would_serve() -> None:
     model.predict(r.queries[:3])
     model.search(r.queries[:1], 4)
     assert len(calls) == 2
+
+def test_the_scan_index_holds_every_codeword_once_when_filled_block_by_block(route, monkeypatch) -> None:
+    import faiss
+
+    import btel.methods.codes.codebook as codebook
+    from btel.methods.codes.codewords import Codewords
+
+    X, Q = route
+    model = _model("random", X)
+    monkeypatch.setattr(codebook, "_BLOCK_ELEMENTS", 97 * 60)  # 97 places per block: 16 blocks, a short last one
+    scan = Codewords(model.codebook_).adc_index()
+    index = scan.index
+    packed = np.packbits(model.codebook_.codewords(np.arange(1500)) > 0, axis=1, bitorder="little")
+    assert index.ntotal == 1500 and index.codes.size() == packed.size
+    np.testing.assert_array_equal(faiss.vector_to_array(index.codes).reshape(packed.shape), packed)
+    M = model._padded(model._margins(model._check_queries(Q[:6])))
+    scores, places = scan.search(M, 4)
+    _check_exact(scores.astype(np.float64), places.astype(np.int64), _reference(model, M))
+
+
+def test_the_scan_answers_a_batch_in_chunks_as_in_one_call(route, monkeypatch) -> None:
+    import btel.methods.codes.codewords as codewords
+
+    X, Q = route
+    model = _model("random", X)
+    scan = codewords.Codewords(model.codebook_).adc_index()
+    M = model._padded(model._margins(model._check_queries(Q[:23])))
+    whole = scan.index.search(M, 5)
+    monkeypatch.setattr(codewords, "SCAN_TABLE_VALUES", 4 * 8 * 256)  # 4 queries per call: 6 calls, a short last one
+    chunked = scan.search(M, 5)
+    for got, expected in zip(chunked, whole):
+        np.testing.assert_array_equal(got, expected)

@@ -116,3 +116,42 @@ def test_invalid_codebooks_are_refused_with_a_reason(kwargs, match) -> None:
 def test_places_outside_the_route_are_refused() -> None:
     with pytest.raises(InvalidParameterError, match=r"\[0, 50\)"):
         Codebook("periodic", 50, 16).codewords(np.array([50]))
+
+
+def _sums_of_codewords(book: Codebook, block: int) -> np.ndarray:
+    codes = book.codewords(np.arange(book.n_places)).astype(np.int64)
+    return np.add.reduceat(codes, np.arange(0, book.n_places, block), axis=0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(family=st.sampled_from(FAMILIES), n_places=st.integers(2, 3000), k=st.integers(1, 40),
+       block=st.one_of(st.just(1), st.integers(1, 12), st.integers(1, 4000)), seed=st.integers(0, 2**32 - 1))
+def test_block_sums_are_the_sums_of_the_codewords_of_each_block(family, n_places, k, block, seed) -> None:
+    k = min(max(k, min_columns(family, n_places)), max_columns(family, n_places))
+    if family == "binary":
+        k = min_columns(family, n_places)
+    book = Codebook(family, n_places, k, seed)
+    sums = book.block_sums(block)
+    assert sums.dtype == np.int32 and sums.shape == (-(-n_places // block), k)
+    np.testing.assert_array_equal(sums, _sums_of_codewords(book, block))
+
+
+_EDGES = st.sampled_from([0, 1, 2**62, 2**63 - 1, 2**63, 2**63 + 1, 2**64 - 1])
+
+
+@settings(max_examples=80, deadline=None)
+@given(n_places=st.integers(8, 2000), block=st.integers(8, 700),
+       frequency=st.one_of(_EDGES, st.integers(0, 2**64 - 1)), phase=st.one_of(_EDGES, st.integers(0, 2**64 - 1)))
+def test_periodic_block_sums_are_exact_for_any_fixed_point_frequency_and_phase(n_places, block, frequency, phase) -> None:
+    # The closed form's switch points s_i = −i·F and e_i = s_i + 2⁶³ hit 0 and wrap around 2⁶⁴ here
+    # (F = 2⁶², 2⁶³, 2⁶⁴ − 1, …), cases the seeded frequencies reach only by chance.
+    book = Codebook("periodic", n_places, 16, seed=0)
+    book._params["frequency"][:8] = np.uint64(frequency)
+    book._params["phase"][:8] = np.uint64(phase)
+    book._params["frequency"][8:] = np.uint64(frequency) + np.arange(8, dtype=np.uint64)
+    np.testing.assert_array_equal(book.block_sums(block), _sums_of_codewords(book, block))
+
+
+def test_block_sums_refuse_an_empty_block() -> None:
+    with pytest.raises(InvalidParameterError, match="block must be ≥ 1"):
+        Codebook("periodic", 50, 16).block_sums(0)

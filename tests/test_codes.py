@@ -171,6 +171,24 @@ def test_block_means_are_the_means_of_the_codewords(harder) -> None:
     np.testing.assert_allclose(model._codewords.block_means(model._coarse_shape()[0]), expected, atol=1e-6)
 
 
+@settings(max_examples=40, deadline=None)
+@given(family=st.sampled_from(FAMILIES), n_places=st.integers(2, 2500), k=st.integers(8, 40),
+       block=st.one_of(st.just(1), st.integers(1, 12), st.integers(1, 3000)), seed=st.integers(0, 2**32 - 1))
+def test_block_means_equal_float32_sums_of_the_codewords_bit_for_bit(family, n_places, k, block, seed) -> None:
+    from btel.methods.codes.codewords import Codewords
+
+    k = int(np.ceil(np.log2(n_places))) if family in ("binary", "offset") else max(k, int(np.ceil(np.log2(n_places))))
+    book = Codebook(family, n_places, k, seed)
+    codes = book.codewords(np.arange(n_places)).astype(np.float32)
+    starts = np.arange(0, n_places, block)
+    counts = np.diff(np.append(starts, n_places)).astype(np.float32)
+    expected = np.add.reduceat(codes, starts, axis=0) / counts[:, None]  # float32 throughout
+    means = Codewords(book).block_means(block)
+    assert means.dtype == np.float32 and means.shape == (starts.size, 8 * -(-k // 8))
+    np.testing.assert_array_equal(means[:, :k], expected)
+    assert np.all(means[:, k:] == 1)
+
+
 def test_coarse_decode_needs_a_route_family() -> None:
     with pytest.raises(InvalidParameterError, match="decode='exact'"):
         CodeLocalizer(code="random", decode="coarse").fit(np.random.default_rng(0).normal(size=(50, 8)))

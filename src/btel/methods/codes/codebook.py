@@ -71,16 +71,41 @@ _MIX2 = _U64(0x94D049BB133111EB)
 #: Stream ids keep the numbers drawn for different purposes independent.
 _STREAMS = {"period": 1, "phase": 2, "scale": 3, "offset": 4, "permutation": 5}
 _FAMILY_IDS = {name: i + 1 for i, name in enumerate(FAMILIES)}
-#: Elements (rows × columns) generated at a time by :meth:`Codebook.iter_blocks`.
-_BLOCK_ELEMENTS = 1 << 22
+#: Elements (rows × columns) generated at a time by :meth:`Codebook.iter_blocks` (uint64 work arrays of 4 MB).
+_BLOCK_ELEMENTS = 1 << 19
+#: Shortest block whose periodic sums :meth:`Codebook.block_sums` counts in closed form (shorter: summing is as fast).
+_CLOSED_FORM_BLOCK = 8
 
 
-def _splitmix(z: np.ndarray) -> np.ndarray:
-    """The splitmix64 finaliser on a uint64 array (wrapping arithmetic)."""
+def _splitmix(z: np.ndarray, work: dict | None = None) -> np.ndarray:
+    """The splitmix64 finaliser on a uint64 array (wrapping arithmetic), computed in ``z``'s memory (overwritten).
+
+    With ``work`` (:func:`_buffer`), only the result's top bit, as bool (the last step, z ^ z >> 31, keeps it).
+    """
+    z = z if isinstance(z, np.ndarray) else np.asarray(z, dtype=_U64)
     with np.errstate(over="ignore"):
-        z = (z ^ (z >> _U64(30))) * _MIX1
-        z = (z ^ (z >> _U64(27))) * _MIX2
-        return z ^ (z >> _U64(31))
+        t = np.right_shift(z, _U64(30), out=_buffer(work, "t", z.shape, _U64))
+        z ^= t
+        z *= _MIX1
+        np.right_shift(z, _U64(27), out=t)
+        z ^= t
+        z *= _MIX2
+        if work is not None:
+            return np.greater_equal(z, _U64(1 << 63), out=_buffer(work, "bool", z.shape, bool))
+        np.right_shift(z, _U64(31), out=t)
+        z ^= t
+    return z
+
+
+def _buffer(work: dict | None, name: str, shape: tuple[int, ...], dtype: type) -> np.ndarray:
+    """A view of ``work[name]`` of this shape (grown when too small), or a new array without ``work``: blocks of
+    codewords generated in turn reuse their work arrays (fresh megabyte arrays each time cost page faults)."""
+    size = int(np.prod(shape))
+    if work is None:
+        return np.empty(shape, dtype=dtype)
+    if name not in work or work[name].size < size:
+        work[name] = np.empty(size, dtype=dtype)
+    return work[name][:size].reshape(shape)
 
 
 def _hash(*keys: np.ndarray | int) -> np.ndarray:
@@ -249,7 +274,8 @@ class Codebook:
         return self._params["length"].copy()
 
     # -- codewords ------------------------------------------------------------------------------
-    def codewords(self, places: np.ndarray, columns: np.ndarray | slice | None = None) -> np.ndarray:
+    def codewords(self, places: np.ndarray, columns: np.ndarray | slice | None = None,
+                  work: dict | None = None) -> np.ndarray:
         """±1 codewords of the given places.
 
         Parameters
@@ -257,6 +283,9 @@ class Codebook:
         places : array-like of int, shape (n,), values in [0, N)
         columns : index array or slice, optional
             Only these columns (default all K).
+        work : dict, optional
+            Work arrays kept between calls (:meth:`iter_blocks` passes one), so that generating
+            many blocks allocates them once.
 
         Returns
         -------
@@ -271,17 +300,20 @@ class Codebook:
         if self.family in ("binary", "offset"):
             positive = ((((i + p["shift"]) % p["modulus"]) >> p["low_bit"]) & 1).astype(bool)
         elif self.family == "periodic":
+            shape = (i.shape[0], p["frequency"].size)
             with np.errstate(over="ignore"):
-                t = i.astype(_U64) * p["frequency"]
+                t = np.multiply(i.astype(_U64), p["frequency"], out=_buffer(work, "z", shape, _U64))
                 t += p["phase"]
-            positive = t < _U64(1 << 63)
+            positive = np.less(t, _U64(1 << 63), out=_buffer(work, "bool", shape, bool))
         elif self.family == "blocks":
             positive = self._block_colours(i[:, 0], p)
         else:
             # An independent fair coin per (place, column): the top bit of a hash. Balanced in
             # expectation (±√N/2 places), with no structure along the route.
+            shape, work = (i.shape[0], p["key"].size), {} if work is None else work
             with np.errstate(over="ignore"):
-                positive = (_splitmix(i.astype(_U64) * _GOLDEN ^ p["key"]) >> _U64(63)) == _U64(1)
+                z = np.bitwise_xor(i.astype(_U64) * _GOLDEN, p["key"], out=_buffer(work, "z", shape, _U64))
+            positive = _splitmix(z, work)
         out = positive.view(np.int8) * np.int8(2)
         out -= np.int8(1)
         return out
@@ -309,14 +341,15 @@ class Codebook:
                     rows: int | None = None) -> Iterator[tuple[int, int, np.ndarray]]:
         """Yield (start, stop, codewords of places start:stop) over consecutive blocks of places.
 
-        ``rows`` places per block (default: about 4 M values per block), so the whole (N, K)
+        ``rows`` places per block (default: about 0.5 M values per block), so the whole (N, K)
         codebook is never held at once.
         """
         stop = self.n_places if stop is None else stop
         rows = rows or max(1, _BLOCK_ELEMENTS // max(self.n_codes, 1))
+        work: dict = {}
         for a in range(start, stop, rows):
             b = min(stop, a + rows)
-            yield a, b, self.codewords(np.arange(a, b))
+            yield a, b, self.codewords(np.arange(a, b), work=work)
 
     def block_signs(self, block: int) -> np.ndarray:
         """Per block of ``block`` consecutive places: +1 / −1 where a column is constant on it, 0 where it varies.
@@ -354,6 +387,60 @@ class Codebook:
             low = np.minimum.reduceat(codes, firsts, axis=0)
             high = np.maximum.reduceat(codes, firsts, axis=0)
             out[a // block : a // block + firsts.size] = np.where(low == high, low, 0)
+        return out
+
+    def block_sums(self, block: int) -> np.ndarray:
+        """Per block of ``block`` consecutive places: the sum of its ±1 codewords (B × its mean codeword).
+
+        The blocks are places [j·B, min(N, (j + 1)·B)). The periodic family is counted in closed form
+        (:meth:`_periodic_counts`); the other families sum their int8 codewords block by block.
+
+        Returns
+        -------
+        ndarray of shape (⌈N/B⌉, K), int32
+        """
+        n, block = int(self.n_places), int(block)
+        if block < 1:
+            raise InvalidParameterError(f"block must be ≥ 1; got {block}.")
+        n_blocks, whole = -(-n // block), n // block  # whole: the blocks of exactly B places
+        out = np.empty((n_blocks, self.n_codes), dtype=np.int32)
+        if self.family == "periodic" and block >= _CLOSED_FORM_BLOCK and whole:
+            out[:whole] = 2 * self._periodic_counts(block, whole) - block
+            if whole < n_blocks:  # the shorter last block
+                out[whole] = self.codewords(np.arange(whole * block, n)).sum(axis=0, dtype=np.int32)
+            return out
+        rows = max(block, (_BLOCK_ELEMENTS // max(self.n_codes, 1)) // block * block)
+        for a, b, codes in self.iter_blocks(rows=rows):  # a is a multiple of block
+            full, j = (b - a) // block, a // block
+            out[j : j + full] = codes[: full * block].reshape(full, block, self.n_codes).sum(axis=1, dtype=np.int32)
+            if full * block < b - a:  # the shorter last block
+                out[j + full] = codes[full * block :].sum(axis=0, dtype=np.int32)
+        return out
+
+    def _periodic_counts(self, block: int, n_blocks: int) -> np.ndarray:
+        """Positive places per (block, column) of the periodic family, for the first ``n_blocks`` blocks of B places.
+
+        Place a + i of column k is positive iff (T + i·F) mod 2⁶⁴ < 2⁶³, with T = a·F + Φ the block's
+        start phase. As a function of T, place i is positive on the circular half-open interval
+        [s_i, s_i + 2⁶³), s_i = −i·F mod 2⁶⁴: on at s_i, off at e_i = s_i + 2⁶³ mod 2⁶⁴. So count(T) =
+        count(0) + #{i: 0 < s_i ≤ T} − #{i: 0 < e_i ≤ T}, a step function read by one binary search per
+        block over the B sorted switch points: exact, O(B log B + (N/B)·log B) per column, not N·K.
+        Returns an int32 array (n_blocks, K).
+        """
+        p, half = self._params, _U64(1 << 63)
+        i = np.arange(block, dtype=np.int64).astype(_U64)
+        a = np.arange(n_blocks, dtype=np.int64).astype(_U64) * _U64(block)
+        out = np.empty((n_blocks, self.n_codes), dtype=np.int32)
+        with np.errstate(over="ignore"):
+            for k in range(self.n_codes):
+                f, phi = p["frequency"][k], p["phase"][k]
+                step = i * f  # i·F mod 2⁶⁴
+                on = np.sort(_U64(0) - step)
+                off = np.sort(on + half)
+                # count(0) − #{s_i = 0} + #{e_i = 0}: then #{s_i ≤ T} − #{e_i ≤ T} adds the rest.
+                base = int(np.count_nonzero(step < half) - np.count_nonzero(on == 0) + np.count_nonzero(off == 0))
+                t = a * f + phi
+                out[:, k] = base + np.searchsorted(on, t, side="right") - np.searchsorted(off, t, side="right")
         return out
 
     def to_header(self) -> dict[str, int | str]:

@@ -32,12 +32,15 @@ from ...threads import blas_threads, blas_threads_for_vector
 from .codebook import Codebook
 from .decoding import BYTE_SIGNS, DENSE_CACHE_BYTES, BlockDecoder
 
-__all__ = ["Codewords", "RuntimeCache", "blas_for", "blas_for_decode", "BLOCK_VALUES", "PACKED_CACHE_BYTES"]
+__all__ = ["Codewords", "PackedScan", "RuntimeCache", "blas_for", "blas_for_decode", "BLOCK_VALUES", "PACKED_CACHE_BYTES",
+           "SCAN_TABLE_VALUES"]
 
 #: The codebook is cached at inference as packed bits (N × ⌈K/8⌉ bytes) up to this size (256 MB).
 PACKED_CACHE_BYTES = 1 << 28
 #: Values (rows × columns) of one block of scores or codes at inference (about 16 MB of float32).
 BLOCK_VALUES = 1 << 22
+#: Look-up table values (queries × ⌈K/8⌉ × 256) of one call to faiss' packed scan (4 MB of float32).
+SCAN_TABLE_VALUES = 1 << 20
 #: Places whose packed codewords are generated together when first read.
 FILL_PLACES = 256
 #: Below this many multiply-adds a decode runs its BLAS products on one thread (see blas_for).
@@ -61,6 +64,40 @@ def blas_for_decode(n_queries: int, largest_product: int) -> Any:
     matrix-vector product (``largest_product`` multiply-adds) is one BLAS runs on one thread anyway
     (:func:`~btel.threads.blas_threads_for_vector`: setting and restoring a limit costs ≈ 4–5 µs)."""
     return blas_threads_for_vector(largest_product) if n_queries == 1 else blas_threads(1)
+
+
+class PackedScan:
+    """faiss' packed PQ scan (``index``, an IndexPQ) searched a few queries at a time.
+
+    faiss builds the look-up tables of every query of a call at once (⌈K/8⌉ × 256 float32 per
+    query: 60 MB for 1,000 queries at K = 470, as much as the codes themselves), so a batch is cut
+    into chunks whose tables hold about :data:`SCAN_TABLE_VALUES` values. Queries are independent:
+    the answers are those of one call.
+    """
+
+    def __init__(self, index: Any) -> None:
+        self.index = index
+
+    def search(self, M: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """faiss' ``search`` (scores (n, k) float32, places (n, k) int64), chunk by chunk."""
+        step = max(1, SCAN_TABLE_VALUES // (int(self.index.pq.M) * int(self.index.pq.ksub)))
+        if M.shape[0] <= step:
+            return self.index.search(M, k)
+        parts = [self.index.search(M[a : a + step], k) for a in range(0, M.shape[0], step)]
+        return np.concatenate([s for s, _ in parts]), np.concatenate([p for _, p in parts])
+
+
+def _codes_view(index: Any, n: int, code_size: int) -> np.ndarray:
+    """A writable (n, code_size) uint8 view of a faiss flat-codes index's code array, resized to n codes.
+
+    The array is allocated once at its final size (adding codes in batches grows faiss' vector,
+    and each growth briefly holds the old and the new buffer). The caller fills the view, then sets
+    ``index.ntotal``; the view is valid until the index's codes are resized again.
+    """
+    import faiss
+
+    index.codes.resize(n * code_size)
+    return faiss.rev_swig_ptr(index.codes.data(), n * code_size).reshape(n, code_size)
 
 
 class Codewords:
@@ -89,7 +126,7 @@ class Codewords:
         self.codes: np.ndarray | None = None
         self.packed: np.ndarray | None = None
         self.filled: np.ndarray | None = None
-        self.index: Any = None
+        self.index: PackedScan | None = None
         self._decoder: BlockDecoder | None = None
         self.means: tuple[int, np.ndarray] | None = None
 
@@ -159,14 +196,16 @@ class Codewords:
             b = min(n, a + rows)
             yield a, b, self.of(np.arange(a, b))
 
-    def adc_index(self) -> Any:
-        """faiss.IndexPQ over the packed codewords whose scan computes m · c_i exactly (or None).
+    def adc_index(self) -> PackedScan | None:
+        """faiss.IndexPQ over the packed codewords whose scan computes m · c_i exactly (or None), in a :class:`PackedScan`.
 
         The soft decode is an asymmetric-distance scan: cut the K columns into groups of 8, a group
         of a codeword is one byte, and the 256 "centroids" of every group are the 256 ±1 patterns
         of 8 columns. faiss' inner-product PQ scan then sums, per place, one table entry per group
         (⌈K/8⌉ look-ups instead of K multiply-adds). Only for the 'random' family past the dense
-        cache (no blocks to bound): its codes are added block by block, the index holds the only copy.
+        cache (no blocks to bound). The index's code array is sized once and its codes are written
+        in place block by block (:func:`_codes_view`): it holds the only copy, and no growth of
+        faiss' vector ever holds two.
         """
         if self.index is None:
             n, groups = self.n_places, -(-self.n_codes // 8)
@@ -177,9 +216,11 @@ class Codewords:
             index = faiss.IndexPQ(8 * groups, groups, 8, faiss.METRIC_INNER_PRODUCT)
             faiss.copy_array_to_vector(np.tile(BYTE_SIGNS, (groups, 1)).ravel(), index.pq.centroids)
             index.is_trained = True
-            for _, _, codes in self.codebook.iter_blocks():
-                index.add_sa_codes(np.packbits(codes > 0, axis=1, bitorder="little"))
-            self.index = index
+            codes_out = _codes_view(index, n, groups)
+            for a, b, codes in self.codebook.iter_blocks():
+                codes_out[a:b] = np.packbits(codes > 0, axis=1, bitorder="little")
+            index.ntotal = n
+            self.index = PackedScan(index)
         return self.index
 
     def decoder(self) -> BlockDecoder:
@@ -189,15 +230,16 @@ class Codewords:
         return self._decoder
 
     def block_means(self, block: int) -> np.ndarray:
-        """(⌈N/B⌉, 8⌈K/8⌉) float32 mean codeword of every block of B consecutive places (the last may be shorter)."""
+        """(⌈N/B⌉, 8⌈K/8⌉) float32 mean codeword of every block of B consecutive places (the last may be shorter).
+
+        From the exact integer sums of :meth:`Codebook.block_sums` (closed form for the periodic
+        family), each divided by its block's length in float32; padding columns are +1.
+        """
         if self.means is None or self.means[0] != block:
             n_blocks = -(-self.n_places // block)
-            means = np.empty((n_blocks, self.width), dtype=np.float32)
-            rows = max(block, (BLOCK_VALUES // self.n_codes) // block * block)
-            for a, b, codes in self.blocks(rows):  # a is a multiple of block
-                starts = np.arange(0, b - a, block)
-                counts = np.diff(np.append(starts, b - a)).astype(np.float32)
-                means[a // block : a // block + starts.size] = np.add.reduceat(codes, starts, axis=0) / counts[:, None]
+            lengths = np.minimum(block, self.n_places - block * np.arange(n_blocks)).astype(np.float32)
+            means = np.ones((n_blocks, self.width), dtype=np.float32)
+            np.divide(self.codebook.block_sums(block), lengths[:, None], out=means[:, : self.n_codes], dtype=np.float32)
             self.means = (block, means)
         return self.means[1]
 
