@@ -261,3 +261,18 @@ def test_the_scan_answers_a_batch_in_chunks_as_in_one_call(route, monkeypatch) -
     chunked = scan.search(M, 5)
     for got, expected in zip(chunked, whole):
         np.testing.assert_array_equal(got, expected)
+
+
+def test_packed_look_ups_in_small_pieces_score_the_same(route, monkeypatch) -> None:
+    import btel.methods.codes.decoding as decoding
+
+    X, Q = route
+    model = CodeLocalizer(n_codes=60, decode="exact").fit(X)
+    M = model._padded(model._margins(model._check_queries(Q[:10])))
+    codewords = model._codewords
+    whole = BlockDecoder(model.codebook_, codewords.width, codewords.packed_of).search(M, 3)
+    monkeypatch.setattr(decoding, "LOOKUP_VALUES", 8 * 37)  # 37 places per piece: pieces split blocks
+    pieces = BlockDecoder(model.codebook_, codewords.width, codewords.packed_of).search(M, 3)
+    for a, b in zip(whole, pieces):
+        np.testing.assert_array_equal(a, b)
+    _check_exact(pieces[0], pieces[1], _reference(model, M))

@@ -48,6 +48,8 @@ PROBE_QUERIES = 8
 #: Nanoseconds per codeword value (from ``benchmarks/bench_codes.py``): the dense product (per query of a
 #: batch) and the bounded search (per value of a scored place), plus the bounded search's per-query overhead.
 DENSE_NS, BOUNDED_NS, BOUNDED_OVERHEAD_NS = 0.05, 0.2, 40_000.0
+#: Packed bytes looked up at a time when blocks are scored from packed codewords (≈ 1 M: a few MB of temporaries).
+LOOKUP_VALUES = 1 << 20
 #: Blocks scored in the first round of the bounded search (then 2×, 4×, … more per round).
 FIRST_BLOCKS = 8
 #: The ±1 values of the 8 bits of every byte (bit j → column j), float32 (256, 8).
@@ -238,5 +240,11 @@ class BlockDecoder:
                     np.concatenate([dense[a:b] @ m for a, b in runs]))
         places = (take[:, None] * self.block + self._offsets).ravel()
         places = places[places < self.n_places]
-        codes = self.packed_of(places) + self._table_rows  # uint16: byte value + 256 × its group
-        return places, table[codes].sum(axis=1)
+        scores = np.empty(places.size, dtype=np.float32)
+        # A query whose bounds prune little scores many blocks: look-ups a bounded number of places at a
+        # time, so the uint16 indices and gathered partial sums stay small (memory, not speed).
+        step = max(1, LOOKUP_VALUES // len(self._table_rows))
+        for a in range(0, places.size, step):
+            codes = self.packed_of(places[a : a + step]) + self._table_rows  # byte value + 256 × its group
+            scores[a : a + step] = np.take(table, codes).sum(axis=1)
+        return places, scores
