@@ -276,3 +276,4 @@ def test_packed_look_ups_in_small_pieces_score_the_same(route, monkeypatch) -> N
     for a, b in zip(whole, pieces):
         np.testing.assert_array_equal(a, b)
     _check_exact(pieces[0], pieces[1], _reference(model, M))
+

@@ -30,7 +30,7 @@ import numpy as np
 from ...base import top_k
 from ...threads import blas_threads, blas_threads_for_vector
 from .codebook import Codebook
-from .decoding import BYTE_SIGNS, DENSE_CACHE_BYTES, BlockDecoder
+from .decoding import BYTE_SIGNS, DENSE_CACHE_BYTES, BlockDecoder, byte_table, packed_scores
 
 __all__ = ["Codewords", "PackedScan", "RuntimeCache", "blas_for", "blas_for_decode", "BLOCK_VALUES", "PACKED_CACHE_BYTES",
            "SCAN_TABLE_VALUES"]
@@ -262,7 +262,6 @@ class Codewords:
         out_p = np.empty((M.shape[0], k), dtype=np.int64)
         n_blocks = means.shape[0]
         offsets = np.arange(block)
-        table_rows = (np.arange(self.width // 8) * 256).astype(np.uint16)
         step = max(1, BLOCK_VALUES // n_blocks)  # queries whose coarse scores are held at once
         for a in range(0, M.shape[0], step):
             coarse = M[a : a + step] @ means.T
@@ -273,12 +272,7 @@ class Codewords:
                 # Candidates in place order, so that ties go to the lower place as in the exact decode.
                 places = (blocks[:, None] * block + offsets).ravel()
                 places = places[places < n_places]
-                packed = self.packed_rows(places)
-                if packed is None:
-                    scores = self.of(places) @ m
-                else:  # one table look-up per byte: m's 256 partial sums of every 8 columns
-                    table = (m.reshape(-1, 8) @ BYTE_SIGNS.T).ravel()
-                    scores = np.take(table, packed + table_rows).sum(axis=1)
+                scores = packed_scores(byte_table(m), self.packed_of, places)
                 values, cols = top_k(scores.astype(np.float64)[None], k)
                 out_s[a + q], out_p[a + q] = values[0], places[cols[0]]
         return out_s, out_p

@@ -31,7 +31,7 @@ import numpy as np
 from ...base import top_k
 from .codebook import Codebook
 
-__all__ = ["BlockDecoder", "DENSE_CACHE_BYTES", "BATCH_DENSE_FROM", "block_size", "choose_path", "composes", "best_of", "BYTE_SIGNS",
+__all__ = ["BlockDecoder", "DENSE_CACHE_BYTES", "BATCH_DENSE_FROM", "block_size", "choose_path", "composes", "best_of", "byte_table", "packed_scores", "BYTE_SIGNS",
            "DENSE_SMALL_VALUES", "PROBE_QUERIES"]
 
 #: Largest float32 codeword cache (N × 8⌈K/8⌉ × 4 bytes) kept for the dense product (32 MB).
@@ -64,6 +64,28 @@ def block_size(n_places: int) -> int:
     of ≈ 8–16 blocks) balances the two (``benchmarks/bench_codes.py``).
     """
     return int(min(1024, max(8, round(np.sqrt(n_places)))))
+
+
+def byte_table(m: np.ndarray) -> np.ndarray:
+    """m's 256 partial sums of every 8 columns, float32 (8⌈K/8⌉ / 8 × 256,): entry g·256 + b is the
+    sum of m over the 8 columns of group g signed by the bits of byte value b (:data:`BYTE_SIGNS`)."""
+    return (m.reshape(-1, 8) @ BYTE_SIGNS.T).ravel()
+
+
+def packed_scores(table: np.ndarray, packed_of, places: np.ndarray) -> np.ndarray:
+    """m · c_i (float32) of the given places from their packed codewords: one look-up of :func:`byte_table` per byte.
+
+    ``packed_of(places)`` gives the (n, groups) uint8 packed codewords. The look-ups run
+    :data:`LOOKUP_VALUES` bytes at a time, so the indices and gathered partial sums stay a few MB
+    however many places a query scores.
+    """
+    groups = table.size // 256
+    rows = (np.arange(groups) * 256).astype(np.uint16)  # index g·256 + b
+    scores = np.empty(places.size, dtype=np.float32)
+    step = max(1, LOOKUP_VALUES // groups)
+    for a in range(0, places.size, step):
+        scores[a : a + step] = np.take(table, packed_of(places[a : a + step]) + rows).sum(axis=1)
+    return scores
 
 
 def best_of(scores: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -158,7 +180,6 @@ class BlockDecoder:
         self.varying = np.zeros_like(self.constant)
         self.varying[:, :K] = signs == 0
         self.packed_of, self.width, self.dense = packed_of, width, dense
-        self._table_rows = (np.arange(width // 8) * 256).astype(np.uint16)
         self._offsets = np.arange(self.block)
 
     @property
@@ -188,7 +209,7 @@ class BlockDecoder:
         for q in range(M.shape[0]):
             m, u = M[q], U[q]
             # m's 256 partial sums of every 8 columns (the packed codewords' look-up table)
-            table = (m.reshape(-1, 8) @ BYTE_SIGNS.T).ravel() if self.dense is None else None
+            table = byte_table(m) if self.dense is None else None
             # Round 1: the blocks of highest bound. Round 2: every other block whose bound exceeds the
             # k-th best score found (the k-th best only rises, so nothing past round 2 can enter).
             take = np.sort(np.argpartition(u, n_blocks - step)[n_blocks - step :]) if step < n_blocks \
@@ -240,11 +261,4 @@ class BlockDecoder:
                     np.concatenate([dense[a:b] @ m for a, b in runs]))
         places = (take[:, None] * self.block + self._offsets).ravel()
         places = places[places < self.n_places]
-        scores = np.empty(places.size, dtype=np.float32)
-        # A query whose bounds prune little scores many blocks: look-ups a bounded number of places at a
-        # time, so the uint16 indices and gathered partial sums stay small (memory, not speed).
-        step = max(1, LOOKUP_VALUES // len(self._table_rows))
-        for a in range(0, places.size, step):
-            codes = self.packed_of(places[a : a + step]) + self._table_rows  # byte value + 256 × its group
-            scores[a : a + step] = np.take(table, codes).sum(axis=1)
-        return places, scores
+        return places, packed_scores(table, self.packed_of, places)
