@@ -277,3 +277,12 @@ def test_packed_look_ups_in_small_pieces_score_the_same(route, monkeypatch) -> N
         np.testing.assert_array_equal(a, b)
     _check_exact(pieces[0], pieces[1], _reference(model, M))
 
+
+def test_packed_look_ups_past_2048_columns_index_every_group(route) -> None:
+    # ⌈K/8⌉ = 263 groups: the look-up index g·256 + b no longer fits uint16.
+    X, Q = route
+    model = CodeLocalizer(n_codes=2100, decode="exact").fit(X)
+    M = model._padded(model._margins(model._check_queries(Q[:6])))
+    codewords = model._codewords
+    from_packed = BlockDecoder(model.codebook_, codewords.width, codewords.packed_of)
+    _check_exact(*from_packed.search(M, 3)[:2], _reference(model, M))

@@ -80,7 +80,8 @@ def packed_scores(table: np.ndarray, packed_of, places: np.ndarray) -> np.ndarra
     however many places a query scores.
     """
     groups = table.size // 256
-    rows = (np.arange(groups) * 256).astype(np.uint16)  # index g·256 + b
+    # Index g·256 + b: uint16 while it fits (groups ≤ 256, K ≤ 2048), else uint32.
+    rows = (np.arange(groups) * 256).astype(np.uint16 if groups <= 256 else np.uint32)
     scores = np.empty(places.size, dtype=np.float32)
     step = max(1, LOOKUP_VALUES // groups)
     for a in range(0, places.size, step):
