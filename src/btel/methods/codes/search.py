@@ -169,9 +169,9 @@ class CodeSearch:
             if not math.isfinite(scores[0, place]):
                 self._check_answers(None, scores[0, place : place + 1])
             return np.array([place])
-        places = np.argmax(scores, axis=1)
-        self._check_answers(None, scores[np.arange(scores.shape[0]), places])
-        return places
+        values, places = best_of(scores, 1)
+        self._check_answers(None, values)
+        return places[:, 0]
 
     def exact_path(self, n_queries: int = 1) -> str:
         """The exact decode :meth:`search` runs for ``n_queries`` queries: 'composed', 'bounded', 'dense', 'scan' or 'probe'.
