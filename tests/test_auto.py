@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import btel
-from btel.methods.auto import ROUTE_SHARE, choose_method, route_share
+from btel.methods.auto import ORDER_SHARE, ROUTE_SHARE, choose_method, collision_bits, route_share
 from btel.exceptions import BudgetTooSmallError, ModelFileError
 from btel.methods import make_method
 
@@ -36,6 +36,37 @@ def test_the_rule_uses_no_queries_and_records_why(smooth_route) -> None:
     independent = choose_method(X[perm], None, 300, 4_000)
     assert independent[0]["method"] == "lsh" and "independent places" in independent[0]["reason"]
     assert choose_method(X[perm], None, 300, None)[0]["method"] == "bruteforce"
+
+
+def test_an_ordered_map_with_fewer_bits_than_the_birthday_bound_gets_output_codes() -> None:
+    from btel.datasets import synthetic_route
+
+    # A route whose consecutive places do not look alike most of the time (route share 0.12).
+    X = synthetic_route(2048, 256, condition_shift=1.0, seed=7).map
+    share = route_share(X)
+    assert ORDER_SHARE <= share < ROUTE_SHARE
+    assert collision_bits(2048) == pytest.approx(22.0)
+    few = choose_method(X, None, 2048, 4096)        # 16 bits per place < 22
+    assert few[0]["method"] == "btel-codes" and "2·log2 N" in few[0]["reason"]
+    assert [c["method"] for c in few[1:]] == ["lsh"]
+    assert choose_method(X, None, 2048, 16384)[0]["method"] == "lsh"   # 64 bits per place
+    # The same rows permuted are not ordered: few bits still go to LSH.
+    perm = np.random.default_rng(1).permutation(2048)
+    assert route_share(X[perm]) < ORDER_SHARE
+    assert choose_method(X[perm], None, 2048, 4096)[0]["method"] == "lsh"
+
+
+def test_lsh_is_whitened_only_when_the_budget_affords_a_useful_rank() -> None:
+    from btel.methods.auto import SHRINK_LSH_MIN_RANK
+    from btel.shrink import shrink_rank
+
+    X = np.random.default_rng(3).normal(size=(200, 500)).astype(np.float32)   # independent places
+    assert shrink_rank(500, 200, 16_000) < SHRINK_LSH_MIN_RANK <= shrink_rank(500, 200, 64_000)
+    low = choose_method(X, None, 200, 16_000)       # 80 B per place, but rank 5
+    assert low[0]["method"] == "lsh" and not low[0]["params"]["whiten"]
+    high = choose_method(X, None, 200, 64_000)
+    assert high[0]["method"] == "lsh" and high[0]["params"]["whiten"] == "shrink"
+    assert f"rank {shrink_rank(500, 200, 64_000)}" in high[0]["reason"]
 
 
 @pytest.mark.parametrize("budget", [2_000, 20_000, None])

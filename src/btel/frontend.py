@@ -20,7 +20,7 @@ stored in the model file and counted by the storage rule, so :func:`btel.load` r
   principal directions, divide by their standard deviations (scikit-learn ``PCA(whiten=True)``),
   then L2 again when ``normalize`` is not ``'none'``. Stores a d×p float32 matrix and a d float32
   mean (counted in the method's bytes).
-- ``whiten = "shrink"`` — shrinkage whitening x ↦ (Σ + λI)^(-1/2)(x − μ), then L2 (λ = 0.05 × the
+- ``whiten = "shrink"`` — shrinkage whitening x ↦ (Σ + λI)^(-1/2)(x − μ), then L2 (λ = 1 × the
   mean eigenvalue; low rank, int8/float16, at most a quarter of the budget: :mod:`btel.shrink`).
   Keeps the dimension d; its arrays are stored and counted like PCA whitening's.
 

@@ -14,18 +14,37 @@ per map:
    independent places have 0.14–0.40, so 0.5 keeps them on the LSH side; Nordland
    HOG (every 10th frame, 0.27 / 0.31) and the synthetic route (0.12) fall on that side too.
 2. **Route** → ``btel-codes`` with periodic codes (route-ordered codewords; the planner fills the
-   budget) at every budget: on Gardens Point they beat every other method from 1 KB to 1 MB.
-3. **Independent places** → if cosine brute force on shrinkage-whitened rows fits the budget (or
-   there is no budget), that (exact search); else ``lsh`` (asymmetric scoring) with
-   ``whiten="shrink"`` when the budget gives at least :data:`SHRINK_LSH_BYTES_PER_PLACE` (16) bytes
-   per place and plain ``lsh`` below (the whitening's quarter of the budget costs more bits than it
-   gives back there: synthetic route at 7.8 B per place R@2 0.354 plain vs 0.204 whitened; synthetic
-   independent places at 16 B 0.605 vs 0.654, Gardens Point permuted at 20 B 0.105 vs 0.135).
+   budget) at every budget: on Gardens Point they beat every other method from 4 KB to 256 KB.
+3. **Ordered map, few bits** → the same periodic output codes when the route share is at least
+   :data:`ORDER_SHARE` = 0.1 (consecutive places find each other far more often than the ≈ 4/N of
+   independent places) and the budget gives fewer than :func:`collision_bits` = 2·log2 N bits per
+   map row: N random P-bit sign codes collide unless P ≳ 2·log2 N (the birthday bound), while every
+   place has its own output codeword. Added after the first frontier run on the development data,
+   for the reason above and not fitted to a cell: there the codes beat LSH on Nordland at 4 KB
+   (recall@10 0.024 / 0.028 vs 0.008 / 0.005; 9 bits per place against 2·log2 N = 23.6) and on the
+   synthetic route at 4 KB (R@2 0.089 vs 0.030; 16 bits against 22); above the bound LSH won on the
+   synthetic route (16 KB: 0.354 vs 0.257). Maps of independent places (share < 0.1: Gardens Point
+   permuted 0.05, synthetic independent places 0.00) keep LSH at any budget; the two NetVLAD sets of
+   independent places above (share 0.14–0.40, 210 and 600 places) get ≥ 54 bits per place from 4 KB on,
+   above their bound (15.4 / 18.5), so LSH there too.
+4. **Otherwise (independent places, or many bits)** → if cosine brute force on shrinkage-whitened
+   rows fits the budget (or there is no budget), that (exact search); else ``lsh`` (asymmetric
+   scoring) with ``whiten="shrink"`` when the budget gives at least
+   :data:`SHRINK_LSH_BYTES_PER_PLACE` (16) bytes per place and affords a whitening of rank at
+   least :data:`SHRINK_LSH_MIN_RANK` (8), plain ``lsh`` otherwise. Below 16 B the whitening's
+   quarter of the budget costs more bits than it gives back (synthetic route at 7.8 B per place R@2
+   0.354 plain vs 0.204 whitened; synthetic independent places at 16 B 0.605 vs 0.654). Below rank 8
+   the transform is little more than the centring LSH already does (rank 8 is the smallest rank
+   that gave brute force the whitening's gain when :mod:`btel.shrink`'s rule was set): on Nordland
+   HOG at 64 KB (rank 2) whitened LSH scored 0.064 / 0.055 against plain 0.082 / 0.081; Gardens
+   Point permuted at 4 KB (rank 0) went the other way, 0.135 against 0.105 (6 of 200 queries).
+   The rank condition was added after the first frontier run, with the birthday bound of step 3.
 
-Known weak spots on the development data (``btel experiment frontier`` has the figures): on routes
-whose consecutive frames do not look alike (Nordland, the synthetic route) the output codes beat
-LSH at a few bytes per place, and on Nordland at 256 KB plain LSH beat whitened LSH (0.251 vs
-0.196) and PQ at 1 MB beat both. The rule was not changed to fit those rows.
+Known weak spots on the development data (``btel experiment frontier`` has the figures): on Nordland
+HOG at 16 KB (36 bits per place, above the bound) the output codes still beat LSH (everything is
+near chance there), at 256 KB (rank 15) plain LSH beat whitened LSH (0.251 vs 0.196: LSH centres
+its rows, which already gives part of what whitening gives, and the whitening's quarter of the
+budget costs bits), and PQ at 1 MB beat both. The rule was not changed to fit those rows.
 
 A choice that does not fit the budget falls back to the next candidate (``lsh``, then
 ``btel-codes``); what was chosen, why, and the statistics are recorded in the model file
@@ -45,7 +64,8 @@ from ..exceptions import BudgetTooSmallError, ModelFileError
 from ..frontend import normalize_rows
 from ..storage import format_bytes, parse_budget
 
-__all__ = ["AutoLocalizer", "route_share", "choose_method", "ROUTE_SHARE", "ROUTE_WINDOW"]
+__all__ = ["AutoLocalizer", "route_share", "choose_method", "collision_bits", "ROUTE_SHARE", "ROUTE_WINDOW",
+           "ORDER_SHARE"]
 
 #: Places within which the nearest other map row must lie for a row to count as "route-like".
 ROUTE_WINDOW = 2
@@ -55,6 +75,22 @@ ROUTE_SHARE = 0.5
 STAT_ROWS = 2000
 #: Independent places: from this many bytes per place on, LSH runs on shrinkage-whitened rows.
 SHRINK_LSH_BYTES_PER_PLACE = 16
+#: LSH runs on shrinkage-whitened rows only when the budget affords at least this rank (fewer
+#: directions is little more than the centring LSH does anyway, for 2d bytes of mean).
+SHRINK_LSH_MIN_RANK = 8
+#: A map whose route share is at least this (far above the ≈ 4/N of independent places) is ordered:
+#: below :func:`collision_bits` bits per map row it gets output codes rather than LSH.
+ORDER_SHARE = 0.1
+
+
+def collision_bits(n_rows: int) -> float:
+    """2·log2 N: the bits per row below which N random sign codes are unlikely to be all distinct.
+
+    The birthday bound: N independent random P-bit codes are all distinct with probability about
+    exp(−N² / 2^(P+1)), which is small unless P ≳ 2·log2 N. Below it many places of an LSH map share
+    their code, while output codes give every place its own codeword by construction.
+    """
+    return 2.0 * float(np.log2(max(int(n_rows), 2)))
 
 
 def route_share(X: np.ndarray, places: np.ndarray | None = None, *, window: int = ROUTE_WINDOW,
@@ -98,6 +134,7 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
     """
     from .baselines import BruteForceNN
     from ..frontend import FrontEnd
+    from ..shrink import shrink_rank
 
     share = route_share(X, places)
     n_rows, d = X.shape
@@ -116,16 +153,25 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
                     "reason": f"route ({where}), {bpp}: periodic output codes filling the budget"})
         out.append(lsh)
         return [{**c, **stats} for c in out]
+    few = collision_bits(n_rows)
+    if share >= ORDER_SHARE and per_place is not None and 8 * per_place < few:
+        out.append({"method": "btel-codes", "params": {"code": "periodic", "whiten": white(None)},
+                    "reason": f"ordered map (route share {share:.2f} ≥ {ORDER_SHARE}) with {8 * per_place:.0f} bits "
+                              f"per map row < 2·log2 N = {few:.1f}: random sign codes that short collide, so "
+                              "periodic output codes filling the budget"})
+        out.append(lsh)
+        return [{**c, **stats} for c in out]
     front = FrontEnd(normalize="l2", whiten=white("shrink"), budget=budget)
     exact = BruteForceNN.planned_bytes(n_rows, front.n_features_out(d)) + front.planned_bytes(d, n_rows)
     if budget is None or exact <= budget:
         out.append({"method": "bruteforce", "params": {"whiten": white("shrink")},
                     "reason": f"independent places ({where}); brute force on shrinkage-whitened rows fits "
                               f"({format_bytes(exact)})"})
-    if per_place is None or per_place >= SHRINK_LSH_BYTES_PER_PLACE:
+    rank = shrink_rank(d, n_rows, budget)
+    if (per_place is None or per_place >= SHRINK_LSH_BYTES_PER_PLACE) and rank >= SHRINK_LSH_MIN_RANK:
         out.append({"method": "lsh", "params": {"whiten": white("shrink")},
                     "reason": f"independent places ({where}), {bpp} ≥ {SHRINK_LSH_BYTES_PER_PLACE}: asymmetric LSH on "
-                              "shrinkage-whitened rows"})
+                              f"shrinkage-whitened rows (rank {rank})"})
     out.append({**lsh, "reason": f"independent places ({where}), {bpp}: asymmetric LSH"})
     out.append(codes)
     return [{**c, **stats} for c in out]
