@@ -249,7 +249,7 @@ class Codebook:
         out -= np.int8(1)
         return out
 
-    def packed(self, places: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    def packed(self, places: np.ndarray, out: np.ndarray | None = None, work: dict | None = None) -> np.ndarray:
         """Packed codewords of the given places: +1 → bit 1, column j in bit j % 8 of byte j // 8, unused high bits
         of the last byte 0 (``np.packbits(codewords(places) > 0, axis=1, bitorder='little')``).
 
@@ -261,6 +261,8 @@ class Codebook:
         places : array-like of int, shape (n,), values in [0, N)
         out : ndarray of shape (n, ⌈K/8⌉), uint8, optional
             Written in place.
+        work : dict, optional
+            Work arrays kept between calls (as :meth:`codewords`), for callers that fill many blocks.
 
         Returns
         -------
@@ -271,10 +273,10 @@ class Codebook:
             if i.size and (int(i.min()) < 0 or int(i.max()) >= self.n_places):
                 raise InvalidParameterError(f"place indices must lie in [0, {self.n_places}).")
             return grouped_packed(i, self._params["group_key"], self.n_codes, out=out)
-        bits = np.packbits(self.codewords(i) > 0, axis=1, bitorder="little")
-        if out is None:
-            return bits
-        out[...] = bits
+        out = np.empty((i.size, -(-self.n_codes // 8)), dtype=np.uint8) if out is None else out
+        rows, work = max(1, _BLOCK_ELEMENTS // max(self.n_codes, 1)), {} if work is None else work
+        for a in range(0, i.size, rows):
+            out[a : a + rows] = np.packbits(self.codewords(i[a : a + rows], work=work) > 0, axis=1, bitorder="little")
         return out
 
     @staticmethod

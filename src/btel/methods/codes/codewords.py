@@ -218,9 +218,9 @@ class Codewords:
             faiss.copy_array_to_vector(np.tile(BYTE_SIGNS, (groups, 1)).ravel(), index.pq.centroids)
             index.is_trained = True
             codes_out = _codes_view(index, n, groups)
-            rows = max(1, BLOCK_VALUES // (8 * groups))  # about 0.5 M packed bytes a step
+            rows, work = max(1, BLOCK_VALUES // (8 * groups)), {}  # about 0.5 M packed bytes a step
             for a in range(0, n, rows):
-                self.codebook.packed(np.arange(a, min(n, a + rows)), out=codes_out[a : a + rows])
+                self.codebook.packed(np.arange(a, min(n, a + rows)), out=codes_out[a : a + rows], work=work)
             index.ntotal = n
             self.index = PackedScan(index)
         return self.index
