@@ -233,13 +233,15 @@ def test_decode_coarse_is_kept_where_the_composed_map_would_serve() -> None:
 def test_the_scan_index_holds_every_codeword_once_when_filled_block_by_block(route, monkeypatch) -> None:
     import faiss
 
-    import btel.methods.codes.codebook as codebook
-    from btel.methods.codes.codewords import Codewords
+    import btel.methods.codes.codewords as codewords
+    import btel.methods.codes.hashing as hashing
 
     X, Q = route
     model = _model("random", X)
-    monkeypatch.setattr(codebook, "_BLOCK_ELEMENTS", 97 * 60)  # 97 places per block: 16 blocks, a short last one
-    scan = Codewords(model.codebook_).adc_index()
+    # 97 places per block (K = 60: 8 bytes each): 16 blocks, a short last one; hashed 13 places at a time.
+    monkeypatch.setattr(codewords, "BLOCK_VALUES", 97 * 8 * 8)
+    monkeypatch.setattr(hashing, "_GROUP_PLACES", 13)
+    scan = codewords.Codewords(model.codebook_).adc_index()
     index = scan.index
     packed = np.packbits(model.codebook_.codewords(np.arange(1500)) > 0, axis=1, bitorder="little")
     assert index.ntotal == 1500 and index.codes.size() == packed.size

@@ -5,6 +5,7 @@ module              what
 =================== ===========================================================================
 ``estimator``       :class:`CodeLocalizer`, the estimator
 ``codebook``        code families (periodic for routes, random for independent places), seeded
+``hashing``         the seeded hashes behind the codebooks; the random family's generation rules
 ``planning``        the budget planner: K columns, selected features, weight bits
 ``solvers``         liblinear / ridge fitting of the K columns
 ``quantise``        weight quantisation to the planned bits

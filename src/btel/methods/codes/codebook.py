@@ -28,16 +28,17 @@ Families (``c_ik`` is column k of place i):
   of L_k places (log-uniform stratified in [1, N/8], so at least 8 blocks) at a random offset, and
   colours exactly half of the blocks +1 (a keyed permutation of the blocks). L = 1 is a random code; long blocks are
   BTE-C-like splits with random boundaries. E[c_i·c_j] ≈ max(0, 1 − |i − j|/L) averaged over scales.
-- ``random`` — random codes: every (place, column) bit is an independent fair coin (the top bit of
-  a hash), so columns are balanced in expectation (within about ±√N/2 places) and neighbouring
-  places share nothing. No route structure: for maps whose rows are independent places rather
+- ``random`` — random codes: every (place, column) bit is an independent fair coin (bits of a
+  counter-based hash: one hash per 64 columns of a place, or one per bit under the rule of older
+  model files; :mod:`btel.methods.codes.hashing`), so columns are balanced in expectation (within
+  about ±√N/2 places) and neighbouring places share nothing. No route structure: for maps whose rows are independent places rather
   than a route. (An exactly balanced column would need a permutation of all N places per column;
   evaluating a keyed permutation per element was 30× slower to decode at N = 10⁶.)
 
 Every number drawn from the seed comes from a counter-based hash (splitmix64 of seed, family,
 column, stream), not from a stateful generator, and every code is evaluated with exact integer or
-IEEE double arithmetic (no libm), so the same (family, N, K, seed) gives bit-identical codewords
-on every platform and numpy version.
+IEEE double arithmetic (no libm), so the same (family, N, K, seed, rule) gives bit-identical
+codewords on every platform and numpy version.
 """
 
 from __future__ import annotations
@@ -51,6 +52,8 @@ import numpy as np
 from ..btel.compressed import compressed_code, compressed_n_classifiers
 from ..btel.encoding import n_bits_for
 from ...exceptions import InvalidParameterError
+from .hashing import (CURRENT_RULE, RULES, buffer, grouped_packed, grouped_positive, hash_keys, keyed_permutation,
+                      per_bit_positive)
 
 __all__ = ["FAMILIES", "ROUTE_FAMILIES", "Codebook", "max_columns", "keyed_permutation", "hash_uniform"]
 
@@ -65,9 +68,6 @@ MAX_OFFSET_COPIES = 256
 MIN_PERIOD = 4.0
 
 _U64 = np.uint64
-_GOLDEN = _U64(0x9E3779B97F4A7C15)
-_MIX1 = _U64(0xBF58476D1CE4E5B9)
-_MIX2 = _U64(0x94D049BB133111EB)
 #: Stream ids keep the numbers drawn for different purposes independent.
 _STREAMS = {"period": 1, "phase": 2, "scale": 3, "offset": 4, "permutation": 5}
 _FAMILY_IDS = {name: i + 1 for i, name in enumerate(FAMILIES)}
@@ -77,92 +77,10 @@ _BLOCK_ELEMENTS = 1 << 19
 _CLOSED_FORM_BLOCK = 8
 
 
-def _splitmix(z: np.ndarray, work: dict | None = None) -> np.ndarray:
-    """The splitmix64 finaliser on a uint64 array (wrapping arithmetic), computed in ``z``'s memory (overwritten).
-
-    With ``work`` (:func:`_buffer`), only the result's top bit, as bool (the last step, z ^ z >> 31, keeps it).
-    """
-    z = z if isinstance(z, np.ndarray) else np.asarray(z, dtype=_U64)
-    with np.errstate(over="ignore"):
-        t = np.right_shift(z, _U64(30), out=_buffer(work, "t", z.shape, _U64))
-        z ^= t
-        z *= _MIX1
-        np.right_shift(z, _U64(27), out=t)
-        z ^= t
-        z *= _MIX2
-        if work is not None:
-            return np.greater_equal(z, _U64(1 << 63), out=_buffer(work, "bool", z.shape, bool))
-        np.right_shift(z, _U64(31), out=t)
-        z ^= t
-    return z
-
-
-def _buffer(work: dict | None, name: str, shape: tuple[int, ...], dtype: type) -> np.ndarray:
-    """A view of ``work[name]`` of this shape (grown when too small), or a new array without ``work``: blocks of
-    codewords generated in turn reuse their work arrays (fresh megabyte arrays each time cost page faults)."""
-    size = int(np.prod(shape))
-    if work is None:
-        return np.empty(shape, dtype=dtype)
-    if name not in work or work[name].size < size:
-        work[name] = np.empty(size, dtype=dtype)
-    return work[name][:size].reshape(shape)
-
-
-def _hash(*keys: np.ndarray | int) -> np.ndarray:
-    """A 64-bit hash of integer keys (broadcast), as a uint64 array."""
-    z = np.zeros((), dtype=_U64)
-    with np.errstate(over="ignore"):
-        for key in keys:
-            z = _splitmix(z ^ (np.asarray(key).astype(_U64) + _GOLDEN))
-    return np.asarray(z, dtype=_U64)
-
-
 def hash_uniform(seed: int, family: str, stream: str, index: np.ndarray) -> np.ndarray:
     """Uniform numbers in [0, 1) that depend only on (seed, family, stream, index), float64."""
-    z = _hash(int(seed), _FAMILY_IDS[family], _STREAMS[stream], np.asarray(index, dtype=np.int64))
+    z = hash_keys(int(seed), _FAMILY_IDS[family], _STREAMS[stream], np.asarray(index, dtype=np.int64))
     return (z >> _U64(11)).astype(np.float64) * (1.0 / (1 << 53))
-
-
-def keyed_permutation(x: np.ndarray, n: int, keys: np.ndarray) -> np.ndarray:
-    """π_key(x): a pseudo-random permutation of [0, n) per key, evaluated elementwise.
-
-    A 4-round Feistel network on the smallest even number of bits covering n, with cycle walking
-    (values ≥ n are permuted again until they fall below n), so π is a bijection of [0, n) for
-    every key and any element can be evaluated alone (no table of n entries).
-
-    Parameters
-    ----------
-    x : ndarray of int64, values in [0, n)
-    n : int
-        Domain size ≥ 1.
-    keys : ndarray of uint64, broadcastable against x
-        One key per permutation.
-
-    Returns
-    -------
-    ndarray of int64, the shape of ``np.broadcast(x, keys)``
-    """
-    bits = max(2, int(n - 1).bit_length())
-    bits += bits % 2
-    half = _U64(bits // 2)
-    mask = _U64((1 << (bits // 2)) - 1)
-    y, keys = np.broadcast_arrays(np.asarray(x, dtype=np.int64).astype(_U64), np.asarray(keys, dtype=_U64))
-    y, keys = y.copy(), np.ascontiguousarray(keys)
-
-    round_keys = [_hash(keys, r) for r in range(4)]
-
-    def rounds(v: np.ndarray, todo: np.ndarray | slice) -> np.ndarray:
-        left, right = v >> half, v & mask
-        for key in round_keys:
-            left, right = right, left ^ (_splitmix(right ^ key[todo]) & mask)
-        return (left << half) | right
-
-    y = rounds(y, slice(None))
-    todo = y >= _U64(n)
-    while todo.any():
-        y[todo] = rounds(y[todo], todo)
-        todo = y >= _U64(n)
-    return y.astype(np.int64)
 
 
 @functools.lru_cache(maxsize=256)
@@ -204,6 +122,10 @@ class Codebook:
         K, in [b, :func:`max_columns`] (binary: exactly b = ⌈log2 N⌉).
     seed : int
         ≥ 0; unused by binary and offset.
+    rule : int
+        The random family's generation rule (:mod:`btel.methods.codes.hashing`): 2 (default) one
+        hash per 64 columns, 1 one hash per bit (model files that record no rule). The other
+        families' codewords are the same under every rule: they record the current one.
 
     Examples
     --------
@@ -216,6 +138,7 @@ class Codebook:
     n_places: int
     n_codes: int
     seed: int = 0
+    rule: int = CURRENT_RULE
     _params: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -232,6 +155,9 @@ class Codebook:
                 f"the {self.family} family takes K in [{low}, {high}] columns for N = {n}; got {k}.")
         if int(self.seed) < 0:
             raise InvalidParameterError(f"the code seed must be ≥ 0; got {self.seed}.")
+        if isinstance(self.rule, bool) or not isinstance(self.rule, (int, np.integer)) or self.rule not in RULES:
+            raise InvalidParameterError(f"the code rule must be one of {RULES}; got {self.rule!r}.")
+        object.__setattr__(self, "rule", int(self.rule) if self.family == "random" else CURRENT_RULE)
         object.__setattr__(self, "_params", self._column_parameters())
 
     # -- column parameters --------------------------------------------------------------------
@@ -253,7 +179,7 @@ class Codebook:
             # integer arithmetic, and s(t) = +1 on the first half period is t's top bit being 0.
             # Column 2h is the cos wave of frequency h (phase + 1/4 period), column 2h + 1 the sin wave.
             frequency = np.floor((1.0 / period) * 2.0**64).astype(np.uint64)[column // 2]
-            phase = _hash(seed, _FAMILY_IDS["periodic"], _STREAMS["phase"], h)[column // 2]
+            phase = hash_keys(seed, _FAMILY_IDS["periodic"], _STREAMS["phase"], h)[column // 2]
             with np.errstate(over="ignore"):
                 phase = phase + np.where(column % 2 == 0, _U64(1 << 62), _U64(0))
             return {"frequency": frequency, "phase": phase, "length": period[column // 2] / 2}
@@ -266,8 +192,12 @@ class Codebook:
             offset = np.floor(hash_uniform(seed, self.family, "offset", column) * length).astype(np.int64)
             n_blocks = (n - 1 + offset) // length + 1
             return {"block": length, "offset": offset, "n_blocks": n_blocks,
-                    "key": _hash(seed, _FAMILY_IDS["blocks"], column), "length": length.astype(np.float64)}
-        return {"key": _hash(seed, _FAMILY_IDS["random"], column), "length": np.ones(k)}
+                    "key": hash_keys(seed, _FAMILY_IDS["blocks"], column), "length": length.astype(np.float64)}
+        if self.rule == 1:  # a key per column
+            return {"key": hash_keys(seed, _FAMILY_IDS["random"], column), "length": np.ones(k)}
+        # A key per group of 64 columns (another key chain than rule 1's).
+        return {"group_key": hash_keys(seed, _FAMILY_IDS["random"], self.rule, np.arange(-(-k // 64))),
+                "length": np.ones(k)}
 
     def column_lengths(self) -> np.ndarray:
         """Typical run of equal values along the route per column (half a period, a block), float64 (K,)."""
@@ -295,6 +225,12 @@ class Codebook:
         if i.size and (int(i.min()) < 0 or int(i.max()) >= self.n_places):
             raise InvalidParameterError(f"place indices must lie in [0, {self.n_places}).")
         sel = slice(None) if columns is None else columns
+        if self.family == "random" and self.rule != 1:
+            # One hash per (place, group of 64 columns): only the groups the columns need.
+            positive = grouped_positive(i[:, 0], self._params["group_key"], np.arange(self.n_codes)[sel])
+            out = positive.view(np.int8) * np.int8(2)
+            out -= np.int8(1)
+            return out
         p = {key: (value[sel] if isinstance(value, np.ndarray) and value.ndim == 1 else value)
              for key, value in self._params.items()}
         if self.family in ("binary", "offset"):
@@ -302,20 +238,45 @@ class Codebook:
         elif self.family == "periodic":
             shape = (i.shape[0], p["frequency"].size)
             with np.errstate(over="ignore"):
-                t = np.multiply(i.astype(_U64), p["frequency"], out=_buffer(work, "z", shape, _U64))
+                t = np.multiply(i.astype(_U64), p["frequency"], out=buffer(work, "z", shape, _U64))
                 t += p["phase"]
-            positive = np.less(t, _U64(1 << 63), out=_buffer(work, "bool", shape, bool))
+            positive = np.less(t, _U64(1 << 63), out=buffer(work, "bool", shape, bool))
         elif self.family == "blocks":
             positive = self._block_colours(i[:, 0], p)
-        else:
-            # An independent fair coin per (place, column): the top bit of a hash. Balanced in
-            # expectation (±√N/2 places), with no structure along the route.
-            shape, work = (i.shape[0], p["key"].size), {} if work is None else work
-            with np.errstate(over="ignore"):
-                z = np.bitwise_xor(i.astype(_U64) * _GOLDEN, p["key"], out=_buffer(work, "z", shape, _U64))
-            positive = _splitmix(z, work)
+        else:  # random, rule 1: one hash per (place, column)
+            positive = per_bit_positive(i[:, 0], p["key"], work)
         out = positive.view(np.int8) * np.int8(2)
         out -= np.int8(1)
+        return out
+
+    def packed(self, places: np.ndarray, out: np.ndarray | None = None, work: dict | None = None) -> np.ndarray:
+        """Packed codewords of the given places: +1 → bit 1, column j in bit j % 8 of byte j // 8, unused high bits
+        of the last byte 0 (``np.packbits(codewords(places) > 0, axis=1, bitorder='little')``).
+
+        The random family's current rule writes its hashes' bytes (:func:`~btel.methods.codes.hashing.grouped_packed`):
+        no ±1 codewords and no bit packing.
+
+        Parameters
+        ----------
+        places : array-like of int, shape (n,), values in [0, N)
+        out : ndarray of shape (n, ⌈K/8⌉), uint8, optional
+            Written in place.
+        work : dict, optional
+            Work arrays kept between calls (as :meth:`codewords`), for callers that fill many blocks.
+
+        Returns
+        -------
+        ndarray of shape (n, ⌈K/8⌉), uint8
+        """
+        i = np.asarray(places, dtype=np.int64).reshape(-1)
+        if self.family == "random" and self.rule != 1:
+            if i.size and (int(i.min()) < 0 or int(i.max()) >= self.n_places):
+                raise InvalidParameterError(f"place indices must lie in [0, {self.n_places}).")
+            return grouped_packed(i, self._params["group_key"], self.n_codes, out=out)
+        out = np.empty((i.size, -(-self.n_codes // 8)), dtype=np.uint8) if out is None else out
+        rows, work = max(1, _BLOCK_ELEMENTS // max(self.n_codes, 1)), {} if work is None else work
+        for a in range(0, i.size, rows):
+            out[a : a + rows] = np.packbits(self.codewords(i[a : a + rows], work=work) > 0, axis=1, bitorder="little")
         return out
 
     @staticmethod
@@ -446,4 +407,4 @@ class Codebook:
     def to_header(self) -> dict[str, int | str]:
         """What a model file records to regenerate this codebook."""
         return {"family": self.family, "n_places": int(self.n_places), "n_codes": int(self.n_codes),
-                "seed": int(self.seed)}
+                "seed": int(self.seed), "rule": int(self.rule)}

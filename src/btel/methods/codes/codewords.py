@@ -163,7 +163,7 @@ class Codewords:
         chunks = np.unique(chunk_of)
         for c in chunks[~self.filled[chunks]]:
             a, b = int(c) * FILL_PLACES, min(n, (int(c) + 1) * FILL_PLACES)
-            self.packed[a:b] = np.packbits(self.codebook.codewords(np.arange(a, b)) > 0, axis=1, bitorder="little")
+            self.codebook.packed(np.arange(a, b), out=self.packed[a:b])
             self.filled[c] = True
         return self.packed[places]
 
@@ -171,7 +171,7 @@ class Codewords:
         """Packed codewords of the given places: from the cache, or generated past its size limit."""
         packed = self.packed_rows(places)
         if packed is None:
-            packed = np.packbits(self.codebook.codewords(places) > 0, axis=1, bitorder="little")
+            packed = self.codebook.packed(places)
         return packed
 
     def of(self, places: np.ndarray) -> np.ndarray:
@@ -204,8 +204,9 @@ class Codewords:
         of 8 columns. faiss' inner-product PQ scan then sums, per place, one table entry per group
         (⌈K/8⌉ look-ups instead of K multiply-adds). Only for the 'random' family past the dense
         cache (no blocks to bound). The index's code array is sized once and its codes are written
-        in place block by block (:func:`_codes_view`): it holds the only copy, and no growth of
-        faiss' vector ever holds two.
+        in place block by block (:func:`_codes_view`; :meth:`Codebook.packed`, straight from the
+        hashes' bytes under the random family's current rule): it holds the only copy, and no
+        growth of faiss' vector ever holds two.
         """
         if self.index is None:
             n, groups = self.n_places, -(-self.n_codes // 8)
@@ -217,8 +218,9 @@ class Codewords:
             faiss.copy_array_to_vector(np.tile(BYTE_SIGNS, (groups, 1)).ravel(), index.pq.centroids)
             index.is_trained = True
             codes_out = _codes_view(index, n, groups)
-            for a, b, codes in self.codebook.iter_blocks():
-                codes_out[a:b] = np.packbits(codes > 0, axis=1, bitorder="little")
+            rows, work = max(1, BLOCK_VALUES // (8 * groups)), {}  # about 0.5 M packed bytes a step
+            for a in range(0, n, rows):
+                self.codebook.packed(np.arange(a, min(n, a + rows)), out=codes_out[a : a + rows], work=work)
             index.ntotal = n
             self.index = PackedScan(index)
         return self.index

@@ -2,7 +2,8 @@
 
 Stored: the K × d' quantised weights with their per-column scales (:mod:`btel.methods.codes.quantise`),
 the K biases and the d' kept columns (none when every column is kept). The codewords are not
-stored: the header state records the family, K and the seed, and the codebook is regenerated
+stored: the header state records the family, K, the seed and the generation rule (``code_rule``;
+files without one get the per-bit rule they were written with), and the codebook is regenerated
 from them on load (:class:`~btel.methods.codes.codebook.Codebook`). Every state value and array is
 checked before use (:class:`~btel.exceptions.ModelFileError` otherwise).
 """
@@ -17,10 +18,26 @@ from ..._validation import read_state_int
 from ...base import ArraySpec
 from ...exceptions import InvalidParameterError, ModelFileError
 from .codebook import FAMILIES, MAX_COLUMNS, ROUTE_FAMILIES, Codebook
+from .hashing import LEGACY_RULE, RULES
 from .planning import CodePlan, code_array_specs
 from .quantise import WEIGHT_BITS, QuantisedWeights
 
 __all__ = ["CodeModelFile"]
+
+
+def _code_rule(state: dict[str, Any]) -> int:
+    """The codebook's generation rule recorded in the header state (:mod:`~btel.methods.codes.hashing`).
+
+    A file without one was written before rules were recorded: its random codewords come from the
+    per-bit rule (:data:`~btel.methods.codes.hashing.LEGACY_RULE`), so it predicts as it did.
+    """
+    if "code_rule" not in state:
+        return LEGACY_RULE
+    rule = state["code_rule"]
+    if isinstance(rule, bool) or not isinstance(rule, int) or rule not in RULES:
+        raise ModelFileError(f"the model file's code_rule = {repr(rule)[:40]} is not one of {RULES}; the file is "
+                             "damaged or from a newer btel. Upgrade btel, or refit and save it again.")
+    return rule
 
 
 class CodeModelFile:
@@ -38,7 +55,8 @@ class CodeModelFile:
 
     def _fitted_state(self) -> dict[str, Any]:
         return {"n_codes": self.n_codes_, "n_selected": self.n_selected_, "weight_bits": self.weight_bits_,
-                "code": self.code_, "code_reason": self.code_reason_, "code_seed": self.code_seed_, "alpha": self.alpha_, "n_unconverged": self.n_unconverged_,
+                "code": self.code_, "code_reason": self.code_reason_, "code_seed": self.code_seed_,
+                "code_rule": int(self.codebook_.rule), "alpha": self.alpha_, "n_unconverged": self.n_unconverged_,
                 "plan_rule": self.plan_.rule, "plan_budget": self.plan_.budget}
 
     def _array_specs(self, state: dict[str, Any]) -> dict[str, ArraySpec]:
@@ -68,7 +86,7 @@ class CodeModelFile:
                                  "route order; the file is damaged. Refit and save it again.")
         reason = state.get("code_reason")
         self.code_, self.code_reason_ = family, reason if isinstance(reason, str) else "given"
-        codebook = Codebook(family, int(state["n_places"]), K, seed)  # InvalidParameterError → ModelFileError
+        codebook = Codebook(family, int(state["n_places"]), K, seed, _code_rule(state))  # bad values → ModelFileError
         columns = arrays.get("columns")
         if columns is not None and (int(columns.max()) >= d or np.any(np.diff(columns.astype(np.int64)) <= 0)):
             raise ModelFileError("the model file's kept columns are not increasing indices below d.")
