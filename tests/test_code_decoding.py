@@ -203,6 +203,33 @@ def test_the_composed_map_gives_the_true_top_k_on_maps_with_few_places_per_code(
     np.testing.assert_allclose(model.place_scores(r.queries), reference, rtol=0, atol=1e-4 * np.abs(reference).max())
 
 
+@pytest.mark.parametrize("normalize", ["l2", "none"])
+def test_the_bounded_search_from_composed_rows_gives_the_true_top_k(normalize) -> None:
+    from btel.methods.codes.decoding import ComposedRows
+
+    # d' = 40 columns against K = 400 codes on 1,500 places: a scored place costs d' multiply-adds
+    # through the composed rows instead of 400 through the codewords.
+    r = synthetic_route(1500, 48, condition_shift=0.5, seed=9)
+    model = CodeLocalizer(n_codes=400, n_features=40, decode="exact", normalize=normalize).fit(r.map)
+    assert model.exact_path(1) == "bounded" and model.exact_path(64) == "probe"
+    reference = _reference_from_queries(model, r.queries)
+    for k in (1, 5):
+        _check_exact(*model.search(r.queries, k), reference)          # a batch: probe, then its path
+        for j in range(0, 1500, 97):
+            _check_exact(*model.search(r.queries[j : j + 1], k), reference[j : j + 1])
+    rows = model._cache.composed_rows
+    assert isinstance(rows, ComposedRows) and rows.rows.shape == (1500, 40)
+    # The same answers as the bounded search over the codewords, visiting the same blocks.
+    Z = model._check_queries(r.queries[:200])
+    M = model._padded_margins(Z)
+    s_rows, p_rows, v_rows = model._codewords.decoder().search(M, 3, rows, model._kept(Z))
+    s_codes, p_codes, v_codes = model._codewords.decoder().search(M, 3)
+    np.testing.assert_allclose(s_rows, s_codes, rtol=0, atol=1e-4 * np.abs(reference).max())
+    assert np.mean(p_rows == p_codes) >= 0.99 and abs(v_rows.mean() - v_codes.mean()) <= 0.5
+    single = np.concatenate([model.predict(r.queries[j : j + 1]) for j in range(0, 1500, 7)])
+    np.testing.assert_array_equal(single, model.predict(r.queries[::7]))
+
+
 def test_the_composed_map_refuses_scores_that_overflow() -> None:
     from btel.exceptions import InvalidAnswerError
 

@@ -285,7 +285,7 @@ class RuntimeCache:
 
     ``weights``: the padded float32 dequantised weights and biases, built at the first query; ``columns``:
     the kept descriptor columns as intp; ``codewords``: the codebook at inference (:class:`Codewords`);
-    ``composed``: :meth:`composed_map`. Queries fill these in place, so
+    ``composed``: :meth:`composed_map`; ``composed_rows``: the same map row by row for the bounded search. Queries fill these in place, so
     predicting leaves the estimator's ``__dict__`` unchanged (the scikit-learn contract).
     """
 
@@ -295,6 +295,9 @@ class RuntimeCache:
         self.codewords = Codewords(codebook)
         #: The composed map (V, v0) once decided: False where it is not the cheaper product, None before.
         self.composed: tuple[np.ndarray, np.ndarray] | bool | None = None
+        #: The bounded search's composed rows (:class:`~btel.methods.codes.decoding.ComposedRows`) once
+        #: decided: False where they do not serve, None before.
+        self.composed_rows: Any = None
 
     def composed_map(self, weights: np.ndarray, bias: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(V, v0): V = W·Cᵀ (d', N) and v0 = b·Cᵀ (N,), float32, the scores of every place as one linear map

@@ -19,7 +19,7 @@ from ...rows import ScaledRows
 from ...threads import faiss_threads, search_threads
 from .codebook import ROUTE_FAMILIES
 from .codewords import BLOCK_VALUES, Codewords, blas_for, blas_for_decode
-from .decoding import BATCH_DENSE_FROM, PROBE_QUERIES, best_of, choose_path, composes
+from .decoding import BATCH_DENSE_FROM, DENSE_CACHE_BYTES, PROBE_QUERIES, ComposedRows, best_of, choose_path, composes
 
 __all__ = ["CodeSearch", "COARSE_MIN_PLACES"]
 
@@ -94,6 +94,25 @@ class CodeSearch:
                               and cache.composed_map(*self._weights_dense()))
         return cache.composed or None
 
+    def _composed_rows(self) -> ComposedRows | None:
+        """The bounded search's composed rows where they cost fewer multiply-adds per scored place than the
+        codewords (d' < 8⌈K/8⌉, route families), built once. Only where they and the float32 codewords they are
+        derived from fit in the cache bound together (N·(8⌈K/8⌉ + d')·4 B), so inference memory stays within it."""
+        cache = self._cache
+        if cache.composed_rows is None:
+            codewords, n = self._codewords, int(self.n_places_)
+            serves = (self.code_ in ROUTE_FAMILIES and self.n_selected_ < codewords.width
+                      and 4 * n * (codewords.width + self.n_selected_) <= DENSE_CACHE_BYTES
+                      and codewords.dense() is not None)
+            cache.composed_rows = serves and ComposedRows.build(codewords.dense(), *self._weights_dense())
+        return cache.composed_rows or None
+
+    def _kept(self, Q: np.ndarray | ScaledRows) -> np.ndarray:
+        """(n, d') float32 transformed queries, their kept columns (what the weights multiply)."""
+        raw, scale = (Q.raw, Q.scale) if isinstance(Q, ScaledRows) else (Q, None)
+        out = raw if self.columns_ is None else raw[:, self.columns_]
+        return np.asarray(out * scale[:, None] if scale is not None else out, dtype=np.float32)
+
     def _composed_scores(self, Q: np.ndarray | ScaledRows) -> np.ndarray | None:
         """(n, N) float32 scores of every place by the composed map, or None where it does not serve."""
         composed = self._composed_map()
@@ -152,8 +171,8 @@ class CodeSearch:
             if coarse is not None:
                 return self._codewords.coarse_search(M, k, *coarse)
             if M.shape[0] < BATCH_DENSE_FROM:  # single queries: the whole decode on one BLAS thread
-                return self._exact_search(M, k)
-        return self._exact_search(M, k)
+                return self._exact_search(M, k, queries=Q)
+        return self._exact_search(M, k, queries=Q)
 
     def _predict(self, Q: np.ndarray | ScaledRows) -> np.ndarray:
         """Best place of transformed queries: one argmax over the composed scores where they serve, else ``_search``."""
@@ -185,23 +204,34 @@ class CodeSearch:
         return choose_path(int(self.n_places_), self._codewords.width, n_queries, self.code_ in ROUTE_FAMILIES,
                            self._codewords.dense() is not None)
 
-    def _exact_search(self, M: np.ndarray, k: int, path: str | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Top k of m · c_i over every place, by ``path`` (default :func:`~btel.methods.codes.decoding.choose_path`)."""
+    def _exact_search(self, M: np.ndarray, k: int, path: str | None = None,
+                      queries: np.ndarray | ScaledRows | None = None,
+                      kept: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Top k of m · c_i over every place, by ``path`` (default :func:`~btel.methods.codes.decoding.choose_path`).
+
+        ``queries``: the transformed queries whose margins are M (or ``kept``, their kept columns); with them
+        the bounded search reads scored places from the composed rows where those serve (:meth:`_composed_rows`).
+        """
         # Non-finite margins (a model file with huge but finite weights) are an error naming the cause,
         # not an answer: argmax over NaN scores would return a place.
         self._check_answers(None, M)
         path = path or self.exact_path(M.shape[0])
+        if kept is None and queries is not None and path in ("bounded", "probe") and self._composed_rows() is not None:
+            kept = self._kept(queries)
+        rows = None if kept is None else self._composed_rows()
         if path == "probe":  # a batch: the first queries by the bounded search tell which path is cheaper
             head = min(PROBE_QUERIES, M.shape[0])
             with blas_for(1, 0):
-                s_head, p_head, visited = self._codewords.decoder().search(M[:head], k)
+                s_head, p_head, visited = self._codewords.decoder().search(M[:head], k, rows,
+                                                                          None if kept is None else kept[:head])
             fraction = float(visited.mean()) * self._codewords.decoder().block / int(self.n_places_)
             rest = choose_path(int(self.n_places_), self._codewords.width, M.shape[0], True, True, visited=fraction)
-            s_rest, p_rest = self._exact_search(M[head:], k, rest) if head < M.shape[0] else (s_head[:0], p_head[:0])
+            s_rest, p_rest = (self._exact_search(M[head:], k, rest, kept=None if kept is None else kept[head:])
+                              if head < M.shape[0] else (s_head[:0], p_head[:0]))
             return np.concatenate([s_head, s_rest]), np.concatenate([p_head, p_rest])
         if path == "bounded":
             with blas_for_decode(M.shape[0], self._codewords.width * int(self.n_places_)):
-                scores, places, _ = self._codewords.decoder().search(M, k)
+                scores, places, _ = self._codewords.decoder().search(M, k, rows, kept)
             self._check_answers(None, scores)  # finite margins can still overflow float32 in the sums
             return scores, places
         if path == "scan":
