@@ -104,7 +104,11 @@ class CodeSearch:
             serves = (self.code_ in ROUTE_FAMILIES and self.n_selected_ < codewords.width
                       and 4 * n * (codewords.width + self.n_selected_) <= DENSE_CACHE_BYTES
                       and codewords.dense() is not None)
-            cache.composed_rows = serves and ComposedRows.build(codewords.dense(), *self._weights_dense())
+            if serves:
+                with blas_for(1, 0):  # one thread, as the composed map: BLAS' own threads spin on a shared machine
+                    cache.composed_rows = ComposedRows.build(codewords.dense(), *self._weights_dense())
+            else:
+                cache.composed_rows = False
         return cache.composed_rows or None
 
     def _kept(self, Q: np.ndarray | ScaledRows) -> np.ndarray:
