@@ -36,7 +36,7 @@ def test_projection_is_regenerated_from_the_recorded_seed(pair, tmp_path) -> Non
     model = LSHLocalizer(budget=8_000, random_state=None).fit(X)
     again = btel.load(model.save(tmp_path / "m.npz"))
     assert again.seed_ == model.seed_
-    np.testing.assert_array_equal(again.projection_, projection_matrix(64, model.n_bits_, model.seed_))
+    np.testing.assert_array_equal(again.projection_, projection_matrix(64, model.n_bits_, model.seed_, "orthogonal"))
     np.testing.assert_array_equal(again.search(Q, 5)[1], model.search(Q, 5)[1])
 
 
@@ -44,9 +44,49 @@ def test_asymmetric_score_is_projected_query_times_the_sign_codes(pair) -> None:
     X, Q = pair
     model = LSHLocalizer(n_bits=64, center=False).fit(X)
     Z, Qz = btel.frontend.normalize_rows(X), btel.frontend.normalize_rows(Q[:5])
-    R = projection_matrix(64, 64, 0)
+    R = projection_matrix(64, 64, 0, "orthogonal")
     expected = (Qz @ R) @ np.sign(Z @ R).T
     np.testing.assert_allclose(model.place_scores(Q[:5]), expected, rtol=1e-4, atol=1e-3)
+
+
+@pytest.mark.parametrize("d, bits", [(64, 64), (64, 200), (16, 40)])
+def test_orthogonal_projection_is_orthonormal_blocks_of_the_seeds_gaussian(d, bits) -> None:
+    R = projection_matrix(d, bits, 3, "orthogonal")
+    G = projection_matrix(d, bits, 3, "gaussian")
+    assert R.shape == G.shape == (d, bits) and R.dtype == np.float32
+    np.testing.assert_array_equal(projection_matrix(d, bits, 3, "orthogonal"), R)   # regenerated, not stored
+    for start in range(0, bits, d):
+        block, gauss = R[:, start : start + d].astype(np.float64), G[:, start : start + d].astype(np.float64)
+        # Orthogonal columns of length √d, spanning what the Gaussian block's first columns span (QR).
+        np.testing.assert_allclose(block.T @ block, d * np.eye(block.shape[1]), atol=1e-3 * d)
+        np.testing.assert_allclose(abs(block[:, 0] @ gauss[:, 0]), np.sqrt(d) * np.linalg.norm(gauss[:, 0]), rtol=1e-5)
+    with pytest.raises(InvalidParameterError, match="projection"):
+        projection_matrix(d, bits, 3, "sparse")
+
+
+def test_a_model_file_without_a_projection_loads_with_the_gaussian_one(pair, tmp_path) -> None:
+    from btel.modelfile import load_arrays, save_arrays
+
+    X, Q = pair
+    gaussian = LSHLocalizer(budget=8_000, projection="gaussian").fit(X)
+    path = gaussian.save(tmp_path / "g.npz")
+    # A file written before projections were recorded: neither the parameter nor the state names one.
+    arrays, header = load_arrays(path)
+    header["params"].pop("projection")
+    header["state"].pop("projection")
+    old = save_arrays(tmp_path / "old.npz", arrays, header)
+    again = btel.load(old)
+    assert again.projection == "gaussian"
+    np.testing.assert_array_equal(again.projection_, projection_matrix(64, gaussian.n_bits_, 0, "gaussian"))
+    np.testing.assert_array_equal(again.search(Q, 5)[1], gaussian.search(Q, 5)[1])
+    # A state that contradicts the parameters is a damaged file.
+    header["params"]["projection"], header["state"]["projection"] = "orthogonal", "gaussian"
+    with pytest.raises(btel.exceptions.ModelFileError, match="projection"):
+        btel.load(save_arrays(tmp_path / "bad.npz", arrays, header))
+    header["params"].pop("projection")
+    header["state"]["projection"] = "sparse"
+    with pytest.raises(btel.exceptions.ModelFileError, match="projection"):
+        btel.load(save_arrays(tmp_path / "bad2.npz", arrays, header))
 
 
 def test_hamming_scoring_is_minus_the_hamming_distance(pair) -> None:

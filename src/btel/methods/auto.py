@@ -46,6 +46,10 @@ near chance there), at 256 KB (rank 15) plain LSH beat whitened LSH (0.251 vs 0.
 its rows, which already gives part of what whitening gives, and the whitening's quarter of the
 budget costs bits), and PQ at 1 MB beat both. The rule was not changed to fit those rows.
 
+The figures above were measured when ``lsh`` drew i.i.d. Gaussian hyperplanes; it now draws
+orthonormal blocks (:mod:`btel.methods.baselines.lsh`), and ``btel experiment frontier`` has the
+current figures.
+
 A choice that does not fit the budget falls back to the next candidate (``lsh``, then
 ``btel-codes``); what was chosen, why, and the statistics are recorded in the model file
 (``choice_``), in :meth:`AutoLocalizer.summary` and in ``btel train``'s output.

@@ -1,0 +1,75 @@
+"""LSH's projection: orthonormal blocks of hyperplanes against i.i.d. Gaussian ones, same bits, several seeds.
+
+For each map of ``btel experiment frontier`` (Gardens Point NetVLAD 500-D and the same rows permuted,
+Nordland HOG summer→winter, the synthetic route and the synthetic independent places) and each budget,
+``lsh`` (asymmetric scoring, its budget rule) is fitted with ``projection="orthogonal"`` and with
+``projection="gaussian"`` under seeds 0 … ``--seeds`` − 1, and scored by that map's key recall
+(recall@2 on Gardens Point and the synthetic route, recall@10 on Nordland, recall@0 on maps of
+independent places). The table gives the mean over seeds and its standard error, and the mean
+difference orthogonal − Gaussian with its standard error (the same seed's Gaussian matrix is what
+the orthogonal one orthonormalises, so the two are paired). One BLAS and one faiss thread.
+
+    python benchmarks/bench_lsh_projection.py             # ≈ 4 min on 2 shared cores
+    python benchmarks/bench_lsh_projection.py --quick     # Gardens Point and small synthetic maps
+
+Writes ``benchmarks/results/bench_lsh_projection.json`` and prints the table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from btel.methods import make_method
+from btel.threads import limit_threads
+
+HERE = Path(__file__).resolve().parent
+BUDGETS = ("4KB", "16KB", "64KB", "256KB")
+TOLERANCE = {"recall@0": 0, "recall@2": 2, "recall@10": 10}
+
+
+def main() -> None:
+    from btel.experiments._common import NordlandData
+    from btel.experiments.frontier import _maps
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--data", type=Path, default=HERE.parent.parent / "shared" / "data" / "nordland64")
+    parser.add_argument("--cache", type=Path, default=HERE / "results" / "cache")
+    args = parser.parse_args()
+    start, rows = time.time(), []
+    data = NordlandData(args.data, args.cache, progress=False)
+    with limit_threads(1):
+        for base, X, Q in _maps(data, args.quick):
+            tol, truth = TOLERANCE[base["key"]], np.arange(len(Q))
+            for budget in BUDGETS:
+                values: dict[str, list[float]] = {"orthogonal": [], "gaussian": []}
+                for kind in values:
+                    for seed in range(args.seeds):
+                        model = make_method("lsh", budget=budget, projection=kind, random_state=seed).fit(X)
+                        values[kind].append(float(np.mean(np.abs(model.predict(Q) - truth) <= tol)))
+                diff = np.subtract(values["orthogonal"], values["gaussian"])
+                row = {"dataset": base["dataset"], "key": base["key"], "budget": budget, "n_bits": model.n_bits_,
+                       "n_features": int(X.shape[1]), **values,
+                       "difference_mean": float(diff.mean()),
+                       "difference_se": float(diff.std(ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else None}
+                rows.append(row)
+                se = "" if row["difference_se"] is None else f" ± {row['difference_se']:.3f}"
+                print(f"{base['dataset']:<24} {budget:>6} {model.n_bits_:>5} bits (d = {X.shape[1]:>4})  "
+                      f"orthogonal {np.mean(values['orthogonal']):.3f}  gaussian {np.mean(values['gaussian']):.3f}  "
+                      f"difference {diff.mean():+.3f}{se}  ({base['key']})", flush=True)
+    out = HERE / "results" / "bench_lsh_projection.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"rows": rows, "seeds": args.seeds, "quick": args.quick,
+                               "seconds": time.time() - start, "load": os.getloadavg()}, indent=1) + "\n")
+    print(f"wrote {out} ({time.time() - start:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()
