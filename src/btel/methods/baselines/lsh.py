@@ -26,7 +26,8 @@ it). Measured, mean of 5 seeds, asymmetric scoring (``benchmarks/bench_lsh_proje
 16 KB (120 bits, d = 256) R@1 0.747 vs 0.625, synthetic route 64 KB (248 bits) R@2 0.963 vs 0.884,
 Gardens Point 16 KB 0.453 vs 0.429, Nordland 256 KB 0.259 vs 0.252; within ±0.016 of each other
 in the other cells (Gardens Point at 8192 bits, 17 blocks: 0.458 vs 0.470). The QR costs about 2·d·P² flops at fit and at load (0.15 s at d = 3780,
-P = 552; 1.9 s at P = 2216 on one thread).
+P = 552; 1.9 s at P = 2216; 6 s at d = P = 4096, on one thread): pass ``projection='gaussian'``
+where load time matters more than the last hundredths of recall.
 
 Budget rule: P = 8·⌊(budget − reserved − mean bytes) / n_rows⌋ bits per row (the most whole bytes
 per row that fit), at most :data:`MAX_BITS`; without a budget P = :data:`DEFAULT_BITS`. ``n_bits``
