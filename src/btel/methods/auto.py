@@ -152,19 +152,17 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
     codes = {"method": "btel-codes", "params": {"code": "periodic", "whiten": white(None)},
              "reason": f"fallback: periodic output codes ({bpp})"}
     out: list[dict[str, Any]] = []
-    if share >= ROUTE_SHARE:
-        out.append({"method": "btel-codes", "params": {"code": "periodic", "whiten": white(None)},
-                    "reason": f"route ({where}), {bpp}: periodic output codes filling the budget"})
-        out.append(lsh)
-        return [{**c, **stats} for c in out]
     few = collision_bits(n_rows)
-    if share >= ORDER_SHARE and per_place is not None and 8 * per_place < few:
-        out.append({"method": "btel-codes", "params": {"code": "periodic", "whiten": white(None)},
-                    "reason": f"ordered map (route share {share:.2f} ≥ {ORDER_SHARE}) with {8 * per_place:.0f} bits "
-                              f"per map row < 2·log2 N = {few:.1f}: random sign codes that short collide, so "
-                              "periodic output codes filling the budget"})
-        out.append(lsh)
-        return [{**c, **stats} for c in out]
+    filling = "periodic output codes filling the budget"
+    if share >= ROUTE_SHARE:
+        why = f"route ({where}), {bpp}: {filling}"
+    elif share >= ORDER_SHARE and per_place is not None and 8 * per_place < few:
+        why = (f"ordered map (route share {share:.2f} ≥ {ORDER_SHARE}) with {8 * per_place:.0f} bits per map row "
+               f"< 2·log2 N = {few:.1f}: random sign codes that short collide, so {filling}")
+    else:
+        why = None
+    if why is not None:  # output codes, plain LSH as the fallback
+        return [{**c, **stats} for c in ({**codes, "reason": why}, lsh)]
     front = FrontEnd(normalize="l2", whiten=white("shrink"), budget=budget)
     exact = BruteForceNN.planned_bytes(n_rows, front.n_features_out(d)) + front.planned_bytes(d, n_rows)
     if budget is None or exact <= budget:
