@@ -209,33 +209,31 @@ class CodeSearch:
                            self._codewords.dense() is not None)
 
     def _exact_search(self, M: np.ndarray, k: int, path: str | None = None,
-                      queries: np.ndarray | ScaledRows | None = None,
-                      kept: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                      queries: np.ndarray | ScaledRows | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Top k of m · c_i over every place, by ``path`` (default :func:`~btel.methods.codes.decoding.choose_path`).
 
-        ``queries``: the transformed queries whose margins are M (or ``kept``, their kept columns); with them
-        the bounded search reads scored places from the composed rows where those serve (:meth:`_composed_rows`).
+        ``queries``: the transformed queries whose margins are M; with them the bounded search reads scored
+        places from the composed rows where those serve (:meth:`_composed_rows`).
         """
         # Non-finite margins (a model file with huge but finite weights) are an error naming the cause,
         # not an answer: argmax over NaN scores would return a place.
         self._check_answers(None, M)
         path = path or self.exact_path(M.shape[0])
-        if kept is None and queries is not None and path in ("bounded", "probe") and self._composed_rows() is not None:
-            kept = self._kept(queries)
-        rows = None if kept is None else self._composed_rows()
+        rows = self._composed_rows() if queries is not None and path in ("bounded", "probe") else None
         if path == "probe":  # a batch: the first queries by the bounded search tell which path is cheaper
             head = min(PROBE_QUERIES, M.shape[0])
             with blas_for(1, 0):
-                s_head, p_head, visited = self._codewords.decoder().search(M[:head], k, rows,
-                                                                          None if kept is None else kept[:head])
+                s_head, p_head, visited = self._codewords.decoder().search(
+                    M[:head], k, rows, None if rows is None else self._kept(queries[:head]))
             fraction = float(visited.mean()) * self._codewords.decoder().block / int(self.n_places_)
             rest = choose_path(int(self.n_places_), self._codewords.width, M.shape[0], True, True, visited=fraction)
-            s_rest, p_rest = (self._exact_search(M[head:], k, rest, kept=None if kept is None else kept[head:])
+            s_rest, p_rest = (self._exact_search(M[head:], k, rest, None if queries is None else queries[head:])
                               if head < M.shape[0] else (s_head[:0], p_head[:0]))
             return np.concatenate([s_head, s_rest]), np.concatenate([p_head, p_rest])
         if path == "bounded":
             with blas_for_decode(M.shape[0], self._codewords.width * int(self.n_places_)):
-                scores, places, _ = self._codewords.decoder().search(M, k, rows, kept)
+                scores, places, _ = self._codewords.decoder().search(M, k, rows,
+                                                                     None if rows is None else self._kept(queries))
             self._check_answers(None, scores)  # finite margins can still overflow float32 in the sums
             return scores, places
         if path == "scan":
