@@ -134,3 +134,31 @@ def test_beyond_ladder_diagnostics_and_report(quick_runs: Path, tmp_path: Path) 
     assert "### Ladder" in md and "Validation protocol" in md
     summary = json.loads((docs / "results.json").read_text())
     assert summary["beyond"]["ladder"] == payload["ladder"]
+
+
+def test_frontier_rows_average_seeds_and_pair_them(monkeypatch) -> None:
+    """Seeded rows are the mean over the seeds; a seed-independent method runs once; pairs by seed."""
+    from btel.datasets import synthetic_route
+    from btel.experiments import frontier
+
+    route = synthetic_route(200, 32, condition_shift=1.0, seed=3)
+    base = {"dataset": "route", "key": "recall@2", "n_places": 200}
+    row = frontier._row(base, "lsh", "lsh", {}, route.map, route.queries, 2000, (0, 1, 2))
+    assert row["seeds"] == [0, 1, 2] and len(row["seed_values"]) == 3
+    assert row["value"] == pytest.approx(np.mean(row["seed_values"]))
+    assert len(set(row["seed_values"])) > 1  # LSH's hyperplanes do depend on the seed here
+    unseeded = frontier._row(base, "bruteforce", "bruteforce", {}, route.map, route.queries, None)
+    assert unseeded["seeds"] == [] and unseeded["seed_values"] == [unseeded["value"]]
+
+    real = frontier.fit_and_predict
+    monkeypatch.setattr(frontier, "fit_and_predict", lambda name, params, *a, **k: real(
+        name, {p: v for p, v in params.items() if p != "random_state"}, *a, **k))
+    once = frontier._row(base, "lsh", "lsh", {}, route.map, route.queries, 2000, (0, 1, 2))
+    assert once["seeds"] == [0] and once["value"] == row["seed_values"][0]
+
+    a, b = {"value": 0.6, "seed_values": [0.5, 0.6, 0.7]}, {"value": 0.5, "seed_values": [0.4, 0.6, 0.5]}
+    paired = frontier.paired_difference(a, b)
+    assert paired["diff"] == pytest.approx(0.1) and paired["diff_seeds"] == 3
+    assert paired["diff_se"] == pytest.approx(0.1 / np.sqrt(3))
+    single = frontier.paired_difference({"value": 0.55, "seed_values": [0.55]}, b)
+    assert single["diff"] == pytest.approx(0.55 - 0.5) and single["diff_seeds"] == 3

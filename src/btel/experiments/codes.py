@@ -187,7 +187,7 @@ def _synthetic(quick: bool, log: Any) -> list[dict[str, Any]]:
     n, dim = (256, 64) if quick else (2048, 256)
     rows = []
     for shift in ((0.5,) if quick else (0.5, 1.0)):
-        # Seed 7: the ridge rule was chosen on routes of seeds 0 and 1 (code_solvers docstring).
+        # Seed 7: the ridge rule was chosen on routes of seeds 0 and 1 (btel.methods.codes.solvers docstring).
         route = synthetic_route(n, dim, condition_shift=shift, seed=7)
         part = {"part": "synthetic", "dataset": "synthetic route", "direction": f"shift {shift}",
                 "descriptor": f"synthetic {dim}-D", "condition_shift": shift, "n_places": n}
