@@ -61,8 +61,8 @@ def test_lsh_is_whitened_only_when_the_budget_affords_a_useful_rank() -> None:
     from btel.shrink import shrink_rank
 
     X = np.random.default_rng(3).normal(size=(200, 500)).astype(np.float32)   # independent places
-    assert shrink_rank(500, 200, 16_000) < SHRINK_LSH_MIN_RANK <= shrink_rank(500, 200, 64_000)
-    low = choose_method(X, None, 200, 16_000)       # 80 B per place, but rank 5
+    assert shrink_rank(500, 200, 8_000) < SHRINK_LSH_MIN_RANK <= shrink_rank(500, 200, 64_000)
+    low = choose_method(X, None, 200, 8_000)        # 40 B per place, but rank 3
     assert low[0]["method"] == "lsh" and not low[0]["params"]["whiten"]
     high = choose_method(X, None, 200, 64_000)
     assert high[0]["method"] == "lsh" and high[0]["params"]["whiten"] == "shrink"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,7 +14,8 @@ from hypothesis.extra.numpy import arrays
 import btel
 from btel.datasets import synthetic_route
 from btel.descriptors import delta_descriptors
-from btel.exceptions import BudgetTooSmallError, InvalidDescriptorsError, InvalidParameterError, NotEnoughPlacesError
+from btel.exceptions import (BudgetTooSmallError, InvalidDescriptorsError, InvalidParameterError, ModelFileError,
+                             NotEnoughPlacesError)
 from btel.frontend import FrontEnd, normalize_rows, traverse_starts
 from btel.methods import METHODS, make_method
 from btel.streaming import localize_stream
@@ -230,7 +232,7 @@ def test_shrinkage_whitening_is_stored_counted_and_round_trips(name, route, tmp_
     model = make_method(name, whiten="shrink", **({"budget": budget} if budget else {})).fit(X)
     parts = model.storage_breakdown()
     rank = shrink_rank(X.shape[1], X.shape[0], budget)
-    assert rank >= 1 and parts["frontend_shrink_basis"] == X.shape[1] * rank
+    assert rank >= 1 and parts["frontend_shrink_basis4"] == (X.shape[1] + 1) // 2 * rank  # 4 bits an entry
     front = sum(v for k, v in parts.items() if k.startswith("frontend_shrink"))
     assert front == shrink_bytes(X.shape[1], rank)
     if budget:
@@ -238,6 +240,54 @@ def test_shrinkage_whitening_is_stored_counted_and_round_trips(name, route, tmp_
     again = btel.load(model.save(tmp_path / "m.npz"))
     np.testing.assert_array_equal(again.predict(Q), model.predict(Q))
     assert again.nbytes == model.nbytes
+
+
+@given(d=st.integers(1, 37), r=st.integers(0, 5), seed=st.integers(0, 2**31 - 1))
+@settings(max_examples=60, deadline=None)
+def test_shrink_basis_packs_two_entries_a_byte_and_back(d: int, r: int, seed: int) -> None:
+    from btel.shrink import pack_basis, unpack_basis
+
+    levels = np.random.default_rng(seed).integers(-7, 8, size=(d, r)).astype(np.int8)
+    packed = pack_basis(levels)
+    assert packed.dtype == np.uint8 and packed.shape == (r, (d + 1) // 2)
+    np.testing.assert_array_equal(unpack_basis(packed, d), levels)
+
+
+def _rewrite_npz(path, tmp_path, change) -> Path:
+    """A copy of a model file with its arrays changed by ``change(dict)`` (header kept)."""
+    with np.load(path, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    change(arrays)
+    out = tmp_path / "rewritten.npz"
+    np.savez(out, **arrays)
+    return out
+
+
+def test_shrink_files_with_the_int8_basis_load_and_answer_as_written(route, tmp_path) -> None:
+    """Files written before the 4-bit basis (int8 d×r, levels up to ±127) load and answer as then."""
+    X, Q = route.map, route.queries
+    model = make_method("lsh", whiten="shrink", budget=60_000).fit(X)
+    mean, basis, scale, gains = model.front_end_.shrink_
+    U = basis.astype(np.float32) * scale
+    scale8 = (np.abs(U).max(axis=0) / 127).astype(np.float32)
+    basis8 = np.clip(np.rint(U / scale8), -127, 127).astype(np.int8)
+    model.front_end_.shrink_, model.front_end_._shrink_basis = (mean, basis8, scale8, gains), None
+    expected = model.predict(Q)
+    path = model.save(tmp_path / "int8.npz")
+    with np.load(path, allow_pickle=False) as z:
+        assert "frontend_shrink_basis" in z.files and "frontend_shrink_basis4" not in z.files
+        assert z["frontend_shrink_basis"].dtype == np.int8 and int(np.abs(z["frontend_shrink_basis"]).max()) == 127
+    again = btel.load(path)
+    np.testing.assert_array_equal(again.predict(Q), expected)
+    assert again.nbytes == model.nbytes
+
+    fresh = make_method("lsh", whiten="shrink", budget=60_000).fit(X).save(tmp_path / "fresh.npz")
+    both = _rewrite_npz(fresh, tmp_path, lambda a: a.update(frontend_shrink_basis=basis8))
+    with pytest.raises(ModelFileError, match="both a 4-bit and an int8"):
+        btel.load(both)
+    wrong = _rewrite_npz(fresh, tmp_path, lambda a: a.update(frontend_shrink_basis4=a["frontend_shrink_basis4"][:, :-1]))
+    with pytest.raises(ModelFileError, match="4-bit"):
+        btel.load(wrong)
 
 
 def test_shrinkage_whitening_on_gardens_point_beats_cosine_brute_force(gardenspoint_netvlad) -> None:

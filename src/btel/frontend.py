@@ -21,7 +21,8 @@ stored in the model file and counted by the storage rule, so :func:`btel.load` r
   then L2 again when ``normalize`` is not ``'none'``. Stores a d×p float32 matrix and a d float32
   mean (counted in the method's bytes).
 - ``whiten = "shrink"`` — shrinkage whitening x ↦ (Σ + λI)^(-1/2)(x − μ), then L2 (λ = 1 × the
-  mean eigenvalue; low rank, int8/float16, at most a quarter of the budget: :mod:`btel.shrink`).
+  mean eigenvalue; low rank, a 4-bit basis and a float16 mean, at most a quarter of the budget:
+  :mod:`btel.shrink`).
   Keeps the dimension d; its arrays are stored and counted like PCA whitening's.
 
 The default is ``normalize='l2'``: the front-ends experiment (``btel experiment front-ends``,
@@ -85,7 +86,8 @@ class FrontEnd:
     whitening_: np.ndarray | None = field(default=None, repr=False)
     #: The model's byte budget (sets the rank of ``whiten="shrink"``; not stored).
     budget: int | None = field(default=None, repr=False)
-    #: ``whiten="shrink"``: mean (float16), basis (int8 d×r), basis scales and gains (float32 r).
+    #: ``whiten="shrink"``: mean (float16), basis levels (int8 d×r; stored 4-bit, or int8 as read from
+    #: a file written before the 4-bit basis), basis scales and gains (float32 r).
     shrink_: tuple | None = field(default=None, repr=False)
 
     @classmethod
@@ -187,7 +189,7 @@ class FrontEnd:
     def arrays(self) -> dict[str, np.ndarray]:
         """The stored arrays (empty without whitening)."""
         if self.shrink_ is not None:
-            return dict(zip(_SHRINK_ARRAYS, self.shrink_))
+            return _shrink_arrays(self.shrink_)
         if self.whitening_ is None:
             return {}
         return {"frontend_mean": self.mean_, "frontend_whitening": self.whitening_}
@@ -250,25 +252,51 @@ class FrontEnd:
         return front
 
 
-#: Names of the stored arrays of ``whiten="shrink"``.
-_SHRINK_ARRAYS = ("frontend_shrink_mean", "frontend_shrink_basis", "frontend_shrink_scale", "frontend_shrink_gains")
+#: Names of the stored arrays of ``whiten="shrink"``; the basis is either the 4-bit packed one
+#: (``..._basis4``, what fit writes) or the int8 one of files written before it (``..._basis``).
+_SHRINK_ARRAYS = ("frontend_shrink_mean", "frontend_shrink_basis4", "frontend_shrink_scale", "frontend_shrink_gains")
+_SHRINK_BASIS_INT8 = "frontend_shrink_basis"
+
+
+def _shrink_arrays(shrink: tuple) -> dict[str, np.ndarray]:
+    """The stored arrays of fitted shrinkage: the basis packed 4-bit when its levels allow, else int8."""
+    from .shrink import SHRINK_BASIS_BITS, pack_basis
+
+    mean, basis, scale, gains = shrink
+    if basis.size == 0 or int(np.abs(basis).max()) <= 2 ** (SHRINK_BASIS_BITS - 1) - 1:
+        return dict(zip(_SHRINK_ARRAYS, (mean, pack_basis(basis), scale, gains)))
+    # Read from a file written with the int8 basis: written back as it was, without loss.
+    return {_SHRINK_ARRAYS[0]: mean, _SHRINK_BASIS_INT8: basis, _SHRINK_ARRAYS[2]: scale, _SHRINK_ARRAYS[3]: gains}
 
 
 def _restore_shrink(arrays: dict[str, np.ndarray], n_features: int) -> tuple:
     """The shrinkage arrays of a model file, checked (ModelFileError if not as fit writes them)."""
+    from .shrink import unpack_basis
+
+    old = arrays.pop(_SHRINK_BASIS_INT8, None)
     parts = [arrays.pop(name, None) for name in _SHRINK_ARRAYS]
+    if old is not None and parts[1] is not None:
+        raise ModelFileError("the model file holds both a 4-bit and an int8 shrinkage basis; it was not written by "
+                             "btel. Refit and save the model.")
+    packed = old is None
+    if not packed:
+        parts[1] = old
     if any(p is None for p in parts):
         raise ModelFileError("the model file says whiten='shrink' but lacks its arrays "
                              f"({', '.join(n for n, p in zip(_SHRINK_ARRAYS, parts) if p is None)}).")
     mean, basis, scale, gains = parts
-    if basis.ndim != 2:
-        raise ModelFileError("the model file's shrinkage basis is not a matrix.")
-    r = basis.shape[1]
-    if mean.shape != (n_features,) or mean.dtype != np.float16 or basis.shape != (n_features, r) \
-            or basis.dtype != np.int8 or scale.shape != (r,) or gains.shape != (r,) \
+    if basis.ndim != 2 or scale.ndim != 1:
+        raise ModelFileError("the model file's shrinkage basis is not a matrix or its scales not a vector.")
+    r = scale.shape[0]
+    shape, dtype = ((r, (n_features + 1) // 2), np.uint8) if packed else ((n_features, r), np.int8)
+    if mean.shape != (n_features,) or mean.dtype != np.float16 or basis.shape != shape \
+            or basis.dtype != dtype or gains.shape != (r,) \
             or scale.dtype != np.float32 or gains.dtype != np.float32:
         raise ModelFileError(f"the model file's shrinkage arrays do not match d = {n_features} (float16 mean, "
-                             "int8 d×r basis, float32 scales and gains expected).")
+                             f"{'4-bit r×⌈d/2⌉ uint8' if packed else 'int8 d×r'} basis, float32 scales and gains "
+                             "expected).")
+    if packed:
+        basis = unpack_basis(basis, n_features)
     if not all(np.isfinite(a).all() and float(np.abs(a).max(initial=0)) <= 1e6 for a in (mean, scale, gains)):
         raise ModelFileError("the model file's shrinkage arrays contain NaN, infinite or out-of-range values.")
     return mean, basis, scale, gains

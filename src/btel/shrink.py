@@ -24,7 +24,13 @@ Because the result is L2-normalised, a global scale does not matter and the tran
     y ∝ z + U (g ⊙ (Uᵀ z)),   z = x − μ,   g_j = sqrt((ρ + λ) / (s_j + λ)) − 1,
 
 with U the d×r eigenvectors. Stored (all counted by the storage rule): μ as d float16 values,
-U as d×r int8 with one float32 scale per column, g as r float32 values — d·2 + r·(d + 8) bytes.
+U at 4 bits per entry (levels −7 … 7, two to a byte, one float32 scale per column), g as r float32
+values — 2d + r·(⌈d/2⌉ + 8) bytes. The 4-bit basis scores level with int8 with brute force on
+the whitened rows (``python benchmarks/bench_shrink_bits.py``, every development map at ranks
+4 … 32: differences −0.015 … +0.010 on Gardens Point's 200 queries, at most three queries either
+way, and within ±0.003 on Nordland) at half the bytes, so a budget's quarter affords about twice
+the rank. Model files written with the int8 basis (``frontend_shrink_basis``, before
+the 4-bit one) load and answer as before.
 
 Measured: ``btel experiment frontier`` (docs/results.md), brute force on shrinkage-whitened rows
 beside cosine brute force.
@@ -34,8 +40,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["SHRINK_LAMBDA", "SHRINK_BUDGET_SHARE", "SHRINK_MAX_RANK", "shrink_rank", "shrink_bytes",
-           "fit_shrink", "apply_shrink"]
+__all__ = ["SHRINK_LAMBDA", "SHRINK_BUDGET_SHARE", "SHRINK_MAX_RANK", "SHRINK_BASIS_BITS", "shrink_rank",
+           "shrink_bytes", "fit_shrink", "apply_shrink", "pack_basis", "unpack_basis"]
 
 #: λ as a fraction of the mean eigenvalue of the map covariance.
 SHRINK_LAMBDA = 1.0
@@ -45,9 +51,36 @@ SHRINK_BUDGET_SHARE = 0.25
 SHRINK_MAX_RANK = 32
 
 
+#: Bits per entry of the stored basis (levels −(2^(b−1) − 1) … 2^(b−1) − 1).
+SHRINK_BASIS_BITS = 4
+_LEVELS = 2 ** (SHRINK_BASIS_BITS - 1) - 1
+
+
 def shrink_bytes(n_features: int, rank: int) -> int:
-    """Stored bytes of a rank-r shrinkage whitening of d features: 2d + r(d + 8)."""
-    return 2 * int(n_features) + int(rank) * (int(n_features) + 8)
+    """Stored bytes of a rank-r shrinkage whitening of d features: 2d + r(⌈d/2⌉ + 8)."""
+    return 2 * int(n_features) + int(rank) * ((int(n_features) + 1) // 2 + 8)
+
+
+def pack_basis(basis: np.ndarray) -> np.ndarray:
+    """The (d, r) int8 basis levels in [−7, 7] as (r, ⌈d/2⌉) uint8, two 4-bit entries a byte.
+
+    Entry i of column j is nibble i % 2 (low first) of byte i // 2 of row j, stored as level + 8.
+    """
+    d, r = basis.shape
+    if basis.size and int(np.abs(basis).max()) > _LEVELS:
+        raise ValueError(f"basis levels exceed ±{_LEVELS}: not a {SHRINK_BASIS_BITS}-bit basis.")
+    nibbles = np.full((r, 2 * ((d + 1) // 2)), 8, dtype=np.uint8)
+    nibbles[:, :d] = (basis.T.astype(np.int16) + 8).astype(np.uint8)
+    return np.ascontiguousarray(nibbles[:, 0::2] | (nibbles[:, 1::2] << 4))
+
+
+def unpack_basis(packed: np.ndarray, n_features: int) -> np.ndarray:
+    """Inverse of :func:`pack_basis`: (r, ⌈d/2⌉) uint8 → (d, r) int8 levels in [−8, 7]."""
+    r = packed.shape[0]
+    nibbles = np.empty((r, 2 * packed.shape[1]), dtype=np.int8)
+    nibbles[:, 0::2] = packed & 15
+    nibbles[:, 1::2] = packed >> 4
+    return np.ascontiguousarray((nibbles[:, : int(n_features)] - 8).T)
 
 
 def shrink_rank(n_features: int, n_rows: int | None, budget: int | None) -> int:
@@ -58,16 +91,20 @@ def shrink_rank(n_features: int, n_rows: int | None, budget: int | None) -> int:
     if budget is None:
         return cap
     share = int(SHRINK_BUDGET_SHARE * budget) - 2 * int(n_features)
-    return int(max(0, min(cap, share // (int(n_features) + 8))))
+    return int(max(0, min(cap, share // ((int(n_features) + 1) // 2 + 8))))
 
 
-def fit_shrink(Z: np.ndarray, rank: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def fit_shrink(Z: np.ndarray, rank: int, levels: int = _LEVELS) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Learn the stored arrays from the map rows ``Z`` (n, d) float32.
+
+    ``levels``: the basis is quantised per column to the integers −levels … levels (7: the 4-bit
+    basis btel stores; 127 gives the int8 basis of earlier files, for comparison).
 
     Returns
     -------
     mean : ndarray of shape (d,), float16
     basis : ndarray of shape (d, r), int8
+        Levels in [−levels, levels] (stored 4-bit: :func:`pack_basis`).
     basis_scale : ndarray of shape (r,), float32
     gains : ndarray of shape (r,), float32
     """
@@ -92,8 +129,8 @@ def fit_shrink(Z: np.ndarray, rank: int) -> tuple[np.ndarray, np.ndarray, np.nda
     rest = float(eig_all[rank]) if eig_all.size > rank else 0.0
     gains = (np.sqrt((rest + lam) / (eig + lam)) - 1.0).astype(np.float32)
     U = vt.T  # (d, r), orthonormal columns
-    scale = np.maximum(np.abs(U).max(axis=0), 1e-12) / 127.0
-    basis = np.clip(np.rint(U / scale), -127, 127).astype(np.int8)
+    scale = np.maximum(np.abs(U).max(axis=0), 1e-12) / levels
+    basis = np.clip(np.rint(U / scale), -levels, levels).astype(np.int8)
     return mean, basis, scale.astype(np.float32), gains
 
 

@@ -1,8 +1,9 @@
 """Experiment "frontier": every method × budgets on routes and on independent places, and auto's choice.
 
 ``btel experiment frontier`` measures, in one run, the key recall of every registered method (plus
-asymmetric / Hamming LSH, LSH with i.i.d. Gaussian hyperplanes beside the default orthogonal ones, LSH and
-brute force on shrinkage-whitened rows, and random output codes)
+asymmetric / Hamming LSH, LSH with i.i.d. Gaussian hyperplanes beside the default orthogonal ones,
+random output codes, and every fast method — LSH, both code families, PQ, ITQ, brute force — on
+shrinkage-whitened rows too, so that the oracle holds each in its strongest form)
 at budgets 1 KB … 1 MB on six maps:
 
 ============================== ======================= ============ ==================================
@@ -76,8 +77,12 @@ FAST = (
     ("lsh gaussian", "lsh", {"projection": "gaussian"}),
     ("btel-codes", "btel-codes", {"code": "periodic"}),
     ("btel-codes random", "btel-codes", {"code": "random"}),
+    ("btel-codes shrink", "btel-codes", {"code": "periodic", "whiten": "shrink"}),
+    ("btel-codes random shrink", "btel-codes", {"code": "random", "whiten": "shrink"}),
     ("pq", "pq", {}),
+    ("pq shrink", "pq", {"whiten": "shrink"}),
     ("itq", "itq", {}),
+    ("itq shrink", "itq", {"whiten": "shrink"}),
     ("bruteforce", "bruteforce", {}),
     ("bruteforce shrink", "bruteforce", {"whiten": "shrink"}),
 )
