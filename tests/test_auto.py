@@ -69,6 +69,19 @@ def test_lsh_is_whitened_only_when_the_budget_affords_a_useful_rank() -> None:
     assert f"rank {shrink_rank(500, 200, 64_000)}" in high[0]["reason"]
 
 
+def test_lsh_is_whitened_only_with_at_least_d_bits_per_row() -> None:
+    """Rank and bytes per place suffice, but P < d bits per row: plain LSH (bench_lsh_whitening)."""
+    from btel.shrink import shrink_rank
+
+    X = np.random.default_rng(4).normal(size=(1000, 2048)).astype(np.float32)  # independent places
+    assert shrink_rank(2048, 1000, 128_000) >= 8 and 8 * 128_000 / 1000 < 2048
+    few = choose_method(X, None, 1000, 128_000)       # 1024 bits per row against d = 2048
+    assert few[0]["method"] == "lsh" and not few[0]["params"]["whiten"]
+    many = choose_method(X, None, 1000, 300_000)      # 2400 bits per row
+    assert many[0]["method"] == "lsh" and many[0]["params"]["whiten"] == "shrink"
+    assert "2400 bits per row ≥ d = 2048" in many[0]["reason"]
+
+
 @pytest.mark.parametrize("budget", [2_000, 20_000, None])
 def test_auto_fits_within_budget_round_trips_and_says_what_it_chose(smooth_route, budget, tmp_path) -> None:
     X, Q = smooth_route
