@@ -10,7 +10,7 @@ The same rule, stated once for every method: **anything regenerated from a recor
 bytes** (btel-codes' codewords, regenerated from (family, N, K, seed); lsh's d×P Gaussian
 projection, regenerated from its seed), **and anything learned is counted at its stored width**
 (weights, codebooks, rotations, codes, and every front-end array: PCA whitening at float32,
-shrinkage whitening's float16 mean and int8 basis). Runtime caches built from stored arrays
+shrinkage whitening's float16 mean and 4-bit basis). Runtime caches built from stored arrays
 (dequantised weights, unpacked codes, faiss indexes) are memory, not storage.
 """
 
