@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import btel
 from btel.methods.baselines.lsh import LSHLocalizer, projection_matrix
@@ -25,8 +27,8 @@ def test_bits_fill_the_budget_and_only_codes_and_mean_are_stored(pair, budget) -
     model = make_method("lsh", budget=budget).fit(X)
     centred = 2 * 64 <= budget / 8  # center='auto': the float16 mean only when it costs ≤ 1/8 of the budget
     assert (model.mean_ is not None) == centred
-    assert model.n_bits_ == 8 * ((budget - 2 * 64 * centred) // 400) and model.nbytes <= budget
-    assert model.nbytes > budget - 400  # less than one more byte per row is left over
+    assert model.n_bits_ == 8 * (budget - 2 * 64 * centred) // 400 and model.nbytes <= budget
+    assert model.nbytes > budget - 400 / 8  # less than one more bit per row is left over
     # The projection costs 0 bytes.
     assert set(model.storage_breakdown()) == ({"codes", "mean"} if centred else {"codes"})
 
@@ -99,6 +101,53 @@ def test_hamming_scoring_is_minus_the_hamming_distance(pair) -> None:
     np.testing.assert_array_equal(-scores, np.take_along_axis(dist, places, axis=1))
 
 
+@pytest.mark.parametrize("scoring", ["asymmetric", "hamming"])
+@pytest.mark.parametrize("n_bits", [13, 64, 203])
+def test_any_bit_count_is_stored_as_one_dense_stream_and_round_trips(pair, scoring, n_bits, tmp_path) -> None:
+    from btel.methods.baselines.lsh import code_bytes
+
+    X, Q = pair
+    model = LSHLocalizer(n_bits=n_bits, scoring=scoring, center=False).fit(X)
+    stored = model.storage_breakdown()["codes"]
+    assert stored == code_bytes(400, n_bits) == -(-400 * n_bits // 8)
+    # Row i's bits are bits i·P … (i+1)·P − 1 of the stream, the signs of its projection.
+    with np.load(model.save(tmp_path / "m.npz"), allow_pickle=False) as z:
+        stream = np.unpackbits(z["codes"].ravel(), count=400 * n_bits).reshape(400, n_bits)
+    np.testing.assert_array_equal(stream, model._project(btel.frontend.normalize_rows(X)) > 0)
+    again = btel.load(tmp_path / "m.npz")
+    np.testing.assert_array_equal(again.codes_, model.codes_)
+    np.testing.assert_array_equal(again.search(Q, 5)[0], model.search(Q, 5)[0])
+    np.testing.assert_array_equal(again.search(Q, 5)[1], model.search(Q, 5)[1])
+
+
+@given(n_rows=st.integers(1, 70_000), n_bits=st.integers(8, 100), seed=st.integers(0, 2**31 - 1))
+@settings(max_examples=25, deadline=None)
+def test_dense_stream_and_row_codes_are_inverse(n_rows: int, n_bits: int, seed: int) -> None:
+    from btel.methods.baselines.lsh import code_bytes, dense_codes, row_codes
+
+    rows = np.packbits(np.random.default_rng(seed).integers(0, 2, size=(n_rows, n_bits), dtype=np.uint8), axis=1)
+    stream = dense_codes(rows, n_bits)
+    assert stream.size == code_bytes(n_rows, n_bits)
+    back = stream if n_bits % 8 == 0 else row_codes(stream, n_rows, n_bits)
+    np.testing.assert_array_equal(back, rows)
+
+
+def test_a_dense_stream_of_the_wrong_length_or_rows_is_refused(pair, tmp_path) -> None:
+    from btel.modelfile import load_arrays, save_arrays
+
+    X, _ = pair
+    arrays, header = load_arrays(LSHLocalizer(n_bits=13).fit(X).save(tmp_path / "m.npz"))
+    with pytest.raises(btel.exceptions.ModelFileError, match="codes"):
+        btel.load(save_arrays(tmp_path / "short.npz", {**arrays, "codes": arrays["codes"][:-1]}, header))
+    header["state"]["n_rows"] = 399  # the stream then has one byte too many
+    with pytest.raises(btel.exceptions.ModelFileError, match="codes"):
+        btel.load(save_arrays(tmp_path / "rows.npz", arrays, header))
+    arrays, header = load_arrays(LSHLocalizer(n_bits=16).fit(X).save(tmp_path / "m16.npz"))
+    header["state"]["n_rows"] = 401
+    with pytest.raises(btel.exceptions.ModelFileError, match="rows"):
+        btel.load(save_arrays(tmp_path / "rows16.npz", arrays, header))
+
+
 def test_errors_name_the_fix(pair) -> None:
     X, _ = pair
     with pytest.raises(BudgetTooSmallError, match="LSH") as info:
@@ -107,8 +156,8 @@ def test_errors_name_the_fix(pair) -> None:
     with pytest.raises(BudgetTooSmallError, match="LSH") as info:
         make_method("lsh", budget=300).fit(X)
     assert info.value.minimum == 400
-    with pytest.raises(InvalidParameterError, match="multiple of 8"):
-        LSHLocalizer(n_bits=12).fit(X)
+    with pytest.raises(InvalidParameterError, match="n_bits"):
+        LSHLocalizer(n_bits=4).fit(X)
     with pytest.raises(InvalidParameterError, match="scoring"):
         make_method("lsh", scoring="cosine")
 
