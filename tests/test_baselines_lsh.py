@@ -21,16 +21,32 @@ def pair():
     return r.map, r.queries
 
 
+@pytest.mark.parametrize("cone", [False, True])
 @pytest.mark.parametrize("budget", [1_000, 5_000, 40_000])
-def test_bits_fill_the_budget_and_only_codes_and_mean_are_stored(pair, budget) -> None:
+def test_bits_fill_the_budget_and_only_codes_and_mean_are_stored(pair, budget, cone) -> None:
+    from btel.methods.baselines.lsh import CENTER_CONE, cone_ratio
+
     X, _ = pair
+    if cone:  # every row plus one shared direction: the unit rows then lie in a narrow cone
+        X = X + 3 * np.abs(X).max() * np.ones(X.shape[1], dtype=np.float32)
+    assert (cone_ratio(btel.frontend.normalize_rows(X)) >= CENTER_CONE) == cone
     model = make_method("lsh", budget=budget).fit(X)
-    centred = 2 * 64 <= budget / 8  # center='auto': the float16 mean only when it costs ≤ 1/8 of the budget
+    # center='auto': the float16 mean only for a cone, and only when it costs ≤ 1/8 of the budget.
+    centred = cone and 2 * 64 <= budget / 8
     assert (model.mean_ is not None) == centred
     assert model.n_bits_ == 8 * (budget - 2 * 64 * centred) // 400 and model.nbytes <= budget
     assert model.nbytes > budget - 400 / 8  # less than one more bit per row is left over
     # The projection costs 0 bytes.
     assert set(model.storage_breakdown()) == ({"codes", "mean"} if centred else {"codes"})
+
+
+def test_cone_ratio_is_the_mean_rows_length_over_their_rms_length() -> None:
+    from btel.methods.baselines.lsh import cone_ratio
+
+    x = np.random.default_rng(0).normal(size=(1, 16)).astype(np.float32)
+    assert cone_ratio(np.repeat(x, 5, axis=0)) == pytest.approx(1.0)
+    assert cone_ratio(np.concatenate([x, -x])) == pytest.approx(0.0, abs=1e-7)
+    assert cone_ratio(np.zeros((3, 4), dtype=np.float32)) == 0.0
 
 
 def test_projection_is_regenerated_from_the_recorded_seed(pair, tmp_path) -> None:

@@ -35,10 +35,16 @@ pins P. The codes are stored as one stream of n_rows·P bits (⌈n_rows·P/8⌉ 
 multiple of 8 that is the (n_rows, P/8) byte matrix of earlier files, otherwise a flat byte array
 (and the state records n_rows). Rows were once rounded down to whole bytes, which left up to 7 bits
 per row of the budget unspent: 48 instead of 53 bits for 600 places at 4 KB. ``center=True`` subtracts the map mean (d float16, counted) before the
-projection, so the hyperplanes cut through the data rather than past it (L2-normalised global
-descriptors live in a cone around their mean); ``center='auto'`` (default) does so when the mean
-costs at most :data:`CENTER_SHARE` (1/8) of the budget (always without a budget), so that at 1 KB
-the bits are not spent on a mean. On Gardens Point centring changed recall@2 by −0.045 … +0.01.
+projection, so the hyperplanes cut through the data rather than past it. ``center='auto'`` (default)
+does so when the map's rows lie in a cone — ‖mean row‖ ≥ :data:`CENTER_CONE` (0.5) × their RMS
+length, i.e. a mean cosine between unit rows of at least 0.25, where a hyperplane through the origin
+leaves most rows on one side and its bit says little — and the mean costs at most
+:data:`CENTER_SHARE` (1/8) of the budget (always without a budget), so that at 1 KB the bits are
+not spent on a mean. Measured (``python benchmarks/bench_lsh_center.py``, three seeds, centred −
+uncentred, forced): Nordland HOG (‖mean‖ 0.75)
++0.026 … +0.034 at 64 KB and +0.09 … +0.10 at 256 KB; Gardens Point NetVLAD (0.17) −0.018 / −0.032
+at 64 / 256 KB, permuted −0.005 … −0.013; the 256-D synthetic maps (0.25) −0.022 … +0.018. Before,
+'auto' centred on the cost condition alone.
 """
 
 from __future__ import annotations
@@ -59,8 +65,10 @@ __all__ = ["LSHLocalizer", "projection_matrix", "PROJECTIONS", "code_bytes", "de
 DEFAULT_BITS = 256
 #: Most bits per row the budget rule gives (beyond this, asymmetric LSH is within noise of cosine).
 MAX_BITS = 8192
-#: ``center='auto'`` centres when the float16 mean costs at most this share of the budget.
+#: ``center='auto'`` centres when the float16 mean costs at most this share of the budget ...
 CENTER_SHARE = 1 / 8
+#: ... and the map's rows lie in a cone: ‖mean row‖ at least this × their RMS length (module docstring).
+CENTER_CONE = 0.5
 #: The ±1 codes are cached as float32 when N·P is at most this (256 MB).
 CACHE_VALUES = 1 << 26
 #: Map rows unpacked at a time when the codes are not cached.
@@ -92,6 +100,16 @@ def projection_matrix(n_features: int, n_bits: int, seed: int, kind: str = "gaus
         # Sign-fixed Q is Haar-distributed; √d gives its columns the Gaussian columns' typical length.
         out[:, start : start + d] = q * (np.sign(np.diag(r)) * np.sqrt(d))
     return out
+
+
+def cone_ratio(X: np.ndarray, mean: np.ndarray | None = None) -> float:
+    """‖mean row‖ / RMS row length of ``X`` (n_rows, d): 0 for rows spread around the origin, 1 when all are equal.
+
+    For unit rows its square is the mean cosine between rows (self-pairs included).
+    """
+    mean = X.mean(axis=0, dtype=np.float64) if mean is None else mean
+    rms = np.sqrt(np.einsum("ij,ij->", X, X, dtype=np.float64) / max(X.shape[0], 1))
+    return float(np.linalg.norm(mean) / rms) if rms > 0 else 0.0
 
 
 def code_bytes(n_rows: int, n_bits: int) -> int:
@@ -138,7 +156,7 @@ class LSHLocalizer(_RowLocalizer):
         Projected query against the ±1 codes (default), or binarised query by Hamming distance.
     center : bool or 'auto'
         Subtract the map mean (stored as d float16 values, counted) before projecting; 'auto': when
-        it costs at most 1/8 of the budget.
+        the rows lie in a cone (‖mean‖ ≥ 0.5 × RMS length) and the mean costs at most 1/8 of the budget.
     projection : {'orthogonal', 'gaussian'}
         Orthonormalised blocks of d hyperplanes (default) or i.i.d. Gaussian ones (module docstring);
         both regenerated from the seed, 0 bytes.
@@ -192,9 +210,10 @@ class LSHLocalizer(_RowLocalizer):
         self.random_state = random_state
         self.n_jobs = n_jobs
 
-    def choose_bits(self, n_rows: int, n_features: int, budget: int | None, reserved: int = 0) -> int:
-        """P, the bits per row ``fit`` uses (module docstring)."""
-        mean_bytes = 2 * n_features if self._centred(n_features, budget) else 0
+    def choose_bits(self, n_rows: int, n_features: int, budget: int | None, reserved: int = 0, *,
+                    cone: bool = False) -> int:
+        """P, the bits per row ``fit`` uses (module docstring); ``cone``: the map's rows lie in a cone."""
+        mean_bytes = 2 * n_features if self._centred(n_rows, n_features, budget, reserved, cone) else 0
         if self.n_bits is not None:
             bits = int(self.n_bits)
         elif budget is None:
@@ -209,21 +228,28 @@ class LSHLocalizer(_RowLocalizer):
                                    + (f" + the {n_features}-value float16 mean" if mean_bytes else ""))
         return bits
 
-    def _centred(self, n_features: int, budget: int | None) -> bool:
-        if self.center == "auto":
-            return budget is None or 2 * n_features <= CENTER_SHARE * budget
-        return bool(self.center)
+    def _centred(self, n_rows: int, n_features: int, budget: int | None, reserved: int, cone: bool) -> bool:
+        """Whether fit subtracts the mean. 'auto' plans (no map seen: ``cone`` False) as uncentred, the
+        smallest plan, and centres a cone only where the mean is cheap and 8-bit codes still fit beside it."""
+        if self.center != "auto":
+            return bool(self.center)
+        if not cone:
+            return False
+        return budget is None or (2 * n_features <= CENTER_SHARE * budget
+                                  and reserved + 2 * n_features + code_bytes(n_rows, 8) <= budget)
 
     def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
         self.choose_bits(n_rows, n_features_out, budget, reserved)
 
     def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
         n_rows, d = X.shape
-        bits = self.choose_bits(n_rows, d, budget, reserved)
+        mean = X.mean(axis=0, dtype=np.float64)
+        cone = cone_ratio(X, mean) >= CENTER_CONE
+        bits = self.choose_bits(n_rows, d, budget, reserved, cone=cone)
         seed = int(self.random_state) if self.random_state is not None else \
             int(np.random.default_rng().integers(0, 2**31 - 1))
         self.n_bits_, self.seed_ = bits, seed
-        self.mean_ = X.mean(axis=0, dtype=np.float64).astype(np.float16) if self._centred(d, budget) else None
+        self.mean_ = mean.astype(np.float16) if self._centred(n_rows, d, budget, reserved, cone) else None
         self.projection_ = projection_matrix(d, bits, seed, self.projection)
         codes = np.empty((n_rows, (bits + 7) // 8), dtype=np.uint8)
         for start in range(0, n_rows, _BLOCK_ROWS):

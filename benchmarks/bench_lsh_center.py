@@ -1,0 +1,74 @@
+"""LSH with and without the map mean subtracted (``center=True`` / ``False``), and the map's cone ratio.
+
+For each map of ``btel experiment frontier`` and budgets 16 KB, 64 KB and 256 KB, ``lsh`` (asymmetric
+scoring, orthogonal hyperplanes) is fitted centred and uncentred under seeds 0 … ``--seeds`` − 1 and
+scored by that map's key recall (recall@2 on Gardens Point and the synthetic route, recall@10 on
+Nordland, recall@0 on maps of independent places). The cone ratio (‖mean row‖ / RMS row length of
+the L2-normalised map, :func:`btel.methods.baselines.lsh.cone_ratio`) is what ``center='auto'`` reads.
+One BLAS thread.
+
+    python benchmarks/bench_lsh_center.py       # ≈ 3 min on 2 shared cores
+
+Writes ``benchmarks/results/bench_lsh_center.json`` and prints the table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from btel.frontend import normalize_rows
+from btel.methods import make_method
+from btel.methods.baselines.lsh import cone_ratio
+from btel.threads import limit_threads
+
+HERE = Path(__file__).resolve().parent
+BUDGETS = (16_000, 64_000, 256_000)
+TOLERANCE = {"recall@0": 0, "recall@2": 2, "recall@10": 10}
+
+
+def main() -> None:
+    from btel.experiments._common import NordlandData
+    from btel.experiments.frontier import _maps
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--data", type=Path, default=HERE.parent.parent / "shared" / "data" / "nordland64")
+    parser.add_argument("--cache", type=Path, default=HERE / "results" / "cache")
+    args = parser.parse_args()
+    start, rows = time.time(), []
+    data = NordlandData(args.data, args.cache, progress=False)
+    with limit_threads(1):
+        for base, X, Q in _maps(data, False):
+            tol, truth = TOLERANCE[base["key"]], np.arange(len(Q))
+            ratio = cone_ratio(normalize_rows(X.astype(np.float32), "l2"))
+            for budget in BUDGETS:
+                if budget > X.size * 4:
+                    continue
+                values = {name: [float(np.mean(np.abs(make_method("lsh", budget=budget, center=center, random_state=seed)
+                                                      .fit(X).predict(Q) - truth) <= tol))
+                                 for seed in range(args.seeds)]
+                          for name, center in (("centred", True), ("uncentred", False))}
+                diff = np.subtract(values["centred"], values["uncentred"])
+                row = {"dataset": base["dataset"], "key": base["key"], "budget": budget, "cone_ratio": ratio, **values,
+                       "difference_mean": float(diff.mean()),
+                       "difference_se": float(diff.std(ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else None}
+                rows.append(row)
+                se = "" if row["difference_se"] is None else f" ± {row['difference_se']:.3f}"
+                print(f"{base['dataset']:<24} cone {ratio:.2f} {budget // 1000:>4} KB  centred {np.mean(values['centred']):.3f}"
+                      f"  uncentred {np.mean(values['uncentred']):.3f}  difference {diff.mean():+.3f}{se}  ({base['key']})",
+                      flush=True)
+    out = HERE / "results" / "bench_lsh_center.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"rows": rows, "seeds": args.seeds, "seconds": time.time() - start,
+                               "load": os.getloadavg()}, indent=1) + "\n")
+    print(f"wrote {out} ({time.time() - start:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()
