@@ -45,12 +45,13 @@ per map:
    so with few bits against d the flattening costs LSH more than it gives (brute force, which has
    no sketch error, gains from it at every rank). ``python benchmarks/bench_lsh_whitening.py``
    measured it (three seeds) on a high-dimensional synthetic map made for the test (d = 2048, as a
-   route and permuted): whitened − plain −0.02 / −0.07 … −0.08 / −0.21 … −0.23 / −0.04 … −0.05 at
-   P/d = 0.06 / 0.12 / 0.25 / 0.5, +0.006 at P/d = 1. On the development maps the sign changes in
-   the same place: −0.057 on Gardens Point at P/d = 0.32, +0.017 … +0.10 from P/d = 1.28 on;
-   Nordland −0.02 / −0.08 at P/d = 0.04 / 0.15 and −0.008 / +0.023 at 0.59; the 256-D synthetic maps
-   −0.049 at 0.24, +0.015 ± 0.043 at 0.5, +0.026 at 0.98. The crossover lies between P/d = 0.5 and 1;
-   the rule takes the round, safe side (a miss above it cost at most 0.026; below it up to 0.23).
+   route and permuted): whitened − plain −0.00 … −0.01 / −0.07 … −0.08 / −0.18 … −0.20 /
+   −0.03 … −0.04 at P/d = 0.06 / 0.12 / 0.25 / 0.5, +0.005 at P/d = 1. On the development maps the
+   sign changes in the same place: −0.057 on Gardens Point at P/d = 0.32, +0.012 … +0.067 from
+   P/d = 1.28 on; Nordland −0.004 … −0.074 at P/d = 0.04 … 0.15 and −0.001 / +0.029 at 0.59; the
+   256-D synthetic maps −0.097 at 0.24, +0.002 at 0.5, +0.023 at 0.98. The crossover lies between
+   P/d = 0.5 and 1; the rule takes the round, safe side (whitening passed over below d cost at most
+   0.029 here; whitening below d/2 lost up to 0.20).
    Added when the 4-bit
    whitening basis doubled the rank a budget affords and whitened LSH on Nordland at 256 KB fell
    from 0.197 to 0.173 (plain 0.260); the high-dimensional synthetic map was made to test the

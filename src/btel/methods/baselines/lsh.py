@@ -23,9 +23,10 @@ angle the P signs estimate (super-bit LSH, Ji et al. 2012) at the same bytes. ``
 Gaussian matrix itself, i.i.d. hyperplanes (model files that record no projection were written with
 it). Measured, mean of 5 seeds, asymmetric scoring (``benchmarks/bench_lsh_projection.py`` on
 ``btel experiment frontier``'s maps), orthogonal against Gaussian: synthetic independent places
-16 KB (120 bits, d = 256) R@1 0.747 vs 0.625, synthetic route 64 KB (248 bits) R@2 0.963 vs 0.884,
-Gardens Point 16 KB 0.453 vs 0.429, Nordland 256 KB 0.259 vs 0.252; within ±0.016 of each other
-in the other cells (Gardens Point at 8192 bits, 17 blocks: 0.458 vs 0.470). The QR costs about 2·d·P² flops at fit and at load (0.15 s at d = 3780,
+16 KB (128 bits, d = 256) R@1 0.749 vs 0.669, synthetic route 64 KB (250 bits) R@2 0.972 vs 0.879,
+Gardens Point 4 KB 0.429 vs 0.416, Nordland 256 KB 0.258 / 0.248 vs 0.252 / 0.234; within
+−0.006 … +0.016 of each other in the other cells (Gardens Point at 8192 bits, 17 blocks: 0.487 vs
+0.485). The QR costs about 2·d·P² flops at fit and at load (0.15 s at d = 3780,
 P = 552; 1.9 s at P = 2216; 6 s at d = P = 4096, on one thread): pass ``projection='gaussian'``
 where load time matters more than the last hundredths of recall.
 
