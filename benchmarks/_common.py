@@ -44,3 +44,30 @@ def write_results(name: str, payload: dict[str, Any]) -> Path:
     path = RESULTS_DIR / f"{name}.json"
     path.write_text(json.dumps({"machine": machine(), **payload}, indent=2, default=float) + "\n")
     return path
+
+
+#: Recall tolerance of each key recall of ``btel experiment frontier``'s maps.
+TOLERANCE = {"recall@0": 0, "recall@2": 2, "recall@10": 10}
+_HERE = Path(__file__).resolve().parent
+
+
+def add_data_arguments(parser: Any) -> None:
+    """``--data`` (the Nordland folder) and ``--cache`` (its HOG features) of the frontier's maps."""
+    parser.add_argument("--data", type=Path, default=_HERE.parent.parent / "shared" / "data" / "nordland64")
+    parser.add_argument("--cache", type=Path, default=RESULTS_DIR / "cache")
+
+
+def frontier_maps(args: Any, quick: bool = False) -> list:
+    """``btel experiment frontier``'s maps: [(base, X, Q)], base holding ``dataset`` and ``key``."""
+    from btel.experiments._common import NordlandData
+    from btel.experiments.frontier import _maps
+
+    return _maps(NordlandData(args.data, args.cache, progress=False), quick)
+
+
+def key_recall(pred: Any, key: str) -> float:
+    """Share of queries i whose predicted place lies within the key's tolerance of place i."""
+    import numpy as np
+
+    pred = np.asarray(pred)
+    return float(np.mean(np.abs(pred - np.arange(pred.shape[0])) <= TOLERANCE[key]))

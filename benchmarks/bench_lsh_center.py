@@ -15,43 +15,34 @@ Writes ``benchmarks/results/bench_lsh_center.json`` and prints the table.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
-from pathlib import Path
 
 import numpy as np
+from _common import add_data_arguments, frontier_maps, key_recall, write_results
 
 from btel.frontend import normalize_rows
 from btel.methods import make_method
 from btel.methods.baselines.lsh import cone_ratio
 from btel.threads import limit_threads
 
-HERE = Path(__file__).resolve().parent
 BUDGETS = (16_000, 64_000, 256_000)
-TOLERANCE = {"recall@0": 0, "recall@2": 2, "recall@10": 10}
 
 
 def main() -> None:
-    from btel.experiments._common import NordlandData
-    from btel.experiments.frontier import _maps
-
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3)
-    parser.add_argument("--data", type=Path, default=HERE.parent.parent / "shared" / "data" / "nordland64")
-    parser.add_argument("--cache", type=Path, default=HERE / "results" / "cache")
+    add_data_arguments(parser)
     args = parser.parse_args()
     start, rows = time.time(), []
-    data = NordlandData(args.data, args.cache, progress=False)
     with limit_threads(1):
-        for base, X, Q in _maps(data, False):
-            tol, truth = TOLERANCE[base["key"]], np.arange(len(Q))
+        for base, X, Q in frontier_maps(args):
             ratio = cone_ratio(normalize_rows(X.astype(np.float32), "l2"))
             for budget in BUDGETS:
                 if budget > X.size * 4:
                     continue
-                values = {name: [float(np.mean(np.abs(make_method("lsh", budget=budget, center=center, random_state=seed)
-                                                      .fit(X).predict(Q) - truth) <= tol))
+                values = {name: [key_recall(make_method("lsh", budget=budget, center=center, random_state=seed)
+                                            .fit(X).predict(Q), base["key"])
                                  for seed in range(args.seeds)]
                           for name, center in (("centred", True), ("uncentred", False))}
                 diff = np.subtract(values["centred"], values["uncentred"])
@@ -63,10 +54,8 @@ def main() -> None:
                 print(f"{base['dataset']:<24} cone {ratio:.2f} {budget // 1000:>4} KB  centred {np.mean(values['centred']):.3f}"
                       f"  uncentred {np.mean(values['uncentred']):.3f}  difference {diff.mean():+.3f}{se}  ({base['key']})",
                       flush=True)
-    out = HERE / "results" / "bench_lsh_center.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"rows": rows, "seeds": args.seeds, "seconds": time.time() - start,
-                               "load": os.getloadavg()}, indent=1) + "\n")
+    out = write_results("bench_lsh_center", {"rows": rows, "seeds": args.seeds, "seconds": time.time() - start,
+                                             "load": os.getloadavg()})
     print(f"wrote {out} ({time.time() - start:.0f} s)")
 
 

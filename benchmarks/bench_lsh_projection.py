@@ -18,42 +18,33 @@ Writes ``benchmarks/results/bench_lsh_projection.json`` and prints the table.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
-from pathlib import Path
 
 import numpy as np
+from _common import add_data_arguments, frontier_maps, key_recall, write_results
 
 from btel.methods import make_method
 from btel.threads import limit_threads
 
-HERE = Path(__file__).resolve().parent
 BUDGETS = ("4KB", "16KB", "64KB", "256KB")
-TOLERANCE = {"recall@0": 0, "recall@2": 2, "recall@10": 10}
 
 
 def main() -> None:
-    from btel.experiments._common import NordlandData
-    from btel.experiments.frontier import _maps
-
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--data", type=Path, default=HERE.parent.parent / "shared" / "data" / "nordland64")
-    parser.add_argument("--cache", type=Path, default=HERE / "results" / "cache")
+    add_data_arguments(parser)
     args = parser.parse_args()
     start, rows = time.time(), []
-    data = NordlandData(args.data, args.cache, progress=False)
     with limit_threads(1):
-        for base, X, Q in _maps(data, args.quick):
-            tol, truth = TOLERANCE[base["key"]], np.arange(len(Q))
+        for base, X, Q in frontier_maps(args, args.quick):
             for budget in BUDGETS:
                 values: dict[str, list[float]] = {"orthogonal": [], "gaussian": []}
                 for kind in values:
                     for seed in range(args.seeds):
                         model = make_method("lsh", budget=budget, projection=kind, random_state=seed).fit(X)
-                        values[kind].append(float(np.mean(np.abs(model.predict(Q) - truth) <= tol)))
+                        values[kind].append(key_recall(model.predict(Q), base["key"]))
                 diff = np.subtract(values["orthogonal"], values["gaussian"])
                 row = {"dataset": base["dataset"], "key": base["key"], "budget": budget, "n_bits": model.n_bits_,
                        "n_features": int(X.shape[1]), **values,
@@ -64,10 +55,8 @@ def main() -> None:
                 print(f"{base['dataset']:<24} {budget:>6} {model.n_bits_:>5} bits (d = {X.shape[1]:>4})  "
                       f"orthogonal {np.mean(values['orthogonal']):.3f}  gaussian {np.mean(values['gaussian']):.3f}  "
                       f"difference {diff.mean():+.3f}{se}  ({base['key']})", flush=True)
-    out = HERE / "results" / "bench_lsh_projection.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"rows": rows, "seeds": args.seeds, "quick": args.quick,
-                               "seconds": time.time() - start, "load": os.getloadavg()}, indent=1) + "\n")
+    out = write_results("bench_lsh_projection", {"rows": rows, "seeds": args.seeds, "quick": args.quick,
+                                                 "seconds": time.time() - start, "load": os.getloadavg()})
     print(f"wrote {out} ({time.time() - start:.0f} s)")
 
 

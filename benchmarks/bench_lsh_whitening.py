@@ -21,12 +21,11 @@ Writes ``benchmarks/results/bench_lsh_whitening.json`` and prints the table.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
-from pathlib import Path
 
 import numpy as np
+from _common import add_data_arguments, frontier_maps, key_recall, write_results
 
 from btel.datasets import synthetic_route
 from btel.exceptions import BudgetTooSmallError
@@ -34,9 +33,6 @@ from btel.methods import make_method
 from btel.shrink import shrink_rank
 from btel.storage import parse_budget
 from btel.threads import limit_threads
-
-HERE = Path(__file__).resolve().parent
-TOLERANCE = {"recall@0": 0, "recall@2": 2, "recall@10": 10}
 
 
 def high_dimensional_maps() -> list[tuple[dict, np.ndarray, np.ndarray, tuple[str, ...]]]:
@@ -48,36 +44,31 @@ def high_dimensional_maps() -> list[tuple[dict, np.ndarray, np.ndarray, tuple[st
              budgets)]
 
 
-def recall(params: dict, X: np.ndarray, Q: np.ndarray, budget: str, seed: int, tol: int) -> float | None:
+def recall(params: dict, X: np.ndarray, Q: np.ndarray, budget: str, seed: int, key: str) -> float | None:
     try:
         model = make_method("lsh", budget=budget, random_state=seed, **params).fit(X)
     except BudgetTooSmallError:
         return None
-    return float(np.mean(np.abs(model.predict(Q) - np.arange(len(Q))) <= tol))
+    return key_recall(model.predict(Q), key)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--frontier", action="store_true", help="also the frontier experiment's maps")
-    parser.add_argument("--data", type=Path, default=HERE.parent.parent / "shared" / "data" / "nordland64")
-    parser.add_argument("--cache", type=Path, default=HERE / "results" / "cache")
+    add_data_arguments(parser)
     args = parser.parse_args()
     start, rows = time.time(), []
     maps = high_dimensional_maps()
     if args.frontier:
-        from btel.experiments._common import NordlandData
-        from btel.experiments.frontier import _maps
-
-        data = NordlandData(args.data, args.cache, progress=False)
-        maps += [(base, X, Q, ("4KB", "16KB", "64KB", "256KB", "1MB")) for base, X, Q in _maps(data, False)]
+        maps += [(base, X, Q, ("4KB", "16KB", "64KB", "256KB", "1MB")) for base, X, Q in frontier_maps(args)]
     with limit_threads(1):
         for base, X, Q, budgets in maps:
             n, d = X.shape
             for budget in budgets:
                 if parse_budget(budget) > n * d * 4:  # larger than the map itself, as the frontier skips
                     continue
-                values = {kind: [recall(params, X, Q, budget, seed, TOLERANCE[base["key"]])
+                values = {kind: [recall(params, X, Q, budget, seed, base["key"])
                                  for seed in range(args.seeds)]
                           for kind, params in (("plain", {}), ("shrink", {"whiten": "shrink"}))}
                 if any(v is None for vs in values.values() for v in vs):
@@ -94,10 +85,8 @@ def main() -> None:
                 print(f"{base['dataset']:<30} {budget:>6} P/d = {bits / d:5.2f} (rank {row['shrink_rank']:>2})  "
                       f"plain {np.mean(values['plain']):.3f}  shrink {np.mean(values['shrink']):.3f}  "
                       f"shrink − plain {diff.mean():+.3f}{se}  ({base['key']})", flush=True)
-    out = HERE / "results" / "bench_lsh_whitening.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"rows": rows, "seeds": args.seeds, "seconds": time.time() - start,
-                               "load": os.getloadavg()}, indent=1) + "\n")
+    out = write_results("bench_lsh_whitening", {"rows": rows, "seeds": args.seeds, "seconds": time.time() - start,
+                                                "load": os.getloadavg()})
     print(f"wrote {out} ({time.time() - start:.0f} s)")
 
 

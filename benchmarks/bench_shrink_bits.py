@@ -18,36 +18,27 @@ Writes ``benchmarks/results/bench_shrink_bits.json`` and prints the table.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
-from pathlib import Path
 
 import numpy as np
+from _common import add_data_arguments, frontier_maps, key_recall, write_results
 
 from btel.frontend import normalize_rows
 from btel.shrink import apply_shrink, fit_shrink
 from btel.threads import limit_threads
 
-HERE = Path(__file__).resolve().parent
 RANKS = (4, 8, 16, 32)
-TOLERANCE = {"recall@0": 0, "recall@2": 2, "recall@10": 10}
 
 
 def main() -> None:
-    from btel.experiments._common import NordlandData
-    from btel.experiments.frontier import _maps
-
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--data", type=Path, default=HERE.parent.parent / "shared" / "data" / "nordland64")
-    parser.add_argument("--cache", type=Path, default=HERE / "results" / "cache")
+    add_data_arguments(parser)
     args = parser.parse_args()
     start, rows = time.time(), []
-    data = NordlandData(args.data, args.cache, progress=False)
     with limit_threads(1):
-        for base, X, Q in _maps(data, args.quick):
-            tol, truth = TOLERANCE[base["key"]], np.arange(len(Q))
+        for base, X, Q in frontier_maps(args, args.quick):
             Z, ZQ = normalize_rows(X.astype(np.float32), "l2"), normalize_rows(Q.astype(np.float32), "l2")
             for rank in RANKS:
                 recall = {}
@@ -55,16 +46,14 @@ def main() -> None:
                     mean, basis, scale, gains = fit_shrink(Z, rank, levels=levels)
                     A = normalize_rows(apply_shrink(Z, mean, basis, scale, gains), "l2")
                     B = normalize_rows(apply_shrink(ZQ, mean, basis, scale, gains), "l2")
-                    recall[bits] = float(np.mean(np.abs((B @ A.T).argmax(axis=1) - truth) <= tol))
+                    recall[bits] = key_recall((B @ A.T).argmax(axis=1), base["key"])
                 rows.append({"dataset": base["dataset"], "key": base["key"], "rank": rank,
                              "n_features": int(X.shape[1]), **recall})
                 print(f"{base['dataset']:<24} r = {rank:>2} (d = {X.shape[1]:>4})  int8 {recall['int8']:.3f}  "
                       f"4-bit {recall['4-bit']:.3f}  difference {recall['4-bit'] - recall['int8']:+.3f}  "
                       f"({base['key']})", flush=True)
-    out = HERE / "results" / "bench_shrink_bits.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"rows": rows, "quick": args.quick, "seconds": time.time() - start,
-                               "load": os.getloadavg()}, indent=1) + "\n")
+    out = write_results("bench_shrink_bits", {"rows": rows, "quick": args.quick, "seconds": time.time() - start,
+                                              "load": os.getloadavg()})
     print(f"wrote {out} ({time.time() - start:.0f} s)")
 
 

@@ -35,17 +35,18 @@ holds; at least 8), at most :data:`MAX_BITS`; without a budget P = :data:`DEFAUL
 pins P. The codes are stored as one stream of n_rows·P bits (⌈n_rows·P/8⌉ bytes): when P is a
 multiple of 8 that is the (n_rows, P/8) byte matrix of earlier files, otherwise a flat byte array
 (and the state records n_rows). Rows were once rounded down to whole bytes, which left up to 7 bits
-per row of the budget unspent: 48 instead of 53 bits for 600 places at 4 KB. ``center=True`` subtracts the map mean (d float16, counted) before the
-projection, so the hyperplanes cut through the data rather than past it. ``center='auto'`` (default)
-does so when the map's rows lie in a cone — ‖mean row‖ ≥ :data:`CENTER_CONE` (0.5) × their RMS
-length, i.e. a mean cosine between unit rows of at least 0.25, where a hyperplane through the origin
-leaves most rows on one side and its bit says little — and the mean costs at most
-:data:`CENTER_SHARE` (1/8) of the budget (always without a budget), so that at 1 KB the bits are
-not spent on a mean. Measured (``python benchmarks/bench_lsh_center.py``, three seeds, centred −
-uncentred, forced): Nordland HOG (‖mean‖ 0.75)
-+0.026 … +0.034 at 64 KB and +0.09 … +0.10 at 256 KB; Gardens Point NetVLAD (0.17) −0.018 / −0.032
-at 64 / 256 KB, permuted −0.005 … −0.013; the 256-D synthetic maps (0.25) −0.022 … +0.018. Before,
-'auto' centred on the cost condition alone.
+per row of the budget unspent: 48 instead of 53 bits for 600 places at 4 KB.
+
+``center=True`` subtracts the map mean (d float16, counted) before the projection, so the
+hyperplanes cut through the data rather than past it. ``center='auto'`` (default) does so when the
+map's rows lie in a cone — ‖mean row‖ ≥ :data:`CENTER_CONE` (0.5) × their RMS length, i.e. a mean
+cosine between unit rows of at least 0.25, where a hyperplane through the origin leaves most rows
+on one side and its bit says little — and the mean costs at most :data:`CENTER_SHARE` (1/8) of the
+budget (always without a budget), so that at 1 KB the bits are not spent on a mean. Measured
+(``python benchmarks/bench_lsh_center.py``, three seeds, centred − uncentred, forced): Nordland HOG
+(‖mean‖ 0.75) +0.026 … +0.034 at 64 KB and +0.09 … +0.10 at 256 KB; Gardens Point NetVLAD (0.17)
+−0.018 / −0.032 at 64 / 256 KB, permuted −0.005 … −0.013; the 256-D synthetic maps (0.25)
+−0.022 … +0.018. Before, 'auto' centred on the cost condition alone.
 """
 
 from __future__ import annotations
