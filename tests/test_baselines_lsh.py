@@ -160,8 +160,12 @@ def test_a_dense_stream_of_the_wrong_length_or_rows_is_refused(pair, tmp_path) -
         btel.load(save_arrays(tmp_path / "rows.npz", arrays, header))
     arrays, header = load_arrays(LSHLocalizer(n_bits=16).fit(X).save(tmp_path / "m16.npz"))
     header["state"]["n_rows"] = 401
-    with pytest.raises(btel.exceptions.ModelFileError, match="rows"):
+    with pytest.raises(btel.exceptions.ModelFileError, match="codes"):
         btel.load(save_arrays(tmp_path / "rows16.npz", arrays, header))
+    for bad in ("400", 0, True, 2.5, 2**41):
+        header["state"]["n_rows"] = bad
+        with pytest.raises(btel.exceptions.ModelFileError, match="n_rows"):
+            btel.load(save_arrays(tmp_path / "bad.npz", arrays, header))
 
 
 def test_errors_name_the_fix(pair) -> None:

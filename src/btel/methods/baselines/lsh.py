@@ -321,10 +321,11 @@ class LSHLocalizer(_RowLocalizer):
         kind = state.get("projection", PROJECTIONS[-1])
         if kind not in PROJECTIONS:
             raise ModelFileError(f"the LSH model file's projection {str(kind)[:40]!r} is not one of {PROJECTIONS}.")
+        # Files before the dense stream record no n_rows (their P is a multiple of 8).
+        n_rows = read_state_int(state, "n_rows", 1, 2**40) if "n_rows" in state or bits % 8 else None
         if bits % 8 == 0:  # the byte matrix, as every file before the dense stream
-            codes = ArraySpec((None, bits // 8), np.uint8)
+            codes = ArraySpec((n_rows, bits // 8), np.uint8)
         else:
-            n_rows = read_state_int(state, "n_rows", 1, 2**40)
             codes = ArraySpec((code_bytes(n_rows, bits),), np.uint8)
         return {"codes": codes, "mean": ArraySpec((d,), np.float16, required=self.center is True)}
 
@@ -336,10 +337,7 @@ class LSHLocalizer(_RowLocalizer):
         if self.center is False and "mean" in arrays:
             raise ModelFileError("the LSH model file holds a mean but its parameters say center=False.")
         self.n_bits_, self.seed_ = int(state["n_bits"]), int(state["seed"])
-        stored = np.ascontiguousarray(arrays["codes"])
-        if "n_rows" in state and stored.ndim == 2 and stored.shape[0] != int(state["n_rows"]):
-            raise ModelFileError(f"the LSH model file's codes hold {stored.shape[0]} rows but its state says "
-                                 f"{int(state['n_rows'])}.")
+        stored = np.ascontiguousarray(arrays["codes"])  # shape checked against the state (_model_specs)
         self.codes_ = stored if stored.ndim == 2 else row_codes(stored, int(state["n_rows"]), self.n_bits_)
         self._stored_codes = stored
         self.mean_ = arrays.get("mean")
