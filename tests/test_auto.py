@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import btel
+from btel.datasets import synthetic_route
 from btel.methods.auto import ORDER_SHARE, ROUTE_SHARE, choose_method, collision_bits, route_share
 from btel.exceptions import BudgetTooSmallError, ModelFileError
 from btel.methods import make_method
@@ -67,6 +68,22 @@ def test_lsh_is_whitened_only_when_the_budget_affords_a_useful_rank() -> None:
     high = choose_method(X, None, 200, 64_000)
     assert high[0]["method"] == "lsh" and high[0]["params"]["whiten"] == "shrink"
     assert f"rank {shrink_rank(500, 200, 64_000)}" in high[0]["reason"]
+
+
+def test_an_ordered_cone_that_cannot_afford_lsh_mean_gets_output_codes() -> None:
+    """Ordered map in a cone, LSH's mean over 1/8 of the budget: codes; with the mean affordable, or no cone: LSH."""
+    from btel.methods.baselines.lsh import cone_ratio
+
+    route = synthetic_route(600, 512, condition_shift=1.0, seed=2)
+    offset = np.full(512, 3 * np.linalg.norm(route.map, axis=1).mean() / np.sqrt(512), dtype=np.float32)
+    cone = route.map + offset
+    assert cone_ratio(btel.frontend.normalize_rows(cone)) >= 0.5 > cone_ratio(btel.frontend.normalize_rows(route.map))
+    assert ORDER_SHARE <= route_share(cone) < 0.5 and ORDER_SHARE <= route_share(route.map) < 0.5
+    budget = 6_000  # 80 bits per row, above 2·log2 N; LSH's 1 KB mean is over 1/8 of it
+    first = choose_method(cone, None, 600, budget)[0]
+    assert first["method"] == "btel-codes" and "cone" in first["reason"]
+    assert choose_method(route.map, None, 600, budget)[0]["method"] == "lsh"
+    assert choose_method(cone, None, 600, 16_000)[0]["method"] == "lsh"   # the mean fits: centred LSH
 
 
 def test_lsh_is_whitened_only_with_at_least_d_bits_per_row() -> None:

@@ -27,6 +27,18 @@ per map:
    permuted 0.05, synthetic independent places 0.00) keep LSH at any budget; the two NetVLAD sets of
    independent places above (share 0.14–0.40, 210 and 600 places) get ≥ 54 bits per place from 4 KB on,
    above their bound (15.4 / 18.5), so LSH there too.
+   And the same when the ordered map's rows lie in a cone (:func:`~btel.methods.baselines.lsh.cone_ratio`
+   ≥ 0.5, what ``lsh`` centres) but the budget cannot afford LSH's mean (2d bytes > 1/8 of it, so
+   ``lsh`` runs uncentred): a hyperplane through the origin leaves most rows of a cone on one side.
+   ``python benchmarks/bench_cone_route.py`` tested it on a synthetic 1024-D route (N = 2000, route
+   share 0.17–0.23) made for it, with a shared offset added to make a cone, three seeds, recall@2
+   at 8 / 16 KB: cone 0.95 codes 0.130 / 0.272 vs LSH 0.043 / 0.092 (easy shift) and 0.055 / 0.094 vs
+   0.014 / 0.022 (hard); cone 0.73 0.126 / 0.255 vs 0.115 / 0.279 and 0.051 / 0.085 vs 0.025 / 0.041;
+   once the mean fits (32 KB, centred LSH) LSH leads again, 0.689 vs 0.411. Added after the frontier
+   showed Nordland HOG (cone 0.75) at 16 KB with the codes ahead (0.038 / 0.044 vs 0.015 / 0.016);
+   the synthetic test was made to check the mechanism, not fitted to that cell. Without a cone the
+   codes also won the hard synthetic route at 8–16 KB (0.055 / 0.099 vs 0.034 / 0.054): how hard the
+   queries' change of conditions is cannot be read from the map, and that stays a miss.
 4. **Otherwise (independent places, or many bits)** → if cosine brute force on shrinkage-whitened
    rows fits the budget (or there is no budget), that (exact search); else ``lsh`` (asymmetric
    scoring) with ``whiten="shrink"`` when the budget gives at least
@@ -57,9 +69,8 @@ per map:
    from 0.197 to 0.173 (plain 0.260); the high-dimensional synthetic map was made to test the
    mechanism, not fitted to a cell.
 
-Known weak spots on the development data (``btel experiment frontier``, means of three seeds): on
-Nordland HOG at 16 KB (36 bits per place, above the bound) the output codes still beat LSH (recall@10
-0.038 vs 0.015; everything is near chance there), PQ at 1 MB beats LSH, and on Gardens Point the
+Known weak spots on the development data (``btel experiment frontier``, means of three seeds): PQ
+at 1 MB beats LSH on Nordland HOG, and on Gardens Point the
 periodic codes on whitened rows beat the plain ones at 4, 16 and 256 KB (0.615 vs 0.580 at 16 KB) but
 not at 64 KB nor on the synthetic route. The rule was not
 changed to fit those rows. A holdout on the map itself (even rows as the map, odd rows as
@@ -162,6 +173,7 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
     fits the first that fits the budget.
     """
     from .baselines import BruteForceNN
+    from .baselines.lsh import CENTER_CONE, CENTER_SHARE, cone_ratio
     from ..frontend import FrontEnd
     from ..shrink import shrink_rank
 
@@ -184,6 +196,11 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
     elif share >= ORDER_SHARE and per_place is not None and 8 * per_place < few:
         why = (f"ordered map (route share {share:.2f} ≥ {ORDER_SHARE}) with {8 * per_place:.0f} bits per map row "
                f"< 2·log2 N = {few:.1f}: random sign codes that short collide, so {filling}")
+    elif share >= ORDER_SHARE and budget is not None and 2 * d > CENTER_SHARE * budget \
+            and (cone := cone_ratio(normalize_rows(np.ascontiguousarray(X, dtype=np.float32), "l2"))) >= CENTER_CONE:
+        why = (f"ordered map (route share {share:.2f} ≥ {ORDER_SHARE}) whose rows lie in a cone (ratio {cone:.2f} ≥ "
+               f"{CENTER_CONE}) and a budget that cannot afford LSH's {2 * d} B mean: sign bits through the origin "
+               f"say little about a cone, so {filling}")
     else:
         why = None
     if why is not None:  # output codes, plain LSH as the fallback
