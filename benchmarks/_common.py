@@ -71,3 +71,20 @@ def key_recall(pred: Any, key: str) -> float:
 
     pred = np.asarray(pred)
     return float(np.mean(np.abs(pred - np.arange(pred.shape[0])) <= TOLERANCE[key]))
+
+
+def paired_difference(a: list[float], b: list[float]) -> dict[str, Any]:
+    """``a`` − ``b`` paired by seed: ``{"difference_mean", "difference_se"}`` (se None with one pair).
+
+    The same computation as the frontier's auto − LSH column (:func:`btel.experiments.frontier.paired_difference`).
+    """
+    from btel.experiments.frontier import paired_difference as frontier_paired
+
+    paired = frontier_paired({"value": a[0], "seed_values": list(a)}, {"value": b[0], "seed_values": list(b)})
+    return {"difference_mean": paired["diff"], "difference_se": paired["diff_se"]}
+
+
+def signed(row: dict[str, Any]) -> str:
+    """"+0.012 ± 0.008" from a row holding ``difference_mean`` and ``difference_se``."""
+    se = row["difference_se"]
+    return f"{row['difference_mean']:+.3f}" + ("" if se is None else f" ± {se:.3f}")

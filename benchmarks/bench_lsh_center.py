@@ -19,7 +19,7 @@ import os
 import time
 
 import numpy as np
-from _common import add_data_arguments, frontier_maps, key_recall, write_results
+from _common import add_data_arguments, frontier_maps, key_recall, paired_difference, signed, write_results
 
 from btel.frontend import normalize_rows
 from btel.methods import make_method
@@ -45,14 +45,11 @@ def main() -> None:
                                             .fit(X).predict(Q), base["key"])
                                  for seed in range(args.seeds)]
                           for name, center in (("centred", True), ("uncentred", False))}
-                diff = np.subtract(values["centred"], values["uncentred"])
                 row = {"dataset": base["dataset"], "key": base["key"], "budget": budget, "cone_ratio": ratio, **values,
-                       "difference_mean": float(diff.mean()),
-                       "difference_se": float(diff.std(ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else None}
+                       **paired_difference(values["centred"], values["uncentred"])}
                 rows.append(row)
-                se = "" if row["difference_se"] is None else f" ± {row['difference_se']:.3f}"
                 print(f"{base['dataset']:<24} cone {ratio:.2f} {budget // 1000:>4} KB  centred {np.mean(values['centred']):.3f}"
-                      f"  uncentred {np.mean(values['uncentred']):.3f}  difference {diff.mean():+.3f}{se}  ({base['key']})",
+                      f"  uncentred {np.mean(values['uncentred']):.3f}  difference {signed(row)}  ({base['key']})",
                       flush=True)
     out = write_results("bench_lsh_center", {"rows": rows, "seeds": args.seeds, "seconds": time.time() - start,
                                              "load": os.getloadavg()})

@@ -22,7 +22,7 @@ import os
 import time
 
 import numpy as np
-from _common import add_data_arguments, frontier_maps, key_recall, write_results
+from _common import add_data_arguments, frontier_maps, key_recall, paired_difference, signed, write_results
 
 from btel.methods import make_method
 from btel.threads import limit_threads
@@ -45,16 +45,13 @@ def main() -> None:
                     for seed in range(args.seeds):
                         model = make_method("lsh", budget=budget, projection=kind, random_state=seed).fit(X)
                         values[kind].append(key_recall(model.predict(Q), base["key"]))
-                diff = np.subtract(values["orthogonal"], values["gaussian"])
                 row = {"dataset": base["dataset"], "key": base["key"], "budget": budget, "n_bits": model.n_bits_,
                        "n_features": int(X.shape[1]), **values,
-                       "difference_mean": float(diff.mean()),
-                       "difference_se": float(diff.std(ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else None}
+                       **paired_difference(values["orthogonal"], values["gaussian"])}
                 rows.append(row)
-                se = "" if row["difference_se"] is None else f" ± {row['difference_se']:.3f}"
                 print(f"{base['dataset']:<24} {budget:>6} {model.n_bits_:>5} bits (d = {X.shape[1]:>4})  "
                       f"orthogonal {np.mean(values['orthogonal']):.3f}  gaussian {np.mean(values['gaussian']):.3f}  "
-                      f"difference {diff.mean():+.3f}{se}  ({base['key']})", flush=True)
+                      f"difference {signed(row)}  ({base['key']})", flush=True)
     out = write_results("bench_lsh_projection", {"rows": rows, "seeds": args.seeds, "quick": args.quick,
                                                  "seconds": time.time() - start, "load": os.getloadavg()})
     print(f"wrote {out} ({time.time() - start:.0f} s)")

@@ -25,7 +25,7 @@ import os
 import time
 
 import numpy as np
-from _common import add_data_arguments, frontier_maps, key_recall, write_results
+from _common import add_data_arguments, frontier_maps, key_recall, paired_difference, signed, write_results
 
 from btel.datasets import synthetic_route
 from btel.exceptions import BudgetTooSmallError
@@ -74,17 +74,14 @@ def main() -> None:
                 if any(v is None for vs in values.values() for v in vs):
                     continue
                 bits = 8 * parse_budget(budget) / n
-                diff = np.subtract(values["shrink"], values["plain"])
                 row = {"dataset": base["dataset"], "key": base["key"], "budget": budget, "n_features": d,
                        "n_rows": n, "bits_per_row": bits, "bits_per_dimension": bits / d,
                        "shrink_rank": shrink_rank(d, n, parse_budget(budget)), **values,
-                       "difference_mean": float(diff.mean()),
-                       "difference_se": float(diff.std(ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else None}
+                       **paired_difference(values["shrink"], values["plain"])}
                 rows.append(row)
-                se = "" if row["difference_se"] is None else f" ± {row['difference_se']:.3f}"
                 print(f"{base['dataset']:<30} {budget:>6} P/d = {bits / d:5.2f} (rank {row['shrink_rank']:>2})  "
                       f"plain {np.mean(values['plain']):.3f}  shrink {np.mean(values['shrink']):.3f}  "
-                      f"shrink − plain {diff.mean():+.3f}{se}  ({base['key']})", flush=True)
+                      f"shrink − plain {signed(row)}  ({base['key']})", flush=True)
     out = write_results("bench_lsh_whitening", {"rows": rows, "seeds": args.seeds, "seconds": time.time() - start,
                                                 "load": os.getloadavg()})
     print(f"wrote {out} ({time.time() - start:.0f} s)")
