@@ -230,7 +230,8 @@ def _plots(rows: list[dict[str, Any]], out: Path) -> list[Path]:
 
     datasets = list(dict.fromkeys(r["dataset"] for r in rows))
     # One colour and marker per method across every panel (a panel without the 64 KB-only methods
-    # would otherwise shift the colour cycle); tab20 has a colour for each of the ~20 rows.
+    # would otherwise shift the colour cycle): tab20 colours, the marker changing every ten rows, so
+    # no two of the ~25 rows look alike.
     labels = [m for m in dict.fromkeys(r["method"] for r in rows if r.get("status") == "ok") if m != "auto"]
     palette = matplotlib.colormaps["tab20"].colors
     styles = {label: {"color": palette[i % len(palette)], "marker": "*" if label.startswith("brute") else "os^Dv"[i // 10 % 5],
