@@ -7,7 +7,7 @@ import pytest
 
 import btel
 from btel.datasets import synthetic_route
-from btel.methods.auto import ORDER_SHARE, ROUTE_SHARE, choose_method, collision_bits, route_share
+from btel.methods.auto import ORDER_BITS_FACTOR, ORDER_SHARE, ROUTE_SHARE, choose_method, collision_bits, route_share
 from btel.exceptions import BudgetTooSmallError, ModelFileError
 from btel.methods import make_method
 
@@ -71,7 +71,8 @@ def test_lsh_is_whitened_only_when_the_budget_affords_a_useful_rank() -> None:
 
 
 def test_an_ordered_cone_that_cannot_afford_lsh_mean_gets_output_codes() -> None:
-    """Ordered map in a cone, LSH's mean over 1/8 of the budget: codes; with the mean affordable, or no cone: LSH."""
+    """Ordered map in a cone, LSH's mean over 1/8 of the budget: its uncentred bits carry little, so codes;
+    with the mean affordable (centred bits count whole), or no cone: LSH."""
     from btel.methods.baselines.lsh import cone_ratio
 
     route = synthetic_route(600, 512, condition_shift=1.0, seed=2)
@@ -81,9 +82,26 @@ def test_an_ordered_cone_that_cannot_afford_lsh_mean_gets_output_codes() -> None
     assert ORDER_SHARE <= route_share(cone) < 0.5 and ORDER_SHARE <= route_share(route.map) < 0.5
     budget = 6_000  # 80 bits per row, above 2·log2 N; LSH's 1 KB mean is over 1/8 of it
     first = choose_method(cone, None, 600, budget)[0]
-    assert first["method"] == "btel-codes" and "cone" in first["reason"]
+    assert first["method"] == "btel-codes" and "cone ratio" in first["reason"]
+    assert first["lsh_effective_bits"] < ORDER_BITS_FACTOR * collision_bits(600) < 80
     assert choose_method(route.map, None, 600, budget)[0]["method"] == "lsh"
     assert choose_method(cone, None, 600, 16_000)[0]["method"] == "lsh"   # the mean fits: centred LSH
+
+
+def test_an_ordered_cone_with_many_bits_per_place_keeps_lsh() -> None:
+    """The shape of a small NetVLAD set (N = 210, d = 500) at 4 KB: 152 bits per row, uncentred on a cone of
+    ratio ≈ 0.73 still carry ≈ 106 effective bits, far above 2 × 2·log2 N = 31 (bench_cone_route: LSH
+    0.905 / 0.440 against codes 0.660 / 0.214 on the easy / hard synthetic route of that shape)."""
+    from btel.methods.baselines.lsh import cone_ratio
+
+    route = synthetic_route(210, 500, condition_shift=2.5, noise=0.6, seed=31)
+    direction = np.random.default_rng(9).normal(size=500).astype(np.float32)
+    direction *= np.linalg.norm(route.map, axis=1).mean() / np.linalg.norm(direction)
+    X = route.map + direction
+    assert 0.5 <= cone_ratio(btel.frontend.normalize_rows(X)) < 0.8
+    assert ORDER_SHARE <= route_share(X) < ROUTE_SHARE
+    first = choose_method(X, None, 210, 4_000)[0]
+    assert first["method"] == "lsh" and first["lsh_effective_bits"] > ORDER_BITS_FACTOR * collision_bits(210)
 
 
 def test_lsh_is_whitened_only_with_at_least_d_bits_per_row() -> None:

@@ -49,6 +49,42 @@ def test_cone_ratio_is_the_mean_rows_length_over_their_rms_length() -> None:
     assert cone_ratio(np.zeros((3, 4), dtype=np.float32)) == 0.0
 
 
+@settings(max_examples=30, deadline=None)
+@given(a=st.floats(0.0, 1.0), b=st.floats(0.0, 1.0))
+def test_sign_bit_entropy_falls_from_one_bit_to_none_as_the_cone_narrows(a: float, b: float) -> None:
+    from btel.methods.baselines.lsh import sign_bit_entropy
+
+    lo, hi = sorted((a, b))
+    assert 0.0 <= sign_bit_entropy(hi) <= sign_bit_entropy(lo) + 1e-9 <= 1.0 + 1e-9
+    assert sign_bit_entropy(0.0) == pytest.approx(1.0) and sign_bit_entropy(1.0) == 0.0
+
+
+def test_sign_bit_entropy_matches_the_entropy_of_simulated_uncentred_bits() -> None:
+    """Unit rows in a cone of ratio c, random hyperplanes through the origin: the bits' mean entropy."""
+    from btel.methods.baselines.lsh import cone_ratio, sign_bit_entropy
+
+    rng = np.random.default_rng(0)
+    d, n = 400, 4000
+    for offset in (0.0, 0.05, 0.15):   # a shared direction of length 0, 1 and 3 × the rows' own: cone 0, 0.7, 0.95
+        X = rng.normal(size=(n, d)) / np.sqrt(d) + offset
+        X /= np.linalg.norm(X, axis=1, keepdims=True)
+        p = ((X @ rng.normal(size=(d, 2000))) > 0).mean(axis=0)
+        p = np.clip(p, 1e-12, 1 - 1e-12)
+        measured = float(np.mean(-(p * np.log2(p) + (1 - p) * np.log2(1 - p))))
+        assert sign_bit_entropy(cone_ratio(X)) == pytest.approx(measured, abs=0.03)
+
+
+def test_effective_bits_count_centred_bits_whole_and_uncentred_bits_at_their_entropy() -> None:
+    from btel.methods.baselines.lsh import sign_bit_entropy
+
+    lsh = LSHLocalizer()
+    # Nordland's shape (N = 3576, d = 3780, cone ratio 0.75): 16 KB cannot afford the 7.6 KB mean, 64 KB can.
+    assert lsh.effective_bits(3576, 3780, 16_000, 0.75) == pytest.approx(35 * sign_bit_entropy(0.75))
+    assert lsh.effective_bits(3576, 3780, 64_000, 0.75) == 8 * (64_000 - 2 * 3780) // 3576
+    assert lsh.effective_bits(200, 500, 4_000, 0.2) == pytest.approx(160 * sign_bit_entropy(0.2))
+    assert lsh.effective_bits(3576, 3780, 500, 0.75) == 0.0   # no code fits
+
+
 def test_projection_is_regenerated_from_the_recorded_seed(pair, tmp_path) -> None:
     X, Q = pair
     model = LSHLocalizer(budget=8_000, random_state=None).fit(X)

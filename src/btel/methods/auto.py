@@ -15,30 +15,41 @@ per map:
    HOG (every 10th frame, 0.27 / 0.31) and the synthetic route (0.12) fall on that side too.
 2. **Route** → ``btel-codes`` with periodic codes (route-ordered codewords; the planner fills the
    budget) at every budget: on Gardens Point they beat every other method from 4 KB to 256 KB.
-3. **Ordered map, few bits** → the same periodic output codes when the route share is at least
-   :data:`ORDER_SHARE` = 0.1 (consecutive places find each other far more often than the ≈ 4/N of
-   independent places) and the budget gives fewer than :func:`collision_bits` = 2·log2 N bits per
-   map row: N random P-bit sign codes collide unless P ≳ 2·log2 N (the birthday bound), while every
-   place has its own output codeword. Added after the first frontier run on the development data,
-   for the reason above and not fitted to a cell: there the codes beat LSH on Nordland at 4 KB
-   (recall@10 0.024 / 0.028 vs 0.008 / 0.005; 9 bits per place against 2·log2 N = 23.6) and on the
-   synthetic route at 4 KB (R@2 0.089 vs 0.030; 16 bits against 22); above the bound LSH won on the
-   synthetic route (16 KB: 0.354 vs 0.257). Maps of independent places (share < 0.1: Gardens Point
-   permuted 0.05, synthetic independent places 0.00) keep LSH at any budget; the two NetVLAD sets of
-   independent places above (share 0.14–0.40, 210 and 600 places) get ≥ 54 bits per place from 4 KB on,
-   above their bound (15.4 / 18.5), so LSH there too.
-   And the same when the ordered map's rows lie in a cone (:func:`~btel.methods.baselines.lsh.cone_ratio`
-   ≥ 0.5, what ``lsh`` centres) but the budget cannot afford LSH's mean (2d bytes > 1/8 of it, so
-   ``lsh`` runs uncentred): a hyperplane through the origin leaves most rows of a cone on one side.
-   ``python benchmarks/bench_cone_route.py`` tested it on a synthetic 1024-D route (N = 2000, route
-   share 0.17–0.23) made for it, with a shared offset added to make a cone, three seeds, recall@2
-   at 8 / 16 KB: cone 0.95 codes 0.130 / 0.272 vs LSH 0.043 / 0.092 (easy shift) and 0.055 / 0.094 vs
-   0.014 / 0.022 (hard); cone 0.73 0.126 / 0.255 vs 0.115 / 0.279 and 0.051 / 0.085 vs 0.025 / 0.041;
-   once the mean fits (32 KB, centred LSH) LSH leads again, 0.689 vs 0.411. Added after the frontier
-   showed Nordland HOG (cone 0.75) at 16 KB with the codes ahead (0.038 / 0.044 vs 0.015 / 0.016);
-   the synthetic test was made to check the mechanism, not fitted to that cell. Without a cone the
-   codes also won the hard synthetic route at 8–16 KB (0.055 / 0.099 vs 0.034 / 0.054): how hard the
-   queries' change of conditions is cannot be read from the map, and that stays a miss.
+3. **Ordered map, few effective bits** → the same periodic output codes when the route share is at
+   least :data:`ORDER_SHARE` = 0.1 (consecutive places find each other far more often than the ≈ 4/N
+   of independent places) and the codes ``lsh`` would store carry fewer than
+   :data:`ORDER_BITS_FACTOR` (2) × :func:`collision_bits` = 2 × 2·log2 N *effective* bits per map row
+   (:meth:`~btel.methods.baselines.lsh.LSHLocalizer.effective_bits`): its P bits, each counted whole
+   when ``lsh`` centres and at :func:`~btel.methods.baselines.lsh.sign_bit_entropy` of the map's cone
+   ratio when it cannot afford the mean (a hyperplane through the origin leaves most rows of a cone
+   on one side: 0.68 bit per sign at cone ratio 0.75, 0.32 at 0.95). N random P-bit sign codes
+   collide unless P ≳ 2·log2 N (the birthday bound), and just above it they barely separate the
+   places a query must tell apart; every place has its own output codeword.
+
+   History. The first form (after the first frontier run) was the bound itself on raw bits: the
+   codes beat LSH on Nordland at 4 KB (recall@10 0.024 / 0.028 vs 0.008 / 0.005; 9 bits per place
+   against 2·log2 N = 23.6) and on the synthetic route at 4 KB (R@2 0.089 vs 0.030; 16 bits against
+   22), LSH won above it on the synthetic route (16 KB: 0.354 vs 0.257). The frontier then showed
+   Nordland HOG at 16 KB (35 uncentred bits on a cone of ratio 0.75) with the codes ahead (0.038 /
+   0.044 vs 0.015 / 0.016), and a second condition gave codes to any ordered cone (ratio ≥ 0.5) that
+   could not afford LSH's mean, whatever its bits. ``python benchmarks/bench_cone_route.py`` then
+   tested both on synthetic routes made into cones by a shared offset (cone ratio 0.24 … 0.95; an
+   easy and a hard change of conditions; N = 2000 at d = 1024, and N = 600 and 210 — the sizes of the
+   NetVLAD sets of the frontier issue — at Gardens Point's d = 500; three seeds, recall@2): the cone condition gave
+   codes to the N = 210 maps at 4 KB, where LSH's 152 bits per row won (cone 0.72 / 0.84: 0.440 /
+   0.392 vs 0.214 / 0.235 on the hard route), and the effective bits order the winner far better.
+   Below 1.4 × the bound the codes won all 10 rows (cone 0.95 at 8 / 16 KB, N = 2000: 0.130 / 0.272
+   vs 0.043 / 0.092; N = 600 at 4 KB: 0.300 vs 0.152), below 2 × 15 of 16 (easy route at 1.42 ×:
+   LSH 0.188 vs 0.133); from 2 to 2.9 × LSH won 5 of 8, the codes the hard route's three
+   (0.099 vs 0.054 at 2.85 ×); from 3.1 × on LSH won every row but the hard 1024-D route at 32 KB
+   once LSH centres (5.4 ×: codes 0.098 … 0.105 vs 0.081 … 0.083). The factor 2 is the round value
+   where the majority turns; the condition chose the
+   better of the two in 37 of the 44 ordered rows, the two earlier conditions in 34. On the
+   development maps it changed no choice: Nordland 16 KB has 23.8 effective bits against 47.2,
+   64 KB (centred) 126; the synthetic route 14.6 at 4 KB and 60.2 at 16 KB against 44. How hard the
+   queries' change of conditions is cannot be read from the map, and the hard synthetic route in
+   that band (and at 32 KB) stays a miss. Maps of independent places (share < 0.1: Gardens Point permuted 0.05,
+   synthetic independent places 0.00) keep LSH at any budget.
 4. **Otherwise (independent places, or many bits)** → if cosine brute force on shrinkage-whitened
    rows fits the budget (or there is no budget), that (exact search); else ``lsh`` (asymmetric
    scoring) with ``whiten="shrink"`` when the budget gives at least
@@ -101,7 +112,7 @@ from ..frontend import normalize_rows
 from ..storage import format_bytes, parse_budget
 
 __all__ = ["AutoLocalizer", "route_share", "choose_method", "collision_bits", "ROUTE_SHARE", "ROUTE_WINDOW",
-           "ORDER_SHARE", "SHRINK_LSH_BITS_PER_DIMENSION"]
+           "ORDER_SHARE", "ORDER_BITS_FACTOR", "SHRINK_LSH_BITS_PER_DIMENSION"]
 
 #: Places within which the nearest other map row must lie for a row to count as "route-like".
 ROUTE_WINDOW = 2
@@ -118,8 +129,11 @@ SHRINK_LSH_MIN_RANK = 8
 #: per dimension (P ≥ d): below, the whitening's flatter spectrum costs the sign sketch more than it gives.
 SHRINK_LSH_BITS_PER_DIMENSION = 1.0
 #: A map whose route share is at least this (far above the ≈ 4/N of independent places) is ordered:
-#: below :func:`collision_bits` bits per map row it gets output codes rather than LSH.
+#: it gets output codes rather than LSH while LSH's effective bits per map row are few (next).
 ORDER_SHARE = 0.1
+#: An ordered map gets output codes while LSH's effective bits per map row
+#: (:meth:`~btel.methods.baselines.lsh.LSHLocalizer.effective_bits`) are below this × :func:`collision_bits`.
+ORDER_BITS_FACTOR = 2.0
 
 
 def collision_bits(n_rows: int) -> float:
@@ -172,7 +186,7 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
     fits the first that fits the budget.
     """
     from .baselines import BruteForceNN
-    from .baselines.lsh import CENTER_CONE, CENTER_SHARE, cone_ratio
+    from .baselines.lsh import LSHLocalizer, cone_ratio
     from ..frontend import FrontEnd
     from ..shrink import shrink_rank
 
@@ -190,18 +204,18 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
     out: list[dict[str, Any]] = []
     few = collision_bits(n_rows)
     filling = "periodic output codes filling the budget"
+    why = None
     if share >= ROUTE_SHARE:
         why = f"route ({where}), {bpp}: {filling}"
-    elif share >= ORDER_SHARE and per_place is not None and 8 * per_place < few:
-        why = (f"ordered map (route share {share:.2f} ≥ {ORDER_SHARE}) with {8 * per_place:.0f} bits per map row "
-               f"< 2·log2 N = {few:.1f}: random sign codes that short collide, so {filling}")
-    elif share >= ORDER_SHARE and budget is not None and 2 * d > CENTER_SHARE * budget \
-            and (cone := cone_ratio(normalize_rows(np.ascontiguousarray(X, dtype=np.float32), "l2"))) >= CENTER_CONE:
-        why = (f"ordered map (route share {share:.2f} ≥ {ORDER_SHARE}) whose rows lie in a cone (ratio {cone:.2f} ≥ "
-               f"{CENTER_CONE}) and a budget that cannot afford LSH's {2 * d} B mean: sign bits through the origin "
-               f"say little about a cone, so {filling}")
-    else:
-        why = None
+    elif share >= ORDER_SHARE and budget is not None:
+        cone = cone_ratio(normalize_rows(np.ascontiguousarray(X, dtype=np.float32), "l2"))
+        effective = LSHLocalizer().effective_bits(n_rows, d, budget, cone)
+        stats.update({"cone_ratio": round(cone, 4), "lsh_effective_bits": round(effective, 1)})
+        if effective < ORDER_BITS_FACTOR * few:
+            why = (f"ordered map (route share {share:.2f} ≥ {ORDER_SHARE}) where LSH's codes would carry ≈ "
+                   f"{effective:.1f} effective bits per map row ({8 * per_place:.0f} bits of budget, cone ratio "
+                   f"{cone:.2f}) < {ORDER_BITS_FACTOR:g} × 2·log2 N = {ORDER_BITS_FACTOR * few:.1f}: sign codes that "
+                   f"weak collide or barely separate places, so {filling}")
     if why is not None:  # output codes, plain LSH as the fallback
         return [{**c, **stats} for c in ({**codes, "reason": why}, lsh)]
     front = FrontEnd(normalize="l2", whiten=white("shrink"), budget=budget)
