@@ -4,7 +4,7 @@
 asymmetric / Hamming LSH, LSH with i.i.d. Gaussian hyperplanes beside the default orthogonal ones,
 random output codes, and every fast method — LSH, both code families, PQ, ITQ, brute force — on
 shrinkage-whitened rows too, so that the oracle holds each in its strongest form)
-at budgets 1 KB … 1 MB on six maps:
+at budgets 1 KB … 1 MB on eight maps:
 
 ============================== ======================= ============ ==================================
 data set                       map                     key          why
@@ -12,6 +12,8 @@ data set                       map                     key          why
 Gardens Point day→night        NetVLAD 500-D, N = 200  recall@2     a route (the issue's target)
 Gardens Point, permuted        the same rows, map and  recall@0     a real map of independent places
                                queries permuted alike
+Gardens Point reversed, and    night→day: the query    recall@2 /   the same route mapped in the other
+reversed permuted              traverse as the map     recall@0     condition (not in ``--quick``)
 Nordland summer→winter, and    HOG 3780-D, N = 3576    recall@10    the paper's route (10 frames ≈ 2 km)
 winter→summer
 synthetic route                256-D, N = 2048         recall@2     a route with regions
@@ -98,8 +100,8 @@ SLOW = (
     ("rabitq", "rabitq", {}),
     ("seqslam", "seqslam", {}),
 )
-DATASETS = ("gardens-point", "gardens-point-permuted", "nordland summer→winter", "nordland winter→summer",
-            "synthetic route", "synthetic independent")
+DATASETS = ("gardens-point", "gardens-point-permuted", "gardens-point reversed", "gardens-point-permuted reversed",
+            "nordland summer→winter", "nordland winter→summer", "synthetic route", "synthetic independent")
 
 
 def _row(base: dict[str, Any], label: str, name: str, params: dict[str, Any], X: np.ndarray, Q: np.ndarray,
@@ -150,6 +152,11 @@ def _maps(data: NordlandData, quick: bool) -> list[tuple[dict[str, Any], np.ndar
         perm = np.random.default_rng(0).permutation(X.shape[0])
         out.append(({"dataset": "gardens-point-permuted", "regime": "independent", "key": "recall@0",
                      "descriptor": "NetVLAD 500-D"}, X[perm], Q[perm]))
+        if not quick:  # the night traverse as the map, the day one as queries
+            out.append(({"dataset": "gardens-point reversed", "regime": "route", "key": "recall@2",
+                         "descriptor": "NetVLAD 500-D"}, Q, X))
+            out.append(({"dataset": "gardens-point-permuted reversed", "regime": "independent", "key": "recall@0",
+                         "descriptor": "NetVLAD 500-D"}, Q[perm], X[perm]))
     if not quick:
         for map_season in SEASONS:
             query_season = SEASONS[1 - SEASONS.index(map_season)]
@@ -264,7 +271,7 @@ def _plots(rows: list[dict[str, Any]], out: Path) -> list[Path]:
 
 
 def exp_frontier(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:
-    """Every method × budgets on six maps, auto against the oracle (module docstring)."""
+    """Every method × budgets on eight maps (four in ``--quick``), auto against the oracle (module docstring)."""
     out.mkdir(parents=True, exist_ok=True)
     log = (lambda msg: print(f"  {msg}", flush=True)) if data.progress else (lambda msg: None)
     budgets = ("4KB", "64KB") if quick else BUDGETS
