@@ -93,7 +93,7 @@ the codes' and LSH's z-scored place scores on a split budget lands between the p
 0.570 / 0.595 with ½ / ¾ of it to the codes, against the codes' 0.628; night 0.620 / 0.605 against
 LSH's 0.625), a hedge that misses the day target of 0.60; a larger ridge α for the codes trades one
 direction for the other (ρ = 1: night 0.655, day 0.548); training rows augmented with their route
-neighbours moved either by ≤ 0.02. PQ at 1 MB beats LSH on Nordland HOG, and on Gardens Point the
+neighbours moved either by at most 0.022. PQ at 1 MB beats LSH on Nordland HOG, and on Gardens Point the
 periodic codes on whitened rows beat the plain ones at 4, 16 and 256 KB (0.615 vs 0.580 at 16 KB)
 but not at 64 KB nor on the synthetic route. The rule was not changed to fit those rows. A holdout
 on the map itself (even rows as the map, odd rows as queries, the candidate with the best holdout recall) was tried as a chooser instead and dropped: it
