@@ -7,7 +7,8 @@ import pytest
 
 import btel
 from btel.datasets import synthetic_route
-from btel.methods.auto import ORDER_BITS_FACTOR, ORDER_SHARE, ROUTE_SHARE, choose_method, collision_bits, route_share
+from btel.methods.auto import (ORDER_BITS_FACTOR, ORDER_SHARE, ROUTE_CONTINUITY, ROUTE_SHARE, choose_method, collision_bits,
+                               route_continuity, route_share)
 from btel.exceptions import BudgetTooSmallError, ModelFileError
 from btel.methods import make_method
 
@@ -27,6 +28,30 @@ def test_route_share_separates_a_route_from_its_permutation(smooth_route) -> Non
     assert route_share(X) > 0.9 and route_share(X[perm]) < 0.1
     # Place labels count, not row numbers: two traverses of one route are still a route.
     assert route_share(np.concatenate([X, X + 0.01]), np.concatenate([np.arange(300)] * 2)) > 0.9
+
+
+def snippets(n_rows: int, length: int, seed: int = 0) -> np.ndarray:
+    """Row order of a route cut into snippets of ``length`` consecutive rows, the snippets shuffled."""
+    usable = n_rows // length * length
+    parts = np.arange(usable).reshape(-1, length)
+    return np.concatenate(parts[np.random.default_rng(seed).permutation(len(parts))])
+
+
+def test_route_continuity_is_high_along_a_route_and_half_for_shuffled_snippets(smooth_route) -> None:
+    X, _ = smooth_route
+    assert route_continuity(X) > 0.9
+    assert abs(route_continuity(X[np.random.default_rng(1).permutation(300)]) - 0.5) < 0.05
+    three = X[snippets(300, 3)]
+    # Snippets of three frames pass the route share (the nearest other row is in the snippet) but not the continuity.
+    assert route_share(three) >= ROUTE_SHARE and route_continuity(three) < ROUTE_CONTINUITY
+    assert choose_method(three, None, 300, 4_000)[0]["method"] == "lsh"
+    route = choose_method(X, None, 300, 4_000)[0]
+    assert route["method"] == "btel-codes" and route["route_continuity"] >= ROUTE_CONTINUITY
+    # Place labels count: two traverses of the route, stacked, are still a route.
+    both = np.concatenate([X, X + 0.05])
+    labels = np.concatenate([np.arange(300)] * 2)
+    assert route_continuity(both, labels) > 0.9
+    assert route_continuity(X[:3]) == 0.5   # no rows 3 places apart: no evidence of order
 
 
 def test_the_rule_uses_no_queries_and_records_why(smooth_route) -> None:
@@ -196,3 +221,14 @@ def test_gardens_point_mapped_at_night_auto_keeps_up_with_lsh(gardenspoint_netvl
     lsh = make_method("lsh", budget="32KB").fit(night)
     near = lambda model: float(np.mean(np.abs(model.predict(day) - truth) <= 2))
     assert near(auto) >= 0.95 * near(lsh)
+
+
+def test_gardens_point_snippets_are_not_a_route(gardenspoint_netvlad) -> None:
+    """Gardens Point cut into snippets of 3 frames in random order: route share 0.62 but continuity 0.52, so
+    LSH, not the periodic codes that lost there (bench_route_snippets: 0.059 / 0.089 vs LSH 0.130 / 0.140 at 4 /
+    16 KB); the route itself keeps its codes."""
+    X, _ = gardenspoint_netvlad
+    cut = X[snippets(200, 3, seed=3)]
+    assert route_share(cut) >= ROUTE_SHARE and route_continuity(cut) < ROUTE_CONTINUITY <= route_continuity(X)
+    assert make_method("auto", budget="16KB").fit(cut).choice_["method"] == "lsh"
+    assert make_method("btel-codes", code="auto", budget="16KB").fit(cut).code_ == "random"

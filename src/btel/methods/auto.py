@@ -13,6 +13,18 @@ per map:
    places 0.00). Route when the share is at least :data:`ROUTE_SHARE` = 0.5: two NetVLAD sets of
    independent places have 0.14–0.40, so 0.5 keeps them on the LSH side; Nordland
    HOG (every 10th frame, 0.27 / 0.31) and the synthetic route (0.12) fall on that side too.
+   And only when the *route continuity* (:func:`route_continuity`: the mean percentile rank of a
+   row's cosine to the rows 3 … 8 places away, among its cosines to the map; 0.5 when the order says
+   nothing) is at least :data:`ROUTE_CONTINUITY` = 0.75, halfway to a perfectly smooth route. The
+   share sees only the nearest frame: a route cut into snippets of 3 frames in random order already
+   has share 0.60–0.62, and the periodic codes, which assume that the whole index order is a route,
+   lost there to LSH at every budget (``python benchmarks/bench_route_snippets.py``, Gardens Point,
+   recall@0 at 4 / 16 / 64 KB mapped by day: 0.059 / 0.089 / 0.140 vs LSH 0.130 / 0.140 / 0.153,
+   whitened LSH 0.180 at 64 KB; snippets of 5 and 10 alike). The continuity there is 0.52–0.62; along
+   the routes 0.87 / 0.89 (Gardens Point at night / by day), 0.97 (the synthetic route), 0.68
+   (Nordland HOG, every 10th frame); snippets of 20 and 40 frames reach 0.75–0.83, where the codes
+   were level with or ahead of LSH by day. Added after the frontier of the night-mapped Gardens
+   Point; it changed no development choice.
 2. **Route** → ``btel-codes`` with periodic codes (route-ordered codewords; the planner fills the
    budget) at every budget: on Gardens Point mapped by day they beat every other method from 4 KB
    to 256 KB. Mapped at night they lose to LSH at every budget (weak spots, below).
@@ -37,8 +49,9 @@ per map:
    tested both on synthetic routes made into cones by a shared offset (cone ratio 0.24 … 0.95; an
    easy and a hard change of conditions; N = 2000 at d = 1024, and N = 600 and 210 — the sizes of
    the NetVLAD sets of the frontier issue — at Gardens Point's d = 500; three seeds, recall@2): the
-   cone condition gave codes to the N = 210 maps at 4 KB, where LSH's 152 bits per row won (cone 0.72 / 0.84: 0.440 /
-   0.392 vs 0.214 / 0.235 on the hard route), and the effective bits order the winner far better.
+   cone condition gave codes to the N = 210 maps at 4 KB, where LSH's 152 bits per row won (cone
+   0.72 / 0.84: 0.440 / 0.392 vs 0.214 / 0.235 on the hard route), and the effective bits order the
+   winner far better.
    Below 1.4 × the bound the codes won all 10 rows (cone 0.95 at 8 / 16 KB, N = 2000: 0.130 / 0.272
    vs 0.043 / 0.092; N = 600 at 4 KB: 0.300 vs 0.152), below 2 × 15 of 16 (easy route at 1.42 ×:
    LSH 0.188 vs 0.133); from 2 to 2.9 × LSH won 5 of 8, the codes the hard route's three
@@ -123,8 +136,8 @@ from ..exceptions import BudgetTooSmallError, ModelFileError
 from ..frontend import normalize_rows
 from ..storage import format_bytes, parse_budget
 
-__all__ = ["AutoLocalizer", "route_share", "choose_method", "collision_bits", "ROUTE_SHARE", "ROUTE_WINDOW",
-           "ORDER_SHARE", "ORDER_BITS_FACTOR", "SHRINK_LSH_BITS_PER_DIMENSION"]
+__all__ = ["AutoLocalizer", "route_share", "route_continuity", "route_test", "choose_method", "collision_bits", "ROUTE_SHARE", "ROUTE_WINDOW",
+           "ORDER_SHARE", "ORDER_BITS_FACTOR", "ROUTE_CONTINUITY", "SHRINK_LSH_BITS_PER_DIMENSION"]
 
 #: Places within which the nearest other map row must lie for a row to count as "route-like".
 ROUTE_WINDOW = 2
@@ -132,6 +145,12 @@ ROUTE_WINDOW = 2
 ROUTE_SHARE = 0.5
 #: Map rows the statistic samples (evenly spaced) at most.
 STAT_ROWS = 2000
+#: Places apart (from, to) of the rows whose similarity the route continuity ranks.
+CONTINUITY_GAPS = (3, 8)
+#: Route only when the continuity is at least this (0.5: no order; 1: a perfectly smooth route).
+ROUTE_CONTINUITY = 0.75
+#: Other map rows (evenly spaced) each probe's similarities are ranked among, at most.
+CONTINUITY_REFERENCE = 1024
 #: Independent places: from this many bytes per place on, LSH runs on shrinkage-whitened rows.
 SHRINK_LSH_BYTES_PER_PLACE = 16
 #: LSH runs on shrinkage-whitened rows only when the budget affords at least this rank (fewer
@@ -190,6 +209,69 @@ def route_share(X: np.ndarray, places: np.ndarray | None = None, *, window: int 
     return float(near.mean()) if near.size else 0.0
 
 
+def route_continuity(X: np.ndarray, places: np.ndarray | None = None, *, gaps: tuple[int, int] = CONTINUITY_GAPS,
+                     max_rows: int = STAT_ROWS, n_reference: int = CONTINUITY_REFERENCE) -> float:
+    """Mean percentile rank of the cosine between a map row and the rows ``gaps`` places away.
+
+    For every probe row (up to ``max_rows``, evenly spaced), the cosines to the map rows whose place
+    lies 3 … 8 places away (either side) are ranked among its cosines to up to ``n_reference`` other
+    map rows (evenly spaced); the statistic is the mean rank in [0, 1]. About 0.5 when the order of
+    the rows says nothing beyond the nearest frames (independent places, or short snippets of a route
+    in random order), towards 1 along a smooth route.
+
+    Parameters
+    ----------
+    X : ndarray of shape (n_rows, n_features)
+    places : ndarray of shape (n_rows,), int, or None (row i = place i)
+    gaps : (int, int)
+    max_rows, n_reference : int
+
+    Returns
+    -------
+    float in [0, 1]; 0.5 when no probe has rows that far apart (a map of fewer than 4 places).
+    """
+    Z = normalize_rows(np.ascontiguousarray(X, dtype=np.float32), "l2")
+    n = Z.shape[0]
+    labels = np.arange(n) if places is None else np.asarray(places, dtype=np.int64)
+    order = np.argsort(labels, kind="stable")
+    sorted_labels = labels[order]
+    probes = np.unique(np.linspace(0, n - 1, min(n, max_rows)).round().astype(np.int64))
+    reference = np.unique(np.linspace(0, n - 1, min(n, n_reference)).round().astype(np.int64))
+    lo, hi = gaps
+    ranks: list[float] = []
+    for start in range(0, probes.size, 256):
+        chunk = probes[start : start + 256]
+        ref_scores = np.sort(Z[chunk] @ Z[reference].T, axis=1)
+        for row, i in enumerate(chunk):
+            near = [order[np.searchsorted(sorted_labels, a, "left") : np.searchsorted(sorted_labels, b, "right")]
+                    for a, b in ((labels[i] - hi, labels[i] - lo), (labels[i] + lo, labels[i] + hi))]
+            others = np.concatenate(near)
+            if others.size == 0:
+                continue
+            others = others[np.unique(np.linspace(0, others.size - 1, min(others.size, 32)).round().astype(np.int64))]
+            refs = ref_scores[row]
+            # The probe's own row (cosine 1) is among the reference rows when sampled: leave it out.
+            n_ref = refs.size - int(np.isin(i, reference))
+            below = np.searchsorted(refs, Z[others] @ Z[i], side="left")
+            ranks.append(float(np.mean(np.minimum(below, n_ref) / max(n_ref, 1))))
+    return float(np.mean(ranks)) if ranks else 0.5
+
+
+def route_test(X: np.ndarray, places: np.ndarray | None = None) -> tuple[bool, float, float | None, str]:
+    """Whether the map is a route by step 1 of the rule: ``(is_route, share, continuity, why)``.
+
+    The continuity is computed only when the route share reaches :data:`ROUTE_SHARE` (None otherwise).
+    """
+    share = route_share(X, places)
+    if share < ROUTE_SHARE:
+        return False, share, None, f"route share {share:.2f} < {ROUTE_SHARE}"
+    continuity = route_continuity(X, places)
+    if continuity < ROUTE_CONTINUITY:
+        return False, share, continuity, (f"route share {share:.2f} ≥ {ROUTE_SHARE} but continuity {continuity:.2f} < "
+                                          f"{ROUTE_CONTINUITY}: snippets, not a route")
+    return True, share, continuity, f"route share {share:.2f} ≥ {ROUTE_SHARE}, continuity {continuity:.2f} ≥ {ROUTE_CONTINUITY}"
+
+
 def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budget: int | None,
                   whiten: Any = None) -> list[dict[str, Any]]:
     """The candidates, best first, that the rule gives for this map and budget (module docstring).
@@ -202,13 +284,14 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
     from ..frontend import FrontEnd
     from ..shrink import shrink_rank
 
-    share = route_share(X, places)
+    is_route, share, continuity, where = route_test(X, places)
     n_rows, d = X.shape
     per_place = None if budget is None else budget / n_rows
     stats = {"route_share": round(share, 4), "bytes_per_place": None if per_place is None else round(per_place, 2),
              "n_places": int(n_places), "n_rows": int(n_rows), "n_features": int(d)}
+    if continuity is not None:
+        stats["route_continuity"] = round(continuity, 4)
     white = (lambda default: default) if whiten is None else (lambda default: whiten)
-    where = f"route share {share:.2f} {'≥' if share >= ROUTE_SHARE else '<'} {ROUTE_SHARE}"
     bpp = "no budget" if per_place is None else f"{per_place:.1f} B per map row"
     lsh = {"method": "lsh", "params": {"whiten": white(None)}, "reason": f"fallback: plain LSH ({bpp})"}
     codes = {"method": "btel-codes", "params": {"code": "periodic", "whiten": white(None)},
@@ -217,7 +300,7 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
     few = collision_bits(n_rows)
     filling = "periodic output codes filling the budget"
     why = None
-    if share >= ROUTE_SHARE:
+    if is_route:
         why = f"route ({where}), {bpp}: {filling}"
     elif share >= ORDER_SHARE and budget is not None:
         cone = cone_ratio(normalize_rows(np.ascontiguousarray(X, dtype=np.float32), "l2"))

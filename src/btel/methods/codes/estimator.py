@@ -78,8 +78,8 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
     code : {'auto', 'periodic', 'blocks', 'random', 'binary', 'offset'}
         Code family (:mod:`btel.methods.codes.codebook`). 'periodic' (multi-scale square waves) for maps that
         are routes; 'random' for maps of independent places; 'binary' / 'offset' are BTE-C's codes.
-        'auto' chooses periodic or random from the map alone by the statistic ``auto`` uses
-        (:func:`btel.methods.auto.route_share` ≥ :data:`btel.methods.auto.ROUTE_SHARE`: a route); the family
+        'auto' chooses periodic or random from the map alone by the test ``auto`` uses
+        (:func:`btel.methods.auto.route_test`: route share and continuity); the family
         chosen is ``code_``, recorded in the model file and restored on load.
     n_codes : int, optional
         K, code columns (binary: exactly ⌈log2 N⌉). None: chosen by the planner.
@@ -216,12 +216,11 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
         """The code family and why: ``code`` itself, or for 'auto' periodic on a route, random otherwise."""
         if self.code != "auto":
             return self.code, "given"
-        from ..auto import ROUTE_SHARE, route_share
+        from ..auto import route_test
 
-        share = route_share(X, places)
-        family = "periodic" if share >= ROUTE_SHARE else "random"
-        return family, (f"code='auto': route share {share:.2f} {'≥' if share >= ROUTE_SHARE else '<'} "
-                        f"{ROUTE_SHARE} → {family}")
+        is_route, _share, _continuity, why = route_test(X, places)
+        family = "periodic" if is_route else "random"
+        return family, f"code='auto': {why} → {family}"
 
     def _plan(self, n_places: int, d: int, budget: int | None, reserved: int,
               family: str | None = None) -> CodePlan:
