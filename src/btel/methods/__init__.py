@@ -8,7 +8,7 @@ where                what
 ``methods/codes/``   btel-codes: output codes (periodic/random codebooks), their planner,
                      solvers, weight quantisation and decoding
 ``methods/ryth.py``  RYTH: one-vs-rest linear classifiers (the paper's N-classifier baseline)
-``methods/auto.py``  ``auto``: chooses a method and front end from the map and budget alone
+``methods/auto/``    ``auto``: chooses a method and front end from the map and budget alone
 ``methods/baselines/`` brute force, PQ, OPQ, ITQ, LSH, SeqSLAM
 ``registry.py``      ``{name: (factory, description)}``, :func:`make_method`, :func:`load`
 ==================== ==========================================================================

@@ -1,4 +1,4 @@
-"""``auto``: the method, code family and front end chosen from the map and the budget alone.
+"""The rule of ``auto``: the method, code family and front end chosen from the map and the budget alone.
 
 No query and no label of a query is read: the choice depends on the map descriptors, their place
 labels, N, d and the byte budget. The rule was fixed on the development data (Gardens Point
@@ -125,32 +125,17 @@ A choice that does not fit the budget falls back to the next candidate (``lsh``,
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import numpy as np
 
-from .._validation import N_JOBS, RANDOM_STATE, Budget, check_params
-from ..base import ArraySpec, PlaceLocalizer
-from ..exceptions import BudgetTooSmallError, ModelFileError
-from ..frontend import normalize_rows
-from ..storage import format_bytes, parse_budget
+from ...frontend import normalize_rows
+from ...storage import format_bytes
+from .statistics import collision_bits, route_test
 
-__all__ = ["AutoLocalizer", "route_share", "route_continuity", "route_test", "choose_method", "collision_bits", "ROUTE_SHARE", "ROUTE_WINDOW",
-           "ORDER_SHARE", "ORDER_BITS_FACTOR", "ROUTE_CONTINUITY", "SHRINK_LSH_BITS_PER_DIMENSION"]
+__all__ = ["ORDER_BITS_FACTOR", "ORDER_SHARE", "SHRINK_LSH_BITS_PER_DIMENSION", "SHRINK_LSH_BYTES_PER_PLACE",
+           "SHRINK_LSH_MIN_RANK", "choose_method"]
 
-#: Places within which the nearest other map row must lie for a row to count as "route-like".
-ROUTE_WINDOW = 2
-#: Route when at least this share of map rows is route-like.
-ROUTE_SHARE = 0.5
-#: Map rows the statistic samples (evenly spaced) at most.
-STAT_ROWS = 2000
-#: Places apart (from, to) of the rows whose similarity the route continuity ranks.
-CONTINUITY_GAPS = (3, 8)
-#: Route only when the continuity is at least this (0.5: no order; 1: a perfectly smooth route).
-ROUTE_CONTINUITY = 0.75
-#: Other map rows (evenly spaced) each probe's similarities are ranked among, at most.
-CONTINUITY_REFERENCE = 1024
 #: Independent places: from this many bytes per place on, LSH runs on shrinkage-whitened rows.
 SHRINK_LSH_BYTES_PER_PLACE = 16
 #: LSH runs on shrinkage-whitened rows only when the budget affords at least this rank (fewer
@@ -167,111 +152,6 @@ ORDER_SHARE = 0.1
 ORDER_BITS_FACTOR = 2.0
 
 
-def collision_bits(n_rows: int) -> float:
-    """2·log2 N: the bits per row below which N random sign codes are unlikely to be all distinct.
-
-    The birthday bound: N independent random P-bit codes are all distinct with probability about
-    exp(−N² / 2^(P+1)), which is small unless P ≳ 2·log2 N. Below it many places of an LSH map share
-    their code, while output codes give every place its own codeword by construction.
-    """
-    return 2.0 * float(np.log2(max(int(n_rows), 2)))
-
-
-def route_share(X: np.ndarray, places: np.ndarray | None = None, *, window: int = ROUTE_WINDOW,
-                max_rows: int = STAT_ROWS) -> float:
-    """Share of map rows whose nearest other map row (cosine) lies within ``window`` places.
-
-    Parameters
-    ----------
-    X : ndarray of shape (n_rows, n_features)
-    places : ndarray of shape (n_rows,), int, or None (row i = place i)
-    window : int
-    max_rows : int
-        Rows sampled evenly as probes (the whole map is searched).
-
-    Returns
-    -------
-    float in [0, 1]
-    """
-    import faiss
-
-    Z = normalize_rows(np.ascontiguousarray(X, dtype=np.float32), "l2")
-    n = Z.shape[0]
-    labels = np.arange(n) if places is None else np.asarray(places, dtype=np.int64)
-    probes = np.unique(np.linspace(0, n - 1, min(n, max_rows)).round().astype(np.int64))
-    index = faiss.IndexFlatIP(Z.shape[1])
-    index.add(Z)
-    _, rows = index.search(Z[probes], 2)
-    # The nearest row other than the probe itself (a duplicate row may come first).
-    other = np.where(rows[:, 0] == probes, rows[:, 1], rows[:, 0])
-    valid = other >= 0
-    near = np.abs(labels[other[valid]] - labels[probes[valid]]) <= window
-    return float(near.mean()) if near.size else 0.0
-
-
-def route_continuity(X: np.ndarray, places: np.ndarray | None = None, *, gaps: tuple[int, int] = CONTINUITY_GAPS,
-                     max_rows: int = STAT_ROWS, n_reference: int = CONTINUITY_REFERENCE) -> float:
-    """Mean percentile rank of the cosine between a map row and the rows ``gaps`` places away.
-
-    For every probe row (up to ``max_rows``, evenly spaced), the cosines to the map rows whose place
-    lies 3 … 8 places away (either side) are ranked among its cosines to up to ``n_reference`` other
-    map rows (evenly spaced); the statistic is the mean rank in [0, 1]. About 0.5 when the order of
-    the rows says nothing beyond the nearest frames (independent places, or short snippets of a route
-    in random order), towards 1 along a smooth route.
-
-    Parameters
-    ----------
-    X : ndarray of shape (n_rows, n_features)
-    places : ndarray of shape (n_rows,), int, or None (row i = place i)
-    gaps : (int, int)
-    max_rows, n_reference : int
-
-    Returns
-    -------
-    float in [0, 1]; 0.5 when no probe has rows that far apart (a map of fewer than 4 places).
-    """
-    Z = normalize_rows(np.ascontiguousarray(X, dtype=np.float32), "l2")
-    n = Z.shape[0]
-    labels = np.arange(n) if places is None else np.asarray(places, dtype=np.int64)
-    order = np.argsort(labels, kind="stable")
-    sorted_labels = labels[order]
-    probes = np.unique(np.linspace(0, n - 1, min(n, max_rows)).round().astype(np.int64))
-    reference = np.unique(np.linspace(0, n - 1, min(n, n_reference)).round().astype(np.int64))
-    lo, hi = gaps
-    ranks: list[float] = []
-    for start in range(0, probes.size, 256):
-        chunk = probes[start : start + 256]
-        ref_scores = np.sort(Z[chunk] @ Z[reference].T, axis=1)
-        for row, i in enumerate(chunk):
-            near = [order[np.searchsorted(sorted_labels, a, "left") : np.searchsorted(sorted_labels, b, "right")]
-                    for a, b in ((labels[i] - hi, labels[i] - lo), (labels[i] + lo, labels[i] + hi))]
-            others = np.concatenate(near)
-            if others.size == 0:
-                continue
-            others = others[np.unique(np.linspace(0, others.size - 1, min(others.size, 32)).round().astype(np.int64))]
-            refs = ref_scores[row]
-            # The probe's own row (cosine 1) is among the reference rows when sampled: leave it out.
-            n_ref = refs.size - int(np.isin(i, reference))
-            below = np.searchsorted(refs, Z[others] @ Z[i], side="left")
-            ranks.append(float(np.mean(np.minimum(below, n_ref) / max(n_ref, 1))))
-    return float(np.mean(ranks)) if ranks else 0.5
-
-
-def route_test(X: np.ndarray, places: np.ndarray | None = None) -> tuple[bool, float, float | None, str]:
-    """Whether the map is a route by step 1 of the rule: ``(is_route, share, continuity, why)``.
-
-    The continuity is computed only when the route share reaches :data:`ROUTE_SHARE` (None otherwise).
-    """
-    share = route_share(X, places)
-    if share < ROUTE_SHARE:
-        return False, share, None, f"route share {share:.2f} < {ROUTE_SHARE}"
-    continuity = route_continuity(X, places)
-    if continuity < ROUTE_CONTINUITY:
-        return False, share, continuity, (f"route share {share:.2f} ≥ {ROUTE_SHARE} but continuity {continuity:.2f} < "
-                                          f"{ROUTE_CONTINUITY}: snippets, not a route")
-    return True, share, continuity, f"route share {share:.2f} ≥ {ROUTE_SHARE}, continuity {continuity:.2f} ≥ {ROUTE_CONTINUITY}"
-
-
 def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budget: int | None,
                   whiten: Any = None) -> list[dict[str, Any]]:
     """The candidates, best first, that the rule gives for this map and budget (module docstring).
@@ -279,10 +159,10 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
     Each is ``{"method", "params", "reason", "route_share", "bytes_per_place"}``; :class:`AutoLocalizer`
     fits the first that fits the budget.
     """
-    from .baselines import BruteForceNN
-    from .baselines.lsh import LSHLocalizer, cone_ratio
-    from ..frontend import FrontEnd
-    from ..shrink import shrink_rank
+    from ...frontend import FrontEnd
+    from ...shrink import shrink_rank
+    from ..baselines import BruteForceNN
+    from ..baselines.lsh import LSHLocalizer, cone_ratio
 
     is_route, share, continuity, where = route_test(X, places)
     n_rows, d = X.shape
@@ -330,182 +210,3 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
     out.append({**lsh, "reason": f"independent places ({where}), {bpp}: asymmetric LSH"})
     out.append(codes)
     return [{**c, **stats} for c in out]
-
-
-class AutoLocalizer(PlaceLocalizer):
-    """The method chosen from the map and budget alone (module docstring), behind the one interface.
-
-    Parameters
-    ----------
-    budget : int or str, optional
-        Bytes (or ``"64KB"``); the chosen method fills it.
-    normalize, delta
-        Given to the chosen method's front end.
-    whiten : None, int or 'shrink'
-        None: the rule chooses (``'shrink'`` or none); anything else is given to the chosen method.
-    random_state : int or None
-        Seed of the chosen method.
-    n_jobs : int, optional
-        Threads of the chosen method, where it takes them (not saved).
-
-    Attributes
-    ----------
-    model_ : PlaceLocalizer
-        The fitted chosen method.
-    choice_ : dict
-        ``method``, ``params``, ``reason`` and the map statistics (``route_share``, ``bytes_per_place``…).
-    front_end_ : FrontEnd
-        The chosen method's front end.
-    n_places_, n_features_in_ : int
-    fit_time_ : float
-    """
-
-    _parameter_constraints = {"budget": [Budget()], "random_state": RANDOM_STATE, "n_jobs": N_JOBS}
-    _runtime_params = ("n_jobs",)
-    #: The method registry (:mod:`btel.methods` sets it when it registers this class; this module
-    #: does not import the registry, which imports it).
-    _registry: Any = None
-
-    def __init__(self, *, budget: int | str | None = None, random_state: int | None = 0, n_jobs: int | None = None) -> None:
-        self.budget = budget
-        self.random_state = random_state
-        self.n_jobs = n_jobs
-
-    def _inner(self, method: str, params: dict[str, Any]) -> PlaceLocalizer:
-        model = self._registry.make_method(method)
-        valid = model.get_params(deep=False)
-        extra = {"budget": self.budget, "normalize": self.normalize, "delta": self.delta,
-                 "random_state": self.random_state, "n_jobs": self.n_jobs, "progress": False}
-        model.set_params(**{k: v for k, v in {**extra, **params}.items() if k in valid})
-        return model
-
-    def fit(self, X: Any, places: Any = None) -> "AutoLocalizer":
-        """Choose by the rule, then fit the chosen method (the first candidate that fits the budget).
-
-        Returns
-        -------
-        self
-        """
-        start = time.perf_counter()
-        X, labels, n_places = self._check_fit_input(X, places)
-        budget = parse_budget(self.budget)
-        candidates = choose_method(X, labels, n_places, budget, self.whiten)
-        refused: list[str] = []
-        error: BudgetTooSmallError | None = None
-        for choice in candidates:
-            model = self._inner(choice["method"], choice["params"])
-            try:
-                model.fit(X, places)
-            except BudgetTooSmallError as exc:
-                refused.append(f"{choice['method']} {choice['params']} needs ≥ {exc.minimum} B")
-                error = exc if error is None or (exc.minimum or 0) < (error.minimum or 0) else error
-                continue
-            self.model_ = model
-            self.choice_ = {**choice, "params": {k: v for k, v in choice["params"].items() if v is not None},
-                            "refused": refused}
-            break
-        else:  # every candidate raised BudgetTooSmallError
-            raise BudgetTooSmallError(
-                f"budget {format_bytes(budget or 0)} ({budget} B) is too small for auto: no candidate fits "
-                f"({'; '.join(refused)}). Raise the budget to at least {getattr(error, 'minimum', '?')} B.",
-                budget=budget, minimum=getattr(error, "minimum", None))
-        self.front_end_ = self.model_.front_end_
-        self.n_features_in_ = int(X.shape[1])
-        self.fit_time_ = time.perf_counter() - start
-        self.n_places_ = int(n_places)
-        return self
-
-    def check_budget(self, n_rows: int, n_features: int, budget: int | None,
-                     reserved: int | None = None) -> None:
-        """Raise what ``fit`` would raise for this map shape and budget, without fitting.
-
-        Every candidate list of the rule ends with plain ``lsh`` and ``btel-codes`` (the others need
-        more bytes), so auto fits exactly when one of those two does; the minimum is the smaller one.
-        """
-        errors: list[BudgetTooSmallError] = []
-        for method, params in (("lsh", {"whiten": self.whiten}), ("btel-codes", {"code": "periodic",
-                                                                               "whiten": self.whiten})):
-            try:
-                self._inner(method, params).check_budget(n_rows, n_features, budget)
-                return
-            except BudgetTooSmallError as exc:
-                errors.append(exc)
-        smallest = min(errors, key=lambda e: e.minimum or 0)
-        raise BudgetTooSmallError(f"budget {format_bytes(budget or 0)} ({budget} B) is too small for auto: neither "
-                                  f"lsh nor btel-codes fits ({'; '.join(str(e) for e in errors)}).",
-                                  budget=budget, minimum=smallest.minimum)
-
-    def summary(self) -> str:
-        """One line: what the rule chose and why."""
-        c = self.choice_
-        params = ", ".join(f"{k}={v}" for k, v in c["params"].items())
-        inner = self.model_.summary()
-        return (f"auto chose {c['method']}{f' ({params})' if params else ''}: {c['reason']}"
-                + (f" — {inner}" if inner else "") + (f" [refused: {'; '.join(c['refused'])}]" if c["refused"] else ""))
-
-    # -- the one primitive, from the chosen method ------------------------------------------------
-    @property
-    def uses_query_sequence(self) -> bool:
-        model = getattr(self, "model_", None)
-        return bool(self.delta) if model is None else model.uses_query_sequence
-
-    def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        return self.model_._search(Q, k)
-
-    def _place_scores(self, Q: np.ndarray) -> np.ndarray:
-        return self.model_._place_scores(Q)
-
-    def _predict(self, Q: np.ndarray) -> np.ndarray:
-        return self.model_._predict(Q)
-
-    def _sequence_context(self) -> int:
-        return self.model_._sequence_context()
-
-    def _fit(self, X, places, n_places, budget, reserved) -> None:  # pragma: no cover - fit is overridden
-        raise NotImplementedError
-
-    # -- storage and files ------------------------------------------------------------------------
-    def _stored_arrays(self) -> dict[str, np.ndarray]:
-        return self.model_._stored_arrays()
-
-    def _fitted_state(self) -> dict[str, Any]:
-        from ..modelfile import jsonable
-
-        params = {k: jsonable(v) for k, v in self.model_.get_params(deep=False).items()
-                  if k not in self.model_._runtime_params}
-        return {"choice": self.choice_, "inner_params": params, "inner_state": self.model_._fitted_state()}
-
-    def _inner_from_state(self, state: dict[str, Any]) -> PlaceLocalizer:
-        METHODS, _params_from_file = self._registry.METHODS, self._registry._params_from_file
-        choice = state.get("choice")
-        if not isinstance(choice, dict) or choice.get("method") not in METHODS or choice.get("method") == "auto":
-            raise ModelFileError("the auto model file does not name a registered method it chose.")
-        params, inner_state = state.get("inner_params"), state.get("inner_state")
-        if not isinstance(params, dict) or not isinstance(inner_state, dict):
-            raise ModelFileError("the auto model file's inner parameters or state are not objects.")
-        factory = METHODS[choice["method"]]
-        cls = factory.func if hasattr(factory, "func") else factory
-        model = cls(**_params_from_file(cls, params))
-        check_params(model)
-        model.front_end_ = self.front_end_
-        return model
-
-    def _merged_state(self, state: dict[str, Any]) -> dict[str, Any]:
-        return {**state["inner_state"], "n_places": state["n_places"], "n_features_in": state["n_features_in"]}
-
-    def _array_specs(self, state: dict[str, Any]) -> dict[str, ArraySpec]:
-        self._loading = self._inner_from_state(state)
-        return self._loading._array_specs(self._merged_state(state))
-
-    def _restore(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
-        model = getattr(self, "_loading", None) or self._inner_from_state(state)
-        self.__dict__.pop("_loading", None)
-        model._restore(arrays, self._merged_state(state))
-        model.n_features_in_ = int(state["n_features_in"])
-        model.fit_time_ = float("nan")
-        setattr(model, model._fitted_marker, int(state["n_places"]))
-        self.model_ = model
-        self.choice_ = state["choice"]
-        self.choice_.setdefault("refused", [])
-        self.choice_.setdefault("params", {})
-        self.choice_.setdefault("reason", "")

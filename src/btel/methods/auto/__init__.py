@@ -1,0 +1,22 @@
+"""``auto``: the method, code family and front end chosen from the map and the budget alone.
+
+=================== ==========================================================================
+``rule.py``         the rule, its evidence and its known weak spots; :func:`choose_method`
+``statistics.py``   the map statistics it reads: route share, route continuity, the birthday bound
+``localizer.py``    :class:`AutoLocalizer`, the registered ``auto`` method: fits the first candidate
+                    that fits the budget and records what it chose and why
+=================== ==========================================================================
+"""
+
+from __future__ import annotations
+
+from .localizer import AutoLocalizer
+from .rule import (ORDER_BITS_FACTOR, ORDER_SHARE, SHRINK_LSH_BITS_PER_DIMENSION, SHRINK_LSH_BYTES_PER_PLACE,
+                   SHRINK_LSH_MIN_RANK, choose_method)
+from .statistics import (CONTINUITY_GAPS, CONTINUITY_REFERENCE, ROUTE_CONTINUITY, ROUTE_SHARE, ROUTE_WINDOW, STAT_ROWS,
+                         collision_bits, route_continuity, route_share, route_test)
+
+__all__ = ["AutoLocalizer", "CONTINUITY_GAPS", "CONTINUITY_REFERENCE", "ORDER_BITS_FACTOR", "ORDER_SHARE",
+           "ROUTE_CONTINUITY", "ROUTE_SHARE", "ROUTE_WINDOW", "SHRINK_LSH_BITS_PER_DIMENSION", "SHRINK_LSH_BYTES_PER_PLACE",
+           "SHRINK_LSH_MIN_RANK", "STAT_ROWS", "choose_method", "collision_bits", "route_continuity", "route_share",
+           "route_test"]
