@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import btel
 from btel.datasets import synthetic_route
@@ -232,3 +234,15 @@ def test_gardens_point_snippets_are_not_a_route(gardenspoint_netvlad) -> None:
     assert route_share(cut) >= ROUTE_SHARE and route_continuity(cut) < ROUTE_CONTINUITY <= route_continuity(X)
     assert make_method("auto", budget="16KB").fit(cut).choice_["method"] == "lsh"
     assert make_method("btel-codes", code="auto", budget="16KB").fit(cut).code_ == "random"
+
+
+@settings(max_examples=25, deadline=None)
+@given(n_rows=st.integers(2, 60), dim=st.integers(1, 8), seed=st.integers(0, 2**16), repeats=st.integers(1, 3))
+def test_route_continuity_is_a_rank_in_zero_one_for_any_map(n_rows: int, dim: int, seed: int, repeats: int) -> None:
+    """Any map, with or without repeated place labels (duplicate rows included): a mean rank in [0, 1]."""
+    rng = np.random.default_rng(seed)
+    X = rng.normal(size=(n_rows, dim)).astype(np.float32)
+    X[rng.integers(0, n_rows)] = X[0]
+    labels = np.repeat(np.arange(-(-n_rows // repeats)), repeats)[:n_rows]
+    value = route_continuity(X, labels)
+    assert 0.0 <= value <= 1.0
