@@ -106,7 +106,11 @@ the codes' and LSH's z-scored place scores on a split budget lands between the p
 0.570 / 0.595 with ½ / ¾ of it to the codes, against the codes' 0.628; night 0.620 / 0.605 against
 LSH's 0.625), a hedge that misses the day target of 0.60; a larger ridge α for the codes trades one
 direction for the other (ρ = 1: night 0.655, day 0.548); training rows augmented with their route
-neighbours moved either by at most 0.022. PQ at 1 MB beats LSH on Nordland HOG, and on Gardens Point the
+neighbours moved either by at most 0.022. The synthetic routes argue the same way where the
+route branch reaches them: the easy N = 210 route of ``benchmarks/bench_cone_route.py`` (route share
+0.60) gave LSH 0.967 against the codes' 0.617 at 4 KB (152 bits per place) — a linear-Gaussian
+model on which cosine is near-perfect, weaker evidence than a real route, but a second reason to try
+``lsh`` beside auto on a route when the budget gives many bits per place. PQ at 1 MB beats LSH on Nordland HOG, and on Gardens Point the
 periodic codes on whitened rows beat the plain ones at 4, 16 and 256 KB (0.615 vs 0.580 at 16 KB)
 but not at 64 KB nor on the synthetic route. The rule was not changed to fit those rows. A holdout
 on the map itself (even rows as the map, odd rows as queries, the candidate with the best holdout recall) was tried as a chooser instead and dropped: it
