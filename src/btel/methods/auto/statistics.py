@@ -96,11 +96,12 @@ def route_continuity(X: np.ndarray, places: np.ndarray | None = None, *, gaps: t
     sorted_labels = labels[order]
     probes = np.unique(np.linspace(0, n - 1, min(n, max_rows)).round().astype(np.int64))
     reference = np.unique(np.linspace(0, n - 1, min(n, n_reference)).round().astype(np.int64))
+    reference_rows = Z[reference]
     lo, hi = gaps
     ranks: list[float] = []
     for start in range(0, probes.size, 256):
         chunk = probes[start : start + 256]
-        ref_scores = np.sort(Z[chunk] @ Z[reference].T, axis=1)
+        ref_scores = np.sort(Z[chunk] @ reference_rows.T, axis=1)
         for row, i in enumerate(chunk):
             near = [order[np.searchsorted(sorted_labels, a, "left") : np.searchsorted(sorted_labels, b, "right")]
                     for a, b in ((labels[i] - hi, labels[i] - lo), (labels[i] + lo, labels[i] + hi))]
