@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 import btel
 from btel.datasets import synthetic_route
-from btel.methods.auto import (ORDER_BITS_FACTOR, ORDER_SHARE, ROUTE_CONTINUITY, ROUTE_SHARE, choose_method, collision_bits,
+from btel.methods.auto import (ORDER_BITS_FACTOR, ORDER_CONTINUITY, ORDER_SHARE, ROUTE_CONTINUITY, ROUTE_SHARE, choose_method, collision_bits,
                                route_continuity, route_share)
 from btel.exceptions import BudgetTooSmallError, ModelFileError
 from btel.methods import make_method
@@ -129,6 +129,27 @@ def test_an_ordered_cone_with_many_bits_per_place_keeps_lsh() -> None:
     assert ORDER_SHARE <= route_share(X) < ROUTE_SHARE
     first = choose_method(X, None, 210, 4_000)[0]
     assert first["method"] == "lsh" and first["lsh_effective_bits"] > ORDER_BITS_FACTOR * collision_bits(210)
+
+
+def test_an_ordered_cone_in_snippets_of_three_keeps_lsh() -> None:
+    """Pairs and triples of alike rows next to each other (route share ≥ 0.1, like the issue's NetVLAD sets of
+    independent places at 0.14–0.40) are no order beyond the nearest frames: continuity ≈ 0.5 < ORDER_CONTINUITY,
+    so LSH, which beats the periodic codes there at recall@0 (bench_ordered_snippets); the uncut route keeps them."""
+    from btel.methods.baselines.lsh import cone_ratio
+
+    route = synthetic_route(600, 500, condition_shift=1.0, noise=0.2, seed=31)
+    direction = np.random.default_rng(9).normal(size=500).astype(np.float32)
+    direction *= 1.5 * np.linalg.norm(route.map, axis=1).mean() / np.linalg.norm(direction)
+    order = np.concatenate(np.arange(600).reshape(-1, 3)[np.random.default_rng(3).permutation(200)])
+    X, Q = (route.map + direction)[order], (route.queries + direction)[order]
+    assert cone_ratio(btel.frontend.normalize_rows(X)) > 0.8 and ORDER_SHARE <= route_share(X) < ROUTE_SHARE
+    assert route_continuity(X) < ORDER_CONTINUITY <= route_continuity(route.map + direction)
+    first = choose_method(X, None, 600, 4_000)[0]
+    assert first["method"] == "lsh" and f"continuity {first['route_continuity']:.2f} < {ORDER_CONTINUITY}" in first["reason"]
+    assert choose_method(route.map + direction, None, 600, 4_000)[0]["method"] == "btel-codes"
+    exact = {name: np.mean([(make_method(name, budget=4_000, random_state=seed).fit(X).predict(Q)
+                             == np.arange(600)).mean() for seed in range(2)]) for name in ("lsh", "btel-codes")}
+    assert exact["lsh"] > 2 * exact["btel-codes"]
 
 
 def test_lsh_is_whitened_only_with_at_least_d_bits_per_row() -> None:

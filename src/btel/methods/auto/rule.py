@@ -64,6 +64,22 @@ per map:
    queries' change of conditions is cannot be read from the map, and the hard synthetic route in
    that band (and at 32 KB) stays a miss. Maps of independent places (share < 0.1: Gardens Point
    permuted 0.05, synthetic independent places 0.00) keep LSH at any budget.
+
+   And only when the route continuity is at least :data:`ORDER_CONTINUITY` = 0.6: the order must
+   hold beyond the nearest frames. The share reads only a row's nearest neighbour, and a map of
+   independent places in which pairs or triples of alike rows sit next to each other in the index
+   reaches it (the frontier issue's NetVLAD sets of independent places have route shares of
+   0.14–0.40). ``python benchmarks/bench_ordered_snippets.py`` cut the N = 600, d = 500 synthetic
+   route (in cones of ratio 0.84 and 0.95) into snippets in random order: snippets of 2 and 3 have
+   share 0.10–0.22 and continuity 0.49, and at 4 KB the effective-bits condition alone gave them
+   the codes, which lost all five rows at recall@0 (LSH 0.203 / 0.098 / 0.103 / 0.029 / 0.022 against
+   0.055 / 0.059 / 0.055 / 0.006 / 0.007). With the gate auto chose the better of the two in 36 of
+   40 rows (31 before); the four misses are snippets of 10 (continuity 0.68, like Nordland) at
+   4 KB, where LSH led at recall@0 and the two split 2–2 at recall@2. The threshold sits between
+   those pairs and triples (0.49–0.53, Gardens Point's snippets of 2 and 3 included; of 5
+   0.53–0.55, of 10 0.62) and the sparsest
+   real route of the development data (Nordland HOG, every 10th frame: 0.68 / 0.69); it was added
+   after the snippet benchmark and changed no development choice.
 4. **Otherwise (independent places, or many bits)** → if cosine brute force on shrinkage-whitened
    rows fits the budget (or there is no budget), that (exact search); else ``lsh`` (asymmetric
    scoring) with ``whiten="shrink"`` when the budget gives at least
@@ -135,9 +151,9 @@ import numpy as np
 
 from ...frontend import normalize_rows
 from ...storage import format_bytes
-from .statistics import collision_bits, route_test
+from .statistics import collision_bits, route_continuity, route_test
 
-__all__ = ["ORDER_BITS_FACTOR", "ORDER_SHARE", "SHRINK_LSH_BITS_PER_DIMENSION", "SHRINK_LSH_BYTES_PER_PLACE",
+__all__ = ["ORDER_BITS_FACTOR", "ORDER_CONTINUITY", "ORDER_SHARE", "SHRINK_LSH_BITS_PER_DIMENSION", "SHRINK_LSH_BYTES_PER_PLACE",
            "SHRINK_LSH_MIN_RANK", "choose_method"]
 
 #: Independent places: from this many bytes per place on, LSH runs on shrinkage-whitened rows.
@@ -151,6 +167,9 @@ SHRINK_LSH_BITS_PER_DIMENSION = 1.0
 #: A map whose route share is at least this (far above the ≈ 4/N of independent places) is ordered:
 #: it gets output codes rather than LSH while LSH's effective bits per map row are few (next).
 ORDER_SHARE = 0.1
+#: ... and only when its route continuity (:func:`route_continuity`) is at least this: the order holds beyond the
+#: nearest frame (0.5 when it does not; pairs and triples of alike rows in random order stay at ≈ 0.5).
+ORDER_CONTINUITY = 0.6
 #: An ordered map gets output codes while LSH's effective bits per map row
 #: (:meth:`~btel.methods.baselines.lsh.LSHLocalizer.effective_bits`) are below this × :func:`collision_bits`.
 ORDER_BITS_FACTOR = 2.0
@@ -187,14 +206,21 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
     if is_route:
         why = f"route ({where}), {bpp}: {filling}"
     elif share >= ORDER_SHARE and budget is not None:
-        cone = cone_ratio(normalize_rows(np.ascontiguousarray(X, dtype=np.float32), "l2"))
-        effective = LSHLocalizer().effective_bits(n_rows, d, budget, cone)
-        stats.update({"cone_ratio": round(cone, 4), "lsh_effective_bits": round(effective, 1)})
-        if effective < ORDER_BITS_FACTOR * few:
-            why = (f"ordered map (route share {share:.2f} ≥ {ORDER_SHARE}) where LSH's codes would carry ≈ "
-                   f"{effective:.1f} effective bits per map row ({8 * per_place:.0f} bits of budget, cone ratio "
-                   f"{cone:.2f}) < {ORDER_BITS_FACTOR:g} × 2·log2 N = {ORDER_BITS_FACTOR * few:.1f}: sign codes that "
-                   f"weak collide or barely separate places, so {filling}")
+        if continuity is None:
+            continuity = route_continuity(X, places)
+            stats["route_continuity"] = round(continuity, 4)
+        if continuity < ORDER_CONTINUITY:
+            where += f", continuity {continuity:.2f} < {ORDER_CONTINUITY}: no order beyond the nearest frames"
+        else:
+            cone = cone_ratio(normalize_rows(np.ascontiguousarray(X, dtype=np.float32), "l2"))
+            effective = LSHLocalizer().effective_bits(n_rows, d, budget, cone)
+            stats.update({"cone_ratio": round(cone, 4), "lsh_effective_bits": round(effective, 1)})
+            if effective < ORDER_BITS_FACTOR * few:
+                why = (f"ordered map (route share {share:.2f} ≥ {ORDER_SHARE}, continuity {continuity:.2f} ≥ "
+                       f"{ORDER_CONTINUITY}) where LSH's codes would carry ≈ {effective:.1f} effective bits per map row "
+                       f"({8 * per_place:.0f} bits of budget, cone ratio {cone:.2f}) < {ORDER_BITS_FACTOR:g} × "
+                       f"2·log2 N = {ORDER_BITS_FACTOR * few:.1f}: sign codes that weak collide or barely separate "
+                       f"places, so {filling}")
     if why is not None:  # output codes, plain LSH as the fallback
         return [{**c, **stats} for c in ({**codes, "reason": why}, lsh)]
     front = FrontEnd(normalize="l2", whiten=white("shrink"), budget=budget)
