@@ -267,3 +267,50 @@ def test_route_continuity_is_a_rank_in_zero_one_for_any_map(n_rows: int, dim: in
     labels = np.repeat(np.arange(-(-n_rows // repeats)), repeats)[:n_rows]
     value = route_continuity(X, labels)
     assert 0.0 <= value <= 1.0
+
+
+@settings(max_examples=25, deadline=None)
+@given(n_rows=st.integers(1, 80), dim=st.integers(3, 8), seed=st.integers(0, 2**16))
+def test_route_share_is_the_share_of_nearest_other_rows_within_the_window(n_rows: int, dim: int, seed: int) -> None:
+    """The blockwise search equals a full cosine matrix: every probe's nearest row other than itself (d ≥ 3:
+    on a line every row ties with half the map)."""
+    rng = np.random.default_rng(seed)
+    X = rng.normal(size=(n_rows, dim)).astype(np.float32)
+    Z = btel.frontend.normalize_rows(X)
+    S = Z @ Z.T
+    np.fill_diagonal(S, -np.inf)
+    expected = 0.0 if n_rows < 2 else float(np.mean(np.abs(np.argmax(S, axis=1) - np.arange(n_rows)) <= 2))
+    assert route_share(X) == pytest.approx(expected)
+
+
+def test_map_statistics_read_a_memory_mapped_map_in_blocks(smooth_route, tmp_path) -> None:
+    """Same values from a memory-mapped map as from memory (no whole-map copy is needed)."""
+    from btel.methods.auto import map_cone_ratio
+    from btel.methods.baselines.lsh import cone_ratio
+
+    X, _ = smooth_route
+    path = tmp_path / "map.npy"
+    np.save(path, X)
+    mapped = np.load(path, mmap_mode="r")
+    assert route_share(mapped) == route_share(X) and route_continuity(mapped) == route_continuity(X)
+    assert map_cone_ratio(mapped) == pytest.approx(cone_ratio(btel.frontend.normalize_rows(X)), rel=1e-6)
+
+
+def test_index_order_tells_a_route_an_ordered_map_and_independent_places(smooth_route) -> None:
+    """A smooth walk is a route; a synthetic route of sparse frames (share ≈ 0.1–0.4, continuity ≈ 0.97) is
+    ordered; the walk in snippets of three or permuted is independent places."""
+    from btel.methods.auto import index_order
+
+    X, _ = smooth_route
+    assert index_order(X).kind == "route"
+    sparse = synthetic_route(600, 64, seed=3).map
+    order = index_order(sparse)
+    assert order.kind == "ordered" and ORDER_SHARE <= order.share < ROUTE_SHARE
+    assert order.continuity >= ORDER_CONTINUITY and f"{order.continuity:.2f}" in order.why
+    three = index_order(X[snippets(300, 3)])
+    assert three.kind == "independent" and three.continuity < ORDER_CONTINUITY and "no order" in three.why
+    permuted = index_order(X[np.random.default_rng(1).permutation(300)])
+    assert permuted.kind == "independent" and permuted.continuity is None
+    # btel-codes code='auto' reads the same test: periodic codes on the ordered map, random on the snippets.
+    assert make_method("btel-codes", code="auto", budget="8KB", random_state=0).fit(sparse).code_ == "periodic"
+    assert make_method("btel-codes", code="auto", budget="8KB", random_state=0).fit(X[snippets(300, 3)]).code_ == "random"

@@ -149,12 +149,11 @@ from typing import Any
 
 import numpy as np
 
-from ...frontend import normalize_rows
 from ...storage import format_bytes
-from .statistics import collision_bits, route_continuity, route_test
+from .statistics import ORDER_CONTINUITY, ORDER_SHARE, collision_bits, index_order, map_cone_ratio
 
-__all__ = ["ORDER_BITS_FACTOR", "ORDER_CONTINUITY", "ORDER_SHARE", "SHRINK_LSH_BITS_PER_DIMENSION", "SHRINK_LSH_BYTES_PER_PLACE",
-           "SHRINK_LSH_MIN_RANK", "choose_method"]
+__all__ = ["ORDER_BITS_FACTOR", "SHRINK_LSH_BITS_PER_DIMENSION", "SHRINK_LSH_BYTES_PER_PLACE", "SHRINK_LSH_MIN_RANK",
+           "choose_method"]
 
 #: Independent places: from this many bytes per place on, LSH runs on shrinkage-whitened rows.
 SHRINK_LSH_BYTES_PER_PLACE = 16
@@ -164,12 +163,6 @@ SHRINK_LSH_MIN_RANK = 8
 #: LSH runs on shrinkage-whitened rows only when the budget gives at least this many bits per map row
 #: per dimension (P ≥ d): below, the whitening's flatter spectrum costs the sign sketch more than it gives.
 SHRINK_LSH_BITS_PER_DIMENSION = 1.0
-#: A map whose route share is at least this (far above the ≈ 4/N of independent places) is ordered:
-#: it gets output codes rather than LSH while LSH's effective bits per map row are few (next).
-ORDER_SHARE = 0.1
-#: ... and only when its route continuity (:func:`route_continuity`) is at least this: the order holds beyond the
-#: nearest frame (0.5 when it does not; pairs and triples of alike rows in random order stay at ≈ 0.5).
-ORDER_CONTINUITY = 0.6
 #: An ordered map gets output codes while LSH's effective bits per map row
 #: (:meth:`~btel.methods.baselines.lsh.LSHLocalizer.effective_bits`) are below this × :func:`collision_bits`.
 ORDER_BITS_FACTOR = 2.0
@@ -185,9 +178,10 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
     from ...frontend import FrontEnd
     from ...shrink import shrink_rank
     from ..baselines import BruteForceNN
-    from ..baselines.lsh import LSHLocalizer, cone_ratio
+    from ..baselines.lsh import LSHLocalizer
 
-    is_route, share, continuity, where = route_test(X, places)
+    order = index_order(X, places)
+    share, continuity, where = order.share, order.continuity, order.why
     n_rows, d = X.shape
     per_place = None if budget is None else budget / n_rows
     stats = {"route_share": round(share, 4), "bytes_per_place": None if per_place is None else round(per_place, 2),
@@ -203,40 +197,34 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
     few = collision_bits(n_rows)
     filling = "periodic output codes filling the budget"
     why = None
-    if is_route:
-        why = f"route ({where}), {bpp}: {filling}"
-    elif share >= ORDER_SHARE and budget is not None:
-        if continuity is None:
-            continuity = route_continuity(X, places)
-            stats["route_continuity"] = round(continuity, 4)
-        if continuity < ORDER_CONTINUITY:
-            where += f", continuity {continuity:.2f} < {ORDER_CONTINUITY}: no order beyond the nearest frames"
-        else:
-            cone = cone_ratio(normalize_rows(np.ascontiguousarray(X, dtype=np.float32), "l2"))
-            effective = LSHLocalizer().effective_bits(n_rows, d, budget, cone)
-            stats.update({"cone_ratio": round(cone, 4), "lsh_effective_bits": round(effective, 1)})
-            if effective < ORDER_BITS_FACTOR * few:
-                why = (f"ordered map (route share {share:.2f} ≥ {ORDER_SHARE}, continuity {continuity:.2f} ≥ "
-                       f"{ORDER_CONTINUITY}) where LSH's codes would carry ≈ {effective:.1f} effective bits per map row "
-                       f"({8 * per_place:.0f} bits of budget, cone ratio {cone:.2f}) < {ORDER_BITS_FACTOR:g} × "
-                       f"2·log2 N = {ORDER_BITS_FACTOR * few:.1f}: sign codes that weak collide or barely separate "
-                       f"places, so {filling}")
+    if order.kind == "route":
+        why = f"{where}, {bpp}: {filling}"
+    elif order.kind == "ordered" and budget is not None:
+        cone = map_cone_ratio(X)
+        effective = LSHLocalizer().effective_bits(n_rows, d, budget, cone)
+        stats.update({"cone_ratio": round(cone, 4), "lsh_effective_bits": round(effective, 1)})
+        if effective < ORDER_BITS_FACTOR * few:
+            why = (f"{where}, where LSH's codes would carry ≈ {effective:.1f} effective bits per map row "
+                   f"({8 * per_place:.0f} bits of budget, cone ratio {cone:.2f}) < {ORDER_BITS_FACTOR:g} × "
+                   f"2·log2 N = {ORDER_BITS_FACTOR * few:.1f}: sign codes that weak collide or barely separate "
+                   f"places, so {filling}")
     if why is not None:  # output codes, plain LSH as the fallback
         return [{**c, **stats} for c in ({**codes, "reason": why}, lsh)]
+    kind = "independent places" if order.kind == "independent" else "an ordered map with bits to spare for LSH"
     front = FrontEnd(normalize="l2", whiten=white("shrink"), budget=budget)
     exact = BruteForceNN.planned_bytes(n_rows, front.n_features_out(d)) + front.planned_bytes(d, n_rows)
     if budget is None or exact <= budget:
         out.append({"method": "bruteforce", "params": {"whiten": white("shrink")},
-                    "reason": f"independent places ({where}); brute force on shrinkage-whitened rows fits "
+                    "reason": f"{kind} ({where}); brute force on shrinkage-whitened rows fits "
                               f"({format_bytes(exact)})"})
     rank = shrink_rank(d, n_rows, budget)
     bits = None if per_place is None else 8 * per_place
     if (bits is None or (per_place >= SHRINK_LSH_BYTES_PER_PLACE and bits >= SHRINK_LSH_BITS_PER_DIMENSION * d)) \
             and rank >= SHRINK_LSH_MIN_RANK:
         out.append({"method": "lsh", "params": {"whiten": white("shrink")},
-                    "reason": f"independent places ({where}), {bpp} ≥ {SHRINK_LSH_BYTES_PER_PLACE} and "
+                    "reason": f"{kind} ({where}), {bpp} ≥ {SHRINK_LSH_BYTES_PER_PLACE} and "
                               f"{'no budget' if bits is None else f'{bits:.0f} bits per row ≥ d = {d}'}: asymmetric "
                               f"LSH on shrinkage-whitened rows (rank {rank})"})
-    out.append({**lsh, "reason": f"independent places ({where}), {bpp}: asymmetric LSH"})
+    out.append({**lsh, "reason": f"{kind} ({where}), {bpp}: asymmetric LSH"})
     out.append(codes)
     return [{**c, **stats} for c in out]

@@ -5,12 +5,15 @@ Each reads the map rows (and their place labels) only, never a query.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ...frontend import normalize_rows
 
-__all__ = ["CONTINUITY_GAPS", "CONTINUITY_REFERENCE", "ROUTE_CONTINUITY", "ROUTE_SHARE", "ROUTE_WINDOW", "STAT_ROWS",
-           "collision_bits", "route_continuity", "route_share", "route_test"]
+__all__ = ["CONTINUITY_GAPS", "CONTINUITY_REFERENCE", "IndexOrder", "ORDER_CONTINUITY", "ORDER_SHARE", "ROUTE_CONTINUITY",
+           "ROUTE_SHARE", "ROUTE_WINDOW", "STAT_ROWS", "collision_bits", "index_order", "map_cone_ratio", "route_continuity",
+           "route_share"]
 
 #: Places within which the nearest other map row must lie for a row to count as "route-like".
 ROUTE_WINDOW = 2
@@ -22,8 +25,31 @@ STAT_ROWS = 2000
 CONTINUITY_GAPS = (3, 8)
 #: Route only when the continuity is at least this (0.5: no order; 1: a perfectly smooth route).
 ROUTE_CONTINUITY = 0.75
+#: A map whose route share is at least this (far above the ≈ 4/N of independent places) is ordered
+#: when its continuity also reaches :data:`ORDER_CONTINUITY` (rule, step 3).
+ORDER_SHARE = 0.1
+#: An ordered map's order must hold beyond the nearest frame: continuity at least this (0.5 when it
+#: does not; pairs and triples of alike rows in random order stay at ≈ 0.5; Nordland HOG 0.68).
+ORDER_CONTINUITY = 0.6
 #: Other map rows (evenly spaced) each probe's similarities are ranked among, at most.
 CONTINUITY_REFERENCE = 1024
+
+
+def _unit_rows(X: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """The L2-normalised float32 copy of the given rows only (a memory-mapped map is read, never copied whole)."""
+    return normalize_rows(np.ascontiguousarray(X[rows], dtype=np.float32), "l2")
+
+
+def map_cone_ratio(X: np.ndarray) -> float:
+    """:func:`~btel.methods.baselines.lsh.cone_ratio` of the L2-normalised map rows, read in blocks."""
+    n, d = X.shape
+    total, squares = np.zeros(d), 0.0
+    step = max(1, (1 << 22) // max(d, 1))
+    for start in range(0, n, step):
+        Z = _unit_rows(X, np.arange(start, min(n, start + step)))
+        total += Z.sum(axis=0, dtype=np.float64)
+        squares += float(np.einsum("ij,ij->", Z, Z, dtype=np.float64))
+    return float(np.linalg.norm(total / n) / np.sqrt(squares / n)) if squares > 0 else 0.0
 
 
 def collision_bits(n_rows: int) -> float:
@@ -52,17 +78,23 @@ def route_share(X: np.ndarray, places: np.ndarray | None = None, *, window: int 
     -------
     float in [0, 1]
     """
-    import faiss
-
-    Z = normalize_rows(np.ascontiguousarray(X, dtype=np.float32), "l2")
-    n = Z.shape[0]
+    n = X.shape[0]
     labels = np.arange(n) if places is None else np.asarray(places, dtype=np.int64)
     probes = np.unique(np.linspace(0, n - 1, min(n, max_rows)).round().astype(np.int64))
-    index = faiss.IndexFlatIP(Z.shape[1])
-    index.add(Z)
-    _, rows = index.search(Z[probes], 2)
-    # The nearest row other than the probe itself (a duplicate row may come first).
-    other = np.where(rows[:, 0] == probes, rows[:, 1], rows[:, 0])
+    P = _unit_rows(X, probes)
+    # The nearest other row of every probe, over blocks of the map (memory-mapped maps are never copied whole).
+    best = np.full(probes.size, -np.inf, dtype=np.float32)
+    other = np.full(probes.size, -1, dtype=np.int64)
+    step = max(1, min(n, (1 << 22) // max(probes.size, X.shape[1], 1)))
+    for start in range(0, n, step):
+        block = _unit_rows(X, np.arange(start, min(n, start + step)))
+        scores = P @ block.T
+        own = (probes >= start) & (probes < start + block.shape[0])
+        scores[np.flatnonzero(own), probes[own] - start] = -np.inf  # the probe itself is not its neighbour
+        top = np.argmax(scores, axis=1)
+        value = scores[np.arange(probes.size), top]
+        better = value > best
+        best[better], other[better] = value[better], start + top[better]
     valid = other >= 0
     near = np.abs(labels[other[valid]] - labels[probes[valid]]) <= window
     return float(near.mean()) if near.size else 0.0
@@ -89,44 +121,87 @@ def route_continuity(X: np.ndarray, places: np.ndarray | None = None, *, gaps: t
     -------
     float in [0, 1]; 0.5 when no probe has rows that far apart (a map of fewer than 4 places).
     """
-    Z = normalize_rows(np.ascontiguousarray(X, dtype=np.float32), "l2")
-    n = Z.shape[0]
+    n = X.shape[0]
     labels = np.arange(n) if places is None else np.asarray(places, dtype=np.int64)
     order = np.argsort(labels, kind="stable")
     sorted_labels = labels[order]
     probes = np.unique(np.linspace(0, n - 1, min(n, max_rows)).round().astype(np.int64))
     reference = np.unique(np.linspace(0, n - 1, min(n, n_reference)).round().astype(np.int64))
-    reference_rows = Z[reference]
+    reference_rows = _unit_rows(X, reference)
     lo, hi = gaps
     ranks: list[float] = []
     for start in range(0, probes.size, 256):
         chunk = probes[start : start + 256]
-        ref_scores = np.sort(Z[chunk] @ reference_rows.T, axis=1)
-        for row, i in enumerate(chunk):
+        chunk_rows = _unit_rows(X, chunk)
+        ref_scores = np.sort(chunk_rows @ reference_rows.T, axis=1)
+        wanted = []
+        for i in chunk:
             near = [order[np.searchsorted(sorted_labels, a, "left") : np.searchsorted(sorted_labels, b, "right")]
                     for a, b in ((labels[i] - hi, labels[i] - lo), (labels[i] + lo, labels[i] + hi))]
             others = np.concatenate(near)
+            wanted.append(others[np.unique(np.linspace(0, others.size - 1, min(others.size, 32)).round()
+                                           .astype(np.int64))] if others.size else others)
+        needed = np.unique(np.concatenate(wanted)) if wanted else np.zeros(0, dtype=np.int64)
+        needed_rows = _unit_rows(X, needed)
+        for row, (i, others) in enumerate(zip(chunk, wanted)):
             if others.size == 0:
                 continue
-            others = others[np.unique(np.linspace(0, others.size - 1, min(others.size, 32)).round().astype(np.int64))]
             refs = ref_scores[row]
             # The probe's own row (cosine 1) is among the reference rows when sampled: leave it out.
             n_ref = refs.size - int(np.isin(i, reference))
-            below = np.searchsorted(refs, Z[others] @ Z[i], side="left")
+            below = np.searchsorted(refs, needed_rows[np.searchsorted(needed, others)] @ chunk_rows[row], side="left")
             ranks.append(float(np.mean(np.minimum(below, n_ref) / max(n_ref, 1))))
     return float(np.mean(ranks)) if ranks else 0.5
 
 
-def route_test(X: np.ndarray, places: np.ndarray | None = None) -> tuple[bool, float, float | None, str]:
-    """Whether the map is a route by step 1 of the rule: ``(is_route, share, continuity, why)``.
+@dataclass(frozen=True)
+class IndexOrder:
+    """What the map's index order says about its places (steps 1 and 3 of the rule).
 
-    The continuity is computed only when the route share reaches :data:`ROUTE_SHARE` (None otherwise).
+    Attributes
+    ----------
+    kind : {'route', 'ordered', 'independent'}
+        'route': route share ≥ :data:`ROUTE_SHARE` and continuity ≥ :data:`ROUTE_CONTINUITY`;
+        'ordered': route share ≥ :data:`ORDER_SHARE` and continuity ≥ :data:`ORDER_CONTINUITY` (a route
+        by the looser test: consecutive places find each other far more often than chance and the order
+        holds beyond the nearest frames); 'independent' otherwise.
+    share : float
+        :func:`route_share`.
+    continuity : float or None
+        :func:`route_continuity`; None when the share is below :data:`ORDER_SHARE` (not computed).
+    why : str
+        The figures and thresholds that decided.
+    """
+
+    kind: str
+    share: float
+    continuity: float | None
+    why: str
+
+
+def index_order(X: np.ndarray, places: np.ndarray | None = None) -> IndexOrder:
+    """Route, ordered map or independent places, from the map rows (and place labels) alone.
+
+    Parameters
+    ----------
+    X : ndarray of shape (n_rows, n_features)
+    places : ndarray of shape (n_rows,), int, or None (row i = place i)
+
+    Returns
+    -------
+    IndexOrder
     """
     share = route_share(X, places)
-    if share < ROUTE_SHARE:
-        return False, share, None, f"route share {share:.2f} < {ROUTE_SHARE}"
+    if share < ORDER_SHARE:
+        return IndexOrder("independent", share, None, f"route share {share:.2f} < {ORDER_SHARE}")
     continuity = route_continuity(X, places)
-    if continuity < ROUTE_CONTINUITY:
-        return False, share, continuity, (f"route share {share:.2f} ≥ {ROUTE_SHARE} but continuity {continuity:.2f} < "
-                                          f"{ROUTE_CONTINUITY}: snippets, not a route")
-    return True, share, continuity, f"route share {share:.2f} ≥ {ROUTE_SHARE}, continuity {continuity:.2f} ≥ {ROUTE_CONTINUITY}"
+    figures = f"route share {share:.2f}, continuity {continuity:.2f}"
+    if share >= ROUTE_SHARE and continuity >= ROUTE_CONTINUITY:
+        return IndexOrder("route", share, continuity, f"{figures}: a route (≥ {ROUTE_SHARE} and ≥ {ROUTE_CONTINUITY})")
+    if continuity >= ORDER_CONTINUITY:
+        return IndexOrder("ordered", share, continuity,
+                          f"{figures}: an ordered map (≥ {ORDER_SHARE} and ≥ {ORDER_CONTINUITY}; a route needs "
+                          f"≥ {ROUTE_SHARE} and ≥ {ROUTE_CONTINUITY})")
+    return IndexOrder("independent", share, continuity,
+                      f"{figures} < {ORDER_CONTINUITY}: no order beyond the nearest frames (snippets or pairs of "
+                      f"alike rows), independent places")

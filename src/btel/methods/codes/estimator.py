@@ -78,8 +78,8 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
     code : {'auto', 'periodic', 'blocks', 'random', 'binary', 'offset'}
         Code family (:mod:`btel.methods.codes.codebook`). 'periodic' (multi-scale square waves) for maps that
         are routes; 'random' for maps of independent places; 'binary' / 'offset' are BTE-C's codes.
-        'auto' chooses periodic or random from the map alone by the test ``auto`` uses
-        (:func:`btel.methods.auto.route_test`: route share and continuity); the family
+        'auto' chooses from the map alone by the test ``auto`` uses (:func:`btel.methods.auto.index_order`:
+        route share and continuity): periodic on a route or an ordered map, random on independent places; the family
         chosen is ``code_``, recorded in the model file and restored on load.
     n_codes : int, optional
         K, code columns (binary: exactly ⌈log2 N⌉). None: chosen by the planner.
@@ -213,14 +213,15 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
                 f"the {self.code} family has none. Use decode='exact'.")
 
     def _choose_family(self, X: np.ndarray, places: np.ndarray | None) -> tuple[str, str]:
-        """The code family and why: ``code`` itself, or for 'auto' periodic on a route, random otherwise."""
+        """The code family and why: ``code`` itself, or for 'auto' periodic on a route or an ordered map, random
+        on independent places."""
         if self.code != "auto":
             return self.code, "given"
-        from ..auto import route_test
+        from ..auto import index_order
 
-        is_route, _share, _continuity, why = route_test(X, places)
-        family = "periodic" if is_route else "random"
-        return family, f"code='auto': {why} → {family}"
+        order = index_order(X, places)
+        family = "random" if order.kind == "independent" else "periodic"
+        return family, f"code='auto': {order.why} → {family}"
 
     def _plan(self, n_places: int, d: int, budget: int | None, reserved: int,
               family: str | None = None) -> CodePlan:
