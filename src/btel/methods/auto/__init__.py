@@ -13,11 +13,11 @@ from __future__ import annotations
 from .localizer import AutoLocalizer
 from .rule import (ORDER_BITS_FACTOR, SHRINK_LSH_BITS_PER_DIMENSION, SHRINK_LSH_BYTES_PER_PLACE, SHRINK_LSH_MIN_RANK,
                    choose_method)
-from .statistics import (CONTINUITY_GAPS, CONTINUITY_REFERENCE, ORDER_CONTINUITY, ORDER_SHARE, ROUTE_CONTINUITY, ROUTE_SHARE,
+from .statistics import (CONTINUITY_GAPS, CONTINUITY_REFERENCE, ORDER_CONTINUITY, ROUTE_CONTINUITY, ROUTE_SHARE,
                          ROUTE_WINDOW, STAT_ROWS, IndexOrder, collision_bits, index_order, map_cone_ratio, route_continuity,
                          route_share)
 
 __all__ = ["AutoLocalizer", "CONTINUITY_GAPS", "CONTINUITY_REFERENCE", "IndexOrder", "ORDER_BITS_FACTOR", "ORDER_CONTINUITY",
-           "ORDER_SHARE", "ROUTE_CONTINUITY", "ROUTE_SHARE", "ROUTE_WINDOW", "SHRINK_LSH_BITS_PER_DIMENSION",
+           "ROUTE_CONTINUITY", "ROUTE_SHARE", "ROUTE_WINDOW", "SHRINK_LSH_BITS_PER_DIMENSION",
            "SHRINK_LSH_BYTES_PER_PLACE", "SHRINK_LSH_MIN_RANK", "STAT_ROWS", "choose_method", "collision_bits",
            "index_order", "map_cone_ratio", "route_continuity", "route_share"]

@@ -28,9 +28,10 @@ per map:
 2. **Route** → ``btel-codes`` with periodic codes (route-ordered codewords; the planner fills the
    budget) at every budget: on Gardens Point mapped by day they beat every other method from 4 KB
    to 256 KB. Mapped at night they lose to LSH at every budget (weak spots, below).
-3. **Ordered map, few effective bits** → the same periodic output codes when the route share is at
-   least :data:`ORDER_SHARE` = 0.1 (consecutive places find each other far more often than the ≈ 4/N
-   of independent places) and the codes ``lsh`` would store carry fewer than
+3. **Ordered map, few effective bits** → the same periodic output codes when the map is *ordered* —
+   its route continuity is at least :data:`ORDER_CONTINUITY` = 0.6 (rows a few places apart look more
+   alike than most, though the nearest row need not be the next frame; below) — and the codes ``lsh``
+   would store carry fewer than
    :data:`ORDER_BITS_FACTOR` (2) × :func:`collision_bits` = 2 × 2·log2 N *effective* bits per map row
    (:meth:`~btel.methods.baselines.lsh.LSHLocalizer.effective_bits`): its P bits, each counted whole
    when ``lsh`` centres and at :func:`~btel.methods.baselines.lsh.sign_bit_entropy` of the map's cone
@@ -62,24 +63,32 @@ per map:
    development maps it changed no choice: Nordland 16 KB has 23.8 effective bits against 47.2,
    64 KB (centred) 126; the synthetic route 14.6 at 4 KB and 60.2 at 16 KB against 44. How hard the
    queries' change of conditions is cannot be read from the map, and the hard synthetic route in
-   that band (and at 32 KB) stays a miss. Maps of independent places (share < 0.1: Gardens Point
-   permuted 0.05, synthetic independent places 0.00) keep LSH at any budget.
+   that band (and at 32 KB) stays a miss. Maps of independent places (continuity 0.50: Gardens
+   Point permuted, synthetic independent places) keep LSH at any budget.
 
-   And only when the route continuity is at least :data:`ORDER_CONTINUITY` = 0.6: the order must
-   hold beyond the nearest frames. The share reads only a row's nearest neighbour, and a map of
-   independent places in which pairs or triples of alike rows sit next to each other in the index
-   reaches it (the frontier issue's NetVLAD sets of independent places have route shares of
-   0.14–0.40). ``python benchmarks/bench_ordered_snippets.py`` cut the N = 600, d = 500 synthetic
-   route (in cones of ratio 0.84 and 0.95) into snippets in random order: snippets of 2 and 3 have
-   share 0.10–0.22 and continuity 0.49, and at 4 KB the effective-bits condition alone gave them
-   the codes, which lost all five rows at recall@0 (LSH 0.203 / 0.098 / 0.103 / 0.029 / 0.022 against
-   0.055 / 0.059 / 0.055 / 0.006 / 0.007). With the gate auto chose the better of the two in 36 of
-   40 rows (31 before); the four misses are snippets of 10 (continuity 0.68, like Nordland) at
-   4 KB, where LSH led at recall@0 and the two split 2–2 at recall@2. The threshold sits between
-   those pairs and triples (0.49–0.53, Gardens Point's snippets of 2 and 3 included; of 5
-   0.53–0.55, of 10 0.62) and the sparsest
-   real route of the development data (Nordland HOG, every 10th frame: 0.68 / 0.69); it was added
-   after the snippet benchmark and changed no development choice.
+   Ordered by the continuity, not by the route share. The first form of this step called a map
+   ordered when its route share reached 0.1 (consecutive places find each other far more often
+   than the ≈ 4/N of independent places). The share reads only a row's nearest neighbour, and that
+   is wrong both ways (``python benchmarks/bench_ordered_snippets.py``, two seeds):
+
+   - a map of independent places in which pairs or triples of alike rows sit next to each other in
+     the index reaches it (the frontier issue's NetVLAD sets of independent places have route shares
+     of 0.14–0.40). The N = 600, d = 500 synthetic route in cones of ratio 0.84 and 0.95, cut into
+     snippets of 2 and 3 in random order, has share 0.10–0.22 and continuity 0.49; at 4 KB the
+     effective-bits condition gave it the codes, which lost all five such rows at recall@0 (LSH
+     0.203 / 0.098 / 0.103 / 0.029 / 0.022 against 0.055 / 0.059 / 0.055 / 0.006 / 0.007);
+   - a route whose frames are noisy seldom has the next frame as the nearest row: a synthetic route
+     of N = 1500 at d = 48 has share 0.05–0.07 and continuity 0.94–0.95, and the codes beat LSH on
+     it at 2 and 4 KB (recall@2 0.133 / 0.089 / 0.025 vs 0.064 / 0.022 / 0.004 at 2 KB).
+
+   With the continuity the step chose the better of the two in 36 of the 40 snippet rows (31 with
+   the share) and 8 of the 12 noisy-route rows (5). The misses: snippets of 10 (continuity 0.68,
+   like Nordland) at 4 KB, where LSH led at recall@0 and the two split 2–2 at recall@2; the noisy
+   route at 8 KB (one bound's worth of centred bits: LSH 0.608 / 0.243 against 0.249 / 0.161 on the
+   mild and easy changes) and mild at 4 KB (0.204 vs 0.193). The threshold 0.6 sits between pairs
+   and triples of alike rows (0.49–0.53, Gardens Point's snippets of 2 and 3 included; of 5
+   0.53–0.55, of 10 0.62) and the sparsest real route of the development data (Nordland HOG, every
+   10th frame: 0.68 / 0.69). Set after the snippet benchmark; no development choice changed.
 4. **Otherwise (independent places, or many bits)** → if cosine brute force on shrinkage-whitened
    rows fits the budget (or there is no budget), that (exact search); else ``lsh`` (asymmetric
    scoring) with ``whiten="shrink"`` when the budget gives at least
@@ -150,7 +159,7 @@ from typing import Any
 import numpy as np
 
 from ...storage import format_bytes
-from .statistics import ORDER_CONTINUITY, ORDER_SHARE, collision_bits, index_order, map_cone_ratio
+from .statistics import ORDER_CONTINUITY, collision_bits, index_order, map_cone_ratio
 
 __all__ = ["ORDER_BITS_FACTOR", "SHRINK_LSH_BITS_PER_DIMENSION", "SHRINK_LSH_BYTES_PER_PLACE", "SHRINK_LSH_MIN_RANK",
            "choose_method"]
@@ -186,8 +195,7 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
     per_place = None if budget is None else budget / n_rows
     stats = {"route_share": round(share, 4), "bytes_per_place": None if per_place is None else round(per_place, 2),
              "n_places": int(n_places), "n_rows": int(n_rows), "n_features": int(d)}
-    if continuity is not None:
-        stats["route_continuity"] = round(continuity, 4)
+    stats["route_continuity"] = round(continuity, 4)
     white = (lambda default: default) if whiten is None else (lambda default: whiten)
     bpp = "no budget" if per_place is None else f"{per_place:.1f} B per map row"
     lsh = {"method": "lsh", "params": {"whiten": white(None)}, "reason": f"fallback: plain LSH ({bpp})"}

@@ -11,7 +11,7 @@ import numpy as np
 
 from ...frontend import normalize_rows
 
-__all__ = ["CONTINUITY_GAPS", "CONTINUITY_REFERENCE", "IndexOrder", "ORDER_CONTINUITY", "ORDER_SHARE", "ROUTE_CONTINUITY",
+__all__ = ["CONTINUITY_GAPS", "CONTINUITY_REFERENCE", "IndexOrder", "ORDER_CONTINUITY", "ROUTE_CONTINUITY",
            "ROUTE_SHARE", "ROUTE_WINDOW", "STAT_ROWS", "collision_bits", "index_order", "map_cone_ratio", "route_continuity",
            "route_share"]
 
@@ -25,11 +25,9 @@ STAT_ROWS = 2000
 CONTINUITY_GAPS = (3, 8)
 #: Route only when the continuity is at least this (0.5: no order; 1: a perfectly smooth route).
 ROUTE_CONTINUITY = 0.75
-#: A map whose route share is at least this (far above the ≈ 4/N of independent places) is ordered
-#: when its continuity also reaches :data:`ORDER_CONTINUITY` (rule, step 3).
-ORDER_SHARE = 0.1
-#: An ordered map's order must hold beyond the nearest frame: continuity at least this (0.5 when it
-#: does not; pairs and triples of alike rows in random order stay at ≈ 0.5; Nordland HOG 0.68).
+#: A map is ordered (rule, step 3) when its continuity is at least this: the order holds beyond the
+#: nearest frames (0.5 when it does not; pairs and triples of alike rows in random order stay at ≈ 0.5;
+#: Nordland HOG 0.68).
 ORDER_CONTINUITY = 0.6
 #: Other map rows (evenly spaced) each probe's similarities are ranked among, at most.
 CONTINUITY_REFERENCE = 1024
@@ -162,20 +160,19 @@ class IndexOrder:
     ----------
     kind : {'route', 'ordered', 'independent'}
         'route': route share ≥ :data:`ROUTE_SHARE` and continuity ≥ :data:`ROUTE_CONTINUITY`;
-        'ordered': route share ≥ :data:`ORDER_SHARE` and continuity ≥ :data:`ORDER_CONTINUITY` (a route
-        by the looser test: consecutive places find each other far more often than chance and the order
-        holds beyond the nearest frames); 'independent' otherwise.
+        'ordered': otherwise continuity ≥ :data:`ORDER_CONTINUITY` (rows a few places apart look more
+        alike than most, though the nearest row need not be the next frame); 'independent' otherwise.
     share : float
         :func:`route_share`.
-    continuity : float or None
-        :func:`route_continuity`; None when the share is below :data:`ORDER_SHARE` (not computed).
+    continuity : float
+        :func:`route_continuity`.
     why : str
         The figures and thresholds that decided.
     """
 
     kind: str
     share: float
-    continuity: float | None
+    continuity: float
     why: str
 
 
@@ -191,17 +188,14 @@ def index_order(X: np.ndarray, places: np.ndarray | None = None) -> IndexOrder:
     -------
     IndexOrder
     """
-    share = route_share(X, places)
-    if share < ORDER_SHARE:
-        return IndexOrder("independent", share, None, f"route share {share:.2f} < {ORDER_SHARE}")
-    continuity = route_continuity(X, places)
+    share, continuity = route_share(X, places), route_continuity(X, places)
     figures = f"route share {share:.2f}, continuity {continuity:.2f}"
     if share >= ROUTE_SHARE and continuity >= ROUTE_CONTINUITY:
         return IndexOrder("route", share, continuity, f"{figures}: a route (≥ {ROUTE_SHARE} and ≥ {ROUTE_CONTINUITY})")
     if continuity >= ORDER_CONTINUITY:
         return IndexOrder("ordered", share, continuity,
-                          f"{figures}: an ordered map (≥ {ORDER_SHARE} and ≥ {ORDER_CONTINUITY}; a route needs "
-                          f"≥ {ROUTE_SHARE} and ≥ {ROUTE_CONTINUITY})")
+                          f"{figures}: an ordered map (continuity ≥ {ORDER_CONTINUITY}; a route needs share ≥ "
+                          f"{ROUTE_SHARE} and continuity ≥ {ROUTE_CONTINUITY})")
     return IndexOrder("independent", share, continuity,
                       f"{figures} < {ORDER_CONTINUITY}: no order beyond the nearest frames (snippets or pairs of "
                       f"alike rows), independent places")
