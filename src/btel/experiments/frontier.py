@@ -21,8 +21,9 @@ synthetic independent places   256-D, N = 1000,        recall@0     independent 
                                rows permuted
 ============================== ======================= ============ ==================================
 
-The "btel-codes" rows are the periodic family (btel-codes' default) and "btel-codes random" the random
-one; ``code='auto'`` is one of the two by the map's route share (the same statistic auto uses).
+The "btel-codes" rows are the periodic family and "btel-codes random" the random one;
+btel-codes' default ``code='auto'`` is one of the two by the map's index order (the test auto uses:
+periodic on a route or an ordered map).
 
 Per map and budget the *oracle* is the best row of the table at that budget (every method and
 variant that fits); ``auto`` (:mod:`btel.methods.auto`) chooses from the map and the budget alone, and the
