@@ -6,13 +6,14 @@ NetVLAD, the same with map and query rows permuted together, Nordland HOG both d
 synthetic route and synthetic independent places; ``btel experiment frontier``) and is not tuned
 per map:
 
-1. **Route or independent places.** The *route share* is the share of map rows whose nearest other
-   map row (cosine, on L2-normalised rows; up to :data:`STAT_ROWS` rows sampled evenly) lies within
-   :data:`ROUTE_WINDOW` = 2 places of it. Consecutive frames of a route look alike (Gardens Point
-   0.975); a map of independent places does not (Gardens Point permuted 0.05, synthetic independent
-   places 0.00). Route when the share is at least :data:`ROUTE_SHARE` = 0.5: two NetVLAD sets of
-   independent places have 0.14–0.40, so 0.5 keeps them on the LSH side; Nordland
-   HOG (every 10th frame, 0.27 / 0.31) and the synthetic route (0.12) fall on that side too.
+1. **Route, ordered map or independent places** (:func:`index_order`). The *route share* is the
+   share of map rows whose nearest other map row (cosine, on L2-normalised rows; up to
+   :data:`STAT_ROWS` rows sampled evenly) lies within :data:`ROUTE_WINDOW` = 2 places of it.
+   Consecutive frames of a route look alike (Gardens Point 0.975); a map of independent places does
+   not (Gardens Point permuted 0.05, synthetic independent places 0.00). Route when the share is at
+   least :data:`ROUTE_SHARE` = 0.5: two NetVLAD sets of independent places have 0.14–0.40, so 0.5
+   keeps them off the route branch; Nordland HOG (every 10th frame, 0.27 / 0.31) and the synthetic
+   route (0.12) fall below it too and are *ordered* maps (step 3).
    And only when the *route continuity* (:func:`route_continuity`: the mean percentile rank of a
    row's cosine to the rows 3 … 8 places away, among its cosines to the map; 0.5 when the order says
    nothing) is at least :data:`ROUTE_CONTINUITY` = 0.75, halfway to a perfectly smooth route. The
