@@ -207,19 +207,19 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
     filling = "periodic output codes filling the budget"
     why = None
     if order.kind == "route":
-        why = f"{where}, {bpp}: {filling}"
+        why = f"route ({where}), {bpp}: {filling}"
     elif order.kind == "ordered" and budget is not None:
         cone = map_cone_ratio(X)
         effective = LSHLocalizer().effective_bits(n_rows, d, budget, cone)
         stats.update({"cone_ratio": round(cone, 4), "lsh_effective_bits": round(effective, 1)})
         if effective < ORDER_BITS_FACTOR * few:
-            why = (f"{where}, where LSH's codes would carry ≈ {effective:.1f} effective bits per map row "
+            why = (f"ordered map ({where}) where LSH's codes would carry ≈ {effective:.1f} effective bits per map row "
                    f"({8 * per_place:.0f} bits of budget, cone ratio {cone:.2f}) < {ORDER_BITS_FACTOR:g} × "
                    f"2·log2 N = {ORDER_BITS_FACTOR * few:.1f}: sign codes that weak collide or barely separate "
                    f"places, so {filling}")
     if why is not None:  # output codes, plain LSH as the fallback
         return [{**c, **stats} for c in ({**codes, "reason": why}, lsh)]
-    kind = "independent places" if order.kind == "independent" else "an ordered map with bits to spare for LSH"
+    kind = "independent places" if order.kind == "independent" else "ordered map with bits to spare for LSH"
     front = FrontEnd(normalize="l2", whiten=white("shrink"), budget=budget)
     exact = BruteForceNN.planned_bytes(n_rows, front.n_features_out(d)) + front.planned_bytes(d, n_rows)
     if budget is None or exact <= budget:

@@ -167,7 +167,7 @@ class IndexOrder:
     continuity : float
         :func:`route_continuity`.
     why : str
-        The figures and thresholds that decided.
+        The figures and thresholds that decided (without the kind itself).
     """
 
     kind: str
@@ -189,13 +189,12 @@ def index_order(X: np.ndarray, places: np.ndarray | None = None) -> IndexOrder:
     IndexOrder
     """
     share, continuity = route_share(X, places), route_continuity(X, places)
-    figures = f"route share {share:.2f}, continuity {continuity:.2f}"
     if share >= ROUTE_SHARE and continuity >= ROUTE_CONTINUITY:
-        return IndexOrder("route", share, continuity, f"{figures}: a route (≥ {ROUTE_SHARE} and ≥ {ROUTE_CONTINUITY})")
+        return IndexOrder("route", share, continuity, f"route share {share:.2f} ≥ {ROUTE_SHARE}, continuity "
+                                                      f"{continuity:.2f} ≥ {ROUTE_CONTINUITY}")
+    figures = f"route share {share:.2f}, continuity {continuity:.2f}"
     if continuity >= ORDER_CONTINUITY:
-        return IndexOrder("ordered", share, continuity,
-                          f"{figures}: an ordered map (continuity ≥ {ORDER_CONTINUITY}; a route needs share ≥ "
-                          f"{ROUTE_SHARE} and continuity ≥ {ROUTE_CONTINUITY})")
+        short = f"share < {ROUTE_SHARE}" if share < ROUTE_SHARE else f"continuity < {ROUTE_CONTINUITY}"
+        return IndexOrder("ordered", share, continuity, f"{figures} ≥ {ORDER_CONTINUITY}; not a route: {short}")
     return IndexOrder("independent", share, continuity,
-                      f"{figures} < {ORDER_CONTINUITY}: no order beyond the nearest frames (snippets or pairs of "
-                      f"alike rows), independent places")
+                      f"{figures} < {ORDER_CONTINUITY}: no order beyond the nearest frames")

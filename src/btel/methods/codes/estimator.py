@@ -223,7 +223,8 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
 
         order = index_order(X, places)
         family = "random" if order.kind == "independent" else "periodic"
-        return family, f"code='auto': {order.why} → {family}"
+        kind = {"route": "a route", "ordered": "an ordered map", "independent": "independent places"}[order.kind]
+        return family, f"code='auto': {kind} ({order.why}) → {family}"
 
     def _plan(self, n_places: int, d: int, budget: int | None, reserved: int,
               family: str | None = None) -> CodePlan:
