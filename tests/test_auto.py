@@ -316,3 +316,16 @@ def test_index_order_tells_a_route_an_ordered_map_and_independent_places(smooth_
     # btel-codes code='auto' reads the same test: periodic codes on the ordered map, random on the snippets.
     assert make_method("btel-codes", code="auto", budget="8KB", random_state=0).fit(sparse).code_ == "periodic"
     assert make_method("btel-codes", code="auto", budget="8KB", random_state=0).fit(X[snippets(300, 3)]).code_ == "random"
+
+
+def test_route_share_of_a_large_map_searches_spans_of_consecutive_places() -> None:
+    """Past ``search_rows`` the share searches evenly spaced spans (bounded cost): a route stays a route, its
+    permutation independent places (chance is 4 / span: 0.02 for the spans of 200 rows here, 0.0005 at the
+    default 8192), and two stacked traverses (place labels) still a route."""
+    rng = np.random.default_rng(5)
+    walk = np.cumsum(rng.normal(size=(3000, 16)), axis=0).astype(np.float32)
+    assert route_share(walk, search_rows=1600) > 0.9 and route_share(walk, search_rows=1600) == pytest.approx(
+        route_share(walk), abs=0.05)
+    assert route_share(walk[rng.permutation(3000)], search_rows=1600) < 0.05
+    both = np.concatenate([walk, walk + 0.01 * rng.normal(size=walk.shape).astype(np.float32)])
+    assert route_share(both, np.concatenate([np.arange(3000)] * 2), search_rows=1600) > 0.9

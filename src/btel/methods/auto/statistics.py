@@ -12,8 +12,8 @@ import numpy as np
 from ...frontend import normalize_rows
 
 __all__ = ["CONTINUITY_GAPS", "CONTINUITY_REFERENCE", "IndexOrder", "ORDER_CONTINUITY", "ROUTE_CONTINUITY",
-           "ROUTE_SHARE", "ROUTE_WINDOW", "STAT_ROWS", "collision_bits", "index_order", "map_cone_ratio", "route_continuity",
-           "route_share"]
+           "ROUTE_SHARE", "ROUTE_WINDOW", "SHARE_SEARCH_ROWS", "SHARE_SPANS", "STAT_ROWS", "collision_bits", "index_order",
+           "map_cone_ratio", "route_continuity", "route_share"]
 
 #: Places within which the nearest other map row must lie for a row to count as "route-like".
 ROUTE_WINDOW = 2
@@ -21,6 +21,10 @@ ROUTE_WINDOW = 2
 ROUTE_SHARE = 0.5
 #: Map rows the statistic samples (evenly spaced) at most.
 STAT_ROWS = 2000
+#: The route share searches maps of up to this many rows whole, larger ones in spans (:func:`route_share`).
+SHARE_SEARCH_ROWS = 65536
+#: Spans of consecutive places the route share searches in a larger map.
+SHARE_SPANS = 8
 #: Places apart (from, to) of the rows whose similarity the route continuity ranks.
 CONTINUITY_GAPS = (3, 8)
 #: Route only when the continuity is at least this (0.5: no order; 1: a perfectly smooth route).
@@ -61,7 +65,7 @@ def collision_bits(n_rows: int) -> float:
 
 
 def route_share(X: np.ndarray, places: np.ndarray | None = None, *, window: int = ROUTE_WINDOW,
-                max_rows: int = STAT_ROWS) -> float:
+                max_rows: int = STAT_ROWS, search_rows: int = SHARE_SEARCH_ROWS) -> float:
     """Share of map rows whose nearest other map row (cosine) lies within ``window`` places.
 
     Parameters
@@ -70,7 +74,12 @@ def route_share(X: np.ndarray, places: np.ndarray | None = None, *, window: int 
     places : ndarray of shape (n_rows,), int, or None (row i = place i)
     window : int
     max_rows : int
-        Rows sampled evenly as probes (the whole map is searched).
+        Rows sampled evenly as probes.
+    search_rows : int
+        Maps of up to this many rows are searched whole; a larger map in :data:`SHARE_SPANS` evenly
+        spaced spans of consecutive places (search_rows rows in all), each probe within its own span,
+        so the cost stays bounded at any N. A route's nearest frame lies in its span; a revisit of the
+        place far along the route may not, which can only raise the share.
 
     Returns
     -------
@@ -78,24 +87,43 @@ def route_share(X: np.ndarray, places: np.ndarray | None = None, *, window: int 
     """
     n = X.shape[0]
     labels = np.arange(n) if places is None else np.asarray(places, dtype=np.int64)
-    probes = np.unique(np.linspace(0, n - 1, min(n, max_rows)).round().astype(np.int64))
-    P = _unit_rows(X, probes)
-    # The nearest other row of every probe, over blocks of the map (memory-mapped maps are never copied whole).
-    best = np.full(probes.size, -np.inf, dtype=np.float32)
-    other = np.full(probes.size, -1, dtype=np.int64)
-    step = max(1, min(n, (1 << 22) // max(probes.size, X.shape[1], 1)))
-    for start in range(0, n, step):
-        block = _unit_rows(X, np.arange(start, min(n, start + step)))
+    if n <= search_rows:
+        spans = [np.arange(n)]
+    else:
+        by_place = np.argsort(labels, kind="stable")
+        length = search_rows // SHARE_SPANS
+        spans = [np.sort(by_place[s : s + length])
+                 for s in np.linspace(0, n - length, SHARE_SPANS).round().astype(np.int64)]
+    near: list[np.ndarray] = []
+    for rows in spans:
+        picks = np.unique(np.linspace(0, rows.size - 1, min(rows.size, max_rows // len(spans))).round()
+                          .astype(np.int64))
+        probes, other = rows[picks], _nearest_other(X, rows, picks)
+        valid = other >= 0
+        near.append(np.abs(labels[other[valid]] - labels[probes[valid]]) <= window)
+    hits = np.concatenate(near)
+    return float(hits.mean()) if hits.size else 0.0
+
+
+def _nearest_other(X: np.ndarray, rows: np.ndarray, picks: np.ndarray) -> np.ndarray:
+    """For each probe ``rows[picks]``, its nearest (cosine) row among ``rows`` other than itself; −1 if none.
+
+    Read in blocks of rows (a memory-mapped map is never copied whole).
+    """
+    P = _unit_rows(X, rows[picks])
+    best = np.full(picks.size, -np.inf, dtype=np.float32)
+    other = np.full(picks.size, -1, dtype=np.int64)
+    step = max(1, min(rows.size, (1 << 22) // max(picks.size, X.shape[1], 1)))
+    for start in range(0, rows.size, step):
+        block = _unit_rows(X, rows[start : start + step])
         scores = P @ block.T
-        own = (probes >= start) & (probes < start + block.shape[0])
-        scores[np.flatnonzero(own), probes[own] - start] = -np.inf  # the probe itself is not its neighbour
+        own = (picks >= start) & (picks < start + block.shape[0])
+        scores[np.flatnonzero(own), picks[own] - start] = -np.inf  # the probe itself is not its neighbour
         top = np.argmax(scores, axis=1)
-        value = scores[np.arange(probes.size), top]
+        value = scores[np.arange(picks.size), top]
         better = value > best
-        best[better], other[better] = value[better], start + top[better]
-    valid = other >= 0
-    near = np.abs(labels[other[valid]] - labels[probes[valid]]) <= window
-    return float(near.mean()) if near.size else 0.0
+        best[better], other[better] = value[better], rows[start + top[better]]
+    return other
 
 
 def route_continuity(X: np.ndarray, places: np.ndarray | None = None, *, gaps: tuple[int, int] = CONTINUITY_GAPS,
