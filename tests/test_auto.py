@@ -11,7 +11,8 @@ import btel
 from btel.datasets import synthetic_route
 from btel.methods.auto import (ORDER_BITS_FACTOR, ORDER_CONTINUITY, ROUTE_CONTINUITY, ROUTE_SHARE, choose_method, collision_bits,
                                route_continuity, route_share)
-from btel.exceptions import BudgetTooSmallError, ModelFileError
+from btel.exceptions import (BudgetTooSmallError, InvalidDescriptorsError, InvalidParameterError, ModelFileError,
+                             NotEnoughPlacesError)
 from btel.methods import make_method
 
 
@@ -264,12 +265,36 @@ def test_route_continuity_is_a_rank_in_zero_one_for_any_map(n_rows: int, dim: in
     X = rng.normal(size=(n_rows, dim)).astype(np.float32)
     X[rng.integers(0, n_rows)] = X[0]
     labels = np.repeat(np.arange(-(-n_rows // repeats)), repeats)[:n_rows]
+    if labels.max() < 1:  # one place: no map (NotEnoughPlacesError, as a fit)
+        with pytest.raises(NotEnoughPlacesError):
+            route_continuity(X, labels)
+        return
     value = route_continuity(X, labels)
     assert 0.0 <= value <= 1.0
 
 
+@pytest.mark.parametrize("bad, error", [
+    (np.zeros(5, dtype=np.float32), InvalidDescriptorsError),               # 1-D
+    (np.full((5, 3), np.nan, dtype=np.float32), InvalidDescriptorsError),   # NaN
+    (np.zeros((0, 4), dtype=np.float32), InvalidDescriptorsError),          # empty
+    (np.ones((1, 4), dtype=np.float32), NotEnoughPlacesError),              # N = 1
+    (np.array([["a", "b"], ["c", "d"]]), InvalidDescriptorsError),          # not numbers
+])
+def test_map_statistics_refuse_bad_maps_with_the_fit_errors(bad, error) -> None:
+    from btel.methods.auto import index_order, map_cone_ratio
+
+    for statistic in (route_share, route_continuity, index_order):
+        with pytest.raises(error):
+            statistic(bad)
+    if error is InvalidDescriptorsError:
+        with pytest.raises(error):
+            map_cone_ratio(bad)
+    with pytest.raises(InvalidParameterError, match="places"):
+        route_share(np.ones((4, 3), dtype=np.float32), [0, 1, 1, 5])
+
+
 @settings(max_examples=25, deadline=None)
-@given(n_rows=st.integers(1, 80), dim=st.integers(3, 8), seed=st.integers(0, 2**16))
+@given(n_rows=st.integers(2, 80), dim=st.integers(3, 8), seed=st.integers(0, 2**16))
 def test_route_share_is_the_share_of_nearest_other_rows_within_the_window(n_rows: int, dim: int, seed: int) -> None:
     """The blockwise search equals a full cosine matrix: every probe's nearest row other than itself (d ≥ 3:
     on a line every row ties with half the map)."""

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..._validation import check_descriptors, map_places
 from ...frontend import normalize_rows
 
 __all__ = ["CONTINUITY_GAPS", "CONTINUITY_REFERENCE", "IndexOrder", "ORDER_CONTINUITY", "ROUTE_CONTINUITY",
@@ -42,8 +43,15 @@ def _unit_rows(X: np.ndarray, rows: np.ndarray) -> np.ndarray:
     return normalize_rows(np.ascontiguousarray(X[rows], dtype=np.float32), "l2")
 
 
+def _checked(X: np.ndarray, places: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+    """The map and its place labels validated as a fit validates them (a float32 map is not copied)."""
+    X = check_descriptors(X)
+    return X, map_places(places, X.shape[0])[0]
+
+
 def map_cone_ratio(X: np.ndarray) -> float:
     """:func:`~btel.methods.baselines.lsh.cone_ratio` of the L2-normalised map rows, read in blocks."""
+    X = check_descriptors(X)
     n, d = X.shape
     total, squares = np.zeros(d), 0.0
     step = max(1, (1 << 22) // max(d, 1))
@@ -68,6 +76,9 @@ def route_share(X: np.ndarray, places: np.ndarray | None = None, *, window: int 
                 max_rows: int = STAT_ROWS, search_rows: int = SHARE_SEARCH_ROWS) -> float:
     """Share of map rows whose nearest other map row (cosine) lies within ``window`` places.
 
+    Raises :class:`~btel.exceptions.InvalidDescriptorsError` (not 2-D numbers, NaN/inf) or
+    :class:`~btel.exceptions.InvalidParameterError` (bad place labels) as a fit does.
+
     Parameters
     ----------
     X : ndarray of shape (n_rows, n_features)
@@ -85,8 +96,13 @@ def route_share(X: np.ndarray, places: np.ndarray | None = None, *, window: int 
     -------
     float in [0, 1]
     """
+    return _route_share(*_checked(X, places), window=window, max_rows=max_rows, search_rows=search_rows)
+
+
+def _route_share(X: np.ndarray, places: np.ndarray | None, *, window: int = ROUTE_WINDOW, max_rows: int = STAT_ROWS,
+                 search_rows: int = SHARE_SEARCH_ROWS) -> float:
     n = X.shape[0]
-    labels = np.arange(n) if places is None else np.asarray(places, dtype=np.int64)
+    labels = np.arange(n) if places is None else places
     if n <= search_rows:
         spans = [np.arange(n)]
     else:
@@ -147,8 +163,13 @@ def route_continuity(X: np.ndarray, places: np.ndarray | None = None, *, gaps: t
     -------
     float in [0, 1]; 0.5 when no probe has rows that far apart (a map of fewer than 4 places).
     """
+    return _route_continuity(*_checked(X, places), gaps=gaps, max_rows=max_rows, n_reference=n_reference)
+
+
+def _route_continuity(X: np.ndarray, places: np.ndarray | None, *, gaps: tuple[int, int] = CONTINUITY_GAPS,
+                      max_rows: int = STAT_ROWS, n_reference: int = CONTINUITY_REFERENCE) -> float:
     n = X.shape[0]
-    labels = np.arange(n) if places is None else np.asarray(places, dtype=np.int64)
+    labels = np.arange(n) if places is None else places
     order = np.argsort(labels, kind="stable")
     sorted_labels = labels[order]
     probes = np.unique(np.linspace(0, n - 1, min(n, max_rows)).round().astype(np.int64))
@@ -216,7 +237,8 @@ def index_order(X: np.ndarray, places: np.ndarray | None = None) -> IndexOrder:
     -------
     IndexOrder
     """
-    share, continuity = route_share(X, places), route_continuity(X, places)
+    X, places = _checked(X, places)
+    share, continuity = _route_share(X, places), _route_continuity(X, places)
     if share >= ROUTE_SHARE and continuity >= ROUTE_CONTINUITY:
         return IndexOrder("route", share, continuity, f"route share {share:.2f} ≥ {ROUTE_SHARE}, continuity "
                                                       f"{continuity:.2f} ≥ {ROUTE_CONTINUITY}")
