@@ -241,10 +241,12 @@ def test_liblinear_solver_and_fixed_alpha(harder) -> None:
         assert np.mean(np.abs(model.predict(Q) - truth) <= 10) > 0.3
 
 
-def test_registry_entry_is_budget_filling_periodic_codes(harder) -> None:
-    X, _ = harder
+def test_registry_entry_is_budget_filling_codes_of_the_family_the_map_asks_for(harder) -> None:
+    X, _ = harder   # a synthetic route: an ordered map (continuity ≈ 0.9)
     model = make_method("btel-codes", budget="16KB").fit(X)
-    assert model.code == "periodic" and 15_000 < model.nbytes <= 16_000
+    assert model.code == "auto" and model.code_ == "periodic" and 15_000 < model.nbytes <= 16_000
+    shuffled = make_method("btel-codes", budget="16KB").fit(X[np.random.default_rng(0).permutation(len(X))])
+    assert shuffled.code_ == "random" and 15_000 < shuffled.nbytes <= 16_000
     assert "btel-codes" in __import__("btel.methods", fromlist=["DESCRIPTIONS"]).DESCRIPTIONS
 
 

@@ -53,9 +53,9 @@ REGISTRY: dict[str, tuple[Callable[..., PlaceLocalizer], str]] = {
                "BTEL with 20 KTS regions, a region classifier and one BTE-C tree each"),
     "btel-auto": (partial(BTELocalizer, scheme="compressed", n_regions="auto"),
                   "BTEL with the number of regions chosen by the KTS penalty"),
-    "btel-codes": (partial(CodeLocalizer, code="periodic"),
-                   "BTEL beyond the binary index: K ≥ log2 N implicit periodic output codes, ridge-fitted, "
-                   "4-bit weights, K and d' chosen to fill the budget"),
+    "btel-codes": (CodeLocalizer,
+                   "BTEL beyond the binary index: K ≥ log2 N implicit output codes (periodic on a route or an "
+                   "ordered map, random on independent places), ridge-fitted, 4-bit weights, K and d' filling the budget"),
     "ryth": (RYTHLocalizer, "RYTH: residues of the place index modulo co-prime periods (Yu et al. 2018)"),
     **{name: (factory, _BASELINE_DESCRIPTIONS[name]) for name, factory in BASELINES.items()},
     "rabitq": (RaBitQLocalizer, "RaBitQ: seeded rotation (0 B), D dims × B bits + row factors, filling the budget"),
