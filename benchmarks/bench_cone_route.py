@@ -25,7 +25,7 @@ import os
 import time
 
 import numpy as np
-from _common import key_recall, write_results
+from _common import cone_direction, key_recall, write_results
 
 from btel.datasets import synthetic_route
 from btel.frontend import normalize_rows
@@ -49,8 +49,7 @@ def main() -> None:
         for n_places, dim, budgets in SHAPES:
             for setting, shift, noise in SETTINGS:
                 route = synthetic_route(n_places, dim, condition_shift=shift, noise=noise, seed=31)
-                direction = np.random.default_rng(9).normal(size=dim).astype(np.float32)
-                direction *= np.linalg.norm(route.map, axis=1).mean() / np.linalg.norm(direction)
+                direction = cone_direction(route.map)
                 for offset in OFFSETS:
                     X, Q = route.map + offset * direction, route.queries + offset * direction
                     cone, share = cone_ratio(normalize_rows(X)), route_share(X)

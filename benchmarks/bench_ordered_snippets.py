@@ -33,7 +33,7 @@ import os
 import time
 
 import numpy as np
-from _common import key_recall, write_results
+from _common import cone_direction, key_recall, snippet_order, write_results
 
 from btel.datasets import synthetic_route
 from btel.frontend import normalize_rows
@@ -83,12 +83,10 @@ def main() -> None:
     with limit_threads(1):
         for setting, shift, noise in SETTINGS:
             route = synthetic_route(N_PLACES, DIM, condition_shift=shift, noise=noise, seed=31)
-            direction = np.random.default_rng(9).normal(size=DIM).astype(np.float32)
-            direction *= np.linalg.norm(route.map, axis=1).mean() / np.linalg.norm(direction)
+            direction = cone_direction(route.map)
             for offset in OFFSETS:
                 for length in SNIPPETS:
-                    snippets = np.arange(N_PLACES // length * length).reshape(-1, length)
-                    order = np.concatenate(snippets[np.random.default_rng(length).permutation(len(snippets))])
+                    order = snippet_order(N_PLACES, length)
                     X, Q = (route.map + offset * direction)[order], (route.queries + offset * direction)[order]
                     cone, share, continuity = cone_ratio(normalize_rows(X)), route_share(X), route_continuity(X)
                     for budget in BUDGETS:

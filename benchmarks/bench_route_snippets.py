@@ -23,7 +23,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _common import key_recall, write_results
+from _common import key_recall, snippet_order, write_results
 
 from btel.methods import make_method
 from btel.methods.auto import route_continuity, route_share
@@ -47,9 +47,7 @@ def main() -> None:
     with limit_threads(1):
         for mapped, (X, Q) in (("day", (day, night)), ("night", (night, day))):
             for length in SNIPPETS:
-                usable = X.shape[0] // length * length
-                snippets = np.arange(usable).reshape(-1, length)
-                order = np.concatenate(snippets[np.random.default_rng(length).permutation(len(snippets))])
+                order = snippet_order(X.shape[0], length)
                 Xs, Qs = X[order], Q[order]
                 share, continuity = route_share(Xs), route_continuity(Xs)
                 for budget in BUDGETS:
