@@ -81,9 +81,9 @@ def test_demo_runs_and_writes_a_run_folder(tmp_path: Path) -> None:
                  "--out", out)
     assert result.exit_code == 0, result.output
     metrics = json.loads((out / "metrics.json").read_text())
-    # Brute force is always there, as the unbudgeted reference row.
-    assert [r["name"] for r in metrics["results"]] == ["btel-c", "btel-r", "bruteforce"]
-    assert [r["reference"] for r in metrics["results"]] == [False, False, True]
+    # Brute force is always there, as the unbudgeted reference rows: cosine, and on shrinkage-whitened rows.
+    assert [r["name"] for r in metrics["results"]] == ["btel-c", "btel-r", "bruteforce", "bruteforce shrink"]
+    assert [r["reference"] for r in metrics["results"]] == [False, False, True, True]
     assert all(r["nbytes"] <= 20_000 for r in metrics["results"] if not r["reference"])
     assert (out / "recall_vs_tolerance.png").stat().st_size > 0
 

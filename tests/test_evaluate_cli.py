@@ -48,13 +48,14 @@ def test_methods_that_do_not_fit_become_rows_and_are_listed_before_fitting(route
                  "--param", "btel-c:progress=false", "--no-progress", "--out", out)
     assert result.exit_code == 3, result.output
     text = result.output
-    assert "2 of 5 rows cannot run" in text
-    first_fit = text.index("[1/5] fitting")
+    assert "2 of 6 rows cannot run" in text
+    first_fit = text.index("[1/6] fitting")
     assert text.index("itq: does not fit") < first_fit and text.index("seqslam: does not fit") < first_fit
     rows = {r["method"]: r for r in _csv_rows(out / "metrics.csv")}
-    assert list(rows) == ["btel-c", "itq", "seqslam", "pq", "bruteforce"]
+    assert list(rows) == ["btel-c", "itq", "seqslam", "pq", "bruteforce", "bruteforce shrink"]
     assert {m: r["status"] for m, r in rows.items()} == {
-        "btel-c": "ok", "itq": "does not fit", "seqslam": "does not fit", "pq": "ok", "bruteforce": "ok"}
+        "btel-c": "ok", "itq": "does not fit", "seqslam": "does not fit", "pq": "ok", "bruteforce": "ok",
+        "bruteforce shrink": "ok"}
     assert "too small for ITQ" in rows["itq"]["reason"] and rows["pq"]["recall@0"] != ""
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["run"]["complete"] is True
@@ -147,17 +148,29 @@ def test_existing_folder_and_ground_truth_counts_are_checked_before_any_fit(rout
 # -- 4: brute force is the unbudgeted reference, in demo and evaluate alike --------------------------------
 def test_brute_force_is_always_the_unbudgeted_reference(route_files, tmp_path: Path) -> None:
     db, q = route_files
-    for args in (["evaluate", "--db", db, "--queries", q, "--methods", "pq,bruteforce"],
-                 ["demo", "--places", "200", "--dim", "32", "--methods", "pq"]):
+    # Added by the command: cosine brute force and the same on shrinkage-whitened rows, both unbudgeted.
+    # Named in --methods: the user's own reference, one row.
+    for args, names in ((["evaluate", "--db", db, "--queries", q, "--methods", "pq,bruteforce"], ["bruteforce"]),
+                        (["demo", "--places", "200", "--dim", "32", "--methods", "pq"],
+                         ["bruteforce", "bruteforce shrink"])):
         out = tmp_path / args[0]
         result = run(*args, "--budget", "5KB", "--out", out, "--no-progress")
         assert result.exit_code == 0, result.output
         results = json.loads((out / "metrics.json").read_text())["results"]
         reference = [r for r in results if r["reference"]]
-        assert [r["name"] for r in reference] == ["bruteforce"] and reference[0]["budget"] is None
+        assert [r["name"] for r in reference] == names and all(r["budget"] is None for r in reference)
         assert reference[0]["nbytes"] == 200 * 32 * 4 > 5_000  # unbudgeted: the whole map
         assert "bruteforce*" in result.output and "reference (unbudgeted)" in result.output
         assert "is the unbudgeted reference" in " ".join(run(args[0], "--help").output.split())
+    white = reference[1]
+    assert white["settings"] == {"whiten": "shrink"} and "bruteforce shrink*" in result.output
+    assert white["nbytes"] > 200 * 32 * 4  # the whitening's mean and basis are counted on top of the map
+    # A front end given to the reference by --param makes it the user's own: no second row.
+    out = tmp_path / "own"
+    result = run("evaluate", "--db", db, "--queries", q, "--methods", "pq", "--budget", "5KB", "--param",
+                 "bruteforce:whiten=16", "--out", out, "--no-progress")
+    assert result.exit_code == 0, result.output
+    assert [r["name"] for r in json.loads((out / "metrics.json").read_text())["results"]] == ["pq", "bruteforce"]
     out = tmp_path / "none"
     result = run("evaluate", "--db", db, "--queries", q, "--methods", "pq", "--budget", "5KB", "--no-reference",
                  "--out", out, "--no-progress")
@@ -230,7 +243,8 @@ def test_sequence_methods_are_marked_and_refused_when_rows_are_not_a_route(route
                  "--param", "btel-c:progress=false", "--query-order", "independent", "--out", out, "--no-progress")
     assert result.exit_code == 3, result.output
     status = {r["method"]: r["status"] for r in _csv_rows(out / "metrics.csv")}
-    assert status == {"seqslam": "refused", "btel-c": "ok", "pq": "refused", "bruteforce": "ok"}
+    assert status == {"seqslam": "refused", "btel-c": "ok", "pq": "refused", "bruteforce": "ok",
+                      "bruteforce shrink": "ok"}
 
 
 # -- 11: progress per method and per budget ------------------------------------------------------------------
@@ -240,10 +254,10 @@ def test_one_progress_step_per_method_and_budget(route_files, tmp_path: Path) ->
     result = run("evaluate", "--db", db, "--queries", q, "--methods", "pq,itq", "--budget", "4KB,8KB",
                  "--out", out, "--no-progress")
     steps = [line for line in result.output.splitlines() if line.startswith("[")]
-    assert [s.split()[0] for s in steps] == ["[1/5]", "[2/5]", "[3/5]", "[4/5]", "[5/5]"]
+    assert [s.split()[0] for s in steps] == [f"[{i}/6]" for i in range(1, 7)]
     assert any("pq@4KB (4.0 KB)" in s for s in steps) and any("bruteforce (reference, unbudgeted)" in s for s in steps)
     names = [r["method"] for r in _csv_rows(out / "metrics.csv")]
-    assert names == ["pq@4KB", "pq@8KB", "itq@4KB", "itq@8KB", "bruteforce"]
+    assert names == ["pq@4KB", "pq@8KB", "itq@4KB", "itq@8KB", "bruteforce", "bruteforce shrink"]
 
 
 # -- 12: info and methods say what things are ---------------------------------------------------------------
@@ -376,18 +390,18 @@ def test_ctrl_c_exits_130_with_plots_and_resume_skips_the_rows_done(tmp_path: Pa
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["run"]["complete"] is False
     assert {r["name"]: r["status"] for r in metrics["results"]} == {
-        "pq": "ok", "itq": "not run", "btel-c": "not run", "bruteforce": "not run"}
+        "pq": "ok", "itq": "not run", "btel-c": "not run", "bruteforce": "not run", "bruteforce shrink": "not run"}
     pq_predictions = (out / "predictions_pq.csv").read_text()
 
     monkeypatch.setattr(ev, "evaluate", lambda method, *a, **kw: (calls.append(kw["name"]), real(method, *a, **kw))[1])
     calls.clear()
     result = run(*args, "--resume", out)
     assert result.exit_code == 0, result.output
-    assert "resuming" in result.output and "1 of 4 rows done (pq)" in result.output
-    assert calls == ["itq", "btel-c", "bruteforce"]  # pq is not run again
+    assert "resuming" in result.output and "1 of 5 rows done (pq)" in result.output
+    assert calls == ["itq", "btel-c", "bruteforce", "bruteforce shrink"]  # pq is not run again
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["run"]["complete"] is True
-    assert [r["status"] for r in metrics["results"]] == ["ok"] * 4
+    assert [r["status"] for r in metrics["results"]] == ["ok"] * 5
     assert (out / "predictions_pq.csv").read_text() == pq_predictions
     # Other queries than the run's: refused.
     np.save(tmp_path / "other.npy", route.queries[::-1].copy())

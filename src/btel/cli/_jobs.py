@@ -104,12 +104,17 @@ def _fit_jobs(names: list[str], budgets: list[str | None], param_texts: tuple[st
     The rule (the same in demo and evaluate): brute force stores every map descriptor, so it is the
     upper reference, not a contender under the budget. It is run without a budget unless
     ``--param METHOD:budget=…`` names it and asks for one. Which method it is,
-    :data:`btel.methods.registry.REFERENCE_METHOD` says.
+    :data:`btel.methods.registry.REFERENCE_METHOD` says. When the reference was added (not named in
+    ``--methods``), the same search on shrinkage-whitened rows
+    (:data:`btel._method_roles.WHITENED_REFERENCE`) is a second reference row beside it, with the same
+    parameters, so the table shows which front end the map favours.
     """
+    from .._method_roles import WHITENED_REFERENCE
     from ..evaluation import Job
     from ..methods.registry import REFERENCE_METHOD, make_method
 
-    if reference and REFERENCE_METHOD not in names:
+    added_reference = reference and REFERENCE_METHOD not in names
+    if added_reference:
         names = [*names, REFERENCE_METHOD]
     params = _params_by_method(names, param_texts, shortcuts=shortcuts)
     jobs = []
@@ -124,6 +129,15 @@ def _fit_jobs(names: list[str], budgets: list[str | None], param_texts: tuple[st
             with _naming(name):
                 jobs.append(Job(label, make_method(name, **kwargs), reference=is_reference, series=name,
                                 settings=settings or None))
+    white_label, white_params = WHITENED_REFERENCE
+    reference_params = params.get(REFERENCE_METHOD, {})
+    # A front end or budget given to the reference by --param is the user's own reference: no second row.
+    if added_reference and not set(white_params) & set(reference_params) and "budget" not in reference_params:
+        kwargs = {**reference_params, **white_params}
+        settings = {k: v for k, v in kwargs.items() if k not in RUNTIME_PARAMS}
+        with _naming(REFERENCE_METHOD):
+            jobs.append(Job(white_label, make_method(REFERENCE_METHOD, **kwargs), reference=True,
+                            series=white_label, settings=settings))
     return jobs
 
 

@@ -32,8 +32,8 @@ _TIMING_THREADS_HELP = ("BLAS/OpenMP threads while localizing and timing the que
 _BUDGET_HELP = ("Byte budget of every method but the brute-force reference, e.g. 500KB (KB = 1000 B, KiB = 1024 B); "
                 "several, comma-separated (100KB,500KB), give one row per method and budget.")
 _REFERENCE_HELP = ("Brute force (exact nearest neighbour over every map descriptor) is the unbudgeted reference: it is "
-                   "always run without a budget, added when not in --methods, and marked '*' in the table. "
-                   "--no-reference leaves it out.")
+                   "always run without a budget, added when not in --methods (then also on shrinkage-whitened rows, "
+                   "'bruteforce shrink'), and marked '*' in the table. --no-reference leaves it out.")
 _ORDER_HELP = ("route: the query rows are consecutive frames of one traverse (methods that use the query sequence, "
                "SeqSLAM or a delta front end, may use their order; they are marked † in the table). independent: the "
                "rows are unrelated places, and sequence methods are refused.")
