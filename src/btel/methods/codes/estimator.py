@@ -95,7 +95,7 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
     solver : {'ridge', 'liblinear'}
         Closed-form multi-output ridge (all columns at once) or a linear SVM per column.
     alpha : float, optional
-        Ridge regularisation α on the front-end-transformed map. None: α = 0.03 × the mean non-zero
+        Ridge regularisation α on the front-end-transformed map. None: α = 0.1 × the mean non-zero
         eigenvalue of the centred Gram matrix (:mod:`btel.methods.codes.solvers`).
     C : float
         liblinear's C (``solver='liblinear'``).
