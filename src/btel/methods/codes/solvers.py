@@ -33,7 +33,7 @@ default.
 directions: a small α lets the ridge lean on the map's quiet directions, which the night map has
 and the day queries fill, so mapped at night the codes lost to LSH at every budget. Periodic codes
 at ρ = 0.03 / 0.1 / 0.3 on every route map of ``btel experiment frontier`` (three seeds, recall@2;
-Nordland recall@10; 1 / 4 / 16 / 64 / 256 KB):
+Nordland recall@10; 1 / 4 / 16 / 64 / 256 KB; ``python benchmarks/bench_codes_ridge.py``):
 
 - Gardens Point by day: 0.318 / 0.328 / 0.345, 0.473 / 0.467 / 0.460, 0.580 / 0.578 / 0.538,
   0.652 / 0.633 / 0.632, 0.633 / 0.628 / 0.620;
