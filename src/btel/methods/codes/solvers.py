@@ -39,7 +39,7 @@ Nordland recall@10; 1 / 4 / 16 / 64 / 256 KB; ``python benchmarks/bench_codes_ri
   0.652 / 0.633 / 0.632, 0.633 / 0.628 / 0.620;
 - Gardens Point at night: 0.248 / 0.263 / 0.285, 0.390 / 0.418 / 0.453, 0.495 / 0.532 / 0.562,
   0.508 / 0.588 / 0.633, 0.502 / 0.598 / 0.640;
-- Nordland HOG: within −0.003 … +0.008 of ρ = 0.03 at 0.1 in both directions (+0.01 … +0.017 at
+- Nordland HOG: within −0.003 … +0.008 of ρ = 0.03 at 0.1 in both directions (+0.010 … +0.015 at
   0.3 from 64 KB);
 - the synthetic route: −0.004 … +0.007 at 0.1, down to −0.025 at 0.3.
 
