@@ -9,8 +9,9 @@ do not pay for scikit-learn and SciPy until a method is actually needed.
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from ._lazy import lazy_names
 
 __version__ = "0.1.0"
 
@@ -38,15 +39,4 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .storage import parse_budget
 
 
-def __getattr__(name: str) -> Any:
-    """Import a public name's submodule on first access and cache the name in the package."""
-    module = _LAZY.get(name)
-    if module is None:
-        raise AttributeError(f"module 'btel' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module, __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_names(__name__, _LAZY)

@@ -13,7 +13,6 @@ from .exceptions import (
     InvalidParameterError,
     ModelFileError,
     NotEnoughPlacesError,
-    NotFittedError,
 )
 
 
@@ -195,6 +194,8 @@ def check_positive_int(value: Any, name: str, *, minimum: int = 1) -> int:
 def check_is_fitted(estimator: Any, attribute: str) -> None:
     """Raise :class:`NotFittedError` unless ``estimator`` has ``attribute``."""
     if not hasattr(estimator, attribute):
+        from .exceptions import NotFittedError  # built on first use: it imports scikit-learn
+
         raise NotFittedError(
             f"This {type(estimator).__name__} is not fitted yet. Call fit(X) on map descriptors first, "
             "or load a saved model with btel.load(path)."

@@ -35,8 +35,8 @@ from abc import ABC, abstractmethod
 from typing import Any, ClassVar
 
 import numpy as np
-from sklearn.base import BaseEstimator
 
+from ._params import ParamsMixin
 from ._validation import check_descriptors, check_is_fitted, check_params, check_positive_int, map_places
 from .exceptions import (BudgetTooSmallError, InvalidAnswerError, InvalidDescriptorsError,
                          NotEnoughPlacesError)
@@ -58,8 +58,8 @@ _PARALLEL_PREDICT_FROM = 8192
 _PREDICT_CHUNK_ROWS = 4096
 
 
-class PlaceLocalizer(BaseEstimator, ABC):
-    """Base class of every localization method (module docstring)."""
+class PlaceLocalizer(ParamsMixin, ABC):
+    """Base class of every localization method (module docstring); scikit-learn's contract, not its import."""
 
     #: True when a query's answer depends on the queries before it (SeqSLAM's sequence search). A
     #: delta front end makes any method sequence-based too: see :attr:`uses_query_sequence`.

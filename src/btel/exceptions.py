@@ -3,11 +3,16 @@
 Each error derives from :class:`BTELError` and from the built-in exception a user would
 catch anyway (``ValueError``, ``OSError``), so ``except ValueError`` keeps working.
 Messages say what is wrong and what to do about it.
+
+:class:`NotFittedError` also derives from scikit-learn's, so it is built on first use (module
+``__getattr__``): importing scikit-learn costs about a second, and loading a model and answering
+queries never needs it.
 """
 
 from __future__ import annotations
 
-from sklearn.exceptions import NotFittedError as _SklearnNotFittedError
+import threading
+from typing import TYPE_CHECKING, Any
 
 __all__ = [
     "BTELError",
@@ -72,10 +77,6 @@ class UnsupportedModelVersionError(ModelFileError):
     """A model file was written by a newer btel (a format version this one cannot read)."""
 
 
-class NotFittedError(BTELError, _SklearnNotFittedError):
-    """A model was used before ``fit`` (also a scikit-learn ``NotFittedError``)."""
-
-
 class DataNotFoundError(BTELError, FileNotFoundError):
     """A data folder or file does not exist or holds nothing btel can read."""
 
@@ -96,3 +97,27 @@ class ResourceLimitError(BTELError, ValueError):
 class InvalidAnswerError(BTELError, ValueError):
     """A fitted model produced non-finite scores or a place outside [0, N) (usually weights that
     overflow float32: a damaged or hostile model file, or a fit on extreme values)."""
+
+
+_NOT_FITTED_LOCK = threading.Lock()
+
+if TYPE_CHECKING:  # pragma: no cover - what __getattr__ builds, for type checkers
+    from sklearn.exceptions import NotFittedError as _SklearnNotFittedError
+
+    class NotFittedError(BTELError, _SklearnNotFittedError):
+        """A model was used before ``fit`` (also a scikit-learn ``NotFittedError``)."""
+
+
+def __getattr__(name: str) -> Any:
+    """Build :class:`NotFittedError` on first access (it imports scikit-learn); any other name is unknown."""
+    if name != "NotFittedError":
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    with _NOT_FITTED_LOCK:
+        if "NotFittedError" not in globals():
+            from sklearn.exceptions import NotFittedError as sklearn_not_fitted
+
+            cls = type("NotFittedError", (BTELError, sklearn_not_fitted), {
+                "__doc__": "A model was used before ``fit`` (also a scikit-learn ``NotFittedError``).",
+                "__module__": __name__})
+            globals()["NotFittedError"] = cls
+    return globals()["NotFittedError"]

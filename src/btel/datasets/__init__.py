@@ -4,20 +4,16 @@ Queries are rows everywhere: ``queries[j]`` is query j and its true place is ``j
 frame-aligned traverses, or given by a :class:`GroundTruth`.
 """
 
-from .groundtruth import GroundTruth, load_positives, save_positives
-from .shards import list_shards, load_shards
-from .synthetic import SyntheticRoute, synthetic_route
-from .traverses import (
-    DARK_THRESHOLD,
-    AlignedTraverses,
-    aligned_pairs,
-    dark_frames,
-    list_traverses,
-    load_pair,
-    mean_brightness,
-    natural_key,
-    traverse_images,
-)
+from typing import TYPE_CHECKING
+
+from .._lazy import lazy_names
+
+if TYPE_CHECKING:  # pragma: no cover - imported on first use (btel._lazy)
+    from .groundtruth import GroundTruth, load_positives, save_positives
+    from .shards import list_shards, load_shards
+    from .synthetic import SyntheticRoute, synthetic_route
+    from .traverses import (DARK_THRESHOLD, AlignedTraverses, aligned_pairs, dark_frames, list_traverses,
+                            load_pair, mean_brightness, natural_key, traverse_images)
 
 __all__ = [
     "DARK_THRESHOLD",
@@ -37,3 +33,11 @@ __all__ = [
     "synthetic_route",
     "traverse_images",
 ]
+
+__getattr__, __dir__ = lazy_names(__name__, {
+    **dict.fromkeys(("GroundTruth", "load_positives", "save_positives"), ".groundtruth"),
+    **dict.fromkeys(("list_shards", "load_shards"), ".shards"),
+    **dict.fromkeys(("SyntheticRoute", "synthetic_route"), ".synthetic"),
+    **{name: ".traverses" for name in __all__ if name not in
+       ("GroundTruth", "load_positives", "save_positives", "list_shards", "load_shards", "SyntheticRoute",
+        "synthetic_route")}})

@@ -20,15 +20,20 @@ Descriptors computed elsewhere (NetVLAD, ...) are read with :func:`load_descript
 
 from __future__ import annotations
 
-from ..frontend import delta_descriptors
-from .augment import augmented_views
-from .base import DESCRIPTORS, ImageDescriptor, get_descriptor, load_descriptor, register_descriptor
-from .densevlad import DenseVLADDescriptor, dense_rootsift, vlad_encode
-from .extract import extract_descriptors
-from .hog import HOGDescriptor
-from .images import IMAGE_EXTENSIONS, list_images, read_image, to_grey
-from .npy import load_descriptor_matrix
-from .patchnorm import PatchNormDescriptor, patch_normalise
+from typing import TYPE_CHECKING
+
+from .._lazy import lazy_names
+
+if TYPE_CHECKING:  # pragma: no cover - imported on first use (btel._lazy): reading a .npy needs no OpenCV
+    from ..frontend import delta_descriptors
+    from .augment import augmented_views
+    from .base import DESCRIPTORS, ImageDescriptor, get_descriptor, load_descriptor, register_descriptor
+    from .densevlad import DenseVLADDescriptor, dense_rootsift, vlad_encode
+    from .extract import extract_descriptors
+    from .hog import HOGDescriptor
+    from .images import IMAGE_EXTENSIONS, list_images, read_image, to_grey
+    from .npy import load_descriptor_matrix
+    from .patchnorm import PatchNormDescriptor, patch_normalise
 
 __all__ = [
     "augmented_views",
@@ -51,3 +56,13 @@ __all__ = [
     "to_grey",
     "vlad_encode",
 ]
+
+__getattr__, __dir__ = lazy_names(__name__, {
+    "delta_descriptors": "..frontend", "augmented_views": ".augment",
+    **dict.fromkeys(("DESCRIPTORS", "ImageDescriptor", "get_descriptor", "load_descriptor",
+                     "register_descriptor"), ".base"),
+    **dict.fromkeys(("DenseVLADDescriptor", "dense_rootsift", "vlad_encode"), ".densevlad"),
+    "extract_descriptors": ".extract", "HOGDescriptor": ".hog",
+    **dict.fromkeys(("IMAGE_EXTENSIONS", "list_images", "read_image", "to_grey"), ".images"),
+    "load_descriptor_matrix": ".npy",
+    **dict.fromkeys(("PatchNormDescriptor", "patch_normalise"), ".patchnorm")})

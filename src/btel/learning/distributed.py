@@ -25,8 +25,6 @@ from __future__ import annotations
 from contextlib import contextmanager
 from typing import Any, Iterator, Sequence
 
-from joblib import parallel_config
-
 from ..exceptions import InvalidParameterError, MissingDependencyError
 
 __all__ = ["BACKENDS", "check_backend", "dask_backend", "fit_backend", "require_distributed"]
@@ -102,6 +100,8 @@ def dask_backend(scheduler: str | None = None, *, scatter: Sequence[Any] | None 
     ------
     client : distributed.Client
     """
+    from joblib import parallel_config  # fit-only: a loaded model never imports joblib
+
     with _client(scheduler) as client, parallel_config(
         backend="dask", n_jobs=-1, client=client, scatter=list(scatter) if scatter else None
     ):
@@ -127,5 +127,7 @@ def fit_backend(backend: str | None, scheduler: str | None = None, *, scatter: S
         with dask_backend(scheduler, scatter=scatter):
             yield
     else:
+        from joblib import parallel_config
+
         with parallel_config(backend="threading" if backend == "threads" else "loky"):
             yield

@@ -18,7 +18,6 @@ classifiers see standardised data, so raw scale must not decide which columns th
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..exceptions import InvalidParameterError
 
@@ -55,6 +54,8 @@ def between_cluster_ss(
     -------
     bcss : ndarray of shape (n_features,), dtype float64
     """
+    import scipy.sparse as sp  # fit-only: a loaded model never imports SciPy
+
     _, inverse, counts = np.unique(labels, return_inverse=True, return_counts=True)
     n = X.shape[0]
     # Cluster sums by a sparse one-hot product, over row chunks: the product upcasts X to float64,

@@ -19,7 +19,6 @@ solutions V (d' + 1, K), bias last.
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg as sla
 
 __all__ = ["Problem", "loss_terms", "newton", "lbfgs", "newton_uses_kernel"]
 
@@ -138,6 +137,8 @@ def newton(problem: Problem, tol: float, max_iter: int) -> tuple[np.ndarray, np.
 
     Returns (V (d' + 1, K) with the bias last, iterations (K,), converged (K,)).
     """
+    import scipy.linalg as sla  # fit-only: a loaded model never imports SciPy
+
     Xs = problem.Xs
     n, d = Xs.shape
     K = problem.Y.shape[1]
@@ -241,6 +242,8 @@ def _augmented_gram(Xs: np.ndarray, rows: np.ndarray | None, weights: np.ndarray
 
 def _spd_inverse(matrix: np.ndarray) -> np.ndarray:
     """Inverse of a symmetric positive definite matrix (Cholesky, then LAPACK potri), both triangles."""
+    import scipy.linalg as sla
+
     factor = sla.cho_factor(matrix, lower=True, overwrite_a=True, check_finite=False)[0]
     inverse, info = sla.lapack.dpotri(factor, lower=True)
     if info != 0:  # pragma: no cover - the matrix is ridge + Gram, positive definite
@@ -262,6 +265,8 @@ def _solve_submatrices(gram: np.ndarray, inverse: np.ndarray, masks: np.ndarray,
     -------
     ndarray of shape (n, K), float64
     """
+    import scipy.linalg as sla
+
     n, K = masks.shape
     out = np.zeros((n, K))
     large = masks.sum(axis=0) > n // 2

@@ -28,9 +28,6 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from sklearn.exceptions import ConvergenceWarning
-from sklearn.linear_model import LogisticRegression
-from sklearn.svm import LinearSVC
 
 from ..exceptions import InvalidParameterError
 from .primal import Problem, lbfgs, loss_terms, newton, newton_uses_kernel
@@ -61,6 +58,9 @@ def _use_dual(n_samples: int, n_features: int) -> bool:
 
 
 def _make_classifier(classifier: str, C: float, max_iter: int, random_state: int | None, dual: bool):
+    from sklearn.linear_model import LogisticRegression  # fit-only: a loaded model never imports scikit-learn
+    from sklearn.svm import LinearSVC
+
     if classifier == "svm":
         return LinearSVC(C=C, loss="squared_hinge", dual=dual, max_iter=max_iter, random_state=random_state)
     if classifier == "logistic":
@@ -117,6 +117,8 @@ def _liblinear(problem_Xs: np.ndarray, labels: np.ndarray, C: float, classifier:
                sample_weight: np.ndarray | None, max_iter: int, random_state: int | None
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """scikit-learn's liblinear classifiers, one per label column (dual when rows < 3·d')."""
+    from sklearn.exceptions import ConvergenceWarning
+
     n, d = problem_Xs.shape
     K = labels.shape[1]
     V = np.zeros((d + 1, K))

@@ -23,8 +23,6 @@ from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 import numpy as np
-from joblib import Parallel, delayed
-from sklearn.exceptions import ConvergenceWarning
 
 from .distributed import fit_backend
 from .feature_selection import select_features, select_features_many
@@ -108,6 +106,8 @@ class FitSummary:
 def convergence_warning(summary: FitSummary, owner: str, max_iter: int | None) -> None:
     """One :class:`~sklearn.exceptions.ConvergenceWarning` in the caller's thread when fits hit the cap."""
     if summary.n_unconverged:
+        from sklearn.exceptions import ConvergenceWarning
+
         cap = "the solver's default cap" if max_iter is None else f"max_iter = {max_iter}"
         warnings.warn(
             f"{owner}: {summary.n_unconverged} of {summary.n_classifiers} classifiers stopped at {cap} before "
@@ -190,6 +190,9 @@ def fit_tasks(
     parts : list of (weights (k, d'), bias (k,), columns (d',)), one per task
     summary : FitSummary
     """
+    from joblib import Parallel, delayed  # fit-only imports: a loaded model never needs them
+    from sklearn.exceptions import ConvergenceWarning
+
     columns = _select_columns(X, tasks, n_selected, stats, sparsity)
     groups: dict[tuple[int | None, bytes], list[int]] = {}
     for i, task in enumerate(tasks):

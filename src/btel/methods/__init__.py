@@ -20,6 +20,15 @@ one line in :data:`btel.methods.registry.REGISTRY`.
 
 from __future__ import annotations
 
-from .registry import DESCRIPTIONS, METHODS, MODEL_CLASSES, REGISTRY, load, make_method, method_names
+from typing import TYPE_CHECKING
+
+from .._lazy import lazy_names
+from .registry import DESCRIPTIONS, load, make_method, method_names
+
+if TYPE_CHECKING:  # pragma: no cover - these tables import every method: built on first access
+    from .registry import METHODS, MODEL_CLASSES, REGISTRY
 
 __all__ = ["DESCRIPTIONS", "METHODS", "MODEL_CLASSES", "REGISTRY", "load", "make_method", "method_names"]
+
+__getattr__, __dir__ = lazy_names(__name__,
+                                  dict.fromkeys(("METHODS", "MODEL_CLASSES", "REGISTRY"), ".registry"))

@@ -1,7 +1,13 @@
 """Every localization method by name, and :func:`load` for the model files they save.
 
 ``make_method("btel-c", budget="500KB")`` builds an unfitted estimator. Adding a method is one
-class (a :class:`btel.base.PlaceLocalizer`) and one line in :data:`REGISTRY` (factory and description).
+class (a :class:`btel.base.PlaceLocalizer`) and one line in :data:`_ENTRIES` (its module, class,
+fixed parameters and description); :data:`REGISTRY` is derived from it.
+
+A method's module is imported when the method is first asked for (:func:`make_method`,
+:func:`load`), not with the registry: loading an LSH model never imports BTEL's classifiers
+(scikit-learn) or its segmentation (ruptures). :data:`REGISTRY`, :data:`METHODS` and
+:data:`MODEL_CLASSES` import every method on first access.
 
 A model file is untrusted input: :func:`load` reads only plain arrays and JSON
 (:func:`btel.modelfile.load_arrays`), accepts only the classes registered here, restores only the
@@ -12,26 +18,40 @@ the method sees it, and raises :class:`~btel.exceptions.ModelFileError` for anyt
 
 from __future__ import annotations
 
+import importlib
 import os
 import sys
 from functools import partial
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
 from .._method_roles import DEFAULT_METHOD, DEMO_METHODS, REFERENCE_METHOD
 from .._validation import Instance, check_params, read_state_int
 from ..base import PlaceLocalizer
-from .auto import AutoLocalizer
-from .baselines import BASELINES, PQLocalizer, RaBitQLocalizer
-from .codes.estimator import CodeLocalizer
+from .auto.localizer import AutoLocalizer
+from .baselines import _BASELINE_CLASSES
 from ..exceptions import BTELError, InvalidParameterError, ModelFileError, ResourceLimitError
 from ..frontend import FrontEnd
 from ..limits import check_places
-from .btel.localizer import BTELocalizer, block_size_for_tolerance
-from .ryth import RYTHLocalizer
 from ..modelfile import load_arrays
+
+if TYPE_CHECKING:  # pragma: no cover - imported on first use (_method_class)
+    from .baselines import PQLocalizer, RaBitQLocalizer
+    from .btel.localizer import BTELocalizer, block_size_for_tolerance
+    from .codes.estimator import CodeLocalizer
+    from .ryth import RYTHLocalizer
 
 __all__ = ["REGISTRY", "METHODS", "DESCRIPTIONS", "MODEL_CLASSES", "make_method", "method_names", "load",
            "DEFAULT_METHOD", "REFERENCE_METHOD", "DEMO_METHODS", "block_size_for_tolerance"]
+
+
+class _Entry(NamedTuple):
+    """Where a registered method lives and what its name fixes."""
+
+    module: str  #: the class's module, relative to btel.methods
+    cls: str  #: the class's name (what a model file records)
+    fixed: dict[str, Any]  #: parameters the name fixes (e.g. btel-r: 20 regions)
+    description: str  #: one line (``btel methods``)
+
 
 _BASELINE_DESCRIPTIONS: dict[str, str] = {
     "bruteforce": "exact nearest neighbour over every map descriptor (the unbudgeted reference)",
@@ -43,46 +63,77 @@ _BASELINE_DESCRIPTIONS: dict[str, str] = {
     "seqslam": "SeqSLAM sequence matching over a uint8 map (uses the query sequence)",
 }
 
-#: Every method: ``name → (factory, one-line description)``. Adding a method is one class and one line here.
-REGISTRY: dict[str, tuple[Callable[..., PlaceLocalizer], str]] = {
-    "btel-c": (partial(BTELocalizer, scheme="compressed", n_regions=1),
-               "BTE-C: one linear classifier per bit of the place index, O(log N) bytes (the paper)"),
-    "btel-f": (partial(BTELocalizer, scheme="full", n_regions=1),
-               "BTE-F: one classifier per tree node, O(N) bytes (the paper's foil)"),
-    "btel-r": (partial(BTELocalizer, scheme="compressed", n_regions=20),
-               "BTEL with 20 KTS regions, a region classifier and one BTE-C tree each"),
-    "btel-auto": (partial(BTELocalizer, scheme="compressed", n_regions="auto"),
-                  "BTEL with the number of regions chosen by the KTS penalty"),
-    "btel-codes": (CodeLocalizer,
-                   "BTEL beyond the binary index: K ≥ log2 N implicit output codes (periodic on a route or an "
-                   "ordered map, random on independent places), ridge-fitted, 4-bit weights, K and d' filling the budget"),
-    "ryth": (RYTHLocalizer, "RYTH: residues of the place index modulo co-prime periods (Yu et al. 2018)"),
-    **{name: (factory, _BASELINE_DESCRIPTIONS[name]) for name, factory in BASELINES.items()},
-    "rabitq": (RaBitQLocalizer, "RaBitQ: seeded rotation (0 B), D dims × B bits + row factors, filling the budget"),
-    "auto": (AutoLocalizer, "the method, code family and front end chosen from the map and the budget alone "
-                            "(btel.methods.auto): output codes on routes, whitened brute force or LSH on independent places"),
+_BTEL = ".btel.localizer", "BTELocalizer"
+#: Every method: name → where it lives, what its name fixes and one line on it. Adding a method is one
+#: class and one line here.
+_ENTRIES: dict[str, _Entry] = {
+    "btel-c": _Entry(*_BTEL, {"scheme": "compressed", "n_regions": 1},
+                     "BTE-C: one linear classifier per bit of the place index, O(log N) bytes (the paper)"),
+    "btel-f": _Entry(*_BTEL, {"scheme": "full", "n_regions": 1},
+                     "BTE-F: one classifier per tree node, O(N) bytes (the paper's foil)"),
+    "btel-r": _Entry(*_BTEL, {"scheme": "compressed", "n_regions": 20},
+                     "BTEL with 20 KTS regions, a region classifier and one BTE-C tree each"),
+    "btel-auto": _Entry(*_BTEL, {"scheme": "compressed", "n_regions": "auto"},
+                        "BTEL with the number of regions chosen by the KTS penalty"),
+    "btel-codes": _Entry(".codes.estimator", "CodeLocalizer", {},
+                         "BTEL beyond the binary index: K ≥ log2 N implicit output codes (periodic on "
+                         "a route or an ordered map, random on independent places), ridge-fitted, 4-bit "
+                         "weights, K and d' filling the budget"),
+    "ryth": _Entry(".ryth", "RYTHLocalizer", {},
+                   "RYTH: residues of the place index modulo co-prime periods (Yu et al. 2018)"),
+    **{name: _Entry(".baselines" + module, cls, {}, _BASELINE_DESCRIPTIONS[name])
+       for name, (cls, module) in _BASELINE_CLASSES.items()},
+    "rabitq": _Entry(".baselines.rabitq", "RaBitQLocalizer", {},
+                     "RaBitQ: seeded rotation (0 B), D dims × B bits + row factors, filling the budget"),
+    "auto": _Entry(".auto.localizer", "AutoLocalizer", {},
+                   "the method, code family and front end chosen from the map and the budget alone "
+                   "(btel.methods.auto): output codes on routes, whitened brute force or LSH on independent "
+                   "places"),
 }
 
-#: Unfitted-estimator factories by name (derived from :data:`REGISTRY`).
-METHODS: dict[str, Callable[..., PlaceLocalizer]] = {name: entry[0] for name, entry in REGISTRY.items()}
+#: One line per method (``btel methods``).
+DESCRIPTIONS: dict[str, str] = {name: entry.description for name, entry in _ENTRIES.items()}
 
-#: One line per method (``btel methods``), derived from :data:`REGISTRY`.
-DESCRIPTIONS: dict[str, str] = {name: entry[1] for name, entry in REGISTRY.items()}
+#: Class name (as a model file records it) → its module, for :func:`load`.
+_MODEL_MODULES: dict[str, str] = {entry.cls: entry.module for entry in _ENTRIES.values()}
 
 #: auto picks among the registered methods: it is handed the registry (no import back from btel.methods.auto).
 AutoLocalizer._registry = sys.modules[__name__]
 
-#: Model classes :func:`load` accepts, by the class name recorded in a file.
-MODEL_CLASSES: dict[str, type[PlaceLocalizer]] = {}
-for _factory in METHODS.values():
-    _cls = _factory.func if isinstance(_factory, partial) else _factory
-    MODEL_CLASSES[_cls.__name__] = _cls
-MODEL_CLASSES[PQLocalizer.__name__] = PQLocalizer
+
+def _model_class(name: str) -> type[PlaceLocalizer]:
+    """The registered class recorded in a model file as ``name`` (its module imported now)."""
+    return getattr(importlib.import_module(_MODEL_MODULES[name], __package__), name)
+
+
+def _factory(name: str) -> Callable[..., PlaceLocalizer]:
+    """The unfitted-estimator factory of a registered method (its class, or a partial fixing parameters)."""
+    entry = _ENTRIES[name]
+    cls = _model_class(entry.cls)
+    return partial(cls, **entry.fixed) if entry.fixed else cls
+
+
+def _every_method() -> dict[str, Any]:
+    """The tables that import every method: REGISTRY, METHODS, MODEL_CLASSES."""
+    registry = {name: (_factory(name), entry.description) for name, entry in _ENTRIES.items()}
+    return {"REGISTRY": registry, "METHODS": {name: entry[0] for name, entry in registry.items()},
+            "MODEL_CLASSES": {name: _model_class(name) for name in _MODEL_MODULES}}
+
+
+def __getattr__(name: str) -> Any:
+    """:data:`REGISTRY` (name → (factory, description)), :data:`METHODS` (name → factory) and
+    :data:`MODEL_CLASSES` (class name → class), built on first access; ``block_size_for_tolerance``."""
+    if name == "block_size_for_tolerance":
+        return getattr(importlib.import_module(".btel.localizer", __package__), name)
+    if name not in ("REGISTRY", "METHODS", "MODEL_CLASSES"):
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    globals().update(_every_method())
+    return globals()[name]
 
 
 def method_names() -> list[str]:
     """Registered method names, in registry order."""
-    return list(METHODS)
+    return list(_ENTRIES)
 
 
 def make_method(name: str, **params: Any) -> PlaceLocalizer:
@@ -91,9 +142,9 @@ def make_method(name: str, **params: Any) -> PlaceLocalizer:
     Unknown parameter names and values outside a parameter's declared range raise
     :class:`~btel.exceptions.InvalidParameterError` at once (naming the method and parameter).
     """
-    if name not in METHODS:
-        raise InvalidParameterError(f"unknown method {name!r}; choose from {', '.join(METHODS)}.")
-    model = METHODS[name]()
+    if name not in _ENTRIES:
+        raise InvalidParameterError(f"unknown method {name!r}; choose from {', '.join(_ENTRIES)}.")
+    model = _factory(name)()
     valid = model.get_params(deep=True)
     unknown = sorted(set(params) - set(valid))
     if unknown:
@@ -124,7 +175,7 @@ def load(path: str | os.PathLike) -> PlaceLocalizer:
             "load it with btel.descriptors.load_descriptor(path)."
         )
     name = header.get("model")
-    cls = MODEL_CLASSES.get(name) if isinstance(name, str) else None
+    cls = _model_class(name) if isinstance(name, str) and name in _MODEL_MODULES else None
     if cls is None:
         raise ModelFileError(f"{where} holds a model of unknown type {str(name)[:60]!r}; it was not written by this btel.")
     params, state = header.get("params"), header.get("state")
@@ -165,7 +216,8 @@ def _params_from_file(cls: type[PlaceLocalizer], params: dict[str, Any]) -> dict
         if isinstance(value, dict):  # a nested estimator (OPQ's pq), saved as {"estimator", "params"}
             allowed = [c.cls for c in cls._parameter_constraints[key] if isinstance(c, Instance)]
             estimator = value.get("estimator")
-            nested = MODEL_CLASSES.get(estimator) if isinstance(estimator, str) else None
+            known = isinstance(estimator, str) and estimator in _MODEL_MODULES
+            nested = _model_class(estimator) if known else None
             if nested is None or nested not in allowed or set(value) != {"estimator", "params"} \
                     or not isinstance(value["params"], dict):
                 raise ModelFileError(f"the model file's parameter {key!r} is not a "

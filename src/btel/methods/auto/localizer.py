@@ -160,16 +160,17 @@ class AutoLocalizer(PlaceLocalizer):
         return {"choice": self.choice_, "inner_params": params, "inner_state": self.model_._fitted_state()}
 
     def _inner_from_state(self, state: dict[str, Any]) -> PlaceLocalizer:
-        METHODS, _params_from_file = self._registry.METHODS, self._registry._params_from_file
+        registry = self._registry
         choice = state.get("choice")
-        if not isinstance(choice, dict) or choice.get("method") not in METHODS or choice.get("method") == "auto":
+        if not isinstance(choice, dict) or choice.get("method") not in registry.method_names() \
+                or choice.get("method") == "auto":
             raise ModelFileError("the auto model file does not name a registered method it chose.")
         params, inner_state = state.get("inner_params"), state.get("inner_state")
         if not isinstance(params, dict) or not isinstance(inner_state, dict):
             raise ModelFileError("the auto model file's inner parameters or state are not objects.")
-        factory = METHODS[choice["method"]]
+        factory = registry._factory(choice["method"])  # imports the chosen method's module alone
         cls = factory.func if hasattr(factory, "func") else factory
-        model = cls(**_params_from_file(cls, params))
+        model = cls(**registry._params_from_file(cls, params))
         check_params(model)
         model.front_end_ = self.front_end_
         return model

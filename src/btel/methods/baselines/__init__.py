@@ -18,15 +18,21 @@ seqslam    :class:`SeqSLAM`             N×d uint8; sequences of ds = 10 frames
 
 from __future__ import annotations
 
-from ...base import PlaceLocalizer
-from ._common import quiet_faiss
-from .bruteforce import BruteForceNN
-from .itq import ITQLocalizer
-from .lsh import LSHLocalizer
-from .opq import OPQLocalizer
-from .pq import PQConfig, PQLocalizer
-from .rabitq import RaBitQLocalizer
-from .seqslam import SeqSLAM, enhance_contrast, seqslam_match, sequence_costs
+import sys
+from typing import TYPE_CHECKING
+
+from ..._lazy import lazy_names
+
+if TYPE_CHECKING:  # pragma: no cover - imported on first use (btel._lazy)
+    from ...base import PlaceLocalizer
+    from ._common import quiet_faiss
+    from .bruteforce import BruteForceNN
+    from .itq import ITQLocalizer
+    from .lsh import LSHLocalizer
+    from .opq import OPQLocalizer
+    from .pq import PQConfig, PQLocalizer
+    from .rabitq import RaBitQLocalizer
+    from .seqslam import SeqSLAM, enhance_contrast, seqslam_match, sequence_costs
 
 __all__ = [
     "BASELINES",
@@ -44,12 +50,19 @@ __all__ = [
     "quiet_faiss",
 ]
 
-#: Baselines by short name (merged into :data:`btel.methods.METHODS` by the lead).
-BASELINES: dict[str, type[PlaceLocalizer]] = {
-    "bruteforce": BruteForceNN,
-    "pq": PQLocalizer,
-    "opq": OPQLocalizer,
-    "itq": ITQLocalizer,
-    "lsh": LSHLocalizer,
-    "seqslam": SeqSLAM,
-}
+#: Baseline name → the class and its module; ``BASELINES`` (name → class, merged into
+#: :data:`btel.methods.METHODS`) imports them all on first access.
+_BASELINE_CLASSES = {"bruteforce": ("BruteForceNN", ".bruteforce"), "pq": ("PQLocalizer", ".pq"),
+                     "opq": ("OPQLocalizer", ".opq"), "itq": ("ITQLocalizer", ".itq"),
+                     "lsh": ("LSHLocalizer", ".lsh"), "seqslam": ("SeqSLAM", ".seqslam")}
+
+
+def _baselines() -> dict[str, type[PlaceLocalizer]]:
+    return {name: getattr(sys.modules[__name__], cls) for name, (cls, _) in _BASELINE_CLASSES.items()}
+
+
+__getattr__, __dir__ = lazy_names(__name__, {
+    **{cls: module for cls, module in _BASELINE_CLASSES.values()}, "quiet_faiss": "._common",
+    "PQConfig": ".pq", "RaBitQLocalizer": ".rabitq",
+    **dict.fromkeys(("enhance_contrast", "seqslam_match", "sequence_costs"), ".seqslam")},
+    computed={"BASELINES": _baselines})

@@ -26,7 +26,6 @@ from typing import Any
 
 import faiss
 import numpy as np
-from sklearn.base import clone
 
 from ..._validation import N_JOBS, Budget, Instance, Interval
 from ...base import ArraySpec
@@ -90,8 +89,9 @@ class OPQLocalizer(_RowLocalizer):
         self.n_jobs = n_jobs
 
     def _quantiser(self) -> PQLocalizer:
-        """A fresh copy of the ``pq`` settings (the parameter itself is never modified)."""
-        return PQLocalizer() if self.pq is None else clone(self.pq)
+        """A fresh copy of the ``pq`` settings (the parameter itself is never modified). Its parameters
+        are scalars: this is scikit-learn's ``clone``, without importing scikit-learn on load."""
+        return PQLocalizer() if self.pq is None else type(self.pq)(**self.pq.get_params(deep=False))
 
     @property
     def config_(self) -> PQConfig:

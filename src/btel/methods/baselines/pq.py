@@ -38,7 +38,6 @@ from typing import Any, Iterator
 
 import faiss
 import numpy as np
-from sklearn.decomposition import PCA
 
 from ..._validation import N_JOBS, RANDOM_STATE, Budget, Interval, check_positive_int, read_state_int
 from ...base import ArraySpec
@@ -88,6 +87,8 @@ def pca_projection(X: np.ndarray, dim: int, random_state: int | None) -> np.ndar
     -------
     ndarray of shape (n_features, dim), float32
     """
+    from sklearn.decomposition import PCA  # fit-only: a loaded model never imports scikit-learn
+
     pca = PCA(n_components=dim, random_state=random_state).fit(X)
     return np.ascontiguousarray(pca.components_.T, dtype=np.float32)
 

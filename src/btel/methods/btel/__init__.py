@@ -19,6 +19,13 @@ module              what
 
 from __future__ import annotations
 
-from .localizer import BTELocalizer
+from typing import TYPE_CHECKING
+
+from ..._lazy import lazy_names
 
 __all__ = ["BTELocalizer"]
+
+if TYPE_CHECKING:  # pragma: no cover - imported on first use (btel._lazy)
+    from .localizer import BTELocalizer
+
+__getattr__, __dir__ = lazy_names(__name__, {"BTELocalizer": ".localizer"})

@@ -13,7 +13,6 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from ..._validation import BOOLEAN, N_JOBS, RANDOM_STATE, Budget, DType, Interval, Options, String, check_positive_int
 from ...base import PlaceLocalizer
@@ -364,6 +363,7 @@ class BTELocalizer(TreeDecoding, TreeModelFile, PlaceLocalizer):
             else:
                 tasks.extend(full_tasks(local, int(n_k), rows))
 
+        from tqdm.auto import tqdm  # fit-only: a loaded model never imports it
         with tqdm(total=len(tasks), desc="BTEL fit", unit="clf", disable=None if self.progress else True,
                   leave=False) as bar:
             parts, summary = fit_tasks(

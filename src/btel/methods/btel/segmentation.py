@@ -34,9 +34,9 @@ checks that both paths find the true boundaries of a synthetic route.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
-import ruptures as rpt
-from sklearn.decomposition import PCA
 
 from ..._validation import check_positive_int
 from ...exceptions import NotEnoughPlacesError
@@ -60,11 +60,25 @@ DEFAULT_MAX_POINTS = 4096
 _CHUNK_ROWS = 65536
 
 
+def _pca(n_components: int, random_state: int | None) -> Any:
+    """An unfitted randomized PCA (scikit-learn, imported here: a loaded model never needs it)."""
+    from sklearn.decomposition import PCA
+
+    return PCA(n_components=n_components, svd_solver="randomized", random_state=random_state)
+
+
+def _kernel_cpd(Z: np.ndarray) -> Any:
+    """ruptures' linear-kernel change-point search fitted on ``Z`` (imported here: fitting alone needs it)."""
+    import ruptures as rpt
+
+    return rpt.KernelCPD(kernel="linear", min_size=MIN_REGION_LENGTH).fit(Z)
+
+
 def _prepare(X: np.ndarray, pca_dims: int | None, random_state: int | None) -> np.ndarray:
     Z = np.asarray(X, dtype=np.float64)
     Z = Z / np.maximum(np.linalg.norm(Z, axis=1, keepdims=True), 1e-12)
     if pca_dims is not None and Z.shape[1] > pca_dims and Z.shape[0] > pca_dims:
-        Z = PCA(n_components=pca_dims, svd_solver="randomized", random_state=random_state).fit_transform(Z)
+        Z = _pca(pca_dims, random_state).fit_transform(Z)
     return np.ascontiguousarray(Z)
 
 
@@ -103,7 +117,7 @@ class _Blocks:
         means = sums / self.counts[:, None]
         self.pca = None
         if pca_dims is not None and d > pca_dims and n_blocks > pca_dims:
-            self.pca = PCA(n_components=pca_dims, svd_solver="randomized", random_state=random_state).fit(means)
+            self.pca = _pca(pca_dims, random_state).fit(means)
             means = self.pca.transform(means)
         self.means = np.ascontiguousarray(means)
         # Prefix sums of the projected frames at block boundaries (PCA is affine: the projected
@@ -216,10 +230,10 @@ def kts_regions(
     max_points = check_positive_int(max_points, "max_points", minimum=4)
     if n <= max_points:
         Z = _prepare(X, pca_dims, random_state)
-        algo = rpt.KernelCPD(kernel="linear", min_size=MIN_REGION_LENGTH).fit(Z)
+        algo = _kernel_cpd(Z)
         return _starts_from_breakpoints(algo.predict(n_bkps=r - 1))
     blocks = _Blocks(X, r, max_points, pca_dims, random_state)
-    algo = rpt.KernelCPD(kernel="linear", min_size=MIN_REGION_LENGTH).fit(blocks.means)
+    algo = _kernel_cpd(blocks.means)
     starts = blocks.to_frames(_starts_from_breakpoints(algo.predict(n_bkps=r - 1)))
     return blocks.refine(starts, n) if refine else starts
 
@@ -265,7 +279,7 @@ def kts_segmentations(
     else:
         blocks = _Blocks(X, max_r, max_points, pca_dims, random_state)
         Z = blocks.means
-    algo = rpt.KernelCPD(kernel="linear", min_size=MIN_REGION_LENGTH).fit(Z)
+    algo = _kernel_cpd(Z)
     algo.predict(n_bkps=max_r - 1)  # fills the segmentations for every m ≤ max_r − 1
     bkps = {0: [Z.shape[0]], **algo.segmentations_dict}
     costs = np.array([algo.cost.sum_of_costs(bkps[m]) for m in range(max_r)])

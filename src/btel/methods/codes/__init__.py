@@ -17,6 +17,13 @@ module              what
 
 from __future__ import annotations
 
-from .estimator import CodeLocalizer
+from typing import TYPE_CHECKING
+
+from ..._lazy import lazy_names
 
 __all__ = ["CodeLocalizer"]
+
+if TYPE_CHECKING:  # pragma: no cover - imported on first use (btel._lazy)
+    from .estimator import CodeLocalizer
+
+__getattr__, __dir__ = lazy_names(__name__, {"CodeLocalizer": ".estimator"})

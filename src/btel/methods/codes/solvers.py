@@ -58,7 +58,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import numpy as np
-from joblib import Parallel, delayed
 
 from .codebook import Codebook
 from ...learning.distributed import fit_backend
@@ -180,6 +179,8 @@ def fit_ridge_codes(X: np.ndarray, cols: np.ndarray, codebook: Codebook, places:
         A = U @ ((U.T @ C) / (np.maximum(lam, 0.0) + a)[:, None])
         return CodeFit(weights=(Xs.T @ A).T, offsets=code_mean, center=center, alpha=a)
     # Primal form: d' × d' Gram and d' × K cross products, accumulated over row chunks.
+    from joblib import Parallel, delayed  # fit-only: a loaded model never imports joblib
+
     groups = _groups(K, n_jobs)
     blas_threads = None if n_jobs in (None, 1) else 1
     calls = [delayed(_column_sums)(X, cols)] + [delayed(_cross_products)(X, cols, codebook, places, g)
