@@ -18,25 +18,28 @@ No module here names a method: the defaults and the reference row come from
 from __future__ import annotations
 
 import csv
+import importlib
 import os
 import warnings
 import zipfile
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from .. import __version__
-from ._gallery import show_cmd
 from ._options import EXIT_INTERRUPTED, EXIT_SOME_ROWS_FAILED
-from .demo import demo
-from .evaluate import evaluate_cmd
-from .experiment import experiment
-from .extract import extract
-from .info import info
-from .localize import localize
-from .methods import methods_cmd
-from .report import report
-from .train import train
+
+if TYPE_CHECKING:  # pragma: no cover - each command's module is imported when that command runs
+    from ._gallery import show_cmd
+    from .demo import demo
+    from .evaluate import evaluate_cmd
+    from .experiment import experiment
+    from .extract import extract
+    from .info import info
+    from .localize import localize
+    from .methods import methods_cmd
+    from .report import report
+    from .train import train
 
 __all__ = ["main", "EXIT_SOME_ROWS_FAILED", "EXIT_INTERRUPTED"]
 
@@ -52,8 +55,26 @@ def _show_warning(message: Any, category: type, filename: str, lineno: int, file
     click.echo(f"Warning: {message}", err=True)
 
 
+#: Command name → (module, function). A command's module is imported when it runs (``btel localize`` reads
+#: no training code) or when ``--help`` lists it.
+_COMMANDS = {"demo": ("demo", "demo"), "extract": ("extract", "extract"), "train": ("train", "train"),
+             "localize": ("localize", "localize"), "evaluate": ("evaluate", "evaluate_cmd"),
+             "methods": ("methods", "methods_cmd"), "info": ("info", "info"),
+             "experiment": ("experiment", "experiment"), "report": ("report", "report"),
+             "show": ("_gallery", "show_cmd")}
+
+
 class _Group(click.Group):
-    """Turns btel's own errors into one-line messages with exit code 1."""
+    """Turns btel's own errors into one-line messages with exit code 1; imports a command when it is used."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted({*_COMMANDS, *self.commands})
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name in _COMMANDS and cmd_name not in self.commands:
+            module, name = _COMMANDS[cmd_name]
+            self.add_command(getattr(importlib.import_module(f".{module}", __name__), name), cmd_name)
+        return self.commands.get(cmd_name)
 
     def invoke(self, ctx: click.Context) -> Any:
         if not os.environ.get("BTEL_DEBUG"):
@@ -90,9 +111,6 @@ def main() -> None:
     Try `btel demo` first: it needs no data.
     """
 
-
-for _command in (demo, extract, train, localize, evaluate_cmd, methods_cmd, info, experiment, report, show_cmd):
-    main.add_command(_command)
 
 if __name__ == "__main__":  # pragma: no cover
     main()

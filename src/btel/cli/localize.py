@@ -46,7 +46,6 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
     error naming its line number on stderr, produces no output line, and the stream goes on.
     """
     from .. import load
-    from ..sequence import filter_sequence
 
     if stream:
         if top_k is not None:
@@ -68,6 +67,8 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
     Q = _load_matrix(queries, "query descriptors")
     predictions = model.predict_sequence(Q, "hmm") if hmm else model.predict(Q)
     if window is not None:
+        from ..sequence import filter_sequence
+
         predictions = filter_sequence(predictions, window, n_places=model.n_places_)
     ranked = model.rank(Q, top_k) if top_k is not None else None
     Path(output).parent.mkdir(parents=True, exist_ok=True)

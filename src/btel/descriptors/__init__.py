@@ -20,6 +20,7 @@ Descriptors computed elsewhere (NetVLAD, ...) are read with :func:`load_descript
 
 from __future__ import annotations
 
+import importlib
 from typing import TYPE_CHECKING
 
 from .._lazy import lazy_names
@@ -59,10 +60,10 @@ __all__ = [
 
 __getattr__, __dir__ = lazy_names(__name__, {
     "delta_descriptors": "..frontend", "augmented_views": ".augment",
-    **dict.fromkeys(("DESCRIPTORS", "ImageDescriptor", "get_descriptor", "load_descriptor",
-                     "register_descriptor"), ".base"),
+    **dict.fromkeys(("ImageDescriptor", "get_descriptor", "load_descriptor", "register_descriptor"), ".base"),
     **dict.fromkeys(("DenseVLADDescriptor", "dense_rootsift", "vlad_encode"), ".densevlad"),
     "extract_descriptors": ".extract", "HOGDescriptor": ".hog",
     **dict.fromkeys(("IMAGE_EXTENSIONS", "list_images", "read_image", "to_grey"), ".images"),
     "load_descriptor_matrix": ".npy",
-    **dict.fromkeys(("PatchNormDescriptor", "patch_normalise"), ".patchnorm")})
+    **dict.fromkeys(("PatchNormDescriptor", "patch_normalise"), ".patchnorm")},
+    computed={"DESCRIPTORS": lambda: importlib.import_module(".base", __name__).registered()})

@@ -17,6 +17,7 @@ vectors → final vectors), ``_stored_arrays``, ``_fitted_state`` and ``_restore
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import warnings
@@ -58,6 +59,19 @@ _ASPECT_SLACK = 0.05
 class DescriptorWarning(UserWarning):
     """Something a descriptor did to the images that the user did not ask for (a distorting
     resize, mixed image sizes, a PCA capped below the requested size)."""
+
+
+#: The descriptors btel ships: name → module. Each registers itself when imported; they import OpenCV,
+#: scikit-image and scikit-learn, so they are imported when a descriptor is first asked for by name
+#: (:func:`registered`), not with the package (reading a descriptor matrix needs none of them).
+_BUILT_IN = {"densevlad": ".densevlad", "hog": ".hog", "patchnorm": ".patchnorm"}
+
+
+def registered() -> dict[str, type["ImageDescriptor"]]:
+    """:data:`DESCRIPTORS`, the built-in descriptors imported (so registered) first."""
+    for module in _BUILT_IN.values():
+        importlib.import_module(module, __package__)
+    return DESCRIPTORS
 
 
 def register_descriptor(cls: type["ImageDescriptor"]) -> type["ImageDescriptor"]:
@@ -270,7 +284,7 @@ class ImageDescriptor(BaseEstimator):
                 f"{' (it holds a ' + repr(header['model']) + ' model; load it with btel.load)' if 'model' in header else ''}."
             )
         name = header.get("descriptor")
-        klass = DESCRIPTORS.get(name) if isinstance(name, str) else None
+        klass = registered().get(name) if isinstance(name, str) else None
         if klass is None:
             raise ModelFileError(f"{str(path)!r} holds an unknown descriptor {name!r}; it was not written by this btel.")
         if cls is not ImageDescriptor and not issubclass(klass, cls):
@@ -317,7 +331,7 @@ def get_descriptor(name: str, **params: Any) -> ImageDescriptor:
         Unknown name, or a parameter the class does not take.
     """
     key = name.lower().replace("-", "").replace("_", "") if isinstance(name, str) else name
-    cls = DESCRIPTORS.get(key)
+    cls = registered().get(key)
     if cls is None:
         raise InvalidParameterError(f"unknown descriptor {name!r}; choose one of {', '.join(sorted(DESCRIPTORS))}.")
     try:
