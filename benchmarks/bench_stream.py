@@ -1,22 +1,30 @@
-"""Streaming throughput: ``btel localize --stream`` lines per second, and the parser against the old one.
+"""Streaming throughput: ``btel localize --stream`` lines per second for each input format, start-up subtracted.
 
-For d = 500 and d = 3780 (NetVLAD-PCA-like and HOG-like widths) this script writes 10,000
-descriptor lines (comma-separated, ``repr`` of float32 values, as ``numpy.savetxt`` or a camera
-pipeline would) and measures, in one process:
+For d = 500 and d = 3780 (NetVLAD-PCA-like and HOG-like widths) this script writes ``--lines``
+descriptors in each format a camera pipeline produces:
 
-- **parse only**: lines per second of :func:`btel.streaming.parse_descriptor_line` (orjson from
-  the raw bytes) against the previous parser (Python ``float`` per token, reproduced here as
-  ``old_parse``), on the same lines, and the ratio;
+- ``savetxt``: ``numpy.savetxt(f, Q)`` — its default, ``'%.18e'`` separated by single spaces;
+- ``savetxt-comma``: ``numpy.savetxt(f, Q, delimiter=",")``;
+- ``repr-comma``: the shortest round-trip ``repr`` of each float32 value, comma-separated;
+- ``binary``: float32 frames (``--binary``: a uint32 count, then the float32 values).
+
+and measures, in one run:
+
+- **parse**: lines per second of :func:`btel.lineparse.parse_lines` on blocks of 256 lines (text
+  formats), against the parser of before issue #22 (a Python ``float`` per token, ``old_parse``);
 - **stream**: :func:`btel.streaming.localize_stream` over the file opened in binary mode (as the
   CLI does), model prediction included, output discarded;
-- **CLI**: ``btel localize MODEL --stream --input FILE`` in a subprocess, stdout to /dev/null,
-  minus the time of the same command on an empty file (interpreter start-up and model loading).
+- **CLI file**: ``btel localize MODEL --stream --input FILE``, stdout to /dev/null, minus the same
+  command on an empty file (interpreter start-up and model loading: the start-up);
+- **CLI pipe**: the same with the file piped into stdin (``cat FILE | btel localize MODEL --stream``),
+  minus the same start-up.
 
-The model is BTEL (``btel-c``, the paper's method) fitted on a synthetic route of 2,000 places.
-The machine's load average is printed beside each ratio (a shared machine).
+The model is BTE-C (``btel-c``, the paper's method) fitted on a synthetic route of 2,000 places.
+The machine's load average is printed beside each row (a shared machine: the lead re-runs it on a
+quiet one). The target: ≥ 20,000 lines/s at d = 500 for both savetxt formats through the CLI.
 
-    python benchmarks/bench_stream.py            # 10,000 lines at d = 500 and 3780
-    python benchmarks/bench_stream.py --lines 2000
+    python benchmarks/bench_stream.py                 # 20,000 lines at d = 500 and 3780
+    python benchmarks/bench_stream.py --lines 5000 --dims 500
 
 Writes ``benchmarks/results/bench_stream.json``.
 """
@@ -40,6 +48,7 @@ sys.path.insert(0, str(HERE))
 from _common import write_results  # noqa: E402
 
 _SEPARATORS = re.compile(r"[,\s]+")
+FORMATS = ("savetxt", "savetxt-comma", "repr-comma", "binary")
 
 
 def old_parse(line: str, n_features: int) -> np.ndarray:
@@ -53,76 +62,105 @@ def old_parse(line: str, n_features: int) -> np.ndarray:
     return values.astype(np.float32).reshape(1, -1)
 
 
-def lines_per_second(fn, lines, repeats: int = 3) -> float:
+def write_format(path: Path, Q: np.ndarray, fmt: str) -> None:
+    if fmt == "savetxt":
+        np.savetxt(path, Q)
+    elif fmt == "savetxt-comma":
+        np.savetxt(path, Q, delimiter=",")
+    elif fmt == "repr-comma":
+        path.write_text("".join(",".join(repr(v) for v in row.tolist()) + "\n" for row in Q))
+    else:
+        head = np.uint32(Q.shape[1]).tobytes()
+        path.write_bytes(b"".join(head + row.astype("<f4").tobytes() for row in Q))
+
+
+def best_rate(fn, n: int, repeats: int = 3) -> float:
     best = np.inf
     for _ in range(repeats):
         start = time.perf_counter()
-        for line in lines:
-            fn(line)
+        fn()
         best = min(best, time.perf_counter() - start)
-    return len(lines) / best
+    return n / best
 
 
-def run(d: int, n_lines: int, folder: Path) -> dict:
+def run(d: int, n_lines: int, folder: Path) -> list[dict]:
     from btel import BTELocalizer
     from btel.datasets import synthetic_route
-    from btel.streaming import localize_stream, parse_descriptor_line
+    from btel.lineparse import parse_lines
+    from btel.streaming import localize_stream
 
     route = synthetic_route(2000, d, seed=0)
     model = BTELocalizer(progress=False, random_state=0).fit(route.map)
     model_path = folder / f"model{d}.npz"
     model.save(model_path)
     Q = route.queries[np.arange(n_lines) % len(route.queries)]
-    text = "".join(",".join(repr(v) for v in row.tolist()) + "\n" for row in Q)
-    data = folder / f"lines{d}.txt"
-    data.write_text(text)
-    raw = text.encode().splitlines(keepends=True)
-    strs = text.splitlines(keepends=True)
-    sample = max(1, n_lines // 5)  # the old parser is slow: a fifth of the lines
-    load = os.getloadavg()
-    new_parse = lines_per_second(lambda b: parse_descriptor_line(b, d), raw)
-    old = lines_per_second(lambda s: old_parse(s, d), strs[:sample])
-    assert np.array_equal(parse_descriptor_line(raw[0], d), old_parse(strs[0], d))
-
-    start = time.perf_counter()
-    with open(data, "rb") as source:
-        answers = [place for _, place in localize_stream(model, source)]
-    stream_s = time.perf_counter() - start
-    assert len(answers) == n_lines
-
-    empty = folder / "empty.txt"
-    empty.write_text("")
-    cli = [sys.executable, "-m", "btel.cli", "localize", str(model_path), "--stream", "--input"]
+    expected = model.predict(Q)
     env = {**os.environ, "PYTHONPATH": str(HERE.parent / "src")}
+    cli = [sys.executable, "-m", "btel.cli", "localize", str(model_path), "--stream"]
+    rows = []
+    for fmt in FORMATS:
+        data = folder / f"{fmt}{d}.txt"
+        write_format(data, Q, fmt)
+        flags = ["--binary"] if fmt == "binary" else []
+        load = os.getloadavg()
+        row = {"d": d, "format": fmt, "lines": n_lines, "bytes_per_line": data.stat().st_size / n_lines,
+               "load_before": list(load)}
+        if fmt != "binary":
+            raw = data.read_bytes().splitlines(keepends=True)
+            blocks = [raw[i:i + 256] for i in range(0, len(raw), 256)]
+            row["parse_lines_per_s"] = best_rate(lambda: [parse_lines(b, d) for b in blocks], n_lines)
+            sample = [line.decode() for line in raw[: max(1, n_lines // 10)]]  # the old parser is slow: a tenth
+            row["old_parse_lines_per_s"] = best_rate(lambda: [old_parse(s, d) for s in sample], len(sample), 1)
+            row["parse_ratio_vs_old"] = row["parse_lines_per_s"] / row["old_parse_lines_per_s"]
+            assert np.array_equal(parse_lines(raw[:1], d)[0], old_parse(raw[0].decode(), d))
 
-    def cli_seconds(path: Path) -> float:
-        start = time.perf_counter()
-        subprocess.run(cli + [str(path)], check=True, stdout=subprocess.DEVNULL, env=env)
-        return time.perf_counter() - start
+        def streamed() -> list[int]:
+            with open(data, "rb") as source:
+                return [place for _, place in localize_stream(model, source, binary=fmt == "binary")]
 
-    startup = min(cli_seconds(empty) for _ in range(2))
-    cli_total = cli_seconds(data)
-    row = {
-        "d": d, "lines": n_lines, "load_before": list(load), "load_after": list(os.getloadavg()),
-        "parse_lines_per_s": new_parse, "old_parse_lines_per_s": old, "parse_ratio_vs_old": new_parse / old,
-        "stream_lines_per_s": n_lines / stream_s,
-        "cli_lines_per_s_excluding_startup": n_lines / max(cli_total - startup, 1e-9),
-        "cli_startup_s": startup, "cli_total_s": cli_total,
-    }
-    print(f"d = {d}: parse {new_parse:,.0f} lines/s vs old {old:,.0f} ({new_parse / old:.1f}×); "
-          f"localize_stream {row['stream_lines_per_s']:,.0f} lines/s; CLI {row['cli_lines_per_s_excluding_startup']:,.0f}"
-          f" lines/s after {startup:.2f} s start-up (load {load[0]:.2f})", flush=True)
-    return row
+        assert np.array_equal(streamed(), expected)
+        row["stream_lines_per_s"] = best_rate(streamed, n_lines, 1)
+
+        def cli_seconds(path: Path, pipe: bool) -> float:
+            start = time.perf_counter()
+            if pipe:
+                with open(path, "rb") as fh:
+                    cat = subprocess.Popen(["cat"], stdin=fh, stdout=subprocess.PIPE)
+                    out = subprocess.run(cli + flags, stdin=cat.stdout, check=True, capture_output=True, env=env)
+                    cat.wait()
+            else:
+                out = subprocess.run(cli + flags + ["--input", str(path)], check=True, capture_output=True, env=env)
+            elapsed = time.perf_counter() - start
+            assert len(out.stdout.split()) == (0 if path.stat().st_size == 0 else n_lines)
+            return elapsed
+
+        empty = folder / "empty.txt"
+        empty.write_bytes(b"")
+        for how, pipe in (("file", False), ("pipe", True)):
+            startup = min(cli_seconds(empty, pipe) for _ in range(3))
+            total = min(cli_seconds(data, pipe) for _ in range(2))
+            row[f"cli_{how}_startup_s"], row[f"cli_{how}_total_s"] = startup, total
+            row[f"cli_{how}_lines_per_s"] = n_lines / max(total - startup, 1e-9)
+        row["load_after"] = list(os.getloadavg())
+        rows.append(row)
+        parse = (f"parse {row['parse_lines_per_s']:>8,.0f}/s ({row['parse_ratio_vs_old']:4.1f}× old)"
+                 if "parse_lines_per_s" in row else " " * 31)
+        print(f"d = {d:<5} {fmt:<14} {parse}  stream {row['stream_lines_per_s']:>8,.0f}/s  "
+              f"CLI file {row['cli_file_lines_per_s']:>8,.0f}/s  pipe {row['cli_pipe_lines_per_s']:>8,.0f}/s  "
+              f"(start-up {row['cli_file_startup_s']:.2f} s; load {load[0]:.2f} → {row['load_after'][0]:.2f})",
+              flush=True)
+    return rows
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--lines", type=int, default=10_000)
+    parser.add_argument("--lines", type=int, default=20_000)
     parser.add_argument("--dims", type=int, nargs="+", default=[500, 3780])
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        rows = [run(d, args.lines, Path(tmp)) for d in args.dims]
-    path = write_results("bench_stream", {"rows": rows, "targets_lines_per_s": {"500": 20_000, "3780": 4_000}})
+        rows = [row for d in args.dims for row in run(d, args.lines, Path(tmp))]
+    path = write_results("bench_stream", {"rows": rows, "targets_lines_per_s": {"500": 20_000},
+                                          "command": " ".join(["python", *sys.argv])})
     print(f"wrote {path}")
 
 

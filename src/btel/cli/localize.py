@@ -23,6 +23,9 @@ from ._outputs import refuse_existing
 @click.option("--stream", is_flag=True,
               help="Read one descriptor per line (numbers separated by commas/spaces) from stdin or --input and "
                    "print one prediction per line as each arrives.")
+@click.option("--binary", is_flag=True,
+              help="With --stream: the input is binary float32 frames, not text: each a little-endian uint32 count n "
+                   "then n little-endian float32 values (n = 0: a new traverse).")
 @click.option("--input", "input_path", type=click.Path(dir_okay=False), default=None,
               help="With --stream: read this text file instead of stdin.")
 @click.option("--hmm", is_flag=True,
@@ -34,13 +37,15 @@ from ._outputs import refuse_existing
 @click.option("--idle-timeout", type=float, default=None,
               help="With --follow: stop after this many seconds without a new line (default: run until Ctrl-C).")
 def localize(model_path: str, queries: str | None, output: str | None, overwrite: bool, window: int | None, stream: bool,
-             input_path: str | None, hmm: bool, top_k: int | None, follow: bool, idle_timeout: float | None) -> None:
+             binary: bool, input_path: str | None, hmm: bool, top_k: int | None, follow: bool,
+             idle_timeout: float | None) -> None:
     """Predict the place of every query with a saved MODEL.
 
     \b
     Batch:  btel localize MODEL QUERIES.npy -o predictions.csv   (writes query,prediction CSV)
     Stream: producer | btel localize MODEL --stream --sequence-filter 5   (or --hmm)
             btel localize MODEL --stream --input frames.txt --follow
+            camera | btel localize MODEL --stream --binary   (float32 frames, see --binary)
     In stream mode each line of input is one descriptor; each output line is the place index of the
     next well-formed input line. A malformed line (wrong count, not a number, NaN) gets a one-line
     error naming its line number on stderr, produces no output line, and the stream goes on.
@@ -54,10 +59,10 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
             raise click.UsageError("choose --hmm or --sequence-filter, not both.")
         if queries is not None or output is not None:
             raise click.UsageError("--stream reads stdin (or --input) and writes stdout; drop QUERIES and -o.")
-        _localize_stream(load(model_path), input_path, follow, idle_timeout, window, hmm)
+        _localize_stream(load(model_path), input_path, follow, idle_timeout, window, hmm, binary)
         return
-    if input_path is not None or follow or idle_timeout is not None:
-        raise click.UsageError("--input, --follow and --idle-timeout only apply with --stream.")
+    if input_path is not None or follow or idle_timeout is not None or binary:
+        raise click.UsageError("--input, --follow, --idle-timeout and --binary only apply with --stream.")
     if queries is None or output is None:
         raise click.UsageError("give QUERIES and -o/--output (or use --stream).")
     if hmm and window is not None:
@@ -84,8 +89,8 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
 
 
 def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_timeout: float | None,
-                     window: int | None, hmm: bool = False) -> None:
-    """The --stream loop: one flushed output line per well-formed input line."""
+                     window: int | None, hmm: bool = False, binary: bool = False) -> None:
+    """The --stream loop: one output line per well-formed input line, flushed before the next input is awaited."""
     from ..streaming import localize_stream
 
     if follow and input_path is None:
@@ -93,19 +98,21 @@ def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_time
     if idle_timeout is not None and not follow:
         raise click.UsageError("--idle-timeout only applies with --follow.")
     n_bad = n_out = 0
+    unit = "frame" if binary else "line"
 
     def report(line_number: int, message: str) -> None:
         nonlocal n_bad
         n_bad += 1
-        click.echo(f"error: line {line_number}: {message} (skipped)", err=True)
+        click.echo(f"error: {unit} {line_number}: {message} (skipped)", err=True)
 
     # Bytes, decoded line by line in localize_stream: a byte that is not UTF-8 is one malformed line,
     # not the end of the stream (a text stream's decoder would raise and stop it).
     source = open(input_path, "rb") if input_path is not None else getattr(sys.stdin, "buffer", sys.stdin)
+    out = sys.stdout
     try:
         for _, place in localize_stream(model, source, window=window, on_error=report, follow=follow,
-                                        idle_timeout=idle_timeout, hmm=hmm):
-            click.echo(place)  # click.echo flushes: a reader of the pipe sees each line at once
+                                        idle_timeout=idle_timeout, hmm=hmm, binary=binary, on_flush=out.flush):
+            out.write(f"{place}\n")  # flushed by on_flush: a reader of the pipe sees each answer at once
             n_out += 1
     except KeyboardInterrupt:  # stopping a --follow stream is the normal way to end it
         pass
@@ -113,4 +120,4 @@ def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_time
         if input_path is not None:
             source.close()
     if n_bad:
-        click.echo(f"{n_out} predictions; {n_bad} malformed line(s) skipped", err=True)
+        click.echo(f"{n_out} predictions; {n_bad} malformed {unit}(s) skipped", err=True)

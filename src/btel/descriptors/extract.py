@@ -11,7 +11,7 @@ import numpy as np
 
 from .._validation import check_is_fitted
 from ..exceptions import InvalidParameterError, NotFittedError
-from .base import DESCRIPTORS, ImageDescriptor, get_descriptor
+from .base import ImageDescriptor, get_descriptor, registered
 from .images import ImageInput
 
 __all__ = ["extract_descriptors"]
@@ -20,12 +20,12 @@ __all__ = ["extract_descriptors"]
 def _resolve(descriptor: Any) -> ImageDescriptor:
     if isinstance(descriptor, ImageDescriptor):
         return descriptor
-    if isinstance(descriptor, str) and descriptor.lower().replace("-", "").replace("_", "") in DESCRIPTORS:
+    if isinstance(descriptor, str) and descriptor.lower().replace("-", "").replace("_", "") in registered():
         return get_descriptor(descriptor)
     if isinstance(descriptor, (str, os.PathLike)) and Path(descriptor).is_file():
         return ImageDescriptor.load(descriptor)
     raise InvalidParameterError(
-        f"descriptor must be a name ({', '.join(sorted(DESCRIPTORS))}), a saved descriptor file, or an "
+        f"descriptor must be a name ({', '.join(sorted(registered()))}), a saved descriptor file, or an "
         f"ImageDescriptor; got {descriptor!r}."
     )
 
