@@ -320,3 +320,137 @@ def test_a_whole_file_is_predicted_in_blocks_with_the_same_answers_and_errors(ro
     one_by_one = list(localize_stream(model, piped, window=4, on_error=lambda n, m: errors_pipe.append((n, m))))
     assert from_file == one_by_one and len(from_file) == 298
     assert errors_file == errors_pipe == [(11, "expected 32 values, got 2.")]
+
+
+# ----------------------------------------------------------------------------- what numpy.savetxt writes
+@pytest.mark.parametrize("delimiter", [" ", ",", "\t"])
+def test_savetxt_lines_take_the_fast_path_and_equal_the_strict_parser(route, tmp_path: Path,
+                                                                      delimiter: str) -> None:
+    from btel.lineparse import parse_lines, parse_strict
+
+    Q = route.queries[:40]
+    np.savetxt(tmp_path / "q.txt", Q, delimiter=delimiter)  # numpy's default format '%.18e'
+    raw = (tmp_path / "q.txt").read_bytes().splitlines(keepends=True)
+    rows, fast = parse_lines(raw, Q.shape[1])
+    assert all(fast) and rows.dtype == np.float32 and rows.shape == Q.shape
+    np.testing.assert_array_equal(rows, Q)  # float32 → '%.18e' → float32 is exact
+    np.testing.assert_array_equal(rows, np.concatenate([parse_strict(line, Q.shape[1]) for line in raw]))
+
+
+@pytest.mark.parametrize("line", [b"1,true,2", b"1 false 2", b"1,null,2", b'1,"2",3', b"1,[2],3", b"1,{},3",
+                                  b"[1,2,3]", b"1],[2", b"1  2 3", b"1,,2,3", b" 1 2 3", b"+1,2,3",
+                                  b"1,2,3,"])
+def test_a_line_that_is_not_plain_numbers_leaves_the_fast_path(line: bytes) -> None:
+    from btel.lineparse import parse_lines
+
+    rows, fast = parse_lines([line], 3)
+    assert fast == [False] and rows.shape == (0, 3)
+
+
+def test_a_block_mixes_fast_strict_and_bad_lines_in_order(route) -> None:
+    from btel.lineparse import parse_lines
+
+    good = [line.encode() for line in as_lines(route.queries[:3], sep=" ")]
+    block = [good[0], b"1,2\n", good[1], b"3e38," * 31 + b"3e38\n", good[2]]
+    rows, fast = parse_lines(block, 32)
+    assert fast == [True, False, True, False, True]  # the overflowing norm goes to the strict parser
+    np.testing.assert_array_equal(rows, route.queries[:3])
+
+
+def test_cli_stream_of_savetxt_files_equals_batch(route, model_path: Path, tmp_path: Path) -> None:
+    model = load(model_path)
+    Q = route.queries[:300]
+    for delimiter in (" ", ","):
+        np.savetxt(tmp_path / "q.txt", Q, delimiter=delimiter)
+        args = ["localize", str(model_path), "--stream", "--input", str(tmp_path / "q.txt")]
+        result = CliRunner().invoke(main, args, catch_exceptions=False)
+        assert result.exit_code == 0, result.stderr
+        np.testing.assert_array_equal([int(v) for v in result.stdout.split()], model.predict(Q))
+
+
+def test_a_pipe_backlog_is_answered_in_blocks_with_the_same_answers(route, model_path: Path) -> None:
+    """A producer faster than btel: its lines wait in the pipe and go through in blocks, errors in place."""
+    model = load(model_path)
+    Q = route.queries[np.arange(600) % 300]
+    lines = as_lines(Q, sep=" ")
+    lines[7] = "1 2\n"
+    lines[400] = "reset\n"
+    proc = _btel("localize", str(model_path), "--stream", "--sequence-filter", "3", stdin=subprocess.PIPE)
+    out, err = proc.communicate("".join(lines), timeout=120)
+    assert proc.returncode == 0, err
+    keep = [i for i in range(600) if i not in (7, 400)]
+    expected = np.concatenate([filter_sequence(model.predict(Q[[i for i in keep if i < 400]]), 3,
+                                               n_places=model.n_places_),
+                               filter_sequence(model.predict(Q[[i for i in keep if i > 400]]), 3,
+                                               n_places=model.n_places_)])
+    np.testing.assert_array_equal([int(v) for v in out.split()], expected)
+    assert "error: line 8: expected 32 values, got 2" in err
+
+
+def test_the_chunk_reader_says_when_a_pipe_is_idle() -> None:
+    from btel.streamread import IDLE, chunk_lines
+
+    read_end, write_end = os.pipe()
+    with os.fdopen(read_end, "rb") as source, os.fdopen(write_end, "wb") as sink:
+        sink.write(b"1,2\n3,4\n5,")
+        sink.flush()
+        lines = chunk_lines(source)
+        assert [next(lines), next(lines)] == [b"1,2\n", b"3,4\n"]
+        assert next(lines) is IDLE  # half a line held, nothing more waiting: the caller answers now
+        sink.write(b"6\n")
+        sink.close()
+        assert list(lines) == [b"5,6\n"]  # at the end the pipe reads as ready (EOF): no wait, no IDLE
+
+
+# ----------------------------------------------------------------------------- binary float32 frames
+def frames(Q: np.ndarray) -> bytes:
+    return b"".join(np.uint32(row.size).tobytes() + row.astype("<f4").tobytes() for row in Q)
+
+
+def test_binary_frames_equal_text_lines_and_report_wrong_frames(route, model_path: Path) -> None:
+    model = load(model_path)
+    Q = route.queries[:50]
+    bad = np.full((1, 32), np.nan, dtype=np.float32)
+    data = (frames(Q[:10]) + frames(Q[:1, :5]) + frames(bad) + frames(Q[10:30]) + np.uint32(0).tobytes()
+            + frames(Q[30:]))
+    args = ["localize", str(model_path), "--stream", "--binary", "--sequence-filter", "3"]
+    result = CliRunner().invoke(main, args, input=data, catch_exceptions=False)
+    assert result.exit_code == 0, result.stderr
+    expected = np.concatenate([filter_sequence(model.predict(Q[:30]), 3, n_places=model.n_places_),
+                               filter_sequence(model.predict(Q[30:]), 3, n_places=model.n_places_)])
+    np.testing.assert_array_equal([int(v) for v in result.stdout.split()], expected)
+    errors = result.stderr.strip().splitlines()
+    assert errors[0] == "error: frame 11: a frame of 5 values; the model takes 32. (skipped)"
+    assert errors[1] == "error: frame 12: value 1 is not finite. (skipped)"
+    assert errors[2] == "50 predictions; 2 malformed frame(s) skipped"
+
+
+@pytest.mark.parametrize("tail, message", [
+    (np.uint32(32).tobytes() + b"\0" * 20, "frame 3: the input ends after 20 of its 128 bytes"),
+    (b"\x01\x00", "frame 3: the input ends inside its 4-byte count"),
+    (np.uint32(1 << 30).tobytes(), "frame 3: its count 1073741824 values"),
+])
+def test_a_cut_or_unframed_binary_input_stops_with_a_named_error(route, model_path: Path, tail: bytes,
+                                                                  message: str) -> None:
+    result = CliRunner().invoke(main, ["localize", str(model_path), "--stream", "--binary"],
+                                input=frames(route.queries[:2]) + tail)
+    assert result.exit_code == 1 and message in result.stderr
+    assert len(result.stdout.split()) == 2  # the frames before it were answered
+
+
+def test_binary_only_with_stream(model_path: Path) -> None:
+    result = CliRunner().invoke(main, ["localize", str(model_path), "q.npy", "-o", "p.csv", "--binary"])
+    assert result.exit_code == 2 and "only apply with --stream" in result.stderr
+
+
+@pytest.mark.realdata
+def test_gardens_point_savetxt_and_frames_stream_like_batch(gardenspoint_netvlad, tmp_path: Path) -> None:
+    X_map, X_query = gardenspoint_netvlad
+    path = BTELocalizer(random_state=0, progress=False).fit(X_map).save(tmp_path / "gp.npz")
+    model = load(path)
+    np.savetxt(tmp_path / "q.txt", X_query)
+    (tmp_path / "q.bin").write_bytes(frames(X_query))
+    for flags in (["--input", str(tmp_path / "q.txt")], ["--binary", "--input", str(tmp_path / "q.bin")]):
+        result = CliRunner().invoke(main, ["localize", str(path), "--stream", *flags], catch_exceptions=False)
+        assert result.exit_code == 0, result.stderr
+        np.testing.assert_array_equal([int(v) for v in result.stdout.split()], model.predict(X_query))

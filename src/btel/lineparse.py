@@ -30,8 +30,8 @@ import orjson
 
 from .exceptions import InvalidDescriptorsError, InvalidParameterError
 
-__all__ = ["parse_descriptor_line", "parse_lines", "parse_strict", "max_line_bytes", "LineTooLong", "MAX_LINE_ENV",
-           "DEFAULT_MAX_LINE_BYTES"]
+__all__ = ["parse_descriptor_line", "parse_lines", "parse_strict", "max_line_bytes", "LineTooLong",
+           "MAX_LINE_ENV", "DEFAULT_MAX_LINE_BYTES"]
 
 _SEPARATORS = re.compile(r"[,\s]+")
 #: A finite decimal number: optional sign, digits with an optional point (or a point and digits),
@@ -98,9 +98,7 @@ def parse_descriptor_line(line: str | bytes, n_features: int | None = None) -> n
     """
     raw = line if isinstance(line, (bytes, bytearray)) else line.encode("utf-8", "surrogatepass")
     rows, fast = parse_lines([bytes(raw)], n_features)
-    if fast[0]:
-        return rows
-    return _strict(line.decode("utf-8", "replace") if isinstance(line, (bytes, bytearray)) else line, n_features)
+    return rows if fast[0] else parse_strict(line, n_features)
 
 
 def parse_lines(lines: Sequence[bytes], n_features: int | None) -> tuple[np.ndarray, list[bool]]:
@@ -132,7 +130,8 @@ def parse_lines(lines: Sequence[bytes], n_features: int | None) -> tuple[np.ndar
         return np.empty((0, width or 0), dtype=np.float32), fast
     values64 = np.array(parsed, dtype=np.float64)
     # Out of float32's range, or a squared norm that overflows it: the strict parser names it.
-    bad = ~(np.abs(values64).max(axis=1) <= _FLOAT32_MAX) | ~(np.einsum("ij,ij->i", values64, values64) <= _FLOAT32_MAX)
+    squares = np.einsum("ij,ij->i", values64, values64)
+    bad = ~(np.abs(values64).max(axis=1) <= _FLOAT32_MAX) | ~(squares <= _FLOAT32_MAX)
     if bad.any():
         rows = np.flatnonzero(fast)
         for j in np.flatnonzero(bad):
@@ -143,10 +142,8 @@ def parse_lines(lines: Sequence[bytes], n_features: int | None) -> tuple[np.ndar
 
 def parse_strict(line: str | bytes, n_features: int | None) -> np.ndarray:
     """One line through the strict parser: its (1, d) float32 row, or the error naming what is wrong."""
-    return _strict(line.decode("utf-8", "replace") if isinstance(line, (bytes, bytearray)) else line, n_features)
-
-
-def _strict(line: str, n_features: int | None) -> np.ndarray:
+    if isinstance(line, (bytes, bytearray)):
+        line = line.decode("utf-8", "replace")
     tokens = [t for t in _SEPARATORS.split(line.strip()) if t]
     if not tokens:
         raise InvalidDescriptorsError("empty line (expected one descriptor).")
@@ -166,7 +163,6 @@ def _strict(line: str, n_features: int | None) -> np.ndarray:
             f"value {column + 1} is outside float32's range (|v| > 3.4e38); scale the descriptors.")
     square = float(values @ values)
     if not square <= _FLOAT32_MAX:
-        raise InvalidDescriptorsError(
-            f"the values are too large: their squared norm ({square:.3g}) overflows float32 (3.4e38); scale the "
-            "descriptors down.")
+        raise InvalidDescriptorsError(f"the values are too large: their squared norm ({square:.3g}) "
+                                      "overflows float32 (3.4e38); scale the descriptors down.")
     return values.astype(np.float32).reshape(1, -1)

@@ -34,14 +34,14 @@ from typing import Any, Callable, Iterator, TextIO
 import numpy as np
 
 from .exceptions import DimensionMismatchError, InvalidDescriptorsError, InvalidParameterError
-from .lineparse import (DEFAULT_MAX_LINE_BYTES, MAX_LINE_ENV, LineTooLong, max_line_bytes, parse_descriptor_line,
-                        parse_lines, parse_strict)
+from .lineparse import (DEFAULT_MAX_LINE_BYTES, MAX_LINE_ENV, LineTooLong, max_line_bytes,
+                        parse_descriptor_line, parse_lines, parse_strict)
 from .sequence import SequenceFilter
 from .streamread import IDLE, BadFrame, chunk_lines, is_pipe, read_frames, read_lines
 from .threads import one_blas_thread
 
-__all__ = ["parse_descriptor_line", "read_lines", "localize_stream", "RESET_LINE", "max_line_bytes", "LineTooLong",
-           "MAX_LINE_ENV", "DEFAULT_MAX_LINE_BYTES"]
+__all__ = ["parse_descriptor_line", "read_lines", "localize_stream", "RESET_LINE", "max_line_bytes",
+           "LineTooLong", "MAX_LINE_ENV", "DEFAULT_MAX_LINE_BYTES"]
 
 #: An input line that starts a new traverse: the sequence filter, the HMM and the front end's
 #: delta history forget the past (e.g. the robot was carried to another place).
@@ -99,10 +99,12 @@ def localize_stream(
     source = lines
     n_features = getattr(model, "n_features_in_", None)
     if binary:
-        items: Any = read_frames(source, int(n_features), follow=follow, idle_timeout=idle_timeout)  # type: ignore
+        items: Any = read_frames(source, int(n_features),  # type: ignore[arg-type]
+                                 follow=follow, idle_timeout=idle_timeout)
     elif hasattr(source, "readline"):
         chunked = not follow and not hasattr(source, "encoding") and hasattr(source, "read")
-        items = chunk_lines(source) if chunked else read_lines(source, follow=follow, idle_timeout=idle_timeout)
+        items = chunk_lines(source) if chunked else read_lines(source, follow=follow,
+                                                               idle_timeout=idle_timeout)
     else:
         items = iter(source)
     filt = SequenceFilter(window, n_places=getattr(model, "n_places_", None)) if window is not None else None
@@ -119,30 +121,34 @@ def localize_stream(
     blocks = frame_by_frame and not follow and (binary or _is_regular_file(source) or is_pipe(source))
     flush = on_flush or (lambda: None)
     pending: list[tuple[int, Any]] = []
+
+    def answer_pending() -> Iterator[tuple[int, int]]:
+        if pending:
+            yield from _answer_block(model, stream, filt, _rows(pending, n_features, on_error), on_error)
+            pending.clear()
+            flush()
+
     number = 0
-    for item in items:
-        if item is IDLE:
-            if pending:
-                yield from _answer_block(model, stream, filt, _rows(pending, n_features, on_error), on_error)
-                pending.clear()
-                flush()
-            continue
-        number += 1
-        if blocks:
-            pending.append((number, item))
-            if len(pending) >= _BLOCK_LINES:
-                yield from _answer_block(model, stream, filt, _rows(pending, n_features, on_error), on_error)
-                pending.clear()
-                flush()
-            continue
-        for row in _rows([(number, item)], n_features, on_error):
-            answer = _answer_one(stream, filt, decoder, row, on_error)
-            if answer is not None:
-                yield answer
-                flush()
-    if pending:
-        yield from _answer_block(model, stream, filt, _rows(pending, n_features, on_error), on_error)
-        flush()
+    try:
+        for item in items:
+            if item is IDLE:
+                yield from answer_pending()
+                continue
+            number += 1
+            if blocks:
+                pending.append((number, item))
+                if len(pending) >= _BLOCK_LINES:
+                    yield from answer_pending()
+                continue
+            for row in _rows([(number, item)], n_features, on_error):
+                answer = _answer_one(stream, filt, decoder, row, on_error)
+                if answer is not None:
+                    yield answer
+                    flush()
+    except InvalidDescriptorsError:  # the input broke (a binary frame cut short): answer what came before
+        yield from answer_pending()
+        raise
+    yield from answer_pending()
 
 
 def _answer_one(stream: Any, filt: SequenceFilter | None, decoder: Any, row: tuple[int, Any],
@@ -215,8 +221,10 @@ def _rows(block: list[tuple[int, Any]], n_features: int | None,
     for k, (number, item) in enumerate(block):
         if isinstance(item, np.ndarray) or item == RESET_LINE:  # a binary frame, or a frame count of 0
             out[k] = (number, item)
-        elif isinstance(item, (LineTooLong, BadFrame)) or len(item) > limit + 1:
-            _report(on_error, number, (item if isinstance(item, (LineTooLong, BadFrame)) else LineTooLong(limit)))
+        elif isinstance(item, (LineTooLong, BadFrame)):
+            _report(on_error, number, item)
+        elif len(item) > limit + 1:
+            _report(on_error, number, LineTooLong(limit))
         else:
             raws.append(item.encode("utf-8", "surrogatepass") if isinstance(item, str) else bytes(item))
             where.append(k)
@@ -232,7 +240,8 @@ def _rows(block: list[tuple[int, Any]], n_features: int | None,
             try:  # only lines the fast path refused need decoding
                 item = bytes(item).decode("utf-8")
             except UnicodeDecodeError as exc:
-                _report(on_error, number, f"not UTF-8 text (byte 0x{item[exc.start]:02x} at column {exc.start + 1}).")
+                _report(on_error, number,
+                        f"not UTF-8 text (byte 0x{item[exc.start]:02x} at column {exc.start + 1}).")
                 continue
         text = item.strip()
         if not text:

@@ -60,8 +60,8 @@ def _waiting(fd: int) -> bool:
     return bool(select.select([fd], [], [], 0)[0])
 
 
-def read_lines(stream: Any, *, follow: bool = False, poll_interval: float = 0.1, idle_timeout: float | None = None,
-               max_line: int | None = None) -> Iterator[Any]:
+def read_lines(stream: Any, *, follow: bool = False, poll_interval: float = 0.1,
+               idle_timeout: float | None = None, max_line: int | None = None) -> Iterator[Any]:
     """Yield complete lines from ``stream`` as they arrive (a :class:`LineTooLong` for each over-long one).
 
     Parameters
@@ -195,16 +195,16 @@ def read_frames(stream: BinaryIO, n_features: int, *, follow: bool = False, poll
         number += 1
         count = int.from_bytes(head.ljust(4, b"\0"), "little")
         if len(head) < 4 or count * 4 > limit:
+            what = (f"the input ends inside its 4-byte count ({len(head)} bytes)" if len(head) < 4 else
+                    f"its count {count} values ({count * 4} bytes) exceeds the {limit}-byte limit "
+                    "($BTEL_MAX_LINE_BYTES)")
             raise InvalidDescriptorsError(
-                f"frame {number}: " + (f"the input ends inside its 4-byte count ({len(head)} bytes)" if len(head) < 4
-                                       else f"its count {count} values ({count * 4} bytes) exceeds the "
-                                            f"{limit}-byte limit ($BTEL_MAX_LINE_BYTES)")
-                + "; binary frames are a little-endian uint32 count then that many float32 values: the input is "
-                  "not btel frames, or lost its framing.")
+                f"frame {number}: {what}; binary frames are a little-endian uint32 count then that many "
+                "float32 values: the input is not btel frames, or lost its framing.")
         payload = read(4 * count)
         if len(payload) < 4 * count:
-            raise InvalidDescriptorsError(f"frame {number}: the input ends after {len(payload)} of its {4 * count} "
-                                          "bytes (a frame cut short).")
+            raise InvalidDescriptorsError(f"frame {number}: the input ends after {len(payload)} of its "
+                                          f"{4 * count} bytes (a frame cut short).")
         if count == 0:
             yield RESET
         elif count != n_features:
@@ -215,6 +215,7 @@ def read_frames(stream: BinaryIO, n_features: int, *, follow: bool = False, poll
             if not np.isfinite(row).all():
                 yield BadFrame(f"value {int(np.flatnonzero(~np.isfinite(row[0]))[0]) + 1} is not finite.")
             elif not square <= float(np.finfo(np.float32).max):
-                yield BadFrame(f"the values are too large: their squared norm ({square:.3g}) overflows float32.")
+                yield BadFrame(f"the values are too large: their squared norm ({square:.3g}) overflows "
+                               "float32.")
             else:
                 yield row

@@ -24,8 +24,8 @@ from ._outputs import refuse_existing
               help="Read one descriptor per line (numbers separated by commas/spaces) from stdin or --input and "
                    "print one prediction per line as each arrives.")
 @click.option("--binary", is_flag=True,
-              help="With --stream: the input is binary float32 frames, not text: each a little-endian uint32 count n "
-                   "then n little-endian float32 values (n = 0: a new traverse).")
+              help="With --stream: the input is binary float32 frames, not text: each a little-endian uint32 "
+                   "count n then n little-endian float32 values (n = 0: a new traverse).")
 @click.option("--input", "input_path", type=click.Path(dir_okay=False), default=None,
               help="With --stream: read this text file instead of stdin.")
 @click.option("--hmm", is_flag=True,
@@ -36,8 +36,8 @@ from ._outputs import refuse_existing
 @click.option("--follow", is_flag=True, help="With --stream --input: keep reading as the file grows (like tail -f).")
 @click.option("--idle-timeout", type=float, default=None,
               help="With --follow: stop after this many seconds without a new line (default: run until Ctrl-C).")
-def localize(model_path: str, queries: str | None, output: str | None, overwrite: bool, window: int | None, stream: bool,
-             binary: bool, input_path: str | None, hmm: bool, top_k: int | None, follow: bool,
+def localize(model_path: str, queries: str | None, output: str | None, overwrite: bool, window: int | None,
+             stream: bool, binary: bool, input_path: str | None, hmm: bool, top_k: int | None, follow: bool,
              idle_timeout: float | None) -> None:
     """Predict the place of every query with a saved MODEL.
 
@@ -90,7 +90,7 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
 
 def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_timeout: float | None,
                      window: int | None, hmm: bool = False, binary: bool = False) -> None:
-    """The --stream loop: one output line per well-formed input line, flushed before the next input is awaited."""
+    """The --stream loop: one output line per well-formed input line, flushed before more input is awaited."""
     from ..streaming import localize_stream
 
     if follow and input_path is None:
@@ -110,8 +110,8 @@ def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_time
     source = open(input_path, "rb") if input_path is not None else getattr(sys.stdin, "buffer", sys.stdin)
     out = sys.stdout
     try:
-        for _, place in localize_stream(model, source, window=window, on_error=report, follow=follow,
-                                        idle_timeout=idle_timeout, hmm=hmm, binary=binary, on_flush=out.flush):
+        for _, place in localize_stream(model, source, window=window, on_error=report, follow=follow, hmm=hmm,
+                                        idle_timeout=idle_timeout, binary=binary, on_flush=out.flush):
             out.write(f"{place}\n")  # flushed by on_flush: a reader of the pipe sees each answer at once
             n_out += 1
     except KeyboardInterrupt:  # stopping a --follow stream is the normal way to end it
