@@ -21,6 +21,10 @@ in the same run for scale.
 
     python benchmarks/bench_first_answer.py                 # synthetic route N = 10,000, d = 256
     python benchmarks/bench_first_answer.py --real          # plus Gardens Point NetVLAD (200 × 500)
+    python benchmarks/bench_first_answer.py --before ../main/src   # also another btel tree, same run
+
+``--before SRC`` also times the same ``btel localize`` with the btel package under SRC (an older
+checkout reading the same model files: the figures before a change), in the same alternation.
 
 Writes ``benchmarks/results/bench_first_answer.json``.
 """
@@ -96,7 +100,8 @@ def timed(argv: list[str], env: dict[str, str]) -> float:
     return time.perf_counter() - start
 
 
-def run_map(label: str, X: np.ndarray, Q: np.ndarray, budget: str, repeats: int, folder: Path) -> list[dict]:
+def run_map(label: str, X: np.ndarray, Q: np.ndarray, budget: str, repeats: int, folder: Path,
+            before: Path | None = None) -> list[dict]:
     import faiss
 
     from btel import make_method
@@ -119,20 +124,29 @@ def run_map(label: str, X: np.ndarray, Q: np.ndarray, budget: str, repeats: int,
                     str(out), "--overwrite"]
         faiss_cmd = [sys.executable, str(script), str(index_path), str(q_path), str(out)]
         load = os.getloadavg()
+        old_env = {**env, "PYTHONPATH": str(before), "PYTHONDONTWRITEBYTECODE": "1"} if before else None
         timed(btel_cmd, env), timed(faiss_cmd, env)  # warm the file cache
-        btel_s, faiss_s = [], []
+        if old_env:
+            timed(btel_cmd, old_env)
+        btel_s, faiss_s, old_s = [], [], []
         for _ in range(repeats):
             btel_s.append(timed(btel_cmd, env))
             faiss_s.append(timed(faiss_cmd, env))
+            if old_env:
+                old_s.append(timed(btel_cmd, old_env))
         row = {"map": label, "method": name, "n_places": int(X.shape[0]), "d": int(X.shape[1]),
                "queries": int(Q.shape[0]), "budget": None if name == "bruteforce" else budget,
                "model_bytes": int(model.nbytes), "btel_median_s": statistics.median(btel_s),
                "faiss_median_s": statistics.median(faiss_s), "btel_s": btel_s, "faiss_s": faiss_s,
                "load_before": list(load), "load_after": list(os.getloadavg())}
         row["ratio"] = row["btel_median_s"] / row["faiss_median_s"]
+        if old_s:
+            row["before_s"], row["before_median_s"] = old_s, statistics.median(old_s)
+            row["before_ratio"] = row["before_median_s"] / row["faiss_median_s"]
         rows.append(row)
+        before_text = f"{row['before_median_s']:8.3f} {row['before_ratio']:6.2f}" if old_s else ""
         print(f"{label:<14} {name:<11} {row['btel_median_s']:8.3f} {row['faiss_median_s']:8.3f} "
-              f"{row['ratio']:6.2f}   {load[0]:.2f} → {row['load_after'][0]:.2f}", flush=True)
+              f"{row['ratio']:6.2f} {before_text}  {load[0]:.2f} → {row['load_after'][0]:.2f}", flush=True)
     return rows
 
 
@@ -144,6 +158,7 @@ def main() -> None:
     parser.add_argument("--queries", type=int, default=100)
     parser.add_argument("--budget", default="64KB")
     parser.add_argument("--real", action="store_true", help="also Gardens Point NetVLAD (../shared/data)")
+    parser.add_argument("--before", type=Path, default=None, help="another btel source tree, timed alike")
     args = parser.parse_args()
     from btel.datasets import synthetic_route
 
@@ -155,15 +170,16 @@ def main() -> None:
         timed(argv, env)
         scale_s[key] = statistics.median(timed(argv, env) for _ in range(args.repeats))
     print("  ".join(f"{k}: {v:.3f} s" for k, v in scale_s.items()))
-    print(f"{'map':<14} {'method':<11} {'btel s':>8} {'faiss s':>8} {'ratio':>6}   load")
+    extra = f" {'before s':>8} {'ratio':>6}" if args.before else ""
+    print(f"{'map':<14} {'method':<11} {'btel s':>8} {'faiss s':>8} {'ratio':>6}{extra}  load")
     route = synthetic_route(args.places, args.dim, seed=0)
     queries = route.queries[np.arange(args.queries) % route.queries.shape[0]]
     with tempfile.TemporaryDirectory() as tmp:
-        rows = run_map("synthetic", route.map, queries, args.budget, args.repeats, Path(tmp))
+        rows = run_map("synthetic", route.map, queries, args.budget, args.repeats, Path(tmp), args.before)
         if args.real:
             with np.load(GARDENS_POINT) as data:
                 X, Q = data["hlrTrain"].astype(np.float32), data["hlrTest"].astype(np.float32)
-            rows += run_map("gardens-point", X, Q, "16KB", args.repeats, Path(tmp))
+            rows += run_map("gardens-point", X, Q, "16KB", args.repeats, Path(tmp), args.before)
     path = write_results("bench_first_answer", {"rows": rows, "scale_s": scale_s, "target_ratio": 2.0,
                                                 "command": " ".join(["python", *sys.argv])})
     print(f"written {path}")

@@ -163,3 +163,18 @@ def test_btel_localize_imports_nothing_fit_only(tmp_path: Path) -> None:
     loaded = {m.split(".")[0] for m in modules_after(code)}
     assert (tmp_path / "out.csv").read_text().count("\n") == 11
     assert not loaded & set(FIT_ONLY), sorted(loaded & set(FIT_ONLY))
+
+
+def test_the_registry_imports_a_method_only_when_asked_for() -> None:
+    loaded = modules_after("from btel.methods import make_method, method_names\nmake_method('lsh')\n"
+                           "assert 'btel-codes' in method_names()")
+    assert "btel.methods.baselines.lsh" in loaded
+    assert not {"btel.methods.btel.localizer", "btel.methods.codes.estimator", "btel.methods.ryth",
+                "btel.methods.baselines.pq"} & loaded
+    from btel.methods import MODEL_CLASSES, REGISTRY, registry
+
+    for name, (factory, _) in REGISTRY.items():  # the table's module and class are the class's own
+        entry = registry._ENTRIES[name]
+        cls = getattr(factory, "func", factory)
+        assert (cls.__module__, cls.__name__) == ("btel.methods" + entry.module, entry.cls)
+        assert MODEL_CLASSES[entry.cls] is cls
