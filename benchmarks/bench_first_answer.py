@@ -14,7 +14,9 @@ btel-codes   ``IndexFlatIP`` over the map rows (the reference the codes are held
 ============ ======================================================================================
 
 The two commands of a method alternate, ``--repeats`` times each, with one thread for both
-(``OMP_NUM_THREADS=1`` …); the ratio of their medians is the figure (target ≤ 2). The load
+(``OMP_NUM_THREADS=1`` …); the ratio of their medians is the figure (target ≤ 2). Python's bytecode
+cache is on (in a temporary ``PYTHONPYCACHEPREFIX``), as for an installed package: without it every
+run would compile btel's modules again. The load
 average before and after is printed and stored: the machine is shared, so compare ratios from one
 run, not seconds across runs. ``python -c pass`` and ``python -c "import numpy, faiss"`` are timed
 in the same run for scale.
@@ -25,6 +27,10 @@ in the same run for scale.
 
 ``--before SRC`` also times the same ``btel localize`` with the btel package under SRC (an older
 checkout reading the same model files: the figures before a change), in the same alternation.
+
+Each row also has the import time of ``btel.load(MODEL)`` + ``predict`` in a fresh interpreter (the
+sum of ``python -X importtime``'s self times, minimum of 3) and the packages it imported, for this
+tree and the ``--before`` one.
 
 Writes ``benchmarks/results/bench_first_answer.json``.
 """
@@ -100,13 +106,37 @@ def timed(argv: list[str], env: dict[str, str]) -> float:
     return time.perf_counter() - start
 
 
+def bench_env(src: Path, folder: Path) -> dict[str, str]:
+    """One thread, btel from ``src``, bytecode cached under ``folder`` (as an installed package has it)."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    return {**env, **ONE_THREAD, "PYTHONPATH": str(src), "PYTHONPYCACHEPREFIX": str(folder / "pycache")}
+
+
+_LOAD_AND_PREDICT = "import sys, numpy as np, btel\nbtel.load(sys.argv[1]).predict(np.load(sys.argv[2]))"
+_WATCHED = {"sklearn", "scipy", "ruptures", "joblib", "tqdm", "faiss", "threadpoolctl", "cv2", "skimage"}
+
+
+def import_time(model: Path, queries: Path, env: dict[str, str]) -> tuple[float, list[str]]:
+    """(ms, watched packages imported) of load + predict: ``-X importtime`` self times summed, min of 3."""
+    best: tuple[float, list[str]] | None = None
+    for _ in range(3):
+        argv = [sys.executable, "-X", "importtime", "-c", _LOAD_AND_PREDICT, str(model), str(queries)]
+        err = subprocess.run(argv, env=env, check=True, capture_output=True, text=True).stderr
+        rows = [line.split("|") for line in err.splitlines()
+                if line.startswith("import time:") and "self [us]" not in line]
+        total = sum(int(r[0].split(":")[1]) for r in rows) / 1e3
+        if best is None or total < best[0]:
+            best = (total, sorted({r[2].strip().split(".")[0] for r in rows} & _WATCHED))
+    return best
+
+
 def run_map(label: str, X: np.ndarray, Q: np.ndarray, budget: str, repeats: int, folder: Path,
             before: Path | None = None) -> list[dict]:
     import faiss
 
     from btel import make_method
 
-    env = {**os.environ, **ONE_THREAD, "PYTHONPATH": str(SRC)}
+    env = bench_env(SRC, folder)
     q_path = folder / f"{label}_q.npy"
     np.save(q_path, Q)
     script = folder / "faiss_localize.py"
@@ -124,7 +154,7 @@ def run_map(label: str, X: np.ndarray, Q: np.ndarray, budget: str, repeats: int,
                     str(out), "--overwrite"]
         faiss_cmd = [sys.executable, str(script), str(index_path), str(q_path), str(out)]
         load = os.getloadavg()
-        old_env = {**env, "PYTHONPATH": str(before), "PYTHONDONTWRITEBYTECODE": "1"} if before else None
+        old_env = bench_env(before, folder / "before") if before else None
         timed(btel_cmd, env), timed(faiss_cmd, env)  # warm the file cache
         if old_env:
             timed(btel_cmd, old_env)
@@ -140,6 +170,9 @@ def run_map(label: str, X: np.ndarray, Q: np.ndarray, budget: str, repeats: int,
                "faiss_median_s": statistics.median(faiss_s), "btel_s": btel_s, "faiss_s": faiss_s,
                "load_before": list(load), "load_after": list(os.getloadavg())}
         row["ratio"] = row["btel_median_s"] / row["faiss_median_s"]
+        row["import_ms"], row["imports"] = import_time(model_path, q_path, env)
+        if old_env:
+            row["before_import_ms"], row["before_imports"] = import_time(model_path, q_path, old_env)
         if old_s:
             row["before_s"], row["before_median_s"] = old_s, statistics.median(old_s)
             row["before_ratio"] = row["before_median_s"] / row["faiss_median_s"]
@@ -162,7 +195,7 @@ def main() -> None:
     args = parser.parse_args()
     from btel.datasets import synthetic_route
 
-    env = {**os.environ, **ONE_THREAD, "PYTHONPATH": str(SRC)}
+    env = bench_env(SRC, Path(tempfile.gettempdir()))
     scale = {"python -c pass": [sys.executable, "-c", "pass"],
              "import numpy, faiss": [sys.executable, "-c", "import numpy, faiss"]}
     scale_s = {}
