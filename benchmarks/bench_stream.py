@@ -25,6 +25,10 @@ quiet one). The target: ≥ 20,000 lines/s at d = 500 for both savetxt formats t
 
     python benchmarks/bench_stream.py                 # 20,000 lines at d = 500 and 3780
     python benchmarks/bench_stream.py --lines 5000 --dims 500
+    python benchmarks/bench_stream.py --before ../main/src   # also another btel tree's CLI, same run
+
+``--before SRC`` also times ``btel localize --stream --input FILE`` with the btel package under SRC
+(the text formats it reads), start-up subtracted alike: the ratio to it is what a change gained.
 
 Writes ``benchmarks/results/bench_stream.json``.
 """
@@ -83,7 +87,7 @@ def best_rate(fn, n: int, repeats: int = 3) -> float:
     return n / best
 
 
-def run(d: int, n_lines: int, folder: Path) -> list[dict]:
+def run(d: int, n_lines: int, folder: Path, before: Path | None = None) -> list[dict]:
     from btel import BTELocalizer
     from btel.datasets import synthetic_route
     from btel.lineparse import parse_lines
@@ -122,7 +126,7 @@ def run(d: int, n_lines: int, folder: Path) -> list[dict]:
         assert np.array_equal(streamed(), expected)
         row["stream_lines_per_s"] = best_rate(streamed, n_lines, 1)
 
-        def cli_seconds(path: Path, pipe: bool) -> float:
+        def cli_seconds(path: Path, pipe: bool, env: dict[str, str] = env) -> float:
             start = time.perf_counter()
             if pipe:
                 with open(path, "rb") as fh:
@@ -144,6 +148,12 @@ def run(d: int, n_lines: int, folder: Path) -> list[dict]:
             total = min(cli_seconds(data, pipe) for _ in range(2))
             row[f"cli_{how}_startup_s"], row[f"cli_{how}_total_s"] = startup, total
             row[f"cli_{how}_lines_per_s"] = n_lines / max(total - startup, 1e-9)
+        if before is not None and fmt != "binary":
+            old_env = {**env, "PYTHONPATH": str(before)}
+            startup = min(cli_seconds(empty, False, old_env) for _ in range(3))
+            total = min(cli_seconds(data, False, old_env) for _ in range(2))
+            row["before_cli_file_lines_per_s"] = n_lines / max(total - startup, 1e-9)
+            row["cli_file_ratio_vs_before"] = row["cli_file_lines_per_s"] / row["before_cli_file_lines_per_s"]
         row["load_after"] = list(os.getloadavg())
         rows.append(row)
         parse = (f"parse {row['parse_lines_per_s']:>8,.0f}/s ({row['parse_ratio_vs_old']:4.1f}× old)"
@@ -151,7 +161,10 @@ def run(d: int, n_lines: int, folder: Path) -> list[dict]:
         cli_file, cli_pipe = row["cli_file_lines_per_s"], row["cli_pipe_lines_per_s"]
         print(f"d = {d:<5} {fmt:<14} {parse}  stream {row['stream_lines_per_s']:>8,.0f}/s  CLI file "
               f"{cli_file:>8,.0f}/s  pipe {cli_pipe:>8,.0f}/s  (start-up {row['cli_file_startup_s']:.2f} s; "
-              f"load {load[0]:.2f} → {row['load_after'][0]:.2f})", flush=True)
+              f"load {load[0]:.2f} → {row['load_after'][0]:.2f})"
+              + (f"; before: CLI file {row['before_cli_file_lines_per_s']:,.0f}/s "
+                 f"({row['cli_file_ratio_vs_before']:.1f}×)" if "cli_file_ratio_vs_before" in row else ""),
+              flush=True)
     return rows
 
 
@@ -159,9 +172,10 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--lines", type=int, default=20_000)
     parser.add_argument("--dims", type=int, nargs="+", default=[500, 3780])
+    parser.add_argument("--before", type=Path, default=None, help="another btel source tree, timed alike")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
-        rows = [row for d in args.dims for row in run(d, args.lines, Path(tmp))]
+        rows = [row for d in args.dims for row in run(d, args.lines, Path(tmp), args.before)]
     path = write_results("bench_stream", {"rows": rows, "targets_lines_per_s": {"500": 20_000},
                                           "command": " ".join(["python", *sys.argv])})
     print(f"wrote {path}")
