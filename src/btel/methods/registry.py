@@ -34,7 +34,7 @@ from ..frontend import FrontEnd
 from ..limits import check_places
 from ..modelfile import load_arrays
 
-if TYPE_CHECKING:  # pragma: no cover - imported on first use (_method_class)
+if TYPE_CHECKING:  # pragma: no cover - imported on first use (_model_class)
     from .baselines import PQLocalizer, RaBitQLocalizer
     from .btel.localizer import BTELocalizer, block_size_for_tolerance
     from .codes.estimator import CodeLocalizer
