@@ -505,7 +505,8 @@ def worker_main() -> None:
     out = os.fdopen(os.dup(1), "w", buffering=1)
     os.dup2(2, 1)  # anything else written to stdout (C code included) goes to stderr
     sys.stdout = sys.stderr
-    import btel  # noqa: F401  (import before the first case: its time is not the case's)
+    # Every method's modules before the first case (they import on first use): their time is not a case's.
+    from btel.methods import MODEL_CLASSES  # noqa: F401
 
     queries = np.load(sys.argv[sys.argv.index("--queries") + 1])
     for line in sys.stdin:
