@@ -298,6 +298,8 @@ class RuntimeCache:
         #: The bounded search's composed rows (:class:`~btel.methods.codes.decoding.ComposedRows`) once
         #: decided: False where they do not serve, None before.
         self.composed_rows: Any = None
+        #: (decode setting, the bounded search of single queries or None) once decided, else None.
+        self.one_query: tuple[str, Any] | None = None
 
     def composed_map(self, weights: np.ndarray, bias: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(V, v0): V = W·Cᵀ (d', N) and v0 = b·Cᵀ (N,), float32, the scores of every place as one linear map
