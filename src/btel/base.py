@@ -368,7 +368,7 @@ class PlaceLocalizer(BaseEstimator, ABC):
                 f"{type(self).__name__} produced non-finite scores (first at query row {bad}): its stored weights "
                 "overflow float arithmetic, which a damaged or hostile model file causes. Refit the model or "
                 "check where the file came from.")
-        if places is not None and places.size and not (places.size == 1 and 0 <= int(places.flat[0]) < n) \
+        if places is not None and places.size and not (places.size == 1 and 0 <= places.item(0) < n) \
                 and (places.min() < 0 or places.max() >= n):  # one valid answer: no reductions
             wrong = places[(places < 0) | (places >= n)][0]
             raise InvalidAnswerError(
