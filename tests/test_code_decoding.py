@@ -391,3 +391,34 @@ def test_the_one_query_search_is_kept_per_decode_setting_and_refuses_overflow() 
             model.search(np.ones((1, 48), dtype=np.float32), 1)
     finally:
         model._cache.weights = (weights, bias)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), k=st.sampled_from([1, 4]), block=st.sampled_from([7, 16, 40]),
+       candidates=st.sampled_from([1, 3, 8]), noise=st.floats(0.0, 2.0))
+def test_the_coarse_refine_scores_its_candidates_exactly_with_and_without_the_packed_cache(
+        route, seed, k, block, candidates, noise) -> None:
+    import btel.methods.codes.codewords as codewords
+
+    X, Q = route
+    model = _model("periodic", X)
+    rng = np.random.default_rng(seed)
+    M = model._margins(model._check_queries(Q[rng.choice(len(Q), 3)]))
+    M = model._padded(M + noise * rng.normal(size=M.shape).astype(np.float32) * np.abs(M).mean())
+    cw = model._codewords
+    scores, places = cw.coarse_search(M, k, block, candidates)
+    reference = _reference(model, M)
+    coarse = M @ cw.block_means(block).T
+    n_blocks = coarse.shape[1]
+    for q in range(M.shape[0]):
+        blocks = np.argpartition(coarse[q], n_blocks - candidates)[n_blocks - candidates :]
+        pool = np.concatenate([np.arange(j * block, min(1500, (j + 1) * block)) for j in blocks])
+        assert set(places[q].tolist()) <= set(pool.tolist()) and len(set(places[q].tolist())) == k
+        _check_exact(scores[q : q + 1], np.searchsorted(np.sort(pool), places[q : q + 1]),
+                     reference[q : q + 1, np.sort(pool)])
+    fresh = codewords.Codewords(model.codebook_)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(codewords, "PACKED_CACHE_BYTES", 10)  # numpy look-ups of generated codewords
+        lookups = fresh.coarse_search(M, k, block, candidates)
+    assert fresh.candidates is None and cw.candidates is not None
+    np.testing.assert_allclose(lookups[0], scores, rtol=0, atol=1e-4 * np.abs(reference).max())

@@ -27,6 +27,10 @@ __all__ = ["CodeSearch", "COARSE_MIN_PLACES"]
 #: below it the exact bounded search is no slower, and exact is the better answer
 #: (``benchmarks/bench_codes.py`` times both against N).
 COARSE_MIN_PLACES = 1 << 19
+#: A refined place's cost in the coarse decode (faiss' scan of its ⌈K/8⌉ packed bytes) against a block's coarse
+#: row (8⌈K/8⌉ multiply-adds with its mean codeword): ≈ 0.4 at K = 470 (``benchmarks/bench_single_query.py``).
+#: The default block B = √(N / (t · cost)) makes the two passes cost about the same.
+REFINED_PLACE_COST = 0.4
 
 
 class CodeSearch:
@@ -305,5 +309,6 @@ class CodeSearch:
     def _coarse_shape(self) -> tuple[int, int]:
         """(B places per block, blocks refined)."""
         n, t = int(self.n_places_), int(self.coarse_candidates)
-        block = int(self.coarse_block) if self.coarse_block is not None else max(1, int(round(np.sqrt(n / t))))
+        block = int(self.coarse_block) if self.coarse_block is not None else \
+            max(1, int(round(np.sqrt(n / (t * REFINED_PLACE_COST)))))
         return min(block, n), min(t, -(-n // min(block, n)))
