@@ -142,8 +142,7 @@ class faiss_threads:  # noqa: N801 (a context used like a function, as before)
     def __enter__(self) -> None:
         if self.wanted is None:
             return
-        import faiss
-
+        faiss = _faiss()
         previous = faiss.omp_get_max_threads()
         if previous != self.wanted:
             faiss.omp_set_num_threads(self.wanted)
@@ -151,10 +150,21 @@ class faiss_threads:  # noqa: N801 (a context used like a function, as before)
 
     def __exit__(self, *exc: Any) -> None:
         if self.previous is not None:
-            import faiss
-
-            faiss.omp_set_num_threads(self.previous)
+            _faiss().omp_set_num_threads(self.previous)
             self.previous = None
+
+
+_FAISS: Any = None
+
+
+def _faiss() -> Any:
+    """The faiss module, imported at first use (it is not needed to load the package)."""
+    global _FAISS
+    if _FAISS is None:
+        import faiss
+
+        _FAISS = faiss
+    return _FAISS
 
 
 def search_threads(n_jobs: int | None, n_queries: int) -> int | None:

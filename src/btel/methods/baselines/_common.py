@@ -207,7 +207,7 @@ class _RowLocalizer(PlaceLocalizer):
         with faiss_threads(search_threads(self.n_jobs, Q.shape[0])):
             scores, rows = self._search_rows(Q, k_rows)
         # faiss answers −1 when no distance is finite (overflow, a corrupt index): never a place.
-        if rows.size == 1 and 0 <= int(rows[0, 0]) < n_rows:  # one answer: no array passes
+        if rows.size == 1 and 0 <= rows.item(0) < n_rows:  # one answer: no array passes
             bad = rows[:0, 0]
         else:
             bad = np.flatnonzero(((rows < 0) | (rows >= n_rows)).any(axis=1))
