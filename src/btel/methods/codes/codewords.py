@@ -200,19 +200,21 @@ class Codewords:
         if self.filled[chunk_of].all():
             return self.packed[places]
         chunks = np.unique(chunk_of)
-        for c in chunks[~self.filled[chunks]]:
-            a, b = int(c) * FILL_PLACES, min(n, (int(c) + 1) * FILL_PLACES)
+        missing = chunks[~self.filled[chunks]]
+        # Runs of consecutive missing chunks, each generated in one call.
+        for run in np.split(missing, np.flatnonzero(np.diff(missing) != 1) + 1):
+            a, b = int(run[0]) * FILL_PLACES, min(n, (int(run[-1]) + 1) * FILL_PLACES)
             self.codebook.packed(np.arange(a, b), out=self.packed[a:b])
-            self.filled[c] = True
+            self.filled[run] = True
         return self.packed[places]
 
     def packed_range(self, start: int, stop: int) -> np.ndarray | None:
         """A view of the packed codewords of places start … stop − 1 (filled on demand), or None past
         :data:`PACKED_CACHE_BYTES` (as :meth:`packed_rows`)."""
         if self.packed is None or not self.filled[start // FILL_PLACES : -(-stop // FILL_PLACES)].all():
-            if self.packed_rows(np.arange(start, stop, FILL_PLACES // 2)) is None:
+            touched = np.append(np.arange(start, stop, FILL_PLACES), stop - 1)  # a place in every chunk
+            if self.packed_rows(touched) is None:
                 return None
-            self.packed_rows(np.array([stop - 1]))
         return self.packed[start:stop]
 
     def packed_of(self, places: np.ndarray) -> np.ndarray:
