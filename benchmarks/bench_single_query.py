@@ -160,7 +160,7 @@ def _print(row: dict[str, Any]) -> None:
           f"(load {row['load'][0]:.1f})", flush=True)
 
 
-def large_rows(calls: int, cache: Path) -> list[dict[str, Any]]:
+def large_rows(calls: int, cache: Path, sweep: int = 0) -> list[dict[str, Any]]:
     """N = 10⁶: fit (cached), load + first query, single queries of both code families."""
     import btel
     from btel.methods.codes.estimator import CodeLocalizer
@@ -208,6 +208,8 @@ def large_rows(calls: int, cache: Path) -> list[dict[str, Any]]:
             model.set_params(decode="exact")
             exact = model.predict(Q[:200])
             row["agrees_with_exact"] = float(np.mean(exact == pred[:200]))
+        if code == "periodic" and sweep:
+            row["block_sweep"] = block_sweep(model, Q[:sweep])
         del first
         out.append(row)
         print(f"  N = {n:,d} {row['method']:<30} load {load_s:.3f} s, load + first query {first_s:.3f} s "
@@ -219,17 +221,42 @@ def large_rows(calls: int, cache: Path) -> list[dict[str, Any]]:
     return out
 
 
+def block_sweep(model: Any, Q: np.ndarray) -> list[dict[str, Any]]:
+    """The coarse decode's block B (16 refined blocks) against its warm single-query time and its agreement
+    with the exact decode on the same queries: the evidence behind the default B (REFINED_PLACE_COST)."""
+    from btel.methods.codes.search import REFINED_PLACE_COST
+
+    model.set_params(decode="exact")
+    exact = model.predict(Q)
+    model.set_params(decode="coarse")
+    n, t = int(model.n_places_), int(model.coarse_candidates)
+    default = int(round(np.sqrt(n / (t * REFINED_PLACE_COST))))
+    rows = []
+    for block in sorted({int(round(np.sqrt(n / t))), default, 500, 707}):
+        model.set_params(coarse_block=block)
+        pred = model.predict(Q)  # fills the codewords of the blocks these queries refine: warm timings
+        timing = interleaved({"btel": model.predict}, Q, 2 * len(Q))["btel"]
+        rows.append({"block": block, "candidates": t, "default": block == default, "single_warm_us": timing,
+                     "agrees_with_exact": float(np.mean(pred == exact)), "load": list(os.getloadavg())})
+        print(f"    B = {block:5d}{' (default)' if block == default else '          '} × {t} blocks refined: "
+              f"{timing['median_us']:8.1f} µs warm, same as exact {rows[-1]['agrees_with_exact']:.3f} "
+              f"(load {rows[-1]['load'][0]:.1f})", flush=True)
+    model.set_params(coarse_block=None, decode="auto")
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--calls", type=int, default=2000, help="single-query calls timed per row")
     parser.add_argument("--large", action="store_true", help="also the N = 10⁶ rows")
     parser.add_argument("--large-only", action="store_true", help="only the N = 10⁶ rows")
+    parser.add_argument("--sweep", type=int, default=200, help="queries of the 10⁶ coarse block sweep (0: none)")
     parser.add_argument("--cache", type=Path, default=RESULTS_DIR / "cache", help="where the 10⁶ models are kept")
     args = parser.parse_args()
     load_before = os.getloadavg()
     rows = [] if args.large_only else small_rows(args.calls)
     if args.large or args.large_only:
-        rows += large_rows(min(args.calls, 1000), args.cache)
+        rows += large_rows(min(args.calls, 1000), args.cache, args.sweep)
     path = write_results("bench_single_query", {"rows": rows, "load_before": list(load_before),
                                                 "load_after": list(os.getloadavg()), "calls": args.calls})
     print(f"wrote {path}")

@@ -30,7 +30,6 @@ shape and dtype of every stored array implied by the state, checked on load) and
 from __future__ import annotations
 
 import inspect
-import math
 import time
 from abc import ABC, abstractmethod
 from typing import Any, ClassVar
@@ -273,9 +272,7 @@ class PlaceLocalizer(BaseEstimator, ABC):
         return front.transform(Q, check_finite=True, lazy=self._linear_in_queries)
 
     def _check_k(self, k: Any) -> int:
-        if type(k) is int and k >= 1:  # the common case, without the general integer check (µs count per query)
-            return min(k, self.n_places_)
-        return min(check_positive_int(k, "k"), int(self.n_places_))
+        return min(k if type(k) is int and k >= 1 else check_positive_int(k, "k"), int(self.n_places_))
 
     def search(self, Q: Any, k: int = 10) -> tuple[np.ndarray, np.ndarray]:
         """The ``k`` most likely places per query, best first, with their scores (the primitive).
@@ -365,8 +362,7 @@ class PlaceLocalizer(BaseEstimator, ABC):
             Naming the cause: overflowing scores (a damaged or hostile model file) or a place outside the map.
         """
         n = int(self.n_places_)
-        if scores is not None and scores.size and not (
-                math.isfinite(scores.item(0)) if scores.size == 1 else np.isfinite(scores).all()):
+        if scores is not None and scores.size and not np.isfinite(scores).all():
             bad = int(np.argwhere(~np.isfinite(scores))[0][0])
             raise InvalidAnswerError(
                 f"{type(self).__name__} produced non-finite scores (first at query row {bad}): its stored weights "
