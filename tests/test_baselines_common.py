@@ -222,3 +222,22 @@ def test_sklearn_params_and_clone(cls):
     assert clone(model).get_params() == params
     with pytest.raises(TypeError):
         cls("1MB")  # keyword-only
+
+
+@pytest.mark.parametrize("name", ["bruteforce", "pq", "itq", "rabitq"])
+def test_a_single_query_too_long_for_float32_distances_is_refused_without_normalisation(name) -> None:
+    from btel.exceptions import InvalidDescriptorsError
+
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(N_PLACES, DIM)).astype(np.float32)
+    from btel.methods import make_method
+
+    model = make_method(name, n_jobs=1, normalize="none").fit(X)
+    q = np.full((1, DIM), 1e19, dtype=np.float32)  # finite, its squared norm overflows float32
+    for call in (model.predict, lambda q: model.search(q, 1)):
+        with pytest.raises(InvalidDescriptorsError, match="row 0 has length"):
+            call(q)
+        with pytest.raises(InvalidDescriptorsError, match="row 0 has length"):
+            call(np.vstack([X[:2], q])[2:])
+    # Normalised (the default front end), the same query is a unit row: answered.
+    assert 0 <= make_method(name, n_jobs=1).fit(X).predict(q)[0] < N_PLACES

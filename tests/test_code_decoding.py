@@ -315,3 +315,110 @@ def test_packed_look_ups_past_2048_columns_index_every_group(route) -> None:
     codewords = model._codewords
     from_packed = BlockDecoder(model.codebook_, codewords.width, codewords.packed_of)
     _check_exact(*from_packed.search(M, 3)[:2], _reference(model, M))
+
+
+_ONE_QUERY: dict[str, CodeLocalizer] = {}
+
+
+def _one_query_model(kind: str) -> CodeLocalizer:
+    """A model whose single queries take the one-query bounded search: from the float32 codewords ('codes': K = 40
+    codes, d' = 48, on a map the small-map rule is lowered for) or from the composed rows (d' = 40 < K = 400)."""
+    import btel.methods.codes.decoding as decoding
+
+    if kind not in _ONE_QUERY:
+        r = synthetic_route(1500, 48, condition_shift=0.5, seed=9)
+        with pytest.MonkeyPatch.context() as patch:
+            if kind == "codes":  # 1500 × 40 codeword values: 'dense' by the small-map rule, 'bounded' past it
+                patch.setattr(decoding, "DENSE_SMALL_VALUES", 1000)
+            model = CodeLocalizer(n_codes=40 if kind == "codes" else 400, n_features=None if kind == "codes" else 40,
+                                  decode="exact").fit(r.map)
+            model._one_query_decoder()  # decided under the lowered rule, kept for the model
+        _ONE_QUERY[kind] = model
+    return _ONE_QUERY[kind]
+
+
+@settings(max_examples=30, deadline=None)
+@given(kind=st.sampled_from(["codes", "rows"]), seed=st.integers(0, 10_000), noise=st.floats(0.0, 3.0),
+       scale=st.sampled_from([1e-3, 1.0, 1e4]))
+def test_the_one_query_search_gives_the_true_best_place(kind, seed, noise, scale) -> None:
+    route_ = synthetic_route(1500, 48, condition_shift=0.5, seed=9)
+    model = _one_query_model(kind)
+    decoder = model._one_query_decoder()
+    assert decoder is not None and (model._composed_rows() is not None) == (kind == "rows")
+    rng = np.random.default_rng(seed)
+    # A real query, moved by noise (noise = 3: mostly wrong margins, loose bounds) and scaled.
+    q = route_.queries[rng.integers(len(route_.queries))][None]
+    q = (scale * (q + noise * rng.normal(size=q.shape) * np.abs(q).mean())).astype(np.float32)
+    scores, places = model.search(q, 1)
+    reference = _reference_from_queries(model, q)
+    _check_exact(scores, places, reference)
+    assert model.predict(q)[0] == places[0, 0]
+    # The batch decoder's answer for the same margins: the same place but for a tie within float32 rounding.
+    Z = model._check_queries(q)
+    rows = model._composed_rows()
+    s_batch, p_batch, _ = decoder.search(model._padded_margins(Z), 1, rows, None if rows is None else model._kept(Z))
+    assert p_batch[0, 0] == places[0, 0] or abs(reference[0, p_batch[0, 0]] - reference[0, places[0, 0]]) <= \
+        1e-4 * np.abs(reference).max()
+
+
+def test_the_one_query_search_breaks_ties_to_the_lower_place_across_rounds() -> None:
+    model = _one_query_model("codes")
+    decoder = model._one_query_decoder()
+    m = np.zeros(model._codewords.width, dtype=np.float32)  # every place scores 0: the answer is place 0
+    assert decoder.search_one(m) == (0.0, 0)
+
+
+def test_the_one_query_search_is_kept_per_decode_setting_and_refuses_overflow() -> None:
+    from btel.exceptions import InvalidAnswerError
+
+    model = _one_query_model("rows")
+    assert model._one_query_decoder() is not None
+    model.set_params(decode="coarse")
+    try:
+        assert model._one_query_decoder() is None  # coarse to fine decodes single queries then
+    finally:
+        model.set_params(decode="exact")
+    assert model._one_query_decoder() is not None
+    m = np.full(model._codewords.width, 3e38, dtype=np.float32)  # finite margins whose sums overflow
+    assert not np.isfinite(model._one_query_decoder().search_one(m)[0])
+    model = _one_query_model("codes")  # scores read from the codewords: the margins themselves scaled up
+    weights, bias = model._weights_dense()
+    model._cache.weights = (weights * np.float32(1e38), bias)
+    try:
+        with pytest.raises(InvalidAnswerError, match="non-finite"):
+            model.predict(np.ones((1, 48), dtype=np.float32))
+        with pytest.raises(InvalidAnswerError, match="non-finite"):
+            model.search(np.ones((1, 48), dtype=np.float32), 1)
+    finally:
+        model._cache.weights = (weights, bias)
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 10_000), k=st.sampled_from([1, 4]), block=st.sampled_from([7, 16, 40]),
+       candidates=st.sampled_from([1, 3, 8]), noise=st.floats(0.0, 2.0))
+def test_the_coarse_refine_scores_its_candidates_exactly_with_and_without_the_packed_cache(
+        route, seed, k, block, candidates, noise) -> None:
+    import btel.methods.codes.codewords as codewords
+
+    X, Q = route
+    model = _model("periodic", X)
+    rng = np.random.default_rng(seed)
+    M = model._margins(model._check_queries(Q[rng.choice(len(Q), 3)]))
+    M = model._padded(M + noise * rng.normal(size=M.shape).astype(np.float32) * np.abs(M).mean())
+    cw = model._codewords
+    scores, places = cw.coarse_search(M, k, block, candidates)
+    reference = _reference(model, M)
+    coarse = M @ cw.block_means(block).T
+    n_blocks = coarse.shape[1]
+    for q in range(M.shape[0]):
+        blocks = np.argpartition(coarse[q], n_blocks - candidates)[n_blocks - candidates :]
+        pool = np.concatenate([np.arange(j * block, min(1500, (j + 1) * block)) for j in blocks])
+        assert set(places[q].tolist()) <= set(pool.tolist()) and len(set(places[q].tolist())) == k
+        _check_exact(scores[q : q + 1], np.searchsorted(np.sort(pool), places[q : q + 1]),
+                     reference[q : q + 1, np.sort(pool)])
+    fresh = codewords.Codewords(model.codebook_)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(codewords, "PACKED_CACHE_BYTES", 10)  # numpy look-ups of generated codewords
+        lookups = fresh.coarse_search(M, k, block, candidates)
+    assert fresh.candidates is None and cw.candidates is not None
+    np.testing.assert_allclose(lookups[0], scores, rtol=0, atol=1e-4 * np.abs(reference).max())

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
@@ -324,3 +324,26 @@ def test_a_method_declaring_a_front_end_parameter_itself_is_refused() -> None:
 
             def _place_scores(self, Q):  # pragma: no cover - never reached
                 return Q
+
+
+@settings(max_examples=60, deadline=None)
+@given(row=arrays(np.float32, st.integers(1, 40), elements=st.floats(-9.999999680285692e+37, 9.999999680285692e+37, width=32)),
+       scale=st.sampled_from([1.0, 1e-30, 1e-45, 0.0, 1e19]), lazy=st.booleans())
+def test_one_query_through_the_l2_front_end_equals_a_batch_row(row, scale, lazy) -> None:
+    front = FrontEnd(normalize="l2")
+    with np.errstate(over="ignore"):
+        q = (row * np.float32(scale))[None]
+    assume(np.isfinite(q).all())
+    batch = np.asarray(front.transform(np.vstack([q, q]), check_finite=True, lazy=lazy))[:1]
+    one = np.asarray(front.transform(q, check_finite=True, lazy=lazy))
+    np.testing.assert_allclose(one, batch, rtol=1e-6, atol=1e-30)
+    assert np.isfinite(one).all() and float(np.linalg.norm(one.astype(np.float64))) <= 1 + 1e-5
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_one_query_with_nan_or_inf_is_refused_by_the_l2_front_end(bad) -> None:
+    q = np.ones((1, 5), dtype=np.float32)
+    q[0, 3] = bad
+    for lazy in (False, True):
+        with pytest.raises(InvalidDescriptorsError, match="row 0, column 3"):
+            FrontEnd(normalize="l2").transform(q, check_finite=True, lazy=lazy)

@@ -272,7 +272,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
         return front.transform(Q, check_finite=True, lazy=self._linear_in_queries)
 
     def _check_k(self, k: Any) -> int:
-        return min(check_positive_int(k, "k"), int(self.n_places_))
+        return min(k if type(k) is int and k >= 1 else check_positive_int(k, "k"), int(self.n_places_))
 
     def search(self, Q: Any, k: int = 10) -> tuple[np.ndarray, np.ndarray]:
         """The ``k`` most likely places per query, best first, with their scores (the primitive).
@@ -368,7 +368,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
                 f"{type(self).__name__} produced non-finite scores (first at query row {bad}): its stored weights "
                 "overflow float arithmetic, which a damaged or hostile model file causes. Refit the model or "
                 "check where the file came from.")
-        if places is not None and places.size and not (places.size == 1 and 0 <= int(places.flat[0]) < n) \
+        if places is not None and places.size and not (places.size == 1 and 0 <= places.item(0) < n) \
                 and (places.min() < 0 or places.max() >= n):  # one valid answer: no reductions
             wrong = places[(places < 0) | (places >= n)][0]
             raise InvalidAnswerError(

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -171,9 +172,15 @@ class FrontEnd:
         ``lazy``: the caller only multiplies the rows by matrices, so a plain L2 normalisation
         comes back as :class:`ScaledRows` (no normalised copy of X).
         """
+        plain_l2 = self.normalize == "l2" and self.delta is None and self.whiten is None
+        if plain_l2 and X.shape[0] == 1 and X.dtype == np.float32:  # one query (µs count here): Python arithmetic
+            squares = float(np.dot(X[0], X[0]))
+            if math.isfinite(squares):  # else the general path: a float64 sum, the finiteness check
+                scale = np.float32(1.0 / math.sqrt(squares) if squares > 0 else 1.0)  # a zero row stays zero
+                return ScaledRows(X, np.array([scale])) if lazy else np.multiply(X, scale, dtype=np.float32)
         if self.is_identity:
             return X
-        if lazy and self.normalize == "l2" and self.delta is None and self.whiten is None:
+        if lazy and plain_l2:
             norms = row_norms(X, check_finite=check_finite, name="Q")
             if norms.shape[0] == 1:  # one query: Python arithmetic beats three tiny numpy calls
                 return ScaledRows(X, np.array([1.0 / norms[0] if norms[0] > 0 else 1.0], dtype=np.float32))

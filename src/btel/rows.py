@@ -90,6 +90,8 @@ def normalize_rows(X: np.ndarray, how: str = "l2", *, check_finite: bool = False
         X = np.asarray(X, dtype=np.float64)
         X = (np.sign(X) * np.sqrt(np.abs(X))).astype(np.float32)
     norms = row_norms(X, check_finite=check_finite, name=name)
+    if X.shape[0] == 1:  # one query: one scaled copy, the scale a Python number
+        return np.multiply(X, np.float32(1.0 / norms[0] if norms[0] > 0 else 1.0), dtype=np.float32)
     inverse = (1.0 / np.where(norms > 0, norms, 1.0)).astype(np.float32)
     out = np.empty(X.shape, dtype=np.float32)
     step = max(1, min(_CHUNK_ROWS, (1 << 20) // max(X.shape[1], 1)))

@@ -125,24 +125,46 @@ def check_n_jobs(n_jobs: Any) -> None:
         raise InvalidParameterError(f"n_jobs must be None, -1 (all cores) or a positive integer; got {n_jobs!r}.")
 
 
-@contextlib.contextmanager
-def faiss_threads(n_jobs: int | None) -> Iterator[None]:
+class faiss_threads:  # noqa: N801 (a context used like a function, as before)
     """Run faiss with ``n_jobs`` OpenMP threads inside the block (None: leave faiss' setting).
 
     ``-1`` means every core. The setting is process-wide while the block runs and is restored afterwards.
+    A class, not a generator: it runs per query, and sets nothing where faiss already has that many threads.
     """
-    check_n_jobs(n_jobs)
-    if n_jobs is None:
-        yield
-        return
-    import faiss
 
-    previous = faiss.omp_get_max_threads()
-    faiss.omp_set_num_threads((os.cpu_count() or 1) if n_jobs == -1 else n_jobs)
-    try:
-        yield
-    finally:
-        faiss.omp_set_num_threads(previous)
+    __slots__ = ("wanted", "previous")
+
+    def __init__(self, n_jobs: int | None) -> None:
+        check_n_jobs(n_jobs)
+        self.wanted = None if n_jobs is None else (os.cpu_count() or 1) if n_jobs == -1 else n_jobs
+        self.previous: int | None = None
+
+    def __enter__(self) -> None:
+        if self.wanted is None:
+            return
+        faiss = _faiss()
+        previous = faiss.omp_get_max_threads()
+        if previous != self.wanted:
+            faiss.omp_set_num_threads(self.wanted)
+            self.previous = previous
+
+    def __exit__(self, *exc: Any) -> None:
+        if self.previous is not None:
+            _faiss().omp_set_num_threads(self.previous)
+            self.previous = None
+
+
+_FAISS: Any = None
+
+
+def _faiss() -> Any:
+    """The faiss module, imported at first use (it is not needed to load the package)."""
+    global _FAISS
+    if _FAISS is None:
+        import faiss
+
+        _FAISS = faiss
+    return _FAISS
 
 
 def search_threads(n_jobs: int | None, n_queries: int) -> int | None:

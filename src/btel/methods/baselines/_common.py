@@ -114,6 +114,9 @@ def check_magnitude(X: np.ndarray, name: str, *, error: type[Exception] = Invali
 
     Squared norms are summed in X's own float32: one that overflows is far beyond the bound anyway.
     """
+    if X.shape[0] == 1 and X.dtype == np.float32:  # one query (µs count here): BLAS' sdot (no FP warnings)
+        if float(np.dot(X[0], X[0])) <= MAX_NORM**2:  # False for NaN and overflow: the full check names it
+            return
     for start in range(0, X.shape[0], chunk_rows):
         block = X[start : start + chunk_rows]
         with np.errstate(over="ignore", invalid="ignore"):
@@ -194,7 +197,8 @@ class _RowLocalizer(PlaceLocalizer):
         self.row_places_ = row_places
 
     def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        check_magnitude(Q, "Q")
+        if self.front_end_.normalize == "none":  # a normalising front end hands over finite rows of length ≤ 1
+            check_magnitude(Q, "Q")
         n_rows = self._n_rows()
         # k places need at most k·(most rows of one place) rows.
         k_rows = k if self.row_places_ is None else \
@@ -203,7 +207,10 @@ class _RowLocalizer(PlaceLocalizer):
         with faiss_threads(search_threads(self.n_jobs, Q.shape[0])):
             scores, rows = self._search_rows(Q, k_rows)
         # faiss answers −1 when no distance is finite (overflow, a corrupt index): never a place.
-        bad = np.flatnonzero(((rows < 0) | (rows >= n_rows)).any(axis=1))
+        if rows.size == 1 and 0 <= rows.item(0) < n_rows:  # one answer: no array passes
+            bad = rows[:0, 0]
+        else:
+            bad = np.flatnonzero(((rows < 0) | (rows >= n_rows)).any(axis=1))
         if bad.size:
             raise InvalidDescriptorsError(
                 f"query row {int(bad[0])} has no finite distance to the map ({type(self).__name__}): its values are "

@@ -96,8 +96,8 @@ class BruteForceNN(_RowLocalizer):
 
     def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         values, rows = self._index.search(Q, k)
-        scores = values.astype(np.float64)
-        return (-scores if self.metric == "l2" else scores), rows.astype(np.int64)
+        scores = np.negative(values, dtype=np.float64) if self.metric == "l2" else values.astype(np.float64)
+        return scores, rows.astype(np.int64, copy=False)
 
     def _model_arrays(self) -> dict[str, np.ndarray]:
         return {"descriptors": self.descriptors_}

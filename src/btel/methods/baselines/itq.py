@@ -152,7 +152,7 @@ class ITQLocalizer(_RowLocalizer):
 
     def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         dist, rows = self._index.search(self.encode_centred(Q - self.mean_), k)
-        return -dist.astype(np.float64), rows.astype(np.int64)
+        return np.negative(dist, dtype=np.float64), rows.astype(np.int64, copy=False)
 
     def _model_arrays(self) -> dict[str, np.ndarray]:
         return {"codes": self.codes_, "projection": self.projection_, "mean": self.mean_}

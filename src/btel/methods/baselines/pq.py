@@ -319,7 +319,7 @@ class PQLocalizer(_RowLocalizer):
 
     def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         dist, rows = self._index.search(self._projected(Q), k)
-        return -dist.astype(np.float64), rows.astype(np.int64)
+        return np.negative(dist, dtype=np.float64), rows.astype(np.int64, copy=False)
 
     # -- storage and files ---------------------------------------------------------------------
     def _model_arrays(self) -> dict[str, np.ndarray]:

@@ -228,7 +228,7 @@ class RaBitQLocalizer(_RowLocalizer):
     # -- inference -----------------------------------------------------------------------------
     def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         dist, rows = self._index.search(np.ascontiguousarray(np.asarray(Q, dtype=np.float32) @ self.rotation_), k)
-        return -dist.astype(np.float64), rows.astype(np.int64)
+        return np.negative(dist, dtype=np.float64), rows.astype(np.int64, copy=False)
 
     def summary(self) -> str:
         """One line: D, B, seed, factor width and the front end."""

@@ -77,6 +77,15 @@ _BLOCK_ELEMENTS = 1 << 19
 _CLOSED_FORM_BLOCK = 8
 
 
+def _periodic_positive(i: np.ndarray, frequency: np.ndarray, phase: np.ndarray, work: dict | None) -> np.ndarray:
+    """(n, K) bool: place i's periodic column k is +1, i.e. (i·F_k + Φ_k) mod 2⁶⁴ < 2⁶³, for places i (n, 1) int64."""
+    shape = (i.shape[0], frequency.size)
+    with np.errstate(over="ignore"):
+        t = np.multiply(i.astype(_U64), frequency, out=buffer(work, "z", shape, _U64))
+        t += phase
+    return np.less(t, _U64(1 << 63), out=buffer(work, "bool", shape, bool))
+
+
 def hash_uniform(seed: int, family: str, stream: str, index: np.ndarray) -> np.ndarray:
     """Uniform numbers in [0, 1) that depend only on (seed, family, stream, index), float64."""
     z = hash_keys(int(seed), _FAMILY_IDS[family], _STREAMS[stream], np.asarray(index, dtype=np.int64))
@@ -236,11 +245,7 @@ class Codebook:
         if self.family in ("binary", "offset"):
             positive = ((((i + p["shift"]) % p["modulus"]) >> p["low_bit"]) & 1).astype(bool)
         elif self.family == "periodic":
-            shape = (i.shape[0], p["frequency"].size)
-            with np.errstate(over="ignore"):
-                t = np.multiply(i.astype(_U64), p["frequency"], out=buffer(work, "z", shape, _U64))
-                t += p["phase"]
-            positive = np.less(t, _U64(1 << 63), out=buffer(work, "bool", shape, bool))
+            positive = _periodic_positive(i, p["frequency"], p["phase"], work)
         elif self.family == "blocks":
             positive = self._block_colours(i[:, 0], p)
         else:  # random, rule 1: one hash per (place, column)
@@ -275,8 +280,16 @@ class Codebook:
             return grouped_packed(i, self._params["group_key"], self.n_codes, out=out)
         out = np.empty((i.size, -(-self.n_codes // 8)), dtype=np.uint8) if out is None else out
         rows, work = max(1, _BLOCK_ELEMENTS // max(self.n_codes, 1)), {} if work is None else work
+        periodic = self.family == "periodic"
+        if periodic and i.size and (int(i.min()) < 0 or int(i.max()) >= self.n_places):
+            raise InvalidParameterError(f"place indices must lie in [0, {self.n_places}).")
         for a in range(0, i.size, rows):
-            out[a : a + rows] = np.packbits(self.codewords(i[a : a + rows], work=work) > 0, axis=1, bitorder="little")
+            if periodic:  # the signs' bits straight from the phases: no ±1 codewords in between
+                positive = _periodic_positive(i[a : a + rows, None], self._params["frequency"],
+                                              self._params["phase"], work)
+            else:
+                positive = self.codewords(i[a : a + rows], work=work) > 0
+            out[a : a + rows] = np.packbits(positive, axis=1, bitorder="little")
         return out
 
     @staticmethod

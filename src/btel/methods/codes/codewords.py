@@ -15,7 +15,7 @@ Nothing here is stored in a model file: :class:`Codewords` regenerates what the 
 **Coarse to fine.** The exact decode costs N·K per query. For route families on long maps the
 route is cut into blocks of B consecutive places, each block is scored by its *mean* codeword
 (⌈N/B⌉ × K values), which equals the mean score of the block's places, and only the places of
-the best blocks are scored exactly. Long-period columns are nearly constant on a block, so they
+the best blocks are scored exactly (by faiss' packed scan of their codewords: :class:`CandidateScan`). Long-period columns are nearly constant on a block, so they
 carry the coarse score; short-period ones average out. It is approximate: the true best place may
 sit in a block whose mean is not among the best (``benchmarks/bench_codes.py`` measures the loss).
 """
@@ -87,6 +87,44 @@ class PackedScan:
         return np.concatenate([s for s, _ in parts]), np.concatenate([p for _, p in parts])
 
 
+def _pattern_index(groups: int) -> Any:
+    """An empty faiss.IndexPQ whose 256 centroids per group of 8 columns are the ±1 patterns of a byte, trained.
+
+    Its inner-product scan of packed codewords computes m · c_i (:meth:`Codewords.adc_index`).
+    """
+    import faiss
+
+    index = faiss.IndexPQ(8 * groups, groups, 8, faiss.METRIC_INNER_PRODUCT)
+    faiss.copy_array_to_vector(np.tile(BYTE_SIGNS, (groups, 1)).ravel(), index.pq.centroids)
+    index.is_trained = True
+    return index
+
+
+class CandidateScan:
+    """m · c_i of a query's candidate places by faiss' packed scan: the pattern index's codes replaced by theirs.
+
+    The coarse decode refines a few thousand places per query; faiss builds the query's ⌈K/8⌉ × 256 table and
+    sums one entry per byte in C++, several times faster than the same look-ups in numpy. The index holds
+    only the candidates of the current call (a runtime buffer, reused).
+    """
+
+    def __init__(self, groups: int) -> None:
+        self.groups = groups
+        self.index = _pattern_index(groups)
+
+    def search(self, m: np.ndarray, parts: list[np.ndarray], k: int) -> tuple[np.ndarray, np.ndarray]:
+        """(scores (k,) float32, rows (k,) int64), best first, for margins (1, 8·groups) float32 over the packed
+        codewords ``parts`` ((n_j, groups) uint8 each), rows counted over the parts in order."""
+        n = sum(part.shape[0] for part in parts)
+        view, at = _codes_view(self.index, n, self.groups), 0
+        for part in parts:
+            view[at : at + part.shape[0]] = part
+            at += part.shape[0]
+        self.index.ntotal = n
+        scores, rows = self.index.search(m, k)
+        return scores[0], rows[0]
+
+
 def _codes_view(index: Any, n: int, code_size: int) -> np.ndarray:
     """A writable (n, code_size) uint8 view of a faiss flat-codes index's code array, resized to n codes.
 
@@ -129,6 +167,7 @@ class Codewords:
         self.index: PackedScan | None = None
         self._decoder: BlockDecoder | None = None
         self.means: tuple[int, np.ndarray] | None = None
+        self.candidates: CandidateScan | None = None
 
     def dense(self) -> np.ndarray | None:
         """(N, 8⌈K/8⌉) float32 ±1 codewords when they fit :data:`~btel.methods.codes.decoding.DENSE_CACHE_BYTES`, else None.
@@ -161,11 +200,22 @@ class Codewords:
         if self.filled[chunk_of].all():
             return self.packed[places]
         chunks = np.unique(chunk_of)
-        for c in chunks[~self.filled[chunks]]:
-            a, b = int(c) * FILL_PLACES, min(n, (int(c) + 1) * FILL_PLACES)
+        missing = chunks[~self.filled[chunks]]
+        # Runs of consecutive missing chunks, each generated in one call.
+        for run in np.split(missing, np.flatnonzero(np.diff(missing) != 1) + 1):
+            a, b = int(run[0]) * FILL_PLACES, min(n, (int(run[-1]) + 1) * FILL_PLACES)
             self.codebook.packed(np.arange(a, b), out=self.packed[a:b])
-            self.filled[c] = True
+            self.filled[run] = True
         return self.packed[places]
+
+    def packed_range(self, start: int, stop: int) -> np.ndarray | None:
+        """A view of the packed codewords of places start … stop − 1 (filled on demand), or None past
+        :data:`PACKED_CACHE_BYTES` (as :meth:`packed_rows`)."""
+        if self.packed is None or not self.filled[start // FILL_PLACES : -(-stop // FILL_PLACES)].all():
+            touched = np.append(np.arange(start, stop, FILL_PLACES), stop - 1)  # a place in every chunk
+            if self.packed_rows(touched) is None:
+                return None
+        return self.packed[start:stop]
 
     def packed_of(self, places: np.ndarray) -> np.ndarray:
         """Packed codewords of the given places: from the cache, or generated past its size limit."""
@@ -212,11 +262,7 @@ class Codewords:
             n, groups = self.n_places, -(-self.n_codes // 8)
             if n * groups > PACKED_CACHE_BYTES:
                 return None
-            import faiss
-
-            index = faiss.IndexPQ(8 * groups, groups, 8, faiss.METRIC_INNER_PRODUCT)
-            faiss.copy_array_to_vector(np.tile(BYTE_SIGNS, (groups, 1)).ravel(), index.pq.centroids)
-            index.is_trained = True
+            index = _pattern_index(groups)
             codes_out = _codes_view(index, n, groups)
             rows, work = max(1, BLOCK_VALUES // (8 * groups)), {}  # about 0.5 M packed bytes a step
             for a in range(0, n, rows):
@@ -274,9 +320,18 @@ class Codewords:
                 # Candidates in place order, so that ties go to the lower place as in the exact decode.
                 places = (blocks[:, None] * block + offsets).ravel()
                 places = places[places < n_places]
-                scores = packed_scores(byte_table(m), self.packed_of, places)
-                values, cols = top_k(scores.astype(np.float64)[None], k)
-                out_s[a + q], out_p[a + q] = values[0], places[cols[0]]
+                parts = [self.packed_range(j * block, min(n_places, (j + 1) * block)) for j in blocks.tolist()]
+                if parts[0] is None:  # past the packed cache: numpy look-ups of generated codewords
+                    scores = packed_scores(byte_table(m), self.packed_of, places)
+                    values, cols = top_k(scores.astype(np.float64)[None], k)
+                    out_s[a + q], out_p[a + q] = values[0], places[cols[0]]
+                    continue
+                if self.candidates is None:
+                    self.candidates = CandidateScan(parts[0].shape[1])
+                values, rows = self.candidates.search(M[a + q : a + q + 1], parts, k)
+                # The scan's order; among equal scores the lower place first, as the exact decode.
+                order = np.lexsort((places[rows], -values.astype(np.float64)))
+                out_s[a + q], out_p[a + q] = values[order], places[rows[order]]
         return out_s, out_p
 
 
@@ -298,6 +353,8 @@ class RuntimeCache:
         #: The bounded search's composed rows (:class:`~btel.methods.codes.decoding.ComposedRows`) once
         #: decided: False where they do not serve, None before.
         self.composed_rows: Any = None
+        #: (decode setting, the bounded search of single queries or None) once decided, else None.
+        self.one_query: tuple[str, Any] | None = None
 
     def composed_map(self, weights: np.ndarray, bias: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(V, v0): V = W·Cᵀ (d', N) and v0 = b·Cᵀ (N,), float32, the scores of every place as one linear map

@@ -31,6 +31,7 @@ both (and faiss' packed scan) per N; see :func:`choose_path`'s docstring.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -217,10 +218,17 @@ class BlockDecoder:
         self.varying[:, :K] = signs == 0
         self.packed_of, self.width, self.dense = packed_of, width, dense
         self._offsets = np.arange(self.block)
+        self._stacked: np.ndarray | None = None
 
     @property
     def nbytes(self) -> int:
-        return int(self.constant.nbytes + self.varying.nbytes)
+        return int(self.constant.nbytes + self.varying.nbytes + (0 if self._stacked is None else self._stacked.nbytes))
+
+    def stacked(self) -> np.ndarray:
+        """(⌈N/B⌉, 2·width) float32 [constant | varying], built once: a query's bounds are one product with [m, |m|]."""
+        if self._stacked is None:
+            self._stacked = np.ascontiguousarray(np.hstack([self.constant, self.varying]))
+        return self._stacked
 
     def bounds(self, M: np.ndarray) -> np.ndarray:
         """U (n, ⌈N/B⌉) float32: an upper bound of m · c_i over every place of each block."""
@@ -286,6 +294,71 @@ class BlockDecoder:
                 out_s[q], out_p[q] = kept_s[0], places[by_place][cols[0]]
             visited[q] = done
         return out_s, out_p, visited
+
+    def search_one(self, m: np.ndarray, composed: ComposedRows | None = None,
+                   query: np.ndarray | None = None) -> tuple[float, int]:
+        """Exact best place of one query (k = 1): :meth:`search`'s answer with the fewest calls per query.
+
+        The same bounds, slack and two rounds as :meth:`search`, for a single row read against the
+        float32 codewords (``dense``) or the composed rows: the bounds are one product with the
+        stacked [constant | varying] signs, and the scored blocks are read run by run of consecutive
+        blocks, each run reduced to its maximum at once (no concatenation of scores or places).
+
+        Parameters
+        ----------
+        m : ndarray of shape (width,), float32
+            Padded margins (finite).
+        composed, query : ComposedRows and ndarray of shape (d',), float32, optional
+            Read scored places as q · v_i + v0_i (as :meth:`search`); else the codewords (``dense``
+            must be cached).
+
+        Returns
+        -------
+        (score, place) : the best score as a Python float (it may be NaN or ±inf when the sums
+        overflow: the caller checks) and its place, ties to the lower place.
+        """
+        n_blocks, B, n = self.constant.shape[0], self.block, self.n_places
+        absolute = np.abs(m)
+        u = self.stacked() @ np.concatenate((m, absolute))
+        slack = (2.0 * self.width * 2.0**-23) * float(absolute.sum(dtype=np.float64))
+        if composed is not None:
+            slack += 2.0**-22 * (float(np.abs(query) @ composed.error) + composed.error0)
+            matrix, vector, offset = composed.rows, query, composed.offset
+        else:
+            matrix, vector, offset = self.dense, m, None
+        step = min(FIRST_BLOCKS, n_blocks)
+        take = np.arange(n_blocks) if step == n_blocks else np.argpartition(u, n_blocks - step)[n_blocks - step :]
+        take.sort()
+        best, place = self._best_of_blocks(take.tolist(), matrix, vector, offset, -math.inf, -1)
+        if step < n_blocks and best == best:  # round 2 (a NaN best is returned as it is, for the caller's check)
+            u[take] = -np.inf
+            more = np.flatnonzero(u >= best - slack)
+            if more.size:
+                best, place = self._best_of_blocks(more.tolist(), matrix, vector, offset, best, place)
+        return best, place
+
+    def _best_of_blocks(self, blocks: list[int], matrix: np.ndarray, vector: np.ndarray, offset: np.ndarray | None,
+                        best: float, place: int) -> tuple[float, int]:
+        """The best (score, place) over the given ascending blocks and a running (best, place); ties to the
+        lower place; a NaN score of a run becomes the answer (so the caller's finiteness check sees it)."""
+        B, n = self.block, self.n_places
+        i = 0
+        while i < len(blocks):
+            j = i
+            while j + 1 < len(blocks) and blocks[j + 1] == blocks[j] + 1:
+                j += 1
+            a, b = blocks[i] * B, min(n, (blocks[j] + 1) * B)
+            scores = matrix[a:b] @ vector
+            if offset is not None:
+                scores += offset[a:b]
+            r = int(scores.argmax())  # the first maximum (the first NaN, if any)
+            value = float(scores[r])
+            if value != value:
+                return value, a + r
+            if value > best or (value == best and a + r < place):
+                best, place = value, a + r
+            i = j + 1
+        return best, place
 
     def _score_blocks(self, take: np.ndarray, rows: tuple | None, table: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """(places, float32 m · c_i) of every place of the given sorted blocks.

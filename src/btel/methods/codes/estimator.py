@@ -106,8 +106,9 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
         docstring). 'auto': coarse from 524 288 places (:data:`COARSE_MIN_PLACES`) for route
         families, else exact.
     coarse_block : int, optional
-        B, places per block of the coarse decode. None: ≈ √(N / coarse_candidates) (so the coarse
-        and the fine pass score about as many rows each).
+        B, places per block of the coarse decode. None: √(N / (coarse_candidates · c)), c = the cost of
+        a refined place against a block's coarse row
+        (:data:`~btel.methods.codes.search.REFINED_PLACE_COST`), so the two passes cost about the same.
     coarse_candidates : int
         Blocks scored exactly by the coarse decode.
     random_state : int or None

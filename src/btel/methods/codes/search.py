@@ -16,10 +16,10 @@ import numpy as np
 
 from ...base import top_k
 from ...rows import ScaledRows
-from ...threads import faiss_threads, search_threads
+from ...threads import blas_threads_for_vector, faiss_threads, search_threads
 from .codebook import ROUTE_FAMILIES
 from .codewords import BLOCK_VALUES, Codewords, blas_for, blas_for_decode
-from .decoding import BATCH_DENSE_FROM, DENSE_CACHE_BYTES, PROBE_QUERIES, ComposedRows, best_of, choose_path, composes
+from .decoding import BATCH_DENSE_FROM, BlockDecoder, DENSE_CACHE_BYTES, PROBE_QUERIES, ComposedRows, best_of, choose_path, composes
 
 __all__ = ["CodeSearch", "COARSE_MIN_PLACES"]
 
@@ -27,6 +27,10 @@ __all__ = ["CodeSearch", "COARSE_MIN_PLACES"]
 #: below it the exact bounded search is no slower, and exact is the better answer
 #: (``benchmarks/bench_codes.py`` times both against N).
 COARSE_MIN_PLACES = 1 << 19
+#: A refined place's cost in the coarse decode (faiss' scan of its ⌈K/8⌉ packed bytes) against a block's coarse
+#: row (8⌈K/8⌉ multiply-adds with its mean codeword): ≈ 0.4 at K = 470 (``benchmarks/bench_single_query.py``).
+#: The default block B = √(N / (t · cost)) makes the two passes cost about the same.
+REFINED_PLACE_COST = 0.4
 
 
 class CodeSearch:
@@ -161,7 +165,42 @@ class CodeSearch:
         fewest = n if candidates >= n_blocks else (candidates - 1) * block + n - (n_blocks - 1) * block
         return (block, candidates) if k <= fewest else None
 
+    def _one_query_decoder(self) -> BlockDecoder | None:
+        """The bounded search when it decodes a single query (k = 1) from float32 rows — composed rows or cached
+        codewords — else None (the composed map, the coarse decode, 'dense', 'scan' or packed codewords serve);
+        decided once per ``decode`` setting (an inference parameter)."""
+        cache = self._cache
+        if cache.one_query is None or cache.one_query[0] != self.decode:
+            decoder = None
+            if self._coarse_plan(1) is None and self.exact_path(1) == "bounded":
+                decoder = self._codewords.decoder()
+                if decoder.dense is None and self._composed_rows() is None:
+                    decoder = None
+            cache.one_query = (self.decode, decoder)
+        return cache.one_query[1]
+
+    def _search_one(self, Q: np.ndarray | ScaledRows, decoder: BlockDecoder) -> tuple[np.ndarray, np.ndarray]:
+        """(1, 1) float64 score and int64 place of one query by :meth:`BlockDecoder.search_one
+        <btel.methods.codes.decoding.BlockDecoder.search_one>`: exact, as ``_exact_search``'s bounded path."""
+        rows = self._composed_rows()
+        n_blocks, width = decoder.constant.shape[0], self._codewords.width
+        largest = max(2 * n_blocks * width, self.n_selected_ * width,
+                      int(self.n_places_) * (self.n_selected_ if rows is not None else width))
+        with blas_threads_for_vector(largest):
+            M = self._padded_margins(Q)
+            # Non-finite margins (huge but finite weights in a model file) are an error naming the cause.
+            self._check_answers(None, M)
+            query = None if rows is None else self._kept(Q)[0]
+            best, place = decoder.search_one(M[0], rows, query)
+        if not math.isfinite(best):  # finite margins can still overflow float32 in the sums
+            self._check_answers(None, np.array([best]))
+        return np.array([[best]]), np.array([[place]], dtype=np.int64)
+
     def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        if k == 1 and Q.shape[0] == 1:
+            decoder = self._one_query_decoder()
+            if decoder is not None:
+                return self._search_one(Q, decoder)
         # The search's products are small per query (margins, bounds, refined blocks): one BLAS thread
         # (none set when BLAS uses one anyway), unless a large batch's dense product can use a second one.
         with blas_for_decode(Q.shape[0], self._codewords.width * max(self.n_selected_, int(self.n_places_))):
@@ -180,6 +219,10 @@ class CodeSearch:
 
     def _predict(self, Q: np.ndarray | ScaledRows) -> np.ndarray:
         """Best place of transformed queries: one argmax over the composed scores where they serve, else ``_search``."""
+        if Q.shape[0] == 1:
+            decoder = self._one_query_decoder()
+            if decoder is not None:
+                return self._search_one(Q, decoder)[1][:, 0]
         composed = self._composed_map() if self._coarse_plan(1) is None else None
         if composed is None:
             return self._search(Q, 1)[1][:, 0]
@@ -266,5 +309,6 @@ class CodeSearch:
     def _coarse_shape(self) -> tuple[int, int]:
         """(B places per block, blocks refined)."""
         n, t = int(self.n_places_), int(self.coarse_candidates)
-        block = int(self.coarse_block) if self.coarse_block is not None else max(1, int(round(np.sqrt(n / t))))
+        block = int(self.coarse_block) if self.coarse_block is not None else \
+            max(1, int(round(np.sqrt(n / (t * REFINED_PLACE_COST)))))
         return min(block, n), min(t, -(-n // min(block, n)))
