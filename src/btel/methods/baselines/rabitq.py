@@ -111,6 +111,7 @@ class RaBitQLocalizer(_RowLocalizer):
     [0, 1, 2]
     """
 
+    _float32_distances = True  # a map of tiny rows is refused at fit (_common.MIN_NORM)
     _parameter_constraints = {
         "budget": [Budget()],
         "dim": [None, Interval(int, 1, None)],
