@@ -363,3 +363,20 @@ def test_every_output_of_a_run_has_the_umask_mode(tmp_path: Path) -> None:
     assert set(modes.values()) == {0o640}, modes
     trained = _cli("train", db, "-o", "m.npz", "--method", "bruteforce", cwd=tmp_path, umask=0o027)
     assert trained.returncode == 0 and (tmp_path / "m.npz").stat().st_mode & 0o777 == 0o640
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX umask")
+def test_outputs_follow_the_umask_in_force_when_written(tmp_path: Path) -> None:
+    """Not the umask at import: a long-lived process that changes it gets what ``open`` would give."""
+    model, _ = _fitted()
+    previous = os.umask(0o077)
+    try:
+        model.save(tmp_path / "m.btel.npz")
+        with _claims.atomic_output(tmp_path / "a.csv", text=True) as fh:
+            fh.write("query,prediction\n")
+        with open(tmp_path / "plain.txt", "w") as fh:
+            fh.write("x")
+    finally:
+        os.umask(previous)
+    modes = {p.name: p.stat().st_mode & 0o777 for p in tmp_path.iterdir()}
+    assert modes == {"m.btel.npz": 0o600, "a.csv": 0o600, "plain.txt": 0o600}, modes

@@ -20,13 +20,13 @@ import contextlib
 import errno
 import os
 import re
-import tempfile
+import secrets
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
 
 __all__ = ["pid_alive", "claim", "release", "temp_prefix", "remove_stale_temporaries", "atomic_output",
-           "publish", "output_mode", "fsync_folder", "write_error"]
+           "publish", "fsync_folder", "write_error"]
 
 
 def pid_alive(pid: int) -> bool:
@@ -113,21 +113,6 @@ def remove_stale_temporaries(folder: Path, name: str, suffix: str) -> int:
     return removed
 
 
-def _read_umask() -> int:
-    # Read once at import: os.umask can only be read by setting it, which is not thread-safe.
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-_UMASK = _read_umask()
-
-
-def output_mode() -> int:
-    """The mode of a new output file: what ``open(path, "w")`` gives (``0666`` less the umask)."""
-    return 0o666 & ~_UMASK
-
-
 def fsync_folder(folder: Path) -> None:
     """Flush a folder's entries to disk where the system allows it (POSIX); best effort."""
     try:
@@ -178,13 +163,26 @@ def publish(tmp: Path, path: Path, *, overwrite: bool) -> None:
         if exc.errno not in _NO_LINKS:
             raise
         try:
-            os.close(os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, output_mode()))
+            os.close(os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
         except FileExistsError:
             raise _taken(path) from None
         os.replace(tmp, path)
         return
     with contextlib.suppress(OSError):
         tmp.unlink()
+
+
+def _create_temporary(folder: Path, prefix: str, suffix: str) -> tuple[int, Path]:
+    """A new file ``PREFIX<random>SUFFIX`` in ``folder``, created exclusively with mode 0666: the system
+    applies the umask in force now, as ``open`` does (``mkstemp`` would give 0600)."""
+    flags = os.O_CREAT | os.O_EXCL | os.O_WRONLY | getattr(os, "O_BINARY", 0)
+    for _ in range(100):
+        tmp = folder / f"{prefix}{secrets.token_hex(4)}{suffix}"
+        try:
+            return os.open(tmp, flags, 0o666), tmp
+        except FileExistsError:
+            continue
+    raise FileExistsError(errno.EEXIST, f"no free temporary name for {prefix!r} in {str(folder)!r}")
 
 
 @contextlib.contextmanager
@@ -209,15 +207,13 @@ def atomic_output(path: str | os.PathLike, *, overwrite: bool = True, text: bool
     path = Path(path)
     folder = path.parent
     remove_stale_temporaries(folder, path.name, suffix)  # killed writers' leftovers
-    fd, tmp_name = tempfile.mkstemp(dir=folder, prefix=temp_prefix(path.name), suffix=suffix)
-    tmp = Path(tmp_name)
+    fd, tmp = _create_temporary(folder, temp_prefix(path.name), suffix)
     try:
         options = {"encoding": "utf-8", "newline": ""} if text else {}
         with os.fdopen(fd, "w" if text else "wb", **options) as fh:
             yield fh
             fh.flush()
             os.fsync(fh.fileno())
-        os.chmod(tmp, output_mode())  # mkstemp creates it readable by its owner only
         publish(tmp, path, overwrite=overwrite)
         fsync_folder(folder)  # the new name survives a power cut
     except BaseException as exc:  # KeyboardInterrupt included: never leave the temporary behind
