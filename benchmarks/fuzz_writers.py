@@ -254,7 +254,8 @@ def wrong_modes(folder: Path, before: set[str], umask: int) -> list[str]:
     for path in folder.iterdir():
         if path.name in before:
             continue
-        files = [path] if path.is_file() else [p for p in path.iterdir() if p.is_file()] if path.is_dir() else []
+        files = [path] if path.is_file() else [p for p in path.iterdir() if p.is_file()] if path.is_dir() \
+            else []
         modes = {p.name: p.stat().st_mode & 0o777 for p in files}
         out += [f"{name}: {oct(mode)}" for name, mode in modes.items() if mode != want]
     return out
