@@ -357,7 +357,7 @@ def run_cases(n_cases: int, *, seed: int = 0, writers: tuple[str, ...] = WRITERS
     summary: dict[str, Any] = {"seed": seed, "cases": 0, "outcomes": {}, "by_case": {}, "failed_cases": []}
     counts: Counter[str] = Counter()
     by_case: Counter[str] = Counter()
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory(prefix="btel-fuzz-writers-") as tmp:
         inputs = Path(tmp) / "inputs"
         inputs.mkdir()
         build_inputs(inputs)
@@ -405,7 +405,7 @@ def main() -> None:
     if args.case is not None:
         _preload()
         case = make_case(args.seed, args.case, writers, families)
-        with tempfile.TemporaryDirectory() as tmp:
+        with tempfile.TemporaryDirectory(prefix="btel-fuzz-writers-") as tmp:
             inputs = Path(tmp) / "inputs"
             inputs.mkdir()
             build_inputs(inputs)
