@@ -37,11 +37,13 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_var] = "1"  # forked writers must not inherit thread pools
 
 import argparse  # noqa: E402
+import contextlib  # noqa: E402
 import csv  # noqa: E402
 import io  # noqa: E402
 import json  # noqa: E402
 import random  # noqa: E402
 import resource  # noqa: E402
+import select  # noqa: E402
 import signal  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -121,23 +123,24 @@ def _preload() -> None:
 def _in_child(work: Callable[[], Any], *, timeout: float, delay: float = 0.0, fsize: int | None = None,
               umask: int | None = None) -> tuple[int | None, str]:
     """Run ``work`` in a forked child; return (exit code or None on a hang, its stdout + stderr)."""
-    with tempfile.TemporaryFile() as log:
-        pid = _fork(work, log.fileno(), delay, fsize, umask)
-        code = _wait(pid, timeout)
-        log.seek(0)
-        return code, log.read().decode("utf-8", errors="replace")
+    return _collect(*_fork(work, delay, fsize, umask), timeout)
 
 
-def _fork(work: Callable[[], Any], log_fd: int, delay: float, fsize: int | None, umask: int | None) -> int:
+def _fork(work: Callable[[], Any], delay: float, fsize: int | None, umask: int | None) -> tuple[int, int]:
+    """Fork a child that runs ``work`` with its output on a pipe (a file size limit does not apply to
+    pipes); return (pid, read end). The child never returns from here: it always ends in ``os._exit``."""
     sys.stdout.flush()
     sys.stderr.flush()
+    read_end, write_end = os.pipe()
     pid = os.fork()
     if pid:
-        return pid
+        os.close(write_end)
+        return pid, read_end
     code = _UNCAUGHT
     try:
-        os.dup2(log_fd, 1)
-        os.dup2(log_fd, 2)
+        os.close(read_end)
+        os.dup2(write_end, 1)
+        os.dup2(write_end, 2)
         sys.stdout = io.TextIOWrapper(os.fdopen(1, "wb", closefd=False), write_through=True)
         sys.stderr = io.TextIOWrapper(os.fdopen(2, "wb", closefd=False), write_through=True)
         if umask is not None:
@@ -150,25 +153,44 @@ def _fork(work: Callable[[], Any], log_fd: int, delay: float, fsize: int | None,
     except SystemExit as exc:  # click's standalone mode ends every command this way
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
     except BaseException:  # noqa: BLE001 - counted as a failure by the harness
-        traceback.print_exc()
         code = _UNCAUGHT
+        with contextlib.suppress(BaseException):
+            traceback.print_exc()
     finally:
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(code)
+        with contextlib.suppress(BaseException):
+            sys.stdout.flush()
+            sys.stderr.flush()
+        os._exit(code)  # never unwind into the harness's frames (they would remove its folders)
 
 
-def _wait(pid: int, timeout: float) -> int | None:
+def _collect(pid: int, read_end: int, timeout: float) -> tuple[int | None, str]:
+    """Read a child's output until it ends; (exit code, or None when killed after ``timeout``; output)."""
     deadline = time.monotonic() + timeout
+    chunks: list[bytes] = []
+    reading, code = True, None
     while True:
+        if reading:
+            ready, _, _ = select.select([read_end], [], [], 0.01)
+            if ready:
+                data = os.read(read_end, 1 << 16)
+                if data:
+                    chunks.append(data)
+                    continue
+                reading = False
         done, status = os.waitpid(pid, os.WNOHANG)
         if done:
-            return os.waitstatus_to_exitcode(status)
-        if time.monotonic() > deadline:
+            code = os.waitstatus_to_exitcode(status)
+            if not reading:
+                break
+        elif time.monotonic() > deadline:
             os.kill(pid, signal.SIGKILL)
             os.waitpid(pid, 0)
-            return None
-        time.sleep(0.005)
+            code = None
+            break
+        elif not reading:
+            time.sleep(0.005)
+    os.close(read_end)
+    return code, b"".join(chunks).decode("utf-8", errors="replace")
 
 
 def _writer_work(writer: str, inputs: Path, target: Path) -> Callable[[], int]:
@@ -293,15 +315,8 @@ def run_case(case: dict[str, Any], inputs: Path, work: Path, *, timeout: float =
         before |= {f"{target.name}/{p.name}" for p in target.iterdir()}
     job = _writer_work(writer, inputs, target)
     if case["family"] == "race":
-        delays = case["delays"]
-        logs = [tempfile.TemporaryFile() for _ in delays]
-        pids = [_fork(job, log.fileno(), d, None, case["umask"]) for log, d in zip(logs, delays)]
-        codes = [_wait(pid, timeout) for pid in pids]
-        outputs = []
-        for log in logs:
-            log.seek(0)
-            outputs.append(log.read().decode("utf-8", errors="replace"))
-            log.close()
+        children = [_fork(job, delay, None, case["umask"]) for delay in case["delays"]]
+        codes, outputs = (list(t) for t in zip(*(_collect(pid, fd, timeout) for pid, fd in children)))
     else:
         code, output = _in_child(job, timeout=timeout, fsize=case["fsize"], umask=case["umask"])
         codes, outputs = [code], [output]

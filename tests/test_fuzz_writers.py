@@ -40,10 +40,17 @@ def test_one_case_of_every_family_and_writer_passes(harness) -> None:
 
 
 def test_the_harness_catches_a_writer_that_replaces_what_it_should_keep(harness, monkeypatch) -> None:
-    """With the publish step of old (a rename whatever is there), racing saves all 'succeed': a failure."""
+    """With the publish step of old (a rename whatever is there), racing saves all 'succeed': a failure.
+    The rename waits a second, so every racer has passed the early existence check before any publishes."""
+    import time
+
     from btel import _claims
 
-    monkeypatch.setattr(_claims, "publish", lambda tmp, path, *, overwrite: os.replace(tmp, path))
+    def replace_later(tmp, path, *, overwrite):
+        time.sleep(1.0)
+        os.replace(tmp, path)
+
+    monkeypatch.setattr(_claims, "publish", replace_later)
     summary = harness.run_cases(2, seed=0, writers=("save",), families=("race",))
     assert summary["failures"] == 2, summary
     assert all("writers published (want" in " ".join(c["problems"]) for c in summary["failed_cases"]), summary
