@@ -5,7 +5,7 @@ method, front end (its default, and ``normalize='none'``) and scale s, the map a
 a synthetic route (or Gardens Point NetVLAD with ``--real``) are multiplied by s in float64 and
 stored as float32; the model is fitted, saved, loaded and asked ``predict``. A cell is the
 recall within 2 places on the scaled data, with the unscaled recall in the first column, or the
-error class that refused the fit. Writes ``benchmarks/results/study_scales.json`` and prints a
+btel error that refused it (``refused (…)``), or in bold any other exception. Writes ``benchmarks/results/study_scales.json`` and prints a
 markdown table::
 
     python benchmarks/study_scales.py            # synthetic route, N = 200, d = 32
@@ -55,6 +55,8 @@ def cell(method: str, params: dict, X: np.ndarray, Q: np.ndarray, scale: float, 
         return f"{_recall(loaded.predict(Qs)):.2f}"
     except BTELError as exc:
         return f"refused ({type(exc).__name__})"
+    except Exception as exc:  # noqa: BLE001 - not a named refusal: shown as such
+        return f"**{type(exc).__name__}**"
 
 
 def main() -> None:

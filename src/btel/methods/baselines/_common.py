@@ -106,10 +106,10 @@ def rank_unique_places(row_ranking: np.ndarray, row_places: np.ndarray, k: int,
 #: Largest L2 norm of a descriptor (after the front end) a row index searches: squared distances
 #: of such vectors stay far below float32's maximum (3.4e38), where faiss' distances overflow.
 MAX_NORM = 1e18
-#: Shortest the longest row of a map may be (after the front end) for an index of float32 distances:
-#: squared distances between rows all shorter than this underflow float32 (below 1.2e-38 it keeps
-#: fewer bits, then 0), so every place would look alike.
-MIN_NORM = 1e-15
+#: Shortest the longest row of a map may be (after the front end) for an index of float32 distances
+#: (the mirror of MAX_NORM): squared lengths below 1e-36 near float32's smallest normal number
+#: (1.2e-38), below which squared distances keep fewer bits, then none — every place looks alike.
+MIN_NORM = 1e-18
 
 
 def check_magnitude(X: np.ndarray, name: str, *, error: type[Exception] = InvalidDescriptorsError,
