@@ -390,7 +390,7 @@ class SeqSLAM(_RowLocalizer):
         if not (np.isfinite(value_range).all() and abs(float(value_range[0])) <= 2 * MAX_NORM
                 and 0 < float(value_range[1]) <= MAX_NORM):
             raise ModelFileError(f"SeqSLAM model file holds an invalid value range {value_range.tolist()} "
-                                 f"(fit stores a lowest value within ±{MAX_NORM:.0e} and a positive step); "
+                                 f"(fit stores a lowest value within ±{2 * MAX_NORM:.0e} and a positive step); "
                                  "the file is damaged or was edited. Refit and save it again.")
         try:
             self._check_params()
