@@ -166,7 +166,12 @@ def publish(tmp: Path, path: Path, *, overwrite: bool) -> None:
             os.close(os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
         except FileExistsError:
             raise _taken(path) from None
-        os.replace(tmp, path)
+        try:
+            os.replace(tmp, path)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(path)  # the empty placeholder this call created
+            raise
         return
     with contextlib.suppress(OSError):
         tmp.unlink()
