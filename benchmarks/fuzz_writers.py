@@ -167,8 +167,8 @@ def _collect(pid: int, read_end: int, timeout: float) -> tuple[int | None, str]:
     """Read a child's output until it ends; (exit code, or None when killed after ``timeout``; output)."""
     deadline = time.monotonic() + timeout
     chunks: list[bytes] = []
-    reading, code = True, None
-    while True:
+    reading, code, exited = True, None, False
+    while reading or not exited:
         if reading:
             ready, _, _ = select.select([read_end], [], [], 0.01)
             if ready:
@@ -177,18 +177,16 @@ def _collect(pid: int, read_end: int, timeout: float) -> tuple[int | None, str]:
                     chunks.append(data)
                     continue
                 reading = False
-        done, status = os.waitpid(pid, os.WNOHANG)
-        if done:
-            code = os.waitstatus_to_exitcode(status)
-            if not reading:
-                break
-        elif time.monotonic() > deadline:
-            os.kill(pid, signal.SIGKILL)
-            os.waitpid(pid, 0)
-            code = None
-            break
-        elif not reading:
-            time.sleep(0.005)
+        if not exited:  # reaped once only: a second waitpid of the same child fails
+            done, status = os.waitpid(pid, os.WNOHANG)
+            if done:
+                code, exited = os.waitstatus_to_exitcode(status), True
+            elif time.monotonic() > deadline:
+                os.kill(pid, signal.SIGKILL)
+                os.waitpid(pid, 0)
+                code, exited, reading = None, True, False
+            elif not reading:
+                time.sleep(0.005)
     os.close(read_end)
     return code, b"".join(chunks).decode("utf-8", errors="replace")
 
