@@ -98,7 +98,9 @@ def test_seqslam_estimator_matches_the_function_on_its_difference_matrix():
     np.testing.assert_array_equal(model.predict(Q), best)
     places, model_score = model.match(Q)
     np.testing.assert_array_equal(places, best)
-    np.testing.assert_allclose(model_score, score, equal_nan=True)
+    # The model scores the codes' own differences (scale-free); D is them times the value step: float32
+    # rounding apart, the same scores.
+    np.testing.assert_allclose(model_score, score, rtol=1e-6, equal_nan=True)
     assert np.mean(best[9:] == truth[9:]) >= 0.95
 
 

@@ -126,3 +126,257 @@ def test_a_killed_saves_part_file_is_removed_by_the_next_save(tmp_path: Path) ->
 
 def test_pid_alive() -> None:
     assert _claims.pid_alive(os.getpid()) and not _claims.pid_alive(_dead_pid()) and not _claims.pid_alive(0)
+
+
+# -- issue 34: "no overwrite" is atomic, a failed write leaves nothing, every output has the umask's mode ----
+def _fitted(seed: int = 0):
+    X = np.random.default_rng(seed).normal(size=(30, 8)).astype(np.float32)
+    return make_method("bruteforce").fit(X), X
+
+
+def _save_in_child(path: str, seed: int, barrier: "mp.synchronize.Barrier", queue: "mp.Queue") -> None:
+    model, _ = _fitted(seed)
+    barrier.wait()
+    try:
+        model.save(path, overwrite=False)
+        queue.put(f"ok {seed}")
+    except FileExistsError as exc:
+        queue.put(f"refused {type(exc).__name__}: {exc}")
+
+
+def test_of_racing_saves_without_overwrite_exactly_one_publishes(tmp_path: Path) -> None:
+    import btel
+
+    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+    for attempt in range(4):
+        path = tmp_path / f"m{attempt}.btel.npz"
+        barrier, queue = ctx.Barrier(4), ctx.Queue()
+        procs = [ctx.Process(target=_save_in_child, args=(str(path), seed, barrier, queue))
+                 for seed in range(4)]
+        for p in procs:
+            p.start()
+        for p in procs:
+            p.join(60)
+        outcomes = sorted(queue.get(timeout=5) for _ in range(4))
+        winners = [o for o in outcomes if o.startswith("ok")]
+        assert len(winners) == 1, outcomes
+        losers = [o for o in outcomes if not o.startswith("ok")]
+        assert all(o.startswith("refused OutputExistsError") and "already exists" in o
+                   for o in losers), outcomes
+        winner_seed = int(winners[0].split()[1])
+        X = _fitted(winner_seed)[1]
+        assert np.array_equal(btel.load(path).predict(X), np.arange(30))  # the winner's whole model
+        assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
+
+
+def test_a_file_that_appears_while_saving_is_kept(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The race made deterministic: another writer publishes while this one writes its temporary."""
+    from btel import modelfile
+    from btel.exceptions import OutputExistsError
+
+    path = tmp_path / "m.btel.npz"
+    model, _ = _fitted()
+    real_savez = np.savez
+
+    def savez_while_another_publishes(fh, **arrays):
+        real_savez(fh, **arrays)
+        path.write_bytes(b"the other writer's model")
+
+    monkeypatch.setattr(modelfile.np, "savez", savez_while_another_publishes)
+    with pytest.raises(OutputExistsError, match="another process wrote it while this one was writing"):
+        model.save(path, overwrite=False)
+    assert path.read_bytes() == b"the other writer's model"
+    assert [p.name for p in tmp_path.iterdir()] == ["m.btel.npz"]  # no temporary left
+    monkeypatch.setattr(modelfile.np, "savez", real_savez)
+    with pytest.raises(OutputExistsError, match="already exists"):
+        model.save(path, overwrite=False)
+    model.save(path)  # overwrite=True (the default) replaces it
+    assert path.read_bytes()[:2] == b"PK"
+
+
+def test_publish_falls_back_to_an_exclusive_create_without_hard_links(tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    from btel.exceptions import OutputExistsError
+
+    def no_links(src, dst):
+        raise OSError(errno.EPERM, "Operation not permitted")
+
+    monkeypatch.setattr(os, "link", no_links)
+    with _claims.atomic_output(tmp_path / "a.txt", overwrite=False, text=True) as fh:
+        fh.write("first")
+    with pytest.raises(OutputExistsError):
+        with _claims.atomic_output(tmp_path / "a.txt", overwrite=False, text=True) as fh:
+            fh.write("second")
+    assert (tmp_path / "a.txt").read_text() == "first" and len(list(tmp_path.iterdir())) == 1
+
+
+def test_python_save_paths_take_overwrite(tmp_path: Path) -> None:
+    from btel.datasets import GroundTruth
+    from btel.descriptors import get_descriptor
+    from btel.exceptions import OutputExistsError
+    from btel.runs import write_run
+
+    model, X = _fitted()
+    targets = {"model": lambda p, o: model.save(p, overwrite=o),
+               "descriptor": lambda p, o: get_descriptor("hog").save(p, overwrite=o),
+               "ground truth": lambda p, o: GroundTruth.from_places(np.arange(5)).save(p, overwrite=o)}
+    for what, save in targets.items():
+        path = tmp_path / f"{what}.npz"
+        path.write_bytes(b"mine")
+        with pytest.raises(OutputExistsError, match="already exists"):
+            save(path, False)
+        assert path.read_bytes() == b"mine", what
+        save(path, True)
+        assert path.read_bytes()[:2] == b"PK", what
+    row = evaluate(model, X, X, name="nn")
+    write_run([row], tmp_path / "run", plots=False)
+    with pytest.raises(OutputExistsError, match="not empty"):
+        write_run([row], tmp_path / "run", plots=False)
+
+
+def _cli(*args: object, cwd: Path, fsize: int | None = None, umask: int | None = None,
+         wait: bool = True) -> "subprocess.CompletedProcess[str] | subprocess.Popen[str]":
+    """``btel ARGS`` in a child process, optionally with a file size limit (a full disk: writes past it
+    fail with EFBIG) or a umask."""
+    import resource
+
+    def limits() -> None:
+        if fsize is not None:
+            resource.setrlimit(resource.RLIMIT_FSIZE, (fsize, fsize))
+        if umask is not None:
+            os.umask(umask)
+
+    command = [sys.executable, "-m", "btel.cli", *map(str, args)]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    if not wait:
+        return subprocess.Popen(command, cwd=cwd, preexec_fn=limits, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, env=env)
+    return subprocess.run(command, cwd=cwd, preexec_fn=limits, capture_output=True, text=True, timeout=300,
+                          env=env)
+
+
+def _route_files(folder: Path) -> tuple[Path, Path]:
+    from btel.datasets import synthetic_route
+
+    route = synthetic_route(n_places=60, dim=16, seed=1)
+    np.save(folder / "db.npy", route.map.astype(np.float32))
+    np.save(folder / "q.npy", route.queries.astype(np.float32))
+    return folder / "db.npy", folder / "q.npy"
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX process limits")
+def test_two_racing_trains_without_overwrite_one_succeeds_the_other_exits_2(tmp_path: Path) -> None:
+    import btel
+
+    db, _ = _route_files(tmp_path)
+    procs = [_cli("train", db, "-o", "m.npz", "--method", "bruteforce", cwd=tmp_path, wait=False)
+             for _ in range(2)]
+    results = [(p.wait(timeout=300), *p.communicate()) for p in procs]
+    codes = sorted(code for code, _, _ in results)
+    assert codes == [0, 2], results
+    written = [out for code, out, _ in results if code == 0]
+    refused = [err for code, _, err in results if code == 2][0]
+    assert "model written" in written[0] and "already exists" in refused and "--overwrite" in refused, results
+    assert "Traceback" not in refused
+    assert btel.load(tmp_path / "m.npz").n_places_ == 60
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["db.npy", "m.npz", "q.npy"]
+
+
+def _images(folder: Path, n: int = 6) -> Path:
+    import cv2
+
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(n):
+        cv2.imwrite(str(folder / f"{i:03d}.png"), rng.integers(0, 255, size=(48, 96), dtype=np.uint8))
+    return folder
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX process limits")
+def test_a_full_disk_during_extract_leaves_no_partial_file(tmp_path: Path) -> None:
+    images = _images(tmp_path / "imgs")
+    out = tmp_path / "out"
+    out.mkdir()
+    # 6 HOG rows of 3780 float32 = 90 KB: a 16 KB limit fails the matrix, a 128 KB one its .json beside it
+    # is small enough; the first run fails, nothing is left, the second (no limit) writes both.
+    failed = _cli("extract", images, "-o", out / "x.npy", "--no-progress", cwd=tmp_path, fsize=16_000)
+    assert failed.returncode == 1, failed.stderr
+    assert "could not write" in failed.stderr and "nothing was left behind" in failed.stderr
+    assert "Traceback" not in failed.stderr and len(failed.stderr.strip().splitlines()) == 1, failed.stderr
+    assert list(out.iterdir()) == []
+    done = _cli("extract", images, "-o", out / "x.npy", "--no-progress", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["x.npy", "x.npy.json"]
+    assert np.load(out / "x.npy").shape[0] == 6
+
+
+def _check_run_folder_is_whole(run: Path) -> list[str]:
+    """Every file in a run folder parses completely; no temporary or claim is left. Returns the names."""
+    import csv as _csv
+
+    from PIL import Image
+
+    names = sorted(p.name for p in run.iterdir())
+    assert not [n for n in names if n.startswith(".")], names
+    for path in run.iterdir():
+        if path.suffix == ".json":
+            json.loads(path.read_text())
+        elif path.suffix == ".csv":
+            rows = list(_csv.reader(path.read_text().splitlines()))
+            assert rows and all(len(r) == len(rows[0]) for r in rows), path
+        elif path.suffix == ".png":
+            with Image.open(path) as image:
+                image.load()  # a truncated PNG raises here
+    return names
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX process limits")
+@pytest.mark.parametrize("limit", [3_000, 5_000, 28_000])  # fails at metrics.json, the first plot, the last
+def test_a_full_disk_during_evaluate_keeps_whole_files_only(tmp_path: Path, limit: int) -> None:
+    """Past the limit a write fails (EFBIG): the command ends in one line, and the run folder holds only
+    files written whole (the rows finished before the failure), no temporary and no claim."""
+    db, q = _route_files(tmp_path)
+    result = _cli("evaluate", "--db", db, "--queries", q, "--methods", "bruteforce", "--no-reference",
+                  "--out", "run", "--no-progress", cwd=tmp_path, fsize=limit)
+    assert result.returncode == 1, (result.returncode, result.stderr)
+    assert "Traceback" not in result.stderr and result.stderr.strip().splitlines()[-1].startswith("Error: ")
+    assert "could not write" in result.stderr, result.stderr
+    names = _check_run_folder_is_whole(tmp_path / "run")
+    if limit == 3_000:  # the first metrics.json (4.5 KB) already fails
+        assert names == [], names
+    else:  # the rows are on disk; the plots (26–30 KB each) fail at the first or a later one
+        assert {"metrics.json", "metrics.csv", "predictions_bruteforce.csv"} <= set(names), names
+        assert limit > 5_000 or not [n for n in names if n.endswith(".png")], names
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX umask")
+def test_every_output_of_a_run_has_the_umask_mode(tmp_path: Path) -> None:
+    db, q = _route_files(tmp_path)
+    result = _cli("evaluate", "--db", db, "--queries", q, "--methods", "bruteforce", "--out", "run",
+                  "--no-progress", "--pairs", "pairs.txt", cwd=tmp_path, umask=0o027)
+    assert result.returncode == 0, result.stderr
+    names = _check_run_folder_is_whole(tmp_path / "run")
+    assert {"metrics.json", "metrics.csv", "predictions_bruteforce.csv"} <= set(names)
+    assert any(n.endswith(".png") for n in names), names
+    modes = {p.name: p.stat().st_mode & 0o777 for p in (tmp_path / "run").iterdir()}
+    modes.update({p.name: p.stat().st_mode & 0o777 for p in tmp_path.glob("pairs*.txt")})
+    assert set(modes.values()) == {0o640}, modes
+    trained = _cli("train", db, "-o", "m.npz", "--method", "bruteforce", cwd=tmp_path, umask=0o027)
+    assert trained.returncode == 0 and (tmp_path / "m.npz").stat().st_mode & 0o777 == 0o640
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX umask")
+def test_outputs_follow_the_umask_in_force_when_written(tmp_path: Path) -> None:
+    """Not the umask at import: a long-lived process that changes it gets what ``open`` would give."""
+    model, _ = _fitted()
+    previous = os.umask(0o077)
+    try:
+        model.save(tmp_path / "m.btel.npz")
+        with _claims.atomic_output(tmp_path / "a.csv", text=True) as fh:
+            fh.write("query,prediction\n")
+        with open(tmp_path / "plain.txt", "w") as fh:
+            fh.write("x")
+    finally:
+        os.umask(previous)
+    modes = {p.name: p.stat().st_mode & 0o777 for p in tmp_path.iterdir()}
+    assert modes == {"m.btel.npz": 0o600, "a.csv": 0o600, "plain.txt": 0o600}, modes

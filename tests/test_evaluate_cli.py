@@ -136,7 +136,9 @@ def test_existing_folder_and_ground_truth_counts_are_checked_before_any_fit(rout
     out.mkdir()
     (out / "metrics.json").write_text("{}")
     result = run("evaluate", "--db", db, "--queries", q, "--methods", "btel-c,pq", "--out", out, "--no-progress")
-    assert result.exit_code == 1 and "already exists" in result.output and "] fitting" not in result.output
+    # An output that exists without --overwrite is bad usage (2), as for train -o and --pairs.
+    assert result.exit_code == 2 and "already exists" in result.output and "] fitting" not in result.output
+    assert "give --overwrite" in result.output
     GroundTruth.from_places(np.arange(150)).save(tmp_path / "gt.npz")
     result = run("evaluate", "--db", db, "--queries", q, "--methods", "btel-c", "--ground-truth", tmp_path / "gt.npz",
                  "--out", tmp_path / "new", "--no-progress")

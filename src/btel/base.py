@@ -424,11 +424,13 @@ class PlaceLocalizer(ParamsMixin, ABC):
         """Total storage in bytes: the sum of :meth:`storage_breakdown`."""
         return int(sum(self.storage_breakdown().values()))
 
-    def save(self, path: Any) -> Any:
+    def save(self, path: Any, *, overwrite: bool = True) -> Any:
         """Save the fitted model: its stored arrays plus a JSON header (no pickles).
 
         The file size exceeds :attr:`nbytes` only by the container overhead (a few KiB). Runtime
         settings (``n_jobs``, backends, progress bars) are not model content and are not saved.
+        The file appears complete or not at all; with ``overwrite=False`` an existing file (even one
+        another process wrote meanwhile) is kept and :class:`~btel.exceptions.OutputExistsError` raised.
 
         Returns
         -------
@@ -442,7 +444,8 @@ class PlaceLocalizer(ParamsMixin, ABC):
                  "front_end": self.front_end_.to_header(),
                  **self._fitted_state()}
         header = {"model": type(self).__name__, "params": params, "state": state}
-        return save_arrays(path, {**self.front_end_.arrays(), **self._stored_arrays()}, header)
+        arrays = {**self.front_end_.arrays(), **self._stored_arrays()}
+        return save_arrays(path, arrays, header, overwrite=overwrite)
 
     def __sklearn_tags__(self) -> Any:
         tags = super().__sklearn_tags__()

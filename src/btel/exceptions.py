@@ -29,6 +29,7 @@ __all__ = [
     "MissingDependencyError",
     "ResourceLimitError",
     "InvalidAnswerError",
+    "OutputExistsError",
 ]
 
 
@@ -97,6 +98,11 @@ class ResourceLimitError(BTELError, ValueError):
 class InvalidAnswerError(BTELError, ValueError):
     """A fitted model produced non-finite scores or a place outside [0, N) (usually weights that
     overflow float32: a damaged or hostile model file, or a fit on extreme values)."""
+
+
+class OutputExistsError(BTELError, FileExistsError):
+    """An output file or run folder exists (or another writer took it first) and replacing it was not
+    asked for (``overwrite=False``; on the command line, no ``--overwrite``): nothing was replaced."""
 
 
 _NOT_FITTED_LOCK = threading.Lock()

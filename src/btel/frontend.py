@@ -41,7 +41,8 @@ import numpy as np
 
 from ._validation import Interval, Options
 from .exceptions import InvalidParameterError, ModelFileError
-from .rows import NORMALIZATIONS, ScaledRows, delta_descriptors, normalize_rows, row_norms, traverse_starts
+from .rows import (NORMALIZATIONS, TINY_SQUARED_NORM, ScaledRows, delta_descriptors, normalize_rows,
+                   row_norms, traverse_starts)
 
 __all__ = ["FrontEnd", "FrontEndStream", "ScaledRows", "delta_descriptors", "normalize_rows", "row_norms",
            "traverse_starts",
@@ -183,9 +184,13 @@ class FrontEnd:
         if lazy and plain_l2:
             norms = row_norms(X, check_finite=check_finite, name="Q")
             if norms.shape[0] == 1:  # one query: Python arithmetic beats three tiny numpy calls
-                return ScaledRows(X, np.array([1.0 / norms[0] if norms[0] > 0 else 1.0], dtype=np.float32))
-            norms[norms == 0] = 1.0  # a zero row stays zero
-            return ScaledRows(X, (1.0 / norms).astype(np.float32))
+                if not 0 < norms[0] * norms[0] < TINY_SQUARED_NORM:
+                    inverse = 1.0 / norms[0] if norms[0] > 0 else 1.0
+                    return ScaledRows(X, np.array([inverse], dtype=np.float32))
+            elif not ((norms > 0) & (norms * norms < TINY_SQUARED_NORM)).any():
+                norms[norms == 0] = 1.0  # a zero row stays zero
+                return ScaledRows(X, (1.0 / norms).astype(np.float32))
+            # Rows so short that their inverse length overflows float32: normalised in float64 instead.
         return self._whitened(self._frames(X, starts, check_finite))
 
     def stream(self) -> "FrontEndStream":

@@ -142,8 +142,13 @@ def plot_match_gallery(
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    from ._claims import atomic_output
+
+    try:
+        with atomic_output(path, suffix=".tmp") as fh:  # a full disk leaves no half-written figure
+            fig.savefig(fh, dpi=100, format="png")
+    finally:
+        plt.close(fig)
     return path
 
 

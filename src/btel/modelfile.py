@@ -6,24 +6,24 @@ bytes are the model's storage, :mod:`btel.storage`). The header is stored as a u
 class and its parameters. A file is untrusted input: :func:`load_arrays` reads it with its own
 checks (zip directory, then JSON header, then each ``.npy`` header) before allocating anything,
 never unpickles, and turns every failure into a :class:`~btel.exceptions.ModelFileError`.
-:func:`save_arrays` writes atomically (a unique temporary file, then a rename).
+:func:`save_arrays` writes atomically (a unique temporary file, then a rename or, without
+``overwrite``, a link that never replaces a file).
 """
 
 from __future__ import annotations
 
-import contextlib
 import json
 import math
 import os
-import tempfile
 import zipfile
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
-from .exceptions import DataNotFoundError, InvalidParameterError, ModelFileError, UnsupportedModelVersionError
-from ._claims import remove_stale_temporaries, temp_prefix
+from .exceptions import (DataNotFoundError, InvalidParameterError, ModelFileError, OutputExistsError,
+                         UnsupportedModelVersionError)
+from ._claims import atomic_output
 from .limits import open_regular
 
 __all__ = ["ArraySpec", "FORMAT_NAME", "FORMAT_VERSION", "HEADER_KEY", "jsonable", "save_arrays", "load_arrays"]
@@ -58,20 +58,24 @@ class ArraySpec:
         return f"({dims}){',' if len(self.shape) == 1 else ''} {'/'.join(t.name for t in self.dtypes)}"
 
 
-def save_arrays(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], header: Mapping[str, Any]) -> Path:
+def save_arrays(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], header: Mapping[str, Any], *,
+                overwrite: bool = True) -> Path:
     """Write arrays plus a JSON header as an uncompressed ``.npz`` model file, atomically.
 
     ``header`` must be JSON-serialisable; the format name and version are added here. The file is
     written to a temporary file of a unique name in the same folder, flushed to disk and then
-    renamed over ``path`` (``os.replace``), so a reader only ever sees the old file or the whole
-    new one, two saves to one path at once cannot mix their bytes (the last rename wins), and an
-    interrupted or failed save removes its temporary file.
+    published under ``path`` in one step (:func:`btel._claims.atomic_output`), so a reader only
+    ever sees the old file or the whole new one, two saves to one path at once cannot mix their
+    bytes, and an interrupted or failed save removes its temporary file. With ``overwrite=False``
+    an existing ``path`` is never replaced, even one written by another process during this save.
 
     Raises
     ------
     InvalidParameterError
         ``path`` is empty, an existing folder, or lies under a regular file; a reserved or
         non-numeric array.
+    OutputExistsError
+        ``overwrite`` is False and ``path`` exists (or appeared while writing); nothing was replaced.
     ModelFileError
         Writing failed (disk full, no permission…); nothing is left behind.
     """
@@ -100,55 +104,22 @@ def save_arrays(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], heade
                 raise InvalidParameterError(
                     f"cannot save to {str(path)!r}: {str(parent)!r} is a file, not a folder.")
             break
+    if not overwrite and path.exists():
+        raise _taken_before(path)
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        # Temporaries of saves that were killed (SIGKILL, power cut) are removed by the next save
-        # to the same name: their names carry the writer's process id.
-        remove_stale_temporaries(folder, path.name, ".part")
-        fd, tmp_name = tempfile.mkstemp(dir=folder, prefix=temp_prefix(path.name), suffix=".part")
-    except OSError as exc:
-        raise ModelFileError(f"cannot save to {str(path)!r}: {exc.strerror or exc}.") from exc
-    tmp = Path(tmp_name)
-    try:
-        with os.fdopen(fd, "wb") as fh:
+        with atomic_output(path, overwrite=overwrite) as fh:
             np.savez(fh, **{HEADER_KEY: header_bytes}, **{k: np.asarray(v) for k, v in arrays.items()})
-            fh.flush()
-            os.fsync(fh.fileno())
-        # mkstemp creates the file readable by its owner only; give it the usual permissions.
-        os.chmod(tmp, 0o666 & ~_UMASK)
-        os.replace(tmp, path)
-        _fsync_folder(folder)  # the rename itself survives a power cut
-    except BaseException as exc:  # KeyboardInterrupt included: never leave the temporary behind
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-        if isinstance(exc, OSError):
-            raise ModelFileError(f"cannot save to {str(path)!r}: {exc.strerror or exc}.") from exc
+    except OutputExistsError:
         raise
+    except OSError as exc:
+        raise ModelFileError(f"cannot save the model: {exc.strerror or exc}.") from exc
     return path
 
 
-def _fsync_folder(folder: Path) -> None:
-    """Flush a folder's entries to disk where the system allows it (POSIX); best effort."""
-    try:
-        fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
-def _read_umask() -> int:
-    # Read once at import: os.umask can only be read by setting it, which is not thread-safe.
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-_UMASK = _read_umask()
+def _taken_before(path: Path) -> OutputExistsError:
+    return OutputExistsError(f"{str(path)!r} already exists; it was kept. Pass overwrite=True "
+                             "(CLI: --overwrite) to replace it, or choose another name.")
 
 
 #: Array dtypes a model file may hold: booleans, integers and real floats (no objects, strings,

@@ -20,6 +20,10 @@ NORMALIZATIONS = ("none", "l2", "power")
 
 #: Rows transformed at a time (bounds the float64 temporaries on large, memory-mapped maps).
 _CHUNK_ROWS = 65536
+#: Squared row lengths below this are summed again in float64, and such rows are scaled in float64: in
+#: float32 their squares underflow (the smallest normal float32 is 1.2e-38) and their inverse overflows,
+#: so a map scaled by 1e-38 would not come out of the L2 front end at unit length.
+TINY_SQUARED_NORM = 1e-30
 
 
 def row_norms(X: np.ndarray, *, check_finite: bool = False, name: str = "X") -> np.ndarray:
@@ -27,13 +31,14 @@ def row_norms(X: np.ndarray, *, check_finite: bool = False, name: str = "X") -> 
 
     float32 rows are summed in float32 (SIMD, no float64 copy of X: about 3× faster than a float64
     pass); a row whose float32 sum of squares is not finite — an overflow of huge finite values, or
-    a NaN/inf — is summed again in float64. With ``check_finite`` a row that is still not finite is an
+    a NaN/inf — or below :data:`TINY_SQUARED_NORM` (an underflow of tiny values) is summed again in
+    float64. With ``check_finite`` a row that is still not finite is an
     :class:`InvalidDescriptorsError` naming its first bad value (the norms double as the input's
     finiteness check, so validated queries are read once for both).
     """
     if X.shape[0] == 1 and X.dtype == np.float32 and X.ndim == 2:  # one query (streaming): BLAS' sdot
         sq1 = float(np.dot(X[0], X[0]))
-        if not math.isfinite(sq1):
+        if not math.isfinite(sq1) or sq1 < TINY_SQUARED_NORM:
             sq1 = float(np.dot(X[0].astype(np.float64), X[0].astype(np.float64)))
             if check_finite and not math.isfinite(sq1):
                 from ._validation import raise_if_non_finite
@@ -43,7 +48,7 @@ def row_norms(X: np.ndarray, *, check_finite: bool = False, name: str = "X") -> 
     if X.size <= 1 << 16:  # a few queries: one pass, least fixed overhead
         if X.dtype == np.float32:
             sq = np.einsum("ij,ij->i", X, X)
-            if not np.isfinite(sq).all():  # overflow of huge finite values, or NaN/inf: again in float64
+            if not (np.isfinite(sq) & (sq >= TINY_SQUARED_NORM)).all():  # over/underflow, NaN/inf: in float64
                 sq = np.einsum("ij,ij->i", X, X, dtype=np.float64)
             sq = sq.astype(np.float64)
         else:
@@ -62,7 +67,7 @@ def row_norms(X: np.ndarray, *, check_finite: bool = False, name: str = "X") -> 
                 sq = np.einsum("ij,ij->i", block, block).astype(np.float64)
             else:
                 sq = np.einsum("ij,ij->i", block, block, dtype=np.float64)
-            bad = ~np.isfinite(sq)
+            bad = ~np.isfinite(sq) | (sq < TINY_SQUARED_NORM)
             if bad.any():
                 rows = np.asarray(block[bad], dtype=np.float64)
                 sq[bad] = np.einsum("ij,ij->i", rows, rows)
@@ -77,8 +82,10 @@ def row_norms(X: np.ndarray, *, check_finite: bool = False, name: str = "X") -> 
 def normalize_rows(X: np.ndarray, how: str = "l2", *, check_finite: bool = False, name: str = "X") -> np.ndarray:
     """Rows scaled to unit L2 length (``'l2'``), after a signed square root (``'power'``), or as is.
 
-    A zero row stays zero. Returns a new float32 array (X itself for ``'none'``). With
-    ``check_finite`` the row norms double as the finiteness check of the input (:func:`row_norms`).
+    A zero row stays zero; a row shorter than ``sqrt(TINY_SQUARED_NORM)`` is scaled in float64 (its
+    inverse length overflows float32), so every other row comes out at unit length whatever its
+    scale. Returns a new float32 array (X itself for ``'none'``). With ``check_finite`` the row
+    norms double as the finiteness check of the input (:func:`row_norms`).
     """
     if how == "none":
         return X
@@ -90,14 +97,18 @@ def normalize_rows(X: np.ndarray, how: str = "l2", *, check_finite: bool = False
         X = np.asarray(X, dtype=np.float64)
         X = (np.sign(X) * np.sqrt(np.abs(X))).astype(np.float32)
     norms = row_norms(X, check_finite=check_finite, name=name)
-    if X.shape[0] == 1:  # one query: one scaled copy, the scale a Python number
+    if X.shape[0] == 1 and not 0 < norms[0] * norms[0] < TINY_SQUARED_NORM:  # one query, not tiny: one scaled copy
         return np.multiply(X, np.float32(1.0 / norms[0] if norms[0] > 0 else 1.0), dtype=np.float32)
+    tiny = np.flatnonzero((norms > 0) & (norms * norms < TINY_SQUARED_NORM))
     inverse = (1.0 / np.where(norms > 0, norms, 1.0)).astype(np.float32)
+    inverse[tiny] = 1.0
     out = np.empty(X.shape, dtype=np.float32)
     step = max(1, min(_CHUNK_ROWS, (1 << 20) // max(X.shape[1], 1)))
     for start in range(0, X.shape[0], step):
         np.multiply(X[start : start + step], inverse[start : start + step, None], out=out[start : start + step],
                     casting="unsafe")
+    if tiny.size:
+        out[tiny] = np.asarray(X[tiny], dtype=np.float64) / norms[tiny, None]
     return out
 
 

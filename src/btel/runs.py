@@ -30,7 +30,7 @@ from .modelfile import jsonable
 from .metrics import DEFAULT_TOLERANCES, recall_at_tolerance
 from .records import EvaluationResult
 from .tables import metrics_csv_text, predictions_csv_text
-from .exceptions import DataNotFoundError, InvalidParameterError
+from .exceptions import DataNotFoundError, InvalidParameterError, OutputExistsError
 
 __all__ = ["RunReport", "RunWriter", "check_run_folder", "run_metadata", "write_run", "recompute_recall_from_csv"]
 
@@ -112,7 +112,7 @@ def _occupants(out_dir: Path) -> list[Path]:
         if entry.name == _LOCK_NAME:
             owner = _owner(entry)
             if owner is not None and owner != os.getpid() and pid_alive(owner):
-                raise FileExistsError(
+                raise OutputExistsError(
                     f"another btel run (process {owner}) is writing to {str(out_dir)!r}; wait for it to finish "
                     "or choose another --out folder.")
             continue
@@ -134,15 +134,16 @@ def check_run_folder(out_dir: str | os.PathLike, overwrite: bool = False) -> Non
 
     Raises
     ------
-    FileExistsError
+    OutputExistsError
         ``out_dir`` is a file, or a non-empty folder and ``overwrite`` is False, or another live
-        run is writing to it (even with ``overwrite``).
+        run is writing to it (even with ``overwrite``); a ``FileExistsError``.
     """
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
-        raise FileExistsError(f"run folder {str(out_dir)!r} exists and is a file; choose another --out folder.")
+        raise OutputExistsError(f"run folder {str(out_dir)!r} exists and is a file; choose another --out "
+                                "folder.")
     if out_dir.is_dir() and _occupants(out_dir) and not overwrite:
-        raise FileExistsError(
+        raise OutputExistsError(
             f"run folder {str(out_dir)!r} already exists and is not empty; choose a new folder "
             "or pass overwrite=True (CLI: --overwrite) to replace its results."
         )
@@ -163,7 +164,7 @@ def _prepare_out_dir(out_dir: Path, overwrite: bool) -> Path:
                 stale.unlink()
         occupants = _occupants(out_dir)
         if occupants and not overwrite:
-            raise FileExistsError(
+            raise OutputExistsError(
                 f"run folder {str(out_dir)!r} was filled by another run meanwhile; choose a new folder "
                 "or pass overwrite=True (CLI: --overwrite).")
         if occupants:
@@ -182,24 +183,13 @@ def _atomic_write_text(path: Path, text: str) -> None:
     """Write ``text`` to ``path`` through a uniquely named temporary and a rename: a reader (or a
     crash, or a full disk) sees the old file or the new one, never half of one, and a failed
     write leaves no temporary behind."""
-    import tempfile
+    from ._claims import atomic_output, write_error
 
-    from ._claims import temp_prefix
-
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=temp_prefix(path.name), suffix=".tmp")
     try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+        with atomic_output(path, text=True, suffix=".tmp") as fh:
             fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException as exc:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        if isinstance(exc, OSError):
-            raise OSError(exc.errno, f"could not write {str(path)!r} ({exc.strerror or exc}); the rows finished "
-                                     "before are kept in the run folder") from None
-        raise
+    except OSError as exc:
+        raise write_error(exc.errno, f"{exc}; the rows finished before are kept in the run folder") from None
 
 
 class RunWriter:
@@ -224,8 +214,8 @@ class RunWriter:
 
     Raises
     ------
-    FileExistsError
-        ``out_dir`` exists, is not empty, and ``overwrite`` is False; or it is a file.
+    OutputExistsError
+        ``out_dir`` exists, is not empty, and ``overwrite`` is False; or it is a file (a ``FileExistsError``).
     """
 
     def __init__(self, out_dir: str | os.PathLike, *, command: str | Sequence[str] | None = None,
@@ -377,8 +367,8 @@ def write_run(
 
     Raises
     ------
-    FileExistsError
-        ``out_dir`` exists, is not empty, and ``overwrite`` is False.
+    OutputExistsError
+        ``out_dir`` exists, is not empty, and ``overwrite`` is False (a ``FileExistsError``).
     InvalidParameterError
         No results, or two results whose names give the same file name.
     """

@@ -97,6 +97,8 @@ def shrink_rank(n_features: int, n_rows: int | None, budget: int | None) -> int:
 def fit_shrink(Z: np.ndarray, rank: int, levels: int = _LEVELS) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Learn the stored arrays from the map rows ``Z`` (n, d) float32.
 
+    Raises :class:`~btel.exceptions.InvalidDescriptorsError` when a column mean exceeds float16's range.
+
     ``levels``: the basis is quantised per column to the integers −levels … levels (7: the 4-bit
     basis btel stores; 127 gives the int8 basis of earlier files, for comparison).
 
@@ -110,6 +112,14 @@ def fit_shrink(Z: np.ndarray, rank: int, levels: int = _LEVELS) -> tuple[np.ndar
     """
     n, d = Z.shape
     mean64 = Z.mean(axis=0, dtype=np.float64)
+    largest = float(np.abs(mean64).max(initial=0.0))
+    if not largest <= float(np.finfo(np.float16).max):
+        from .exceptions import InvalidDescriptorsError
+
+        raise InvalidDescriptorsError(
+            f"whiten='shrink' stores the map's mean in float16 (|values| ≤ 65504), but a column of this "
+            f"map has the mean {largest:.3g}. Normalise the rows (normalize='l2', the default) or scale the "
+            "descriptors.")
     mean = mean64.astype(np.float16)
     centred = np.asarray(Z, dtype=np.float64) - mean.astype(np.float64)
     trace = float(np.einsum("ij,ij->", centred, centred)) / max(n - 1, 1)

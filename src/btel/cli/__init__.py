@@ -1,7 +1,8 @@
 """The ``btel`` command line: from descriptors (or images) to a model, predictions and a recall report.
 
 Every subcommand has ``--help``. Failures print one line ``Error: …`` on stderr and exit with a
-non-zero code (1 for bad data or models, 2 for bad usage, 3 when ``evaluate``/``demo`` finished
+non-zero code (1 for bad data or models; 2 for bad usage, such as an output that exists — or that a
+racing command wrote first — without ``--overwrite``; 3 when ``evaluate``/``demo`` finished
 but some method did not fit or failed: its row says why); no traceback unless ``BTEL_DEBUG=1``.
 Warnings (a distorting resize, a capped PCA) print one line ``Warning: …`` on stderr.
 
@@ -84,12 +85,14 @@ class _Group(click.Group):
         except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort):
             raise
         except Exception as exc:
-            from ..exceptions import BTELError
+            from ..exceptions import BTELError, OutputExistsError
 
             if not isinstance(exc, (BTELError, *_LIBRARY_INPUT_ERRORS)) or os.environ.get("BTEL_DEBUG"):
                 raise
             from ._errors import cli_message
 
+            if isinstance(exc, OutputExistsError):  # an output that exists without --overwrite: bad usage (2)
+                raise click.UsageError(cli_message(str(exc))) from exc
             message = str(exc) or type(exc).__name__
             if not isinstance(exc, (BTELError, OSError, ValueError)):  # a library's error: say which
                 message = f"{type(exc).__name__}: {message}"

@@ -20,6 +20,8 @@ CLI_WORDS: tuple[tuple[str, str], ...] = (
     (r"(\S+\.npz):(\S+) on the command line, key='[^']*' in Python", r"\1:\2"),
     (r"choose one with key=\.?", "choose one with FILE.npz:KEY."),
     (r"\bn_regions='auto'", "--regions auto"),
+    (r"Pass overwrite=True \(CLI: --overwrite\)", "Give --overwrite"),
+    (r"pass overwrite=True \(CLI: --overwrite\)", "give --overwrite"),
 )
 
 

@@ -197,8 +197,12 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
     except KeyboardInterrupt:
         bar.close()
         _plot_partial_run(latest, out, title, unit)
+        writer.close()
         click.echo(f"interrupted: the finished rows are in {out}/metrics.csv", err=True)
         raise click.exceptions.Exit(EXIT_INTERRUPTED) from None
+    except BaseException:  # a full disk, a failed write: the rows on disk stay, the claim goes
+        writer.close()
+        raise
     bar.close()
     click.echo(format_table(results))
     report = writer.finish(results, title=title, tolerance_unit=unit)
@@ -212,7 +216,7 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
         targets, q_names, db_names = pairs
         for r in results:
             if r.name in targets and r.ok and r.ranked is not None:
-                n = write_pairs(targets[r.name], r.ranked, q_names, db_names)
+                n = write_pairs(targets[r.name], r.ranked, q_names, db_names, overwrite=overwrite)
                 click.echo(f"pairs ({r.name}, top {r.ranked.shape[1]}): {n} lines written to {targets[r.name]}")
     failed = [r for r in results if not r.ok]
     if failed:

@@ -66,9 +66,16 @@ def pairs_paths(path: str, method_names: Sequence[str]) -> dict[str, Path]:
     return {m: base.with_name(f"{base.stem}-{m}{base.suffix}") for m in method_names}
 
 
-def write_pairs(path: Path, ranked: np.ndarray, query_names: Sequence[str], db_names: Sequence[str]) -> int:
-    """An hloc retrieval pairs file: ``query_name db_name`` per line, each query's top K best first."""
+def write_pairs(path: Path, ranked: np.ndarray, query_names: Sequence[str], db_names: Sequence[str], *,
+                overwrite: bool = True) -> int:
+    """An hloc retrieval pairs file: ``query_name db_name`` per line, each query's top K best first.
+
+    Written whole or not at all; ``overwrite=False`` keeps a file another process wrote meanwhile
+    (:class:`~btel.exceptions.OutputExistsError`)."""
     lines = [f"{query_names[i]} {db_names[j]}" for i in range(ranked.shape[0]) for j in ranked[i].tolist()]
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    from .._claims import atomic_output
+
+    with atomic_output(path, overwrite=overwrite, text=True) as fh:
+        fh.write("\n".join(lines) + "\n")
     return len(lines)

@@ -90,11 +90,15 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
         refuse_existing(save_descriptor, "--save-descriptor", overwrite)
     if delta is not None:
         refuse_existing(output, "-o", overwrite)
-        _extract_delta(images_dir, output, model, fit_on, no_progress, force, delta)
+        _extract_delta(images_dir, output, model, fit_on, no_progress, force, delta, overwrite)
         return
-    if Path(output).exists() and not overwrite and not _is_cache_of(output, images_dir, model, fit_on):
+    cache = Path(output).exists() and _is_cache_of(output, images_dir, model, fit_on)
+    if Path(output).exists() and not overwrite and not cache:
         refuse_existing(output, "-o", overwrite)
-    X, reused = extract_cached(images_dir, output, model, fit_on=fit_on, progress=not no_progress, force=force)
+    # A new OUTPUT is published only if still absent (a racing extract's is kept); a cache of the same
+    # extraction, or any file with --overwrite, is replaced.
+    X, reused = extract_cached(images_dir, output, model, fit_on=fit_on, progress=not no_progress,
+                               force=force, overwrite=overwrite or cache)
     if reused:
         click.echo(f"{output} is up to date ({X.shape[0]} images, {descriptor}); use --force to recompute")
         return
@@ -102,7 +106,7 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
     how = f" (every image resized to {resize[0]}×{resize[1]})" if resize else ""
     click.echo(f"{X.shape[0]} images → {X.shape[1]}-D {type(model).__name__} descriptors{how} written to {output}")
     if save_descriptor:
-        path = model.save(save_descriptor)
+        path = model.save(save_descriptor, overwrite=overwrite)
         parts = ", ".join(f"{k} {format_bytes(v.nbytes)}" for k, v in model._stored_arrays().items())
         click.echo(f"fitted descriptor written to {path} ({format_bytes(path.stat().st_size)}"
                    f"{': ' + parts if parts else ''})")
@@ -122,7 +126,7 @@ def _is_cache_of(output: str, images_dir: str, model: Any, fit_on: str | None) -
 
 
 def _extract_delta(images_dir: str, output: str, model: Any, fit_on: str | None, no_progress: bool, force: bool,
-                   window: int) -> None:
+                   window: int, overwrite: bool) -> None:
     """``extract --delta W``: the plain descriptors (cached beside OUTPUT), then their delta, written to OUTPUT."""
     import numpy as np
 
@@ -131,8 +135,11 @@ def _extract_delta(images_dir: str, output: str, model: Any, fit_on: str | None,
 
     plain = Path(output).with_name(Path(output).stem + ".plain.npy")
     X, _ = extract_cached(images_dir, plain, model, fit_on=fit_on, progress=not no_progress, force=force)
+    from .._claims import atomic_output
+
     D = delta_descriptors(X, window)
     Path(output).parent.mkdir(parents=True, exist_ok=True)
-    np.save(output, D)
+    with atomic_output(output, overwrite=overwrite) as fh:  # whole or not at all; a racing file is kept
+        np.save(fh, D)
     click.echo(f"{X.shape[0]} images → {D.shape[1]}-D delta descriptors (W = {window}) of {type(model).__name__} "
                f"written to {output} (plain descriptors kept in {plain})")

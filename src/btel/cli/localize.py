@@ -77,7 +77,10 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
         predictions = filter_sequence(predictions, window, n_places=model.n_places_)
     ranked = model.rank(Q, top_k) if top_k is not None else None
     Path(output).parent.mkdir(parents=True, exist_ok=True)
-    with open(output, "w", newline="") as fh:
+    from .._claims import atomic_output
+
+    # Whole or not at all; without --overwrite a file another process wrote meanwhile is kept.
+    with atomic_output(output, overwrite=overwrite, text=True) as fh:
         writer = csv.writer(fh)
         head = ["query", "prediction"]
         if ranked is not None:

@@ -98,7 +98,7 @@ def train(db: str, output: str, overwrite: bool, method: str, budget: str | None
     click.echo(f"fitted {method}{regions} on {X.shape[0]} places × {X.shape[1]} dims "
                f"in {time.perf_counter() - start:.1f} s")
     _echo_storage(model)
-    path = model.save(output)
+    path = model.save(output, overwrite=overwrite)  # no --overwrite: a racing train's file is never replaced
     click.echo(f"model written to {path} ({path.stat().st_size:,d} B on disk)")
 
 

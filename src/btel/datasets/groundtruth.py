@@ -392,11 +392,13 @@ class GroundTruth:
         return out
 
     # -- files --------------------------------------------------------------------------------------
-    def save(self, path: str | os.PathLike) -> Path:
+    def save(self, path: str | os.PathLike, *, overwrite: bool = True) -> Path:
         """Write this ground truth as ``.npz`` (no pickles) that :meth:`from_file` reads back.
 
         Kind ``"places"`` writes ``query_places``; kind ``"positives"`` writes ``indptr`` and
-        ``indices``; both add ``n_map`` when known.
+        ``indices``; both add ``n_map`` when known. Written whole or not at all
+        (:func:`btel._claims.atomic_output`); ``overwrite=False`` keeps an existing file
+        (:class:`~btel.exceptions.OutputExistsError`).
         """
         path = Path(path)
         arrays: dict[str, np.ndarray] = {}
@@ -408,8 +410,10 @@ class GroundTruth:
         if self.n_map is not None:
             arrays["n_map"] = np.int64(self.n_map)
         path.parent.mkdir(parents=True, exist_ok=True)
+        from .._claims import atomic_output
+
         # np.savez appends ".npz" to names without it; write through a handle to keep the name.
-        with open(path, "wb") as fh:
+        with atomic_output(path, overwrite=overwrite) as fh:
             np.savez(fh, **arrays)
         return path
 

@@ -245,13 +245,17 @@ class ImageDescriptor(BaseEstimator):
             self.dim_ = self.output_dim
         return self.transform(items, progress=progress)
 
-    def save(self, path: str | os.PathLike) -> Path:
+    def save(self, path: str | os.PathLike, *, overwrite: bool = True) -> Path:
         """Save the parameters and fitted state: plain arrays plus a JSON header, no pickles.
+
+        Written atomically (:func:`btel.modelfile.save_arrays`); ``overwrite=False`` keeps an existing file.
 
         Raises
         ------
         NotFittedError
             A descriptor that learns state was not fitted.
+        OutputExistsError
+            ``overwrite`` is False and ``path`` exists.
         """
         if self.requires_fit:
             check_is_fitted(self, "dim_")
@@ -259,7 +263,7 @@ class ImageDescriptor(BaseEstimator):
             self._validate_params()
         params = {k: _jsonable(k, v) for k, v in self.get_params(deep=False).items()}
         header = {"kind": FILE_KIND, "descriptor": self.name, "params": params, "state": self._fitted_state()}
-        return save_arrays(path, self._stored_arrays(), header)
+        return save_arrays(path, self._stored_arrays(), header, overwrite=overwrite)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "ImageDescriptor":

@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from .._claims import atomic_output
 from .._validation import check_is_fitted
 from ..exceptions import InvalidParameterError, NotFittedError
 from .base import ImageDescriptor, get_descriptor, registered
@@ -128,12 +129,16 @@ def extract_cached(
     fit_on: Any = None,
     progress: bool = True,
     force: bool = False,
+    overwrite: bool = True,
 ) -> tuple[np.ndarray, bool]:
     """:func:`extract_descriptors` into ``output`` (.npy), reusing it when nothing changed.
 
     A JSON file beside ``output`` (``output + ".json"``) records :func:`extraction_key`; when it
-    matches, the stored matrix is loaded instead of recomputed. Writing is atomic (temp file and
-    rename), so an interrupted run never leaves a partial matrix under ``output``.
+    matches, the stored matrix is loaded instead of recomputed. Writing is atomic (a temporary
+    file, then a rename; :func:`btel._claims.atomic_output`), so an interrupted run or a full disk
+    never leaves a partial matrix or a temporary behind. With ``overwrite=False`` a matrix that
+    appeared at ``output`` during the extraction (another process's) is kept:
+    :class:`~btel.exceptions.OutputExistsError`.
 
     Returns
     -------
@@ -155,18 +160,15 @@ def extract_cached(
             cached = None
         if same_extraction(cached, key):
             if cached != key:  # written before the folder was recorded: record it now
-                tmp_sidecar = sidecar.with_name(f"{sidecar.name}.{os.getpid()}.part")
-                tmp_sidecar.write_text(json.dumps(key, indent=1))
-                os.replace(tmp_sidecar, sidecar)
+                with atomic_output(sidecar, text=True) as fh:
+                    fh.write(json.dumps(key, indent=1))
             return np.load(output, allow_pickle=False), True
     X = extract_descriptors(paths, model, fit_on=fit_on, progress=progress)
     output.parent.mkdir(parents=True, exist_ok=True)
-    # One temporary name per process: two runs filling the same cache at once (two experiments
-    # started together) each write their own file, and the last atomic rename wins.
-    tmp = output.with_name(f"{output.name}.{os.getpid()}.part.npy")
-    np.save(tmp, X)
-    os.replace(tmp, output)
-    tmp_sidecar = sidecar.with_name(f"{sidecar.name}.{os.getpid()}.part")
-    tmp_sidecar.write_text(json.dumps(key, indent=1))
-    os.replace(tmp_sidecar, sidecar)
+    # Unique temporaries: two runs filling the same cache at once (two experiments started together)
+    # each write their own; the matrix is published first, then the key that vouches for it.
+    with atomic_output(output, overwrite=overwrite) as fh:
+        np.save(fh, X)
+    with atomic_output(sidecar, text=True) as fh:
+        fh.write(json.dumps(key, indent=1))
     return X, False

@@ -13,9 +13,69 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..exceptions import ModelFileError
+from ..exceptions import InvalidDescriptorsError, ModelFileError
 
-__all__ = ["Hyperplanes"]
+__all__ = ["Hyperplanes", "MAX_WEIGHT_NORM", "weights_out_of_range", "check_fitted_weights"]
+
+#: Longest stored weight vector (L2 length, in the units of the front end's output) and largest |bias|
+#: a fit may produce and a model file may hold: the margin of a descriptor no longer than 1e18 (the
+#: bound on the rows the row indexes search) then stays within 1e36, finite in float32 (3.4e38) in any
+#: order of summation. Longer weights only come from maps of tiny values without normalisation.
+MAX_WEIGHT_NORM = 1e18
+#: Weight rows read at a time by :func:`weights_out_of_range` (bounds its float32 temporaries).
+_CHECK_ROWS = 4096
+
+
+def weights_out_of_range(weights: np.ndarray, bias: np.ndarray) -> str | None:
+    """What puts a stack of linear classifiers beyond :data:`MAX_WEIGHT_NORM`, or None when nothing does.
+
+    Parameters
+    ----------
+    weights : ndarray of shape (K, d'), float
+    bias : ndarray of shape (K,), float
+
+    Returns
+    -------
+    str or None
+        E.g. ``"a weight vector of length 3.1e+38 (classifier 4)"``.
+    """
+    bias = np.asarray(bias)
+    if bias.size:
+        if not np.isfinite(bias).all():
+            return f"a bias that is NaN or infinite (classifier {int(np.flatnonzero(~np.isfinite(bias))[0])})"
+        k = int(np.argmax(np.abs(bias)))
+        if abs(float(bias[k])) > MAX_WEIGHT_NORM:
+            return f"a bias of {float(bias[k]):.3g} (classifier {k})"
+    for start in range(0, weights.shape[0], _CHECK_ROWS):
+        block = np.asarray(weights[start : start + _CHECK_ROWS], dtype=np.float32)
+        with np.errstate(over="ignore", invalid="ignore"):
+            squares = np.einsum("ij,ij->i", block, block)  # an overflow (inf) is far past the bound anyway
+        bad = np.flatnonzero(~(squares <= MAX_WEIGHT_NORM**2))
+        if bad.size:
+            k = int(bad[0])
+            row = block[k].astype(np.float64)
+            if not np.isfinite(row).all():
+                return f"a weight that is NaN or infinite (classifier {start + k})"
+            return f"a weight vector of length {float(np.sqrt(row @ row)):.3g} (classifier {start + k})"
+    return None
+
+
+def check_fitted_weights(weights: np.ndarray, bias: np.ndarray, who: str, *,
+                         dtype: np.dtype | None = None) -> None:
+    """Raise :class:`InvalidDescriptorsError` at fit when the fitted weights exceed :data:`MAX_WEIGHT_NORM`.
+
+    Such weights come from a map whose values are tiny (their scale is folded into the weights) or
+    from a ``float16`` weight beyond its range; a model holding them could not answer every query.
+    """
+    problem = weights_out_of_range(weights, bias)
+    if problem is None:
+        return
+    hint = " Or store the weights as float32 (dtype='float32')." if dtype is not None and \
+        np.dtype(dtype) == np.float16 else ""
+    raise InvalidDescriptorsError(
+        f"{who}: fitting this map gives {problem}, beyond the {MAX_WEIGHT_NORM:.0e} that float32 "
+        "arithmetic scores safely: the map's values are too small for its front end. Scale the descriptors "
+        f"(e.g. to unit length) or use normalize='l2'.{hint}")
 
 
 @dataclass
@@ -78,13 +138,16 @@ class Hyperplanes:
     def from_arrays(cls, arrays: dict[str, np.ndarray], prefix: str, n_features_in: int) -> "Hyperplanes":
         """Hyperplanes read from a model file's (shape-checked) arrays ``{prefix}weights`` etc.
 
-        Raises :class:`~btel.exceptions.ModelFileError` for NaN/inf weights or biases and for
-        column indices outside [0, d).
+        Raises :class:`~btel.exceptions.ModelFileError` for weights or biases beyond
+        :data:`MAX_WEIGHT_NORM` (NaN/inf included: no fit stores them) and for column indices outside [0, d).
         """
         weights, bias = arrays[f"{prefix}weights"], arrays[f"{prefix}bias"]
         columns = arrays.get(f"{prefix}columns")
-        if not (np.isfinite(weights).all() and np.isfinite(bias).all()):
-            raise ModelFileError(f"the model file's {prefix}weights or {prefix}bias contain NaN or infinite values.")
+        problem = weights_out_of_range(weights, bias)
+        if problem is not None:
+            raise ModelFileError(f"the model file's {prefix}weights or {prefix}bias hold {problem}; no fit "
+                                 f"stores weights beyond {MAX_WEIGHT_NORM:.0e}: the file is damaged or was "
+                                 "edited. Refit and save the model again.")
         if columns is not None and columns.size and int(columns.max()) >= n_features_in:
             raise ModelFileError(f"the model file's {prefix}columns index past d = {n_features_in}.")
         return cls(weights, bias, columns, n_features_in)

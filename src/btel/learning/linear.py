@@ -48,9 +48,10 @@ class ColumnStats:
         var = np.maximum(total_sq / n - mean**2, 0.0)
         scale = np.sqrt(var)
         # A constant column carries no information; σ = 1 keeps it finite (its BCSS is 0, so it is
-        # only ever selected when d' exceeds the number of informative columns).
-        floor = 1e-6 * max(float(np.median(scale)), 1e-12)
-        scale[scale < floor] = 1.0
+        # only ever selected when d' exceeds the number of informative columns). The floor is relative
+        # to the map's own spread, so a map scaled by 1e-30 is standardised like the map itself.
+        typical = float(np.median(scale)) or float(scale.max(initial=0.0))
+        scale[scale < (1e-6 * typical if typical > 0 else np.inf)] = 1.0
         return cls(mean=mean, scale=scale)
 
 

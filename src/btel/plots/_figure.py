@@ -29,10 +29,15 @@ def _new_figure() -> tuple[Figure, Any]:
 
 
 def _save(fig: Figure, path: str | os.PathLike) -> None:
+    """Save as PNG through a temporary beside ``path`` (:func:`btel._claims.atomic_output`): a full disk
+    leaves the old file or none, never half a figure."""
+    from .._claims import atomic_output
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    fig.savefig(path, format="png")
+    with atomic_output(path, suffix=".tmp") as fh:
+        fig.savefig(fh, format="png")
 
 
 def _finish_recall_plot(fig: Figure, ax: Any, path: str | os.PathLike, *, xlabel: str, ylabel: str = "recall",

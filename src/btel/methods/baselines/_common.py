@@ -15,7 +15,7 @@ import re
 import sys
 import tempfile
 from abc import abstractmethod
-from typing import Any, Iterator
+from typing import Any, ClassVar, Iterator
 
 import numpy as np
 
@@ -25,7 +25,7 @@ from ...storage import format_bytes
 from ...threads import faiss_threads, search_threads
 
 __all__ = ["quiet_faiss", "faiss_threads", "smallest_uint_dtype", "rank_unique_places", "raise_budget_too_small",
-           "check_magnitude", "check_model_values", "MAX_NORM"]
+           "check_magnitude", "check_not_tiny", "check_model_values", "MAX_NORM", "MIN_NORM"]
 
 #: faiss' k-means prints this from C++ whenever it has fewer than 39 points per centroid, which is
 #: the normal case for a map of a few thousand places; it is not actionable for a btel user.
@@ -106,17 +106,24 @@ def rank_unique_places(row_ranking: np.ndarray, row_places: np.ndarray, k: int,
 #: Largest L2 norm of a descriptor (after the front end) a row index searches: squared distances
 #: of such vectors stay far below float32's maximum (3.4e38), where faiss' distances overflow.
 MAX_NORM = 1e18
+#: Shortest the longest row of a map may be (after the front end) for an index of float32 distances
+#: (the mirror of MAX_NORM): squared lengths below 1e-36 near float32's smallest normal number
+#: (1.2e-38), below which squared distances keep fewer bits, then none — every place looks alike.
+MIN_NORM = 1e-18
 
 
 def check_magnitude(X: np.ndarray, name: str, *, error: type[Exception] = InvalidDescriptorsError,
-                    chunk_rows: int = 65536) -> None:
+                    chunk_rows: int = 65536) -> float:
     """``error`` naming the first row of ``X`` that is not finite or whose L2 norm exceeds :data:`MAX_NORM`.
 
     Squared norms are summed in X's own float32: one that overflows is far beyond the bound anyway.
+    Returns the largest squared norm (float32 arithmetic: 0 when every row underflows).
     """
     if X.shape[0] == 1 and X.dtype == np.float32:  # one query (µs count here): BLAS' sdot (no FP warnings)
-        if float(np.dot(X[0], X[0])) <= MAX_NORM**2:  # False for NaN and overflow: the full check names it
-            return
+        square = float(np.dot(X[0], X[0]))
+        if square <= MAX_NORM**2:  # False for NaN and overflow: the full check names it
+            return square
+    largest = 0.0
     for start in range(0, X.shape[0], chunk_rows):
         block = X[start : start + chunk_rows]
         with np.errstate(over="ignore", invalid="ignore"):
@@ -124,11 +131,31 @@ def check_magnitude(X: np.ndarray, name: str, *, error: type[Exception] = Invali
         bad = np.flatnonzero(~(squares <= MAX_NORM**2))
         if bad.size:
             row = start + int(bad[0])
+            values = np.asarray(block[bad[0]], dtype=np.float64)
+            length = float(np.sqrt(values @ values)) if np.isfinite(values).all() else float("nan")
             raise error(
-                f"{name} row {row} has length {float(np.sqrt(np.float64(squares[bad[0]]))):.3g} (after the front "
-                f"end); squared distances of descriptors longer than {MAX_NORM:.0e} overflow float32. Scale the "
-                "descriptors down (or use normalize='l2')."
+                f"{name} row {row} has length {length:.3g} (after the front end); squared distances of "
+                f"descriptors longer than {MAX_NORM:.0e} overflow float32. Scale the descriptors down (or "
+                "use normalize='l2')."
             )
+        if squares.size:
+            largest = max(largest, float(squares.max()))
+    return largest
+
+
+def check_not_tiny(X: np.ndarray, largest_square: float, name: str) -> None:
+    """InvalidDescriptorsError when every row of a map is shorter than :data:`MIN_NORM`, not all zero."""
+    if largest_square >= MIN_NORM**2 or not np.any(X):
+        return
+    longest = 0.0
+    for start in range(0, X.shape[0], 65536):
+        block = np.asarray(X[start : start + 65536], dtype=np.float64)
+        longest = max(longest, float(np.sqrt(np.einsum("ij,ij->i", block, block).max())))
+    raise InvalidDescriptorsError(
+        f"{name}'s rows are all shorter than {MIN_NORM:.0e} after the front end (the longest: "
+        f"{longest:.3g}); their squared distances underflow float32, so every place would look alike. Scale "
+        "the descriptors up (e.g. to unit length) or use normalize='l2'."
+    )
 
 
 def check_model_values(arrays: dict[str, np.ndarray], names: tuple[str, ...], method: str) -> None:
@@ -160,6 +187,9 @@ class _RowLocalizer(PlaceLocalizer):
     """
 
     _runtime_params = ("n_jobs",)
+    #: True for an index of float32 squared distances: it refuses a map whose rows are all shorter than
+    #: :data:`MIN_NORM` (sign codes and SeqSLAM's byte codes do not depend on the map's scale).
+    _float32_distances: ClassVar[bool] = False
 
     # -- to implement ------------------------------------------------------------------------
     @abstractmethod
@@ -191,7 +221,9 @@ class _RowLocalizer(PlaceLocalizer):
         # Row i = place i needs no table; any other labelling is stored for inference.
         row_places = None if places is None else places.astype(smallest_uint_dtype(n_places - 1))
         extra = reserved + (0 if row_places is None else int(row_places.nbytes))
-        check_magnitude(X, "X")
+        largest = check_magnitude(X, "X")
+        if self._float32_distances:
+            check_not_tiny(X, largest, "X")
         with faiss_threads(self.n_jobs):
             self._fit_rows(X, budget, extra)
         self.row_places_ = row_places

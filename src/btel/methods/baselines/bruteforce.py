@@ -59,6 +59,7 @@ class BruteForceNN(_RowLocalizer):
     [0, 1, 2]
     """
 
+    _float32_distances = True  # a map of tiny rows is refused at fit (_common.MIN_NORM)
     _parameter_constraints = {"budget": [Budget()], "n_jobs": N_JOBS}
 
     def __init__(self, *, budget: int | str | None = None, n_jobs: int | None = None) -> None:

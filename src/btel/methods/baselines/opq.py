@@ -68,6 +68,7 @@ class OPQLocalizer(_RowLocalizer):
     fit_time_ : float
     """
 
+    _float32_distances = True  # a map of tiny rows is refused at fit (_common.MIN_NORM)
     _parameter_constraints = {
         "budget": [Budget()],
         "pq": [None, Instance(PQLocalizer)],

@@ -149,6 +149,7 @@ class PQLocalizer(_RowLocalizer):
     True
     """
 
+    _float32_distances = True  # a map of tiny rows is refused at fit (_common.MIN_NORM)
     _parameter_constraints = {
         "budget": [Budget()],
         "n_subquantizers": [None, Interval(int, 1, 1 << 16)],

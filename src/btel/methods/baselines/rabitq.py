@@ -46,8 +46,8 @@ import numpy as np
 
 from ..._validation import N_JOBS, RANDOM_STATE, Budget, Interval, read_state_int
 from ...base import ArraySpec
-from ...exceptions import BTELError, InvalidParameterError, ModelFileError
-from ._common import _RowLocalizer, check_model_values, raise_budget_too_small
+from ...exceptions import BTELError, InvalidDescriptorsError, InvalidParameterError, ModelFileError
+from ._common import MAX_NORM, _RowLocalizer, check_model_values, raise_budget_too_small
 
 __all__ = ["RaBitQLocalizer", "rotation_matrix"]
 
@@ -111,6 +111,7 @@ class RaBitQLocalizer(_RowLocalizer):
     [0, 1, 2]
     """
 
+    _float32_distances = True  # a map of tiny rows is refused at fit (_common.MIN_NORM)
     _parameter_constraints = {
         "budget": [Budget()],
         "dim": [None, Interval(int, 1, None)],
@@ -192,9 +193,13 @@ class RaBitQLocalizer(_RowLocalizer):
             factors = np.hstack([factors, codes[:, s + 12 + e :].copy().view(np.float32)])
         with np.errstate(over="ignore"):
             stored = factors.astype(dtype)
-        if not np.isfinite(stored).all():
-            raise BTELError("RaBitQ correction factors overflow their stored width; fit with normalize='none' "
-                            "(float32 factors) or scale the descriptors down.")
+        # What load refuses (check_model_values) is refused here, with the map's fix.
+        if not all(np.isfinite(a).all() and float(np.abs(a).max(initial=0)) <= MAX_NORM
+                   for a in (stored, self.centroid_)):
+            raise InvalidDescriptorsError(
+                f"RaBitQ's correction factors of this map overflow their stored {dtype.name} or exceed "
+                f"{MAX_NORM:.0e} (they hold squared row lengths: rows longer than about 1e9 after the front end "
+                "are too long). Scale the descriptors down (normalize='none' stores float32 factors).")
         self.signs_ = np.ascontiguousarray(codes[:, :s])
         self.ex_codes_ = np.ascontiguousarray(codes[:, s + 12 : s + 12 + e]) if B > 1 else None
         self.factors_ = stored

@@ -35,7 +35,7 @@ import numpy as np
 from ..._validation import N_JOBS, Budget, Interval, check_positive_int
 from ...base import ArraySpec
 from ...exceptions import InvalidDescriptorsError, InvalidParameterError, ModelFileError
-from ._common import _RowLocalizer, raise_budget_too_small
+from ._common import MAX_NORM, _RowLocalizer, raise_budget_too_small
 
 __all__ = ["SeqSLAM", "seqslam_match", "enhance_contrast", "sequence_costs", "velocities"]
 
@@ -311,6 +311,8 @@ class SeqSLAM(_RowLocalizer):
         self._check_plan(*X.shape, budget, reserved)
         lo, hi = float(X.min()), float(X.max())
         scale = (hi - lo) / 255.0 if hi > lo else 1.0
+        # At least the smallest positive float32: a map of tiny values (1e-44) still gets a usable step.
+        scale = max(float(np.float32(scale)), float(np.finfo(np.float32).smallest_subnormal))
         self.value_range_ = np.array([lo, scale], dtype=np.float32)
         self.map_codes_ = self._quantise(X)
 
@@ -327,13 +329,19 @@ class SeqSLAM(_RowLocalizer):
         """
         return self._differences(self._check_queries(Q))
 
-    def _differences(self, Q: np.ndarray) -> np.ndarray:
+    def _code_differences(self, Q: np.ndarray) -> np.ndarray:
+        """Mean absolute difference of the byte codes (0 … 255): the difference matrix / the value step."""
         codes = self._quantise(Q).astype(np.float32)
         l1 = faiss.pairwise_distances(codes, self.map_codes_.astype(np.float32), metric=faiss.METRIC_L1)
-        return (l1 * (float(self.value_range_[1]) / self.map_codes_.shape[1])).astype(np.float32)
+        return l1 / np.float32(self.map_codes_.shape[1])
+
+    def _differences(self, Q: np.ndarray) -> np.ndarray:
+        return (self._code_differences(Q) * float(self.value_range_[1])).astype(np.float32)
 
     def _costs(self, Q: np.ndarray) -> np.ndarray:
-        D = enhance_contrast(self._differences(Q), self.window)
+        # Contrast enhancement z-scores every cell: in the codes' own units the costs are the same whatever
+        # the scale of the descriptors (in descriptor units a map of tiny or huge values under/overflows).
+        D = enhance_contrast(self._code_differences(Q), self.window)
         return sequence_costs(D, self.ds, self.vmin, self.vmax, self.vskip)
 
     def _sequence_context(self) -> int:
@@ -377,8 +385,13 @@ class SeqSLAM(_RowLocalizer):
 
     def _restore_model(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
         codes, value_range = arrays["map_codes"], arrays["value_range"]
-        if not (np.isfinite(value_range).all() and float(value_range[1]) > 0):
-            raise ModelFileError("SeqSLAM model file holds an invalid value range.")
+        # Fit stores a finite lowest value of rows no longer than MAX_NORM and a positive step at most
+        # 1/255 of their span: anything else is a damaged or edited file.
+        if not (np.isfinite(value_range).all() and abs(float(value_range[0])) <= 2 * MAX_NORM
+                and 0 < float(value_range[1]) <= MAX_NORM):
+            raise ModelFileError(f"SeqSLAM model file holds an invalid value range {value_range.tolist()} "
+                                 f"(fit stores a lowest value within ±{2 * MAX_NORM:.0e} and a positive step); "
+                                 "the file is damaged or was edited. Refit and save it again.")
         try:
             self._check_params()
         except InvalidParameterError as exc:

@@ -75,16 +75,17 @@ def _kernel_cpd(Z: np.ndarray) -> Any:
 
 
 def _prepare(X: np.ndarray, pca_dims: int | None, random_state: int | None) -> np.ndarray:
-    Z = np.asarray(X, dtype=np.float64)
-    Z = Z / np.maximum(np.linalg.norm(Z, axis=1, keepdims=True), 1e-12)
+    Z = _normalised(X)
     if pca_dims is not None and Z.shape[1] > pca_dims and Z.shape[0] > pca_dims:
         Z = _pca(pca_dims, random_state).fit_transform(Z)
     return np.ascontiguousarray(Z)
 
 
 def _normalised(block: np.ndarray) -> np.ndarray:
+    """Rows at unit length (float64) whatever their scale; a zero row stays zero."""
     Z = np.asarray(block, dtype=np.float64)
-    return Z / np.maximum(np.linalg.norm(Z, axis=1, keepdims=True), 1e-12)
+    norms = np.linalg.norm(Z, axis=1, keepdims=True)
+    return Z / np.where(norms > 0, norms, 1.0)
 
 
 class _Blocks:

@@ -54,6 +54,7 @@ from ...base import PlaceLocalizer
 from ...exceptions import BudgetTooSmallError, InvalidParameterError
 from ...learning.distributed import BACKENDS
 from ...learning.feature_selection import column_index_dtype
+from ...learning.hyperplanes import check_fitted_weights
 from ...learning.linear import ColumnStats
 from ...storage import format_bytes
 from .codebook import FAMILIES, MAX_COLUMNS, ROUTE_FAMILIES, Codebook
@@ -288,6 +289,7 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
         # The bias from the stored weights, so quantisation does not shift every margin by (w − w_q)·μ.
         stored = weights.dequantise().astype(np.float64)
         self.bias_ = (fitted.offsets - stored @ fitted.center).astype(np.float32)
+        check_fitted_weights(stored, self.bias_, type(self).__name__)  # what load would refuse, refused here
         self.weights_ = weights
         self.columns_ = columns
         self.plan_ = plan

@@ -17,6 +17,7 @@ import numpy as np
 from ..._validation import read_state_int
 from ...base import ArraySpec
 from ...exceptions import InvalidParameterError, ModelFileError
+from ...learning.hyperplanes import MAX_WEIGHT_NORM, weights_out_of_range
 from .codebook import FAMILIES, MAX_COLUMNS, ROUTE_FAMILIES, Codebook
 from .hashing import LEGACY_RULE, RULES
 from .planning import CodePlan, code_array_specs
@@ -94,6 +95,11 @@ class CodeModelFile:
         if not np.isfinite(bias).all():
             raise ModelFileError("the model file's biases contain NaN or infinite values.")
         self.weights_ = QuantisedWeights.from_arrays(arrays, int(state["weight_bits"]), d_sel)
+        problem = weights_out_of_range(self.weights_.dequantise(), bias)
+        if problem is not None:
+            raise ModelFileError(f"the model file's weights or biases hold {problem}; no fit stores "
+                                 f"weights beyond {MAX_WEIGHT_NORM:.0e}: the file is damaged or was edited. "
+                                 "Refit and save it again.")
         self.bias_ = bias
         self.columns_ = columns
         alpha = state.get("alpha")
