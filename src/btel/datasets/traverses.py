@@ -303,14 +303,12 @@ def load_pair(db_path: str | os.PathLike, queries_path: str | os.PathLike) -> tu
 
 
 def _read_grey(path: str | os.PathLike) -> np.ndarray:
-    """Read one image as 2-D uint8 grey (cv2's BGR→grey weights)."""
-    import cv2  # imported here: opencv is slow to import and only image reading needs it
+    """Read one image as 2-D uint8 grey (cv2's BGR→grey weights), its header checked first."""
+    from ..descriptors.images import read_image  # imported here: opencv is slow to import
 
-    # Check first: cv2 would print its own warning for a missing file before returning None.
-    image = cv2.imread(os.fspath(path), cv2.IMREAD_GRAYSCALE) if Path(path).is_file() else None
-    if image is None:
+    if not Path(path).is_file():
         raise DataNotFoundError(f"image {str(path)!r} is missing or not a readable image file.")
-    return image
+    return read_image(path, grey=True)
 
 
 def _brightness_of(image: Any) -> float:

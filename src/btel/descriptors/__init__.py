@@ -20,13 +20,14 @@ Descriptors computed elsewhere (NetVLAD, ...) are read with :func:`load_descript
 
 from __future__ import annotations
 
+# images first: it sets OpenCV's pixel cap from btel's memory limit before anything loads OpenCV.
+from .images import IMAGE_EXTENSIONS, list_images, read_image, to_grey  # isort: skip
 from ..frontend import delta_descriptors
 from .augment import augmented_views
 from .base import DESCRIPTORS, ImageDescriptor, get_descriptor, load_descriptor, register_descriptor
 from .densevlad import DenseVLADDescriptor, dense_rootsift, vlad_encode
 from .extract import extract_descriptors
 from .hog import HOGDescriptor
-from .images import IMAGE_EXTENSIONS, list_images, read_image, to_grey
 from .npy import load_descriptor_matrix
 from .patchnorm import PatchNormDescriptor, patch_normalise
 
