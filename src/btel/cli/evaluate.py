@@ -155,7 +155,7 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
         threshold = DEFAULT_POSITIVE_DIST_THRESHOLD if positive_dist_threshold is None else positive_dist_threshold
         given = utm_ground_truth(db, queries, n_map, Q.shape[0], threshold)
     else:
-        given = GroundTruth.from_file(ground_truth) if ground_truth else None
+        given = _ground_truth_file(ground_truth, Q.shape[0], n_map) if ground_truth else None
     gt = check_ground_truth(given, Q.shape[0], n_map, option="--ground-truth")
     if tolerance_list is not None and not gt.uses_tolerance:
         raise click.UsageError("--tolerances needs one true place per query; --ground-truth lists explicit "
@@ -188,6 +188,17 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
                               "query_order": query_order})
     if failed:
         ctx.exit(EXIT_SOME_ROWS_FAILED)
+
+
+def _ground_truth_file(path: str, n_queries: int, n_map: int) -> Any:
+    """``--ground-truth FILE``, its counts checked against the descriptors before any positive is computed."""
+    from ..datasets import GroundTruth
+    from ..exceptions import InvalidParameterError
+
+    try:
+        return GroundTruth.from_file(path, n_queries=n_queries, n_map=n_map)
+    except InvalidParameterError as exc:
+        raise click.ClickException(f"--ground-truth: {exc}") from None
 
 
 def _finished_rows(run: str, queries: str) -> list[Any]:
