@@ -172,12 +172,13 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
 
     pairs, names = None, input_names(db, queries, n_map, Q.shape[0])
     if pairs_path is not None:
-        from ._names import pairs_paths
+        from ._names import check_pair_names, pairs_paths
 
         targets = pairs_paths(pairs_path, [j.name for j in saved + jobs])
         for target in targets.values():
             refuse_existing(target, "--pairs", overwrite)
         pairs = (targets, names[0] or [str(i) for i in range(Q.shape[0])], names[1] or [str(i) for i in range(n_map)])
+        check_pair_names(*pairs[1:], queries, db)
     failed = _run_jobs(saved + jobs, X, Q, ground_truth=gt, out=Path(out_dir), overwrite=overwrite, title=title,
                        pairs=pairs, names=names,
                        tolerances=tolerance_list, ks=ks, queries_are_route=query_order == "route",
