@@ -149,11 +149,26 @@ def test_a_chunk_larger_than_the_limit_is_refused_before_it_is_inflated(tmp_path
     monkeypatch.setenv("BTEL_MEMORY_LIMIT", "1M")
     with pytest.raises(ResourceLimitError, match=r"one chunk of shape \(524288,\), decompressed whole"):
         load_hloc_global(tmp_path / "chunk.h5")
-    monkeypatch.setenv("BTEL_MEMORY_LIMIT", "4M")  # the same file under a limit that holds the chunk
+    monkeypatch.setenv("BTEL_MEMORY_LIMIT", "16M")  # the same file under a limit that holds the chunk
     assert load_hloc_global(tmp_path / "chunk.h5")[0].shape == (1, 8)
 
 
-def test_a_plugin_filter_is_refused(tmp_path: Path) -> None:
+def test_a_chunk_that_stores_more_than_it_declares_is_refused(tmp_path: Path, monkeypatch) -> None:
+    """HDF5 inflates a stored gzip stream as far as it goes, whatever the chunk declares: a chunk
+    of 8 floats storing 1 GiB of compressed zeros (a 4.7 MB file) read 1.2 GB and answered. Here in
+    small: 16 MiB of zeros in a chunk of 8 values, under a 8 MiB limit."""
+    import zlib
+
+    with h5py.File(tmp_path / "lie.h5", "w") as fh:
+        ds = fh.create_group("db/a.jpg").create_dataset("global_descriptor", shape=(8,), dtype="f4", chunks=(8,),
+                                                        compression="gzip")
+        ds.id.write_direct_chunk((0,), zlib.compress(b"\0" * (16 << 20)), 0)
+    monkeypatch.setenv("BTEL_MEMORY_LIMIT", "8M")
+    with pytest.raises(ResourceLimitError, match=r"a chunk of \d+ stored bytes, gzip-inflated"):
+        load_hloc_global(tmp_path / "lie.h5")
+
+
+def test_filters_other_than_gzip_shuffle_fletcher32_are_refused(tmp_path: Path) -> None:
     from h5py import h5d, h5p, h5s, h5t, h5z
 
     with h5py.File(tmp_path / "plugin.h5", "w") as fh:
@@ -164,8 +179,21 @@ def test_a_plugin_filter_is_refused(tmp_path: Path) -> None:
         dataset = h5py.Dataset(h5d.create(group.id, b"global_descriptor", h5t.IEEE_F32LE, h5s.create_simple((8,)),
                                           dcpl=dcpl))
         dataset[...] = np.ones(8, dtype=np.float32)
-    with pytest.raises(InvalidDescriptorsError, match="filter 32015, a plugin"):
+    with pytest.raises(InvalidDescriptorsError, match="filter 32015; btel reads gzip, shuffle and fletcher32 only"):
         load_hloc_global(tmp_path / "plugin.h5")
+    with h5py.File(tmp_path / "lzf.h5", "w") as fh:  # built in, but sized by the file's own parameters
+        fh.create_group("a").create_dataset("global_descriptor", data=np.ones(8, np.float32), compression="lzf")
+    with pytest.raises(InvalidDescriptorsError, match="filter 32000"):
+        load_hloc_global(tmp_path / "lzf.h5")
+
+
+def test_gzip_shuffle_and_fletcher32_chunks_are_read(tmp_path: Path) -> None:
+    X = np.random.default_rng(0).normal(size=(3, 256)).astype(np.float32)
+    with h5py.File(tmp_path / "ok.h5", "w") as fh:
+        for i, row in enumerate(X):
+            fh.create_group(f"db/{i}.jpg").create_dataset("global_descriptor", data=row, compression="gzip",
+                                                          shuffle=True, fletcher32=True)
+    np.testing.assert_array_equal(load_hloc_global(tmp_path / "ok.h5")[0], X)
 
 
 def test_a_long_or_control_character_name_is_shown_escaped_and_short(tmp_path: Path) -> None:

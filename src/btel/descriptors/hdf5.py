@@ -5,10 +5,12 @@ local file, a *virtual dataset* maps other files, and an *external link* opens a
 of that is followed here. The reader walks the file's links itself (never following soft or
 external links) and enters every object once: a group linked from inside itself (a cycle) or from
 two places is refused by name, since hloc files are trees. It refuses external storage, virtual
-datasets, non-numeric dtypes and filters other than HDF5's own, checks every declared shape **and
-every chunk's decompressed size** against :mod:`btel.limits` before reading (HDF5 inflates a whole
-chunk to read one value of it), and turns every h5py error into an
-:class:`InvalidDescriptorsError` naming the item.
+datasets and non-numeric dtypes, and checks every declared shape against :mod:`btel.limits`
+before reading. Chunks are bounded twice, because HDF5 inflates a whole chunk to read one value
+of it and inflates as far as the stored stream goes, whatever the chunk declares: the declared
+chunk must fit the limit, and so must what each stored chunk can inflate to (gzip, shuffle and
+fletcher32 are the only filters read; their output is bounded by the bytes stored). Every h5py
+error becomes an :class:`InvalidDescriptorsError` naming the item.
 """
 
 from __future__ import annotations
@@ -30,10 +32,13 @@ __all__ = ["load_hloc_global", "HLOC_DATASET"]
 HLOC_DATASET = "global_descriptor"
 _MAX_OBJECTS = 10_000_000  # links looked at (each costs bytes in the file anyway)
 _MAX_DEPTH = 64  # nested groups (hloc nests one group per "/" of an image name)
-#: Filters built into HDF5 and h5py: each decodes a chunk into at most its declared size. Any other
-#: filter is a plugin library (loaded from HDF5_PLUGIN_PATH); refused.
-_BUILTIN_FILTERS = {1: "gzip", 2: "shuffle", 3: "fletcher32", 4: "szip", 5: "nbit", 6: "scaleoffset",
-                    32000: "lzf"}
+#: Filters read (HDF5 filter id → name): their output is bounded by the bytes a chunk stores. Others
+#: (szip, n-bit, scale-offset, LZF, plugins) size their output from parameters the file states.
+_FILTERS = {1: "gzip", 2: "shuffle", 3: "fletcher32"}
+#: Bytes of memory per stored byte of a gzip chunk: deflate inflates at most 1032:1, and HDF5 grows
+#: its output buffer by doubling.
+_GZIP_GROWTH = 2 * 1032
+_MAX_CHUNKS = 65_536  # per dataset (a global descriptor needs one)
 
 
 def _natural_key(name: str) -> list:
@@ -62,17 +67,36 @@ def _checked_dataset(ds: Any, item: str, source: str) -> tuple[tuple[int, ...], 
         raise InvalidDescriptorsError(
             f"{source}: {_shown(item)} has shape {shape}; a global descriptor is (d,) or (1, d) with d ≥ 1.")
     plist = ds.id.get_create_plist()
-    for index in range(plist.get_nfilters()):
-        code = int(plist.get_filter(index)[0])
-        if code not in _BUILTIN_FILTERS:
+    codes = [int(plist.get_filter(index)[0]) for index in range(plist.get_nfilters())]
+    for code in codes:
+        if code not in _FILTERS:
             raise InvalidDescriptorsError(
-                f"{source}: {_shown(item)} is encoded with HDF5 filter {code}, a plugin; btel decodes only "
-                f"HDF5's own filters ({', '.join(sorted(_BUILTIN_FILTERS.values()))}). Re-save it with gzip.")
+                f"{source}: {_shown(item)} is encoded with HDF5 filter {code}; btel reads gzip, shuffle and "
+                "fletcher32 only (the others size their output from the file's own parameters). Re-save it with "
+                "gzip or none.")
     if ds.chunks is not None:
         chunk = tuple(int(c) for c in ds.chunks)
         check_count(math.prod(chunk), dtype.itemsize,
                     f"{source}: {_shown(item)} (one chunk of shape {chunk}, decompressed whole to read it)")
+        n_chunks = math.prod(-(-n // c) for n, c in zip(shape, chunk))
+        if n_chunks > _MAX_CHUNKS:
+            raise InvalidDescriptorsError(f"{source}: {_shown(item)} is split into {n_chunks} chunks; a global "
+                                          f"descriptor needs a few (at most {_MAX_CHUNKS} are read).")
+        growth = _GZIP_GROWTH if 1 in codes else 1
+        stored = max(_stored_chunk_sizes(ds), default=0)
+        check_count(stored, growth, f"{source}: {_shown(item)} (a chunk of {stored} stored bytes"
+                                    f"{', gzip-inflated' if growth > 1 else ''})")
     return shape, dtype
+
+
+def _stored_chunk_sizes(ds: Any) -> list[int]:
+    """Bytes each chunk of ``ds`` stores in the file (read from the chunk index, not the chunks)."""
+    sizes: list[int] = []
+    if hasattr(ds.id, "chunk_iter"):
+        ds.id.chunk_iter(lambda info: sizes.append(int(info.size)))
+    else:  # pragma: no cover - h5py built on HDF5 < 1.12.3
+        sizes = [int(ds.id.get_chunk_info(i).size) for i in range(ds.id.get_num_chunks())]
+    return sizes
 
 
 def _walk(fh: Any, prefix: str | None, source: str, where: list[str]) -> dict[str, Any]:
@@ -153,11 +177,11 @@ def load_hloc_global(path: str | os.PathLike, prefix: str | None = None) -> tupl
         Missing file, not a regular file, or no ``global_descriptor`` (under ``prefix``).
     InvalidDescriptorsError
         Not an HDF5 file, external storage, virtual datasets, soft or external links, link cycles
-        or objects under two names, plugin filters, non-numeric dtypes, descriptors of different
-        lengths, non-finite values, or any other h5py error.
+        or objects under two names, filters other than gzip/shuffle/fletcher32, non-numeric
+        dtypes, descriptors of different lengths, non-finite values, or any other h5py error.
     ResourceLimitError
-        The declared shapes or one chunk's decompressed size exceed :mod:`btel.limits` (raise
-        ``BTEL_MEMORY_LIMIT``).
+        The declared shapes, one chunk's declared size, or what one stored chunk can inflate to
+        exceed :mod:`btel.limits` (raise ``BTEL_MEMORY_LIMIT``).
     """
     import h5py
 
