@@ -14,7 +14,7 @@ from click.testing import CliRunner
 from btel.cli import main
 from btel.descriptors import npy
 from btel.descriptors.npy import load_descriptor_matrix, to_float32_npy
-from btel.exceptions import InvalidParameterError, ResourceLimitError
+from btel.exceptions import InvalidDescriptorsError, InvalidParameterError, ResourceLimitError
 
 
 def _sparse_npy(path: Path, dtype: str, fortran: bool, shape: tuple[int, int]) -> Path:
@@ -79,3 +79,11 @@ def test_train_on_a_large_fortran_file_is_one_line(tmp_path: Path) -> None:
     result = CliRunner().invoke(main, ["train", str(path), "-o", str(tmp_path / "m.btel")])
     assert result.exit_code == 1 and isinstance(result.exception, SystemExit)
     assert result.output.count("\n") == 1 and "to_float32_npy" in result.output
+
+
+def test_float64_values_beyond_float32_are_named(tmp_path: Path) -> None:
+    X = np.ones((4, 3))
+    X[2, 1] = 1e300
+    np.save(tmp_path / "x.npy", X)
+    with pytest.raises(InvalidDescriptorsError, match=r"holds 1e\+300 at row 2, column 1, beyond float32's range"):
+        load_descriptor_matrix(tmp_path / "x.npy", mmap_mode="r")

@@ -154,6 +154,7 @@ def _check_header(data: bytes, path: Path, grey: bool) -> int:
     Image.MAX_IMAGE_PIXELS = cap  # Pillow refuses past 2 × cap while opening; the warning below cap is ours
     try:
         with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # Pillow's notes on odd tags: the checks below decide
             warnings.simplefilter("error", Image.DecompressionBombWarning)
             image = Image.open(io.BytesIO(data), formats=DECODED_FORMATS)
             width, height = image.size

@@ -78,7 +78,16 @@ def _mapped_as_float32(mapped: np.memmap, path: Path) -> np.ndarray:
             f"import to_float32_npy; to_float32_npy({str(path)!r}, {str(target)!r})\" (or raise {ENV_MEMORY_LIMIT}).")
     out = np.empty((n, d), dtype=np.float32)
     for start, block in _row_blocks(mapped):
-        out[start:start + block.shape[0]] = block
+        converted = out[start:start + block.shape[0]]
+        with np.errstate(over="ignore"):
+            converted[...] = block
+        if block.dtype.kind == "f" and block.dtype.itemsize > 4:
+            over = np.isfinite(block) & ~np.isfinite(converted)
+            if over.any():
+                row, column = np.argwhere(over)[0]
+                raise InvalidDescriptorsError(
+                    f"{str(path)!r} holds {block[row, column]:g} at row {start + row}, column {column}, beyond "
+                    "float32's range (±3.4e38); scale the descriptors.")
     return out
 
 
