@@ -116,7 +116,7 @@ def test_the_limit_follows_btel_memory_limit(tmp_path: Path, monkeypatch: pytest
     image = np.zeros((300, 400, 3), np.uint8)
     path = tmp_path / "a.png"
     path.write_bytes(_encoded("PNG", image))
-    assert decode_bytes(400, 300, 3, grey=False) == 400 * 300 * 2 * 6
+    assert decode_bytes(400, 300, 3, grey=False) == 400 * 300 * (2 * 3 + 2 * 3)
     monkeypatch.setenv("BTEL_MEMORY_LIMIT", str(decode_bytes(400, 300, 3, grey=True)))
     assert read_image(path, grey=True).shape == (300, 400)  # grey costs less than colour
     with pytest.raises(ResourceLimitError, match=r"400×300, 3 channels, decoded"):

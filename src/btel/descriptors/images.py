@@ -54,6 +54,7 @@ __all__ = [
     "IMAGE_EXTENSIONS",
     "DECODED_FORMATS",
     "decode_bytes",
+    "image_header",
     "ImageInput",
     "list_images",
     "read_image",
@@ -124,15 +125,40 @@ def list_images(folder: str | os.PathLike) -> list[Path]:
     return sorted(files, key=_natural_key)
 
 
-def decode_bytes(width: int, height: int, channels: int, *, grey: bool) -> int:
-    """Memory that decoding a ``width × height`` image of ``channels`` channels may take, in bytes.
+def decode_bytes(width: int, height: int, channels: int, *, grey: bool, sample_bytes: int = 1,
+                 tiff: bool = False) -> int:
+    """Memory that decoding a ``width × height`` image may take, in bytes, from its header.
 
-    ``2 × (output channels + channels)`` bytes per pixel: the decoded image and one converted copy
-    (1 channel when ``grey``, else 3), and the decoder's own full-size buffers (a progressive
-    JPEG's coefficients, WebP's RGB(A) frame: up to 2 bytes per sample). The evidence is on
-    ``docs/decisions/reader-bounds.md``.
+    Per pixel: ``2 ×`` the output channels (the decoded image and one converted copy; 1 channel
+    when ``grey``, else 3), plus the decoder's own full-size buffers — 2 bytes per sample of the
+    file (``channels × sample_bytes``: a progressive JPEG's coefficients, WebP's frame), and for
+    a TIFF a whole strip read raw and unpacked to 4 channels, 4 bytes per sample plus 2. The
+    measurements behind it are on ``docs/decisions/reader-bounds.md``.
     """
-    return int(width) * int(height) * 2 * ((1 if grey else 3) + int(channels))
+    samples = int(channels) * int(sample_bytes)
+    per_pixel = 2 * (1 if grey else 3) + (4 * samples + 2 if tiff else 2 * samples)
+    return int(width) * int(height) * per_pixel
+
+
+def image_header(data: bytes) -> dict[str, Any]:
+    """What Pillow reads from an image file's header without decoding it.
+
+    Returns ``{"format", "width", "height", "channels", "sample_bytes", "animated", "image"}``
+    (``image`` is Pillow's lazily opened image). Raises what Pillow raises (see
+    :func:`_check_header`), including ``DecompressionBombWarning`` past ``Image.MAX_IMAGE_PIXELS``
+    when warnings are errors.
+    """
+    from PIL import Image
+
+    image = Image.open(io.BytesIO(data), formats=DECODED_FORMATS)
+    bits = image.tag_v2.get(258) if image.format == "TIFF" else None  # BitsPerSample
+    if bits is not None:
+        sample_bytes = max(1, -(-max(bits if isinstance(bits, tuple) else (bits,)) // 8))
+    else:
+        sample_bytes = 2 if image.mode.startswith("I;16") else 4 if image.mode in ("I", "F") else 1
+    return {"format": image.format, "width": image.size[0], "height": image.size[1],
+            "channels": len(image.getbands()), "sample_bytes": int(sample_bytes),
+            "animated": bool(getattr(image, "is_animated", False)), "image": image}
 
 
 def _check_header(data: bytes, path: Path, grey: bool) -> int:
@@ -141,31 +167,30 @@ def _check_header(data: bytes, path: Path, grey: bool) -> int:
     Returns the image's pixel count. Raises :class:`DataNotFoundError` for a format outside
     :data:`DECODED_FORMATS`, a damaged header, an animated image, or (PNG) a chunk that runs past
     the end of the file or fails its checksum; :class:`ResourceLimitError` when decoding would
-    exceed the memory limit.
+    exceed the memory limit (:func:`decode_bytes`).
     """
     import warnings
 
     from PIL import Image, UnidentifiedImageError
 
     name = str(path)
-    per_pixel = 2 * ((1 if grey else 3) + 1)  # the least any image costs: one channel
-    cap = max(1, memory_limit() // per_pixel)
+    cap = max(1, memory_limit() // decode_bytes(1, 1, 1, grey=grey))  # the least any image costs per pixel
     before = Image.MAX_IMAGE_PIXELS
     Image.MAX_IMAGE_PIXELS = cap  # Pillow refuses past 2 × cap while opening; the warning below cap is ours
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # Pillow's notes on odd tags: the checks below decide
             warnings.simplefilter("error", Image.DecompressionBombWarning)
-            image = Image.open(io.BytesIO(data), formats=DECODED_FORMATS)
-            width, height = image.size
-            channels = len(image.getbands())
-            if image.format in ("PNG", "WEBP") and getattr(image, "is_animated", False):
-                raise DataNotFoundError(f"{name!r} is an animated {image.format}; btel reads still images. Give "
+            header = image_header(data)
+            width, height, channels = header["width"], header["height"], header["channels"]
+            if header["format"] in ("PNG", "WEBP") and header["animated"]:
+                raise DataNotFoundError(f"{name!r} is an animated {header['format']}; btel reads still images. Give "
                                         "its frames as separate files.")
-            check_bytes(decode_bytes(width, height, channels, grey=grey),
+            check_bytes(decode_bytes(width, height, channels, grey=grey, sample_bytes=header["sample_bytes"],
+                                     tiff=header["format"] == "TIFF"),
                         f"image {name!r} ({width}×{height}, {channels} channel{'s' if channels > 1 else ''}, decoded)")
-            if image.format == "PNG":
-                image.verify()  # every chunk inside the file, with a good checksum, up to IEND
+            if header["format"] == "PNG":
+                header["image"].verify()  # every chunk inside the file, with a good checksum, up to IEND
     except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
         raise ResourceLimitError(
             f"image {name!r} has more pixels than btel's memory limit of {format_size(memory_limit())} can decode "
