@@ -87,3 +87,13 @@ def test_float64_values_beyond_float32_are_named(tmp_path: Path) -> None:
     np.save(tmp_path / "x.npy", X)
     with pytest.raises(InvalidDescriptorsError, match=r"holds 1e\+300 at row 2, column 1, beyond float32's range"):
         load_descriptor_matrix(tmp_path / "x.npy", mmap_mode="r")
+
+
+def test_an_npz_without_arrays_is_named(tmp_path: Path) -> None:
+    """Found by the readers' fuzz (desc_npy, seed 0, case 450): an empty archive raised IndexError."""
+    import zipfile
+
+    with zipfile.ZipFile(tmp_path / "empty.npz", "w"):
+        pass
+    with pytest.raises(InvalidDescriptorsError, match="without arrays"):
+        load_descriptor_matrix(tmp_path / "empty.npz")

@@ -215,12 +215,12 @@ class GroundTruth:
         """Positives from positions: the map places within ``pos_dist_thr`` of each query.
 
         As in NetVLAD's evaluation (a radius query with a KD-tree; places exactly at the
-        threshold count). The search has a cost bound as well as a memory bound: queries are
-        searched in chunks whose worst-case output fits an eighth of :func:`btel.limits.memory_limit`,
-        and the search stops with :class:`ResourceLimitError` once the pairs found would exceed the
-        limit (16 bytes each) or the tree has computed more than :data:`DISTANCES_PER_PAIR` distances
-        per pair the limit allows (positions on a ring around queries at its centre make every
-        query compare against every place).
+        threshold count). The search has a cost bound as well as a memory bound: a first pass
+        counts each query's positives, and stops with :class:`ResourceLimitError` once the pairs
+        would exceed :func:`btel.limits.memory_limit` (16 bytes each) or the tree has computed more
+        than :data:`DISTANCES_PER_PAIR` distances per pair the limit holds (positions on a ring
+        around queries at its centre make every query compare against every place); the second
+        builds the pairs in calls of at most an eighth of the limit.
 
         Parameters
         ----------
@@ -256,19 +256,18 @@ class GroundTruth:
         check_bytes(2 * db.nbytes + 8 * db.shape[0] + q.nbytes,
                     f"{db.shape[0]} map and {q.shape[0]} query positions with their KD-tree")
         limit = memory_limit()
-        max_pairs = limit // 16
-        max_distances = DISTANCES_PER_PAIR * max_pairs
+        max_distances = DISTANCES_PER_PAIR * (limit // 16)
         tree = KDTree(db)
         tree.reset_n_calls()
-        cap = max(1, limit // 64 // db.shape[0])  # queries per chunk: ≤ limit/8 bytes of pairs each
-        parts: list[np.ndarray] = []
+        # Count first, in calls that can each compute at most a quarter of the distance bound (every
+        # query against every place), so the bound is overshot by at most that much.
+        per_call = max(1, max_distances // 4 // db.shape[0])
         counts = np.zeros(q.shape[0], dtype=np.int64)
         n_pairs = 0
-        for start in range(0, q.shape[0], cap):
-            found = tree.query_radius(q[start:start + cap], r=thr)
-            counts[start:start + found.shape[0]] = [f.shape[0] for f in found]
-            n_pairs += int(counts[start:start + cap].sum())
-            done = f"after {start + found.shape[0]} of {q.shape[0]} queries"
+        for start in range(0, q.shape[0], per_call):
+            counts[start:start + per_call] = tree.query_radius(q[start:start + per_call], r=thr, count_only=True)
+            done = f"after {min(q.shape[0], start + per_call)} of {q.shape[0]} queries"
+            n_pairs += int(counts[start:start + per_call].sum())
             check_count(n_pairs, 16, f"positives within posDistThr={thr:g} ({n_pairs} query-place pairs {done})")
             if tree.get_n_calls() > max_distances:
                 raise ResourceLimitError(
@@ -276,11 +275,18 @@ class GroundTruth:
                     f"{done}, over the {max_distances} that btel's memory limit of {format_size(limit)} allows "
                     f"({DISTANCES_PER_PAIR} per pair it can hold; the positions put many places near the threshold "
                     f"of every query). If the input is genuine, raise the limit with {ENV_MEMORY_LIMIT}.")
-            if found.shape[0] and counts[start:start + cap].any():
-                parts.append(np.concatenate(list(found)))
+        # Then the pairs, the same searches again, in calls of at most limit/8 bytes of output each.
         indptr = np.zeros(q.shape[0] + 1, dtype=np.int64)
         np.cumsum(counts, out=indptr[1:])
-        indices = np.concatenate(parts).astype(np.int64, copy=False) if n_pairs else np.zeros(0, dtype=np.int64)
+        indices = np.empty(int(indptr[-1]), dtype=np.int64)
+        start = 0
+        while start < q.shape[0]:
+            stop = max(start + 1, int(np.searchsorted(indptr, indptr[start] + limit // 64, side="right")) - 1)
+            stop = min(stop, start + 65536, q.shape[0])  # and a bounded number of result arrays
+            if indptr[stop] > indptr[start]:
+                found = tree.query_radius(q[start:stop], r=thr)
+                indices[indptr[start]:indptr[stop]] = np.concatenate(list(found))
+            start = stop
         return cls(indptr=indptr, indices=indices, n_map=db.shape[0])
 
     @classmethod

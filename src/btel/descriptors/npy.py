@@ -206,6 +206,9 @@ def load_descriptor_matrix(
             if mmap_mode is not None:
                 raise InvalidParameterError(f"{str(path)!r} is an .npz archive; memory-mapping needs a .npy file.")
             names = list(loaded.files)
+            if not names:
+                raise InvalidDescriptorsError(f"{str(path)!r} is an .npz archive without arrays; save the "
+                                              "descriptors with np.savez(path, X=X).")
             if key is None:
                 if len(names) != 1:
                     raise InvalidParameterError(
