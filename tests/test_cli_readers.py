@@ -197,3 +197,21 @@ def test_hdf5_link_cycles_through_train_and_evaluate(tmp_path: Path, links: tupl
     result = CliRunner().invoke(main, ["evaluate", "--db", f"{tmp_path / 'c.h5'}:db/", "--queries",
                                        f"{tmp_path / 'c.h5'}:db/", "--out", str(tmp_path / "run")])
     assert "(a link cycle)" in _one_line_error(result)
+
+
+def test_a_cached_extraction_replaced_by_a_declared_bomb_is_refused(tmp_path: Path) -> None:
+    """`btel extract` reuses an up-to-date output: the reused file is read like any input (it was
+    np.load, which allocates what a header declares)."""
+    import cv2
+
+    images = tmp_path / "images"
+    images.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(images / f"{i}.png"), np.full((32, 64), 60 * i, np.uint8))
+    out = tmp_path / "x.npy"
+    assert CliRunner().invoke(main, ["extract", str(images), "-o", str(out), "--no-progress"]).exit_code == 0
+    with open(out, "wb") as fh:
+        np.lib.format.write_array_header_1_0(fh, {"descr": "<f4", "fortran_order": False, "shape": (10**9, 100)})
+        fh.write(b"\0" * 64)
+    result = CliRunner().invoke(main, ["extract", str(images), "-o", str(out), "--no-progress"])
+    assert "BTEL_MEMORY_LIMIT" in _one_line_error(result)

@@ -97,3 +97,17 @@ def test_an_npz_without_arrays_is_named(tmp_path: Path) -> None:
         pass
     with pytest.raises(InvalidDescriptorsError, match="without arrays"):
         load_descriptor_matrix(tmp_path / "empty.npz")
+
+
+@pytest.mark.realdata
+def test_real_descriptors_in_every_layout_map_to_the_same_matrix(gardenspoint_netvlad, tmp_path: Path) -> None:
+    """Gardens Point NetVLAD (200 × 500): Fortran-ordered, float64 and C-ordered float32 files all give
+    the same float32 matrix memory-mapped; the rewrite maps without a copy."""
+    X = gardenspoint_netvlad[0]
+    for name, array in (("f.npy", np.asfortranarray(X)), ("d.npy", X.astype(np.float64)), ("c.npy", X)):
+        np.save(tmp_path / name, array)
+        np.testing.assert_array_equal(load_descriptor_matrix(tmp_path / name, mmap_mode="r"), X)
+    to_float32_npy(tmp_path / "f.npy", tmp_path / "f32.npy")
+    mapped = load_descriptor_matrix(tmp_path / "f32.npy", mmap_mode="r")
+    assert isinstance(mapped, np.memmap) or isinstance(mapped.base, np.memmap)
+    np.testing.assert_array_equal(mapped, X)

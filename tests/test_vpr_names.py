@@ -164,3 +164,30 @@ def test_the_predictions_csv_refuses_a_name_that_would_take_two_lines() -> None:
     assert predictions_csv_text(result, ["q0", "q 1"], ["d0", "d1"]).count("\n") == 3
     with pytest.raises(InvalidParameterError, match=r"map names: image name 'd\\n1' \(row 1\)"):
         predictions_csv_text(result, ["q0", "q1"], ["d0", "d\n1"])
+
+
+@pytest.mark.realdata
+def test_real_descriptors_in_an_hloc_file_give_one_pair_per_line(gardenspoint_netvlad, tmp_path: Path) -> None:
+    """Gardens Point NetVLAD written as hloc features (gzip + shuffle chunks, names with '@' and '.'):
+    read back exactly, and the pairs file holds one pair per line, each query's top 5."""
+    h5py = pytest.importorskip("h5py")
+    from btel.descriptors.hdf5 import load_hloc_global
+
+    db, q = gardenspoint_netvlad
+    with h5py.File(tmp_path / "feats.h5", "w") as fh:
+        for prefix, X in (("db", db), ("query", q)):
+            for i, row in enumerate(X):
+                fh.create_group(f"{prefix}/@{i}@0@gp_{i:04d}.jpg").create_dataset(
+                    "global_descriptor", data=row, compression="gzip", shuffle=True)
+    X, names = load_hloc_global(tmp_path / "feats.h5", "db/")
+    np.testing.assert_array_equal(X, db)
+    assert names[:2] == ["db/@0@0@gp_0000.jpg", "db/@1@0@gp_0001.jpg"]
+    pairs = tmp_path / "pairs.txt"
+    result = CliRunner().invoke(main, ["evaluate", "--db", f"{tmp_path / 'feats.h5'}:db/", "--queries",
+                                       f"{tmp_path / 'feats.h5'}:query/", "--methods", "bruteforce", "--no-reference",
+                                       "--k", "1,5", "--pairs", str(pairs), "--no-progress", "--out",
+                                       str(tmp_path / "run")])
+    assert result.exit_code == 0, result.output
+    lines = pairs.read_text(encoding="utf-8").splitlines()
+    assert len(lines) == 5 * q.shape[0] and all(len(line.split()) == 2 for line in lines)
+    assert lines[0].split()[0] == "query/@0@0@gp_0000.jpg"

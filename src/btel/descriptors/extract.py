@@ -158,7 +158,9 @@ def extract_cached(
                 tmp_sidecar = sidecar.with_name(f"{sidecar.name}.{os.getpid()}.part")
                 tmp_sidecar.write_text(json.dumps(key, indent=1))
                 os.replace(tmp_sidecar, sidecar)
-            return np.load(output, allow_pickle=False), True
+            from .npy import load_descriptor_matrix
+
+            return load_descriptor_matrix(output), True  # checked like any input: the file may have changed
     X = extract_descriptors(paths, model, fit_on=fit_on, progress=progress)
     output.parent.mkdir(parents=True, exist_ok=True)
     # One temporary name per process: two runs filling the same cache at once (two experiments
