@@ -165,7 +165,7 @@ def test_pickled_ground_truth_round_trip_through_evaluate(tmp_path: Path, descri
         assert result.exit_code == 0, result.output
 
 
-# -- issue 34: the readers' reproducers through the CLI -------------------------------------------------------
+# -- issue 34: the readers' reproducers through the CLI ----------------------------------------------
 def _ring(tmp: Path) -> Path:
     """50,000 map points on a ring, 4,000,000 queries at its centre, the threshold just under the radius."""
     angle = np.linspace(0, 2 * np.pi, 50_000, endpoint=False)
@@ -177,7 +177,8 @@ def _ring(tmp: Path) -> Path:
 def test_ring_ground_truth_is_refused_by_its_counts(tmp_path: Path, descriptors: tuple[Path, Path]) -> None:
     db, q = descriptors
     result = CliRunner().invoke(main, ["evaluate", "--db", str(db), "--queries", str(q), "--ground-truth",
-                                       str(_ring(tmp_path)), "--methods", "bruteforce", "--out", str(tmp_path / "run")])
+                                       str(_ring(tmp_path)), "--methods", "bruteforce", "--out",
+                                       str(tmp_path / "run")])
     assert "--ground-truth: " in _one_line_error(result) and "utmQ is for 4000000 queries but there are 12" \
         in result.output
 
@@ -211,7 +212,8 @@ def test_a_cached_extraction_replaced_by_a_declared_bomb_is_refused(tmp_path: Pa
     out = tmp_path / "x.npy"
     assert CliRunner().invoke(main, ["extract", str(images), "-o", str(out), "--no-progress"]).exit_code == 0
     with open(out, "wb") as fh:
-        np.lib.format.write_array_header_1_0(fh, {"descr": "<f4", "fortran_order": False, "shape": (10**9, 100)})
+        header = {"descr": "<f4", "fortran_order": False, "shape": (10**9, 100)}
+        np.lib.format.write_array_header_1_0(fh, header)
         fh.write(b"\0" * 64)
     result = CliRunner().invoke(main, ["extract", str(images), "-o", str(out), "--no-progress"])
     assert "BTEL_MEMORY_LIMIT" in _one_line_error(result)

@@ -214,8 +214,8 @@ def _image_run(tmp_path: Path, names: list[str]) -> tuple[Path, Path]:
     db = tmp_path / "db.npy"
     _extract(CliRunner(), folder, db)
     run = tmp_path / "run"
-    result = CliRunner().invoke(main, ["evaluate", "--db", str(db), "--queries", str(db), "--methods", "bruteforce",
-                                       "--no-reference", "--no-progress", "--out", str(run)])
+    result = CliRunner().invoke(main, ["evaluate", "--db", str(db), "--queries", str(db), "--methods",
+                                       "bruteforce", "--no-reference", "--no-progress", "--out", str(run)])
     assert result.exit_code == 0, result.output
     return db, run
 
@@ -236,4 +236,5 @@ def test_a_gallery_opens_only_images_inside_the_recorded_folder(tmp_path: Path) 
     sidecar.write_text(json.dumps(key))
     result = CliRunner().invoke(main, ["show", str(run), "--overwrite"])
     assert result.exit_code == 1 and isinstance(result.exception, SystemExit), result.output
-    assert result.output.count("\n") == 1 and "'../secret.png' (row 1) is not a plain file name" in result.output
+    assert result.output.count("\n") == 1
+    assert "'../secret.png' (row 1) is not a plain file name" in result.output

@@ -180,8 +180,8 @@ def test_a_ring_search_stops_at_its_distance_bound(monkeypatch: pytest.MonkeyPat
 
     monkeypatch.setenv("BTEL_MEMORY_LIMIT", "16M")
     bound = DISTANCES_PER_PAIR * (16 * 2**20 // 16)
-    with pytest.raises(ResourceLimitError, match=rf"computed \d+ distances after \d+ of 400000 queries, over the "
-                                                 rf"{bound} that"):
+    with pytest.raises(ResourceLimitError,
+                       match=rf"computed \d+ distances after \d+ of 400000 queries, over the {bound} that"):
         GroundTruth.from_utm(_ring(50_000), np.zeros((400_000, 2)), 100.0 * (1 - 1e-9))
     gt = GroundTruth.from_utm(_ring(50_000), np.zeros((50, 2)), 100.0 * (1 - 1e-9))
     assert gt.n_queries == 50 and gt.indices.size == 0

@@ -112,8 +112,8 @@ def test_a_group_linked_into_itself_is_refused_by_name(tmp_path: Path, links: tu
         for link in links:
             group[link] = group
     for load in (load_hloc_global, load_descriptor_matrix):
-        with pytest.raises(InvalidDescriptorsError, match=rf"'db/a.jpg/{links[0]}' links to 'db/a.jpg', already "
-                                                          r"reached \(a link cycle\)"):
+        message = rf"'db/a.jpg/{links[0]}' links to 'db/a.jpg', already reached \(a link cycle\)"
+        with pytest.raises(InvalidDescriptorsError, match=message):
             load(tmp_path / "loop.h5")
 
 
@@ -160,8 +160,8 @@ def test_a_chunk_that_stores_more_than_it_declares_is_refused(tmp_path: Path, mo
     import zlib
 
     with h5py.File(tmp_path / "lie.h5", "w") as fh:
-        ds = fh.create_group("db/a.jpg").create_dataset("global_descriptor", shape=(8,), dtype="f4", chunks=(8,),
-                                                        compression="gzip")
+        ds = fh.create_group("db/a.jpg").create_dataset("global_descriptor", shape=(8,), dtype="f4",
+                                                        chunks=(8,), compression="gzip")
         ds.id.write_direct_chunk((0,), zlib.compress(b"\0" * (16 << 20)), 0)
     monkeypatch.setenv("BTEL_MEMORY_LIMIT", "8M")
     with pytest.raises(ResourceLimitError, match=r"a chunk of \d+ stored bytes, gzip-inflated"):
@@ -176,13 +176,15 @@ def test_filters_other_than_gzip_shuffle_fletcher32_are_refused(tmp_path: Path) 
         dcpl = h5p.create(h5p.DATASET_CREATE)
         dcpl.set_chunk((8,))
         dcpl.set_filter(32015, h5z.FLAG_OPTIONAL, (3,))  # zstd, optional so that writing works without it
-        dataset = h5py.Dataset(h5d.create(group.id, b"global_descriptor", h5t.IEEE_F32LE, h5s.create_simple((8,)),
-                                          dcpl=dcpl))
+        space = h5s.create_simple((8,))
+        dataset = h5py.Dataset(h5d.create(group.id, b"global_descriptor", h5t.IEEE_F32LE, space, dcpl=dcpl))
         dataset[...] = np.ones(8, dtype=np.float32)
-    with pytest.raises(InvalidDescriptorsError, match="filter 32015; btel reads gzip, shuffle and fletcher32 only"):
+    with pytest.raises(InvalidDescriptorsError,
+                       match="filter 32015; btel reads gzip, shuffle and fletcher32 only"):
         load_hloc_global(tmp_path / "plugin.h5")
     with h5py.File(tmp_path / "lzf.h5", "w") as fh:  # built in, but sized by the file's own parameters
-        fh.create_group("a").create_dataset("global_descriptor", data=np.ones(8, np.float32), compression="lzf")
+        fh.create_group("a").create_dataset("global_descriptor", data=np.ones(8, np.float32),
+                                            compression="lzf")
     with pytest.raises(InvalidDescriptorsError, match="filter 32000"):
         load_hloc_global(tmp_path / "lzf.h5")
 

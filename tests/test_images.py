@@ -74,7 +74,8 @@ def test_a_png_whose_idat_length_lies_is_refused_before_opencv_allocates_it(tmp_
     assert path.stat().st_size < 200
     with pytest.raises(DataNotFoundError, match=r"a.png': its header or chunks are damaged.*Truncated"):
         read_image(path, grey=True)
-    result = CliRunner().invoke(main, ["extract", str(folder), "-o", str(tmp_path / "x.npy"), "--no-progress"])
+    result = CliRunner().invoke(main, ["extract", str(folder), "-o", str(tmp_path / "x.npy"),
+                                       "--no-progress"])
     assert result.exit_code == 1 and result.exception is not None
     assert result.output.count("\n") == 1 and "chunks are damaged" in result.output
 
@@ -88,7 +89,8 @@ def test_a_png_with_a_bad_chunk_checksum_is_refused(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("colour_type, grey", [(0, True), (2, False), (2, True)])
-def test_huge_png_dimensions_are_refused_from_the_header(tmp_path: Path, colour_type: int, grey: bool) -> None:
+def test_huge_png_dimensions_are_refused_from_the_header(tmp_path: Path, colour_type: int,
+                                                         grey: bool) -> None:
     """Issue 34: an 875 KB 30000×30000 grey PNG reached 1.9 GB, a 20000² colour one 2.5 GB. The same
     headers over a few bytes of data: the header alone is refused, nothing is inflated."""
     side = 30000 if colour_type == 0 else 20000
@@ -163,7 +165,8 @@ def test_opencv_pixel_cap_is_set_from_the_limit_when_btel_loads_opencv(tmp_path:
 @pytest.mark.realdata
 def test_real_frames_read_as_before(nordland_dir: Path, gardenspoint_sample_dir: Path) -> None:
     """The header check changes no pixel: the real frames decode exactly as OpenCV alone decodes them."""
-    files = sorted((nordland_dir / "summer").glob("*.png"))[:20] + sorted((gardenspoint_sample_dir / "ref").glob("*.jpg"))
+    files = (sorted((nordland_dir / "summer").glob("*.png"))[:20]
+             + sorted((gardenspoint_sample_dir / "ref").glob("*.jpg")))
     for path in files:
         direct = cv2.imdecode(np.fromfile(path, np.uint8), cv2.IMREAD_GRAYSCALE)
         np.testing.assert_array_equal(read_image(path, grey=True), direct)

@@ -30,7 +30,8 @@ def test_a_large_mapped_file_that_would_be_copied_whole_is_refused_with_the_rewr
         tmp_path: Path, dtype: str, fortran: bool) -> None:
     """Issue 34: mmap_mode="r" on a Fortran-order or float64 .npy copied it whole (a sparse 1.2 GB
     file: a bare MemoryError)."""
-    path = _sparse_npy(tmp_path / "x.npy", dtype, fortran, (1_200_000_000 // np.dtype(dtype).itemsize // 100, 100))
+    rows = 1_200_000_000 // np.dtype(dtype).itemsize // 100
+    path = _sparse_npy(tmp_path / "x.npy", dtype, fortran, (rows, 100))
     with pytest.raises(ResourceLimitError, match=r"would copy it whole as C-ordered float32.*to_float32_npy\("
                                                  r"'.*x.npy', '.*x.float32.npy'\)"):
         load_descriptor_matrix(path, mmap_mode="r")
@@ -85,7 +86,8 @@ def test_float64_values_beyond_float32_are_named(tmp_path: Path) -> None:
     X = np.ones((4, 3))
     X[2, 1] = 1e300
     np.save(tmp_path / "x.npy", X)
-    with pytest.raises(InvalidDescriptorsError, match=r"holds 1e\+300 at row 2, column 1, beyond float32's range"):
+    with pytest.raises(InvalidDescriptorsError,
+                       match=r"holds 1e\+300 at row 2, column 1, beyond float32's range"):
         load_descriptor_matrix(tmp_path / "x.npy", mmap_mode="r")
 
 
@@ -100,7 +102,8 @@ def test_an_npz_without_arrays_is_named(tmp_path: Path) -> None:
 
 
 @pytest.mark.realdata
-def test_real_descriptors_in_every_layout_map_to_the_same_matrix(gardenspoint_netvlad, tmp_path: Path) -> None:
+def test_real_descriptors_in_every_layout_map_to_the_same_matrix(gardenspoint_netvlad,
+                                                                  tmp_path: Path) -> None:
     """Gardens Point NetVLAD (200 × 500): Fortran-ordered, float64 and C-ordered float32 files all give
     the same float32 matrix memory-mapped; the rewrite maps without a copy."""
     X = gardenspoint_netvlad[0]

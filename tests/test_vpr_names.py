@@ -126,8 +126,8 @@ def test_evaluate_refuses_names_that_would_break_its_files_before_fitting(tmp_pa
     assert not pairs.exists() and not out.exists()
     if written == "pairs":  # without --pairs the name is fine (the CSV quotes it): the run is written
         result = CliRunner().invoke(main, ["evaluate", "--db", f"{feats}:db/", "--queries", f"{feats}:query/",
-                                           "--methods", "bruteforce", "--no-reference", "--no-progress", "--out",
-                                           str(out)])
+                                           "--methods", "bruteforce", "--no-reference", "--no-progress",
+                                           "--out", str(out)])
         assert result.exit_code == 0, result.output
         assert len((out / "predictions_bruteforce.csv").read_text().splitlines()) == 3
 
@@ -167,7 +167,8 @@ def test_the_predictions_csv_refuses_a_name_that_would_take_two_lines() -> None:
 
 
 @pytest.mark.realdata
-def test_real_descriptors_in_an_hloc_file_give_one_pair_per_line(gardenspoint_netvlad, tmp_path: Path) -> None:
+def test_real_descriptors_in_an_hloc_file_give_one_pair_per_line(gardenspoint_netvlad,
+                                                                  tmp_path: Path) -> None:
     """Gardens Point NetVLAD written as hloc features (gzip + shuffle chunks, names with '@' and '.'):
     read back exactly, and the pairs file holds one pair per line, each query's top 5."""
     h5py = pytest.importorskip("h5py")
@@ -183,10 +184,10 @@ def test_real_descriptors_in_an_hloc_file_give_one_pair_per_line(gardenspoint_ne
     np.testing.assert_array_equal(X, db)
     assert names[:2] == ["db/@0@0@gp_0000.jpg", "db/@1@0@gp_0001.jpg"]
     pairs = tmp_path / "pairs.txt"
-    result = CliRunner().invoke(main, ["evaluate", "--db", f"{tmp_path / 'feats.h5'}:db/", "--queries",
-                                       f"{tmp_path / 'feats.h5'}:query/", "--methods", "bruteforce", "--no-reference",
-                                       "--k", "1,5", "--pairs", str(pairs), "--no-progress", "--out",
-                                       str(tmp_path / "run")])
+    feats = tmp_path / "feats.h5"
+    result = CliRunner().invoke(main, ["evaluate", "--db", f"{feats}:db/", "--queries", f"{feats}:query/",
+                                       "--methods", "bruteforce", "--no-reference", "--k", "1,5", "--pairs",
+                                       str(pairs), "--no-progress", "--out", str(tmp_path / "run")])
     assert result.exit_code == 0, result.output
     lines = pairs.read_text(encoding="utf-8").splitlines()
     assert len(lines) == 5 * q.shape[0] and all(len(line.split()) == 2 for line in lines)

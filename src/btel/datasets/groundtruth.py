@@ -265,16 +265,19 @@ class GroundTruth:
         counts = np.zeros(q.shape[0], dtype=np.int64)
         n_pairs = 0
         for start in range(0, q.shape[0], per_call):
-            counts[start:start + per_call] = tree.query_radius(q[start:start + per_call], r=thr, count_only=True)
-            done = f"after {min(q.shape[0], start + per_call)} of {q.shape[0]} queries"
-            n_pairs += int(counts[start:start + per_call].sum())
-            check_count(n_pairs, 16, f"positives within posDistThr={thr:g} ({n_pairs} query-place pairs {done})")
+            stop = min(q.shape[0], start + per_call)
+            counts[start:stop] = tree.query_radius(q[start:stop], r=thr, count_only=True)
+            done = f"after {stop} of {q.shape[0]} queries"
+            n_pairs += int(counts[start:stop].sum())
+            what = f"positives within posDistThr={thr:g}"
+            check_count(n_pairs, 16, f"{what} ({n_pairs} query-place pairs {done})")
             if tree.get_n_calls() > max_distances:
                 raise ResourceLimitError(
-                    f"positives within posDistThr={thr:g}: the radius search computed {tree.get_n_calls()} distances "
-                    f"{done}, over the {max_distances} that btel's memory limit of {format_size(limit)} allows "
-                    f"({DISTANCES_PER_PAIR} per pair it can hold; the positions put many places near the threshold "
-                    f"of every query). If the input is genuine, raise the limit with {ENV_MEMORY_LIMIT}.")
+                    f"{what}: the radius search computed {tree.get_n_calls()} distances {done}, over the "
+                    f"{max_distances} that btel's memory limit of {format_size(limit)} allows "
+                    f"({DISTANCES_PER_PAIR} per pair it can hold; the positions put many places near the "
+                    f"threshold of every query). If the input is genuine, raise the limit with "
+                    f"{ENV_MEMORY_LIMIT}.")
         # Then the pairs, the same searches again, in calls of at most limit/8 bytes of output each.
         indptr = np.zeros(q.shape[0] + 1, dtype=np.int64)
         np.cumsum(counts, out=indptr[1:])

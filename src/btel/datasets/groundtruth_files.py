@@ -176,8 +176,8 @@ def _check_counts(source: str, expected: dict[str, int | None], **declared: tupl
         what = key.replace("_", " ")
         if expected.get(what) is not None and count is not None and count != expected[what]:
             raise InvalidParameterError(
-                f"ground-truth file {source}: {array} is for {count} {what} but there are {expected[what]}; give the "
-                "ground truth of these descriptors.")
+                f"ground-truth file {source}: {array} is for {count} {what} but there are {expected[what]}; "
+                "give the ground truth of these descriptors.")
 
 
 def _rows(array: np.ndarray) -> int | None:
@@ -195,7 +195,8 @@ def _from_arrays(cls: Any, arrays: dict[str, np.ndarray], source: str,
         n_map = int(value)
     if all(k in arrays for k in _CSR_KEYS):
         rows = _rows(arrays["indptr"])
-        _check_counts(source, expected, queries=("indptr (its length − 1)", None if rows is None else rows - 1),
+        queries = None if rows is None else rows - 1
+        _check_counts(source, expected, queries=("indptr (its length − 1)", queries),
                       map_places=("n_map", n_map))
         return cls(indptr=arrays["indptr"], indices=arrays["indices"], n_map=n_map)
     if all(k in arrays for k in _UTM_KEYS):
@@ -280,7 +281,8 @@ class _MatStream:
             try:
                 piece = self._inflater.decompress(self._pending, self._PIECE)
             except zlib.error as exc:
-                raise DataNotFoundError(f"{self._source}: a compressed MATLAB element is damaged ({exc}).") from None
+                raise DataNotFoundError(
+                    f"{self._source}: a compressed MATLAB element is damaged ({exc}).") from None
             self._pending = self._inflater.unconsumed_tail
             self._budget[0] += len(piece)
             check_bytes(self._budget[0], f"MATLAB file {self._source} (inflated)")

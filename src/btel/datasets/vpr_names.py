@@ -68,7 +68,8 @@ def split_dataset_folder(folder: str | os.PathLike) -> tuple[Path, Path] | None:
     return (db, q) if db.is_dir() and q.is_dir() else None
 
 
-def check_image_names(names: Sequence[str], what: str, *, space: bool = True, file_name: bool = False) -> None:
+def check_image_names(names: Sequence[str], what: str, *, space: bool = True,
+                      file_name: bool = False) -> None:
     """Refuse an image name that would change the structure of the file btel writes it into.
 
     Every name must be a non-empty string of printable characters (:meth:`str.isprintable`: no
@@ -93,15 +94,17 @@ def check_image_names(names: Sequence[str], what: str, *, space: bool = True, fi
     """
     for row, name in enumerate(names):
         if not isinstance(name, str) or not name:
-            raise InvalidParameterError(f"{what}: the image name of row {row} is empty ({name!r}); name every image.")
+            raise InvalidParameterError(
+                f"{what}: the image name of row {row} is empty ({name!r}); name every image.")
         if name.isprintable() and (space or " " not in name) and not (
                 file_name and ("/" in name or os.sep in name or name in (".", ".."))):
             continue
         bad = next((c for c in name if not c.isprintable() or (c == " " and not space)), None)
-        reason = (f"holds U+{ord(bad):04X} ({'a space' if bad == ' ' else 'a control or separator character'})"
-                  if bad is not None else "is not a plain file name in its folder")
+        kind = "a space" if bad == " " else "a control or separator character"
+        reason = (f"holds U+{ord(bad):04X} ({kind})" if bad is not None else
+                  "is not a plain file name in its folder")
         rule = ("hloc pairs files separate names by spaces, one pair per line" if bad == " " else
                 "btel writes image names one per line into pairs files and CSVs" if bad is not None else
                 "a gallery opens the images inside the folder the .json names")
-        raise InvalidParameterError(f"{what}: image name {name[:200]!r} (row {row}) {reason}; {rule}. Rename that "
-                                    "image.")
+        raise InvalidParameterError(
+            f"{what}: image name {name[:200]!r} (row {row}) {reason}; {rule}. Rename that image.")

@@ -53,39 +53,39 @@ def _shown(item: str) -> str:
 def _checked_dataset(ds: Any, item: str, source: str) -> tuple[tuple[int, ...], np.dtype]:
     """Shape and dtype of a dataset that may be read: inside the file, numeric, (d,) or (1, d),
     HDF5's own filters only, and every chunk's decompressed size within the memory limit."""
+    name = f"{source}: {_shown(item)}"
     if ds.is_virtual:
-        raise InvalidDescriptorsError(f"{source}: {_shown(item)} is a virtual dataset (it maps other files); refused.")
+        raise InvalidDescriptorsError(f"{name} is a virtual dataset (it maps other files); refused.")
     if ds.external:
-        raise InvalidDescriptorsError(
-            f"{source}: {_shown(item)} stores its data in external files ({len(ds.external)}); btel reads only "
-            "data inside the HDF5 file.")
+        raise InvalidDescriptorsError(f"{name} stores its data in external files ({len(ds.external)}); btel "
+                                      "reads only data inside the HDF5 file.")
     dtype = ds.dtype
     if dtype.kind not in "iuf" or dtype.fields is not None or dtype.subdtype is not None:
-        raise InvalidDescriptorsError(f"{source}: {_shown(item)} has dtype {dtype}; descriptors must be numbers.")
+        raise InvalidDescriptorsError(f"{name} has dtype {dtype}; descriptors must be numbers.")
     shape = tuple(int(s) for s in ds.shape or ())
     if not (len(shape) == 1 or (len(shape) == 2 and shape[0] == 1)) or 0 in shape:
         raise InvalidDescriptorsError(
-            f"{source}: {_shown(item)} has shape {shape}; a global descriptor is (d,) or (1, d) with d ≥ 1.")
+            f"{name} has shape {shape}; a global descriptor is (d,) or (1, d) with d ≥ 1.")
     plist = ds.id.get_create_plist()
     codes = [int(plist.get_filter(index)[0]) for index in range(plist.get_nfilters())]
     for code in codes:
         if code not in _FILTERS:
             raise InvalidDescriptorsError(
-                f"{source}: {_shown(item)} is encoded with HDF5 filter {code}; btel reads gzip, shuffle and "
-                "fletcher32 only (the others size their output from the file's own parameters). Re-save it with "
-                "gzip or none.")
+                f"{name} is encoded with HDF5 filter {code}; btel reads gzip, shuffle and fletcher32 only "
+                "(the others size their output from the file's own parameters). Re-save it with gzip or "
+                "none.")
     if ds.chunks is not None:
         chunk = tuple(int(c) for c in ds.chunks)
         check_count(math.prod(chunk), dtype.itemsize,
-                    f"{source}: {_shown(item)} (one chunk of shape {chunk}, decompressed whole to read it)")
+                    f"{name} (one chunk of shape {chunk}, decompressed whole to read it)")
         n_chunks = math.prod(-(-n // c) for n, c in zip(shape, chunk))
         if n_chunks > _MAX_CHUNKS:
-            raise InvalidDescriptorsError(f"{source}: {_shown(item)} is split into {n_chunks} chunks; a global "
-                                          f"descriptor needs a few (at most {_MAX_CHUNKS} are read).")
+            raise InvalidDescriptorsError(f"{name} is split into {n_chunks} chunks; a global descriptor "
+                                          f"needs a few (at most {_MAX_CHUNKS} are read).")
         growth = _GZIP_GROWTH if 1 in codes else 1
         stored = max(_stored_chunk_sizes(ds), default=0)
-        check_count(stored, growth, f"{source}: {_shown(item)} (a chunk of {stored} stored bytes"
-                                    f"{', gzip-inflated' if growth > 1 else ''})")
+        check_count(stored, growth,
+                    f"{name} (a chunk of {stored} stored bytes{', gzip-inflated' if growth > 1 else ''})")
     return shape, dtype
 
 
@@ -120,7 +120,8 @@ def _walk(fh: Any, prefix: str | None, source: str, where: list[str]) -> dict[st
             item = where[0] = f"{base}{key}"
             visited += 1
             if visited > _MAX_OBJECTS:
-                raise InvalidDescriptorsError(f"{source}: more than {_MAX_OBJECTS} objects; not hloc features.")
+                raise InvalidDescriptorsError(
+                    f"{source}: more than {_MAX_OBJECTS} objects; not hloc features.")
             link = group.get(key, getlink=True)
             if isinstance(link, (h5py.SoftLink, h5py.ExternalLink)):
                 kind = "an external link" if isinstance(link, h5py.ExternalLink) else "a soft link"
@@ -132,13 +133,14 @@ def _walk(fh: Any, prefix: str | None, source: str, where: list[str]) -> dict[st
                 first = seen[identity]
                 cycle = " (a link cycle)" if first == "/" or item.startswith(first + "/") else ""
                 raise InvalidDescriptorsError(
-                    f"{source}: {_shown(item)} links to {_shown(first)}, already reached{cycle}; hloc files are "
-                    "trees, every group and dataset under one name.")
+                    f"{source}: {_shown(item)} links to {_shown(first)}, already reached{cycle}; hloc files "
+                    "are trees, every group and dataset under one name.")
             seen[identity] = item
             if isinstance(obj, h5py.Group):
                 if depth >= _MAX_DEPTH:
                     raise InvalidDescriptorsError(
-                        f"{source}: {_shown(item)} nests groups more than {_MAX_DEPTH} deep; not hloc features.")
+                        f"{source}: {_shown(item)} nests groups more than {_MAX_DEPTH} deep; not hloc "
+                        "features.")
                 stack.append((item + "/", obj, depth + 1))
             elif isinstance(obj, h5py.Dataset) and key == HLOC_DATASET:
                 image = base[:-1]
@@ -207,18 +209,20 @@ def load_hloc_global(path: str | os.PathLike, prefix: str | None = None) -> tupl
                 where[0] = f"{image}/{HLOC_DATASET}"
                 found[image] = np.asarray(ds[()]).reshape(-1)
                 if found[image].size != int(np.prod(shapes[image][0])):
-                    raise InvalidDescriptorsError(f"{source}: {_shown(where[0])} did not hold its declared shape.")
+                    raise InvalidDescriptorsError(
+                        f"{source}: {_shown(where[0])} did not hold its declared shape.")
     except BTELError:
         raise
     except Exception as exc:  # h5py raises OSError, RuntimeError, KeyError, TypeError, ValueError…
-        what = "is not a readable HDF5 file" if where[0] == "/" else f"item {_shown(where[0])} could not be read"
+        what = ("is not a readable HDF5 file" if where[0] == "/" else
+                f"item {_shown(where[0])} could not be read")
         raise InvalidDescriptorsError(f"{source} {what} ({type(exc).__name__}: {str(exc)[:200]}).") from None
     if not found:
         where_text = f" under {prefix!r}" if prefix else ""
         raise DataNotFoundError(
-            f"{source} holds no '{HLOC_DATASET}' dataset{where_text}; expected hloc global features (one group "
-            "per image name with a global_descriptor). Local features (keypoints/descriptors) are not global "
-            "descriptors.")
+            f"{source} holds no '{HLOC_DATASET}' dataset{where_text}; expected hloc global features (one "
+            "group per image name with a global_descriptor). Local features (keypoints/descriptors) are not "
+            "global descriptors.")
     names = sorted(found, key=_natural_key)
     lengths = {found[n].size for n in names}
     if len(lengths) != 1:

@@ -184,22 +184,24 @@ def _check_header(data: bytes, path: Path, grey: bool) -> int:
             header = image_header(data)
             width, height, channels = header["width"], header["height"], header["channels"]
             if header["format"] in ("PNG", "WEBP") and header["animated"]:
-                raise DataNotFoundError(f"{name!r} is an animated {header['format']}; btel reads still images. Give "
-                                        "its frames as separate files.")
+                raise DataNotFoundError(f"{name!r} is an animated {header['format']}; btel reads still "
+                                        "images. Give its frames as separate files.")
+            plural = "s" if channels > 1 else ""
             check_bytes(decode_bytes(width, height, channels, grey=grey, sample_bytes=header["sample_bytes"],
                                      tiff=header["format"] == "TIFF"),
-                        f"image {name!r} ({width}×{height}, {channels} channel{'s' if channels > 1 else ''}, decoded)")
+                        f"image {name!r} ({width}×{height}, {channels} channel{plural}, decoded)")
             if header["format"] == "PNG":
                 header["image"].verify()  # every chunk inside the file, with a good checksum, up to IEND
     except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
         raise ResourceLimitError(
-            f"image {name!r} has more pixels than btel's memory limit of {format_size(memory_limit())} can decode "
-            f"(Pillow: {str(exc)[:120]}); if the input is genuine, raise the limit with BTEL_MEMORY_LIMIT "
-            "(e.g. BTEL_MEMORY_LIMIT=4G).") from None
+            f"image {name!r} has more pixels than btel's memory limit of {format_size(memory_limit())} can "
+            f"decode (Pillow: {str(exc)[:120]}); if the input is genuine, raise the limit with "
+            "BTEL_MEMORY_LIMIT (e.g. BTEL_MEMORY_LIMIT=4G).") from None
     except UnidentifiedImageError:
         raise DataNotFoundError(
             f"OpenCV cannot decode {name!r}: it is not a {', '.join(DECODED_FORMATS[:-1])} or "
-            f"{DECODED_FORMATS[-1]} image (btel reads those formats only). Convert it to PNG or remove it.") from None
+            f"{DECODED_FORMATS[-1]} image (btel reads those formats only). Convert it to PNG or remove "
+            "it.") from None
     except (DataNotFoundError, ResourceLimitError):
         raise
     except Exception as exc:  # Pillow's parsers raise SyntaxError, OSError, ValueError, struct.error…

@@ -71,11 +71,13 @@ def _mapped_as_float32(mapped: np.memmap, path: Path) -> np.ndarray:
     target = path.with_name(path.stem + ".float32.npy")
     limit = memory_limit()
     if 4.0 * n * d > limit:
+        rewrite = f"to_float32_npy({str(path)!r}, {str(target)!r})"
         raise ResourceLimitError(
-            f"memory-mapping {str(path)!r} (a {layout}{mapped.dtype} matrix of {n} × {d}) would copy it whole as "
-            f"C-ordered float32, {format_size(4.0 * n * d)}, over btel's memory limit of {format_size(limit)}. Rewrite "
-            f"it once as C-ordered float32, which btel maps without a copy: python -c \"from btel.descriptors.npy "
-            f"import to_float32_npy; to_float32_npy({str(path)!r}, {str(target)!r})\" (or raise {ENV_MEMORY_LIMIT}).")
+            f"memory-mapping {str(path)!r} (a {layout}{mapped.dtype} matrix of {n} × {d}) would copy it "
+            f"whole as C-ordered float32, {format_size(4.0 * n * d)}, over btel's memory limit of "
+            f"{format_size(limit)}. Rewrite it once as C-ordered float32, which btel maps without a copy: "
+            f"python -c \"from btel.descriptors.npy import to_float32_npy; {rewrite}\" (or raise "
+            f"{ENV_MEMORY_LIMIT}).")
     out = np.empty((n, d), dtype=np.float32)
     for start, block in _row_blocks(mapped):
         converted = out[start:start + block.shape[0]]
@@ -86,8 +88,8 @@ def _mapped_as_float32(mapped: np.memmap, path: Path) -> np.ndarray:
             if over.any():
                 row, column = np.argwhere(over)[0]
                 raise InvalidDescriptorsError(
-                    f"{str(path)!r} holds {block[row, column]:g} at row {start + row}, column {column}, beyond "
-                    "float32's range (±3.4e38); scale the descriptors.")
+                    f"{str(path)!r} holds {block[row, column]:g} at row {start + row}, column {column}, "
+                    "beyond float32's range (±3.4e38); scale the descriptors.")
     return out
 
 
@@ -118,13 +120,15 @@ def to_float32_npy(source: str | os.PathLike, target: str | os.PathLike) -> Path
     """
     source, target = Path(source), Path(target)
     if target.resolve() == source.resolve():
-        raise InvalidParameterError(f"to_float32_npy writes a new file; give a target other than {str(source)!r}.")
+        raise InvalidParameterError(
+            f"to_float32_npy writes a new file; give a target other than {str(source)!r}.")
     mapped = _open_mapped(source, "r")
     if mapped.ndim != 2 or mapped.dtype.kind not in "biuf":
-        raise InvalidDescriptorsError(f"{str(source)!r} holds a {mapped.dtype} array of shape {mapped.shape}; "
-                                      "descriptors are a 2-D numeric matrix.")
+        raise InvalidDescriptorsError(f"{str(source)!r} holds a {mapped.dtype} array of shape "
+                                      f"{mapped.shape}; descriptors are a 2-D numeric matrix.")
     with open(target, "wb") as fh:
-        np.lib.format.write_array_header_1_0(fh, {"descr": "<f4", "fortran_order": False, "shape": mapped.shape})
+        header = {"descr": "<f4", "fortran_order": False, "shape": mapped.shape}
+        np.lib.format.write_array_header_1_0(fh, header)
         for _, block in _row_blocks(mapped):
             fh.write(block.astype("<f4").tobytes())
     return target
@@ -245,7 +249,8 @@ def load_descriptor_matrix(
 
 
 def _open_mapped(path: Path, mmap_mode: str | None) -> Any:
-    """``np.load(path, mmap_mode=…)`` without pickles, every numpy failure as :class:`InvalidDescriptorsError`."""
+    """``np.load(path, mmap_mode=…)`` without pickles; every numpy failure becomes
+    :class:`InvalidDescriptorsError`."""
     try:
         return np.load(path, mmap_mode=mmap_mode, allow_pickle=False)
     except ValueError as exc:
