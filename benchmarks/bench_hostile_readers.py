@@ -72,12 +72,17 @@ def _png(width: int, height: int, colour_type: int, idat: bytes, idat_length: in
         return struct.pack(">I", size) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
 
     header = struct.pack(">IIBBBBB", width, height, 8, colour_type, 0, 0, 0)
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", idat, idat_length) + chunk(b"IEND", b"")
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", idat, idat_length)
+            + chunk(b"IEND", b""))
 
 
 def _zero_rows(width: int, height: int, channels: int) -> bytes:
     """The zlib stream of an all-black image's rows (filter byte 0 + zeros): all zero bytes."""
     return compressed_zeros(height * (1 + width * channels))
+
+
+def _descriptor(fh: Any, name: str, rng: np.random.Generator) -> Any:
+    return fh.create_group(name).create_dataset("global_descriptor", data=rng.normal(size=8).astype("f4"))
 
 
 def craft(folder: Path) -> list[dict[str, Any]]:
@@ -88,36 +93,37 @@ def craft(folder: Path) -> list[dict[str, Any]]:
     cases: list[dict[str, Any]] = []
     rng = np.random.default_rng(0)
 
+    def add(case: str, file: Path, command: list[str]) -> None:
+        cases.append({"case": case, "file": file, "command": command})
+
     def hloc(path: Path, extra: Any) -> Path:
         with h5py.File(path, "w") as fh:
             for i in range(4):
-                fh.create_group(f"db/{i}.jpg").create_dataset("global_descriptor", data=rng.normal(size=8).astype("f4"))
+                _descriptor(fh, f"db/{i}.jpg", rng)
             extra(fh)
         return path
 
     def self_links(*names: str) -> Any:
-        def add(fh: Any) -> None:
+        def link(fh: Any) -> None:
             for name in names:
                 fh["db/0.jpg"][name] = fh["db/0.jpg"]
-        return add
+        return link
 
-    def big_chunk(fh: Any) -> None:  # 8 values in one gzip chunk of 2²⁸ values, written compressed
-        ds = fh.create_group("db/x.jpg").create_dataset("global_descriptor", shape=(8,), dtype="f4", maxshape=(None,),
-                                                        chunks=(2**28,), compression="gzip")
-        ds.id.write_direct_chunk((0,), compressed_zeros(2**30), 0)
-
-    def lying_chunk(fh: Any) -> None:  # a chunk of 8 values storing 1 GiB of compressed zeros
-        ds = fh.create_group("db/x.jpg").create_dataset("global_descriptor", shape=(8,), dtype="f4", chunks=(8,),
-                                                        compression="gzip")
-        ds.id.write_direct_chunk((0,), compressed_zeros(2**30), 0)
+    def chunk_of(values: int) -> Any:  # 8 values in one gzip chunk of ``values``, storing 1 GiB of zeros
+        def write(fh: Any) -> None:
+            group = fh.create_group("db/x.jpg")
+            ds = group.create_dataset("global_descriptor", shape=(8,), dtype="f4", maxshape=(None,),
+                                      chunks=(values,), compression="gzip")
+            ds.id.write_direct_chunk((0,), compressed_zeros(2**30), 0)
+        return write
 
     for name, extra in (("loop", self_links("loop")), ("two_self_links", self_links("x", "y")),
-                        ("chunk_2e28", big_chunk), ("chunk_stores_1GiB", lying_chunk)):
+                        ("chunk_2e28", chunk_of(2**28)), ("chunk_8_stores_1GiB", chunk_of(8))):
         path = hloc(folder / f"{name}.h5", extra)
-        cases.append({"case": f"hdf5 {name}: btel train", "command": [*BTEL, "train", str(path), "-o",
-                                                                      str(folder / f"{name}.btel")], "file": path})
-    cases.insert(1, {"case": "hdf5 loop: load_descriptor_matrix", "file": folder / "loop.h5", "command": api(
-        f"from btel.descriptors.npy import load_descriptor_matrix as f; f({str(folder / 'loop.h5')!r})")})
+        add(f"hdf5 {name}: btel train", path, [*BTEL, "train", str(path), "-o", str(folder / f"{name}.btel")])
+        if name == "loop":
+            add("hdf5 loop: load_descriptor_matrix", path,
+                api(f"from btel.descriptors.npy import load_descriptor_matrix as f; f({str(path)!r})"))
 
     for name, data in (("idat_0x7fffffff", _png(8, 8, 0, zlib.compress(b"\0" * 72), 0x7FFFFFFF)),
                        ("grey_30000x30000", _png(30000, 30000, 0, _zero_rows(30000, 30000, 1))),
@@ -125,54 +131,54 @@ def craft(folder: Path) -> list[dict[str, Any]]:
         images = folder / name
         images.mkdir()
         (images / "a.png").write_bytes(data)
-        cases.append({"case": f"png {name}: btel extract", "file": images / "a.png",
-                      "command": [*BTEL, "extract", str(images), "-o", str(folder / f"{name}.npy"), "--no-progress"]})
-    cases.append({"case": "png colour_20000x20000: read_image (colour, the gallery's read)",
-                  "file": folder / "colour_20000x20000" / "a.png", "command": api(
-                      "from btel.descriptors.images import read_image; "
-                      f"read_image({str(folder / 'colour_20000x20000' / 'a.png')!r})")})
+        add(f"png {name}: btel extract", images / "a.png",
+            [*BTEL, "extract", str(images), "-o", str(folder / f"{name}.npy"), "--no-progress"])
+    colour = folder / "colour_20000x20000" / "a.png"
+    add("png colour_20000x20000: read_image (colour, the gallery's read)", colour,
+        api(f"from btel.descriptors.images import read_image; read_image({str(colour)!r})"))
 
-    db, q = rng.normal(size=(50_000, 8)).astype("f4"), rng.normal(size=(50, 8)).astype("f4")
-    np.save(folder / "db.npy", db)
-    np.save(folder / "q.npy", q)
+    np.save(folder / "db.npy", rng.normal(size=(50_000, 8)).astype("f4"))
+    np.save(folder / "q.npy", rng.normal(size=(50, 8)).astype("f4"))
     angle = np.linspace(0, 2 * np.pi, 50_000, endpoint=False)
-    np.savez_compressed(folder / "ring.npz", utmDb=100 * np.stack([np.cos(angle), np.sin(angle)], 1),
+    ring = folder / "ring.npz"
+    np.savez_compressed(ring, utmDb=100 * np.stack([np.cos(angle), np.sin(angle)], 1),
                         utmQ=np.zeros((4_000_000, 2)), posDistThr=np.float64(100 * (1 - 1e-9)))
-    cases.append({"case": "utm ring 50k × 4M: btel evaluate (50 queries)", "file": folder / "ring.npz", "command": [
-        *BTEL, "evaluate", "--db", str(folder / "db.npy"), "--queries", str(folder / "q.npy"), "--ground-truth",
-        str(folder / "ring.npz"), "--methods", "bruteforce", "--no-reference", "--no-progress", "--out",
-        str(folder / "run_ring")]})
-    cases.append({"case": "utm ring 50k × 4M: GroundTruth.from_file (no counts)", "file": folder / "ring.npz",
-                  "command": api(f"from btel.datasets import GroundTruth; GroundTruth.from_file({str(folder / 'ring.npz')!r})")})
+    add("utm ring 50k × 4M: btel evaluate (50 queries)", ring,
+        [*BTEL, "evaluate", "--db", str(folder / "db.npy"), "--queries", str(folder / "q.npy"),
+         "--ground-truth", str(ring), "--methods", "bruteforce", "--no-reference", "--no-progress",
+         "--out", str(folder / "run")])
+    add("utm ring 50k × 4M: GroundTruth.from_file (no counts)", ring,
+        api(f"from btel.datasets import GroundTruth; GroundTruth.from_file({str(ring)!r})"))
 
-    for name, rows in (("mat_256MB", 16 * 2**20), ("mat_244MiB", 16_000_000)):
-        scipy.io.savemat(folder / f"{name}.mat", {"utmDb": np.zeros((rows, 2)), "utmQ": np.zeros((2, 2)),
-                                                  "posDistThr": 1.0}, do_compression=True)
-        cases.append({"case": f".mat inflating to {rows * 16 / 2**20:.0f} MiB: GroundTruth.from_file",
-                      "file": folder / f"{name}.mat", "command": api(
-                          f"from btel.datasets import GroundTruth; GroundTruth.from_file({str(folder / f'{name}.mat')!r})")})
+    for name, rows in (("mat_256MiB", 16 * 2**20), ("mat_244MiB", 16_000_000)):
+        path = folder / f"{name}.mat"
+        scipy.io.savemat(path, {"utmDb": np.zeros((rows, 2)), "utmQ": np.zeros((2, 2)), "posDistThr": 1.0},
+                         do_compression=True)
+        add(f".mat inflating to {rows * 16 / 2**20:.0f} MiB: GroundTruth.from_file", path,
+            api(f"from btel.datasets import GroundTruth; GroundTruth.from_file({str(path)!r})"))
 
     for name, descr, fortran in (("fortran_f32", "<f4", True), ("c_f64", "<f8", False)):
         path = folder / f"{name}.npy"
         n = 1_200_000_000 // np.dtype(descr).itemsize // 100
         with open(path, "wb") as fh:
-            np.lib.format.write_array_header_1_0(fh, {"descr": descr, "fortran_order": fortran, "shape": (n, 100)})
+            header = {"descr": descr, "fortran_order": fortran, "shape": (n, 100)}
+            np.lib.format.write_array_header_1_0(fh, header)
             fh.truncate(fh.tell() + n * 100 * np.dtype(descr).itemsize)
-        cases.append({"case": f"sparse 1.2 GB {name}.npy: load_descriptor_matrix(mmap_mode='r')", "file": path,
-                      "command": api(f"from btel.descriptors.npy import load_descriptor_matrix as f; "
-                                     f"f({str(path)!r}, mmap_mode='r')")})
-    cases.append({"case": "sparse 1.2 GB fortran_f32.npy: btel train", "file": folder / "fortran_f32.npy",
-                  "command": [*BTEL, "train", str(folder / "fortran_f32.npy"), "-o", str(folder / "f.btel")]})
+        add(f"sparse 1.2 GB {name}.npy: load_descriptor_matrix(mmap_mode='r')", path,
+            api("from btel.descriptors.npy import load_descriptor_matrix as f; "
+                f"f({str(path)!r}, mmap_mode='r')"))
+    add("sparse 1.2 GB fortran_f32.npy: btel train", folder / "fortran_f32.npy",
+        [*BTEL, "train", str(folder / "fortran_f32.npy"), "-o", str(folder / "f.btel")])
 
     for name, bad in (("newline", "db/a\nINJECTED db/evil"), ("space", "db/c d")):
         path = folder / f"names_{name}.h5"
         with h5py.File(path, "w") as fh:
             for image in (bad, "db/e", "db/f", "query/q1", "query/q2"):
-                fh.create_group(image).create_dataset("global_descriptor", data=rng.normal(size=8).astype("f4"))
-        cases.append({"case": f"names ({name}): btel evaluate --pairs", "file": path, "command": [
-            *BTEL, "evaluate", "--db", f"{path}:db/", "--queries", f"{path}:query/", "--methods", "bruteforce",
-            "--no-reference", "--pairs", str(folder / f"pairs_{name}.txt"), "--k", "3", "--no-progress", "--out",
-            str(folder / f"run_{name}")]})
+                _descriptor(fh, image, rng)
+        add(f"names ({name}): btel evaluate --pairs", path,
+            [*BTEL, "evaluate", "--db", f"{path}:db/", "--queries", f"{path}:query/", "--methods",
+             "bruteforce", "--no-reference", "--pairs", str(folder / f"pairs_{name}.txt"), "--k", "3",
+             "--no-progress", "--out", str(folder / f"run_{name}")])
     for case in cases:
         case["file_bytes"] = os.stat(case.pop("file")).st_blocks * 512  # on disk (the sparse files are holes)
     return cases
@@ -197,7 +203,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--src", default=str(HERE.parent / "src"), help="the btel source tree to run")
     parser.add_argument("--timeout", type=float, default=90.0)
-    parser.add_argument("--name", default="bench_hostile_readers", help="results file benchmarks/results/NAME.json")
+    parser.add_argument("--name", default="bench_hostile_readers",
+                        help="results file benchmarks/results/NAME.json")
     args = parser.parse_args()
     env = {**os.environ, "PYTHONPATH": args.src}
     env.pop("BTEL_MEMORY_LIMIT", None)
@@ -213,12 +220,12 @@ def main() -> None:
             result["meets_target"] = ok
             rows.append(result)
             print(f"{'ok ' if ok else 'MISS'} {result['case'][:62]:62s} exit {result['exit']} "
-                  f"{result['seconds']:6.1f} s {result['peak_rss_mib']:7.1f} MiB  {result['last_line'][:110]}",
-                  flush=True)
+                  f"{result['seconds']:6.1f} s {result['peak_rss_mib']:7.1f} MiB  "
+                  f"{result['last_line'][:100]}", flush=True)
     spawner.stdin.close()
     spawner.wait()
-    write_results(args.name, {"src": args.src, "timeout_s": args.timeout,
-                                   "command": " ".join([Path(sys.executable).name, *sys.argv]), "cases": rows})
+    command = " ".join([Path(sys.executable).name, *sys.argv])
+    write_results(args.name, {"src": args.src, "timeout_s": args.timeout, "command": command, "cases": rows})
 
 
 if __name__ == "__main__":

@@ -67,7 +67,8 @@ def _images(width: int, height: int) -> dict[str, bytes]:
         return buffer.getvalue()
 
     def one_strip(image: np.ndarray) -> bytes:
-        ok, data = cv2.imencode(".tif", image, [cv2.IMWRITE_TIFF_COMPRESSION, 1, cv2.IMWRITE_TIFF_ROWSPERSTRIP, height])
+        options = [cv2.IMWRITE_TIFF_COMPRESSION, 1, cv2.IMWRITE_TIFF_ROWSPERSTRIP, height]
+        ok, data = cv2.imencode(".tif", image, options)
         return data.tobytes()
 
     bgr, rgba = rgb[..., ::-1], np.dstack([rgb, base])
@@ -77,7 +78,8 @@ def _images(width: int, height: int) -> dict[str, bytes]:
             "JPEG RGB": encode(rgb, "JPEG"), "JPEG RGB progressive": encode(rgb, "JPEG", progressive=True),
             "JPEG grey": encode(base, "JPEG"), "BMP RGB": encode(rgb, "BMP"), "TIFF RGB": encode(rgb, "TIFF"),
             "TIFF RGB deflate": encode(rgb, "TIFF", compression="tiff_deflate"),
-            "TIFF grey, one strip": one_strip(base), "TIFF 16-bit grey, one strip": one_strip(base.astype(np.uint16) * 257),
+            "TIFF grey, one strip": one_strip(base),
+            "TIFF 16-bit grey, one strip": one_strip(base.astype(np.uint16) * 257),
             "TIFF RGBA, one strip": one_strip(np.dstack([bgr, base])),
             "TIFF 16-bit RGB, one strip": one_strip(bgr.astype(np.uint16) * 257),
             "TIFF 16-bit RGBA, one strip": one_strip(np.dstack([bgr, base]).astype(np.uint16) * 257),
@@ -140,7 +142,8 @@ def search_work(scale: float) -> list[dict[str, Any]]:
         rows.append({"positions": name, "map": db.shape[0], "queries": q.shape[0], "pairs": pairs,
                      "distances": distances, "per_query": round(distances / q.shape[0], 1),
                      "per_pair": round(distances / max(pairs, 1), 1), "seconds": round(seconds, 2),
-                     "distances_per_s": round(distances / seconds), "share_of_default_bound": distances / bound})
+                     "distances_per_s": round(distances / seconds),
+                     "share_of_default_bound": distances / bound})
     return rows
 
 
@@ -150,24 +153,28 @@ def main() -> None:
     args = parser.parse_args()
     width, height, scale = (1600, 1200, 0.2) if args.quick else (4000, 3000, 1.0)
     decode = decode_memory(width, height)
-    print(f"\n| format ({width}×{height}) | channels × bytes | grey: measured / bound (B/pixel) | colour: measured / "
-          "bound |")
+    print(f"\n| format ({width}×{height}) | channels × bytes | grey: measured / bound (B/pixel) "
+          "| colour: measured / bound |")
     print("|---|---|---|---|")
     for r in decode:
         print(f"| {r['format']} | {r['channels']} × {r['sample_bytes']} | {r['grey_measured_b_per_px']} / "
-              f"{r['grey_bound_b_per_px']:g} | {r['colour_measured_b_per_px']} / {r['colour_bound_b_per_px']:g} |")
+              f"{r['grey_bound_b_per_px']:g} | {r['colour_measured_b_per_px']} / "
+              f"{r['colour_bound_b_per_px']:g} |")
     misses = [r["format"] for r in decode for m in ("grey", "colour")
               if r[f"{m}_measured_b_per_px"] > r[f"{m}_bound_b_per_px"]]
     print(f"\nmeasured above the bound: {', '.join(misses) or 'none'}")
     work = search_work(scale)
-    print("\n| positions | map | queries | pairs | distances | per query | per pair | distances/s | of the bound |")
+    print("\n| positions | map | queries | pairs | distances | per query | per pair | distances/s "
+          "| of the bound |")
     print("|---|---|---|---|---|---|---|---|---|")
     for r in work:
         print(f"| {r['positions']} | {r['map']} | {r['queries']} | {r['pairs']} | {r['distances']:.3g} | "
-              f"{r['per_query']} | {r['per_pair']} | {r['distances_per_s']:.2g} | {r['share_of_default_bound']:.2%} |")
+              f"{r['per_query']} | {r['per_pair']} | {r['distances_per_s']:.2g} | "
+              f"{r['share_of_default_bound']:.2%} |")
+    command = " ".join([Path(sys.executable).name, *sys.argv])
     path = write_results("bench_reader_bounds" + ("_quick" if args.quick else ""),
-                         {"command": " ".join([Path(sys.executable).name, *sys.argv]), "image_size": [width, height],
-                          "decode_memory": decode, "search_work": work})
+                         {"command": command, "image_size": [width, height], "decode_memory": decode,
+                          "search_work": work})
     print(f"\nwritten to {path}")
 
 

@@ -121,8 +121,9 @@ def chunk_shape(rng: random.Random) -> tuple[bytes, str]:
     inflate = int(2 ** rng.uniform(16, 28)) if lie else 0
 
     def fill(fh: Any) -> None:
-        ds = fh.create_group("db/a.jpg").create_dataset(
-            "global_descriptor", shape=shape, dtype=dtype, chunks=chunks, maxshape=(None,) * len(shape), **filters)
+        group = fh.create_group("db/a.jpg")
+        ds = group.create_dataset("global_descriptor", shape=shape, dtype=dtype, chunks=chunks,
+                                  maxshape=(None,) * len(shape), **filters)
         if lie:  # a stored stream far longer than the chunk it declares
             ds.id.write_direct_chunk((0,) * len(shape), compressed_zeros(inflate), 0)
         elif chunk <= 1 << 22:
@@ -132,10 +133,12 @@ def chunk_shape(rng: random.Random) -> tuple[bytes, str]:
     try:
         data = _h5_bytes(fill)
     except (ValueError, TypeError, OSError) as exc:  # h5py refused the combination: an hloc file instead
-        return _h5_bytes(lambda fh: fh.create_group("db/a.jpg").create_dataset(
-            "global_descriptor", data=np.ones(8, np.float32))), f"chunk shape refused by h5py ({type(exc).__name__})"
+        plain = _h5_bytes(lambda fh: fh.create_group("db/a.jpg").create_dataset(
+            "global_descriptor", data=np.ones(8, np.float32)))
+        return plain, f"chunk shape refused by h5py ({type(exc).__name__})"
     described = ",".join(f"{k}={v}" for k, v in filters.items())
-    return data, f"chunk {chunks} of {shape} {dtype} {described}" + (f" storing {inflate} B of zeros" if lie else "")
+    stored = f" storing {inflate} B of zeros" if lie else ""
+    return data, f"chunk {chunks} of {shape} {dtype} {described}{stored}"
 
 
 # ---------------------------------------------------------------------------------- image headers
@@ -168,15 +171,17 @@ def image_seeds() -> list[bytes]:
     Image.fromarray(grey).convert("P").save(buffer, format="PNG")
     out.append(buffer.getvalue())
     buffer = io.BytesIO()
-    Image.fromarray(grey).save(buffer, format="PNG", save_all=True, append_images=[Image.fromarray(255 - grey)])
+    Image.fromarray(grey).save(buffer, format="PNG", save_all=True,
+                               append_images=[Image.fromarray(255 - grey)])
     out.append(buffer.getvalue())  # an animated PNG
     ihdr = struct.pack(">IIBBBBB", 8, 8, 8, 0, 0, 0, 0)
     idat = zlib.compress(b"\0" * 72)
     out.append(b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", ihdr) + _png_chunk(b"IDAT", idat, 0x7FFFFFFF)
                + _png_chunk(b"IEND", b""))  # the issue's IDAT length
     big = struct.pack(">IIBBBBB", 30000, 30000, 8, 0, 0, 0, 0)
-    out.append(b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", big) + _png_chunk(b"IDAT", compressed_zeros(1 << 20))
-               + _png_chunk(b"IEND", b""))  # 30000² grey, its first MiB of rows
+    rows = compressed_zeros(1 << 20)  # 30000² grey, its first MiB of rows
+    out.append(b"\x89PNG\r\n\x1a\n" + _png_chunk(b"IHDR", big) + _png_chunk(b"IDAT", rows)
+               + _png_chunk(b"IEND", b""))
     return out
 
 
@@ -199,7 +204,8 @@ def _png_edit(buf: bytearray, rng: random.Random) -> str:
         struct.pack_into(">I", buf, at, rng.choice(_EXTREMES + [length + 1, max(0, length - 1)]) % 2**32)
         return "png chunk length"
     if field == "type":
-        buf[at + 4:at + 8] = rng.choice([b"IDAT", b"IEND", b"acTL", b"fcTL", b"fdAT", b"iCCP", b"zTXt", b"PLTE"])
+        kinds = [b"IDAT", b"IEND", b"acTL", b"fcTL", b"fdAT", b"iCCP", b"zTXt", b"PLTE"]
+        buf[at + 4:at + 8] = rng.choice(kinds)
         what = "png chunk type"
     else:
         at, length = chunks[0]
@@ -219,7 +225,8 @@ def _png_edit(buf: bytearray, rng: random.Random) -> str:
 
 def _jpeg_edit(buf: bytearray, rng: random.Random) -> str:
     sof = [i for i in range(len(buf) - 9) if buf[i] == 0xFF and buf[i + 1] in (0xC0, 0xC1, 0xC2)]
-    segments = [i for i in range(len(buf) - 4) if buf[i] == 0xFF and 0xC0 <= buf[i + 1] <= 0xFE and buf[i + 1] != 0xD8]
+    segments = [i for i in range(len(buf) - 4)
+                if buf[i] == 0xFF and 0xC0 <= buf[i + 1] <= 0xFE and buf[i + 1] != 0xD8]
     if sof and rng.random() < 0.6:
         at = rng.choice(sof)
         field = rng.choice([5, 7, 9])
@@ -236,8 +243,8 @@ def _jpeg_edit(buf: bytearray, rng: random.Random) -> str:
 
 
 def _bmp_edit(buf: bytearray, rng: random.Random) -> str:
-    offset, fmt = rng.choice([(2, "<I"), (10, "<I"), (14, "<I"), (18, "<i"), (22, "<i"), (28, "<H"), (30, "<I"),
-                              (34, "<I"), (46, "<I")])
+    offset, fmt = rng.choice([(2, "<I"), (10, "<I"), (14, "<I"), (18, "<i"), (22, "<i"), (28, "<H"),
+                              (30, "<I"), (34, "<I"), (46, "<I")])
     if offset + struct.calcsize(fmt) > len(buf):
         return "bmp: short"
     value = rng.choice(_EXTREMES + [-1, -30000, -(2**31)])
@@ -253,7 +260,8 @@ def _tiff_edit(buf: bytearray, rng: random.Random) -> str:
     ifd = struct.unpack_from("<I", buf, 4)[0]
     if ifd + 2 > len(buf):
         return "tiff: ifd past end"
-    entries = [ifd + 2 + 12 * i for i in range(struct.unpack_from("<H", buf, ifd)[0]) if ifd + 14 + 12 * i <= len(buf)]
+    count = struct.unpack_from("<H", buf, ifd)[0]
+    entries = [ifd + 2 + 12 * i for i in range(count) if ifd + 14 + 12 * i <= len(buf)]
     if not entries:
         return "tiff: no entry"
     at = rng.choice(entries)
@@ -341,20 +349,23 @@ def ring_geometry(rng: random.Random) -> tuple[bytes, str, dict[str, Any]]:
     where = "centre" if n_q == 4_000_000 else rng.choice(["centre", "centre", "on", "random"])
     q = (np.zeros((n_q, dims)) if where == "centre" else
          db[np_rng.integers(0, n_map, n_q)] if where == "on" else np_rng.normal(0, radius, (n_q, dims)))
-    thr = rng.choice([radius * (1 - 10 ** -rng.randint(1, 12)), radius * (1 + 10 ** -rng.randint(1, 12)), radius,
-                      0.0, radius * 10, radius / 100])
+    thr = rng.choice([radius * (1 - 10 ** -rng.randint(1, 12)), radius * (1 + 10 ** -rng.randint(1, 12)),
+                      radius, 0.0, radius * 10, radius / 100])
     buffer = io.BytesIO()
-    (np.savez_compressed if n_q == 4_000_000 else np.savez)(buffer, utmDb=db, utmQ=q, posDistThr=np.float64(thr))
+    save = np.savez_compressed if n_q == 4_000_000 else np.savez
+    save(buffer, utmDb=db, utmQ=q, posDistThr=np.float64(thr))
     counts = rng.random()
     args: dict[str, Any] = ({} if counts < 0.4 else {"n_queries": n_q, "n_map": n_map} if counts < 0.8 else
                             {"n_queries": rng.choice([50, n_q + 1, max(1, n_q - 1)]), "n_map": n_map})
-    return buffer.getvalue(), f"{shape} {n_map} map × {n_q} queries ({where}, {dims}-D, thr/r={thr / radius:.3g})", args
+    described = f"{shape} {n_map} map × {n_q} queries ({where}, {dims}-D, thr/r={thr / radius:.3g})"
+    return buffer.getvalue(), described, args
 
 
 # -------------------------------------------------------------------------------------------- names
-_NAME_PARTS = ["db", "/", "a", "0001.jpg", " ", "\n", "\r", "\t", "\x0b", "\x1f", "\x7f", "\x85", "\xa0", "\u2028",
-               "\u2029", "\u202e", "\u200b", "\ufeff", "é", "日本", "$", "\\frac", "$x^$", '"', "'", ",", ";", "..",
-               "@0543256.96@4178906.70@", "INJECTED", "x" * 300, "\U0001F600", "%s", "{}", "\ud800"]
+_NAME_PARTS = ["db", "/", "a", "0001.jpg", " ", "\n", "\r", "\t", "\x0b", "\x1f", "\x7f", "\x85", "\xa0",
+               "\u2028", "\u2029", "\u202e", "\u200b", "\ufeff", "é", "日本", "$", "\\frac", "$x^$", '"',
+               "'", ",", ";", "..", "@0543256.96@4178906.70@", "INJECTED", "x" * 300, "\U0001F600", "%s",
+               "{}", "\ud800"]
 
 
 def image_names(rng: random.Random) -> tuple[bytes, str]:
@@ -387,13 +398,16 @@ def mmap_seeds() -> list[bytes]:
     X = np.random.default_rng(0).normal(size=(6, 5))
     out = []
     for array in (X.astype(np.float32), np.asfortranarray(X.astype(np.float32)), X, np.asfortranarray(X),
-                  X.astype(">f8"), (X * 10).astype(np.int16), (X > 0), X.astype(np.float16), X[:, :1].T.copy()):
+                  X.astype(">f8"), (X * 10).astype(np.int16), (X > 0), X.astype(np.float16),
+                  X[:, :1].T.copy()):
         buffer = io.BytesIO()
         np.save(buffer, array)
         out.append(buffer.getvalue())
-    for descr, fortran, shape in (("<f4", True, (30_000_000, 100)), ("<f8", False, (10**9, 2)), ("<f4", False, (3, 0))):
+    for descr, fortran, shape in (("<f4", True, (30_000_000, 100)), ("<f8", False, (10**9, 2)),
+                                  ("<f4", False, (3, 0))):
         buffer = io.BytesIO()
-        np.lib.format.write_array_header_1_0(buffer, {"descr": descr, "fortran_order": fortran, "shape": shape})
+        header = {"descr": descr, "fortran_order": fortran, "shape": shape}
+        np.lib.format.write_array_header_1_0(buffer, header)
         out.append(buffer.getvalue() + b"\0" * 256)
     return out
 

@@ -58,8 +58,9 @@ import fuzz_families as families  # noqa: E402
 
 READERS = ("gt_pickle", "gt_npz", "gt_csv", "gt_mat", "gt_utm", "hdf5", "desc_npy", "desc_mmap", "desc_file",
            "image", "names")
-SUFFIX = {"gt_pickle": ".npy", "gt_npz": ".npz", "gt_csv": ".csv", "gt_mat": ".mat", "gt_utm": ".npz", "hdf5": ".h5",
-          "desc_npy": ".npz", "desc_mmap": ".npy", "desc_file": ".btel", "image": ".img", "names": ".h5"}
+SUFFIX = {"gt_pickle": ".npy", "gt_npz": ".npz", "gt_csv": ".csv", "gt_mat": ".mat", "gt_utm": ".npz",
+          "hdf5": ".h5", "desc_npy": ".npz", "desc_mmap": ".npy", "desc_file": ".btel", "image": ".img",
+          "names": ".h5"}
 #: Readers with a structure-aware family (issue 34): the share of their cases it makes, and its makers.
 FAMILIES: dict[str, tuple[float, tuple[Callable[..., Any], ...]]] = {
     "hdf5": (0.5, (families.link_graph, families.chunk_shape)), "image": (0.6, (families.image_header,)),
@@ -210,8 +211,8 @@ def seeds_hdf5(folder: Path) -> list[bytes]:
             group[name] = group
 
     def lying_chunk(fh: Any) -> None:  # issue 34: 8 floats in a chunk storing 1 GiB of compressed zeros
-        ds = fh.create_group("db/a.jpg").create_dataset("global_descriptor", shape=(8,), dtype="f4", chunks=(8,),
-                                                        compression="gzip")
+        ds = fh.create_group("db/a.jpg").create_dataset("global_descriptor", shape=(8,), dtype="f4",
+                                                        chunks=(8,), compression="gzip")
         ds.id.write_direct_chunk((0,), families.compressed_zeros(1 << 30), 0)
 
     out.append(build(lambda fh: loops(fh, ("loop",))))
@@ -224,7 +225,8 @@ def seeds_gt_utm() -> list[bytes]:
     rng = np.random.default_rng(0)
     angle = np.linspace(0, 2 * np.pi, 5000, endpoint=False)
     ring = 100 * np.stack([np.cos(angle), np.sin(angle)], 1)
-    return [_npz_bytes(utmDb=rng.uniform(0, 50, (40, 2)), utmQ=rng.uniform(0, 50, (10, 2)), posDistThr=np.float64(5.0)),
+    return [_npz_bytes(utmDb=rng.uniform(0, 50, (40, 2)), utmQ=rng.uniform(0, 50, (10, 2)),
+                       posDistThr=np.float64(5.0)),
             _npz_bytes(utmDb=ring, utmQ=np.zeros((50, 2)), posDistThr=np.float64(100 * (1 - 1e-9))),
             _npz_bytes(utmDb=ring, utmQ=np.zeros((400_000, 2)), posDistThr=np.float64(100 * (1 - 1e-9)))]
 
@@ -233,13 +235,15 @@ def seeds_names(folder: Path) -> list[bytes]:
     import h5py
 
     out = []
-    for names in (["db/0001.jpg", "db/0002.jpg", "query/0001.jpg"], ["db/a\nINJECTED db/evil", "db/c d", "db/e"]):
+    for names in (["db/0001.jpg", "db/0002.jpg", "query/0001.jpg"],
+                  ["db/a\nINJECTED db/evil", "db/c d", "db/e"]):
         path = folder / "names.h5"
         with h5py.File(path, "w") as fh:
             for i, name in enumerate(names):
                 fh.create_group(name).create_dataset("global_descriptor", data=np.full(8, i, np.float32))
         out.append(path.read_bytes())
-    out.append(json.dumps({"folder": "/nonexistent", "images": [["0.png", 1, 1], ["1 2.png", 1, 1]]}).encode())
+    sidecar = {"folder": "/nonexistent", "images": [["0.png", 1, 1], ["1 2.png", 1, 1]]}
+    out.append(json.dumps(sidecar).encode())
     return out
 
 
@@ -402,7 +406,8 @@ def worker_main() -> None:
             outcome, error = "refused", f"{type(exc).__name__}: {str(exc)[:160]}"
         except BaseException as exc:  # noqa: BLE001 - the harness records it as a failure
             outcome, error = "generic", f"{type(exc).__name__}: {str(exc)[:300]}"
-        rss = max(resource.getrusage(who).ru_maxrss for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)) * 1024
+        rss = 1024 * max(resource.getrusage(who).ru_maxrss
+                         for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
         sys.stdout.write(json.dumps({"outcome": outcome, "error": error, "rss": rss,
                                      "seconds": time.perf_counter() - start}) + "\n")
         sys.stdout.flush()
@@ -516,7 +521,8 @@ def main() -> None:
     if args.case:
         reader, case_id = args.case.split(":")
         with tempfile.TemporaryDirectory() as tmp:
-            data, description, reader_args = make_case(reader, args.seed, int(case_id), build_seeds(reader, Path(tmp)))
+            seeds = build_seeds(reader, Path(tmp))
+            data, description, reader_args = make_case(reader, args.seed, int(case_id), seeds)
             path = Path(tmp) / f"case{SUFFIX[reader]}"
             path.write_bytes(data)
             print(description, len(data), "bytes", reader_args)
