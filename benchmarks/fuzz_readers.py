@@ -1,19 +1,25 @@
-"""Fuzz every reader of untrusted input besides model files (issue 20).
+"""Fuzz every reader of untrusted input besides model files (issues 20 and 34).
 
 Readers: ground truth as VPR-Bench pickled object arrays (``gt_pickle``), ``.npz`` (``gt_npz``),
-CSV (``gt_csv``) and MATLAB (``gt_mat``); hloc HDF5 descriptors (``hdf5``); ``.npy``/``.npz``
-descriptor matrices (``desc_npy``); saved image-descriptor files, loaded and applied to one
-small image (``desc_file``). Each reader has seeds — legitimate files and the crafted hostile
-files of issue 20 (object pointers, allocation and nesting bombs, huge CSV indices, identical
-positions, zip bombs, external storage, virtual datasets, huge descriptor parameters) — and each
-case is one seed with one seeded mutation (bit flips, truncation, overwritten / deleted /
-duplicated / inserted bytes, and for text formats token edits: huge or odd numbers, quotes, long
-fields).
+CSV (``gt_csv``), MATLAB (``gt_mat``) and UTM positions checked against descriptor counts
+(``gt_utm``); hloc HDF5 descriptors (``hdf5``); ``.npy``/``.npz`` descriptor matrices
+(``desc_npy``) and memory-mapped ``.npy`` (``desc_mmap``); saved image-descriptor files, loaded and
+applied to one small image (``desc_file``); image files (``image``, :func:`read_image`); image
+names written into a predictions CSV and a pairs file (``names``). Each reader has seeds —
+legitimate files and the crafted hostile files of issues 20 and 34 — and each case is a seed with
+seeded mutations (bit flips, truncation, overwritten / deleted / duplicated / inserted bytes, and
+for text formats token edits), or a case of one of issue 34's structure-aware families
+(``fuzz_families.py``: link graphs and chunk shapes for ``hdf5``, image headers, ring geometries,
+names), sometimes mutated further.
 
 A case runs in a worker process (imports done once). It **passes** when the reader returns or
 raises a btel error (:class:`~btel.exceptions.BTELError`). It **fails** on any other exception
-(a generic error), no answer within ``--timeout`` seconds (a hang: the worker is killed and
-restarted), the worker's death (a crash), or the worker's peak resident memory above 1 GiB.
+(a generic error, including a broken invariant such as a pairs file that is not one pair per
+line), no answer within ``--timeout`` seconds (a hang: the worker is killed and restarted), the
+worker's death (a crash), or peak resident memory above 1 GiB in the worker or a child it waited
+for (scipy's MATLAB reader runs in one). ``gt_utm`` runs under ``BTEL_MEMORY_LIMIT=16M``, so that
+the radius search's distance bound (16 per pair the limit holds: 1.7·10⁷) is reached in about a
+second; under the default limit it is 16 times as many distances (the issue's ring: 15 s).
 
 Run (writes ``benchmarks/results/fuzz_readers.json``)::
 
@@ -28,6 +34,7 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import logging
 import os
 import pickle
 import random
@@ -46,9 +53,18 @@ from typing import Any, Callable
 
 import numpy as np
 
-READERS = ("gt_pickle", "gt_npz", "gt_csv", "gt_mat", "hdf5", "desc_npy", "desc_file")
-SUFFIX = {"gt_pickle": ".npy", "gt_npz": ".npz", "gt_csv": ".csv", "gt_mat": ".mat", "hdf5": ".h5",
-          "desc_npy": ".npz", "desc_file": ".btel"}
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import fuzz_families as families  # noqa: E402
+
+READERS = ("gt_pickle", "gt_npz", "gt_csv", "gt_mat", "gt_utm", "hdf5", "desc_npy", "desc_mmap", "desc_file",
+           "image", "names")
+SUFFIX = {"gt_pickle": ".npy", "gt_npz": ".npz", "gt_csv": ".csv", "gt_mat": ".mat", "gt_utm": ".npz",
+          "hdf5": ".h5", "desc_npy": ".npz", "desc_mmap": ".npy", "desc_file": ".btel", "image": ".img",
+          "names": ".h5"}
+#: Readers with a structure-aware family (issue 34): the share of their cases it makes, and its makers.
+FAMILIES: dict[str, tuple[float, tuple[Callable[..., Any], ...]]] = {
+    "hdf5": (0.5, (families.link_graph, families.chunk_shape)), "image": (0.6, (families.image_header,)),
+    "gt_utm": (0.9, (families.ring_geometry,)), "names": (0.9, (families.image_names,))}
 MAX_RSS_BYTES = 1 << 30
 RESULTS = Path(__file__).resolve().parent / "results" / "fuzz_readers.json"
 
@@ -187,6 +203,47 @@ def seeds_hdf5(folder: Path) -> list[bytes]:
     out.append(build(lambda fh: fh.create_group("a").create_dataset(
         "global_descriptor", shape=(250_000_000,), dtype="f4", chunks=(1_000_000,), fillvalue=1.0)))
     out.append(build(lambda fh: fh.create_group("a").create_dataset("global_descriptor", shape=(3,), dtype="S8")))
+
+    def loops(fh: Any, names: tuple[str, ...]) -> None:  # issue 34: g["loop"] = g; g["x"] = g; g["y"] = g
+        hloc(fh)
+        group = fh["db/0.jpg"]
+        for name in names:
+            group[name] = group
+
+    def lying_chunk(fh: Any) -> None:  # issue 34: 8 floats in a chunk storing 1 GiB of compressed zeros
+        ds = fh.create_group("db/a.jpg").create_dataset("global_descriptor", shape=(8,), dtype="f4",
+                                                        chunks=(8,), compression="gzip")
+        ds.id.write_direct_chunk((0,), families.compressed_zeros(1 << 30), 0)
+
+    out.append(build(lambda fh: loops(fh, ("loop",))))
+    out.append(build(lambda fh: loops(fh, ("x", "y"))))
+    out.append(build(lying_chunk))
+    return out
+
+
+def seeds_gt_utm() -> list[bytes]:
+    rng = np.random.default_rng(0)
+    angle = np.linspace(0, 2 * np.pi, 5000, endpoint=False)
+    ring = 100 * np.stack([np.cos(angle), np.sin(angle)], 1)
+    return [_npz_bytes(utmDb=rng.uniform(0, 50, (40, 2)), utmQ=rng.uniform(0, 50, (10, 2)),
+                       posDistThr=np.float64(5.0)),
+            _npz_bytes(utmDb=ring, utmQ=np.zeros((50, 2)), posDistThr=np.float64(100 * (1 - 1e-9))),
+            _npz_bytes(utmDb=ring, utmQ=np.zeros((400_000, 2)), posDistThr=np.float64(100 * (1 - 1e-9)))]
+
+
+def seeds_names(folder: Path) -> list[bytes]:
+    import h5py
+
+    out = []
+    for names in (["db/0001.jpg", "db/0002.jpg", "query/0001.jpg"],
+                  ["db/a\nINJECTED db/evil", "db/c d", "db/e"]):
+        path = folder / "names.h5"
+        with h5py.File(path, "w") as fh:
+            for i, name in enumerate(names):
+                fh.create_group(name).create_dataset("global_descriptor", data=np.full(8, i, np.float32))
+        out.append(path.read_bytes())
+    sidecar = {"folder": "/nonexistent", "images": [["0.png", 1, 1], ["1 2.png", 1, 1]]}
+    out.append(json.dumps(sidecar).encode())
     return out
 
 
@@ -265,30 +322,60 @@ def mutate(data: bytes, rng: random.Random, text: bool) -> tuple[bytes, str]:
     return bytes(buf), kind
 
 
-def make_case(reader: str, seed: int, case_id: int, seeds: list[bytes]) -> tuple[bytes, str]:
+def make_case(reader: str, seed: int, case_id: int, seeds: list[bytes]) -> tuple[bytes, str, dict[str, Any]]:
+    """Case ``case_id`` of ``reader``: (file bytes, description, keyword arguments of the reader)."""
     rng = random.Random(f"{seed}:{reader}:{case_id}")
-    base = rng.randrange(len(seeds))
+    args: dict[str, Any] = {"grey": rng.random() < 0.5} if reader == "image" else {}
     if case_id < len(seeds):  # every seed is a case as it is
-        return seeds[case_id], f"seed {case_id}"
+        return seeds[case_id], f"seed {case_id}", args
+    share, makers = FAMILIES.get(reader, (0.0, ()))
+    if rng.random() < share:
+        maker = rng.choice(makers)
+        made = maker(rng.choice(seeds), rng) if maker is families.image_header else maker(rng)
+        data, kind = made[0], made[1]
+        args.update(made[2] if len(made) > 2 else {})
+        if rng.random() < 0.25:
+            data, k = mutate(data, rng, text=False)
+            kind += "+" + k
+        return data, kind, args
+    base = rng.randrange(len(seeds))
     data, kind = seeds[base], ""
     for _ in range(rng.choice([1, 1, 1, 2, 3])):
         data, k = mutate(data, rng, text=reader == "gt_csv")
         kind += ("+" if kind else "") + k
-    return data, f"seed {base} {kind}"
+    return data, f"seed {base} {kind}", args
 
 
 # ---------------------------------------------------------------------------------------- worker
-def run_reader(reader: str, path: str) -> str:
-    """Run one reader on ``path``; return a short outcome (raises what the reader raises)."""
+def run_reader(reader: str, path: str, args: dict[str, Any] | None = None) -> str:
+    """Run one reader on ``path`` with ``args``; return a short outcome (raises what the reader raises)."""
+    args = args or {}
     if reader.startswith("gt_"):
         from btel.datasets import GroundTruth
 
-        gt = GroundTruth.from_file(path)
+        if reader == "gt_utm":
+            os.environ["BTEL_MEMORY_LIMIT"] = "16M"
+        try:
+            gt = GroundTruth.from_file(path, **args)
+        finally:
+            os.environ.pop("BTEL_MEMORY_LIMIT", None)
         return f"ok {gt.kind} {gt.n_queries}"
-    if reader in ("hdf5", "desc_npy"):
+    if reader in ("hdf5", "desc_npy", "desc_mmap"):
         from btel.descriptors.npy import load_descriptor_matrix
 
-        return f"ok {load_descriptor_matrix(path).shape}"
+        X = load_descriptor_matrix(path, mmap_mode="r" if reader == "desc_mmap" else None)
+        if X.dtype != np.float32 or not X.flags.c_contiguous or not np.isfinite(X).all():
+            raise AssertionError(f"descriptors of dtype {X.dtype}, C-contiguous {X.flags.c_contiguous}")
+        return f"ok {X.shape}"
+    if reader == "image":
+        from btel.descriptors.images import read_image
+
+        image = read_image(path, grey=args.get("grey", False))
+        if image.dtype != np.uint8 or image.ndim != (2 if args.get("grey") else 3):
+            raise AssertionError(f"image of dtype {image.dtype}, shape {image.shape}")
+        return f"ok {image.shape}"
+    if reader == "names":
+        return families.read_names(path)
     if reader == "desc_file":
         from btel.descriptors.base import load_descriptor
 
@@ -308,17 +395,19 @@ def worker_main() -> None:
     from btel.exceptions import BTELError
 
     warnings.simplefilter("ignore")
+    logging.disable(logging.WARNING)  # "n of n queries have no positive" on every ring case
     resource.setrlimit(resource.RLIMIT_AS, (4 << 30, 4 << 30))
     for line in sys.stdin:
-        reader, path = line.rstrip("\n").split("\t", 1)
+        reader, path, args = line.rstrip("\n").split("\t", 2)
         start = time.perf_counter()
         try:
-            outcome, error = run_reader(reader, path), ""
+            outcome, error = run_reader(reader, path, json.loads(args)), ""
         except BTELError as exc:
             outcome, error = "refused", f"{type(exc).__name__}: {str(exc)[:160]}"
         except BaseException as exc:  # noqa: BLE001 - the harness records it as a failure
             outcome, error = "generic", f"{type(exc).__name__}: {str(exc)[:300]}"
-        rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+        rss = 1024 * max(resource.getrusage(who).ru_maxrss
+                         for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
         sys.stdout.write(json.dumps({"outcome": outcome, "error": error, "rss": rss,
                                      "seconds": time.perf_counter() - start}) + "\n")
         sys.stdout.flush()
@@ -330,8 +419,8 @@ class Worker:
         self.proc = subprocess.Popen([sys.executable, __file__, "--worker"], stdin=subprocess.PIPE,
                                      stdout=subprocess.PIPE, text=True, env=env, bufsize=1)
 
-    def run(self, reader: str, path: str, timeout: float) -> dict[str, Any]:
-        self.proc.stdin.write(f"{reader}\t{path}\n")
+    def run(self, reader: str, path: str, args: dict[str, Any], timeout: float) -> dict[str, Any]:
+        self.proc.stdin.write(f"{reader}\t{path}\t{json.dumps(args)}\n")
         self.proc.stdin.flush()
         ready, _, _ = select.select([self.proc.stdout], [], [], timeout)
         if not ready:
@@ -357,8 +446,9 @@ class Worker:
 
 def build_seeds(reader: str, folder: Path) -> list[bytes]:
     makers = {"gt_pickle": seeds_gt_pickle, "gt_npz": seeds_gt_npz, "gt_csv": seeds_gt_csv, "gt_mat": seeds_gt_mat,
-              "hdf5": lambda: seeds_hdf5(folder), "desc_npy": seeds_desc_npy,
-              "desc_file": lambda: seeds_desc_file(folder)}
+              "gt_utm": seeds_gt_utm, "hdf5": lambda: seeds_hdf5(folder), "desc_npy": seeds_desc_npy,
+              "desc_mmap": families.mmap_seeds, "desc_file": lambda: seeds_desc_file(folder),
+              "image": families.image_seeds, "names": lambda: seeds_names(folder)}
     return makers[reader]()
 
 
@@ -377,14 +467,15 @@ def run_cases(n_cases: int, *, seed: int = 0, readers: tuple[str, ...] = READERS
                 peak = 0
                 done = 0
                 path = folder / f"case{SUFFIX[reader]}"
+                began = time.time()
                 for case_id in range(n_cases):
                     if deadline is not None and time.time() > deadline:
                         break
-                    data, description = make_case(reader, seed, case_id, seeds)
+                    data, description, args = make_case(reader, seed, case_id, seeds)
                     path.write_bytes(data)
                     if not worker.alive:
                         worker = Worker()
-                    result = worker.run(reader, str(path), timeout)
+                    result = worker.run(reader, str(path), args, timeout)
                     outcome = result["outcome"]
                     if outcome.startswith("ok"):
                         outcome = "ok"
@@ -398,13 +489,13 @@ def run_cases(n_cases: int, *, seed: int = 0, readers: tuple[str, ...] = READERS
                     done += 1
                     if outcome not in ("ok", "refused"):
                         failures.append({"id": case_id, "case": description, "outcome": outcome,
-                                         "error": result.get("error", ""), "bytes": len(data)})
+                                         "error": result.get("error", ""), "bytes": len(data), "args": args})
                     if progress and done % 500 == 0:
                         print(f"{reader}: {done} cases {dict(counts)}", flush=True)
                 summary["readers"][reader] = {
                     "cases": done, "seeds": len(seeds), "outcomes": dict(counts),
                     "failures": len(failures), "failed_cases": failures[:50],
-                    "peak_worker_rss_mib": round(peak / 2**20, 1)}
+                    "peak_worker_rss_mib": round(peak / 2**20, 1), "seconds": round(time.time() - began, 1)}
                 if progress:
                     print(f"{reader}: done, {done} cases, {dict(counts)}", flush=True)
         finally:
@@ -430,12 +521,13 @@ def main() -> None:
     if args.case:
         reader, case_id = args.case.split(":")
         with tempfile.TemporaryDirectory() as tmp:
-            data, description = make_case(reader, args.seed, int(case_id), build_seeds(reader, Path(tmp)))
+            seeds = build_seeds(reader, Path(tmp))
+            data, description, reader_args = make_case(reader, args.seed, int(case_id), seeds)
             path = Path(tmp) / f"case{SUFFIX[reader]}"
             path.write_bytes(data)
-            print(description, len(data), "bytes")
+            print(description, len(data), "bytes", reader_args)
             try:
-                print(run_reader(reader, str(path)))
+                print(run_reader(reader, str(path), reader_args))
             except Exception:
                 traceback.print_exc()
         return
@@ -450,7 +542,7 @@ def main() -> None:
     Path(args.out).write_text(json.dumps(summary, indent=2) + "\n")
     for reader, r in summary["readers"].items():
         print(f"{reader:10s} {r['cases']:6d} cases  {r['outcomes']}  failures {r['failures']}  "
-              f"peak RSS {r['peak_worker_rss_mib']} MiB")
+              f"peak RSS {r['peak_worker_rss_mib']} MiB  {r['seconds']} s")
     print(f"total failures: {summary['failures']} ({summary['seconds']} s); written to {args.out}")
 
 

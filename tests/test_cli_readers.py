@@ -163,3 +163,57 @@ def test_pickled_ground_truth_round_trip_through_evaluate(tmp_path: Path, descri
         result = CliRunner().invoke(main, ["evaluate", "--db", str(db), "--queries", str(q), "--ground-truth",
                                            str(gt), "--methods", "bruteforce", "--out", str(tmp_path / f"r{protocol}")])
         assert result.exit_code == 0, result.output
+
+
+# -- issue 34: the readers' reproducers through the CLI ----------------------------------------------
+def _ring(tmp: Path) -> Path:
+    """50,000 map points on a ring, 4,000,000 queries at its centre, the threshold just under the radius."""
+    angle = np.linspace(0, 2 * np.pi, 50_000, endpoint=False)
+    np.savez_compressed(tmp / "gt.npz", utmDb=100 * np.stack([np.cos(angle), np.sin(angle)], 1),
+                        utmQ=np.zeros((4_000_000, 2)), posDistThr=np.float64(100 * (1 - 1e-9)))
+    return tmp / "gt.npz"
+
+
+def test_ring_ground_truth_is_refused_by_its_counts(tmp_path: Path, descriptors: tuple[Path, Path]) -> None:
+    db, q = descriptors
+    result = CliRunner().invoke(main, ["evaluate", "--db", str(db), "--queries", str(q), "--ground-truth",
+                                       str(_ring(tmp_path)), "--methods", "bruteforce", "--out",
+                                       str(tmp_path / "run")])
+    assert "--ground-truth: " in _one_line_error(result) and "utmQ is for 4000000 queries but there are 12" \
+        in result.output
+
+
+@pytest.mark.parametrize("links", [("loop",), ("x", "y")])
+def test_hdf5_link_cycles_through_train_and_evaluate(tmp_path: Path, links: tuple[str, ...]) -> None:
+    """Issue 34: `btel train c.h5` on a 3.5 KB file with g["loop"] = g never finished."""
+    h5py = pytest.importorskip("h5py")
+    with h5py.File(tmp_path / "c.h5", "w") as fh:
+        for i in range(4):
+            group = fh.create_group(f"db/{i}.jpg")
+            group.create_dataset("global_descriptor", data=np.full(8, i, dtype=np.float32))
+        for link in links:
+            group[link] = group
+    result = CliRunner().invoke(main, ["train", str(tmp_path / "c.h5"), "-o", str(tmp_path / "m.btel")])
+    assert "(a link cycle)" in _one_line_error(result)
+    result = CliRunner().invoke(main, ["evaluate", "--db", f"{tmp_path / 'c.h5'}:db/", "--queries",
+                                       f"{tmp_path / 'c.h5'}:db/", "--out", str(tmp_path / "run")])
+    assert "(a link cycle)" in _one_line_error(result)
+
+
+def test_a_cached_extraction_replaced_by_a_declared_bomb_is_refused(tmp_path: Path) -> None:
+    """`btel extract` reuses an up-to-date output: the reused file is read like any input (it was
+    np.load, which allocates what a header declares)."""
+    import cv2
+
+    images = tmp_path / "images"
+    images.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(images / f"{i}.png"), np.full((32, 64), 60 * i, np.uint8))
+    out = tmp_path / "x.npy"
+    assert CliRunner().invoke(main, ["extract", str(images), "-o", str(out), "--no-progress"]).exit_code == 0
+    with open(out, "wb") as fh:
+        header = {"descr": "<f4", "fortran_order": False, "shape": (10**9, 100)}
+        np.lib.format.write_array_header_1_0(fh, header)
+        fh.write(b"\0" * 64)
+    result = CliRunner().invoke(main, ["extract", str(images), "-o", str(out), "--no-progress"])
+    assert "BTEL_MEMORY_LIMIT" in _one_line_error(result)

@@ -41,4 +41,4 @@ def test_cases_are_reproducible_and_differ(harness) -> None:
     seeds = harness.seeds_gt_csv()
     cases = [harness.make_case("gt_csv", 5, i, seeds) for i in range(30)]
     assert cases == [harness.make_case("gt_csv", 5, i, seeds) for i in range(30)]
-    assert len({data for data, _ in cases}) > 20
+    assert len({data for data, _, _ in cases}) > 20

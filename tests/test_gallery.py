@@ -199,3 +199,42 @@ def test_extraction_before_the_folder_was_recorded_is_reused_and_completed(garde
                                  "patchnorm", "--size", "56x32", "--no-progress"])
     assert again.exit_code == 0 and "already exists" not in again.output, again.output
     assert json.loads(sidecar.read_text())["folder"] == str((gardenspoint_sample_dir / "ref").resolve())
+
+
+# -- issue 34, item 3: names in galleries ------------------------------------------------------------------
+def _image_run(tmp_path: Path, names: list[str]) -> tuple[Path, Path]:
+    """Descriptors written by `btel extract` from a folder of tiny images named ``names``, as map and
+    queries of one finished run."""
+    import cv2
+
+    folder = tmp_path / "images"
+    folder.mkdir()
+    for i, name in enumerate(names):
+        cv2.imwrite(str(folder / name), np.full((32, 56), 40 * i, np.uint8))
+    db = tmp_path / "db.npy"
+    _extract(CliRunner(), folder, db)
+    run = tmp_path / "run"
+    result = CliRunner().invoke(main, ["evaluate", "--db", str(db), "--queries", str(db), "--methods",
+                                       "bruteforce", "--no-reference", "--no-progress", "--out", str(run)])
+    assert result.exit_code == 0, result.output
+    return db, run
+
+
+def test_a_dollar_in_an_image_name_is_drawn_as_text(tmp_path: Path) -> None:
+    """A file named like TeX (``$\\frac$``) made matplotlib's mathtext raise while drawing."""
+    db, run = _image_run(tmp_path, ["0.png", "1$\\frac$.png", "2.png"])
+    assert (run / "gallery_bruteforce.png").is_file()
+
+
+def test_a_gallery_opens_only_images_inside_the_recorded_folder(tmp_path: Path) -> None:
+    db, run = _image_run(tmp_path, ["0.png", "1.png", "2.png"])
+    secret = tmp_path / "secret.png"
+    secret.write_bytes((tmp_path / "images" / "0.png").read_bytes())
+    sidecar = Path(str(db) + ".json")
+    key = json.loads(sidecar.read_text())
+    key["images"][1][0] = "../secret.png"  # an edited .json pointing outside its folder
+    sidecar.write_text(json.dumps(key))
+    result = CliRunner().invoke(main, ["show", str(run), "--overwrite"])
+    assert result.exit_code == 1 and isinstance(result.exception, SystemExit), result.output
+    assert result.output.count("\n") == 1
+    assert "'../secret.png' (row 1) is not a plain file name" in result.output

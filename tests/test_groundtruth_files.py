@@ -136,3 +136,85 @@ def test_a_fifo_is_refused_without_blocking(tmp_path: Path) -> None:
         os.mkfifo(tmp_path / name)
         with pytest.raises(DataNotFoundError, match="not a regular file"):
             GroundTruth.from_file(tmp_path / name)
+
+
+# -- issue 34: ring geometries, counts before geometry, .mat inflation in pieces --------------------------
+def _ring(n_map: int, radius: float = 100.0) -> np.ndarray:
+    angle = np.linspace(0, 2 * np.pi, n_map, endpoint=False)
+    return np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=1)
+
+
+def test_a_ring_for_other_counts_is_refused_before_any_geometry(tmp_path: Path) -> None:
+    """Issue 34: 50,000 map points on a ring, 4,000,000 queries at its centre, the threshold just under
+    the radius (a 721 KB .npz) kept the KD-tree busy for hours, while the evaluation had 50 queries."""
+    np.savez_compressed(tmp_path / "ring.npz", utmDb=_ring(50_000), utmQ=np.zeros((4_000_000, 2)),
+                        posDistThr=np.float64(100.0 * (1 - 1e-9)))
+    assert (tmp_path / "ring.npz").stat().st_size < 1_000_000
+    with pytest.raises(InvalidParameterError, match="utmQ is for 4000000 queries but there are 50"):
+        GroundTruth.from_file(tmp_path / "ring.npz", n_queries=50, n_map=50_000)
+    with pytest.raises(InvalidParameterError, match="utmDb is for 50000 map places but there are 49999"):
+        GroundTruth.from_file(tmp_path / "ring.npz", n_queries=4_000_000, n_map=49_999)
+
+
+@pytest.mark.parametrize("layout", ["places", "csr", "csv"])
+def test_every_layout_is_checked_against_the_descriptor_counts(tmp_path: Path, layout: str) -> None:
+    path = tmp_path / ("gt.csv" if layout == "csv" else "gt.npz")
+    if layout == "places":
+        np.savez(path, query_places=np.arange(5), n_map=np.int64(9))
+    elif layout == "csr":
+        np.savez(path, indptr=np.array([0, 1, 2, 2, 3, 3]), indices=np.array([0, 1, 2]), n_map=np.int64(9))
+    else:
+        path.write_text("query,positive\n0,1\n4,2\n")
+    assert GroundTruth.from_file(path, n_queries=5).n_queries == 5
+    with pytest.raises(InvalidParameterError, match="is for 5 queries but there are 6"):
+        GroundTruth.from_file(path, n_queries=6)
+    if layout != "csv":
+        with pytest.raises(InvalidParameterError, match="n_map is for 9 map places but there are 10"):
+            GroundTruth.from_file(path, n_queries=5, n_map=10)
+
+
+def test_a_ring_search_stops_at_its_distance_bound(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Without descriptor counts (the Python API) the ring is searched until the tree has computed
+    DISTANCES_PER_PAIR distances per pair the limit holds; with counts that match it is answered."""
+    from btel.datasets.groundtruth import DISTANCES_PER_PAIR
+
+    monkeypatch.setenv("BTEL_MEMORY_LIMIT", "16M")
+    bound = DISTANCES_PER_PAIR * (16 * 2**20 // 16)
+    with pytest.raises(ResourceLimitError,
+                       match=rf"computed \d+ distances after \d+ of 400000 queries, over the {bound} that"):
+        GroundTruth.from_utm(_ring(50_000), np.zeros((400_000, 2)), 100.0 * (1 - 1e-9))
+    gt = GroundTruth.from_utm(_ring(50_000), np.zeros((50, 2)), 100.0 * (1 - 1e-9))
+    assert gt.n_queries == 50 and gt.indices.size == 0
+    gt = GroundTruth.from_utm(_ring(1000), np.zeros((3, 2)), 100.0 * (1 + 1e-9))  # just over: all positives
+    assert [gt.positives(j).tolist() for j in range(3)] == [list(range(1000))] * 3
+
+
+def test_positions_whose_kd_tree_exceeds_the_limit_are_refused(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("BTEL_MEMORY_LIMIT", "1M")
+    with pytest.raises(ResourceLimitError, match="50000 map and 2 query positions with their KD-tree"):
+        GroundTruth.from_utm(np.zeros((50_000, 2)), np.zeros((2, 2)), 1.0)
+
+
+def test_a_mat_inflation_is_walked_in_pieces(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 34: a .mat inflating to 256 MB peaked at 844 MB. The walk before scipy inflates in
+    1 MiB pieces: its Python allocations stay a few pieces (≈ 7 MiB) however far the file inflates
+    (61 MiB here), and past the limit it stops."""
+    import tracemalloc
+
+    from btel.datasets.groundtruth_files import _check_mat5
+
+    scipy.io.savemat(tmp_path / "big.mat", {"utmDb": np.zeros((4_000_000, 2)), "utmQ": np.zeros((2, 2)),
+                                            "posDistThr": 1.0}, do_compression=True)
+    data = (tmp_path / "big.mat").read_bytes()
+    assert len(data) < 100_000  # inflates to 61 MiB
+    monkeypatch.setenv("BTEL_MEMORY_LIMIT", "65M")
+    tracemalloc.start()
+    try:
+        _check_mat5(data, "'big.mat'")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 12 * 2**20, peak
+    monkeypatch.setenv("BTEL_MEMORY_LIMIT", "60M")
+    with pytest.raises(ResourceLimitError, match=r"MATLAB file 'big.mat' \(inflated\)"):
+        _check_mat5(data, "'big.mat'")

@@ -24,6 +24,7 @@ from btel.exceptions import (
     DimensionMismatchError,
     InvalidDescriptorsError,
     InvalidParameterError,
+    ResourceLimitError,
 )
 
 
@@ -145,6 +146,12 @@ def test_load_pair_round_trip_and_errors(tmp_path: Path) -> None:
     np.save(tmp_path / "obj.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)
     with pytest.raises(DataNotFoundError, match="never loads pickles"):
         load_pair(tmp_path / "obj.npy", tmp_path / "q.npy")
+    with open(tmp_path / "decl.npy", "wb") as fh:  # 100 bytes declaring 373 GiB: a bare MemoryError before
+        header = {"descr": "<f4", "fortran_order": False, "shape": (10**9, 100)}
+        np.lib.format.write_array_header_1_0(fh, header)
+        fh.write(b"\0" * 64)
+    with pytest.raises(ResourceLimitError, match="query descriptors file .*decl.npy"):
+        load_pair(tmp_path / "db.npy", tmp_path / "decl.npy")
 
 
 @pytest.mark.realdata

@@ -54,9 +54,9 @@ def _thumbnail(path: Path | None) -> np.ndarray | None:
     """The image at ``path`` as RGB uint8, its longest side at most :data:`GALLERY_IMAGE_SIDE`."""
     if path is None:
         return None
-    import cv2
+    from .descriptors.images import read_image  # first: it sets OpenCV's pixel cap before cv2 loads
 
-    from .descriptors.images import read_image
+    import cv2
 
     image = read_image(path)
     scale = GALLERY_IMAGE_SIDE / max(image.shape[:2])
@@ -138,7 +138,7 @@ def plot_match_gallery(
     n_ok = int(correct[chosen].sum())
     fig.suptitle((f"{title}\n" if title else "")
                  + f"{len(chosen)} of {n} queries: {n_ok} correct (green), {len(chosen) - n_ok} wrong (red); "
-                 f"top-1 over all queries {correct.mean():.0%}", fontsize=9)
+                 f"top-1 over all queries {correct.mean():.0%}", fontsize=9, parse_math=False)
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -172,7 +172,7 @@ def _draw_rows(axes: Any, chosen: np.ndarray, query_images: Sequence[Any], db_im
             ax.set_xticks([])
             ax.set_yticks([])
             ax.set_title(label + (f"\n{image_path.name}" if image_path is not None else ""), fontsize=8,
-                         color=text_colour)
+                         color=text_colour, parse_math=False)  # a "$" in a file name is text, not TeX
         for spine in row[1].spines.values():  # the retrieved image carries the verdict as its frame
             spine.set_edgecolor(colour)
             spine.set_linewidth(4)

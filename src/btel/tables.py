@@ -140,6 +140,11 @@ def predictions_csv_text(r: EvaluationResult, query_names: Sequence[str] | None 
     if r.ranked is not None and r.ranked.shape[1] > 1:
         columns += [(f"rank_{j + 1}", r.ranked[:, j]) for j in range(r.ranked.shape[1])]
     if query_names is not None and len(query_names) == n:
+        from .datasets.vpr_names import check_image_names
+
+        check_image_names(query_names, "query names")  # one CSV row per line
+        if db_names is not None:
+            check_image_names(db_names, "map names")
         columns.append(("query_name", list(query_names)))
         if db_names is not None:
             named = np.asarray(list(db_names) + [""], dtype=object)  # -1 (no place) → ""

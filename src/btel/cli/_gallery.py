@@ -20,26 +20,38 @@ GALLERY_ROWS = 8
 
 def input_names(db: str | None, queries: str, n_map: int, n_queries: int) -> tuple[list[str] | None, list[str] | None]:
     """The image names of the query rows and of the map rows, each None when unknown or not one per row."""
+    from ..datasets.vpr_names import check_image_names
     from ._names import row_names
 
     q_names = row_names(queries)
     db_names = row_names(db) if db else None
-    return (q_names if q_names is not None and len(q_names) == n_queries else None,
-            db_names if db_names is not None and len(db_names) == n_map else None)
+    q_names = q_names if q_names is not None and len(q_names) == n_queries else None
+    db_names = db_names if db_names is not None and len(db_names) == n_map else None
+    for option, path, names in (("--queries", queries, q_names), ("--db", db, db_names)):
+        if names is not None:  # they go into the predictions CSV, one row per line
+            check_image_names(names, f"{option} {path}")
+    return q_names, db_names
 
 
 def row_images(path: str | None) -> list[Path] | None:
     """The image file of every row of the descriptors ``path`` (from ``btel extract``'s .json), or
-    None when they are not recorded or no longer on disk."""
+    None when they are not recorded or no longer on disk. A recorded name that is not a plain file
+    name (``../x``, a control character) raises :class:`~btel.exceptions.InvalidParameterError`."""
+    from ..datasets.vpr_names import check_image_names
+
     if not path:
         return None
     sidecar = Path(str(path) + ".json")
     try:
         key = json.loads(sidecar.read_text(encoding="utf-8"))
         folder = key.get("folder")
-        files = [Path(folder) / str(entry[0]) for entry in key["images"]] if folder else None
+        names = [str(entry[0]) for entry in key["images"]] if folder else None
     except (OSError, ValueError, AttributeError, TypeError, IndexError, KeyError):
         return None
+    if names is None:
+        return None
+    check_image_names(names, str(sidecar), file_name=True)  # images inside the folder, nowhere else
+    files = [Path(folder) / name for name in names]
     if not files or not all(f.is_file() for f in files):
         return None
     return files
@@ -118,9 +130,9 @@ def galleries_after_run(run: Path, extra: dict[str, Any]) -> None:
     that cannot be read costs the figure only (a warning): the run is already written."""
     from ..exceptions import BTELError
 
-    if not (row_images(extra.get("queries")) and row_images(extra.get("db"))):
-        return
     try:
+        if not (row_images(extra.get("queries")) and row_images(extra.get("db"))):
+            return
         for path in write_galleries(run):
             click.echo(f"match gallery: {path}")
     except (click.ClickException, BTELError, OSError) as exc:

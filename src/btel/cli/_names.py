@@ -66,12 +66,23 @@ def pairs_paths(path: str, method_names: Sequence[str]) -> dict[str, Path]:
     return {m: base.with_name(f"{base.stem}-{m}{base.suffix}") for m in method_names}
 
 
+def check_pair_names(query_names: Sequence[str], db_names: Sequence[str], queries: str = "--queries",
+                     db: str | None = "--db") -> None:
+    """Refuse (naming it) an image name that would not stay one field of one line in a pairs file."""
+    from ..datasets.vpr_names import check_image_names
+
+    check_image_names(query_names, f"--pairs: --queries {queries}", space=False)
+    check_image_names(db_names, f"--pairs: --db {db}", space=False)
+
+
 def write_pairs(path: Path, ranked: np.ndarray, query_names: Sequence[str], db_names: Sequence[str], *,
                 overwrite: bool = True) -> int:
     """An hloc retrieval pairs file: ``query_name db_name`` per line, each query's top K best first.
 
+    Every name is checked first (:func:`check_pair_names`): the file holds exactly one pair per line.
     Written whole or not at all; ``overwrite=False`` keeps a file another process wrote meanwhile
     (:class:`~btel.exceptions.OutputExistsError`)."""
+    check_pair_names(query_names, db_names)
     lines = [f"{query_names[i]} {db_names[j]}" for i in range(ranked.shape[0]) for j in ranked[i].tolist()]
     path.parent.mkdir(parents=True, exist_ok=True)
     from .._claims import atomic_output

@@ -155,7 +155,7 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
         threshold = DEFAULT_POSITIVE_DIST_THRESHOLD if positive_dist_threshold is None else positive_dist_threshold
         given = utm_ground_truth(db, queries, n_map, Q.shape[0], threshold)
     else:
-        given = GroundTruth.from_file(ground_truth) if ground_truth else None
+        given = _ground_truth_file(ground_truth, Q.shape[0], n_map) if ground_truth else None
     gt = check_ground_truth(given, Q.shape[0], n_map, option="--ground-truth")
     if tolerance_list is not None and not gt.uses_tolerance:
         raise click.UsageError("--tolerances needs one true place per query; --ground-truth lists explicit "
@@ -172,12 +172,13 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
 
     pairs, names = None, input_names(db, queries, n_map, Q.shape[0])
     if pairs_path is not None:
-        from ._names import pairs_paths
+        from ._names import check_pair_names, pairs_paths
 
         targets = pairs_paths(pairs_path, [j.name for j in saved + jobs])
         for target in targets.values():
             refuse_existing(target, "--pairs", overwrite)
         pairs = (targets, names[0] or [str(i) for i in range(Q.shape[0])], names[1] or [str(i) for i in range(n_map)])
+        check_pair_names(*pairs[1:], queries, db)
     failed = _run_jobs(saved + jobs, X, Q, ground_truth=gt, out=Path(out_dir), overwrite=overwrite, title=title,
                        pairs=pairs, names=names,
                        tolerances=tolerance_list, ks=ks, queries_are_route=query_order == "route",
@@ -188,6 +189,17 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
                               "query_order": query_order})
     if failed:
         ctx.exit(EXIT_SOME_ROWS_FAILED)
+
+
+def _ground_truth_file(path: str, n_queries: int, n_map: int) -> Any:
+    """``--ground-truth FILE``, its counts checked against the descriptors before any positive is computed."""
+    from ..datasets import GroundTruth
+    from ..exceptions import InvalidParameterError
+
+    try:
+        return GroundTruth.from_file(path, n_queries=n_queries, n_map=n_map)
+    except InvalidParameterError as exc:
+        raise click.ClickException(f"--ground-truth: {exc}") from None
 
 
 def _finished_rows(run: str, queries: str) -> list[Any]:

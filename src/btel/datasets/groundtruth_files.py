@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ..exceptions import BTELError, DataNotFoundError, ResourceLimitError
+from ..exceptions import BTELError, DataNotFoundError, InvalidParameterError, ResourceLimitError
 from ..limits import check_bytes, check_count, check_numpy_file, memory_limit, open_regular
 
 __all__ = ["read_object_npy", "read_ground_truth"]
@@ -105,26 +105,31 @@ def _positives_from_object_array(array: np.ndarray, source: str) -> list[np.ndar
 
 
 # -- every layout -----------------------------------------------------------------------------------
-def read_ground_truth(cls: Any, path: str | os.PathLike) -> Any:
-    """The body of :meth:`GroundTruth.from_file` (``cls`` is the class)."""
+def read_ground_truth(cls: Any, path: str | os.PathLike, *, n_queries: int | None = None,
+                      n_map: int | None = None) -> Any:
+    """The body of :meth:`GroundTruth.from_file` (``cls`` is the class; ``n_queries`` and
+    ``n_map`` the descriptor counts the file must match, when known)."""
     path = Path(path)
     if not path.exists():
         raise DataNotFoundError(f"ground-truth file {str(path)!r} does not exist.")
     if not path.is_file():
         raise DataNotFoundError(f"ground-truth file {str(path)!r} is not a regular file (a folder, FIFO or device).")
+    expected = {"queries": n_queries, "map places": n_map}
     try:
-        return _read(cls, path)
+        gt = _read(cls, path, expected)
     except BTELError:
         raise
     except Exception as exc:  # untrusted input: zlib.error, tokenize's TokenError, _csv.Error… all mean a bad file
         raise DataNotFoundError(
             f"ground-truth file {str(path)!r} could not be read ({type(exc).__name__}: {str(exc)[:200]}).") from None
+    _check_counts(repr(str(path)), expected, queries=("it", gt.n_queries), map_places=("it", gt.n_map))
+    return gt
 
 
-def _read(cls: Any, path: Path) -> Any:
+def _read(cls: Any, path: Path, expected: dict[str, int | None]) -> Any:
     suffix = path.suffix.lower()
     if suffix == ".mat":
-        return _from_mat(cls, path)
+        return _from_mat(cls, path, expected)
     if suffix in (".csv", ".txt"):
         return _from_csv(cls, path)
     with open_regular(path):
@@ -153,7 +158,7 @@ def _read(cls: Any, path: Path) -> Any:
             except ValueError as exc:
                 raise DataNotFoundError(f"array {name!r} in {str(path)!r} is not plain numeric data "
                                         f"({str(exc)[:200]}); btel never loads pickles.") from None
-    return _from_arrays(cls, arrays, repr(str(path)))
+    return _from_arrays(cls, arrays, repr(str(path)), expected)
 
 
 def _scalar(value: Any, name: str, source: str) -> float:
@@ -163,7 +168,25 @@ def _scalar(value: Any, name: str, source: str) -> float:
     return float(arr.reshape(-1)[0])
 
 
-def _from_arrays(cls: Any, arrays: dict[str, np.ndarray], source: str) -> Any:
+def _check_counts(source: str, expected: dict[str, int | None], **declared: tuple[str, Any]) -> None:
+    """Refuse a file whose arrays are for another number of queries or map places than the
+    descriptors (``declared``: ``queries=(array name, count)``, ``map_places=…``) before anything
+    is computed from them."""
+    for key, (array, count) in declared.items():
+        what = key.replace("_", " ")
+        if expected.get(what) is not None and count is not None and count != expected[what]:
+            raise InvalidParameterError(
+                f"ground-truth file {source}: {array} is for {count} {what} but there are {expected[what]}; "
+                "give the ground truth of these descriptors.")
+
+
+def _rows(array: np.ndarray) -> int | None:
+    return int(array.shape[0]) if np.ndim(array) >= 1 else None
+
+
+def _from_arrays(cls: Any, arrays: dict[str, np.ndarray], source: str,
+                 expected: dict[str, int | None] | None = None) -> Any:
+    expected = expected or {}
     n_map = None
     if "n_map" in arrays:
         value = _scalar(arrays["n_map"], "n_map", source)
@@ -171,10 +194,18 @@ def _from_arrays(cls: Any, arrays: dict[str, np.ndarray], source: str) -> Any:
             raise DataNotFoundError(f"{source}: n_map must be a positive whole number; got {value}.")
         n_map = int(value)
     if all(k in arrays for k in _CSR_KEYS):
+        rows = _rows(arrays["indptr"])
+        queries = None if rows is None else rows - 1
+        _check_counts(source, expected, queries=("indptr (its length − 1)", queries),
+                      map_places=("n_map", n_map))
         return cls(indptr=arrays["indptr"], indices=arrays["indices"], n_map=n_map)
     if all(k in arrays for k in _UTM_KEYS):
+        _check_counts(source, expected, queries=("utmQ", _rows(arrays["utmQ"])),
+                      map_places=("utmDb", _rows(arrays["utmDb"])))
         return cls.from_utm(arrays["utmDb"], arrays["utmQ"], _scalar(arrays["posDistThr"], "posDistThr", source))
     if "query_places" in arrays:
+        _check_counts(source, expected, queries=("query_places", _rows(arrays["query_places"])),
+                      map_places=("n_map", n_map))
         return cls(query_places=arrays["query_places"], n_map=n_map)
     raise DataNotFoundError(
         f"{source} has arrays {sorted(arrays)}, which match no ground-truth layout. Expected "
@@ -222,53 +253,116 @@ _MAT5_TYPES = frozenset({1, 2, 3, 4, 5, 6, 7, 9, 12, 13, 14, 15, 16, 17, 18})
 _MAT5_MAX_DEPTH = 32
 
 
-def _check_mat5(data: bytes, source: str) -> None:
-    """Walk a MATLAB v5 file's element tags (inflating compressed elements within the memory
-    limit) and refuse unknown data types or sizes past the end before scipy reads it: scipy's C
-    reader crashed the process (SIGSEGV) on a 304-byte file with one flipped bit in a type."""
-    import zlib
+class _MatStream:
+    """A MAT-file region read forward: the file's bytes, or a compressed element inflated piece
+    by piece (never whole), each inflated byte counted against ``budget`` (shared by the file)."""
 
+    _PIECE = 1 << 20  # most bytes inflated per step
+    _FEED = 1 << 16  # compressed bytes given to zlib per step (its unconsumed tail is copied)
+
+    def __init__(self, data: memoryview, source: str, budget: list[int] | None = None) -> None:
+        import zlib
+
+        self._input, self._source, self._budget = data, source, budget
+        self._inflater = zlib.decompressobj() if budget is not None else None
+        self._buffer, self._offset, self.position = b"" if budget is not None else data, 0, 0
+        self._fed, self._pending = 0, b""
+
+    def _fill(self, n: int) -> int:
+        """Make ``n`` bytes available if the stream has them; return how many are."""
+        import zlib
+
+        while len(self._buffer) - self._offset < n and self._inflater is not None and not self._inflater.eof:
+            if not self._pending:
+                if self._fed >= len(self._input):
+                    break  # the compressed data ends before the stream does
+                self._pending = self._input[self._fed:self._fed + self._FEED]
+                self._fed += self._FEED
+            try:
+                piece = self._inflater.decompress(self._pending, self._PIECE)
+            except zlib.error as exc:
+                raise DataNotFoundError(
+                    f"{self._source}: a compressed MATLAB element is damaged ({exc}).") from None
+            self._pending = self._inflater.unconsumed_tail
+            self._budget[0] += len(piece)
+            check_bytes(self._budget[0], f"MATLAB file {self._source} (inflated)")
+            self._buffer, self._offset = bytes(self._buffer[self._offset:]) + piece, 0
+        return min(n, len(self._buffer) - self._offset)
+
+    def read(self, n: int) -> memoryview:
+        got = self._fill(n)
+        out = memoryview(self._buffer)[self._offset:self._offset + got]
+        self._offset += got
+        self.position += got
+        return out
+
+    def skip(self, n: int) -> int:
+        """Pass over ``n`` bytes (inflating them in pieces); return how many there were."""
+        done = 0
+        while done < n:
+            got = len(self.read(min(n - done, self._PIECE)))
+            if not got:
+                break
+            done += got
+        return done
+
+
+def _check_mat5(data: bytes, source: str) -> None:
+    """Walk a MATLAB v5 file's element tags and refuse unknown data types or sizes past the end
+    before scipy reads it: scipy's C reader crashed the process (SIGSEGV) on a 304-byte file with
+    one flipped bit in a type. Compressed elements are inflated in 1 MiB pieces, counted against
+    the memory limit and never held whole (a 256 MB inflation peaked at 844 MB before)."""
     if len(data) < 128 or data[126:128] not in (b"IM", b"MI"):
         raise DataNotFoundError(f"{source} is not a MATLAB v5/v7 file (v4 and v7.3 files are not read); "
                                 "re-save it with -v7 or convert it to .npz.")
     order = "<" if data[126:128] == b"IM" else ">"
     budget = [0]
 
-    def walk(buf: bytes, depth: int) -> None:
+    def damaged(what: str, stream: _MatStream) -> DataNotFoundError:
+        return DataNotFoundError(f"{source}: {what} at byte {stream.position}; the file is damaged.")
+
+    def walk(stream: _MatStream, end: int | None, depth: int) -> None:
+        """The elements of ``stream`` up to byte ``end`` (None: to its end)."""
         if depth > _MAT5_MAX_DEPTH:
             raise DataNotFoundError(f"{source}: MATLAB elements nested more than {_MAT5_MAX_DEPTH} deep.")
-        pos = 0
-        while pos + 8 <= len(buf):
-            mdtype, nbytes = struct.unpack_from(order + "II", buf, pos)
+        while end is None or stream.position + 8 <= end:
+            tag = stream.read(8)
+            if len(tag) < 8:
+                if end is not None:
+                    raise damaged("a MATLAB element runs past the end of its data", stream)
+                return
+            mdtype, nbytes = struct.unpack(order + "II", tag)
             if mdtype >> 16:  # small data element: type and size in one word, data in the next
-                mdtype, nbytes, start, end = mdtype & 0xFFFF, mdtype >> 16, pos + 4, pos + 8
+                mdtype, nbytes = mdtype & 0xFFFF, mdtype >> 16
                 if nbytes > 4:
                     raise DataNotFoundError(f"{source}: a small MATLAB element claims {nbytes} bytes.")
-            else:
-                start, end = pos + 8, pos + 8 + nbytes + (-nbytes % 8 if mdtype != 15 else 0)
+                if mdtype not in _MAT5_TYPES:
+                    raise damaged(f"unknown MATLAB data type {mdtype}", stream)
+                continue
             if mdtype not in _MAT5_TYPES:
-                raise DataNotFoundError(f"{source}: unknown MATLAB data type {mdtype} at byte {pos}; the file is damaged.")
-            if start + nbytes > len(buf):
-                raise DataNotFoundError(f"{source}: a MATLAB element at byte {pos} runs past the end of its data.")
-            body = buf[start:start + nbytes]
+                raise damaged(f"unknown MATLAB data type {mdtype}", stream)
+            body_end = stream.position + nbytes
+            if end is not None and body_end > end:
+                raise damaged("a MATLAB element runs past the end of its data", stream)
             if mdtype == 15:
-                inflater = zlib.decompressobj()
-                room = max(0, memory_limit() - budget[0])
-                try:
-                    inner = inflater.decompress(body, room + 1)
-                except zlib.error as exc:
-                    raise DataNotFoundError(f"{source}: a compressed MATLAB element is damaged ({exc}).") from None
-                budget[0] += len(inner)
-                check_bytes(budget[0] if len(inner) <= room else float("inf"), f"MATLAB file {source} (inflated)")
-                walk(inner, depth + 1)
-            elif mdtype == 14:
-                walk(body, depth + 1)
-            pos = max(end, pos + 8)
+                if stream._inflater is not None:
+                    raise damaged("a compressed MATLAB element inside a compressed one", stream)
+                body = stream.read(nbytes)
+                if len(body) < nbytes:
+                    raise damaged("a MATLAB element runs past the end of its data", stream)
+                walk(_MatStream(body, source, budget), None, depth + 1)
+                continue
+            if mdtype == 14:
+                walk(stream, body_end, depth + 1)
+                stream.skip(body_end - stream.position)
+            elif stream.skip(nbytes) < nbytes:
+                raise damaged("a MATLAB element runs past the end of its data", stream)
+            stream.skip(-nbytes % 8)  # padding (may be cut at the end)
 
-    walk(data[128:], 0)
+    walk(_MatStream(memoryview(data)[128:], source), len(data) - 128, 0)
 
 
-def _from_mat(cls: Any, path: Path) -> Any:
+def _from_mat(cls: Any, path: Path, expected: dict[str, int | None]) -> Any:
     """A MATLAB file, parsed by scipy in a child process: scipy's C reader is not memory-safe on
     damaged files (a SIGSEGV on 304 bytes with one flipped bit), so a crash there must not take
     btel down. The child hands back plain numeric arrays only (an ``.npz`` read without pickles)."""
@@ -309,7 +403,7 @@ def _from_mat(cls: Any, path: Path) -> Any:
         check_numpy_file(out, f"MATLAB ground-truth file {source}")
         with np.load(out, allow_pickle=False) as npz:
             arrays = {name: npz[name] for name in npz.files}
-    return _from_arrays(cls, arrays, source)
+    return _from_arrays(cls, arrays, source, expected)
 
 
 #: The child process of :func:`_from_mat`: numpy and scipy only (no btel import: it starts in

@@ -252,9 +252,12 @@ def aligned_pairs(root: str | os.PathLike, map_name: str, query_name: str) -> Al
 
 
 def _load_npy(path: str | os.PathLike, role: str) -> np.ndarray:
+    from ..limits import check_numpy_file
+
     path = Path(path)
     if not path.is_file():
         raise DataNotFoundError(f"{role} file {str(path)!r} does not exist.")
+    check_numpy_file(path, f"{role} file {str(path)!r}")  # numpy allocates what the header declares
     try:
         return np.load(path, allow_pickle=False)
     except ValueError as exc:
@@ -290,6 +293,8 @@ def load_pair(db_path: str | os.PathLike, queries_path: str | os.PathLike) -> tu
         Not 2-D, not numeric, empty, or with NaN/inf values.
     DimensionMismatchError
         The two files have different numbers of columns.
+    ResourceLimitError
+        A file declares more than :mod:`btel.limits` allows.
     """
     db = check_descriptors(_load_npy(db_path, "map descriptors"), name=f"map descriptors ({Path(db_path).name})")
     queries = _load_npy(queries_path, "query descriptors")
@@ -303,14 +308,12 @@ def load_pair(db_path: str | os.PathLike, queries_path: str | os.PathLike) -> tu
 
 
 def _read_grey(path: str | os.PathLike) -> np.ndarray:
-    """Read one image as 2-D uint8 grey (cv2's BGR→grey weights)."""
-    import cv2  # imported here: opencv is slow to import and only image reading needs it
+    """Read one image as 2-D uint8 grey (cv2's BGR→grey weights), its header checked first."""
+    from ..descriptors.images import read_image  # imported here: opencv is slow to import
 
-    # Check first: cv2 would print its own warning for a missing file before returning None.
-    image = cv2.imread(os.fspath(path), cv2.IMREAD_GRAYSCALE) if Path(path).is_file() else None
-    if image is None:
+    if not Path(path).is_file():
         raise DataNotFoundError(f"image {str(path)!r} is missing or not a readable image file.")
-    return image
+    return read_image(path, grey=True)
 
 
 def _brightness_of(image: Any) -> float:

@@ -17,7 +17,8 @@ from __future__ import annotations
 import numbers
 from typing import Sequence
 
-import cv2
+from . import images as _images  # noqa: F401 - sets OpenCV's pixel cap before cv2 loads
+import cv2  # noqa: E402
 import numpy as np
 
 from ..exceptions import InvalidParameterError

@@ -38,7 +38,8 @@ import warnings
 from functools import lru_cache
 from typing import Any, ClassVar
 
-import cv2
+from . import images as _images  # noqa: F401 - sets OpenCV's pixel cap before cv2 loads
+import cv2  # noqa: E402
 import faiss
 import numpy as np
 from scipy import sparse

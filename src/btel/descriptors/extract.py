@@ -162,7 +162,9 @@ def extract_cached(
             if cached != key:  # written before the folder was recorded: record it now
                 with atomic_output(sidecar, text=True) as fh:
                     fh.write(json.dumps(key, indent=1))
-            return np.load(output, allow_pickle=False), True
+            from .npy import load_descriptor_matrix
+
+            return load_descriptor_matrix(output), True  # checked like any input: the file may have changed
     X = extract_descriptors(paths, model, fit_on=fit_on, progress=progress)
     output.parent.mkdir(parents=True, exist_ok=True)
     # Unique temporaries: two runs filling the same cache at once (two experiments started together)

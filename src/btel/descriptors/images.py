@@ -9,23 +9,52 @@ along its first axis ``(N, H, W)`` / ``(N, H, W, C)``.
 
 Internally every image becomes a 2-D grey array that is either ``uint8`` or ``float32`` in
 [0, 1]; each descriptor then converts to what its library needs.
+
+Image files are untrusted input: :func:`read_image` reads a file's header with Pillow first
+(PNG, JPEG, BMP, TIFF, PNM and WebP only), checks the memory its decoding needs against
+:mod:`btel.limits` (:func:`decode_bytes`) and, for PNG, that every chunk lies inside the file with
+its checksum, and only then lets OpenCV decode it. OpenCV's own pixel cap
+(``OPENCV_IO_MAX_IMAGE_PIXELS``) is set from the same limit when btel loads OpenCV.
 """
 
 from __future__ import annotations
 
+import io
 import os
 import re
+import sys
 from pathlib import Path
 from typing import Any, Iterator, Sequence
 
-import cv2
 import numpy as np
 from tqdm.auto import tqdm
 
-from ..exceptions import DataNotFoundError, InvalidParameterError
+from ..exceptions import DataNotFoundError, InvalidParameterError, ResourceLimitError
+from ..limits import check_bytes, format_size, memory_limit
+
+#: OpenCV's environment variable for its decoders' pixel cap, read once when OpenCV loads.
+OPENCV_PIXEL_CAP = "OPENCV_IO_MAX_IMAGE_PIXELS"
+
+
+def _cap_opencv_pixels() -> None:
+    """Set OpenCV's pixel cap from btel's memory limit (at least 2 bytes per decoded pixel) unless
+    OpenCV is loaded already or the user set the cap: a backstop behind :func:`read_image`'s check."""
+    if "cv2" in sys.modules or OPENCV_PIXEL_CAP in os.environ:
+        return
+    try:
+        os.environ[OPENCV_PIXEL_CAP] = str(max(1, memory_limit() // 2))
+    except InvalidParameterError:  # a malformed BTEL_MEMORY_LIMIT is reported where the limit is used
+        pass
+
+
+_cap_opencv_pixels()
+import cv2  # noqa: E402 - after its pixel cap is set
 
 __all__ = [
     "IMAGE_EXTENSIONS",
+    "DECODED_FORMATS",
+    "decode_bytes",
+    "image_header",
     "ImageInput",
     "list_images",
     "read_image",
@@ -40,6 +69,9 @@ IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".
 
 #: What descriptors accept as "images": a folder, or a sequence of paths / ndarrays.
 ImageInput = Any
+
+#: Image formats :func:`read_image` decodes (Pillow's names): those whose header Pillow reads.
+DECODED_FORMATS: tuple[str, ...] = ("PNG", "JPEG", "BMP", "TIFF", "PPM", "WEBP")
 
 
 def _natural_key(path: Path) -> tuple:
@@ -93,14 +125,102 @@ def list_images(folder: str | os.PathLike) -> list[Path]:
     return sorted(files, key=_natural_key)
 
 
+def decode_bytes(width: int, height: int, channels: int, *, grey: bool, sample_bytes: int = 1,
+                 tiff: bool = False) -> int:
+    """Memory that decoding a ``width × height`` image may take, in bytes, from its header.
+
+    Per pixel: ``2 ×`` the output channels (the decoded image and one converted copy; 1 channel
+    when ``grey``, else 3), plus the decoder's own full-size buffers — 2 bytes per sample of the
+    file (``channels × sample_bytes``: a progressive JPEG's coefficients, WebP's frame), and for
+    a TIFF a whole strip read raw and unpacked to 4 channels, 4 bytes per sample plus 2. The
+    measurements behind it are on ``docs/decisions/reader-bounds.md``.
+    """
+    samples = int(channels) * int(sample_bytes)
+    per_pixel = 2 * (1 if grey else 3) + (4 * samples + 2 if tiff else 2 * samples)
+    return int(width) * int(height) * per_pixel
+
+
+def image_header(data: bytes) -> dict[str, Any]:
+    """What Pillow reads from an image file's header without decoding it.
+
+    Returns ``{"format", "width", "height", "channels", "sample_bytes", "animated", "image"}``
+    (``image`` is Pillow's lazily opened image). Raises what Pillow raises (see
+    :func:`_check_header`), including ``DecompressionBombWarning`` past ``Image.MAX_IMAGE_PIXELS``
+    when warnings are errors.
+    """
+    from PIL import Image
+
+    image = Image.open(io.BytesIO(data), formats=DECODED_FORMATS)
+    bits = image.tag_v2.get(258) if image.format == "TIFF" else None  # BitsPerSample
+    if bits is not None:
+        sample_bytes = max(1, -(-max(bits if isinstance(bits, tuple) else (bits,)) // 8))
+    else:
+        sample_bytes = 2 if image.mode.startswith("I;16") else 4 if image.mode in ("I", "F") else 1
+    return {"format": image.format, "width": image.size[0], "height": image.size[1],
+            "channels": len(image.getbands()), "sample_bytes": int(sample_bytes),
+            "animated": bool(getattr(image, "is_animated", False)), "image": image}
+
+
+def _check_header(data: bytes, path: Path, grey: bool) -> int:
+    """Read the image header in ``data`` with Pillow and check it before anything is decoded.
+
+    Returns the image's pixel count. Raises :class:`DataNotFoundError` for a format outside
+    :data:`DECODED_FORMATS`, a damaged header, an animated image, or (PNG) a chunk that runs past
+    the end of the file or fails its checksum; :class:`ResourceLimitError` when decoding would
+    exceed the memory limit (:func:`decode_bytes`).
+    """
+    import warnings
+
+    from PIL import Image, UnidentifiedImageError
+
+    name = str(path)
+    cap = max(1, memory_limit() // decode_bytes(1, 1, 1, grey=grey))  # the least any image costs per pixel
+    before = Image.MAX_IMAGE_PIXELS
+    Image.MAX_IMAGE_PIXELS = cap  # Pillow refuses past 2 × cap while opening; the warning below cap is ours
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # Pillow's notes on odd tags: the checks below decide
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            header = image_header(data)
+            width, height, channels = header["width"], header["height"], header["channels"]
+            if header["format"] in ("PNG", "WEBP") and header["animated"]:
+                raise DataNotFoundError(f"{name!r} is an animated {header['format']}; btel reads still "
+                                        "images. Give its frames as separate files.")
+            plural = "s" if channels > 1 else ""
+            check_bytes(decode_bytes(width, height, channels, grey=grey, sample_bytes=header["sample_bytes"],
+                                     tiff=header["format"] == "TIFF"),
+                        f"image {name!r} ({width}×{height}, {channels} channel{plural}, decoded)")
+            if header["format"] == "PNG":
+                header["image"].verify()  # every chunk inside the file, with a good checksum, up to IEND
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:
+        raise ResourceLimitError(
+            f"image {name!r} has more pixels than btel's memory limit of {format_size(memory_limit())} can "
+            f"decode (Pillow: {str(exc)[:120]}); if the input is genuine, raise the limit with "
+            "BTEL_MEMORY_LIMIT (e.g. BTEL_MEMORY_LIMIT=4G).") from None
+    except UnidentifiedImageError:
+        raise DataNotFoundError(
+            f"OpenCV cannot decode {name!r}: it is not a {', '.join(DECODED_FORMATS[:-1])} or "
+            f"{DECODED_FORMATS[-1]} image (btel reads those formats only). Convert it to PNG or remove "
+            "it.") from None
+    except (DataNotFoundError, ResourceLimitError):
+        raise
+    except Exception as exc:  # Pillow's parsers raise SyntaxError, OSError, ValueError, struct.error…
+        raise DataNotFoundError(
+            f"OpenCV cannot decode {name!r}: its header or chunks are damaged ({type(exc).__name__}: "
+            f"{str(exc)[:120]}). Remove or replace that file.") from None
+    finally:
+        Image.MAX_IMAGE_PIXELS = before
+    return width * height
+
+
 def read_image(path: str | os.PathLike, *, grey: bool = False) -> np.ndarray:
-    """Decode one image file with OpenCV.
+    """Decode one image file with OpenCV, after checking its header (see the module docstring).
 
     Parameters
     ----------
     path : str or path-like
-        Any format OpenCV decodes (PNG, JPEG, BMP, TIFF, PPM, ...). 16-bit files are reduced to
-        8 bits by OpenCV.
+        A PNG, JPEG, BMP, TIFF, PNM (PPM/PGM/PBM) or WebP file. 16-bit files are reduced to 8
+        bits by OpenCV; a multi-page TIFF gives its first page; animated PNGs are refused.
     grey : bool
         Decode straight to grey (OpenCV's luminance conversion) instead of colour.
 
@@ -112,28 +232,47 @@ def read_image(path: str | os.PathLike, *, grey: bool = False) -> np.ndarray:
     Raises
     ------
     DataNotFoundError
-        The file does not exist, is empty, or OpenCV cannot decode it (the message names the file).
+        The file does not exist, is empty, is not in one of those formats, or its header or data
+        are damaged (the message names the file).
+    ResourceLimitError
+        The file, or the memory its header says decoding needs (:func:`decode_bytes`), exceeds
+        :mod:`btel.limits` (raise ``BTEL_MEMORY_LIMIT`` for genuinely large images).
     """
+    from ..limits import open_regular
+
     path = Path(path)
     if not path.exists():
         raise DataNotFoundError(f"image file {str(path)!r} does not exist.")
     if not path.is_file():
         raise DataNotFoundError(f"{str(path)!r} is a folder, not an image file.")
-    # np.fromfile + imdecode instead of cv2.imread: imread cannot open non-ASCII paths on Windows
-    # and gives no reason when it fails.
-    data = np.fromfile(path, dtype=np.uint8)
-    if data.size == 0:
+    # Read the bytes once (np.frombuffer + imdecode rather than cv2.imread: imread cannot open
+    # non-ASCII paths on Windows and gives no reason when it fails).
+    with open_regular(path) as fh:
+        check_bytes(os.fstat(fh.fileno()).st_size, f"image file {str(path)!r}")
+        raw = fh.read()
+    if not raw:
         raise DataNotFoundError(f"image file {str(path)!r} is empty (0 bytes). Remove or replace it.")
+    pixels = _check_header(raw, path, grey)
     flags = cv2.IMREAD_GRAYSCALE if grey else cv2.IMREAD_COLOR
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # the error below says it in one line
     try:
-        image = cv2.imdecode(data, flags)
+        image = cv2.imdecode(np.frombuffer(raw, dtype=np.uint8), flags)
     except cv2.error:
         image = None
+    finally:
+        cv2.utils.logging.setLogLevel(level)
     if image is None:
+        cap = os.environ.get(OPENCV_PIXEL_CAP, "")
+        over_cap = cap.isdigit() and pixels > int(cap)
         raise DataNotFoundError(
             f"OpenCV cannot decode {str(path)!r} as an image (corrupt, truncated or unsupported "
-            "format). Remove or replace that file."
-        )
+            "format). Remove or replace that file." if not over_cap else
+            f"OpenCV refused {str(path)!r}: its {pixels} pixels exceed {OPENCV_PIXEL_CAP}={cap}, set from "
+            "BTEL_MEMORY_LIMIT when OpenCV was loaded; set both before starting Python for larger images.")
+    if image.shape[0] * image.shape[1] != pixels:  # the header Pillow read is not the image OpenCV decoded
+        raise DataNotFoundError(f"{str(path)!r}: the image data do not match its header "
+                                f"({image.shape[1]}×{image.shape[0]} decoded, {pixels} pixels declared).")
     if not grey:
         image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
     return image
