@@ -506,6 +506,7 @@ def worker_main() -> None:
     os.dup2(2, 1)  # anything else written to stdout (C code included) goes to stderr
     sys.stdout = sys.stderr
     import btel  # noqa: F401  (import before the first case: its time is not the case's)
+    import btel.methods.registry  # noqa: F401  (btel.load and every method: btel imports them lazily)
 
     queries = np.load(sys.argv[sys.argv.index("--queries") + 1])
     for line in sys.stdin:
