@@ -6,7 +6,9 @@ seeded *scenarios*. Each case picks a writer — ``save`` (``model.save(path, ov
 -o``) or ``evaluate`` (``btel evaluate --out``) — a umask, and one of two families:
 
 - ``race``  — 2 to 4 writers of one target started together (each after a random 0–40 ms), none
-  with ``--overwrite``, the target absent or (one case in five) already there. **Passes** when
+  with ``--overwrite``, the target absent or (one case in five) already there; the summary counts
+  how the racers that lost learnt it (``in the race``: another writer published while they wrote;
+  ``found the target``: it was there when they checked). **Passes** when
   exactly one writer published (none when the target was there), every other one exited 2 with
   "already exists" (or, for ``extract``, found the winner's matrix up to date and wrote
   nothing), the target is whole (a model that loads, a matrix that reads, a CSV whose rows all
@@ -328,7 +330,11 @@ def run_case(case: dict[str, Any], inputs: Path, work: Path, *, timeout: float =
     problems += [f"modes: {modes}"] if modes else []
     outcome = "ok" if not problems else ("hang" if None in codes else "traceback"
                                          if any("Traceback" in o for o in outputs) else "wrong")
-    return {"outcome": outcome, "codes": codes, "problems": problems,
+    # How each racer that did not publish learnt it: at publish time (the race itself) or before writing.
+    racing = ("while this one was writing", "is writing to")
+    lost = Counter("in the race" if any(r in o for r in racing) else "found the target"
+                   for c, o in zip(codes, outputs) if c == 2) if case["family"] == "race" else Counter()
+    return {"outcome": outcome, "codes": codes, "problems": problems, "lost": dict(lost),
             "outputs": [o.strip()[-400:] for o in outputs]}
 
 
@@ -370,6 +376,7 @@ def run_cases(n_cases: int, *, seed: int = 0, writers: tuple[str, ...] = WRITERS
     summary: dict[str, Any] = {"seed": seed, "cases": 0, "outcomes": {}, "by_case": {}, "failed_cases": []}
     counts: Counter[str] = Counter()
     by_case: Counter[str] = Counter()
+    lost: Counter[str] = Counter()
     with tempfile.TemporaryDirectory(prefix="btel-fuzz-writers-") as tmp:
         inputs = Path(tmp) / "inputs"
         inputs.mkdir()
@@ -382,6 +389,7 @@ def run_cases(n_cases: int, *, seed: int = 0, writers: tuple[str, ...] = WRITERS
             work.mkdir()
             result = run_case(case, inputs, work, timeout=timeout)
             counts[result["outcome"]] += 1
+            lost.update(result["lost"])
             by_case[f"{case['family']}/{case['writer']}"] += 1
             if result["outcome"] != "ok":
                 summary["failed_cases"].append({**case, **result})
@@ -390,6 +398,7 @@ def run_cases(n_cases: int, *, seed: int = 0, writers: tuple[str, ...] = WRITERS
             if progress and summary["cases"] % 50 == 0:
                 print(f"{summary['cases']} cases {dict(counts)}", flush=True)
     summary["outcomes"] = dict(counts)
+    summary["racers_refused"] = dict(lost)
     summary["by_case"] = dict(sorted(by_case.items()))
     summary["failures"] = summary["cases"] - counts["ok"]
     summary["failed_cases"] = summary["failed_cases"][:50]
@@ -434,7 +443,8 @@ def main() -> None:
     summary["command"] = " ".join([Path(sys.executable).name, *sys.argv])
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(summary, indent=2) + "\n")
-    print(f"{summary['cases']} cases {summary['outcomes']} by case {summary['by_case']}")
+    print(f"{summary['cases']} cases {summary['outcomes']} by case {summary['by_case']}; racers refused "
+          f"{summary['racers_refused']}")
     print(f"failures: {summary['failures']} ({summary['seconds']} s); written to {args.out}")
 
 

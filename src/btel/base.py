@@ -429,8 +429,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
 
         The file size exceeds :attr:`nbytes` only by the container overhead (a few KiB). Runtime
         settings (``n_jobs``, backends, progress bars) are not model content and are not saved.
-        The file appears complete or not at all; with ``overwrite=False`` an existing file (even one
-        another process wrote meanwhile) is kept and :class:`~btel.exceptions.OutputExistsError` raised.
+        ``overwrite=False`` keeps any file there, even a racing save's (``OutputExistsError``).
 
         Returns
         -------
@@ -441,11 +440,9 @@ class PlaceLocalizer(ParamsMixin, ABC):
         state = {"n_places": int(self.n_places_), "n_features_in": int(self.n_features_in_),
                  # JSON has no NaN: a loaded model's unknown fit time is saved as null.
                  "fit_time": float(self.fit_time_) if np.isfinite(self.fit_time_) else None,
-                 "front_end": self.front_end_.to_header(),
-                 **self._fitted_state()}
+                 "front_end": self.front_end_.to_header(), **self._fitted_state()}
         header = {"model": type(self).__name__, "params": params, "state": state}
-        arrays = {**self.front_end_.arrays(), **self._stored_arrays()}
-        return save_arrays(path, arrays, header, overwrite=overwrite)
+        return save_arrays(path, {**self.front_end_.arrays(), **self._stored_arrays()}, header, overwrite)
 
     def __sklearn_tags__(self) -> Any:
         tags = super().__sklearn_tags__()

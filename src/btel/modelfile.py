@@ -58,7 +58,7 @@ class ArraySpec:
         return f"({dims}){',' if len(self.shape) == 1 else ''} {'/'.join(t.name for t in self.dtypes)}"
 
 
-def save_arrays(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], header: Mapping[str, Any], *,
+def save_arrays(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], header: Mapping[str, Any],
                 overwrite: bool = True) -> Path:
     """Write arrays plus a JSON header as an uncompressed ``.npz`` model file, atomically.
 

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from .._claims import atomic_output
 from .._validation import check_descriptors, check_positive_int
 from ..exceptions import DataNotFoundError, DimensionMismatchError, InvalidParameterError, ResourceLimitError
 from ..limits import ENV_MEMORY_LIMIT, check_bytes, check_count, format_size, memory_limit
@@ -446,9 +447,7 @@ class GroundTruth:
         """Write this ground truth as ``.npz`` (no pickles) that :meth:`from_file` reads back.
 
         Kind ``"places"`` writes ``query_places``; kind ``"positives"`` writes ``indptr`` and
-        ``indices``; both add ``n_map`` when known. Written whole or not at all
-        (:func:`btel._claims.atomic_output`); ``overwrite=False`` keeps an existing file
-        (:class:`~btel.exceptions.OutputExistsError`).
+        ``indices``; both add ``n_map`` when known. Whole or not at all; ``overwrite=False`` keeps a file.
         """
         path = Path(path)
         arrays: dict[str, np.ndarray] = {}
@@ -460,8 +459,6 @@ class GroundTruth:
         if self.n_map is not None:
             arrays["n_map"] = np.int64(self.n_map)
         path.parent.mkdir(parents=True, exist_ok=True)
-        from .._claims import atomic_output
-
         # np.savez appends ".npz" to names without it; write through a handle to keep the name.
         with atomic_output(path, overwrite=overwrite) as fh:
             np.savez(fh, **arrays)

@@ -73,7 +73,7 @@ def check_fitted_weights(weights: np.ndarray, bias: np.ndarray, who: str, *,
     hint = " Or store the weights as float32 (dtype='float32')." if dtype is not None and \
         np.dtype(dtype) == np.float16 else ""
     raise InvalidDescriptorsError(
-        f"{who}: fitting this map gives {problem}, beyond the {MAX_WEIGHT_NORM:.0e} that float32 "
+        f"{who} of this map: {problem}, beyond the {MAX_WEIGHT_NORM:.0e} that float32 "
         "arithmetic scores safely: the map's values are too small for its front end. Scale the descriptors "
         f"(e.g. to unit length) or use normalize='l2'.{hint}")
 
@@ -118,12 +118,15 @@ class Hyperplanes:
 
         ``index_dtype`` None means d' = d and no columns are stored. With ``shared_columns``
         (every part reads the same columns: the one-vs-rest region classifier) the columns are
-        stored once, as one row.
+        stored once, as one row. Weights a model file may not hold are refused here, at fit
+        (:func:`check_fitted_weights`).
         """
         if not parts:
             return cls.empty(n_selected, n_features_in, dtype, index_dtype)
-        weights = np.concatenate([w for w, _, _ in parts]).astype(dtype)
+        with np.errstate(over="ignore", invalid="ignore"):  # float16 overflow: refused just below
+            weights = np.concatenate([w for w, _, _ in parts]).astype(dtype)
         bias = np.concatenate([b for _, b, _ in parts]).astype(np.float32)
+        check_fitted_weights(weights, bias, "The fitted classifiers", dtype=dtype)
         columns = None
         if index_dtype is not None:
             if shared_columns or len(parts) == 1:

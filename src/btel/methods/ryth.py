@@ -22,7 +22,7 @@ from .._validation import N_JOBS, RANDOM_STATE, Budget, DType, Interval, Options
 from ..base import ArraySpec, PlaceLocalizer
 from ..exceptions import BudgetTooSmallError, ModelFileError, NotEnoughPlacesError
 from ..learning.feature_selection import column_index_dtype
-from ..learning.hyperplanes import Hyperplanes, check_fitted_weights
+from ..learning.hyperplanes import Hyperplanes
 from ..learning.linear import ColumnStats, default_C
 from ..learning.solvers import CLASSIFIERS, SOLVERS
 from ..storage import format_bytes, parse_budget
@@ -242,8 +242,6 @@ class RYTHLocalizer(PlaceLocalizer):
             columns=None if index_dtype is None else np.concatenate([g.columns for g in groups]),
             n_features_in=d,
         )
-        check_fitted_weights(self.hyperplanes_.weights, self.hyperplanes_.bias, type(self).__name__,
-                             dtype=np.dtype(dtype))
         self.periods_ = periods
         self.n_selected_ = int(n_selected)
         self.n_unconverged_ = int(summary.n_unconverged)

@@ -19,7 +19,7 @@ from ...base import PlaceLocalizer
 from ...exceptions import InvalidParameterError
 from ...learning.distributed import BACKENDS
 from ...learning.feature_selection import column_index_dtype
-from ...learning.hyperplanes import Hyperplanes, check_fitted_weights
+from ...learning.hyperplanes import Hyperplanes
 from ...learning.linear import ColumnStats, default_C
 from ...learning.solvers import CLASSIFIERS, SOLVERS
 from ...learning.training import Task, convergence_warning, fit_tasks, one_vs_rest_tasks
@@ -381,9 +381,6 @@ class BTELocalizer(TreeDecoding, TreeModelFile, PlaceLocalizer):
             if first_tree_task else None
         )
         self.hyperplanes_ = Hyperplanes.stack(parts[first_tree_task:], d, n_selected, np.dtype(dtype), index_dtype)
-        for stack in (self.hyperplanes_, self.region_hyperplanes_):
-            if stack is not None:  # what load would refuse is refused here, with the map's fix
-                check_fitted_weights(stack.weights, stack.bias, type(self).__name__, dtype=np.dtype(dtype))
         self.n_unconverged_ = int(summary.n_unconverged)
         self.fit_summary_ = summary
         self._set_structure(n_places, n_selected, starts)

@@ -289,7 +289,7 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
         # The bias from the stored weights, so quantisation does not shift every margin by (w − w_q)·μ.
         stored = weights.dequantise().astype(np.float64)
         self.bias_ = (fitted.offsets - stored @ fitted.center).astype(np.float32)
-        check_fitted_weights(stored, self.bias_, type(self).__name__)  # what load would refuse, refused here
+        check_fitted_weights(stored, self.bias_, "The fitted code columns")  # what load refuses, refused here
         self.weights_ = weights
         self.columns_ = columns
         self.plan_ = plan
