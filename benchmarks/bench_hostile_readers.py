@@ -93,8 +93,8 @@ def craft(folder: Path) -> list[dict[str, Any]]:
     cases: list[dict[str, Any]] = []
     rng = np.random.default_rng(0)
 
-    def add(case: str, file: Path, command: list[str]) -> None:
-        cases.append({"case": case, "file": file, "command": command})
+    def add(case: str, file: Path, command: list[str], pairs: Path | None = None) -> None:
+        cases.append({"case": case, "file": file, "command": command, "pairs": pairs})
 
     def hloc(path: Path, extra: Any) -> Path:
         with h5py.File(path, "w") as fh:
@@ -175,10 +175,11 @@ def craft(folder: Path) -> list[dict[str, Any]]:
         with h5py.File(path, "w") as fh:
             for image in (bad, "db/e", "db/f", "query/q1", "query/q2"):
                 _descriptor(fh, image, rng)
+        pairs = folder / f"pairs_{name}.txt"
         add(f"names ({name}): btel evaluate --pairs", path,
             [*BTEL, "evaluate", "--db", f"{path}:db/", "--queries", f"{path}:query/", "--methods",
-             "bruteforce", "--no-reference", "--pairs", str(folder / f"pairs_{name}.txt"), "--k", "3",
-             "--no-progress", "--out", str(folder / f"run_{name}")])
+             "bruteforce", "--no-reference", "--pairs", str(pairs), "--k", "3", "--no-progress", "--out",
+             str(folder / f"run_{name}")], pairs)
     for case in cases:
         case["file_bytes"] = os.stat(case.pop("file")).st_blocks * 512  # on disk (the sparse files are holes)
     return cases
@@ -205,6 +206,8 @@ def main() -> None:
     parser.add_argument("--timeout", type=float, default=90.0)
     parser.add_argument("--name", default="bench_hostile_readers",
                         help="results file benchmarks/results/NAME.json")
+    parser.add_argument("--only", default=None, metavar="TEXT",
+                        help="run the cases whose name holds TEXT, replacing them in an existing NAME.json")
     args = parser.parse_args()
     env = {**os.environ, "PYTHONPATH": args.src}
     env.pop("BTEL_MEMORY_LIMIT", None)
@@ -213,10 +216,18 @@ def main() -> None:
     rows = []
     with tempfile.TemporaryDirectory(prefix="btel-hostile-") as tmp:
         for case in craft(Path(tmp)):
+            if args.only and args.only not in case["case"]:
+                continue
             result = {"case": case["case"], "file_bytes": case["file_bytes"],
                       **run(spawner, case["command"], args.timeout, env)}
             ok = (not result["killed"] and result["seconds"] <= 60 and result["peak_rss_mib"] < 1024
                   and not result["traceback"] and not result["bare_memory_error"])
+            if case["pairs"] is not None:  # exactly one pair (two fields) per line: 2 queries × top 3
+                lines = case["pairs"].read_text().split("\n")[:-1] if case["pairs"].is_file() else []
+                result["pairs_lines"] = len(lines)
+                result["pairs_one_per_line"] = not lines or (len(lines) == 6 and all(
+                    len(line.split()) == 2 for line in lines))
+                ok = ok and result["pairs_one_per_line"]
             result["meets_target"] = ok
             rows.append(result)
             print(f"{'ok ' if ok else 'MISS'} {result['case'][:62]:62s} exit {result['exit']} "
@@ -225,6 +236,12 @@ def main() -> None:
     spawner.stdin.close()
     spawner.wait()
     command = " ".join([Path(sys.executable).name, *sys.argv])
+    path = HERE / "results" / f"{args.name}.json"
+    if args.only and path.is_file():  # keep the other cases of the earlier run
+        earlier = json.loads(path.read_text())
+        done = {r["case"] for r in rows}
+        rows = [r for r in earlier["cases"] if r["case"] not in done] + rows
+        command = f"{earlier['command']}; {command}"
     write_results(args.name, {"src": args.src, "timeout_s": args.timeout, "command": command, "cases": rows})
 
 

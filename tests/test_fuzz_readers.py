@@ -1,9 +1,11 @@
-"""A short seeded run of the readers' fuzz harness (``benchmarks/fuzz_readers.py``, issue 20).
+"""A short seeded run of the readers' fuzz harness (``benchmarks/fuzz_readers.py``, issues 20 and 34).
 
-Every case is a seed file (legitimate or one of issue 20's crafted files) with seeded mutations,
-read in a worker process: it must be read or refused with a btel error — never another
-exception, a hang, a crash or more than 1 GiB. The long run is the documented command
-``python benchmarks/fuzz_readers.py --cases 20000 --seed 0`` (README, "Security").
+Every case is a seed file (legitimate or one of the issues' crafted files) with seeded mutations, or
+a case of one of issue 34's structure-aware families (HDF5 link graphs and chunk shapes, image
+headers, UTM ring geometries, image names), read in a worker process: it must be read or refused
+with a btel error — never another exception, a broken invariant, a hang, a crash or more than
+1 GiB. The long run is the documented command ``python benchmarks/fuzz_readers.py --cases 20000
+--seed 0`` (README, "Security").
 """
 
 from __future__ import annotations
@@ -42,3 +44,15 @@ def test_cases_are_reproducible_and_differ(harness) -> None:
     cases = [harness.make_case("gt_csv", 5, i, seeds) for i in range(30)]
     assert cases == [harness.make_case("gt_csv", 5, i, seeds) for i in range(30)]
     assert len({data for data, _, _ in cases}) > 20
+
+
+def test_issue_34_families_make_cases(harness, tmp_path) -> None:
+    """Each structure-aware family builds cases (not only byte mutations of seeds), reproducibly."""
+    kinds = {}
+    for reader, marks in (("hdf5", ("link graph", "chunk (")), ("image", ("png ", "jpeg ", "tiff ")),
+                          ("gt_utm", ("ring ",)), ("names", ("hloc names", "sidecar"))):
+        seeds = harness.build_seeds(reader, tmp_path)
+        cases = [harness.make_case(reader, 0, i, seeds) for i in range(len(seeds), len(seeds) + 60)]
+        kinds[reader] = {mark: sum(mark in description for _, description, _ in cases) for mark in marks}
+        assert cases[:5] == [harness.make_case(reader, 0, i, seeds) for i in range(len(seeds), len(seeds) + 5)]
+    assert all(n > 0 for marks in kinds.values() for n in marks.values()), kinds
