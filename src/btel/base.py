@@ -183,6 +183,8 @@ class PlaceLocalizer(BaseEstimator, ABC):
         budget = parse_budget(getattr(self, "budget", None))
         front = FrontEnd.of(self)
         reserved = self._front_end_bytes(X.shape[0], X.shape[1], budget)
+        if labels is None:  # one place per row, as the planner counts: refuse the budget before transforming
+            self._check_plan(X.shape[0], front.n_features_out(X.shape[1]), budget, reserved)
         Z = front.fit_transform(X, traverse_starts(labels))
         self._fit(Z, labels, n_places, budget, reserved)
         self.front_end_ = front
