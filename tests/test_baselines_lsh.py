@@ -90,7 +90,8 @@ def test_projection_is_regenerated_from_the_recorded_seed(pair, tmp_path) -> Non
     model = LSHLocalizer(budget=8_000, random_state=None).fit(X)
     again = btel.load(model.save(tmp_path / "m.npz"))
     assert again.seed_ == model.seed_
-    np.testing.assert_array_equal(again.projection_.matrix(), projection_matrix(64, model.n_bits_, model.seed_, "hadamard"))
+    R = projection_matrix(64, model.n_bits_, model.seed_, "hadamard")
+    np.testing.assert_array_equal(again.projection_.matrix(), R)
     np.testing.assert_array_equal(again.search(Q, 5)[1], model.search(Q, 5)[1])
 
 
@@ -131,7 +132,8 @@ def test_a_model_file_without_a_projection_loads_with_the_gaussian_one(pair, tmp
     old = save_arrays(tmp_path / "old.npz", arrays, header)
     again = btel.load(old)
     assert again.projection == "gaussian"
-    np.testing.assert_array_equal(again.projection_.matrix(), projection_matrix(64, gaussian.n_bits_, 0, "gaussian"))
+    R = projection_matrix(64, gaussian.n_bits_, 0, "gaussian")
+    np.testing.assert_array_equal(again.projection_.matrix(), R)
     np.testing.assert_array_equal(again.search(Q, 5)[1], gaussian.search(Q, 5)[1])
     # A state that contradicts the parameters is a damaged file.
     header["params"]["projection"], header["state"]["projection"] = "hadamard", "gaussian"
@@ -230,3 +232,105 @@ def test_gardens_point_asymmetric_lsh_beats_hamming_and_approaches_brute_force(g
     brute = r2(make_method("bruteforce"))
     # Measured: 0.430 / 0.415 / 0.480 (btel experiment frontier has every budget).
     assert asym >= ham and asym >= 0.85 * brute
+
+
+# ----------------------------------------------------------------------------- the scan of packed codes
+def _reference(model, Q):
+    """(qR) · sign(x_i R) from unpacked codes: the asymmetric score of every row."""
+    P = model._project(btel.frontend.normalize_rows(Q))
+    return P @ (np.unpackbits(model.codes_, axis=1, count=model.n_bits_).astype(np.float32) * 2 - 1).T
+
+
+@pytest.mark.parametrize("n_bits", [13, 64, 203])
+@pytest.mark.parametrize("n_queries", [1, 5, 40])
+@pytest.mark.parametrize("k", [1, 7])
+def test_both_scans_of_the_packed_codes_give_the_true_top_k(pair, n_bits, n_queries, k, monkeypatch) -> None:
+    """A few queries go through faiss' lookup tables, more through blocks of rows unpacked to ±1; tiny blocks
+    force many row blocks and chunks of queries, merged block by block."""
+    import btel.methods.baselines.lsh as lsh
+
+    X, Q = pair
+    model = LSHLocalizer(n_bits=n_bits, center=False).fit(X)
+    reference = _reference(model, Q[:n_queries])
+    for block_values in (lsh.BLOCK_VALUES, 1 << 10):
+        monkeypatch.setattr(lsh, "BLOCK_VALUES", block_values)
+        scores, places = model.search(Q[:n_queries], k)
+        # The returned scores are the rows' true scores, and no row left out scores higher than the k-th.
+        np.testing.assert_allclose(scores, np.take_along_axis(reference, places, axis=1), atol=1e-4)
+        kth = np.sort(reference, axis=1)[:, -k]
+        np.testing.assert_allclose(scores[:, -1], kth, atol=1e-4)
+        assert (np.diff(scores, axis=1) <= 1e-6).all()
+        np.testing.assert_allclose(model.place_scores(Q[:n_queries]), reference, atol=1e-4)
+
+
+def test_the_table_scan_lists_tied_rows_lower_row_first() -> None:
+    X = np.random.default_rng(0).normal(size=(300, 32)).astype(np.float32)
+    X[200:205] = X[7]  # five copies of row 7: the same codes, exactly tied scores
+    model = LSHLocalizer(n_bits=64, center=False).fit(X)
+    scores, places = model.search(X[7:8], 6)
+    assert places[0].tolist() == [7, 200, 201, 202, 203, 204] and len(set(scores[0].tolist())) == 1
+    assert model.predict(X[200:201]).tolist() == [7]
+
+
+def test_a_loaded_model_holds_its_codes_and_a_bounded_block_not_a_float_copy(tmp_path) -> None:
+    """4 MB of codes: a float32 ±1 copy would take 134 MB; load and search stay within stored + 64 MB."""
+    import tracemalloc
+
+    rng = np.random.default_rng(1)
+    X = rng.normal(size=(32_768, 64)).astype(np.float32)
+    model = LSHLocalizer(n_bits=1024, center=False).fit(X)
+    path = model.save(tmp_path / "big.npz")
+    stored = model.nbytes
+    del model
+    tracemalloc.start()
+    try:
+        again = btel.load(path)
+        after_load = tracemalloc.get_traced_memory()[0]
+        again.predict(X[:1])
+        again.search(X[:64], 5)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert after_load <= stored + (1 << 20)   # the codes and little else
+    assert peak <= stored + (64 << 20)
+
+
+def test_a_budget_is_refused_from_the_shapes_before_the_map_is_transformed() -> None:
+    """The planner runs on (N, d) first: refusing 8 KB for 100,000 rows allocates no normalised copy of X."""
+    import tracemalloc
+
+    X = np.ones((100_000, 128), dtype=np.float32)   # 51 MB
+    tracemalloc.start()
+    try:
+        with pytest.raises(BudgetTooSmallError) as info:
+            LSHLocalizer(budget="8KB").fit(X)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert info.value.minimum == 100_000 and peak < 4 << 20
+
+
+@pytest.mark.parametrize("method, n_rows, d, budget", [("lsh", 500, 8192, "1MB"), ("auto", 500, 8192, "1MB"),
+                                                      ("lsh", 2000, 12288, "256KB")])
+def test_near_duplicate_queries_of_wide_descriptors_are_found(method, n_rows, d, budget, tmp_path) -> None:
+    """Rows sharing a common direction and a low-rank part; queries are the rows plus noise (cosine ≈ 0.93
+    to their own row against ≈ 0.6 to the nearest other). Found after a save and a load."""
+    rng = np.random.default_rng(d)
+    X = rng.standard_normal((n_rows, d), dtype=np.float32)
+    X *= 0.6
+    X += rng.standard_normal(d, dtype=np.float32)
+    X += 0.075 * (rng.standard_normal((n_rows, 64), dtype=np.float32) @ rng.standard_normal((64, d), dtype=np.float32))
+    Q = X + 0.5 * rng.standard_normal((n_rows, d), dtype=np.float32)
+    model = btel.load(make_method(method, budget=budget).fit(X).save(tmp_path / "m.npz"))
+    assert model.nbytes <= btel.storage.parse_budget(budget)
+    assert (model.predict(Q) == np.arange(n_rows)).mean() >= 0.9
+
+
+def test_a_model_file_with_orthogonal_blocks_loads_and_answers_as_it_was_fitted(pair, tmp_path) -> None:
+    X, Q = pair
+    model = LSHLocalizer(budget=8_000, projection="orthogonal").fit(X)
+    again = btel.load(model.save(tmp_path / "o.npz"))
+    assert again.projection == "orthogonal"
+    R = projection_matrix(64, model.n_bits_, 0, "orthogonal")
+    np.testing.assert_array_equal(again.projection_.matrix(), R)
+    np.testing.assert_array_equal(again.search(Q, 5)[1], model.search(Q, 5)[1])

@@ -49,8 +49,8 @@ SHRINK_LAMBDA = 1.0
 SHRINK_BUDGET_SHARE = 0.25
 #: Most eigenvectors kept.
 SHRINK_MAX_RANK = 32
-#: Wide maps of more values than this take their top directions from the rows' Gram matrix (:func:`fit_shrink`).
-GRAM_VALUES = 1 << 22
+#: Wide maps of more values than this take their top directions from the rows' Gram matrix.
+GRAM_VALUES = 1 << 20
 
 
 #: Bits per entry of the stored basis (levels −(2^(b−1) − 1) … 2^(b−1) − 1).
@@ -151,7 +151,7 @@ def _top_directions(centred: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray
         eig, U = eig[::-1][:k], U[:, ::-1][:, :k]
         sv = np.sqrt(np.maximum(eig, 0.0))
         vt = U.T @ centred
-        # A direction of zero variance comes with a gain of 0 (module docstring): any vector serves; 0 is stored.
+        # A direction of zero variance has a gain of 0 (module docstring): any vector serves; 0 is stored.
         vt /= np.where(sv > 0, sv, np.inf)[:, None]
         return sv, vt
     _, sv, vt = np.linalg.svd(centred, full_matrices=False)

@@ -12,10 +12,11 @@ projection is the first P outputs of the blocks end to end. Nothing d × d is fo
 factorised, and the signs (3 × D per block) are all that is drawn from the seed.
 
 H_D is applied as the Kronecker product of Hadamard matrices of at most :data:`MAX_FACTOR` rows
-(``scipy.linalg.hadamard``), one small matrix product per factor: per row and round about
+(``scipy.linalg.hadamard``), one stack of small matrix products per factor: per row and round about
 D · Σ factors multiply-adds in BLAS, instead of d · P for a dense projection. Where d · P is at most
-:data:`DENSE_VALUES` the d × P matrix is formed once (the transform applied to the identity) and
-used instead: a small product is faster than the transform's fixed cost for one query.
+:data:`DENSE_VALUES` the d × P matrix is formed once (min(d, P) transforms of unit vectors) and used
+instead: a small product beats the transform's fixed cost for one query, and its 3·D·Σ factors work
+per row when P ≪ D.
 """
 
 from __future__ import annotations
@@ -30,8 +31,8 @@ __all__ = ["SignedHadamard", "fwht", "ROUNDS", "MAX_FACTOR", "DENSE_VALUES"]
 ROUNDS = 3
 #: Largest Hadamard factor applied as one matrix product.
 MAX_FACTOR = 64
-#: The d × P matrix is formed (a runtime cache, never stored) when it has at most this many values (1 MB).
-DENSE_VALUES = 1 << 18
+#: The d × P matrix is formed (a runtime cache, never stored) when it has at most this many values (4 MB).
+DENSE_VALUES = 1 << 20
 #: Values of the (rows × blocks × D) work buffer transformed at a time (16 MB of float32).
 _WORK_VALUES = 1 << 22
 
@@ -65,16 +66,14 @@ def fwht(X: np.ndarray) -> np.ndarray:
     n, D = X.shape
     if D & (D - 1):
         raise ValueError(f"the Walsh–Hadamard transform needs a power-of-two width; got {D}.")
-    factors = _factors(D)
-    shape = [n, *factors]
     Y = np.asarray(X, dtype=np.float32)
-    # H_D = H_f1 ⊗ … ⊗ H_fm: apply each factor along its axis of the (n, f1, …, fm) view, the last
-    # axis each time, then rotate that axis to the front so the next factor's axis is last.
-    for f in reversed(factors):
-        Y = (Y.reshape(-1, f) @ _factor(f)).reshape(shape)
-        if len(factors) > 1:
-            Y = np.ascontiguousarray(np.moveaxis(Y, -1, 1))
-            shape = [n, shape[-1], *shape[1:-1]]
+    # H_D = H_f1 ⊗ … ⊗ H_fm: in the (n, f1, …, fm) view, each factor multiplies its own axis — a stack of
+    # small products (f_i × f_i by f_i × the later axes), the last one plain rows times H_fm.
+    before = 1
+    for f in _factors(D):
+        rest = D // (before * f)
+        Y = Y.reshape(-1, f) @ _factor(f) if rest == 1 else np.matmul(_factor(f), Y.reshape(-1, f, rest))
+        before *= f
     return Y.reshape(n, D)
 
 
@@ -109,7 +108,7 @@ class SignedHadamard:
                       ).astype(np.float32)
         self._dense: np.ndarray | None = None
         if self.n_features * self.n_outputs <= DENSE_VALUES:
-            self._dense = self._transform(np.eye(self.n_features, dtype=np.float32))
+            self._dense = self._matrix()
 
     @property
     def nbytes(self) -> int:
@@ -134,9 +133,23 @@ class SignedHadamard:
 
     def matrix(self) -> np.ndarray:
         """The projection as a d × P float32 matrix: :meth:`apply` is ``X @ matrix()``."""
-        if self._dense is not None:
-            return self._dense.copy()
-        return self._transform(np.eye(self.n_features, dtype=np.float32))
+        return self._matrix() if self._dense is None else self._dense.copy()
+
+    def _matrix(self) -> np.ndarray:
+        """R from min(d, P) transforms: the rows of the identity forward, or P unit vectors through the
+        transposed rounds (column j of block b is S_1 H S_2 H S_3 H e_j, row form)."""
+        d, D = self.n_features, self.width
+        if d <= self.n_outputs:
+            return self._transform(np.eye(d, dtype=np.float32))
+        out = np.empty((d, self.n_outputs), dtype=np.float32)
+        for block in range(self.signs.shape[0]):
+            count = min(D, self.n_outputs - block * D)
+            work = np.eye(count, D, dtype=np.float32)
+            for r in reversed(range(ROUNDS)):
+                work = fwht(work)
+                work *= self.signs[block, r]
+            out[:, block * D : block * D + count] = work[:, :d].T
+        return out
 
     def _transform(self, X: np.ndarray) -> np.ndarray:
         n, d = X.shape

@@ -94,7 +94,8 @@ class _DenseProjection:
 
 
 def make_projection(n_features: int, n_bits: int, seed: int, kind: str = "hadamard") -> Any:
-    """The projection of a seed, an object with ``apply(X) -> X R`` ((n, d) → (n, P) float32) and ``matrix()``.
+    """The projection of a seed: an object with ``apply(X) -> X R`` ((n, d) → (n, P) float32) and
+    ``matrix()`` (R, (d, P) float32).
 
     ``'hadamard'``: :class:`~btel.methods.baselines.hadamard.SignedHadamard` (nothing d × P is held
     unless it is small); ``'orthogonal'`` and ``'gaussian'``: the d × P matrix of :func:`projection_matrix`.
@@ -360,7 +361,7 @@ class LSHLocalizer(_RowLocalizer):
 
     def _build_index(self) -> Any:
         """Asymmetric scoring: a faiss ProductQuantizer of ⌈P/8⌉ one-byte sub-quantisers whose 256 codewords
-        are the ±1 patterns of a byte, so that its inner-product scan of the packed codes is (qR) · sign(x_i R)."""
+        are the ±1 patterns of a byte: its inner-product scan of the packed codes is (qR) · sign(x_i R)."""
         if self.scoring == "hamming":
             return None
         n_bytes = self.codes_.shape[1]
@@ -393,15 +394,17 @@ class LSHLocalizer(_RowLocalizer):
         rows = np.empty((n, k), dtype=np.int64)
         heap = faiss.float_minheap_array_t()
         heap.nh, heap.k, heap.val, heap.ids = n, k, faiss.swig_ptr(values), faiss.swig_ptr(rows)
-        self._index.search_ip(faiss.swig_ptr(P), n, faiss.swig_ptr(self.codes_), self.codes_.shape[0], heap, True)
+        codes = self.codes_
+        self._index.search_ip(faiss.swig_ptr(P), n, faiss.swig_ptr(codes), codes.shape[0], heap, True)
         if k > 1:  # faiss' heap keeps the lower rows of a tie but lists them last: best first, then lower row
             order = np.lexsort((rows, -values), axis=1)
             values, rows = np.take_along_axis(values, order, axis=1), np.take_along_axis(rows, order, axis=1)
         return values.astype(np.float64), rows
 
     def _row_blocks(self, P: np.ndarray):
-        """Yield (start, scores of rows start:…) for padded projected queries P, a block of rows at a time,
-        each block unpacked once to ±1 and scored in chunks of queries: at most BLOCK_VALUES values each."""
+        """Yield (start, first, scores of queries first:… against rows start:…) for padded projected queries
+        P: a block of rows at a time, unpacked once to ±1 and scored in chunks of queries, each of at most
+        BLOCK_VALUES values."""
         n_rows, width = self.codes_.shape[0], 8 * self.codes_.shape[1]
         rows = max(1, BLOCK_VALUES // width)
         chunk = max(1, BLOCK_VALUES // min(rows, n_rows))
@@ -411,7 +414,7 @@ class LSHLocalizer(_RowLocalizer):
                 yield start, first, P[first : first + chunk] @ signs.T
 
     def _scan_blocks(self, P: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """The k best rows from blocks of unpacked rows, merged block by block (ties: the lower row)."""
+        """The k best rows from blocks of unpacked rows, merged block by block; best first, ties lower row first."""
         n = P.shape[0]
         best_values, best_rows = np.empty((n, 0)), np.empty((n, 0), dtype=np.int64)
         values: list[np.ndarray] = []
@@ -443,8 +446,8 @@ class LSHLocalizer(_RowLocalizer):
 
     def summary(self) -> str:
         """One line: bits per row, scoring, seed and the front end."""
-        return (f"lsh: {self.n_bits_} bits per row, {self.scoring} scoring, {self.projection} projection from seed "
-                f"{self.seed_} (0 B), {'centred' if self.mean_ is not None else 'uncentred'}; front end "
+        return (f"lsh: {self.n_bits_} bits per row, {self.scoring} scoring, {self.projection} projection from "
+                f"seed {self.seed_} (0 B), {'centred' if self.mean_ is not None else 'uncentred'}; front end "
                 f"{self.front_end_.describe()}")
 
     def _model_arrays(self) -> dict[str, np.ndarray]:
