@@ -3,8 +3,8 @@
 Cells: d = 8192, N = 500, 1 MB and d = 12,288, N = 2000, 256 KB (the widths of SALAD and BoQ
 descriptors), on ``benchmarks/bench_widths.py``'s maps (rows sharing a common direction and a low-rank
 part plus noise) with every row's near duplicate as a query; measured as that benchmark does (fit and
-save, then load, first query, the next 10 single queries, resident-memory growth from before the load
-to after the first query, recall@0), in one process on one thread. Then:
+save in one forked process; then, in another, load, first query, the next 10 single queries,
+resident-memory growth from before the load to after the first query, recall@0), on one thread. Then:
 
 - **refusal from shapes**: ``lsh`` with 64 KB on N = 10⁶ rows of d = 256 (a 1 GB map): the seconds
   and the memory (traced peak; resident growth) until the BudgetTooSmallError;
@@ -27,7 +27,7 @@ import tracemalloc
 
 import numpy as np
 from _common import write_results
-from bench_widths import fit_and_save, load_and_query, make_data, resident_bytes
+from bench_widths import fit_and_save, in_child, load_and_query, make_data, resident_bytes
 
 from btel.exceptions import BudgetTooSmallError
 from btel.methods.baselines.lsh import LSHLocalizer, make_projection
@@ -62,16 +62,16 @@ def main() -> None:
     with limit_threads(1), tempfile.TemporaryDirectory() as tmp:
         tiny, tiny_queries = make_data(64, 32)
         for method in ("lsh", "auto"):  # imports, before any figure
-            fit_and_save(method, "1MB", tiny, os.path.join(tmp, "warm.npz"))
-            load_and_query(os.path.join(tmp, "warm.npz"), tiny_queries)
+            fit_and_save(method, "1MB", tiny, os.path.join(tmp, f"warm-{method}.npz"))
+            load_and_query(os.path.join(tmp, f"warm-{method}.npz"), tiny_queries)
         for n_rows, d, budget in CELLS:
             X, _ = make_data(n_rows, d)
             Q = X + 0.5 * np.random.default_rng(1).standard_normal(X.shape, dtype=np.float32)
             for method in ("lsh", "auto"):
                 path = os.path.join(tmp, "m.npz")
                 row = {"n_rows": n_rows, "d": d, "budget": budget, "method": method,
-                       **fit_and_save(method, budget, X, path)}
-                row.update(load_and_query(path, Q))
+                       **in_child(fit_and_save, (method, budget, X, path), 600)}
+                row.update(in_child(load_and_query, (path, Q, os.path.join(tmp, f"warm-{method}.npz")), 600))
                 rows.append(row)
                 print(f"d {d:>6} N {n_rows:>5} {budget:>6} {method:<5} fit {row['fit_s']:6.2f} s  "
                       f"load {row['load_s']:6.3f} s  first {row['first_ms']:7.1f} ms  "

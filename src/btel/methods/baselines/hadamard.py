@@ -11,9 +11,9 @@ transform (its D hyperplanes are orthogonal in the padded space), blocks are ind
 projection is the first P outputs of the blocks end to end. Nothing d × d is formed, nothing is
 factorised, and the signs (3 × D per block) are all that is drawn from the seed.
 
-H_D is applied as the Kronecker product of Hadamard matrices of at most :data:`MAX_FACTOR` rows
-(``scipy.linalg.hadamard``), one stack of small matrix products per factor: per row and round about
-D · Σ factors multiply-adds in BLAS, instead of d · P for a dense projection. Where d · P is at most
+H_D is applied as the Kronecker product of Hadamard matrices of at most :data:`MAX_FACTOR` rows, one
+stack of small matrix products per factor: per row and round about D · Σ factors multiply-adds in
+BLAS, instead of d · P for a dense projection. Where d · P is at most
 :data:`DENSE_VALUES` the d × P matrix is formed once (min(d, P) transforms of unit vectors) and used
 instead: a small product beats the transform's fixed cost for one query, and its 3·D·Σ factors work
 per row when P ≪ D.
@@ -33,15 +33,17 @@ ROUNDS = 3
 MAX_FACTOR = 64
 #: The d × P matrix is formed (a runtime cache, never stored) when it has at most this many values (4 MB).
 DENSE_VALUES = 1 << 20
-#: Values of the (rows × blocks × D) work buffer transformed at a time (16 MB of float32).
-_WORK_VALUES = 1 << 22
+#: Values of the (rows × blocks × D) work buffer transformed at a time (4 MB of float32).
+_WORK_VALUES = 1 << 20
 
 
 @functools.lru_cache(maxsize=16)
 def _factor(f: int) -> np.ndarray:
-    from scipy.linalg import hadamard
-
-    return (hadamard(f) / np.sqrt(f)).astype(np.float32)
+    """The orthonormal Sylvester–Hadamard matrix of order f (a power of two), H_2^{⊗k} / √f, float32."""
+    H = np.ones((1, 1))
+    while H.shape[0] < f:  # numpy only: scipy.linalg.hadamard would add scipy.linalg to every model load
+        H = np.kron(H, [[1.0, 1.0], [1.0, -1.0]])
+    return (H / np.sqrt(f)).astype(np.float32)
 
 
 def _factors(D: int) -> list[int]:

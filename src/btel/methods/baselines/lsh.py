@@ -8,11 +8,12 @@ P signs of x_i R packed 8 to a byte. R is regenerated from the recorded seed at 
 Projection (``projection``): ``'hadamard'`` (default) — random sign flips and fast Walsh–Hadamard
 transforms, d padded to a power of two D, three rounds per block of D hyperplanes
 (:mod:`~btel.methods.baselines.hadamard`): within a block the hyperplanes are orthogonal, which
-lowers the variance of the angle the P signs estimate (super-bit LSH, Ji et al. 2012), at about
-3·D·log D work per row and 3·D signs of memory per block. ``'orthogonal'`` — the seed's Gaussian
-d × P matrix with every block of d columns orthonormalised by QR (O(d·P²) at fit and at load:
-minutes at d = 8192; read for files written with it). ``'gaussian'`` — i.i.d. Gaussian hyperplanes
-(files that record no projection used it). Evidence: ``docs/decisions/lsh-projection.md``.
+lowers the variance of the angle the P signs estimate (super-bit LSH, Ji et al. 2012); a row costs
+3·D·Σ factors multiply-adds per block (Hadamard factors of at most 64) and a block 3·D signs of
+memory. ``'orthogonal'`` — the seed's Gaussian d × P matrix with every block of d columns
+orthonormalised by QR (O(d·P²) work at every fit and load, d·P floats of memory; the default before,
+read for files written with it). ``'gaussian'`` — i.i.d. Gaussian hyperplanes (files that record no
+projection used it). Evidence: ``docs/decisions/lsh-projection.md``.
 
 Scoring (``scoring``): ``'asymmetric'`` (default) — the query is projected, not binarised:
 score_i = (qR) · sign(x_i R) (Gordo et al. 2014), computed from the packed codes, never from an
@@ -414,7 +415,8 @@ class LSHLocalizer(_RowLocalizer):
                 yield start, first, P[first : first + chunk] @ signs.T
 
     def _scan_blocks(self, P: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """The k best rows from blocks of unpacked rows, merged block by block; best first, ties lower row first."""
+        """The k best rows from blocks of unpacked rows, merged block by block; best first, ties lower row
+        first."""
         n = P.shape[0]
         best_values, best_rows = np.empty((n, 0)), np.empty((n, 0), dtype=np.int64)
         values: list[np.ndarray] = []
@@ -446,8 +448,8 @@ class LSHLocalizer(_RowLocalizer):
 
     def summary(self) -> str:
         """One line: bits per row, scoring, seed and the front end."""
-        return (f"lsh: {self.n_bits_} bits per row, {self.scoring} scoring, {self.projection} projection from "
-                f"seed {self.seed_} (0 B), {'centred' if self.mean_ is not None else 'uncentred'}; front end "
+        return (f"lsh: {self.n_bits_} bits per row, {self.scoring} scoring, {self.projection} projection "
+                f"from seed {self.seed_} (0 B), {'centred' if self.mean_ is not None else 'uncentred'}; front end "
                 f"{self.front_end_.describe()}")
 
     def _model_arrays(self) -> dict[str, np.ndarray]:
