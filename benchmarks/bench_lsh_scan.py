@@ -1,9 +1,9 @@
-"""LSH's asymmetric scan of packed codes: lookup tables, unpacked row blocks, and the float32 copy they replaced.
+"""LSH's asymmetric scan of packed codes: lookup tables, unpacked row blocks, and the float32 copy before.
 
 For each (N rows, P bits) shape and batch size, random codes are scanned for the best row of each query by
 
 - **tables**: faiss ``ProductQuantizer.search_ip`` with the byte's 256 ±1 patterns as codebook (what
-  ``lsh`` does below :data:`btel.methods.baselines.lsh.TABLE_QUERIES` queries);
+  ``lsh`` does below :data:`btel.methods.baselines.signscan.TABLE_QUERIES` queries);
 - **blocks**: rows unpacked to ±1 a block at a time (``BLOCK_VALUES`` values) and one matrix product
   each, merged block by block (what ``lsh`` does from that many queries on);
 - **float copy**: the product with a float32 ±1 copy of all codes held in memory (``lsh`` before; N·P·4
@@ -24,7 +24,7 @@ import time
 import numpy as np
 from _common import write_results
 
-from btel.methods.baselines.lsh import _BYTE_SIGNS, LSHLocalizer
+from btel.methods.baselines import signscan
 from btel.threads import limit_threads
 
 SHAPES = ((10_000, 64), (10_000, 256), (10_000, 1024), (100_000, 80), (500, 8192))
@@ -47,20 +47,19 @@ def main() -> None:
     start = time.time()
     with limit_threads(1):
         for n_rows, n_bits in SHAPES:
-            model = LSHLocalizer(n_bits=n_bits)
-            model.codes_ = rng.integers(0, 256, (n_rows, n_bits // 8), dtype=np.uint8)
-            model._index = model._build_index()
-            copy = np.take(_BYTE_SIGNS, model.codes_, axis=0).reshape(n_rows, -1)
+            codes = rng.integers(0, 256, (n_rows, n_bits // 8), dtype=np.uint8)
+            tables = signscan.byte_tables(codes.shape[1])
+            copy = np.take(signscan.BYTE_SIGNS, codes, axis=0).reshape(n_rows, -1)
             for n_queries in BATCHES:
                 P = rng.standard_normal((n_queries, n_bits), dtype=np.float32)
                 row = {"n_rows": n_rows, "n_bits": n_bits, "n_queries": n_queries,
-                       "tables_ms": best_ms(lambda: model._scan_tables(P, 1)),
-                       "blocks_ms": best_ms(lambda: model._scan_blocks(P, 1)),
+                       "tables_ms": best_ms(lambda: signscan.scan_tables(tables, codes, P, 1)),
+                       "blocks_ms": best_ms(lambda: signscan.scan_blocks(codes, P, 1)),
                        "float_copy_ms": best_ms(lambda: np.argmax(P @ copy.T, axis=1))}
                 rows.append(row)
                 print(f"N {n_rows:>7}  P {n_bits:>5}  queries {n_queries:>4}:  "
-                      f"tables {row['tables_ms']:8.2f}  blocks {row['blocks_ms']:8.2f}  float copy {row['float_copy_ms']:8.2f} ms "
-                      f"({copy.nbytes / 1e6:.0f} MB)", flush=True)
+                      f"tables {row['tables_ms']:8.2f}  blocks {row['blocks_ms']:8.2f}  "
+                      f"float copy {row['float_copy_ms']:8.2f} ms ({copy.nbytes / 1e6:.0f} MB)", flush=True)
     out = write_results("bench_lsh_scan", {"rows": rows, "load": load, "load_end": os.getloadavg(),
                                            "seconds": time.time() - start})
     print(f"wrote {out}")

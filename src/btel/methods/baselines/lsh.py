@@ -17,11 +17,9 @@ projection used it). Evidence: ``docs/decisions/lsh-projection.md``.
 
 Scoring (``scoring``): ``'asymmetric'`` (default) — the query is projected, not binarised:
 score_i = (qR) · sign(x_i R) (Gordo et al. 2014), computed from the packed codes, never from an
-unpacked copy: a few queries by per-byte lookup tables (faiss ``ProductQuantizer.search_ip`` with
-the 256 ±1 patterns of a byte as its codebook), larger batches by unpacking blocks of rows to ±1
-(:data:`BLOCK_VALUES` values at a time) for one matrix product each. ``'hamming'`` — the query is
-binarised too and the codes are searched by Hamming distance (faiss ``knn_hamming``); score =
-−distance.
+unpacked copy (:mod:`~btel.methods.baselines.signscan`: lookup tables for a few queries, blocks of
+rows unpacked to ±1 for batches). ``'hamming'`` — the query is binarised too and the codes are
+searched by Hamming distance (faiss ``knn_hamming``); score = −distance.
 
 Budget rule: P = ⌊8·(budget − reserved − mean bytes) / n_rows⌋ bits per row (every bit the budget
 holds; at least 8), at most :data:`MAX_BITS`; without a budget P = :data:`DEFAULT_BITS`. ``n_bits``
@@ -49,7 +47,7 @@ import numpy as np
 from ..._validation import N_JOBS, RANDOM_STATE, Budget, Interval, Options, read_state_int
 from ...base import ArraySpec
 from ...exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError
-from ...topk import top_k
+from . import signscan
 from ._common import _RowLocalizer, check_magnitude, check_model_values, raise_budget_too_small
 from .hadamard import SignedHadamard
 
@@ -64,14 +62,10 @@ MAX_BITS = 8192
 CENTER_SHARE = 1 / 8
 #: ... and the map's rows lie in a cone: ‖mean row‖ at least this × their RMS length (module docstring).
 CENTER_CONE = 0.5
-#: Asymmetric scoring: batches of fewer queries are scanned by lookup tables, larger ones by blocks.
-TABLE_QUERIES = 8
-#: Values unpacked (or scored, or projected) at a time: 4 MB of float32.
+#: Values projected at a time when the map is coded: 4 MB of float32.
 BLOCK_VALUES = 1 << 20
 #: Map rows repacked at a time between the row matrix and the dense stream.
 _BLOCK_ROWS = 4096
-#: The 256 byte values as 8 ±1 values each, most significant bit first (``np.packbits``' order).
-_BYTE_SIGNS = np.unpackbits(np.arange(256, dtype=np.uint8)[:, None], axis=1).astype(np.float32) * 2 - 1
 
 #: The projections ``projection`` takes (module docstring); files without one used the last.
 PROJECTIONS = ("hadamard", "orthogonal", "gaussian")
@@ -361,95 +355,28 @@ class LSHLocalizer(_RowLocalizer):
         self._index = self._build_index()
 
     def _build_index(self) -> Any:
-        """Asymmetric scoring: a faiss ProductQuantizer of ⌈P/8⌉ one-byte sub-quantisers whose 256 codewords
-        are the ±1 patterns of a byte: its inner-product scan of the packed codes is (qR) · sign(x_i R)."""
-        if self.scoring == "hamming":
-            return None
-        n_bytes = self.codes_.shape[1]
-        tables = faiss.ProductQuantizer(8 * n_bytes, n_bytes, 8)
-        faiss.copy_array_to_vector(np.tile(_BYTE_SIGNS.ravel(), n_bytes), tables.centroids)
-        return tables
-
-    def _padded(self, P: np.ndarray) -> np.ndarray:
-        """Projected queries zero-padded to the codes' 8·⌈P/8⌉ bits (a padding bit then adds 0)."""
-        width = 8 * self.codes_.shape[1]
-        if P.shape[1] == width:
-            return np.ascontiguousarray(P, dtype=np.float32)
-        out = np.zeros((P.shape[0], width), dtype=np.float32)
-        out[:, : P.shape[1]] = P
-        return out
+        """Asymmetric scoring: the lookup-table scanner of the codes (:func:`signscan.byte_tables`)."""
+        return None if self.scoring == "hamming" else signscan.byte_tables(self.codes_.shape[1])
 
     def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         P = self._project(Q)
         if self.scoring == "hamming":  # zero padding bits add nothing to a Hamming distance
             dist, rows = faiss.knn_hamming(np.packbits(P > 0, axis=1), self.codes_, k)
             return -dist.astype(np.float64), rows
-        if Q.shape[0] < TABLE_QUERIES:
-            return self._scan_tables(self._padded(P), k)
-        return self._scan_blocks(self._padded(P), k)
-
-    def _scan_tables(self, P: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """The k best rows by the lookup-table scan (:meth:`_build_index`), best first."""
-        n = P.shape[0]
-        values = np.empty((n, k), dtype=np.float32)
-        rows = np.empty((n, k), dtype=np.int64)
-        heap = faiss.float_minheap_array_t()
-        heap.nh, heap.k, heap.val, heap.ids = n, k, faiss.swig_ptr(values), faiss.swig_ptr(rows)
-        codes = self.codes_
-        self._index.search_ip(faiss.swig_ptr(P), n, faiss.swig_ptr(codes), codes.shape[0], heap, True)
-        if k > 1:  # faiss' heap keeps the lower rows of a tie but lists them last: best first, then lower row
-            order = np.lexsort((rows, -values), axis=1)
-            values, rows = np.take_along_axis(values, order, axis=1), np.take_along_axis(rows, order, axis=1)
-        return values.astype(np.float64), rows
-
-    def _row_blocks(self, P: np.ndarray):
-        """Yield (start, first, scores of queries first:… against rows start:…) for padded projected queries
-        P: a block of rows at a time, unpacked once to ±1 and scored in chunks of queries, each of at most
-        BLOCK_VALUES values."""
-        n_rows, width = self.codes_.shape[0], 8 * self.codes_.shape[1]
-        rows = max(1, BLOCK_VALUES // width)
-        chunk = max(1, BLOCK_VALUES // min(rows, n_rows))
-        for start in range(0, n_rows, rows):
-            signs = np.take(_BYTE_SIGNS, self.codes_[start : start + rows], axis=0).reshape(-1, width)
-            for first in range(0, P.shape[0], chunk):
-                yield start, first, P[first : first + chunk] @ signs.T
-
-    def _scan_blocks(self, P: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """The k best rows from blocks of unpacked rows, merged block by block; best first, ties lower row
-        first."""
-        n = P.shape[0]
-        best_values, best_rows = np.empty((n, 0)), np.empty((n, 0), dtype=np.int64)
-        values: list[np.ndarray] = []
-        rows: list[np.ndarray] = []
-        for start, first, scores in self._row_blocks(P):
-            block_values, block_rows = top_k(scores, min(k, scores.shape[1]))
-            values.append(block_values)
-            rows.append(block_rows + start)
-            if first + scores.shape[0] < n:  # more chunks of queries of this block of rows to come
-                continue
-            best_values = np.concatenate([best_values, np.concatenate(values)], axis=1)
-            best_rows = np.concatenate([best_rows, np.concatenate(rows)], axis=1)
-            values, rows = [], []
-            if best_values.shape[1] > k:
-                best_values, keep = top_k(best_values, k)
-                best_rows = np.take_along_axis(best_rows, keep, axis=1)
-        order = top_k(best_values, best_values.shape[1])[1]
-        return np.take_along_axis(best_values, order, axis=1), np.take_along_axis(best_rows, order, axis=1)
+        return signscan.search(self._index, self.codes_, P, k)
 
     def _place_scores(self, Q: np.ndarray) -> np.ndarray:
         """Every row's asymmetric score, block by block (places = rows); otherwise from the search."""
         if self.scoring == "hamming" or self.row_places_ is not None:
             return super()._place_scores(Q)
         check_magnitude(Q, "Q")
-        out = np.empty((Q.shape[0], self.codes_.shape[0]))
-        for start, first, scores in self._row_blocks(self._padded(self._project(Q))):
-            out[first : first + scores.shape[0], start : start + scores.shape[1]] = scores
-        return out
+        return signscan.scores(self.codes_, self._project(Q))
 
     def summary(self) -> str:
         """One line: bits per row, scoring, seed and the front end."""
+        centred = "centred" if self.mean_ is not None else "uncentred"
         return (f"lsh: {self.n_bits_} bits per row, {self.scoring} scoring, {self.projection} projection "
-                f"from seed {self.seed_} (0 B), {'centred' if self.mean_ is not None else 'uncentred'}; front end "
+                f"from seed {self.seed_} (0 B), {centred}; front end "
                 f"{self.front_end_.describe()}")
 
     def _model_arrays(self) -> dict[str, np.ndarray]:
