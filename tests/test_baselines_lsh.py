@@ -236,9 +236,23 @@ def test_gardens_point_asymmetric_lsh_beats_hamming_and_approaches_brute_force(g
 
 # ----------------------------------------------------------------------------- the scan of packed codes
 def _reference(model, Q):
-    """(qR) · sign(x_i R) from unpacked codes: the asymmetric score of every row."""
-    P = model._project(btel.frontend.normalize_rows(Q))
-    return P @ (np.unpackbits(model.codes_, axis=1, count=model.n_bits_).astype(np.float32) * 2 - 1).T
+    """(qR) · sign(x_i R) from unpacked codes: the asymmetric score of every row (qR on the scans' grid)."""
+    from btel.methods.baselines.signscan import query_rows
+
+    P = query_rows(model._project(btel.frontend.normalize_rows(Q)), model.codes_.shape[1])[:, : model.n_bits_]
+    return P.astype(np.float64) @ (np.unpackbits(model.codes_, axis=1, count=model.n_bits_) * 2.0 - 1).T
+
+
+def test_a_query_s_answer_does_not_depend_on_its_batch() -> None:
+    """Rows with the same code tie exactly in every scan: alone or in a batch, the lower row answers."""
+    X = np.random.default_rng(3).normal(size=(300, 3)).astype(np.float32)
+    X[[40, 41]] = X[7] * np.float32(1.0001)  # the same direction: the same codes as row 7
+    model = LSHLocalizer(n_bits=256).fit(X)
+    Q = X[:20]
+    batch = model.predict(Q)
+    same = np.flatnonzero((model.codes_ == model.codes_[7]).all(axis=1))   # every row tied with row 7
+    assert {7, 40, 41} <= set(same.tolist()) and batch[7] == same.min()
+    np.testing.assert_array_equal(batch, [model.predict(q[None])[0] for q in Q])
 
 
 @pytest.mark.parametrize("n_bits", [13, 64, 203])

@@ -2,8 +2,9 @@
 
 Row i's code is P bits packed 8 to a byte (``np.packbits``, most significant bit first; zero padding
 bits to whole bytes); a query is P real values (its projection), zero-padded to the same 8·⌈P/8⌉, so
-a padding bit adds nothing. Two exact scans give the same scores up to float32 rounding, and neither
-holds an unpacked copy of the codes:
+a padding bit adds nothing, and rounded to a grid on which every sum of its ±values is exact in
+float32 (:func:`query_rows`). Two scans then give bit-identical scores — a query's answer does not
+depend on the batch it came in — and neither holds an unpacked copy of the codes:
 
 - **lookup tables** (a few queries): faiss ``ProductQuantizer.search_ip`` with ⌈P/8⌉ one-byte
   sub-quantisers whose 256 codewords are the ±1 patterns of a byte — per query a table of 256 partial
@@ -24,7 +25,7 @@ import numpy as np
 
 from ...topk import top_k
 
-__all__ = ["TABLE_QUERIES", "BLOCK_VALUES", "BYTE_SIGNS", "byte_tables", "padded", "search", "scores",
+__all__ = ["TABLE_QUERIES", "BLOCK_VALUES", "BYTE_SIGNS", "byte_tables", "query_rows", "search", "scores",
            "scan_tables", "scan_blocks"]
 
 #: Batches of fewer queries are scanned by lookup tables, larger ones by blocks.
@@ -42,14 +43,18 @@ def byte_tables(n_bytes: int) -> faiss.ProductQuantizer:
     return tables
 
 
-def padded(P: np.ndarray, n_bytes: int) -> np.ndarray:
-    """Queries (n, P) as contiguous float32 (n, 8·n_bytes), zero-padded."""
+def query_rows(P: np.ndarray, n_bytes: int) -> np.ndarray:
+    """Queries (n, P) as the scans take them: contiguous float32 (n, 8·n_bytes), zero-padded, and each row
+    rounded to the grid of step 2^(⌈log2(width · max|q|)⌉ − 24), on which every partial sum of ±q_j is
+    an integer number of steps below 2²⁴ — exact in float32, so every scan and every summation order
+    gives the same scores (and ties the same lower row). At least 2²⁴ / (2·width) steps span max|q|:
+    1024 at P = 8192."""
     width = 8 * n_bytes
-    if P.shape[1] == width:
-        return np.ascontiguousarray(P, dtype=np.float32)
     out = np.zeros((P.shape[0], width), dtype=np.float32)
     out[:, : P.shape[1]] = P
-    return out
+    bound = np.abs(out).max(axis=1, keepdims=True).astype(np.float64) * width
+    step = np.exp2(np.ceil(np.log2(np.where(bound > 0, bound, 1.0))) - 24)
+    return (np.rint(out / step) * step).astype(np.float32)
 
 
 def search(tables: faiss.ProductQuantizer, codes: np.ndarray, P: np.ndarray, k: int
@@ -70,7 +75,7 @@ def search(tables: faiss.ProductQuantizer, codes: np.ndarray, P: np.ndarray, k: 
     scores : ndarray of shape (n_queries, k), float64
     rows : ndarray of shape (n_queries, k), int64
     """
-    P = padded(P, codes.shape[1])
+    P = query_rows(P, codes.shape[1])
     if P.shape[0] < TABLE_QUERIES:
         return scan_tables(tables, codes, P, k)
     return scan_blocks(codes, P, k)
@@ -78,7 +83,7 @@ def search(tables: faiss.ProductQuantizer, codes: np.ndarray, P: np.ndarray, k: 
 
 def scores(codes: np.ndarray, P: np.ndarray) -> np.ndarray:
     """Every row's score for every query, (n_queries, n_rows) float64, block by block."""
-    P = padded(P, codes.shape[1])
+    P = query_rows(P, codes.shape[1])
     out = np.empty((P.shape[0], codes.shape[0]))
     for start, first, block in _row_blocks(codes, P):
         out[first : first + block.shape[0], start : start + block.shape[1]] = block
@@ -87,7 +92,7 @@ def scores(codes: np.ndarray, P: np.ndarray) -> np.ndarray:
 
 def scan_tables(tables: faiss.ProductQuantizer, codes: np.ndarray, P: np.ndarray, k: int
                 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`search` by lookup tables (``P`` padded)."""
+    """:func:`search` by lookup tables (``P`` from :func:`query_rows`)."""
     n = P.shape[0]
     values = np.empty((n, k), dtype=np.float32)
     rows = np.empty((n, k), dtype=np.int64)
@@ -113,7 +118,7 @@ def _row_blocks(codes: np.ndarray, P: np.ndarray) -> Iterator[tuple[int, int, np
 
 
 def scan_blocks(codes: np.ndarray, P: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`search` by blocks of unpacked rows (``P`` padded), merged block by block."""
+    """:func:`search` by blocks of unpacked rows (``P`` from :func:`query_rows`), merged block by block."""
     n = P.shape[0]
     best_values, best_rows = np.empty((n, 0)), np.empty((n, 0), dtype=np.int64)
     values: list[np.ndarray] = []
