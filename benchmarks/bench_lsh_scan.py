@@ -1,6 +1,8 @@
 """LSH's asymmetric scan of packed codes: lookup tables, unpacked row blocks, and the float32 copy before.
 
-For each (N rows, P bits) shape and batch size, random codes are scanned for the best row of each query by
+For each (N rows, P bits) shape and batch size, random codes are scanned for the best row of each
+query by (both scans timed from the raw queries, their rounding to the exact grid of
+:func:`btel.methods.baselines.signscan.query_rows` included):
 
 - **tables**: faiss ``ProductQuantizer.search_ip`` with the byte's 256 ±1 patterns as codebook (what
   ``lsh`` does below :data:`btel.methods.baselines.signscan.TABLE_QUERIES` queries);
@@ -50,11 +52,14 @@ def main() -> None:
             codes = rng.integers(0, 256, (n_rows, n_bits // 8), dtype=np.uint8)
             tables = signscan.byte_tables(codes.shape[1])
             copy = np.take(signscan.BYTE_SIGNS, codes, axis=0).reshape(n_rows, -1)
+
+            def grid(P, n_bytes=codes.shape[1]):  # the queries as lsh hands them to a scan
+                return signscan.query_rows(P, n_bytes)
             for n_queries in BATCHES:
                 P = rng.standard_normal((n_queries, n_bits), dtype=np.float32)
                 row = {"n_rows": n_rows, "n_bits": n_bits, "n_queries": n_queries,
-                       "tables_ms": best_ms(lambda: signscan.scan_tables(tables, codes, P, 1)),
-                       "blocks_ms": best_ms(lambda: signscan.scan_blocks(codes, P, 1)),
+                       "tables_ms": best_ms(lambda: signscan.scan_tables(tables, codes, grid(P), 1)),
+                       "blocks_ms": best_ms(lambda: signscan.scan_blocks(codes, grid(P), 1)),
                        "float_copy_ms": best_ms(lambda: np.argmax(P @ copy.T, axis=1))}
                 rows.append(row)
                 print(f"N {n_rows:>7}  P {n_bits:>5}  queries {n_queries:>4}:  "

@@ -10,7 +10,8 @@ depend on the batch it came in — and neither holds an unpacked copy of the cod
   sub-quantisers whose 256 codewords are the ±1 patterns of a byte — per query a table of 256 partial
   sums per byte, then one lookup per byte of every row, reading the codes in place;
 - **blocks** (batches): rows unpacked to ±1 :data:`BLOCK_VALUES` values at a time (``np.take`` of a
-  256 × 8 table), one matrix product with a chunk of queries each, merged block by block.
+  256 × 8 table), one matrix product with a chunk of queries each, merged block by block; its two
+  buffers (at most 2 × BLOCK_VALUES float32) are kept per thread between scans.
 
 :data:`TABLE_QUERIES` is where the blocks' one matrix product per block starts to beat a table per
 query. Evidence: ``docs/decisions/lsh-projection.md`` (``benchmarks/bench_lsh_scan.py``).
@@ -18,6 +19,7 @@ query. Evidence: ``docs/decisions/lsh-projection.md`` (``benchmarks/bench_lsh_sc
 
 from __future__ import annotations
 
+import threading
 from typing import Iterator
 
 import faiss
@@ -34,6 +36,8 @@ TABLE_QUERIES = 8
 BLOCK_VALUES = 1 << 20
 #: The 256 byte values as 8 ±1 values each, most significant bit first (``np.packbits``' order).
 BYTE_SIGNS = np.unpackbits(np.arange(256, dtype=np.uint8)[:, None], axis=1).astype(np.float32) * 2 - 1
+#: Per-thread work buffers of the block scan (:func:`_buffer`).
+_BUFFERS = threading.local()
 
 
 def byte_tables(n_bytes: int) -> faiss.ProductQuantizer:
@@ -105,16 +109,32 @@ def scan_tables(tables: faiss.ProductQuantizer, codes: np.ndarray, P: np.ndarray
     return values.astype(np.float64), rows
 
 
+def _buffer(name: str, size: int) -> np.ndarray:
+    """A float32 work buffer of ``size`` values, kept per thread between scans: a fresh array each time
+    costs its page faults, which outweighed the product they feed (a few MB, at most BLOCK_VALUES)."""
+    buffer = getattr(_BUFFERS, name, None)
+    if buffer is None or buffer.size < size:
+        buffer = np.empty(size, dtype=np.float32)
+        setattr(_BUFFERS, name, buffer)
+    return buffer[:size]
+
+
 def _row_blocks(codes: np.ndarray, P: np.ndarray) -> Iterator[tuple[int, int, np.ndarray]]:
     """Yield (start, first, scores of queries first:… against rows start:…): a block of rows at a time,
-    unpacked once to ±1 and scored in chunks of queries, each of at most BLOCK_VALUES values."""
-    n_rows, width = codes.shape[0], 8 * codes.shape[1]
-    rows = max(1, BLOCK_VALUES // width)
-    chunk = max(1, BLOCK_VALUES // min(rows, n_rows))
+    unpacked once to ±1 and scored in chunks of queries, each of at most BLOCK_VALUES values. The scores
+    are a reused buffer: read them before the next item."""
+    n_rows, n_bytes = codes.shape
+    rows = min(n_rows, max(1, BLOCK_VALUES // (8 * n_bytes)))
+    chunk = max(1, BLOCK_VALUES // rows)
     for start in range(0, n_rows, rows):
-        signs = np.take(BYTE_SIGNS, codes[start : start + rows], axis=0).reshape(-1, width)
+        block = codes[start : start + rows]
+        signs = _buffer("signs", block.size * 8).reshape(block.shape[0], n_bytes, 8)
+        np.take(BYTE_SIGNS, block, axis=0, out=signs)
+        signs = signs.reshape(block.shape[0], 8 * n_bytes)
         for first in range(0, P.shape[0], chunk):
-            yield start, first, P[first : first + chunk] @ signs.T
+            queries = P[first : first + chunk]
+            scores = _buffer("scores", queries.shape[0] * block.shape[0]).reshape(queries.shape[0], -1)
+            yield start, first, np.matmul(queries, signs.T, out=scores)
 
 
 def scan_blocks(codes: np.ndarray, P: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
