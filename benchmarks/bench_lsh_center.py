@@ -1,7 +1,7 @@
 """LSH with and without the map mean subtracted (``center=True`` / ``False``), and the map's cone ratio.
 
 For each map of ``btel experiment frontier`` and budgets 16 KB, 64 KB and 256 KB, ``lsh`` (asymmetric
-scoring, orthogonal hyperplanes) is fitted centred and uncentred under seeds 0 … ``--seeds`` − 1 and
+scoring, its default projection) is fitted centred and uncentred under seeds 0 … ``--seeds`` − 1 and
 scored by that map's key recall (recall@2 on Gardens Point and the synthetic route, recall@10 on
 Nordland, recall@0 on maps of independent places). The cone ratio (‖mean row‖ / RMS row length of
 the L2-normalised map, :func:`btel.methods.baselines.lsh.cone_ratio`) is what ``center='auto'`` reads.

@@ -4,7 +4,7 @@ Whitening flattens the map's spectrum: the rows' variance spreads over many more
 P-bit sign sketch estimates angles with an error of about 1/√P whatever the dimension. Brute force
 gains from the flattening; LSH with few bits against d can lose. This measures where, at the same
 budget (the whitening's arrays come out of it): ``lsh`` and ``lsh whiten="shrink"`` (asymmetric
-scoring, orthogonal hyperplanes) under seeds 0 … ``--seeds`` − 1, on
+scoring, its default projection) under seeds 0 … ``--seeds`` − 1, on
 
 - a high-dimensional synthetic map (d = 2048, N = 2000, ``synthetic_route(condition_shift=2.5,
   noise=0.6, seed=21)``) as a route (recall@2) and with map and query rows permuted alike (recall@0);

@@ -90,7 +90,8 @@ def test_projection_is_regenerated_from_the_recorded_seed(pair, tmp_path) -> Non
     model = LSHLocalizer(budget=8_000, random_state=None).fit(X)
     again = btel.load(model.save(tmp_path / "m.npz"))
     assert again.seed_ == model.seed_
-    np.testing.assert_array_equal(again.projection_, projection_matrix(64, model.n_bits_, model.seed_, "orthogonal"))
+    R = projection_matrix(64, model.n_bits_, model.seed_, "hadamard")
+    np.testing.assert_array_equal(again.projection_.matrix(), R)
     np.testing.assert_array_equal(again.search(Q, 5)[1], model.search(Q, 5)[1])
 
 
@@ -98,7 +99,7 @@ def test_asymmetric_score_is_projected_query_times_the_sign_codes(pair) -> None:
     X, Q = pair
     model = LSHLocalizer(n_bits=64, center=False).fit(X)
     Z, Qz = btel.frontend.normalize_rows(X), btel.frontend.normalize_rows(Q[:5])
-    R = projection_matrix(64, 64, 0, "orthogonal")
+    R = projection_matrix(64, 64, 0, "hadamard")
     expected = (Qz @ R) @ np.sign(Z @ R).T
     np.testing.assert_allclose(model.place_scores(Q[:5]), expected, rtol=1e-4, atol=1e-3)
 
@@ -131,10 +132,11 @@ def test_a_model_file_without_a_projection_loads_with_the_gaussian_one(pair, tmp
     old = save_arrays(tmp_path / "old.npz", arrays, header)
     again = btel.load(old)
     assert again.projection == "gaussian"
-    np.testing.assert_array_equal(again.projection_, projection_matrix(64, gaussian.n_bits_, 0, "gaussian"))
+    R = projection_matrix(64, gaussian.n_bits_, 0, "gaussian")
+    np.testing.assert_array_equal(again.projection_.matrix(), R)
     np.testing.assert_array_equal(again.search(Q, 5)[1], gaussian.search(Q, 5)[1])
     # A state that contradicts the parameters is a damaged file.
-    header["params"]["projection"], header["state"]["projection"] = "orthogonal", "gaussian"
+    header["params"]["projection"], header["state"]["projection"] = "hadamard", "gaussian"
     with pytest.raises(btel.exceptions.ModelFileError, match="projection"):
         btel.load(save_arrays(tmp_path / "bad.npz", arrays, header))
     header["params"].pop("projection")
@@ -230,3 +232,108 @@ def test_gardens_point_asymmetric_lsh_beats_hamming_and_approaches_brute_force(g
     brute = r2(make_method("bruteforce"))
     # Measured: 0.430 / 0.415 / 0.480 (btel experiment frontier has every budget).
     assert asym >= ham and asym >= 0.85 * brute
+
+
+# ----------------------------------------------------------------------------- the scan of packed codes
+def _reference(model, Q):
+    """(qR) · sign(x_i R) from unpacked codes: the asymmetric score of every row (qR on the scans' grid)."""
+    from btel.methods.baselines.signscan import query_rows
+
+    P = query_rows(model._project(btel.frontend.normalize_rows(Q)), model.codes_.shape[1])[:, : model.n_bits_]
+    return P.astype(np.float64) @ (np.unpackbits(model.codes_, axis=1, count=model.n_bits_) * 2.0 - 1).T
+
+
+def test_a_query_s_answer_does_not_depend_on_its_batch() -> None:
+    """Rows with the same code tie exactly in every scan: alone or in a batch, the lower row answers."""
+    X = np.random.default_rng(3).normal(size=(300, 3)).astype(np.float32)
+    X[[40, 41]] = X[7] * np.float32(1.0001)  # the same direction: the same codes as row 7
+    model = LSHLocalizer(n_bits=256).fit(X)
+    Q = X[:20]
+    batch = model.predict(Q)
+    same = np.flatnonzero((model.codes_ == model.codes_[7]).all(axis=1))   # every row tied with row 7
+    assert {7, 40, 41} <= set(same.tolist()) and batch[7] == same.min()
+    np.testing.assert_array_equal(batch, [model.predict(q[None])[0] for q in Q])
+
+
+@pytest.mark.parametrize("n_bits", [13, 64, 203])
+@pytest.mark.parametrize("n_queries", [1, 40])
+def test_search_and_place_scores_are_the_asymmetric_scores_of_the_packed_codes(pair, n_bits, n_queries,
+                                                                               monkeypatch) -> None:
+    """Through the model (front end, projection, padding to whole bytes): both scans of
+    :mod:`btel.methods.baselines.signscan`, with its blocks at their size and tiny."""
+    from btel.methods.baselines import signscan
+
+    X, Q = pair
+    model = LSHLocalizer(n_bits=n_bits, center=False).fit(X)
+    reference = _reference(model, Q[:n_queries])
+    for block_values in (signscan.BLOCK_VALUES, 1 << 10):
+        monkeypatch.setattr(signscan, "BLOCK_VALUES", block_values)
+        scores, places = model.search(Q[:n_queries], 7)
+        np.testing.assert_allclose(scores, np.take_along_axis(reference, places, axis=1), atol=1e-4)
+        np.testing.assert_allclose(scores[:, -1], np.sort(reference, axis=1)[:, -7], atol=1e-4)
+        np.testing.assert_allclose(model.place_scores(Q[:n_queries]), reference, atol=1e-4)
+
+
+def test_a_loaded_model_holds_its_codes_and_a_bounded_block_not_a_float_copy(tmp_path) -> None:
+    """4 MB of codes: a float32 ±1 copy would take 134 MB; load and search stay within stored + 64 MB."""
+    import tracemalloc
+
+    rng = np.random.default_rng(1)
+    X = rng.normal(size=(32_768, 64)).astype(np.float32)
+    model = LSHLocalizer(n_bits=1024, center=False).fit(X)
+    path = model.save(tmp_path / "big.npz")
+    stored = model.nbytes
+    del model
+    tracemalloc.start()
+    try:
+        again = btel.load(path)
+        after_load = tracemalloc.get_traced_memory()[0]
+        again.predict(X[:1])
+        again.search(X[:64], 5)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert after_load <= stored + (1 << 20)   # the codes and little else
+    assert peak <= stored + (64 << 20)
+
+
+def test_a_budget_is_refused_from_the_shapes_before_the_map_is_transformed() -> None:
+    """The planner runs on (N, d) first: refusing 8 KB for 100,000 rows allocates no normalised copy of X."""
+    import tracemalloc
+
+    X = np.ones((100_000, 128), dtype=np.float32)   # 51 MB
+    tracemalloc.start()
+    try:
+        with pytest.raises(BudgetTooSmallError) as info:
+            LSHLocalizer(budget="8KB").fit(X)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert info.value.minimum == 100_000 and peak < 4 << 20
+
+
+@pytest.mark.parametrize("method, n_rows, d, budget", [("lsh", 500, 8192, "1MB"), ("auto", 500, 8192, "1MB"),
+                                                      ("lsh", 2000, 12288, "256KB")])
+def test_near_duplicate_queries_of_wide_descriptors_are_found(method, n_rows, d, budget, tmp_path) -> None:
+    """Rows sharing a common direction and a low-rank part; queries are the rows plus noise (cosine ≈ 0.93
+    to their own row against ≈ 0.6 to the nearest other). Found after a save and a load."""
+    rng = np.random.default_rng(d)
+    X = rng.standard_normal((n_rows, d), dtype=np.float32)
+    X *= 0.6
+    X += rng.standard_normal(d, dtype=np.float32)
+    factors = rng.standard_normal((n_rows, 64), dtype=np.float32)
+    X += 0.075 * (factors @ rng.standard_normal((64, d), dtype=np.float32))
+    Q = X + 0.5 * rng.standard_normal((n_rows, d), dtype=np.float32)
+    model = btel.load(make_method(method, budget=budget).fit(X).save(tmp_path / "m.npz"))
+    assert model.nbytes <= btel.storage.parse_budget(budget)
+    assert (model.predict(Q) == np.arange(n_rows)).mean() >= 0.9
+
+
+def test_a_model_file_with_orthogonal_blocks_loads_and_answers_as_it_was_fitted(pair, tmp_path) -> None:
+    X, Q = pair
+    model = LSHLocalizer(budget=8_000, projection="orthogonal").fit(X)
+    again = btel.load(model.save(tmp_path / "o.npz"))
+    assert again.projection == "orthogonal"
+    R = projection_matrix(64, model.n_bits_, 0, "orthogonal")
+    np.testing.assert_array_equal(again.projection_.matrix(), R)
+    np.testing.assert_array_equal(again.search(Q, 5)[1], model.search(Q, 5)[1])

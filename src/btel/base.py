@@ -180,9 +180,10 @@ class PlaceLocalizer(ParamsMixin, ABC):
         """
         start = time.perf_counter()
         X, labels, n_places = self._check_fit_input(X, places)
-        budget = parse_budget(getattr(self, "budget", None))
-        front = FrontEnd.of(self)
+        budget, front = parse_budget(getattr(self, "budget", None)), FrontEnd.of(self)
         reserved = self._front_end_bytes(X.shape[0], X.shape[1], budget)
+        if labels is None:  # one place per row, as the planner counts: refuse the budget before transforming
+            self._check_plan(X.shape[0], front.n_features_out(X.shape[1]), budget, reserved)
         Z = front.fit_transform(X, traverse_starts(labels))
         self._fit(Z, labels, n_places, budget, reserved)
         self.front_end_ = front
@@ -233,8 +234,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
         self._check_plan(n_rows, FrontEnd.of(self).n_features_out(n_features), budget, reserved)
 
     def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
-        """The method's own planner on shapes alone (see :meth:`check_budget`). Default: the storage is
-        decided only by fitting, so nothing can be said before it."""
+        """The planner on shapes alone (:meth:`check_budget`; ``fit`` runs it first). Default: nothing."""
 
     def _front_end_bytes(self, n_rows: int, n_features: int, budget: int | None) -> int:
         """Bytes of the front end's stored arrays, or the error ``fit`` raises when they alone fill the budget."""

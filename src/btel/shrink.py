@@ -49,6 +49,8 @@ SHRINK_LAMBDA = 1.0
 SHRINK_BUDGET_SHARE = 0.25
 #: Most eigenvectors kept.
 SHRINK_MAX_RANK = 32
+#: Wide maps of more values than this take their top directions from the rows' Gram matrix.
+GRAM_VALUES = 1 << 20
 
 
 #: Bits per entry of the stored basis (levels −(2^(b−1) − 1) … 2^(b−1) − 1).
@@ -121,19 +123,15 @@ def fit_shrink(Z: np.ndarray, rank: int, levels: int = _LEVELS) -> tuple[np.ndar
             f"map has the mean {largest:.3g}. Normalise the rows (normalize='l2', the default) or scale the "
             "descriptors.")
     mean = mean64.astype(np.float16)
-    centred = np.asarray(Z, dtype=np.float64) - mean.astype(np.float64)
+    centred = np.array(Z, dtype=np.float64)  # one float64 copy, centred in place
+    centred -= mean.astype(np.float64)
     trace = float(np.einsum("ij,ij->", centred, centred)) / max(n - 1, 1)
     lam = SHRINK_LAMBDA * trace / d
     if rank == 0:
         empty = np.zeros((d, 0), dtype=np.int8)
         return mean, empty, np.zeros(0, dtype=np.float32), np.zeros(0, dtype=np.float32)
-    # Top eigenvectors of the covariance = right singular vectors of the centred rows.
-    if rank + 1 < min(n, d) // 2 and min(n, d) > 500:
-        from sklearn.utils.extmath import randomized_svd
-
-        _, sv, vt = randomized_svd(centred, rank + 1, random_state=0)
-    else:
-        _, sv, vt = np.linalg.svd(centred, full_matrices=False)
+    sv, vt = _top_directions(centred, rank + 1)
+    del centred
     eig_all = sv**2 / max(n - 1, 1)
     eig, vt = eig_all[:rank], vt[:rank]
     rest = float(eig_all[rank]) if eig_all.size > rank else 0.0
@@ -142,6 +140,32 @@ def fit_shrink(Z: np.ndarray, rank: int, levels: int = _LEVELS) -> tuple[np.ndar
     scale = np.maximum(np.abs(U).max(axis=0), 1e-12) / levels
     basis = np.clip(np.rint(U / scale), -levels, levels).astype(np.int8)
     return mean, basis, scale.astype(np.float32), gains
+
+
+def _top_directions(centred: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The top singular values and right singular vectors of the centred rows (n, d): at least k of each
+    (all of them from a full SVD), never a d × d matrix.
+
+    A randomized SVD (scikit-learn's) when k is small against min(n, d) > 500; for a wide map (d > n)
+    of more than :data:`GRAM_VALUES` values, the eigen-decomposition of the n × n Gram matrix (the same
+    directions, n²·d work in one matrix product instead of an SVD's bidiagonalisation); else a full SVD.
+    """
+    n, d = centred.shape
+    if k < min(n, d) // 2 and min(n, d) > 500:
+        from sklearn.utils.extmath import randomized_svd
+
+        _, sv, vt = randomized_svd(centred, k, random_state=0)
+        return sv, vt
+    if d > n and n * d > GRAM_VALUES:
+        eig, U = np.linalg.eigh(centred @ centred.T)
+        eig, U = eig[::-1][:k], U[:, ::-1][:, :k]
+        sv = np.sqrt(np.maximum(eig, 0.0))
+        vt = U.T @ centred
+        # A direction of zero variance has a gain of 0 (module docstring): any vector serves; 0 is stored.
+        vt /= np.where(sv > 0, sv, np.inf)[:, None]
+        return sv, vt
+    _, sv, vt = np.linalg.svd(centred, full_matrices=False)
+    return sv, vt
 
 
 def apply_shrink(Z: np.ndarray, mean: np.ndarray, basis: np.ndarray, basis_scale: np.ndarray,

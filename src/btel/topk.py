@@ -16,6 +16,11 @@ def top_k(scores: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     columns : ndarray of shape (n, k), int64
     """
     n_cols = scores.shape[1]
+    if k == 1 and n_cols:  # one pass: argmax returns the first (lowest) column of the maximum
+        best = np.argmax(scores, axis=1)[:, None]
+        values = np.take_along_axis(scores, best, axis=1)
+        if not np.isnan(values).any():  # argmax takes NaN for the maximum; the general path ranks it last
+            return values.astype(np.float64), best.astype(np.int64)
     if k < n_cols:
         part = np.argpartition(-scores, k - 1, axis=1)[:, :k]
     else:

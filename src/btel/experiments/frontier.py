@@ -1,7 +1,7 @@
 """Experiment "frontier": every method × budgets on routes and on independent places, and auto's choice.
 
 ``btel experiment frontier`` measures, in one run, the key recall of every registered method (plus
-asymmetric / Hamming LSH, LSH with i.i.d. Gaussian hyperplanes beside the default orthogonal ones,
+asymmetric / Hamming LSH, LSH with i.i.d. Gaussian hyperplanes beside its default structured ones,
 random output codes, and every fast method — LSH, both code families, PQ, ITQ, brute force — on
 shrinkage-whitened rows too, so that the oracle holds each in its strongest form)
 at budgets 1 KB … 1 MB on eight maps:
@@ -28,8 +28,8 @@ periodic on a route or an ordered map).
 Per map and budget the *oracle* is the best row of the table at that budget (every method and
 variant that fits); ``auto`` (:mod:`btel.methods.auto`) chooses from the map and the budget alone, and the
 run reports its choice, its recall, the oracle's and their ratio (the target: ≥ 0.95 × the best and
-≥ asymmetric LSH on i.i.d. Gaussian hyperplanes, the classic baseline; ``lsh``'s default orthogonal
-hyperplanes are a row of their own). Brute force (cosine, and on shrinkage-whitened rows) is the
+≥ asymmetric LSH on i.i.d. Gaussian hyperplanes, the classic baseline; ``lsh``'s default projection
+is a row of its own). Brute force (cosine, and on shrinkage-whitened rows) is the
 unbudgeted reference of every map.
 
 Every seeded row at every budget is the mean over :data:`SEEDS` (``random_state`` 0, 1, 2; two in
@@ -203,7 +203,7 @@ def auto_vs_oracle(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             best = max(others, key=lambda r: r["value"])  # auto refits one of the others: never its own oracle
             registered = [r for r in here if r["method"] == r["registry_name"] and r["method"] != "auto"]
             best_registered = max(registered, key=lambda r: r["value"]) if registered else None
-            # The reference: asymmetric LSH on i.i.d. Gaussian hyperplanes (``lsh``'s default is orthogonal).
+            # The reference: asymmetric LSH on i.i.d. Gaussian hyperplanes (``lsh``'s default is structured).
             lsh = next((r for r in here if r["method"] == "lsh gaussian"), None) or \
                 next((r for r in here if r["method"] == "lsh"), None)
             entry = {"dataset": dataset, "budget": budget, "key": here[0]["key"],
@@ -348,7 +348,7 @@ def report_lines(payload: dict[str, Any], docs_dir: Path) -> list[str]:
              f"(all but brute force and the 64 KB-only methods) is the mean over seeds {', '.join(map(str, SEEDS))} "
              "(random_state); a row whose answers did not change with the seed ran once. One seed alone moved "
              "single cells by a few hundredths. 'auto − LSH' is auto's recall minus asymmetric LSH on i.i.d. "
-             "Gaussian hyperplanes (the reference column; 'lsh' is orthogonal hyperplanes, its default), paired "
+             "Gaussian hyperplanes (the reference column; 'lsh' is its default projection), paired "
              "by seed, ± the standard error of the mean difference.", "",
              "| map | budget | best (oracle) | best registered method | asymmetric LSH (Gaussian) | auto's choice | auto | "
              "auto / best | ≥ 0.95 × best | ≥ LSH | auto − LSH |", "|---|---|---|---|---|---|---|---|---|---|---|"]

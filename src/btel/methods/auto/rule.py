@@ -150,9 +150,9 @@ picked a candidate within 0.95 of the best of three (periodic codes, LSH, whiten
 22 development cells, this rule in 18; the holdout has no change of conditions between map and
 queries, so it never picked the output codes on Gardens Point, where they win.
 
-The figures above were measured when ``lsh`` drew i.i.d. Gaussian hyperplanes; it now draws
-orthonormal blocks (:mod:`btel.methods.baselines.lsh`), and ``btel experiment frontier`` has the
-current figures.
+The figures above were measured when ``lsh`` drew i.i.d. Gaussian hyperplanes; it then drew
+orthonormal blocks and now sign-flip + Walsh–Hadamard blocks (:mod:`btel.methods.baselines.lsh`,
+docs/decisions/lsh-projection.md), and ``btel experiment frontier`` has the current figures.
 
 A choice that does not fit the budget falls back to the next candidate (``lsh``, then
 ``btel-codes``); what was chosen, why, and the statistics are recorded in the model file

@@ -1,61 +1,40 @@
 """Seeded sign random projections (locality-sensitive hashing, Charikar 2002) filling the byte budget.
 
-Fit: draw a d×P projection R from the recorded seed, store the P signs of ``x_i R`` of every
-(front-end transformed) map row, packed 8 to a byte. Nothing else is stored: R is regenerated from
-the seed at fit and at load (the storage rule: anything regenerated from a recorded seed costs 0
-bytes, as btel-codes' codewords), so the model is the codes plus, with ``center=True``, the map
-mean at float16.
+Fit: project every (front-end transformed) map row x_i by the seed's projection R (d → P), store the
+P signs of x_i R packed 8 to a byte. R is regenerated from the recorded seed at fit and at load
+(anything regenerated from a recorded seed costs 0 bytes), so the model is the codes plus, with
+``center=True``, the map mean at float16.
 
-Scoring (``scoring``):
+Projection (``projection``): ``'hadamard'`` (default) — random sign flips and fast Walsh–Hadamard
+transforms, d padded to a power of two D, three rounds per block of D hyperplanes
+(:mod:`~btel.methods.baselines.hadamard`): within a block the hyperplanes are orthogonal, which
+lowers the variance of the angle the P signs estimate (super-bit LSH, Ji et al. 2012); a row costs
+3·D·Σ factors multiply-adds per block (Hadamard factors of at most 64) and a block 3·D signs of
+memory. ``'orthogonal'`` — the seed's Gaussian d × P matrix with every block of d columns
+orthonormalised by QR (O(d·P²) work at every fit and load, d·P floats of memory; the default before,
+read for files written with it). ``'gaussian'`` — i.i.d. Gaussian hyperplanes (files that record no
+projection used it). Evidence: ``docs/decisions/lsh-projection.md``.
 
-- ``'asymmetric'`` (default): the query is projected but not binarised,
-  score_i = (qR) · sign(x_i R) — the inner product of the projected query with the ±1 code of row i
-  (Gordo et al. 2014; the query's own quantisation error is avoided). The ±1 codes are unpacked
-  once into a float32 runtime cache (N·P·4 bytes of memory, never stored) when that is at most
-  :data:`CACHE_VALUES` values; otherwise they are unpacked block by block at each search.
-- ``'hamming'``: the query is binarised too and the map is searched by Hamming distance (faiss
-  ``IndexBinaryFlat``, an exact popcount scan); score = −distance.
-
-Projection (``projection``): ``'orthogonal'`` (default) — the seed's Gaussian d×P matrix with every
-block of d consecutive columns orthonormalised (QR, signs fixed so the block is Haar-distributed) and
-scaled by √d: within a block the hyperplanes are exactly orthogonal, which lowers the variance of the
-angle the P signs estimate (super-bit LSH, Ji et al. 2012) at the same bytes. ``'gaussian'``: the
-Gaussian matrix itself, i.i.d. hyperplanes (model files that record no projection were written with
-it). Measured, mean of 5 seeds, asymmetric scoring (``benchmarks/bench_lsh_projection.py`` on
-``btel experiment frontier``'s maps), orthogonal against Gaussian: synthetic independent places
-16 KB (128 bits, d = 256) R@1 0.749 vs 0.669, synthetic route 64 KB (250 bits) R@2 0.972 vs 0.879,
-Gardens Point 4 KB 0.429 vs 0.416, Nordland 256 KB 0.258 / 0.248 vs 0.252 / 0.234; within
-−0.006 … +0.016 of each other in the other cells (Gardens Point at 8192 bits, 17 blocks: 0.487 vs
-0.485). The QR costs about 2·d·P² flops at fit and at load (0.15 s at d = 3780,
-P = 552; 1.9 s at P = 2216; 6 s at d = P = 4096, on one thread): pass ``projection='gaussian'``
-where load time matters more than the last hundredths of recall.
+Scoring (``scoring``): ``'asymmetric'`` (default) — the query is projected, not binarised:
+score_i = (qR) · sign(x_i R) (Gordo et al. 2014), computed from the packed codes, never from an
+unpacked copy (:mod:`~btel.methods.baselines.signscan`: lookup tables for a few queries, blocks of
+rows unpacked to ±1 for batches). ``'hamming'`` — the query is binarised too and the codes are
+searched by Hamming distance (faiss ``knn_hamming``); score = −distance.
 
 Budget rule: P = ⌊8·(budget − reserved − mean bytes) / n_rows⌋ bits per row (every bit the budget
 holds; at least 8), at most :data:`MAX_BITS`; without a budget P = :data:`DEFAULT_BITS`. ``n_bits``
 pins P. The codes are stored as one stream of n_rows·P bits (⌈n_rows·P/8⌉ bytes): when P is a
-multiple of 8 that is the (n_rows, P/8) byte matrix of earlier files, otherwise a flat byte array
-(and the state records n_rows). Rows were once rounded down to whole bytes, which left up to 7 bits
-per row of the budget unspent: 48 instead of 53 bits for 600 places at 4 KB.
+multiple of 8 that is the (n_rows, P/8) byte matrix, otherwise a flat byte array (and the state
+records n_rows). The planner needs only the shapes, so ``fit`` refuses a budget before it
+transforms the map.
 
 ``center=True`` subtracts the map mean (d float16, counted) before the projection, so the
 hyperplanes cut through the data rather than past it. ``center='auto'`` (default) does so when the
-map's rows lie in a cone — ‖mean row‖ ≥ :data:`CENTER_CONE` (0.5) × their RMS length, i.e. a mean
-cosine between unit rows of at least 0.25, where a hyperplane through the origin leaves most rows
-on one side and its bit says little — and the mean costs at most :data:`CENTER_SHARE` (1/8) of the
-budget (always without a budget), so that at 1 KB the bits are not spent on a mean. Measured
-(``python benchmarks/bench_lsh_center.py``, three seeds, centred − uncentred, forced): Nordland HOG
-(‖mean‖ 0.75) +0.026 … +0.034 at 64 KB and +0.09 … +0.10 at 256 KB; Gardens Point NetVLAD (0.17)
-−0.018 / −0.032 at 64 / 256 KB, permuted −0.005 … −0.013; the 256-D synthetic maps (0.25)
-−0.022 … +0.018. Before, 'auto' centred on the cost condition alone.
-
-Effective bits (:meth:`LSHLocalizer.effective_bits`, what :mod:`btel.methods.auto` asks before it
-chooses LSH): a sign bit that is the same for most rows carries less than one bit. For unit rows in
-a cone of ratio c (:func:`cone_ratio`) cut by a random hyperplane through the origin, the mean's
-projection is N(0, c²/d) and a row's own part N(0, (1 − c²)/d), so the share of rows on the
-minority side is Φ(−|z|·c/√(1 − c²)), z ~ N(0, 1); :func:`sign_bit_entropy` is its expected binary
-entropy (1 at c = 0, 0.88 at 0.5, 0.68 at 0.75, 0.32 at 0.95). Centred codes count their P bits
-whole. On Nordland HOG at 16 KB (P = 36, c = 0.75, uncentred) that is 24 effective bits; the
-per-bit entropies measured on the map's own codes gave 25.0 / 25.6.
+map's rows lie in a cone — ‖mean row‖ ≥ :data:`CENTER_CONE` × their RMS length — and the mean costs
+at most :data:`CENTER_SHARE` of the budget. :meth:`LSHLocalizer.effective_bits` (what
+:mod:`btel.methods.auto` asks) counts an uncentred sign bit at :func:`sign_bit_entropy` of the cone:
+for unit rows in a cone of ratio c a random hyperplane leaves a share Φ(−|z|·c/√(1 − c²)), z ~ N(0, 1),
+of the rows on its minority side. Evidence: ``docs/decisions/lsh-centring.md``.
 """
 
 from __future__ import annotations
@@ -68,10 +47,12 @@ import numpy as np
 from ..._validation import N_JOBS, RANDOM_STATE, Budget, Interval, Options, read_state_int
 from ...base import ArraySpec
 from ...exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError
-from ._common import _RowLocalizer, check_model_values, raise_budget_too_small
+from . import signscan
+from ._common import _RowLocalizer, check_magnitude, check_model_values, raise_budget_too_small
+from .hadamard import SignedHadamard
 
-__all__ = ["LSHLocalizer", "projection_matrix", "PROJECTIONS", "code_bytes", "dense_codes", "row_codes",
-           "cone_ratio", "sign_bit_entropy"]
+__all__ = ["LSHLocalizer", "projection_matrix", "make_projection", "PROJECTIONS", "code_bytes", "dense_codes",
+           "row_codes", "cone_ratio", "sign_bit_entropy"]
 
 #: Without a budget, codes have this many bits.
 DEFAULT_BITS = 256
@@ -81,30 +62,63 @@ MAX_BITS = 8192
 CENTER_SHARE = 1 / 8
 #: ... and the map's rows lie in a cone: ‖mean row‖ at least this × their RMS length (module docstring).
 CENTER_CONE = 0.5
-#: The ±1 codes are cached as float32 when N·P is at most this (256 MB).
-CACHE_VALUES = 1 << 26
-#: Map rows unpacked at a time when the codes are not cached.
+#: Values projected at a time when the map is coded: 4 MB of float32.
+BLOCK_VALUES = 1 << 20
+#: Map rows repacked at a time between the row matrix and the dense stream.
 _BLOCK_ROWS = 4096
 
-
 #: The projections ``projection`` takes (module docstring); files without one used the last.
-PROJECTIONS = ("orthogonal", "gaussian")
+PROJECTIONS = ("hadamard", "orthogonal", "gaussian")
+
+
+class _DenseProjection:
+    """A d × P projection matrix held whole (``'orthogonal'`` and ``'gaussian'``)."""
+
+    def __init__(self, matrix: np.ndarray, kind: str) -> None:
+        self._matrix, self.kind = matrix, kind
+
+    @property
+    def nbytes(self) -> int:
+        return int(self._matrix.nbytes)
+
+    def apply(self, X: np.ndarray) -> np.ndarray:
+        return np.asarray(X, dtype=np.float32) @ self._matrix
+
+    def matrix(self) -> np.ndarray:
+        return self._matrix
+
+
+def make_projection(n_features: int, n_bits: int, seed: int, kind: str = "hadamard") -> Any:
+    """The projection of a seed: an object with ``apply(X) -> X R`` ((n, d) → (n, P) float32) and
+    ``matrix()`` (R, (d, P) float32).
+
+    ``'hadamard'``: :class:`~btel.methods.baselines.hadamard.SignedHadamard` (nothing d × P is held
+    unless it is small); ``'orthogonal'`` and ``'gaussian'``: the d × P matrix of :func:`projection_matrix`.
+    """
+    if kind == "hadamard":
+        return SignedHadamard(n_features, n_bits, seed)
+    return _DenseProjection(projection_matrix(n_features, n_bits, seed, kind), kind)
 
 
 def projection_matrix(n_features: int, n_bits: int, seed: int, kind: str = "gaussian") -> np.ndarray:
-    """The d×P projection of a seed, float32: Gaussian (numpy's PCG64 ``standard_normal``), or that matrix
-    with each block of d consecutive columns orthonormalised and scaled by √d (``kind='orthogonal'``).
+    """The d×P projection of a seed as a float32 matrix.
 
-    Deterministic for a given numpy bit generator, so it is regenerated rather than stored (the
-    orthogonal one up to the last bits of the platform's QR, which move a query's projection, not
-    the stored signs).
+    ``'gaussian'``: numpy's PCG64 ``standard_normal`` (d, P); ``'orthogonal'``: that matrix with each
+    block of d consecutive columns orthonormalised (QR, signs fixed so the block is Haar-distributed)
+    and scaled by √d; ``'hadamard'``: :class:`~btel.methods.baselines.hadamard.SignedHadamard`'s matrix.
+
+    Deterministic for a given numpy bit generator, so it is regenerated rather than stored (up to the
+    last bits of the platform's QR or matrix products, which move a query's projection, not the
+    stored signs).
     """
+    if kind not in PROJECTIONS:
+        raise InvalidParameterError(f"projection must be one of {PROJECTIONS}; got {kind!r}.")
+    if kind == "hadamard":
+        return SignedHadamard(n_features, n_bits, seed).matrix()
     rng = np.random.default_rng(int(seed))
     gaussian = rng.standard_normal((int(n_features), int(n_bits)), dtype=np.float32)
     if kind == "gaussian":
         return gaussian
-    if kind != "orthogonal":
-        raise InvalidParameterError(f"projection must be one of {PROJECTIONS}; got {kind!r}.")
     d = int(n_features)
     out = np.empty_like(gaussian)
     for start in range(0, gaussian.shape[1], d):
@@ -112,7 +126,6 @@ def projection_matrix(n_features: int, n_bits: int, seed: int, kind: str = "gaus
         # Sign-fixed Q is Haar-distributed; √d gives its columns the Gaussian columns' typical length.
         out[:, start : start + d] = q * (np.sign(np.diag(r)) * np.sqrt(d))
     return out
-
 
 def cone_ratio(X: np.ndarray, mean: np.ndarray | None = None) -> float:
     """‖mean row‖ / RMS row length of ``X`` (n_rows, d): 0 for rows spread around the origin, 1 when all are equal.
@@ -185,6 +198,7 @@ def row_codes(stream: np.ndarray, n_rows: int, n_bits: int) -> np.ndarray:
     return out
 
 
+
 class LSHLocalizer(_RowLocalizer):
     """Sign random projections of the map, P bits per row filling the budget, asymmetric or Hamming search.
 
@@ -199,15 +213,15 @@ class LSHLocalizer(_RowLocalizer):
     center : bool or 'auto'
         Subtract the map mean (stored as d float16 values, counted) before projecting; 'auto': when
         the rows lie in a cone (‖mean‖ ≥ 0.5 × RMS length) and the mean costs at most 1/8 of the budget.
-    projection : {'orthogonal', 'gaussian'}
-        Orthonormalised blocks of d hyperplanes (default) or i.i.d. Gaussian ones (module docstring);
-        both regenerated from the seed, 0 bytes.
+    projection : {'hadamard', 'orthogonal', 'gaussian'}
+        Sign flips and Walsh–Hadamard transforms (default), QR-orthonormalised Gaussian blocks, or i.i.d.
+        Gaussian hyperplanes (module docstring); all regenerated from the seed, 0 bytes.
     random_state : int or None
         Seed of the projection; None draws one. The seed used is recorded (``seed_``) and saved.
     normalize, whiten, delta
         The front end (:mod:`btel.frontend`).
     n_jobs : int, optional
-        faiss threads for the Hamming search.
+        faiss threads for the search.
 
     Attributes
     ----------
@@ -217,8 +231,9 @@ class LSHLocalizer(_RowLocalizer):
         Each row's bits, packed and zero-padded to whole bytes (stored as one dense bit stream:
         :func:`dense_codes`).
     mean_ : ndarray of shape (n_features,), float16, or None
-    projection_ : ndarray of shape (n_features, n_bits_), float32
-        Regenerated from ``seed_`` (not stored).
+    projection_ : object
+        :func:`make_projection`'s, regenerated from ``seed_`` (not stored): ``projection_.apply(X)``
+        is X R, ``projection_.matrix()`` the (n_features, n_bits_) float32 matrix R.
     n_places_, n_features_in_ : int
     row_places_ : ndarray of shape (n_rows,) or None
     fit_time_ : float
@@ -242,7 +257,7 @@ class LSHLocalizer(_RowLocalizer):
     }
 
     def __init__(self, *, budget: int | str | None = None, n_bits: int | None = None, scoring: str = "asymmetric",
-                 center: bool | str = "auto", projection: str = "orthogonal", random_state: int | None = 0,
+                 center: bool | str = "auto", projection: str = "hadamard", random_state: int | None = 0,
                  n_jobs: int | None = None) -> None:
         self.budget = budget
         self.n_bits = n_bits
@@ -320,10 +335,11 @@ class LSHLocalizer(_RowLocalizer):
             int(np.random.default_rng().integers(0, 2**31 - 1))
         self.n_bits_, self.seed_ = bits, seed
         self.mean_ = mean.astype(np.float16) if self._centred(n_rows, d, budget, reserved, cone) else None
-        self.projection_ = projection_matrix(d, bits, seed, self.projection)
+        self.projection_ = make_projection(d, bits, seed, self.projection)
         codes = np.empty((n_rows, (bits + 7) // 8), dtype=np.uint8)
-        for start in range(0, n_rows, _BLOCK_ROWS):
-            codes[start : start + _BLOCK_ROWS] = np.packbits(self._project(X[start : start + _BLOCK_ROWS]) > 0, axis=1)
+        step = max(1, BLOCK_VALUES // max(bits, d))
+        for start in range(0, n_rows, step):
+            codes[start : start + step] = np.packbits(self._project(X[start : start + step]) > 0, axis=1)
         self.codes_ = codes
         self._stored_codes = None
         self._prepare()
@@ -332,49 +348,39 @@ class LSHLocalizer(_RowLocalizer):
         Z = np.asarray(X, dtype=np.float32)
         if self.mean_ is not None:
             Z = Z - self.mean_.astype(np.float32)
-        return Z @ self.projection_
+        return self.projection_.apply(Z)
 
     def _prepare(self) -> None:
-        """Runtime caches (never stored): the faiss binary index or the ±1 codes as float32."""
+        """Runtime state (never stored): the lookup-table scanner of asymmetric scoring."""
         self._index = self._build_index()
 
     def _build_index(self) -> Any:
-        self._signs = None
-        if self.scoring == "hamming":  # zero padding bits add nothing to a Hamming distance
-            index = faiss.IndexBinaryFlat(8 * self.codes_.shape[1])
-            index.add(np.ascontiguousarray(self.codes_))
-            return index
-        if self.codes_.shape[0] * int(self.n_bits_) <= CACHE_VALUES:
-            self._signs = self._unpack(self.codes_)
-        return None
-
-    def _unpack(self, codes: np.ndarray) -> np.ndarray:
-        bits = np.unpackbits(codes, axis=1, count=int(self.n_bits_)).astype(np.float32)
-        return bits * 2.0 - 1.0
+        """Asymmetric scoring: the lookup-table scanner of the codes (:func:`signscan.byte_tables`)."""
+        return None if self.scoring == "hamming" else signscan.byte_tables(self.codes_.shape[1])
 
     def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        from ...base import top_k
-
-        if self.scoring == "hamming":
-            dist, rows = self._index.search(np.packbits(self._project(Q) > 0, axis=1), k)
-            return -dist.astype(np.float64), rows.astype(np.int64)
         P = self._project(Q)
-        if self._signs is not None:
-            return top_k(P @ self._signs.T, k)
-        n_rows = self.codes_.shape[0]
-        scores = np.empty((Q.shape[0], n_rows), dtype=np.float32)
-        for start in range(0, n_rows, _BLOCK_ROWS):
-            scores[:, start : start + _BLOCK_ROWS] = P @ self._unpack(self.codes_[start : start + _BLOCK_ROWS]).T
-        return top_k(scores, k)
+        if self.scoring == "hamming":  # zero padding bits add nothing to a Hamming distance
+            dist, rows = faiss.knn_hamming(np.packbits(P > 0, axis=1), self.codes_, k)
+            return -dist.astype(np.float64), rows
+        return signscan.search(self._index, self.codes_, P, k)
+
+    def _place_scores(self, Q: np.ndarray) -> np.ndarray:
+        """Every row's asymmetric score, block by block (places = rows); otherwise from the search."""
+        if self.scoring == "hamming" or self.row_places_ is not None:
+            return super()._place_scores(Q)
+        check_magnitude(Q, "Q")
+        return signscan.scores(self.codes_, self._project(Q))
 
     def summary(self) -> str:
         """One line: bits per row, scoring, seed and the front end."""
-        return (f"lsh: {self.n_bits_} bits per row, {self.scoring} scoring, projection from seed {self.seed_} "
-                f"(0 B), {'centred' if self.mean_ is not None else 'uncentred'}; front end "
+        centred = "centred" if self.mean_ is not None else "uncentred"
+        return (f"lsh: {self.n_bits_} bits per row, {self.scoring} scoring, {self.projection} projection "
+                f"from seed {self.seed_} (0 B), {centred}; front end "
                 f"{self.front_end_.describe()}")
 
     def _model_arrays(self) -> dict[str, np.ndarray]:
-        if getattr(self, "_stored_codes", None) is None:  # built once: nbytes asks for it often
+        if getattr(self, "_stored_codes", None) is None:  # built once, when asked: nbytes asks for it often
             self._stored_codes = dense_codes(self.codes_, int(self.n_bits_))
         codes = self._stored_codes
         return {"codes": codes} if self.mean_ is None else {"codes": codes, "mean": self.mean_}
@@ -406,20 +412,20 @@ class LSHLocalizer(_RowLocalizer):
             raise ModelFileError("the LSH model file holds a mean but its parameters say center=False.")
         self.n_bits_, self.seed_ = int(state["n_bits"]), int(state["seed"])
         stored = np.ascontiguousarray(arrays["codes"])  # shape checked against the state (_model_specs)
+        # The row matrix is what the search reads; a dense stream is rebuilt only when saved (or measured).
         self.codes_ = stored if stored.ndim == 2 else row_codes(stored, int(state["n_rows"]), self.n_bits_)
-        self._stored_codes = stored
+        self._stored_codes = stored if stored.ndim == 2 else None
         self.mean_ = arrays.get("mean")
         # The projection the codes were made with: files that record none used the Gaussian one.
         if "projection" in state and state["projection"] != self.projection:
             raise ModelFileError(f"the LSH model file's projection {state['projection']!r} contradicts its "
                                  f"parameters ({self.projection!r}).")
         self.projection = state.get("projection", PROJECTIONS[-1])
-        self.projection_ = projection_matrix(self.front_end_.n_features_out(int(state["n_features_in"])),
-                                             self.n_bits_, self.seed_, self.projection)
+        self.projection_ = make_projection(self.front_end_.n_features_out(int(state["n_features_in"])),
+                                           self.n_bits_, self.seed_, self.projection)
         self._prepare()
 
     def __getstate__(self) -> dict[str, Any]:
         state = super().__getstate__()
-        state.pop("_signs", None)
         state.pop("_stored_codes", None)
         return state

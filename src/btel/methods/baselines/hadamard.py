@@ -1,0 +1,169 @@
+"""A seeded structured orthogonal projection: random sign flips and fast Walsh–Hadamard transforms.
+
+A row x ∈ R^d is zero-padded to D = 2^⌈log2 d⌉ and mapped, for each block b of D outputs, to
+
+    y_b = H S_{b,3} H S_{b,2} H S_{b,1} x,
+
+H the orthonormal Sylvester–Hadamard matrix (H Hᵀ = I) and S_{b,r} diagonal matrices of seeded
+random signs: three rounds, as the structured orthogonal random features of Yu et al. (2016) and
+FALCONN's cross-polytope LSH (Andoni et al. 2015). Each block is an exactly orthogonal D × D
+transform (its D hyperplanes are orthogonal in the padded space), blocks are independent, and the
+projection is the first P outputs of the blocks end to end. Nothing d × d is formed, nothing is
+factorised, and the signs (3 × D per block) are all that is drawn from the seed.
+
+H_D is applied as the Kronecker product of Hadamard matrices of at most :data:`MAX_FACTOR` rows, one
+stack of small matrix products per factor: per row and round about D · Σ factors multiply-adds in
+BLAS, instead of d · P for a dense projection. Where d · P is at most
+:data:`DENSE_VALUES` the d × P matrix is formed once (min(d, P) transforms of unit vectors) and used
+instead: a small product beats the transform's fixed cost for one query, and its 3·D·Σ factors work
+per row when P ≪ D.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+__all__ = ["SignedHadamard", "fwht", "ROUNDS", "MAX_FACTOR", "DENSE_VALUES"]
+
+#: Sign-flip + Hadamard rounds per block.
+ROUNDS = 3
+#: Largest Hadamard factor applied as one matrix product.
+MAX_FACTOR = 64
+#: The d × P matrix is formed (a runtime cache, never stored) when it has at most this many values (4 MB).
+DENSE_VALUES = 1 << 20
+#: Values of the (rows × blocks × D) work buffer transformed at a time (4 MB of float32).
+_WORK_VALUES = 1 << 20
+
+
+@functools.lru_cache(maxsize=16)
+def _factor(f: int) -> np.ndarray:
+    """The orthonormal Sylvester–Hadamard matrix of order f (a power of two), H_2^{⊗k} / √f, float32."""
+    H = np.ones((1, 1))
+    while H.shape[0] < f:  # numpy only: scipy.linalg.hadamard would add scipy.linalg to every model load
+        H = np.kron(H, [[1.0, 1.0], [1.0, -1.0]])
+    return (H / np.sqrt(f)).astype(np.float32)
+
+
+def _factors(D: int) -> list[int]:
+    """Powers of two of about equal size, each at most MAX_FACTOR, whose product is D."""
+    k, top = D.bit_length() - 1, MAX_FACTOR.bit_length() - 1
+    m = max(1, -(-k // top))
+    return [1 << (k // m + (i < k % m)) for i in range(m)]
+
+
+def fwht(X: np.ndarray) -> np.ndarray:
+    """The orthonormal Walsh–Hadamard transform of every row, X Hᵀ = X H (Sylvester order).
+
+    Parameters
+    ----------
+    X : ndarray of shape (n, D), float32
+        D a power of two.
+
+    Returns
+    -------
+    ndarray of shape (n, D), float32
+    """
+    n, D = X.shape
+    if D & (D - 1):
+        raise ValueError(f"the Walsh–Hadamard transform needs a power-of-two width; got {D}.")
+    Y = np.asarray(X, dtype=np.float32)
+    # H_D = H_f1 ⊗ … ⊗ H_fm: in the (n, f1, …, fm) view, each factor multiplies its own axis — a stack of
+    # small products (f_i × f_i by f_i × the later axes), the last one plain rows times H_fm.
+    before = 1
+    for f in _factors(D):
+        rest = D // (before * f)
+        Y = Y.reshape(-1, f) @ _factor(f) if rest == 1 else np.matmul(_factor(f), Y.reshape(-1, f, rest))
+        before *= f
+    return Y.reshape(n, D)
+
+
+class SignedHadamard:
+    """The seeded projection of the module docstring, d features to P outputs.
+
+    Parameters
+    ----------
+    n_features : int
+        d.
+    n_outputs : int
+        P.
+    seed : int
+        Seed of the signs (numpy's PCG64, ``integers``).
+
+    Attributes
+    ----------
+    width : int
+        D, d padded to a power of two.
+    signs : ndarray of shape (n_blocks, ROUNDS, D), float32
+        ±1.
+    """
+
+    kind = "hadamard"
+
+    def __init__(self, n_features: int, n_outputs: int, seed: int) -> None:
+        self.n_features, self.n_outputs = int(n_features), int(n_outputs)
+        self.width = 1 << max(int(n_features) - 1, 1).bit_length()
+        n_blocks = -(-self.n_outputs // self.width)
+        rng = np.random.default_rng(int(seed))
+        self.signs = (rng.integers(0, 2, size=(n_blocks, ROUNDS, self.width), dtype=np.int8) * 2 - 1
+                      ).astype(np.float32)
+        self._dense: np.ndarray | None = None
+        if self.n_features * self.n_outputs <= DENSE_VALUES:
+            self._dense = self._matrix()
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held at run time (signs and the small dense matrix); none of it is stored."""
+        return int(self.signs.nbytes + (0 if self._dense is None else self._dense.nbytes))
+
+    def apply(self, X: np.ndarray) -> np.ndarray:
+        """The projection of every row.
+
+        Parameters
+        ----------
+        X : ndarray of shape (n, d), float32
+
+        Returns
+        -------
+        ndarray of shape (n, P), float32
+        """
+        X = np.asarray(X, dtype=np.float32)
+        if self._dense is not None:
+            return X @ self._dense
+        return self._transform(X)
+
+    def matrix(self) -> np.ndarray:
+        """The projection as a d × P float32 matrix: :meth:`apply` is ``X @ matrix()``."""
+        return self._matrix() if self._dense is None else self._dense.copy()
+
+    def _matrix(self) -> np.ndarray:
+        """R from min(d, P) transforms: the rows of the identity forward, or P unit vectors through the
+        transposed rounds (column j of block b is S_1 H S_2 H S_3 H e_j, row form)."""
+        d, D = self.n_features, self.width
+        if d <= self.n_outputs:
+            return self._transform(np.eye(d, dtype=np.float32))
+        out = np.empty((d, self.n_outputs), dtype=np.float32)
+        for block in range(self.signs.shape[0]):
+            count = min(D, self.n_outputs - block * D)
+            work = np.eye(count, D, dtype=np.float32)
+            for r in reversed(range(ROUNDS)):
+                work = fwht(work)
+                work *= self.signs[block, r]
+            out[:, block * D : block * D + count] = work[:, :d].T
+        return out
+
+    def _transform(self, X: np.ndarray) -> np.ndarray:
+        n, d = X.shape
+        n_blocks, D = self.signs.shape[0], self.width
+        out = np.empty((n, self.n_outputs), dtype=np.float32)
+        step = max(1, _WORK_VALUES // (n_blocks * D))
+        for start in range(0, n, step):
+            rows = X[start : start + step]
+            work = np.zeros((rows.shape[0], n_blocks, D), dtype=np.float32)
+            work[:, :, :d] = rows[:, None, :]
+            for r in range(ROUNDS):
+                work *= self.signs[:, r]
+                work = fwht(work.reshape(-1, D)).reshape(rows.shape[0], n_blocks, D)
+            out[start : start + rows.shape[0]] = work.reshape(rows.shape[0], -1)[:, : self.n_outputs]
+        return out
