@@ -17,12 +17,11 @@ from __future__ import annotations
 import numbers
 from typing import Sequence
 
-from . import images as _images  # noqa: F401 - sets OpenCV's pixel cap before cv2 loads
+from .images import ImageInput, as_float_grey, as_image_list, iter_grey  # isort: skip - first: OpenCV's pixel cap
 import cv2  # noqa: E402
 import numpy as np
 
 from ..exceptions import InvalidParameterError
-from .images import ImageInput, as_float_grey, as_image_list, iter_grey
 
 __all__ = ["augmented_views"]
 

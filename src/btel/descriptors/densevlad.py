@@ -38,7 +38,7 @@ import warnings
 from functools import lru_cache
 from typing import Any, ClassVar
 
-from . import images as _images  # noqa: F401 - sets OpenCV's pixel cap before cv2 loads
+from .images import iter_grey, to_grey  # isort: skip - first: it sets OpenCV's pixel cap before cv2 loads
 import cv2  # noqa: E402
 import faiss
 import numpy as np
@@ -50,7 +50,6 @@ from .._validation import check_is_fitted, check_positive_int
 from ..exceptions import InvalidParameterError, NotEnoughPlacesError
 from ..limits import check_count
 from .base import DescriptorWarning, ImageDescriptor, register_descriptor, single_blas_thread
-from .images import iter_grey, to_grey
 
 __all__ = ["DenseVLADDescriptor", "dense_rootsift", "vlad_encode", "SIFT_DIM"]
 
