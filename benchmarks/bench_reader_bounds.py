@@ -3,7 +3,7 @@
 1. **Image decoding memory** (:func:`btel.descriptors.images.decode_bytes`): the peak resident
    memory OpenCV's ``imdecode`` (and, for colour, the BGR→RGB copy) adds per pixel, for every
    format and mode btel decodes, each measured in a fresh process, against the bound.
-2. **Radius-search work** (:data:`btel.datasets.groundtruth.DISTANCES_PER_PAIR`): distances a
+2. **Radius-search work** (:data:`btel.datasets.positions.DISTANCES_PER_PAIR`): distances a
    KD-tree computes per query and per pair on position sets shaped like VPR data (street grids,
    routes) and on the adversarial ring, against the bound.
 
@@ -127,7 +127,7 @@ def _position_sets(scale: float) -> dict[str, tuple[np.ndarray, np.ndarray, floa
 def search_work(scale: float) -> list[dict[str, Any]]:
     from sklearn.neighbors import KDTree
 
-    from btel.datasets.groundtruth import DISTANCES_PER_PAIR
+    from btel.datasets.positions import DISTANCES_PER_PAIR
     from btel.limits import DEFAULT_MEMORY_LIMIT
 
     bound = DISTANCES_PER_PAIR * (DEFAULT_MEMORY_LIMIT // 16)

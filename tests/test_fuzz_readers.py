@@ -54,5 +54,6 @@ def test_issue_34_families_make_cases(harness, tmp_path) -> None:
         seeds = harness.build_seeds(reader, tmp_path)
         cases = [harness.make_case(reader, 0, i, seeds) for i in range(len(seeds), len(seeds) + 60)]
         kinds[reader] = {mark: sum(mark in description for _, description, _ in cases) for mark in marks}
-        assert cases[:5] == [harness.make_case(reader, 0, i, seeds) for i in range(len(seeds), len(seeds) + 5)]
+        again = [harness.make_case(reader, 0, i, seeds) for i in range(len(seeds), len(seeds) + 5)]
+        assert cases[:5] == again
     assert all(n > 0 for marks in kinds.values() for n in marks.values()), kinds

@@ -176,7 +176,7 @@ def test_every_layout_is_checked_against_the_descriptor_counts(tmp_path: Path, l
 def test_a_ring_search_stops_at_its_distance_bound(monkeypatch: pytest.MonkeyPatch) -> None:
     """Without descriptor counts (the Python API) the ring is searched until the tree has computed
     DISTANCES_PER_PAIR distances per pair the limit holds; with counts that match it is answered."""
-    from btel.datasets.groundtruth import DISTANCES_PER_PAIR
+    from btel.datasets.positions import DISTANCES_PER_PAIR
 
     monkeypatch.setenv("BTEL_MEMORY_LIMIT", "16M")
     bound = DISTANCES_PER_PAIR * (16 * 2**20 // 16)
@@ -201,7 +201,7 @@ def test_a_mat_inflation_is_walked_in_pieces(tmp_path: Path, monkeypatch: pytest
     (61 MiB here), and past the limit it stops."""
     import tracemalloc
 
-    from btel.datasets.groundtruth_files import _check_mat5
+    from btel.datasets.groundtruth_mat import _check_mat5
 
     scipy.io.savemat(tmp_path / "big.mat", {"utmDb": np.zeros((4_000_000, 2)), "utmQ": np.zeros((2, 2)),
                                             "posDistThr": 1.0}, do_compression=True)

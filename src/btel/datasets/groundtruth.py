@@ -35,19 +35,14 @@ import scipy.sparse as sp
 
 from .._claims import atomic_output
 from .._validation import check_descriptors, check_positive_int
-from ..exceptions import DataNotFoundError, DimensionMismatchError, InvalidParameterError, ResourceLimitError
-from ..limits import ENV_MEMORY_LIMIT, check_bytes, check_count, format_size, memory_limit
+from ..exceptions import DataNotFoundError, DimensionMismatchError, InvalidParameterError
 from .groundtruth_files import read_object_npy
+from .positions import positives_within
 
-__all__ = ["GroundTruth", "save_positives", "load_positives", "check_predictions", "read_object_npy",
-           "DISTANCES_PER_PAIR"]
+__all__ = ["GroundTruth", "save_positives", "load_positives", "check_predictions", "read_object_npy"]
 
 logger = logging.getLogger(__name__)
 
-#: Distances :meth:`GroundTruth.from_utm`'s radius search may compute per query-place pair the
-#: memory limit can hold (16 bytes each): 16 × 2²⁴ ≈ 2.7·10⁸ under the 256 MiB default. Real
-#: position sets need a few per pair; the evidence is on ``docs/decisions/reader-bounds.md``.
-DISTANCES_PER_PAIR = 16
 
 def check_predictions(predictions: Any, n_queries: int, *, name: str = "predictions") -> np.ndarray:
     """Validate predicted place indices: a 1-D integer array with one entry per query row.
@@ -216,12 +211,8 @@ class GroundTruth:
         """Positives from positions: the map places within ``pos_dist_thr`` of each query.
 
         As in NetVLAD's evaluation (a radius query with a KD-tree; places exactly at the
-        threshold count). The search has a cost bound as well as a memory bound: a first pass
-        counts each query's positives, and stops with :class:`ResourceLimitError` once the pairs
-        would exceed :func:`btel.limits.memory_limit` (16 bytes each) or the tree has computed more
-        than :data:`DISTANCES_PER_PAIR` distances per pair the limit holds (positions on a ring
-        around queries at its centre make every query compare against every place); the second
-        builds the pairs in calls of at most an eighth of the limit.
+        threshold count), bounded in memory and in work by
+        :func:`btel.datasets.positions.positives_within`.
 
         Parameters
         ----------
@@ -235,11 +226,8 @@ class GroundTruth:
         Raises
         ------
         ResourceLimitError
-            More pairs or more distance computations than the memory limit allows (raise
-            ``BTEL_MEMORY_LIMIT`` for genuinely large sets).
+            More pairs or distance computations than the memory limit allows.
         """
-        from sklearn.neighbors import KDTree
-
         db = check_descriptors(utm_db, name="utmDb", dtype=np.float64)
         q = check_descriptors(utm_q, name="utmQ", dtype=np.float64)
         if q.shape[1] != db.shape[1]:
@@ -254,43 +242,7 @@ class GroundTruth:
         thr = float(thr_arr.reshape(-1)[0])
         if not np.isfinite(thr) or thr < 0:
             raise InvalidParameterError(f"posDistThr must be a finite distance ≥ 0; got {thr!r}.")
-        check_bytes(2 * db.nbytes + 8 * db.shape[0] + q.nbytes,
-                    f"{db.shape[0]} map and {q.shape[0]} query positions with their KD-tree")
-        limit = memory_limit()
-        max_distances = DISTANCES_PER_PAIR * (limit // 16)
-        tree = KDTree(db)
-        tree.reset_n_calls()
-        # Count first, in calls that can each compute at most a quarter of the distance bound (every
-        # query against every place), so the bound is overshot by at most that much.
-        per_call = max(1, max_distances // 4 // db.shape[0])
-        counts = np.zeros(q.shape[0], dtype=np.int64)
-        n_pairs = 0
-        for start in range(0, q.shape[0], per_call):
-            stop = min(q.shape[0], start + per_call)
-            counts[start:stop] = tree.query_radius(q[start:stop], r=thr, count_only=True)
-            done = f"after {stop} of {q.shape[0]} queries"
-            n_pairs += int(counts[start:stop].sum())
-            what = f"positives within posDistThr={thr:g}"
-            check_count(n_pairs, 16, f"{what} ({n_pairs} query-place pairs {done})")
-            if tree.get_n_calls() > max_distances:
-                raise ResourceLimitError(
-                    f"{what}: the radius search computed {tree.get_n_calls()} distances {done}, over the "
-                    f"{max_distances} that btel's memory limit of {format_size(limit)} allows "
-                    f"({DISTANCES_PER_PAIR} per pair it can hold; the positions put many places near the "
-                    f"threshold of every query). If the input is genuine, raise the limit with "
-                    f"{ENV_MEMORY_LIMIT}.")
-        # Then the pairs, the same searches again, in calls of at most limit/8 bytes of output each.
-        indptr = np.zeros(q.shape[0] + 1, dtype=np.int64)
-        np.cumsum(counts, out=indptr[1:])
-        indices = np.empty(int(indptr[-1]), dtype=np.int64)
-        start = 0
-        while start < q.shape[0]:
-            stop = max(start + 1, int(np.searchsorted(indptr, indptr[start] + limit // 64, side="right")) - 1)
-            stop = min(stop, start + 65536, q.shape[0])  # and a bounded number of result arrays
-            if indptr[stop] > indptr[start]:
-                found = tree.query_radius(q[start:stop], r=thr)
-                indices[indptr[start]:indptr[stop]] = np.concatenate(list(found))
-            start = stop
+        indptr, indices = positives_within(db, q, thr)
         return cls(indptr=indptr, indices=indices, n_map=db.shape[0])
 
     @classmethod
@@ -298,9 +250,8 @@ class GroundTruth:
                   n_map: int | None = None) -> "GroundTruth":
         """Read ground truth from a file, choosing the layout by its contents.
 
-        ``n_queries`` and ``n_map``, when given (the query and map descriptor counts), are checked
-        against what the file declares before any positive is computed: positions for 4,000,000
-        queries are refused at once when there are 50 query rows, not searched for hours.
+        ``n_queries`` and ``n_map`` (the descriptor counts), when given, are checked against the
+        file before any positive is computed (positions of 4,000,000 queries for 50 query rows).
 
         Layouts (array names are case-sensitive):
 
