@@ -47,9 +47,7 @@ logger = logging.getLogger(__name__)
 def check_predictions(predictions: Any, n_queries: int, *, name: str = "predictions") -> np.ndarray:
     """Validate predicted place indices: a 1-D integer array with one entry per query row.
 
-    Returns
-    -------
-    predictions : ndarray of shape (n_queries,), dtype int64
+    Returns ``predictions`` : ndarray of shape (n_queries,), dtype int64.
     """
     arr = np.asarray(predictions)
     if arr.ndim != 1 or arr.shape[0] != n_queries:
