@@ -41,7 +41,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 from _common import RESULTS_DIR, machine, write_results  # noqa: E402
-from btel.storage import format_bytes  # noqa: E402
+from btel.core.storage import format_bytes  # noqa: E402
 
 DIM = 256
 BUDGETS = ("64KB", "256KB")
@@ -52,7 +52,7 @@ SECTION = ("<!-- bench-codes:start -->", "<!-- bench-codes:end -->")
 def route(n: int, n_queries: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(map, sampled queries, their true places): a synthetic route, rows L2-normalised."""
     from btel.datasets import synthetic_route
-    from btel.frontend import normalize_rows
+    from btel.core.frontend import normalize_rows
 
     r = synthetic_route(n, DIM, seed=0)
     rows = np.sort(np.random.default_rng(1).choice(n, size=min(n, n_queries), replace=False))
@@ -74,7 +74,7 @@ def batch_times(fn: Callable[[np.ndarray], np.ndarray], Q: np.ndarray, repeats: 
     Each method at its fastest setting: timed with faiss and BLAS on one thread and on their
     defaults (every core), the faster median kept (``threads`` says which).
     """
-    from btel.threads import limit_threads
+    from btel.core.threads import limit_threads
 
     best: dict[str, Any] | None = None
     for threads in (1, None):
@@ -93,7 +93,7 @@ def single_times(fn: Callable[[np.ndarray], np.ndarray], Q: np.ndarray, calls: i
     One faiss and one BLAS thread for every method (the fastest setting for one query here:
     faiss' flat search at N = 10⁶ took 46 ms on one thread against 203 ms on two, issue #22).
     """
-    from btel.threads import limit_threads
+    from btel.core.threads import limit_threads
 
     with limit_threads(1):
         for i in range(min(5, len(Q))):
@@ -203,7 +203,7 @@ def real_rows(single_calls: int, repeats: int) -> list[dict[str, Any]]:
     import faiss
 
     from btel.methods.codes.estimator import CodeLocalizer
-    from btel.frontend import normalize_rows
+    from btel.core.frontend import normalize_rows
 
     data_root = HERE.parent.parent / "shared" / "data"
     if not data_root.is_dir():

@@ -27,7 +27,7 @@ from _common import add_data_arguments, frontier_maps, key_recall, paired_differ
 
 import btel.methods.codes.solvers as solvers
 from btel.methods import make_method
-from btel.threads import limit_threads
+from btel.core.threads import limit_threads
 
 BUDGETS = (1_000, 4_000, 16_000, 64_000, 256_000)
 RHOS = (0.03, 0.1, 0.3)

@@ -28,11 +28,11 @@ import numpy as np
 from _common import cone_direction, key_recall, write_results
 
 from btel.datasets import synthetic_route
-from btel.frontend import normalize_rows
+from btel.core.frontend import normalize_rows
 from btel.methods import make_method
 from btel.methods.auto import ROUTE_SHARE, choose_method, collision_bits, route_share
 from btel.methods.baselines.lsh import LSHLocalizer, cone_ratio
-from btel.threads import limit_threads
+from btel.core.threads import limit_threads
 
 SETTINGS = (("easy", 1.0, 0.2), ("hard", 2.5, 0.6))
 OFFSETS = (0.0, 1.0, 1.5, 3.0)

@@ -13,7 +13,7 @@ Peers, fitted on the same (L2-normalised) map in the same run:
   with exact search.
 
 Every method runs at its fastest setting for the mode measured: single queries with faiss and
-BLAS on one thread (``btel.threads.limit_threads(1)``), batches at the faster of one thread and the
+BLAS on one thread (``btel.core.threads.limit_threads(1)``), batches at the faster of one thread and the
 libraries' defaults; no process-wide OpenMP setting.
 
 Timing (every figure): a warm-up call, then ``--repeats`` batch calls over all queries (min and
@@ -52,7 +52,7 @@ from _common import write_results  # noqa: E402
 def time_batch(fn: Callable[[np.ndarray], Any], Q: np.ndarray, repeats: int) -> dict[str, float]:
     """Microseconds per query of ``fn(Q)``: min and median of ``repeats`` calls after one warm-up,
     at the faster (median) of one faiss/BLAS thread and the libraries' default threads."""
-    from btel.threads import limit_threads
+    from btel.core.threads import limit_threads
 
     best: dict[str, Any] | None = None
     for threads in (1, None):
@@ -74,7 +74,7 @@ def time_batch(fn: Callable[[np.ndarray], Any], Q: np.ndarray, repeats: int) -> 
 def time_single(fn: Callable[[np.ndarray], Any], Q: np.ndarray, calls: int) -> dict[str, float]:
     """Microseconds of ``fn(q)`` on one-row queries, each call timed on its own (after 50 warm-up calls),
     faiss and BLAS on one thread."""
-    from btel.threads import limit_threads
+    from btel.core.threads import limit_threads
 
     rows = [Q[i % len(Q) : i % len(Q) + 1] for i in range(calls)]
     times = np.empty(calls)
@@ -96,7 +96,7 @@ def faiss_rows(X: np.ndarray, Q: np.ndarray, truth: np.ndarray, args: argparse.N
     """Exact search, PQ and IVF-PQ over their sweeps, each fitted, scored and timed."""
     import faiss
 
-    from btel.frontend import normalize_rows
+    from btel.core.frontend import normalize_rows
 
     d = X.shape[1]
     Xn = normalize_rows(X)
@@ -146,7 +146,7 @@ def faiss_rows(X: np.ndarray, Q: np.ndarray, truth: np.ndarray, args: argparse.N
 
 def lsh_rows(X: np.ndarray, Q: np.ndarray, truth: np.ndarray, args: argparse.Namespace) -> list[dict[str, Any]]:
     """Sign random projection (seeded), asymmetric scoring, for every b in ``--lsh-bits``."""
-    from btel.frontend import normalize_rows
+    from btel.core.frontend import normalize_rows
 
     Xn = normalize_rows(X)
     rows = []
@@ -172,7 +172,7 @@ def lsh_rows(X: np.ndarray, Q: np.ndarray, truth: np.ndarray, args: argparse.Nam
 
 def btel_rows(X: np.ndarray, Q: np.ndarray, truth: np.ndarray, args: argparse.Namespace) -> list[dict[str, Any]]:
     from btel import BTELocalizer
-    from btel._validation import check_descriptors
+    from btel.core.validation import check_descriptors
 
     rows = []
     for r in args.regions:

@@ -31,7 +31,7 @@ HERE = Path(__file__).resolve().parent
 
 _FULL = """
 import sys, numpy as np, btel
-from btel.sequence_decoding import decode_sequence, emission_scores
+from btel.sequence.hmm import decode_sequence, emission_scores
 model = btel.load(sys.argv[1]); Q = np.load(sys.argv[2])
 np.save(sys.argv[3], decode_sequence(emission_scores(model, Q)))
 """

@@ -21,10 +21,10 @@ import time
 import numpy as np
 from _common import add_data_arguments, frontier_maps, key_recall, paired_difference, signed, write_results
 
-from btel.frontend import normalize_rows
+from btel.core.frontend import normalize_rows
 from btel.methods import make_method
 from btel.methods.baselines.lsh import cone_ratio
-from btel.threads import limit_threads
+from btel.core.threads import limit_threads
 
 BUDGETS = (16_000, 64_000, 256_000)
 

@@ -28,7 +28,7 @@ import numpy as np
 from _common import add_data_arguments, frontier_maps, key_recall, paired_difference, signed, write_results
 
 from btel.methods import make_method
-from btel.threads import limit_threads
+from btel.core.threads import limit_threads
 
 BUDGETS = ("4KB", "16KB", "64KB", "256KB")
 KINDS = ("hadamard", "orthogonal", "gaussian")

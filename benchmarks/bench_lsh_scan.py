@@ -27,7 +27,7 @@ import numpy as np
 from _common import write_results
 
 from btel.methods.baselines import signscan
-from btel.threads import limit_threads
+from btel.core.threads import limit_threads
 
 SHAPES = ((10_000, 64), (10_000, 256), (10_000, 1024), (100_000, 80), (500, 8192))
 BATCHES = (1, 4, 8, 16, 64, 500)

@@ -30,9 +30,9 @@ from _common import add_data_arguments, frontier_maps, key_recall, paired_differ
 from btel.datasets import synthetic_route
 from btel.exceptions import BudgetTooSmallError
 from btel.methods import make_method
-from btel.shrink import shrink_rank
-from btel.storage import parse_budget
-from btel.threads import limit_threads
+from btel.core.shrink import shrink_rank
+from btel.core.storage import parse_budget
+from btel.core.threads import limit_threads
 
 
 def high_dimensional_maps() -> list[tuple[dict, np.ndarray, np.ndarray, tuple[str, ...]]]:

@@ -31,7 +31,7 @@ from bench_widths import fit_and_save, in_child, load_and_query, make_data, resi
 
 from btel.exceptions import BudgetTooSmallError
 from btel.methods.baselines.lsh import LSHLocalizer, make_projection
-from btel.threads import limit_threads
+from btel.core.threads import limit_threads
 
 CELLS = ((500, 8192, "1MB"), (2000, 12288, "256KB"))
 

@@ -36,11 +36,11 @@ import numpy as np
 from _common import cone_direction, key_recall, snippet_order, write_results
 
 from btel.datasets import synthetic_route
-from btel.frontend import normalize_rows
+from btel.core.frontend import normalize_rows
 from btel.methods import make_method
 from btel.methods.auto import choose_method, route_continuity, route_share
 from btel.methods.baselines.lsh import cone_ratio
-from btel.threads import limit_threads
+from btel.core.threads import limit_threads
 
 N_PLACES, DIM = 600, 500
 SETTINGS = (("easy", 1.0, 0.2), ("hard", 2.5, 0.6))

@@ -35,11 +35,11 @@ from typing import Any
 
 import numpy as np
 
-from btel.evaluation import evaluate
+from btel.evaluation.measure import evaluate
 from btel.exceptions import BudgetTooSmallError
 from btel.methods import make_method
-from btel.storage import parse_budget
-from btel.threads import limit_threads
+from btel.core.storage import parse_budget
+from btel.core.threads import limit_threads
 
 HERE = Path(__file__).resolve().parent
 BUDGETS = ("4KB", "8KB", "16KB", "32KB", "64KB", "128KB")

@@ -128,7 +128,7 @@ def search_work(scale: float) -> list[dict[str, Any]]:
     from sklearn.neighbors import KDTree
 
     from btel.datasets.positions import DISTANCES_PER_PAIR
-    from btel.limits import DEFAULT_MEMORY_LIMIT
+    from btel.core.limits import DEFAULT_MEMORY_LIMIT
 
     bound = DISTANCES_PER_PAIR * (DEFAULT_MEMORY_LIMIT // 16)
     rows = []

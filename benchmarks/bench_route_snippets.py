@@ -27,7 +27,7 @@ from _common import key_recall, snippet_order, write_results
 
 from btel.methods import make_method
 from btel.methods.auto import route_continuity, route_share
-from btel.threads import limit_threads
+from btel.core.threads import limit_threads
 
 SNIPPETS = (1, 2, 3, 5, 10, 20, 40, 200)
 BUDGETS = (4_000, 16_000, 64_000)

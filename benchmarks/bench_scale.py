@@ -13,7 +13,7 @@ One run measures, on a synthetic route (d = 256, c = 0.25 → d' = 64):
 3. **Target shape** — single-query latency and batch throughput of BTE-C at b = 20, d' = 410,
    d = 4096. No map of 2^19+ places at d = 4096 fits this machine (8 GB), and inference cost
    depends only on (b, d', d): this model has those shapes and random weights, written with
-   ``btel.modelfile.save_arrays`` and read back with ``btel.load`` like any model file.
+   ``btel.core.modelfile.save_arrays`` and read back with ``btel.load`` like any model file.
 
 Writes ``benchmarks/results/bench_scale.{json,csv,png}`` and the Scale section of
 ``docs/results.md`` (between ``<!-- scale:start -->`` and ``<!-- scale:end -->``).
@@ -49,7 +49,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 from _common import RESULTS_DIR, machine, write_results  # noqa: E402
-from btel.storage import format_bytes  # noqa: E402
+from btel.core.storage import format_bytes  # noqa: E402
 
 DIM = 256
 FEATURE_RATIO = 0.25
@@ -168,7 +168,7 @@ def pq_bytes(n_places: int, index: Any) -> int:
 
 def _threads(n: int | None):
     """BLAS (numpy's and faiss') and faiss' OpenMP limited to n threads; None = their defaults."""
-    from btel.threads import limit_threads
+    from btel.core.threads import limit_threads
 
     return limit_threads(n)
 
@@ -224,7 +224,7 @@ def throughput(n: int, paths: tuple[Path, Path], model_path: Path) -> list[dict[
 def shaped_model(n_places: int, d: int, d_sel: int, folder: Path, seed: int = 0):
     """A BTE-C model file with b = ⌈log2 N⌉ random hyperplanes of d' columns each (see module doc)."""
     from btel import BTELocalizer, load
-    from btel.modelfile import save_arrays
+    from btel.core.modelfile import save_arrays
 
     rng = np.random.default_rng(seed)
     b = int(n_places - 1).bit_length()
@@ -251,7 +251,7 @@ def target_shape(folder: Path, repeats: int = 7) -> dict[str, Any]:
     validation, front end and decode add. Warm-up, then ``repeats`` batch calls (min and median)
     and one-query calls timed one by one (median).
     """
-    from btel.threads import blas_threads
+    from btel.core.threads import blas_threads
 
     model = shaped_model(1_000_000, 4096, 410, folder)
     Q = np.random.default_rng(1).standard_normal((20_000, 4096)).astype(np.float32)
@@ -399,7 +399,7 @@ def results_section(payload: dict[str, Any]) -> str:
         "",
         f"Query throughput, same run and queries ({EVAL_QUERIES:,d} sampled over the route), each method with its "
         f"libraries' default {payload['faiss_threads']} threads and with one (no process-wide OpenMP setting; "
-        "threads limited through `btel.threads`):",
+        "threads limited through `btel.core.threads`):",
         "",
         "| N | method | bytes | threads | batch queries/s | single query µs | recall@10 |",
         "| ---: | --- | ---: | ---: | ---: | ---: | ---: |",

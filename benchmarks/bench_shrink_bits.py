@@ -2,7 +2,7 @@
 
 For each map of ``btel experiment frontier`` (Gardens Point NetVLAD 500-D and the same rows permuted,
 Nordland HOG both directions, the synthetic route and the synthetic independent places) and ranks
-r = 4, 8, 16, 32, the shrinkage whitening of :mod:`btel.shrink` is fitted on the L2-normalised map,
+r = 4, 8, 16, 32, the shrinkage whitening of :mod:`btel.core.shrink` is fitted on the L2-normalised map,
 its eigenvector basis quantised per column to int8 (levels ±127, what files before the 4-bit basis
 stored) and to 4 bits (levels ±7, what ``fit_shrink`` stores), and cosine brute force on the whitened rows is scored by the map's key
 recall (recall@2 on Gardens Point and the synthetic route, recall@10 on Nordland, recall@0 on maps
@@ -24,9 +24,9 @@ import time
 import numpy as np
 from _common import add_data_arguments, frontier_maps, key_recall, write_results
 
-from btel.frontend import normalize_rows
-from btel.shrink import apply_shrink, fit_shrink
-from btel.threads import limit_threads
+from btel.core.frontend import normalize_rows
+from btel.core.shrink import apply_shrink, fit_shrink
+from btel.core.threads import limit_threads
 
 RANKS = (4, 8, 16, 32)
 

@@ -1,8 +1,8 @@
-"""Shrinkage whitening's fit at wide descriptors: seconds and memory of :func:`btel.shrink.fit_shrink`.
+"""Shrinkage whitening's fit at wide descriptors: seconds and memory of :func:`btel.core.shrink.fit_shrink`.
 
 For each (N, d) — Gaussian rows, L2-normalised, rank r = 32 (the rule's cap) — on one thread: the
 seconds and the traced peak memory (numpy allocations, tracemalloc) of ``fit_shrink``, which route
-it took (randomized SVD, Gram matrix, full SVD; :func:`btel.shrink._top_directions`), and for the wide
+it took (randomized SVD, Gram matrix, full SVD; :func:`btel.core.shrink._top_directions`), and for the wide
 maps it sends to the Gram matrix the seconds of the full SVD it replaced, on the same rows.
 
     python benchmarks/bench_shrink_fit.py
@@ -19,9 +19,9 @@ import tracemalloc
 import numpy as np
 from _common import write_results
 
-from btel.rows import normalize_rows
-from btel.shrink import GRAM_VALUES, fit_shrink
-from btel.threads import limit_threads
+from btel.core.rows import normalize_rows
+from btel.core.shrink import GRAM_VALUES, fit_shrink
+from btel.core.threads import limit_threads
 
 SHAPES = ((500, 8192), (500, 16384), (2000, 12288), (10_000, 8192), (10_000, 16384))
 RANK = 32

@@ -70,7 +70,7 @@ def normalized(q: np.ndarray) -> np.ndarray:
 
 def interleaved(fns: dict[str, Callable[[np.ndarray], Any]], Q: np.ndarray, calls: int) -> dict[str, dict[str, float]]:
     """Microseconds of single-row calls of every function, taking turns query by query (one thread)."""
-    from btel.threads import limit_threads
+    from btel.core.threads import limit_threads
 
     rows = [Q[i % len(Q) : i % len(Q) + 1] for i in range(calls)]
     times = {name: np.empty(calls) for name in fns}

@@ -10,9 +10,9 @@ descriptors in each format a camera pipeline produces:
 
 and measures, in one run:
 
-- **parse**: lines per second of :func:`btel.lineparse.parse_lines` on blocks of 256 lines (text
+- **parse**: lines per second of :func:`btel.sequence.lineparse.parse_lines` on blocks of 256 lines (text
   formats), against the parser of before issue #22 (a Python ``float`` per token, ``old_parse``);
-- **stream**: :func:`btel.streaming.localize_stream` over the file opened in binary mode (as the
+- **stream**: :func:`btel.sequence.streaming.localize_stream` over the file opened in binary mode (as the
   CLI does), model prediction included, output discarded;
 - **CLI file**: ``btel localize MODEL --stream --input FILE``, stdout to /dev/null, minus the same
   command on an empty file (interpreter start-up and model loading: the start-up);
@@ -90,8 +90,8 @@ def best_rate(fn, n: int, repeats: int = 3) -> float:
 def run(d: int, n_lines: int, folder: Path, before: Path | None = None) -> list[dict]:
     from btel import BTELocalizer
     from btel.datasets import synthetic_route
-    from btel.lineparse import parse_lines
-    from btel.streaming import localize_stream
+    from btel.sequence.lineparse import parse_lines
+    from btel.sequence.streaming import localize_stream
 
     route = synthetic_route(2000, d, seed=0)
     model = BTELocalizer(progress=False, random_state=0).fit(route.map)

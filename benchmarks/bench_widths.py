@@ -45,7 +45,7 @@ sys.path.insert(0, str(HERE))
 
 from _common import write_results  # noqa: E402
 
-from btel.storage import parse_budget  # noqa: E402
+from btel.core.storage import parse_budget  # noqa: E402
 
 #: name → (registered method, parameters)
 METHODS: dict[str, tuple[str, dict[str, Any]]] = {

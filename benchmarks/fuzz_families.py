@@ -423,8 +423,8 @@ def read_names(path: str) -> str:
     from btel.cli._names import row_names, write_pairs
     from btel.datasets import GroundTruth
     from btel.datasets.vpr_names import check_image_names
-    from btel.records import EvaluationResult
-    from btel.tables import predictions_csv_text
+    from btel.evaluation.records import EvaluationResult
+    from btel.evaluation.tables import predictions_csv_text
 
     data = Path(path).read_bytes()
     if data[:1] == b"{":

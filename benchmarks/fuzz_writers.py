@@ -112,11 +112,11 @@ def _preload() -> None:
     """Import what the writers run (no thread pool starts on import), so each forked writer costs its work."""
     import btel.cli  # noqa: F401
     import btel.descriptors  # noqa: F401
-    import btel.evaluation  # noqa: F401
+    import btel.evaluation.measure  # noqa: F401
     import btel.methods.baselines.bruteforce  # noqa: F401
     import btel.methods.btel.localizer  # noqa: F401
-    import btel.plots  # noqa: F401
-    import btel.runs  # noqa: F401
+    import btel.evaluation.plots  # noqa: F401
+    import btel.evaluation.runs  # noqa: F401
     import cv2  # noqa: F401
     import faiss  # noqa: F401
     import PIL.Image  # noqa: F401

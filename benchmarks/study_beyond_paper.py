@@ -7,7 +7,7 @@ both directions) at one byte budget:
    the best of PQ / OPQ / ITQ fitted to the same bytes (recall@10);
 2. the same at 0.5 MB (run the script with ``--budget 500KB``);
 3. with sequences, on equal terms — every method's per-place scores go through the same HMM
-   decoder (:mod:`btel.sequence_decoding`); BTEL + HMM should reach recall@10 ≥ 0.5.
+   decoder (:mod:`btel.sequence.hmm`); BTEL + HMM should reach recall@10 ≥ 0.5.
 
 The paper's median filter and SeqSLAM's line search over the same scores are measured next to the
 HMM; brute force (HOG, 54 MB) and SeqSLAM on patch-normalised thumbnails (7.3 MB) are unbudgeted
@@ -51,13 +51,13 @@ from _common import RESULTS_DIR, write_results  # noqa: E402
 from btel import BTELocalizer  # noqa: E402
 from btel.methods.baselines import SeqSLAM, seqslam_match  # noqa: E402
 from btel.methods.btel.diagnostics import localizer_bit_accuracy, plot_bit_accuracy  # noqa: E402
-from btel.evaluation import recall_at_k  # noqa: E402
+from btel.evaluation.measure import recall_at_k  # noqa: E402
 from btel.exceptions import BudgetTooSmallError  # noqa: E402
 from btel.methods import make_method  # noqa: E402
 from btel.methods.btel.ranking import rank_places  # noqa: E402
-from btel.sequence import filter_sequence  # noqa: E402
-from btel.sequence_decoding import decode_sequence, emission_scores  # noqa: E402
-from btel.storage import format_bytes, parse_budget  # noqa: E402
+from btel.sequence.filter import filter_sequence  # noqa: E402
+from btel.sequence.hmm import decode_sequence, emission_scores  # noqa: E402
+from btel.core.storage import format_bytes, parse_budget  # noqa: E402
 
 SEASONS = ("summer", "winter")
 STRETCH = 200

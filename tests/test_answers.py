@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import btel
-from btel.base import ArraySpec, PlaceLocalizer
+from btel.methods.base import ArraySpec, PlaceLocalizer
 from btel.exceptions import InvalidAnswerError
 from btel.methods import METHODS
 
@@ -170,7 +170,7 @@ def test_a_model_fitted_on_a_scaled_map_is_refused_or_answers_after_save_and_loa
 
 
 def _float_arrays(path: Path) -> list[str]:
-    from btel.modelfile import load_arrays
+    from btel.core.modelfile import load_arrays
 
     arrays, _ = load_arrays(path)
     return [name for name, a in arrays.items() if a.dtype.kind == "f" and a.size]
@@ -178,7 +178,7 @@ def _float_arrays(path: Path) -> list[str]:
 
 def _with_one_value(path: Path, name: str, value: float, out: Path) -> Path:
     """A copy of the model file with ``arrays[name].flat[0] = value`` (header kept)."""
-    from btel.modelfile import load_arrays, save_arrays
+    from btel.core.modelfile import load_arrays, save_arrays
 
     arrays, header = load_arrays(path)
     arrays[name] = arrays[name].copy()

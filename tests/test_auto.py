@@ -86,7 +86,7 @@ def test_an_ordered_map_with_fewer_bits_than_the_birthday_bound_gets_output_code
 
 def test_lsh_is_whitened_only_when_the_budget_affords_a_useful_rank() -> None:
     from btel.methods.auto import SHRINK_LSH_MIN_RANK
-    from btel.shrink import shrink_rank
+    from btel.core.shrink import shrink_rank
 
     X = np.random.default_rng(3).normal(size=(200, 500)).astype(np.float32)   # independent places
     assert shrink_rank(500, 200, 8_000) < SHRINK_LSH_MIN_RANK <= shrink_rank(500, 200, 64_000)
@@ -105,7 +105,7 @@ def test_an_ordered_cone_that_cannot_afford_lsh_mean_gets_output_codes() -> None
     route = synthetic_route(600, 512, condition_shift=1.0, seed=2)
     offset = np.full(512, 3 * np.linalg.norm(route.map, axis=1).mean() / np.sqrt(512), dtype=np.float32)
     cone = route.map + offset
-    assert cone_ratio(btel.frontend.normalize_rows(cone)) >= 0.5 > cone_ratio(btel.frontend.normalize_rows(route.map))
+    assert cone_ratio(btel.core.frontend.normalize_rows(cone)) >= 0.5 > cone_ratio(btel.core.frontend.normalize_rows(route.map))
     assert route_continuity(cone) >= ORDER_CONTINUITY and route_continuity(route.map) >= ORDER_CONTINUITY
     budget = 6_000  # 80 bits per row, above 2·log2 N; LSH's 1 KB mean is over 1/8 of it
     first = choose_method(cone, None, 600, budget)[0]
@@ -125,7 +125,7 @@ def test_an_ordered_cone_with_many_bits_per_place_keeps_lsh() -> None:
     direction = np.random.default_rng(9).normal(size=500).astype(np.float32)
     direction *= np.linalg.norm(route.map, axis=1).mean() / np.linalg.norm(direction)
     X = route.map + direction
-    assert 0.5 <= cone_ratio(btel.frontend.normalize_rows(X)) < 0.8
+    assert 0.5 <= cone_ratio(btel.core.frontend.normalize_rows(X)) < 0.8
     assert route_share(X) < ROUTE_SHARE and route_continuity(X) >= ORDER_CONTINUITY
     first = choose_method(X, None, 210, 4_000)[0]
     assert first["method"] == "lsh" and first["lsh_effective_bits"] > ORDER_BITS_FACTOR * collision_bits(210)
@@ -142,7 +142,7 @@ def test_an_ordered_cone_in_snippets_of_three_keeps_lsh() -> None:
     direction *= 1.5 * np.linalg.norm(route.map, axis=1).mean() / np.linalg.norm(direction)
     order = np.concatenate(np.arange(600).reshape(-1, 3)[np.random.default_rng(3).permutation(200)])
     X, Q = (route.map + direction)[order], (route.queries + direction)[order]
-    assert cone_ratio(btel.frontend.normalize_rows(X)) > 0.8 and 0.1 <= route_share(X) < ROUTE_SHARE
+    assert cone_ratio(btel.core.frontend.normalize_rows(X)) > 0.8 and 0.1 <= route_share(X) < ROUTE_SHARE
     assert route_continuity(X) < ORDER_CONTINUITY <= route_continuity(route.map + direction)
     first = choose_method(X, None, 600, 4_000)[0]
     assert first["method"] == "lsh" and f"continuity {first['route_continuity']:.2f} < {ORDER_CONTINUITY}" in first["reason"]
@@ -154,7 +154,7 @@ def test_an_ordered_cone_in_snippets_of_three_keeps_lsh() -> None:
 
 def test_lsh_is_whitened_only_with_at_least_d_bits_per_row() -> None:
     """Rank and bytes per place suffice, but P < d bits per row: plain LSH (bench_lsh_whitening)."""
-    from btel.shrink import shrink_rank
+    from btel.core.shrink import shrink_rank
 
     X = np.random.default_rng(4).normal(size=(1000, 2048)).astype(np.float32)  # independent places
     assert shrink_rank(2048, 1000, 128_000) >= 8 and 8 * 128_000 / 1000 < 2048
@@ -300,7 +300,7 @@ def test_route_share_is_the_share_of_nearest_other_rows_within_the_window(n_rows
     on a line every row ties with half the map)."""
     rng = np.random.default_rng(seed)
     X = rng.normal(size=(n_rows, dim)).astype(np.float32)
-    Z = btel.frontend.normalize_rows(X)
+    Z = btel.core.frontend.normalize_rows(X)
     S = Z @ Z.T
     np.fill_diagonal(S, -np.inf)
     expected = 0.0 if n_rows < 2 else float(np.mean(np.abs(np.argmax(S, axis=1) - np.arange(n_rows)) <= 2))
@@ -317,7 +317,7 @@ def test_map_statistics_read_a_memory_mapped_map_in_blocks(smooth_route, tmp_pat
     np.save(path, X)
     mapped = np.load(path, mmap_mode="r")
     assert route_share(mapped) == route_share(X) and route_continuity(mapped) == route_continuity(X)
-    assert map_cone_ratio(mapped) == pytest.approx(cone_ratio(btel.frontend.normalize_rows(X)), rel=1e-6)
+    assert map_cone_ratio(mapped) == pytest.approx(cone_ratio(btel.core.frontend.normalize_rows(X)), rel=1e-6)
 
 
 def test_index_order_tells_a_route_an_ordered_map_and_independent_places(smooth_route) -> None:

@@ -18,7 +18,7 @@ from btel.exceptions import (
     NotEnoughPlacesError,
     NotFittedError,
 )
-from btel.storage import parse_budget
+from btel.core.storage import parse_budget
 
 N_PLACES, DIM = 300, 32
 

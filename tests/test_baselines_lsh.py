@@ -29,7 +29,7 @@ def test_bits_fill_the_budget_and_only_codes_and_mean_are_stored(pair, budget, c
     X, _ = pair
     if cone:  # every row plus one shared direction: the unit rows then lie in a narrow cone
         X = X + 3 * np.abs(X).max() * np.ones(X.shape[1], dtype=np.float32)
-    assert (cone_ratio(btel.frontend.normalize_rows(X)) >= CENTER_CONE) == cone
+    assert (cone_ratio(btel.core.frontend.normalize_rows(X)) >= CENTER_CONE) == cone
     model = make_method("lsh", budget=budget).fit(X)
     # center='auto': the float16 mean only for a cone, and only when it costs ≤ 1/8 of the budget.
     centred = cone and 2 * 64 <= budget / 8
@@ -98,7 +98,7 @@ def test_projection_is_regenerated_from_the_recorded_seed(pair, tmp_path) -> Non
 def test_asymmetric_score_is_projected_query_times_the_sign_codes(pair) -> None:
     X, Q = pair
     model = LSHLocalizer(n_bits=64, center=False).fit(X)
-    Z, Qz = btel.frontend.normalize_rows(X), btel.frontend.normalize_rows(Q[:5])
+    Z, Qz = btel.core.frontend.normalize_rows(X), btel.core.frontend.normalize_rows(Q[:5])
     R = projection_matrix(64, 64, 0, "hadamard")
     expected = (Qz @ R) @ np.sign(Z @ R).T
     np.testing.assert_allclose(model.place_scores(Q[:5]), expected, rtol=1e-4, atol=1e-3)
@@ -120,7 +120,7 @@ def test_orthogonal_projection_is_orthonormal_blocks_of_the_seeds_gaussian(d, bi
 
 
 def test_a_model_file_without_a_projection_loads_with_the_gaussian_one(pair, tmp_path) -> None:
-    from btel.modelfile import load_arrays, save_arrays
+    from btel.core.modelfile import load_arrays, save_arrays
 
     X, Q = pair
     gaussian = LSHLocalizer(budget=8_000, projection="gaussian").fit(X)
@@ -148,7 +148,7 @@ def test_a_model_file_without_a_projection_loads_with_the_gaussian_one(pair, tmp
 def test_hamming_scoring_is_minus_the_hamming_distance(pair) -> None:
     X, Q = pair
     model = LSHLocalizer(n_bits=64, scoring="hamming").fit(X)
-    codes_q = np.unpackbits(np.packbits(model._project(btel.frontend.normalize_rows(Q[:3])) > 0, axis=1), axis=1)
+    codes_q = np.unpackbits(np.packbits(model._project(btel.core.frontend.normalize_rows(Q[:3])) > 0, axis=1), axis=1)
     codes_x = np.unpackbits(model.codes_, axis=1)
     dist = (codes_q[:, None, :] != codes_x[None]).sum(axis=2)
     scores, places = model.search(Q[:3], 4)
@@ -167,7 +167,7 @@ def test_any_bit_count_is_stored_as_one_dense_stream_and_round_trips(pair, scori
     # Row i's bits are bits i·P … (i+1)·P − 1 of the stream, the signs of its projection.
     with np.load(model.save(tmp_path / "m.npz"), allow_pickle=False) as z:
         stream = np.unpackbits(z["codes"].ravel(), count=400 * n_bits).reshape(400, n_bits)
-    np.testing.assert_array_equal(stream, model._project(btel.frontend.normalize_rows(X)) > 0)
+    np.testing.assert_array_equal(stream, model._project(btel.core.frontend.normalize_rows(X)) > 0)
     again = btel.load(tmp_path / "m.npz")
     np.testing.assert_array_equal(again.codes_, model.codes_)
     np.testing.assert_array_equal(again.search(Q, 5)[0], model.search(Q, 5)[0])
@@ -187,7 +187,7 @@ def test_dense_stream_and_row_codes_are_inverse(n_rows: int, n_bits: int, seed: 
 
 
 def test_a_dense_stream_of_the_wrong_length_or_rows_is_refused(pair, tmp_path) -> None:
-    from btel.modelfile import load_arrays, save_arrays
+    from btel.core.modelfile import load_arrays, save_arrays
 
     X, _ = pair
     arrays, header = load_arrays(LSHLocalizer(n_bits=13).fit(X).save(tmp_path / "m.npz"))
@@ -239,7 +239,7 @@ def _reference(model, Q):
     """(qR) · sign(x_i R) from unpacked codes: the asymmetric score of every row (qR on the scans' grid)."""
     from btel.methods.baselines.signscan import query_rows
 
-    P = query_rows(model._project(btel.frontend.normalize_rows(Q)), model.codes_.shape[1])[:, : model.n_bits_]
+    P = query_rows(model._project(btel.core.frontend.normalize_rows(Q)), model.codes_.shape[1])[:, : model.n_bits_]
     return P.astype(np.float64) @ (np.unpackbits(model.codes_, axis=1, count=model.n_bits_) * 2.0 - 1).T
 
 
@@ -325,7 +325,7 @@ def test_near_duplicate_queries_of_wide_descriptors_are_found(method, n_rows, d,
     X += 0.075 * (factors @ rng.standard_normal((64, d), dtype=np.float32))
     Q = X + 0.5 * rng.standard_normal((n_rows, d), dtype=np.float32)
     model = btel.load(make_method(method, budget=budget).fit(X).save(tmp_path / "m.npz"))
-    assert model.nbytes <= btel.storage.parse_budget(budget)
+    assert model.nbytes <= btel.core.storage.parse_budget(budget)
     assert (model.predict(Q) == np.arange(n_rows)).mean() >= 0.9
 
 

@@ -10,7 +10,7 @@ import btel
 from btel.exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError
 from btel.methods import make_method
 from btel.methods.baselines.rabitq import MAX_NBITS, RaBitQLocalizer, rotation_matrix
-from btel.modelfile import load_arrays, save_arrays
+from btel.core.modelfile import load_arrays, save_arrays
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from btel.methods.baselines import BASELINES
-from btel.storage import parse_budget
+from btel.core.storage import parse_budget
 
 pytestmark = pytest.mark.realdata
 

@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from btel import _claims
-from btel.evaluation import evaluate
+from btel.core import claims
+from btel.evaluation.measure import evaluate
 from btel.experiments._common import ModelCache
 from btel.methods import make_method
-from btel.runs import RunWriter
+from btel.evaluation.runs import RunWriter
 
 
 def _dead_pid() -> int:
@@ -171,7 +171,7 @@ def test_of_racing_saves_without_overwrite_exactly_one_publishes(tmp_path: Path)
 
 def test_a_file_that_appears_while_saving_is_kept(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The race made deterministic: another writer publishes while this one writes its temporary."""
-    from btel import modelfile
+    from btel.core import modelfile
     from btel.exceptions import OutputExistsError
 
     path = tmp_path / "m.btel.npz"
@@ -214,7 +214,7 @@ def test_python_save_paths_take_overwrite(tmp_path: Path) -> None:
     from btel.datasets import GroundTruth
     from btel.descriptors import get_descriptor
     from btel.exceptions import OutputExistsError
-    from btel.runs import write_run
+    from btel.evaluation.runs import write_run
 
     model, X = _fitted()
     targets = {"model": lambda p, o: model.save(p, overwrite=o),

@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from btel.cli import main
-from btel.runs import recompute_recall_from_csv
+from btel.evaluation.runs import recompute_recall_from_csv
 
 
 def run(*args: str) -> "click.testing.Result":  # noqa: F821

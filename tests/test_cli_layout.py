@@ -1,7 +1,7 @@
 """The command line knows no method: read from the source of every module of ``btel.cli`` with :mod:`ast`.
 
 No module imports a method module (only :mod:`btel.methods.registry`, and the plain role names
-of :mod:`btel._method_roles`), spells a registered method name as a string literal (or a
+of :mod:`btel.methods.roles`), spells a registered method name as a string literal (or a
 comma-separated list of them), or names a method class. What needs a method by role (the
 default, the unbudgeted reference, the demo set) asks the library. The checker is itself tested
 on sources that break each rule, so a violation in the package cannot pass unseen.
@@ -116,7 +116,7 @@ def test_the_checker_lets_through_what_is_not_a_method_name() -> None:
 
 
 def test_the_roles_are_registered_methods() -> None:
-    from btel import _method_roles
+    from btel.methods import roles
     from btel.methods import registry
 
     assert _method_roles.DEFAULT_METHOD in REGISTRY and _method_roles.REFERENCE_METHOD in REGISTRY

@@ -16,7 +16,7 @@ from btel.methods.btel.encoding import encode, n_bits_for
 from btel.exceptions import InvalidParameterError, ModelFileError
 from btel.methods.btel.decoding import block_centres
 from btel.methods.btel.localizer import block_size_for_tolerance, planned_bytes
-from btel.modelfile import load_arrays, save_arrays
+from btel.core.modelfile import load_arrays, save_arrays
 
 
 @pytest.fixture(scope="module")

@@ -20,7 +20,7 @@ from btel.methods.codes.codebook import FAMILIES, Codebook, max_columns, min_col
 from btel.methods.codes.codewords import Codewords
 from btel.methods.codes.estimator import CodeLocalizer
 from btel.methods.codes.hashing import CURRENT_RULE, LEGACY_RULE
-from btel.modelfile import load_arrays, save_arrays
+from btel.core.modelfile import load_arrays, save_arrays
 
 MASK = (1 << 64) - 1
 GAMMA = 0x9E3779B97F4A7C15

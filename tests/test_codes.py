@@ -16,7 +16,7 @@ from btel.methods.codes.estimator import CodeLocalizer
 from btel.datasets import synthetic_route
 from btel.exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError
 from btel.methods import make_method
-from btel.modelfile import load_arrays, save_arrays
+from btel.core.modelfile import load_arrays, save_arrays
 
 
 @pytest.fixture(scope="module")
@@ -341,7 +341,7 @@ def test_the_default_code_family_is_read_from_the_map_on_nordland_and_gardens_po
     """Real data: btel-codes' default (code='auto') takes periodic codes on Nordland HOG (an ordered map:
     share 0.27, continuity 0.68) and on Gardens Point (a route), random codes on Gardens Point permuted;
     on Nordland the periodic codes are the better family (frontier: recall@10 0.025 vs 0.008 at 4 KB)."""
-    from btel.metrics import recall_at_tolerance
+    from btel.evaluation.metrics import recall_at_tolerance
 
     summer, winter = nordland_hog
     model = CodeLocalizer(budget="4KB", random_state=0).fit(summer)

@@ -12,7 +12,7 @@ import pytest
 from btel.descriptors import get_descriptor
 from btel.descriptors.base import load_descriptor
 from btel.exceptions import InvalidParameterError, ModelFileError, ResourceLimitError
-from btel.modelfile import load_arrays, save_arrays
+from btel.core.modelfile import load_arrays, save_arrays
 
 
 def _edited(src: Path, dst: Path, params: dict[str, Any] | None = None,

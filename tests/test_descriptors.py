@@ -36,7 +36,7 @@ from btel.exceptions import (
     NotEnoughPlacesError,
     NotFittedError,
 )
-from btel.modelfile import load_arrays, save_arrays
+from btel.core.modelfile import load_arrays, save_arrays
 
 
 def _textured(seed: int, shape: tuple[int, int] = (96, 128)) -> np.ndarray:

@@ -74,7 +74,7 @@ def _expected(estimator) -> dict[str, str]:
     return {**BY_DESIGN, **EXTRA.get(name, {})}
 
 
-# The methods take scikit-learn's contract from btel._params.ParamsMixin, not from BaseEstimator (whose
+# The methods take scikit-learn's contract from btel.core.params.ParamsMixin, not from BaseEstimator (whose
 # import a loaded model would pay: docs/decisions/startup.md); every check below holds. scikit-learn warns
 # that they do not inherit from BaseEstimator, once per estimator while the checks are collected.
 with warnings.catch_warnings():

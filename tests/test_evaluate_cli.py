@@ -15,10 +15,10 @@ from click.testing import CliRunner
 
 from btel.cli import main
 from btel.datasets import GroundTruth, synthetic_route
-from btel.evaluation import EvaluationResult, Job, evaluate_all, format_table, preflight
+from btel.evaluation.measure import EvaluationResult, Job, evaluate_all, format_table, preflight
 from btel.exceptions import BudgetTooSmallError
 from btel.methods import METHODS, make_method
-from btel.runs import RunWriter
+from btel.evaluation.runs import RunWriter
 
 
 def run(*args: object) -> "click.testing.Result":  # noqa: F821
@@ -278,7 +278,7 @@ def test_info_shows_method_parameters_front_end_and_methods_have_descriptions(ro
 
 # -- 13: plots have titles, one byte unit style, and a tolerance axis that fits the route --------------------
 def test_plots_have_titles_byte_labels_and_a_fitting_tolerance_axis(tmp_path: Path, monkeypatch) -> None:
-    import btel.plots as plots
+    import btel.evaluation.plots as plots
 
     seen = {}
     original_save = plots.run._save
@@ -327,7 +327,7 @@ def test_failed_rows_in_the_table_say_why() -> None:
 def test_experiment_lines_and_plot_titles_name_metrics_direction_and_budget(tmp_path: Path, monkeypatch) -> None:
     import btel.experiments.accuracy as accuracy
     from btel.experiments import ExperimentRun, describe_row
-    from btel.records import EvaluationResult
+    from btel.evaluation.records import EvaluationResult
 
     rows = [{"method": m, "n_places": 300, "budget": None if m == "bruteforce" else 50_000, "nbytes": 1000,
              "direction": d, "status": "ok", "uses_query_sequence": m == "seqslam", "recall@0": 0.1,
@@ -368,7 +368,7 @@ def test_evaluate_reports_r_at_20_and_pr_by_default(tmp_path: Path) -> None:
 
 
 def test_ctrl_c_exits_130_with_plots_and_resume_skips_the_rows_done(tmp_path: Path, monkeypatch) -> None:
-    import btel.evaluation as ev
+    import btel.evaluation.measure as ev
 
     route = synthetic_route(n_places=120, dim=16, seed=1)
     np.save(tmp_path / "db.npy", route.map)
@@ -412,7 +412,7 @@ def test_ctrl_c_exits_130_with_plots_and_resume_skips_the_rows_done(tmp_path: Pa
 
 
 def test_a_run_of_saved_models_is_titled_as_such(tmp_path: Path, monkeypatch) -> None:
-    import btel.plots as plots
+    import btel.evaluation.plots as plots
 
     route = synthetic_route(n_places=80, dim=16, seed=2)
     np.save(tmp_path / "db.npy", route.map)
@@ -434,16 +434,16 @@ def test_plots_of_independent_queries_do_not_speak_of_frames(order: str, gardens
     """Issue 23: with --query-order independent the plots said "recall within t frames"."""
     import matplotlib.text
 
-    import btel.plots
+    import btel.evaluation.plots
 
     texts: dict[str, list[str]] = {}
-    save = btel.plots.run._save
+    save = btel.evaluation.plots.run._save
 
     def recording_save(fig, path):  # every word drawn in every figure of the run
         texts[Path(path).name] = [t.get_text() for t in fig.findobj(matplotlib.text.Text)]
         save(fig, path)
 
-    for module in (btel.plots.run, btel.plots.sweeps, btel.plots._figure):  # the modules that save the figures
+    for module in (btel.evaluation.plots.run, btel.evaluation.plots.sweeps, btel.evaluation.plots._figure):  # the modules that save the figures
         monkeypatch.setattr(module, "_save", recording_save)
     X, Q = gardenspoint_netvlad
     db, q = tmp_path / "db.npy", tmp_path / "q.npy"

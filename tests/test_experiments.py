@@ -13,7 +13,7 @@ from btel.cli import main
 from btel.exceptions import BudgetExceededError, DataNotFoundError, InvalidParameterError
 from btel.experiments import EXPERIMENTS, NordlandData, run_experiment
 from btel.experiments._common import fit_row
-from btel.report import write_report
+from btel.experiments.report import write_report
 
 
 @pytest.fixture(scope="module")

@@ -16,9 +16,9 @@ from btel.datasets import synthetic_route
 from btel.descriptors import delta_descriptors
 from btel.exceptions import (BudgetTooSmallError, InvalidDescriptorsError, InvalidParameterError, ModelFileError,
                              NotEnoughPlacesError)
-from btel.frontend import FrontEnd, normalize_rows, traverse_starts
+from btel.core.frontend import FrontEnd, normalize_rows, traverse_starts
 from btel.methods import METHODS, make_method
-from btel.streaming import localize_stream
+from btel.sequence.streaming import localize_stream
 
 
 def reference_delta(X: np.ndarray, w: int) -> np.ndarray:
@@ -225,7 +225,7 @@ def test_experiment_front_end_override_is_refused_where_the_experiment_sets_it()
 
 @pytest.mark.parametrize("name", ["bruteforce", "lsh", "btel-codes"])
 def test_shrinkage_whitening_is_stored_counted_and_round_trips(name, route, tmp_path) -> None:
-    from btel.shrink import shrink_bytes, shrink_rank
+    from btel.core.shrink import shrink_bytes, shrink_rank
 
     X, Q = route.map, route.queries
     budget = 60_000 if name != "bruteforce" else None
@@ -245,7 +245,7 @@ def test_shrinkage_whitening_is_stored_counted_and_round_trips(name, route, tmp_
 @given(d=st.integers(1, 37), r=st.integers(0, 5), seed=st.integers(0, 2**31 - 1))
 @settings(max_examples=60, deadline=None)
 def test_shrink_basis_packs_two_entries_a_byte_and_back(d: int, r: int, seed: int) -> None:
-    from btel.shrink import pack_basis, unpack_basis
+    from btel.core.shrink import pack_basis, unpack_basis
 
     levels = np.random.default_rng(seed).integers(-7, 8, size=(d, r)).astype(np.int8)
     packed = pack_basis(levels)
@@ -295,7 +295,7 @@ def test_shrinkage_whitening_on_gardens_point_beats_cosine_brute_force(gardenspo
     truth = np.arange(Q.shape[0])
     plain = make_method("bruteforce").fit(X).predict(Q)
     white = make_method("bruteforce", whiten="shrink").fit(X).predict(Q)
-    # Measured 0.48 → 0.555 recall@2 (btel.shrink docstring); the test asks for a real gain.
+    # Measured 0.48 → 0.555 recall@2 (btel.core.shrink docstring); the test asks for a real gain.
     assert (np.abs(white - truth) <= 2).mean() > (np.abs(plain - truth) <= 2).mean() + 0.03
 
 
@@ -315,7 +315,7 @@ def test_every_method_has_the_front_end_parameters_once(name: str) -> None:
 
 
 def test_a_method_declaring_a_front_end_parameter_itself_is_refused() -> None:
-    from btel.base import PlaceLocalizer
+    from btel.methods.base import PlaceLocalizer
 
     with pytest.raises(TypeError, match="declared once"):
         class _Copy(PlaceLocalizer):  # noqa: F841 - the class statement itself raises

@@ -1,4 +1,4 @@
-"""Match gallery (btel.gallery, `btel evaluate` on image inputs, `btel show RUN`) and image names in
+"""Match gallery (btel.evaluation.gallery, `btel evaluate` on image inputs, `btel show RUN`) and image names in
 the predictions files."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from btel.cli import main
 from btel.exceptions import InvalidParameterError
-from btel.gallery import choose_gallery_queries, plot_match_gallery
+from btel.evaluation.gallery import choose_gallery_queries, plot_match_gallery
 
 
 def _rows(path: Path) -> list[dict[str, str]]:

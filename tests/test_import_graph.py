@@ -20,7 +20,21 @@ import btel
 SRC = Path(btel.__file__).resolve().parent
 
 #: The layers above the method core.
-UPPER = ("btel.experiments", "btel.evaluation", "btel.runs", "btel.report", "btel.cli")
+UPPER = ("btel.experiments", "btel.evaluation", "btel.cli")
+
+#: The package's layers, bottom first: a module imports only from its own layer or those below it.
+#: ``btel`` (the root's lazy public names) and ``btel._lazy`` sit outside the order.
+LAYERS = (
+    ("btel.exceptions",),
+    ("btel.core",),
+    ("btel.sequence", "btel.learning", "btel.descriptors"),
+    ("btel.datasets",),
+    ("btel.methods.base", "btel.methods.roles"),
+    ("btel.methods",),
+    ("btel.evaluation",),
+    ("btel.experiments",),
+    ("btel.cli",),
+)
 
 
 def within(module: str, names: Iterable[str]) -> bool:
@@ -136,9 +150,9 @@ def test_the_graph_is_read_from_the_source() -> None:
     assert len(GRAPH) > 40
     assert "btel.experiments.beyond" in GRAPH["btel.experiments"]  # from .beyond import …
     assert "btel.experiments._common" in GRAPH["btel.experiments.beyond"]
-    assert {"btel.evaluation", "btel.runs"} <= GRAPH["btel.cli._jobs"]  # in functions
-    assert "btel.experiments" in GRAPH["btel.cli.experiment"] and "btel.report" in GRAPH["btel.cli.report"]
-    assert "btel.plots" in GRAPH["btel.runs"]  # `from . import plots as _plots`: the submodule, not the package
+    assert {"btel.evaluation.measure", "btel.evaluation.runs"} <= GRAPH["btel.cli._jobs"]  # in functions
+    assert "btel.experiments" in GRAPH["btel.cli.experiment"] and "btel.experiments.report" in GRAPH["btel.cli.report"]
+    assert "btel.evaluation.plots" in GRAPH["btel.evaluation.runs"]  # `from . import plots as _plots`: the submodule, not the package
 
 
 def test_the_cycle_finder_on_a_toy_package(tmp_path: Path) -> None:
@@ -165,8 +179,8 @@ def test_the_import_graph_has_no_cycle() -> None:
 def test_the_method_interface_does_not_import_its_implementations() -> None:
     """base.py (the interface) imports no method, registry or upper layer."""
     below = {"btel.methods", "btel.methods.btel.localizer", "btel.methods.ryth", "btel.methods.baselines", *UPPER}
-    bad = sorted(m for m in GRAPH.get("btel.base", ()) if within(m, below))
-    assert not bad, f"btel.base imports {bad}"
+    bad = sorted(m for m in GRAPH.get("btel.methods.base", ()) if within(m, below))
+    assert not bad, f"btel.methods.base imports {bad}"
 
 
 def test_no_module_is_above_450_lines() -> None:
@@ -180,7 +194,8 @@ def test_outside_the_methods_only_the_registry_is_imported() -> None:
     """Shared layers reach a method through btel.methods.registry (make_method, load), never its module;
     only the package's lazy public names (btel/__init__) point at the two estimators users import."""
     public = {"btel.methods.btel.localizer", "btel.methods.codes.estimator"}
-    bad = {m: sorted(e for e in edges if within(e, ["btel.methods"]) and e != "btel.methods.registry"
+    interface = {"btel.methods.registry", "btel.methods.base", "btel.methods.roles"}
+    bad = {m: sorted(e for e in edges if within(e, ["btel.methods"]) and e not in interface
                      and not (m == "btel" and e in public))
            for m, edges in GRAPH.items() if not within(m, ["btel.methods"])}
     bad = {m: e for m, e in bad.items() if e}
@@ -188,3 +203,28 @@ def test_outside_the_methods_only_the_registry_is_imported() -> None:
     # and no method module imports a layer above the methods
     upward = {m: sorted(e for e in edges if within(e, UPPER)) for m, edges in GRAPH.items() if within(m, ["btel.methods"])}
     assert not {m: e for m, e in upward.items() if e}
+
+
+def layer_of(module: str) -> int | None:
+    """Index of ``module``'s layer in LAYERS (the most specific match), None outside the order."""
+    best: tuple[int, int] | None = None
+    for i, names in enumerate(LAYERS):
+        for n in names:
+            if within(module, [n]) and (best is None or len(n) > best[1]):
+                best = (i, len(n))
+    return None if best is None else best[0]
+
+
+def test_every_module_sits_in_a_layer_and_imports_no_layer_above_it() -> None:
+    """The folders show the layers: exceptions < core < sequence/learning/descriptors < datasets <
+    the method interface < the methods < evaluation < experiments < cli. No arrow points up."""
+    loose = sorted(m for m in GRAPH if layer_of(m) is None and m not in {"btel", "btel._lazy"})
+    assert not loose, f"modules outside every layer (the root keeps only the public face): {loose}"
+    upward = sorted(f"{m} → {e}" for m, edges in GRAPH.items() for e in edges
+                    if layer_of(m) is not None and layer_of(e) is not None and layer_of(e) > layer_of(m))
+    assert not upward, "imports that point up a layer:\n  " + "\n  ".join(upward)
+
+
+def test_the_root_keeps_only_the_public_face() -> None:
+    root_modules = sorted(p.name for p in SRC.glob("*.py"))
+    assert len(root_modules) <= 12, root_modules

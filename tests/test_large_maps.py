@@ -9,7 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 from btel import BTELocalizer, load
-from btel._validation import check_descriptors
+from btel.core.validation import check_descriptors
 from btel.cli import main
 from btel.datasets import list_shards, load_shards, synthetic_route
 from btel.exceptions import DataNotFoundError, DimensionMismatchError, InvalidDescriptorsError

@@ -14,8 +14,8 @@ import pytest
 
 import btel
 from btel.exceptions import InvalidParameterError, ModelFileError, ResourceLimitError
-from btel.limits import DEFAULT_MEMORY_LIMIT, check_bytes, check_places, memory_limit
-from btel.modelfile import load_arrays, save_arrays
+from btel.core.limits import DEFAULT_MEMORY_LIMIT, check_bytes, check_places, memory_limit
+from btel.core.modelfile import load_arrays, save_arrays
 
 
 @pytest.mark.parametrize(("text", "expected"), [("", DEFAULT_MEMORY_LIMIT), ("1024", 1024), ("4G", 4 * 2**30),

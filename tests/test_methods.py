@@ -79,7 +79,7 @@ def test_the_first_ranked_place_is_the_prediction_for_every_method(name: str, ro
 @pytest.mark.parametrize("front", [{}, {"whiten": 8}])
 def test_large_batches_predicted_in_chunks_equal_the_whole_batch_answer(name: str, front, route) -> None:
     """Batches ≥ 8192 queries run in row chunks on every core: same answers as one-chunk prediction."""
-    from btel import base
+    from btel.methods import base
 
     X, Q = route
     model = make_method(name, **front).fit(X)
@@ -123,7 +123,7 @@ def test_shared_layers_ask_the_method_not_its_class() -> None:
     """The evaluation pre-check and the experiments' cache never name a method class (issue 19)."""
     import inspect
 
-    import btel.evaluation
+    import btel.evaluation.measure
     import btel.experiments._common
 
     for module in (btel.evaluation, btel.experiments._common):
@@ -134,7 +134,7 @@ def test_shared_layers_ask_the_method_not_its_class() -> None:
 
 
 def test_registry_holds_one_factory_and_description_per_method() -> None:
-    from btel.base import PlaceLocalizer
+    from btel.methods.base import PlaceLocalizer
     from btel.methods import DESCRIPTIONS, REGISTRY
 
     assert list(REGISTRY) == list(METHODS) == list(DESCRIPTIONS)

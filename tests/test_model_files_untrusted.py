@@ -18,7 +18,7 @@ import pytest
 from click.testing import CliRunner
 
 import btel
-from btel import modelfile
+from btel.core import modelfile
 from btel.cli import main
 from btel.datasets import synthetic_route
 from btel.exceptions import (
@@ -30,7 +30,7 @@ from btel.exceptions import (
     NotFittedError,
 )
 from btel.methods import make_method
-from btel.modelfile import HEADER_KEY, load_arrays
+from btel.core.modelfile import HEADER_KEY, load_arrays
 
 N_PLACES, DIM = 64, 16
 
@@ -557,7 +557,7 @@ def test_stream_treats_a_line_that_is_not_utf8_as_one_malformed_line(source, fil
 
 
 def test_localize_stream_reads_bytes_line_by_line(files, queries) -> None:
-    from btel.streaming import localize_stream
+    from btel.sequence.streaming import localize_stream
 
     model = btel.load(files["btel-c"])
     lines = b"".join(",".join(repr(v) for v in row.tolist()).encode() + b"\n" for row in queries[:3])
@@ -677,7 +677,7 @@ def test_filter_sequence_refuses_what_is_not_a_place(predictions, n_places, mess
 
 
 def test_filter_sequence_window_and_update_checks() -> None:
-    from btel.sequence import SequenceFilter
+    from btel.sequence.filter import SequenceFilter
 
     with pytest.raises(InvalidParameterError, match="window must be at most"):
         SequenceFilter(10**19)
@@ -692,13 +692,13 @@ def test_filter_sequence_window_and_update_checks() -> None:
 # ============================================================================= 9. HMM in blocks
 def test_hmm_decoding_holds_one_block_of_scores_at_a_time(files, route, monkeypatch) -> None:
     """`btel localize --hmm` held the whole (queries × N) score matrix (10 GB at 200k × 2000)."""
-    import btel.base
-    from btel.sequence_decoding import decode_sequence, emission_scores
+    import btel.methods.base
+    from btel.sequence.hmm import decode_sequence, emission_scores
 
     model = btel.load(files["btel-c"])
     Q = np.concatenate([route.queries] * 3)
     expected = decode_sequence(emission_scores(model, Q))
-    monkeypatch.setattr(btel.base, "_SCORE_BLOCK_VALUES", 5 * N_PLACES)  # 5 queries per block
+    monkeypatch.setattr(btel.methods.base, "_SCORE_BLOCK_VALUES", 5 * N_PLACES)  # 5 queries per block
     rows_scored: list[int] = []
     real = type(model)._place_scores
     monkeypatch.setattr(type(model), "_place_scores",
@@ -708,11 +708,11 @@ def test_hmm_decoding_holds_one_block_of_scores_at_a_time(files, route, monkeypa
 
 
 def test_cli_localize_hmm_decodes_in_blocks(files, route, tmp_path, monkeypatch) -> None:
-    import btel.base
+    import btel.methods.base
 
     np.save(tmp_path / "q.npy", route.queries)
     expected = btel.load(files["btel-c"]).predict_sequence(route.queries, "hmm")
-    monkeypatch.setattr(btel.base, "_SCORE_BLOCK_VALUES", 4 * N_PLACES)
+    monkeypatch.setattr(btel.methods.base, "_SCORE_BLOCK_VALUES", 4 * N_PLACES)
     rows_scored: list[int] = []
     real = btel.BTELocalizer._place_scores
     monkeypatch.setattr(btel.BTELocalizer, "_place_scores",

@@ -1,4 +1,4 @@
-"""btel._params.ParamsMixin behaves as scikit-learn's BaseEstimator on every registered method."""
+"""btel.core.params.ParamsMixin behaves as scikit-learn's BaseEstimator on every registered method."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from sklearn.base import BaseEstimator, clone
 from sklearn.model_selection import ParameterGrid
 from sklearn.utils import get_tags
 
-from btel._params import ParamsMixin
+from btel.core.params import ParamsMixin
 from btel.exceptions import InvalidParameterError
 from btel.methods import make_method, method_names
 

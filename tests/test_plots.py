@@ -9,9 +9,9 @@ import cv2
 import numpy as np
 import pytest
 
-from btel.evaluation import EvaluationResult, recall_at_tolerance, recall_curve
+from btel.evaluation.measure import EvaluationResult, recall_at_tolerance, recall_curve
 from btel.exceptions import InvalidParameterError
-from btel.plots import plot_recall_vs_n, plot_recall_vs_storage, plot_recall_vs_tolerance
+from btel.evaluation.plots import plot_recall_vs_n, plot_recall_vs_storage, plot_recall_vs_tolerance
 
 # matplotlib's first two default colours (C0 blue, C1 orange) in OpenCV's BGR order.
 _C0_BGR = (180, 119, 31)
@@ -118,8 +118,8 @@ def test_plot_real_gardenspoint_curve(gardenspoint_netvlad: tuple[np.ndarray, np
 
 
 def test_run_plots_include_precision_recall_with_auc_in_the_legend(tmp_path: Path) -> None:
-    from btel.evaluation import precision_recall
-    from btel.plots import plot_run
+    from btel.evaluation.measure import precision_recall
+    from btel.evaluation.plots import plot_run
 
     rng = np.random.default_rng(0)
     n = 200
@@ -135,7 +135,7 @@ def test_run_plots_include_precision_recall_with_auc_in_the_legend(tmp_path: Pat
     written = plot_run(rows, tmp_path)
     path = tmp_path / "precision_recall.png"
     assert path in written and path.stat().st_size > 1000
-    from btel.plots import plot_precision_recall
+    from btel.evaluation.plots import plot_precision_recall
 
     fig = plot_precision_recall(rows, tmp_path / "again.png")
     ax = fig.axes[0]
@@ -147,14 +147,14 @@ def test_run_plots_include_precision_recall_with_auc_in_the_legend(tmp_path: Pat
 
 
 def test_run_figure_identical_curves_integer_ticks_and_param_labels(tmp_path: Path) -> None:
-    from btel.plots import plot_run
+    from btel.evaluation.plots import plot_run
 
     n = 60
     pred = np.arange(n)
     rows = [_result(name, pred, 3000) for name in ("pq", "opq", "btel-codes")]
     rows[2].settings = {"code": "random"}
     plot_run(rows, tmp_path)
-    from btel.plots.run import _run_figure
+    from btel.evaluation.plots.run import _run_figure
 
     fig = _run_figure(rows, tmp_path / "again.png", kind="tolerance", title="t")
     ax = fig.axes[0]
@@ -170,11 +170,11 @@ def test_run_figure_identical_curves_integer_ticks_and_param_labels(tmp_path: Pa
 
 
 def test_run_figures_name_the_rows_that_did_not_run(tmp_path: Path) -> None:
-    from btel.plots import plot_run
+    from btel.evaluation.plots import plot_run
 
     pred = np.arange(30)
     missing = EvaluationResult.not_measured("itq", "does not fit", "budget too small", n_queries=30)
-    import btel.plots.run as plots
+    import btel.evaluation.plots.run as plots
 
     titles: list[str] = []
     real = plots._run_figure

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from btel.datasets import synthetic_route
-from btel.evaluation import evaluate
+from btel.evaluation.measure import evaluate
 from btel.exceptions import InvalidParameterError
 from btel.methods import make_method
-from btel.records import EvaluationResult
-from btel.tables import describe_row, rows_csv_text
+from btel.evaluation.records import EvaluationResult
+from btel.evaluation.tables import describe_row, rows_csv_text
 
 
 def _beyond_like_row() -> dict:

@@ -10,10 +10,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from btel.evaluation import EvaluationResult, evaluate
+from btel.evaluation.measure import EvaluationResult, evaluate
 from btel.exceptions import DataNotFoundError, InvalidParameterError
 from btel.methods import make_method
-from btel.runs import recompute_recall_from_csv, run_metadata, write_run
+from btel.evaluation.runs import recompute_recall_from_csv, run_metadata, write_run
 
 
 class _PlainPredictor:

@@ -1,4 +1,4 @@
-"""HMM sequence decoding over places (btel.sequence_decoding)."""
+"""HMM sequence decoding over places (btel.sequence.hmm)."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from btel.datasets import synthetic_route
 from btel.methods.btel.encoding import decode_soft
 from btel.exceptions import InvalidParameterError, NotFittedError
 from btel.methods.btel.ranking import soft_scores
-from btel.sequence import filter_sequence
-from btel.sequence_decoding import HMMDecoder, decode_sequence, transition_kernel, zscore_rows
+from btel.sequence.filter import filter_sequence
+from btel.sequence.hmm import HMMDecoder, decode_sequence, transition_kernel, zscore_rows
 
 
 def transition_matrix(n, vmin, vmax, backward, teleport):

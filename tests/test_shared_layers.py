@@ -2,7 +2,7 @@
 
 Evaluation, metrics, records, timing, tables, runs, plots, report and experiments reach a method
 through :mod:`btel.methods.registry` (``make_method``, ``load``, ``REGISTRY``) and the
-:class:`~btel.base.PlaceLocalizer` interface. Read from the source with :mod:`ast` (wherever an
+:class:`~btel.methods.base.PlaceLocalizer` interface. Read from the source with :mod:`ast` (wherever an
 import stands, in functions too), each of their modules must
 
 - import no method module: ``btel.methods.btel``, ``btel.methods.codes``, ``btel.methods.baselines``
@@ -109,19 +109,19 @@ CLASSES = method_class_names()
 def test_the_method_classes_are_read_from_the_registry() -> None:
     assert {"BTELocalizer", "CodeLocalizer", "RYTHLocalizer", "AutoLocalizer", "PQLocalizer"} <= CLASSES
     assert "PlaceLocalizer" not in CLASSES  # the interface itself may be named
-    assert {"btel.evaluation", "btel.experiments", "btel.experiments.beyond", "btel.plots.run"} <= set(shared_files())
+    assert {"btel.evaluation", "btel.experiments", "btel.experiments.beyond", "btel.evaluation.plots.run"} <= set(shared_files())
 
 
 @pytest.mark.parametrize(("source", "module", "what"), [
     ("from ..methods.btel.diagnostics import bit_accuracy\n", "btel.experiments.beyond", "imports btel.methods.btel"),
     ("from ..methods.codes import planning\n", "btel.experiments.codes", "imports btel.methods.codes"),
     ("def f():\n    from .methods import ryth\n", "btel.evaluation", "imports btel.methods.ryth"),
-    ("import btel.methods.baselines.pq\n", "btel.runs", "imports btel.methods.baselines"),
-    ("from btel.methods.auto import AutoLocalizer\n", "btel.report", "imports btel.methods.auto"),
+    ("import btel.methods.baselines.pq\n", "btel.evaluation.runs", "imports btel.methods.baselines"),
+    ("from btel.methods.auto import AutoLocalizer\n", "btel.experiments.report", "imports btel.methods.auto"),
     ("def f(m):\n    return isinstance(m, CodeLocalizer)\n", "btel.evaluation", "isinstance(…) on method class"),
-    ("def f(m):\n    return isinstance(m, (int, registry.BTELocalizer))\n", "btel.runs", "on method class BTELocalizer"),
-    ("def f():\n    return hasattr(RYTHLocalizer, 'periods_')\n", "btel.plots.run", "hasattr(…) on method class"),
-    ("def f(m):\n    return type(m).__name__ == 'PQLocalizer'\n", "btel.tables", "compares a type"),
+    ("def f(m):\n    return isinstance(m, (int, registry.BTELocalizer))\n", "btel.evaluation.runs", "on method class BTELocalizer"),
+    ("def f():\n    return hasattr(RYTHLocalizer, 'periods_')\n", "btel.evaluation.plots.run", "hasattr(…) on method class"),
+    ("def f(m):\n    return type(m).__name__ == 'PQLocalizer'\n", "btel.evaluation.tables", "compares a type"),
 ])
 def test_the_check_finds_a_violation(source: str, module: str, what: str) -> None:
     found = violations(source, module, CLASSES)

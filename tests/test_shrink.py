@@ -1,11 +1,11 @@
-"""Shrinkage whitening's directions (btel.shrink): every route gives the top singular directions, no d × d."""
+"""Shrinkage whitening's directions (btel.core.shrink): every route gives the top singular directions, no d × d."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from btel.shrink import GRAM_VALUES, _top_directions, apply_shrink, fit_shrink
+from btel.core.shrink import GRAM_VALUES, _top_directions, apply_shrink, fit_shrink
 
 
 def _wide(n: int, d: int, seed: int = 0) -> np.ndarray:

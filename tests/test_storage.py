@@ -19,8 +19,8 @@ from btel.exceptions import (
     NotFittedError,
     UnsupportedModelVersionError,
 )
-from btel.storage import format_bytes, parse_budget, storage_breakdown
-from btel.modelfile import FORMAT_VERSION, HEADER_KEY, load_arrays, save_arrays
+from btel.core.storage import format_bytes, parse_budget, storage_breakdown
+from btel.core.modelfile import FORMAT_VERSION, HEADER_KEY, load_arrays, save_arrays
 
 MAX_OVERHEAD = 4096  # file size − reported bytes (SPEC §7: "a few KiB")
 

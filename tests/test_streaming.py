@@ -19,7 +19,7 @@ from btel.cli import main
 from btel.datasets import synthetic_route
 from btel.methods.btel.encoding import decode_constrained, n_bits_for
 from btel.exceptions import InvalidDescriptorsError, InvalidParameterError
-from btel.streaming import localize_stream, parse_descriptor_line, read_lines
+from btel.sequence.streaming import localize_stream, parse_descriptor_line, read_lines
 
 
 @pytest.fixture(scope="module")
@@ -272,7 +272,7 @@ def test_fast_and_strict_parsers_agree_on_good_lines(line) -> None:
 
 
 def test_a_line_past_the_limit_is_dropped_unread_and_reported(monkeypatch) -> None:
-    from btel.streaming import LineTooLong, max_line_bytes
+    from btel.sequence.streaming import LineTooLong, max_line_bytes
 
     good = b"1,2,3\n"
     data = good + b"4," * 5000 + b"5\n" + good + b"7," * 40  # the last line is long and unterminated
@@ -302,7 +302,7 @@ def test_cli_stream_reports_an_overlong_line_and_goes_on(route, model_path: Path
 
 def test_a_whole_file_is_predicted_in_blocks_with_the_same_answers_and_errors(route, model_path: Path,
                                                                                tmp_path: Path) -> None:
-    import btel.streaming as streaming
+    import btel.sequence.streaming as streaming
 
     model = load(model_path)
     lines = as_lines(route.queries[:300])
@@ -326,7 +326,7 @@ def test_a_whole_file_is_predicted_in_blocks_with_the_same_answers_and_errors(ro
 @pytest.mark.parametrize("delimiter", [" ", ",", "\t"])
 def test_savetxt_lines_take_the_fast_path_and_equal_the_strict_parser(route, tmp_path: Path,
                                                                       delimiter: str) -> None:
-    from btel.lineparse import parse_lines, parse_strict
+    from btel.sequence.lineparse import parse_lines, parse_strict
 
     Q = route.queries[:40]
     np.savetxt(tmp_path / "q.txt", Q, delimiter=delimiter)  # numpy's default format '%.18e'
@@ -341,14 +341,14 @@ def test_savetxt_lines_take_the_fast_path_and_equal_the_strict_parser(route, tmp
                                   b"[1,2,3]", b"1],[2", b"1  2 3", b"1,,2,3", b" 1 2 3", b"+1,2,3",
                                   b"1,2,3,"])
 def test_a_line_that_is_not_plain_numbers_leaves_the_fast_path(line: bytes) -> None:
-    from btel.lineparse import parse_lines
+    from btel.sequence.lineparse import parse_lines
 
     rows, fast = parse_lines([line], 3)
     assert fast == [False] and rows.shape == (0, 3)
 
 
 def test_a_block_mixes_fast_strict_and_bad_lines_in_order(route) -> None:
-    from btel.lineparse import parse_lines
+    from btel.sequence.lineparse import parse_lines
 
     good = [line.encode() for line in as_lines(route.queries[:3], sep=" ")]
     block = [good[0], b"1,2\n", good[1], b"3e38," * 31 + b"3e38\n", good[2]]
@@ -388,7 +388,7 @@ def test_a_pipe_backlog_is_answered_in_blocks_with_the_same_answers(route, model
 
 
 def test_the_chunk_reader_says_when_a_pipe_is_idle() -> None:
-    from btel.streamread import IDLE, chunk_lines
+    from btel.sequence.streamread import IDLE, chunk_lines
 
     read_end, write_end = os.pipe()
     with os.fdopen(read_end, "rb") as source, os.fdopen(write_end, "wb") as sink:

@@ -1,4 +1,4 @@
-"""btel.threads: the one place that limits BLAS and faiss threads; single queries on one faiss thread."""
+"""btel.core.threads: the one place that limits BLAS and faiss threads; single queries on one faiss thread."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from threadpoolctl import threadpool_info
 
 from btel.methods.baselines import BruteForceNN as BruteForce
 from btel.exceptions import InvalidParameterError
-from btel.threads import (GEMV_ONE_THREAD_BELOW, SINGLE_QUERY_MAX, blas_threads, blas_threads_for_vector, faiss_threads,
+from btel.core.threads import (GEMV_ONE_THREAD_BELOW, SINGLE_QUERY_MAX, blas_threads, blas_threads_for_vector, faiss_threads,
                           limit_threads, search_threads)
 
 

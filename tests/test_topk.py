@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from btel.topk import top_k
+from btel.core.topk import top_k
 
 
 @settings(max_examples=60, deadline=None)

@@ -8,7 +8,7 @@ import scipy.sparse as sp
 from sklearn.exceptions import NotFittedError as SklearnNotFittedError
 
 from btel import BTELocalizer
-from btel._validation import check_descriptors, check_is_fitted, check_places, check_positive_int
+from btel.core.validation import check_descriptors, check_is_fitted, check_places, check_positive_int
 from btel.exceptions import (
     BTELError,
     BudgetTooSmallError,

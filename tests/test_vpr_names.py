@@ -156,8 +156,8 @@ def test_write_pairs_checks_names_itself(tmp_path: Path) -> None:
 def test_the_predictions_csv_refuses_a_name_that_would_take_two_lines() -> None:
     """The library's own guard (btel evaluate refuses earlier, before fitting)."""
     from btel.datasets import GroundTruth
-    from btel.records import EvaluationResult
-    from btel.tables import predictions_csv_text
+    from btel.evaluation.records import EvaluationResult
+    from btel.evaluation.tables import predictions_csv_text
 
     result = EvaluationResult(name="m", n_queries=2, predictions=np.array([0, 1]),
                               ground_truth=GroundTruth.frame_aligned(2))

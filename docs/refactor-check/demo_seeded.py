@@ -1,7 +1,7 @@
 import sys, json, numpy as np
 from btel.datasets import synthetic_route
 from btel.methods import make_method
-from btel.evaluation import evaluate
+from btel.evaluation.measure import evaluate
 route = synthetic_route(2000, 512, seed=0)
 out = {}
 for name in ["btel-c", "btel-r", "pq", "bruteforce"]:

@@ -19,24 +19,24 @@ __version__ = "0.1.0"
 _LAZY = {
     "BTELocalizer": ".methods.btel.localizer",
     "CodeLocalizer": ".methods.codes.estimator",
-    "PlaceLocalizer": ".base",
-    "SequenceFilter": ".sequence",
-    "filter_sequence": ".sequence",
+    "PlaceLocalizer": ".methods.base",
+    "SequenceFilter": ".sequence.filter",
+    "filter_sequence": ".sequence.filter",
     "load": ".methods.registry",
     "make_method": ".methods.registry",
-    "parse_budget": ".storage",
+    "parse_budget": ".core.storage",
 }
 
 __all__ = ["BTELocalizer", "CodeLocalizer", "PlaceLocalizer", "SequenceFilter", "filter_sequence", "load", "make_method", "parse_budget",
            "__version__"]
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
-    from .base import PlaceLocalizer
+    from .methods.base import PlaceLocalizer
     from .methods.codes.estimator import CodeLocalizer
     from .methods.btel.localizer import BTELocalizer
     from .methods.registry import load, make_method
-    from .sequence import SequenceFilter, filter_sequence
-    from .storage import parse_budget
+    from .sequence.filter import SequenceFilter, filter_sequence
+    from .core.storage import parse_budget
 
 
 __getattr__, __dir__ = lazy_names(__name__, _LAZY)

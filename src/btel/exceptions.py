@@ -91,7 +91,7 @@ class BudgetExceededError(BTELError, RuntimeError):
 
 
 class ResourceLimitError(BTELError, ValueError):
-    """An input declares more memory or work than btel's limit allows (see :mod:`btel.limits`;
+    """An input declares more memory or work than btel's limit allows (see :mod:`btel.core.limits`;
     raise the limit with the ``BTEL_MEMORY_LIMIT`` environment variable)."""
 
 

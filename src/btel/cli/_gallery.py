@@ -87,7 +87,7 @@ def write_galleries(run: Path, *, n_rows: int = GALLERY_ROWS, overwrite: bool = 
         ``run`` has no metrics.json, or the images of its inputs are not recorded / not on disk
         (the message says which).
     """
-    from ..gallery import plot_match_gallery
+    from ..evaluation.gallery import plot_match_gallery
 
     meta_path = run / "metrics.json"
     if not meta_path.is_file():
@@ -108,7 +108,7 @@ def write_galleries(run: Path, *, n_rows: int = GALLERY_ROWS, overwrite: bool = 
             f"the match gallery needs the images of the run's inputs, and {' and '.join(missing)} "
             f"{'records' if len(missing) == 1 else 'record'} none on disk (descriptors written by btel extract record their image folder in the .json "
             "beside them; a --model run has no --db images).")
-    from ..runs import _safe_name
+    from ..evaluation.runs import _safe_name
 
     written = []
     for name in names:

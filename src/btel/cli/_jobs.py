@@ -1,7 +1,7 @@
 """Methods by name with their parameters, one job per (method, budget), and the run that evaluates them.
 
 ``--param`` values are checked against each method's ``get_params()`` before anything is fitted;
-the jobs go to :func:`btel.evaluation.evaluate_all`, whose rows a :class:`btel.runs.RunWriter`
+the jobs go to :func:`btel.evaluation.evaluate_all`, whose rows a :class:`btel.evaluation.runs.RunWriter`
 writes as they finish (``demo`` and ``evaluate`` share all of it).
 """
 
@@ -106,11 +106,11 @@ def _fit_jobs(names: list[str], budgets: list[str | None], param_texts: tuple[st
     ``--param METHOD:budget=…`` names it and asks for one. Which method it is,
     :data:`btel.methods.registry.REFERENCE_METHOD` says. When the reference was added (not named in
     ``--methods``), the same search on shrinkage-whitened rows
-    (:data:`btel._method_roles.WHITENED_REFERENCE`) is a second reference row beside it, with the same
+    (:data:`btel.methods.roles.WHITENED_REFERENCE`) is a second reference row beside it, with the same
     parameters, so the table shows which front end the map favours.
     """
-    from .._method_roles import WHITENED_REFERENCE
-    from ..evaluation import Job
+    from ..methods.roles import WHITENED_REFERENCE
+    from ..evaluation.measure import Job
     from ..methods.registry import REFERENCE_METHOD, make_method
 
     added_reference = reference and REFERENCE_METHOD not in names
@@ -153,12 +153,12 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
     """
     from tqdm import tqdm
 
-    from ..evaluation import evaluate_all, format_table
-    from ..runs import RunWriter
-    from ..storage import format_bytes
+    from ..evaluation.measure import evaluate_all, format_table
+    from ..evaluation.runs import RunWriter
+    from ..core.storage import format_bytes
 
     if finished is not None:  # --resume: the finished rows and their predictions stay
-        from ..runs import resume_writer
+        from ..evaluation.runs import resume_writer
 
         writer = resume_writer(out, finished, command=_command_line(), extra=extra)
     else:
@@ -227,7 +227,7 @@ def _run_jobs(jobs: list[Any], X: Any, Q: np.ndarray, *, ground_truth: Any, out:
 
 def _plot_partial_run(rows: list[Any], out: Path, title: str, unit: str = "frames") -> None:
     """The plots of the rows that finished before Ctrl-C (metrics.json stays ``"complete": false``)."""
-    from ..plots import plot_run
+    from ..evaluation.plots import plot_run
 
     measured = [r for r in rows if r.ok]
     if not measured:

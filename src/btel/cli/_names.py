@@ -85,7 +85,7 @@ def write_pairs(path: Path, ranked: np.ndarray, query_names: Sequence[str], db_n
     check_pair_names(query_names, db_names)
     lines = [f"{query_names[i]} {db_names[j]}" for i in range(ranked.shape[0]) for j in ranked[i].tolist()]
     path.parent.mkdir(parents=True, exist_ok=True)
-    from .._claims import atomic_output
+    from ..core.claims import atomic_output
 
     with atomic_output(path, overwrite=overwrite, text=True) as fh:
         fh.write("\n".join(lines) + "\n")

@@ -55,7 +55,7 @@ def _runtime_shortcuts(no_progress: bool, n_jobs: int | None) -> dict[str, tuple
 
 
 def _budgets(text: str) -> list[str]:
-    """``"100KB, 500KB"`` → ``["100KB", "500KB"]``, each checked by :func:`btel.storage.parse_budget`."""
+    """``"100KB, 500KB"`` → ``["100KB", "500KB"]``, each checked by :func:`btel.core.storage.parse_budget`."""
     budgets = [b.strip() for b in text.split(",") if b.strip()]
     if not budgets:
         raise click.UsageError("--budget is empty; give a byte budget such as 500KB.")
@@ -66,7 +66,7 @@ def _budgets(text: str) -> list[str]:
 
 def _check_budget(text: str) -> None:
     """A usage error for a budget that is not one, or a unitless number too small to be meant as bytes."""
-    from ..storage import parse_budget
+    from ..core.storage import parse_budget
     from ._errors import unitless_budget_hint
 
     hint = unitless_budget_hint(text)
@@ -80,7 +80,7 @@ def _check_budget(text: str) -> None:
 
 
 def _budget_text(budgets: list[str | None]) -> str:
-    from ..storage import format_bytes, parse_budget
+    from ..core.storage import format_bytes, parse_budget
 
     given = [format_bytes(parse_budget(b)) for b in budgets if b]
     return ", ".join(given) if given else "none"

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from .._method_roles import DEMO_METHODS
+from ..methods.roles import DEMO_METHODS
 from ._jobs import _fit_jobs, _run_jobs
 from ._options import (EXIT_SOME_ROWS_FAILED, _BUDGET_HELP, _N_JOBS_HELP, _NO_PROGRESS_HELP, _PARAMS_HELP,
                        _REFERENCE_HELP, _TIMING_THREADS_HELP, _budget_text, _budgets, _runtime_shortcuts, _split)
@@ -47,7 +47,7 @@ def demo(ctx: click.Context, n_places: int, dim: int, budget: str, methods: str,
     out = Path(out_dir) if out_dir else Path("runs") / time.strftime("demo-%Y%m%d-%H%M%S")
     jobs = _fit_jobs(_split(methods), budgets, param_texts, reference=not no_reference,
                      shortcuts=_runtime_shortcuts(no_progress, n_jobs))
-    from ..runs import check_run_folder
+    from ..evaluation.runs import check_run_folder
 
     check_run_folder(out, overwrite)
     click.echo(f"synthetic route: N = {n_places} places, d = {dim}, map + 1 query traverse (seed {seed})")

@@ -7,7 +7,7 @@ from typing import Any
 
 import click
 
-from .._method_roles import DEFAULT_METHOD
+from ..methods.roles import DEFAULT_METHOD
 from ._inputs import _load_matrix
 from ._jobs import _fit_jobs, _run_jobs
 from ._options import (EXIT_SOME_ROWS_FAILED, _BUDGET_HELP, _DELTA_HELP, _N_JOBS_HELP, _NO_PROGRESS_HELP, _ORDER_HELP,
@@ -93,8 +93,8 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
     """
     from .. import load
     from ..datasets import GroundTruth
-    from ..evaluation import Job, check_ground_truth
-    from ..runs import check_run_folder
+    from ..evaluation.measure import Job, check_ground_truth
+    from ..evaluation.runs import check_run_folder
 
     if db is None and not model_paths:
         raise click.UsageError("give --db (to fit --methods) or at least one --model.")
@@ -204,7 +204,7 @@ def _ground_truth_file(path: str, n_queries: int, n_map: int) -> Any:
 
 def _finished_rows(run: str, queries: str) -> list[Any]:
     """The rows of the run folder ``run`` to keep (``--resume``), after checking it ran on ``queries``."""
-    from ..runs import read_unfinished_run
+    from ..evaluation.runs import read_unfinished_run
 
     meta, rows = read_unfinished_run(run)
     before = (meta.get("extra") or {}).get("queries")

@@ -58,7 +58,7 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
     from ..descriptors import get_descriptor
     from ..descriptors.base import load_descriptor
     from ..descriptors.extract import extract_cached
-    from ..storage import format_bytes
+    from ..core.storage import format_bytes
 
     if split_dataset_folder(images_dir) is not None:
         root = Path(images_dir)
@@ -135,7 +135,7 @@ def _extract_delta(images_dir: str, output: str, model: Any, fit_on: str | None,
 
     plain = Path(output).with_name(Path(output).stem + ".plain.npy")
     X, _ = extract_cached(images_dir, plain, model, fit_on=fit_on, progress=not no_progress, force=force)
-    from .._claims import atomic_output
+    from ..core.claims import atomic_output
 
     D = delta_descriptors(X, window)
     Path(output).parent.mkdir(parents=True, exist_ok=True)

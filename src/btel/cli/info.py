@@ -12,7 +12,7 @@ from ._params import _param_text
 
 def _echo_storage(model: Any) -> None:
     """What the budget planner chose and the bytes of each stored part (``train`` after fitting, ``info``)."""
-    from ..storage import format_bytes
+    from ..core.storage import format_bytes
 
     breakdown = model.storage_breakdown()
     width = max(len(k) for k in breakdown) if breakdown else 4

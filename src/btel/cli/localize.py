@@ -72,12 +72,12 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
     Q = _load_matrix(queries, "query descriptors")
     predictions = model.predict_sequence(Q, "hmm") if hmm else model.predict(Q)
     if window is not None:
-        from ..sequence import filter_sequence
+        from ..sequence.filter import filter_sequence
 
         predictions = filter_sequence(predictions, window, n_places=model.n_places_)
     ranked = model.rank(Q, top_k) if top_k is not None else None
     Path(output).parent.mkdir(parents=True, exist_ok=True)
-    from .._claims import atomic_output
+    from ..core.claims import atomic_output
 
     # Whole or not at all; without --overwrite a file another process wrote meanwhile is kept.
     with atomic_output(output, overwrite=overwrite, text=True) as fh:
@@ -94,7 +94,7 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
 def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_timeout: float | None,
                      window: int | None, hmm: bool = False, binary: bool = False) -> None:
     """The --stream loop: one output line per well-formed input line, flushed before more input is awaited."""
-    from ..streaming import localize_stream
+    from ..sequence.streaming import localize_stream
 
     if follow and input_path is None:
         raise click.UsageError("--follow needs --input FILE (stdin already waits for new lines).")

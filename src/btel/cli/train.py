@@ -7,7 +7,7 @@ from typing import Any
 
 import click
 
-from .._method_roles import DEFAULT_METHOD
+from ..methods.roles import DEFAULT_METHOD
 from ._inputs import _load_map
 from ._jobs import _naming, _params_by_method
 from ._options import _DELTA_HELP, _FRONT_END_HELP, _N_JOBS_HELP, _NO_PROGRESS_HELP, _PARAM_HELP, _check_budget

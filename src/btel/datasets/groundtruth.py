@@ -19,7 +19,7 @@ Files (:meth:`GroundTruth.from_file`) are ``.npz`` / ``.npy`` read with ``allow_
 MATLAB ``.mat`` files read with :func:`scipy.io.loadmat`, CSV files of positives, and VPR-Bench's
 ``ground_truth_new.npy`` — an object array, i.e. a pickle — read by :func:`read_object_npy`, which
 parses the pickle's opcodes and never unpickles (:mod:`btel.datasets.pickleparse`). Every reader
-checks what a file declares against :mod:`btel.limits` before allocating it.
+checks what a file declares against :mod:`btel.core.limits` before allocating it.
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from .._claims import atomic_output
-from .._validation import check_descriptors, check_positive_int
+from ..core.claims import atomic_output
+from ..core.validation import check_descriptors, check_positive_int
 from ..exceptions import DataNotFoundError, DimensionMismatchError, InvalidParameterError
 from .groundtruth_files import read_object_npy
 from .positions import positives_within
@@ -280,7 +280,7 @@ class GroundTruth:
             The file's positions, true places or positives are for another number of queries or
             map places than ``n_queries`` / ``n_map``.
         ResourceLimitError
-            The file declares more than :mod:`btel.limits` allows (raise ``BTEL_MEMORY_LIMIT``).
+            The file declares more than :mod:`btel.core.limits` allows (raise ``BTEL_MEMORY_LIMIT``).
         """
         from .groundtruth_files import read_ground_truth
 

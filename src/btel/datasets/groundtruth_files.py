@@ -2,7 +2,7 @@
 :meth:`btel.datasets.groundtruth.GroundTruth.from_file`).
 
 Every reader checks what a file declares (array shapes, decompressed sizes, rows, indices) against
-:mod:`btel.limits` before allocating it, refuses anything but regular files (a FIFO would block),
+:mod:`btel.core.limits` before allocating it, refuses anything but regular files (a FIFO would block),
 and turns every failure of numpy, scipy, zipfile and csv into a :class:`DataNotFoundError` (or
 :class:`ResourceLimitError`) naming the file. MATLAB files: :mod:`btel.datasets.groundtruth_mat`.
 """
@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from ..exceptions import BTELError, DataNotFoundError, InvalidParameterError
-from ..limits import check_bytes, check_count, check_numpy_file, open_regular
+from ..core.limits import check_bytes, check_count, check_numpy_file, open_regular
 
 __all__ = ["read_object_npy", "read_ground_truth"]
 
@@ -51,7 +51,7 @@ def read_object_npy(path: str | os.PathLike) -> np.ndarray:
     DataNotFoundError
         Not an .npy file, a plain (non-object) array, anything but integer arrays in the pickle.
     ResourceLimitError
-        The file or its elements exceed :mod:`btel.limits`.
+        The file or its elements exceed :mod:`btel.core.limits`.
     """
     from .pickleparse import parse_object_array
 

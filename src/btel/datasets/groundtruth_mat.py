@@ -2,7 +2,7 @@
 
 Before scipy sees a file, its element tags are walked here: unknown data types and sizes past the
 end are refused (scipy's C reader segfaulted on such files), and compressed elements are inflated
-in 1 MiB pieces, counted against :mod:`btel.limits` and never held whole. scipy then parses the
+in 1 MiB pieces, counted against :mod:`btel.core.limits` and never held whole. scipy then parses the
 file in a memory-capped child process (:func:`read_mat_arrays`), so that a crash in its reader
 cannot take btel down.
 """
@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..exceptions import DataNotFoundError, ResourceLimitError
-from ..limits import check_bytes, check_numpy_file, memory_limit, open_regular
+from ..core.limits import check_bytes, check_numpy_file, memory_limit, open_regular
 
 __all__ = ["read_mat_arrays"]
 
@@ -148,7 +148,7 @@ def read_mat_arrays(path: Path) -> dict[str, np.ndarray]:
     DataNotFoundError
         Not a MATLAB v5/v7 file, damaged, or not numeric.
     ResourceLimitError
-        The file, its inflation or its declared arrays exceed :mod:`btel.limits`.
+        The file, its inflation or its declared arrays exceed :mod:`btel.core.limits`.
     """
     import subprocess
     import sys

@@ -10,7 +10,7 @@ Nothing in the file is ever called or imported: a ``GLOBAL``/``STACK_GLOBAL`` op
 *name*, and ``REDUCE``/``BUILD`` are interpreted only for the few names numpy's array pickles use
 (``_reconstruct``, ``ndarray``, ``dtype``, ``scalar``, ``_frombuffer``, ``_codecs.encode``,
 ``bytes``), with their argument shapes checked. Any other name or opcode is refused. Element
-counts are bounded by :mod:`btel.limits` before anything is allocated.
+counts are bounded by :mod:`btel.core.limits` before anything is allocated.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from ..exceptions import DataNotFoundError, ResourceLimitError
-from ..limits import check_count
+from ..core.limits import check_count
 
 __all__ = ["parse_object_array"]
 
@@ -190,7 +190,7 @@ def parse_object_array(payload: bytes) -> tuple[tuple[int, ...], list[np.ndarray
         Anything but the opcodes and names numpy writes for such an array, or items that are not
         integers.
     ResourceLimitError
-        More elements than :mod:`btel.limits` allows.
+        More elements than :mod:`btel.core.limits` allows.
     """
     try:
         return _parse(payload)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..exceptions import ResourceLimitError
-from ..limits import ENV_MEMORY_LIMIT, check_bytes, check_count, format_size, memory_limit
+from ..core.limits import ENV_MEMORY_LIMIT, check_bytes, check_count, format_size, memory_limit
 
 __all__ = ["DISTANCES_PER_PAIR", "positives_within"]
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validation import check_positive_int
+from ..core.validation import check_positive_int
 from ..exceptions import InvalidParameterError, NotEnoughPlacesError
 
 __all__ = ["SyntheticRoute", "synthetic_route"]

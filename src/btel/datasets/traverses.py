@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from .._validation import check_descriptors
+from ..core.validation import check_descriptors
 from ..exceptions import DataNotFoundError, DimensionMismatchError, InvalidParameterError
 
 __all__ = [
@@ -252,7 +252,7 @@ def aligned_pairs(root: str | os.PathLike, map_name: str, query_name: str) -> Al
 
 
 def _load_npy(path: str | os.PathLike, role: str) -> np.ndarray:
-    from ..limits import check_numpy_file
+    from ..core.limits import check_numpy_file
 
     path = Path(path)
     if not path.is_file():
@@ -294,7 +294,7 @@ def load_pair(db_path: str | os.PathLike, queries_path: str | os.PathLike) -> tu
     DimensionMismatchError
         The two files have different numbers of columns.
     ResourceLimitError
-        A file declares more than :mod:`btel.limits` allows.
+        A file declares more than :mod:`btel.core.limits` allows.
     """
     db = check_descriptors(_load_npy(db_path, "map descriptors"), name=f"map descriptors ({Path(db_path).name})")
     queries = _load_npy(queries_path, "query descriptors")

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 from .._lazy import lazy_names
 
 if TYPE_CHECKING:  # pragma: no cover - imported on first use (btel._lazy): reading a .npy needs no OpenCV
-    from ..frontend import delta_descriptors
+    from ..core.frontend import delta_descriptors
     from .augment import augmented_views
     from .base import DESCRIPTORS, ImageDescriptor, get_descriptor, load_descriptor, register_descriptor
     from .densevlad import DenseVLADDescriptor, dense_rootsift, vlad_encode

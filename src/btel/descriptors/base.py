@@ -8,7 +8,7 @@ A descriptor turns images into one global descriptor per image, ``(n, dim)`` flo
   for stateless descriptors it only checks the parameters;
 - ``transform(images)`` returns ``(n, dim)`` float32; ``output_dim`` (and ``dim_`` after fit) is dim;
 - ``save(path)`` / ``ImageDescriptor.load(path)`` keep the fitted state as plain arrays plus a
-  JSON header (:func:`btel.modelfile.save_arrays`), never pickles.
+  JSON header (:func:`btel.core.modelfile.save_arrays`), never pickles.
 
 Subclasses set ``name`` (the registry key) and implement ``_encode(grey)`` (one image →
 ``_raw_dim()`` floats) and, when they learn something, ``_fit``, ``_project`` (a batch of raw
@@ -29,10 +29,10 @@ from typing import Any, ClassVar
 import numpy as np
 from sklearn.base import BaseEstimator
 
-from .._validation import check_is_fitted, check_positive_int
+from ..core.validation import check_is_fitted, check_positive_int
 from ..exceptions import InvalidParameterError, ModelFileError
-from ..modelfile import load_arrays, save_arrays
-from ..threads import one_blas_thread
+from ..core.modelfile import load_arrays, save_arrays
+from ..core.threads import one_blas_thread
 from .images import ImageInput, as_image_list, iter_grey
 
 __all__ = [
@@ -248,7 +248,7 @@ class ImageDescriptor(BaseEstimator):
     def save(self, path: str | os.PathLike, *, overwrite: bool = True) -> Path:
         """Save the parameters and fitted state: plain arrays plus a JSON header, no pickles.
 
-        Written atomically (:func:`btel.modelfile.save_arrays`); ``overwrite=False`` keeps an existing file.
+        Written atomically (:func:`btel.core.modelfile.save_arrays`); ``overwrite=False`` keeps an existing file.
 
         Raises
         ------

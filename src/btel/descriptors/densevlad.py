@@ -46,9 +46,9 @@ from scipy import sparse
 from sklearn.decomposition import PCA
 from sklearn.utils import check_random_state
 
-from .._validation import check_is_fitted, check_positive_int
+from ..core.validation import check_is_fitted, check_positive_int
 from ..exceptions import InvalidParameterError, NotEnoughPlacesError
-from ..limits import check_count
+from ..core.limits import check_count
 from .base import DescriptorWarning, ImageDescriptor, register_descriptor, single_blas_thread
 
 __all__ = ["DenseVLADDescriptor", "dense_rootsift", "vlad_encode", "SIFT_DIM"]

@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from .._claims import atomic_output
-from .._validation import check_is_fitted
+from ..core.claims import atomic_output
+from ..core.validation import check_is_fitted
 from ..exceptions import InvalidParameterError, NotFittedError
 from .base import ImageDescriptor, get_descriptor, registered
 from .images import ImageInput
@@ -135,7 +135,7 @@ def extract_cached(
 
     A JSON file beside ``output`` (``output + ".json"``) records :func:`extraction_key`; when it
     matches, the stored matrix is loaded instead of recomputed. Writing is atomic (a temporary
-    file, then a rename; :func:`btel._claims.atomic_output`), so an interrupted run or a full disk
+    file, then a rename; :func:`btel.core.claims.atomic_output`), so an interrupted run or a full disk
     never leaves a partial matrix or a temporary behind. With ``overwrite=False`` a matrix that
     appeared at ``output`` during the extraction (another process's) is kept:
     :class:`~btel.exceptions.OutputExistsError`.

@@ -5,7 +5,7 @@ local file, a *virtual dataset* maps other files, and an *external link* opens a
 of that is followed here. The reader walks the file's links itself (never following soft or
 external links) and enters every object once: a group linked from inside itself (a cycle) or from
 two places is refused by name, since hloc files are trees. It refuses external storage, virtual
-datasets and non-numeric dtypes, and checks every declared shape against :mod:`btel.limits`
+datasets and non-numeric dtypes, and checks every declared shape against :mod:`btel.core.limits`
 before reading. Chunks are bounded twice, because HDF5 inflates a whole chunk to read one value
 of it and inflates as far as the stored stream goes, whatever the chunk declares: the declared
 chunk must fit the limit, and so must what each stored chunk can inflate to (gzip, shuffle and
@@ -23,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from .._validation import check_descriptors
+from ..core.validation import check_descriptors
 from ..exceptions import BTELError, DataNotFoundError, InvalidDescriptorsError
-from ..limits import check_count, open_regular
+from ..core.limits import check_count, open_regular
 
 __all__ = ["load_hloc_global", "HLOC_DATASET"]
 
@@ -183,7 +183,7 @@ def load_hloc_global(path: str | os.PathLike, prefix: str | None = None) -> tupl
         dtypes, descriptors of different lengths, non-finite values, or any other h5py error.
     ResourceLimitError
         The declared shapes, one chunk's declared size, or what one stored chunk can inflate to
-        exceed :mod:`btel.limits` (raise ``BTEL_MEMORY_LIMIT``).
+        exceed :mod:`btel.core.limits` (raise ``BTEL_MEMORY_LIMIT``).
     """
     import h5py
 

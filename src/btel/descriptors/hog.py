@@ -12,9 +12,9 @@ from typing import ClassVar
 import numpy as np
 from skimage.feature import hog
 
-from .._validation import check_positive_int
+from ..core.validation import check_positive_int
 from ..exceptions import InvalidParameterError
-from ..limits import check_bytes
+from ..core.limits import check_bytes
 from .base import ImageDescriptor, check_pair, register_descriptor
 from .images import resize_grey
 

@@ -12,7 +12,7 @@ Internally every image becomes a 2-D grey array that is either ``uint8`` or ``fl
 
 Image files are untrusted input: :func:`read_image` reads a file's header with Pillow first
 (PNG, JPEG, BMP, TIFF, PNM and WebP only), checks the memory its decoding needs against
-:mod:`btel.limits` (:func:`decode_bytes`) and, for PNG, that every chunk lies inside the file with
+:mod:`btel.core.limits` (:func:`decode_bytes`) and, for PNG, that every chunk lies inside the file with
 its checksum, and only then lets OpenCV decode it. OpenCV's own pixel cap
 (``OPENCV_IO_MAX_IMAGE_PIXELS``) is set from the same limit when btel loads OpenCV.
 """
@@ -30,7 +30,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from ..exceptions import DataNotFoundError, InvalidParameterError, ResourceLimitError
-from ..limits import check_bytes, format_size, memory_limit
+from ..core.limits import check_bytes, format_size, memory_limit
 
 #: OpenCV's environment variable for its decoders' pixel cap, read once when OpenCV loads.
 OPENCV_PIXEL_CAP = "OPENCV_IO_MAX_IMAGE_PIXELS"
@@ -236,9 +236,9 @@ def read_image(path: str | os.PathLike, *, grey: bool = False) -> np.ndarray:
         are damaged (the message names the file).
     ResourceLimitError
         The file, or the memory its header says decoding needs (:func:`decode_bytes`), exceeds
-        :mod:`btel.limits` (raise ``BTEL_MEMORY_LIMIT`` for genuinely large images).
+        :mod:`btel.core.limits` (raise ``BTEL_MEMORY_LIMIT`` for genuinely large images).
     """
-    from ..limits import open_regular
+    from ..core.limits import open_regular
 
     path = Path(path)
     if not path.exists():

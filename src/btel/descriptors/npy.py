@@ -14,7 +14,7 @@ Row i is the global descriptor of image (place) i. Formats:
 
 A memory-mapped ``.npy`` (``mmap_mode="r"``) stays a view of the file only when it is C-ordered
 float32. Any other layout or dtype is converted from the file in row blocks (never through a whole
-copy of the source) when the float32 result fits :func:`btel.limits.memory_limit`, and refused
+copy of the source) when the float32 result fits :func:`btel.core.limits.memory_limit`, and refused
 otherwise with the one-line command that rewrites the file as C-ordered float32
 (:func:`to_float32_npy`, which converts in blocks too).
 """
@@ -28,9 +28,9 @@ from typing import Any
 
 import numpy as np
 
-from .._validation import check_descriptors
+from ..core.validation import check_descriptors
 from ..exceptions import DataNotFoundError, InvalidDescriptorsError, InvalidParameterError, ResourceLimitError
-from ..limits import ENV_MEMORY_LIMIT, check_numpy_file, format_size, memory_limit, open_regular
+from ..core.limits import ENV_MEMORY_LIMIT, check_numpy_file, format_size, memory_limit, open_regular
 from .hdf5 import load_hloc_global
 
 __all__ = ["load_descriptor_matrix", "load_hloc_global", "to_float32_npy", "HDF5_SUFFIXES"]
@@ -180,7 +180,7 @@ def load_descriptor_matrix(
     InvalidParameterError
         A writable or unknown ``mmap_mode``, or ``mmap_mode`` with an ``.npz``.
     ResourceLimitError
-        The file declares more than :mod:`btel.limits` allows, or (memory-mapped) its float32
+        The file declares more than :mod:`btel.core.limits` allows, or (memory-mapped) its float32
         copy would (the message gives the command that rewrites it).
     """
     path, prefix = split_prefix(path)

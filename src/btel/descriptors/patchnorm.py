@@ -14,7 +14,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from .._validation import check_positive_int
+from ..core.validation import check_positive_int
 from ..exceptions import InvalidParameterError
 from .base import ImageDescriptor, check_pair, register_descriptor
 from .images import resize_grey

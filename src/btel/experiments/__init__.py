@@ -26,7 +26,7 @@ its minimum), never run over it; a fitted method whose bytes exceed its budget f
 ``quick=True`` shrinks every experiment (first 300 frames, few points) for the tests.
 
 Adding an experiment is one module with a function ``(data, out, quick) -> ExperimentRun`` (its
-rows :class:`~btel.records.EvaluationResult` records, its figure the run's ``plot``) and one line in
+rows :class:`~btel.evaluation.records.EvaluationResult` records, its figure the run's ``plot``) and one line in
 :data:`EXPERIMENTS`. The modules import :mod:`._common` only; nothing imports this package
 back.
 """
@@ -38,8 +38,8 @@ from pathlib import Path
 from typing import Any, Callable
 
 from ..exceptions import InvalidParameterError
-from ..runs import run_metadata
-from ..tables import describe_row
+from ..evaluation.runs import run_metadata
+from ..evaluation.tables import describe_row
 from ._common import QUICK_FRAMES, ExperimentRun, NordlandData, default_nordland_root, write_results
 from .accuracy import exp_accuracy
 from .beyond import exp_beyond

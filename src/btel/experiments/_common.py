@@ -1,7 +1,7 @@
 """What every experiment shares: the Nordland descriptors, fitted rows, and the result files.
 
 An experiment is a function ``(data: NordlandData, out: Path, quick: bool) -> ExperimentRun`` whose
-rows are :class:`~btel.records.EvaluationResult` records (the experiment's own cells in their
+rows are :class:`~btel.evaluation.records.EvaluationResult` records (the experiment's own cells in their
 ``labels``) and whose ``plot`` draws its figure(s); :func:`write_results` turns the run into
 ``results.json``, ``results.csv`` (the records' flat rows) and those figures.
 
@@ -36,13 +36,13 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from ..evaluation import evaluate
-from ..metrics import DEFAULT_TOLERANCES
-from ..records import EvaluationResult
+from ..evaluation.measure import evaluate
+from ..evaluation.metrics import DEFAULT_TOLERANCES
+from ..evaluation.records import EvaluationResult
 from ..exceptions import BudgetTooSmallError, DataNotFoundError
 from ..methods.registry import make_method
-from ..storage import check_within_budget, parse_budget
-from ..tables import describe_row, rows_csv_text
+from ..core.storage import check_within_budget, parse_budget
+from ..evaluation.tables import describe_row, rows_csv_text
 
 __all__ = ["SEASONS", "QUICK_FRAMES", "NordlandData", "ExperimentRun", "default_nordland_root", "fit_row",
            "fit_rows", "fit_model", "ModelCache", "full_or_quick", "write_results", "describe_row",
@@ -384,7 +384,7 @@ def fit_row(name: str, data: NordlandData, *, budget: Any, n_places: int | None,
 @contextlib.contextmanager
 def _one_thread_each() -> Iterator[None]:
     """BLAS and faiss limited to one thread for the parallel section (both are process-wide settings)."""
-    from ..threads import limit_threads
+    from ..core.threads import limit_threads
 
     with limit_threads(1):
         yield

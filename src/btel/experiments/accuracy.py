@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..plots import NORDLAND_CREDIT, curve_label, plot_curves
-from ..storage import format_bytes
+from ..evaluation.plots import NORDLAND_CREDIT, curve_label, plot_curves
+from ..core.storage import format_bytes
 from ._common import SEASONS, ExperimentRun, NordlandData, fit_rows, full_or_quick
 
 __all__ = ["exp_accuracy", "plot"]

@@ -7,7 +7,7 @@
    codes (``code_copies=2``), multi-exemplar weights (``exemplar_radius=2``), all three combined,
    regions (r = 20) — against PQ, OPQ and ITQ fitted to the same budget. Each is read four ways:
    single frame, ranked (R@10, where the method ranks), the paper's median filter (a = 20) and the
-   HMM decoder over the same per-place scores (:meth:`~btel.base.PlaceLocalizer.predict_sequence`),
+   HMM decoder over the same per-place scores (:meth:`~btel.methods.base.PlaceLocalizer.predict_sequence`),
    so the quantisers get exactly the sequence decoding BTEL gets.
 2. **Gardens Point** (500-D NetVLAD, day → night, N = 200) over budgets 1 KB … 64 KB: where
    sub-linear storage meets a descriptor whose bits transfer across conditions.
@@ -40,12 +40,12 @@ from typing import Any
 
 import numpy as np
 
-from ..metrics import DEFAULT_TOLERANCES, recall_at_k, recall_at_tolerance
+from ..evaluation.metrics import DEFAULT_TOLERANCES, recall_at_k, recall_at_tolerance
 from ..methods.registry import make_method
 from ..exceptions import BudgetTooSmallError
-from ..plots import NORDLAND_CREDIT, finish_recall_plot, new_figure, plot_method_bars, plot_recall_vs_storage
-from ..records import EvaluationResult
-from ..storage import check_within_budget, format_bytes, parse_budget
+from ..evaluation.plots import NORDLAND_CREDIT, finish_recall_plot, new_figure, plot_method_bars, plot_recall_vs_storage
+from ..evaluation.records import EvaluationResult
+from ..core.storage import check_within_budget, format_bytes, parse_budget
 from ._common import SEASONS, ExperimentRun, NordlandData, fit_model
 
 __all__ = ["exp_beyond", "plot", "BTEL_VARIANTS", "stretch_split"]
@@ -161,7 +161,7 @@ def _nordland_rows(data: NordlandData, budget: int, quick: bool, log: Any,
 
 
 def _median_by_stretch(single: np.ndarray, resets: np.ndarray, n: int) -> np.ndarray:
-    from ..sequence import filter_sequence
+    from ..sequence.filter import filter_sequence
 
     out = np.empty_like(single)
     bounds = list(resets) + [len(single)]
@@ -173,7 +173,7 @@ def _median_by_stretch(single: np.ndarray, resets: np.ndarray, n: int) -> np.nda
 def _hmm(model: Any, Q: np.ndarray, truth: np.ndarray, val: np.ndarray, rep: np.ndarray,
          resets: np.ndarray) -> dict[str, Any]:
     """HMM decoding with temperature and vmax chosen on the validation rows."""
-    from ..sequence_decoding import decode_sequence, emission_scores
+    from ..sequence.hmm import decode_sequence, emission_scores
 
     S = emission_scores(model, Q)
     best: tuple[float, dict[str, Any], np.ndarray] | None = None

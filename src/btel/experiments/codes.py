@@ -38,8 +38,8 @@ from typing import Any
 
 import numpy as np
 
-from ..metrics import DEFAULT_TOLERANCES, recall_at_tolerance
-from ..storage import format_bytes, parse_budget
+from ..evaluation.metrics import DEFAULT_TOLERANCES, recall_at_tolerance
+from ..core.storage import format_bytes, parse_budget
 from ._common import SEASONS, ExperimentRun, FittedRow, NordlandData, fit_and_predict
 
 __all__ = ["exp_codes", "TARGETS", "check_targets"]
@@ -312,7 +312,7 @@ def exp_codes(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:
     return run
 
 
-# -- the docs/results.md section (called by btel.report) ---------------------------------------------
+# -- the docs/results.md section (called by btel.experiments.report) ---------------------------------------------
 def _cell(row: dict[str, Any] | None, keys: tuple[str, ...]) -> str:
     if row is None:
         return ""

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..plots import NORDLAND_CREDIT, plot_parameter_sweep
+from ..evaluation.plots import NORDLAND_CREDIT, plot_parameter_sweep
 from ._common import ExperimentRun, NordlandData, fit_rows, full_or_quick
 
 __all__ = ["exp_feature_ratio", "plot"]

@@ -1,6 +1,6 @@
 """Front ends: how much normalisation, delta descriptors and whitening move each method (beyond the paper).
 
-What happens to a descriptor before a method sees it (:mod:`btel.frontend`) is an option of every
+What happens to a descriptor before a method sees it (:mod:`btel.core.frontend`) is an option of every
 method, so the same methods are fitted under each front end at the same budgets:
 
 - front ends: ``none`` (raw rows), ``l2`` (the default), ``power`` (signed square root + L2),
@@ -10,7 +10,7 @@ method, so the same methods are fitted under each front end at the same budgets:
   btel-codes at ≤ 64 KB on Nordland HOG (N = 3576, both directions); brute force, PQ, OPQ, ITQ, BTE-C,
   BTE-C with offset codes and btel-codes at ≤ 32 KB on Gardens Point NetVLAD day → night (N = 200);
 - read-outs: single frame (recall@t and R@K, best first) and the HMM over places
-  (:meth:`~btel.base.PlaceLocalizer.predict_sequence`, default options, no extra bytes). Nothing is
+  (:meth:`~btel.methods.base.PlaceLocalizer.predict_sequence`, default options, no extra bytes). Nothing is
   tuned on the reported queries: the front-end settings and HMM options are fixed in advance.
 
 A delta front end makes a method use the query sequence (``uses_query_sequence``); such rows are
@@ -26,10 +26,10 @@ from typing import Any
 
 import numpy as np
 
-from ..metrics import DEFAULT_TOLERANCES, recall_at_k, recall_at_tolerance
+from ..evaluation.metrics import DEFAULT_TOLERANCES, recall_at_k, recall_at_tolerance
 from ..exceptions import BudgetTooSmallError
-from ..plots import NORDLAND_CREDIT, plot_method_bars
-from ..storage import check_within_budget, format_bytes, parse_budget
+from ..evaluation.plots import NORDLAND_CREDIT, plot_method_bars
+from ..core.storage import check_within_budget, format_bytes, parse_budget
 from ._common import SEASONS, ExperimentRun, NordlandData, fit_model
 
 __all__ = ["exp_front_ends", "plot", "FRONT_ENDS"]

@@ -38,7 +38,7 @@ hundredths in single cells, which decided "auto ≥ LSH" by noise. A row whose a
 between the first two seeds runs once. auto against LSH is also reported paired by seed.
 
 Cost control (≤ 15 min on 2 cores; the run records its wall time per map): the whole run uses one
-faiss and one BLAS thread (:func:`btel.threads.limit_threads`), the fastest setting measured on the
+faiss and one BLAS thread (:func:`btel.core.threads.limit_threads`), the fastest setting measured on the
 shared 2-core machine — ITQ at 1 MB on the 2048-row synthetic route fitted in 8.0 s on one thread
 against 41.8 s with faiss' default two, PQ 8.6 s against 45.4 s (OpenMP workers spin against the
 other processes; an earlier run with the defaults spent 176 s on Gardens Point, 2 s on one thread).
@@ -59,9 +59,9 @@ from typing import Any
 
 import numpy as np
 
-from ..metrics import recall_at_tolerance
-from ..storage import format_bytes, parse_budget
-from ..threads import limit_threads
+from ..evaluation.metrics import recall_at_tolerance
+from ..core.storage import format_bytes, parse_budget
+from ..core.threads import limit_threads
 from ._common import SEASONS, ExperimentRun, FittedRow, NordlandData, fit_and_predict
 
 __all__ = ["DATASETS", "auto_vs_oracle", "exp_frontier"]
@@ -322,7 +322,7 @@ def _one_map(base: dict[str, Any], X: np.ndarray, Q: np.ndarray, budgets: tuple[
         ", ".join(f"{format_bytes(r['budget'])} {r['chose']} {r['value']:.3f}" for r in auto))
 
 
-# -- the docs/results.md section (called by btel.report) ---------------------------------------------
+# -- the docs/results.md section (called by btel.experiments.report) ---------------------------------------------
 def _signed(verdict: dict[str, Any]) -> str:
     """"+0.012 ± 0.008" (paired over seeds), "+0.012" with one pair, "" without LSH."""
     if verdict.get("diff") is None:

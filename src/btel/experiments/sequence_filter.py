@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..metrics import DEFAULT_TOLERANCES, recall_at_tolerance, recall_curve
-from ..plots import NORDLAND_CREDIT, plot_curves
-from ..records import EvaluationResult
-from ..sequence import filter_sequence
+from ..evaluation.metrics import DEFAULT_TOLERANCES, recall_at_tolerance, recall_curve
+from ..evaluation.plots import NORDLAND_CREDIT, plot_curves
+from ..evaluation.records import EvaluationResult
+from ..sequence.filter import filter_sequence
 from ._common import ExperimentRun, NordlandData, fit_rows, full_or_quick
 
 __all__ = ["exp_sequence_filter", "plot"]

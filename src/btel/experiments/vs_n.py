@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..plots import plot_recall_vs_n
+from ..evaluation.plots import plot_recall_vs_n
 from ._common import ExperimentRun, NordlandData, fit_rows, full_or_quick
 
 __all__ = ["exp_vs_n", "plot"]

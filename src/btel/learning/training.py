@@ -27,7 +27,7 @@ import numpy as np
 from .distributed import fit_backend
 from .feature_selection import select_features, select_features_many
 from .linear import ColumnStats, fit_linear_group
-from ..threads import blas_threads as limit_blas
+from ..core.threads import blas_threads as limit_blas
 
 __all__ = ["Task", "FitSummary", "fit_tasks", "one_vs_rest_tasks", "convergence_warning"]
 

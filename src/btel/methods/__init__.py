@@ -23,12 +23,10 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from .._lazy import lazy_names
-from .registry import DESCRIPTIONS, load, make_method, method_names
 
-if TYPE_CHECKING:  # pragma: no cover - these tables import every method: built on first access
-    from .registry import METHODS, MODEL_CLASSES, REGISTRY
+if TYPE_CHECKING:  # pragma: no cover - the registry is imported on first use (the CLI's help needs none of it)
+    from .registry import DESCRIPTIONS, METHODS, MODEL_CLASSES, REGISTRY, load, make_method, method_names
 
 __all__ = ["DESCRIPTIONS", "METHODS", "MODEL_CLASSES", "REGISTRY", "load", "make_method", "method_names"]
 
-__getattr__, __dir__ = lazy_names(__name__,
-                                  dict.fromkeys(("METHODS", "MODEL_CLASSES", "REGISTRY"), ".registry"))
+__getattr__, __dir__ = lazy_names(__name__, dict.fromkeys(__all__, ".registry"))

@@ -1,7 +1,7 @@
 """Every localization method by name, and :func:`load` for the model files they save.
 
 ``make_method("btel-c", budget="500KB")`` builds an unfitted estimator. Adding a method is one
-class (a :class:`btel.base.PlaceLocalizer`) and one line in :data:`_ENTRIES` (its module, class,
+class (a :class:`btel.methods.base.PlaceLocalizer`) and one line in :data:`_ENTRIES` (its module, class,
 fixed parameters and description); :data:`REGISTRY` is derived from it.
 
 A method's module is imported when the method is first asked for (:func:`make_method`,
@@ -10,7 +10,7 @@ A method's module is imported when the method is first asked for (:func:`make_me
 :data:`MODEL_CLASSES` import every method on first access.
 
 A model file is untrusted input: :func:`load` reads only plain arrays and JSON
-(:func:`btel.modelfile.load_arrays`), accepts only the classes registered here, restores only the
+(:func:`btel.core.modelfile.load_arrays`), accepts only the classes registered here, restores only the
 declared parameters (never runtime settings such as ``n_jobs``) after checking each against its
 constraints, checks every array's shape and dtype against what the recorded state implies before
 the method sees it, and raises :class:`~btel.exceptions.ModelFileError` for anything else.
@@ -24,15 +24,15 @@ import sys
 from functools import partial
 from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 
-from .._method_roles import DEFAULT_METHOD, DEMO_METHODS, REFERENCE_METHOD
-from .._validation import Instance, check_params, read_state_int
-from ..base import PlaceLocalizer
+from .roles import DEFAULT_METHOD, DEMO_METHODS, REFERENCE_METHOD
+from ..core.validation import Instance, check_params, read_state_int
+from .base import PlaceLocalizer
 from .auto.localizer import AutoLocalizer
 from .baselines import _BASELINE_CLASSES
 from ..exceptions import BTELError, InvalidParameterError, ModelFileError, ResourceLimitError
-from ..frontend import FrontEnd
-from ..limits import check_places
-from ..modelfile import load_arrays
+from ..core.frontend import FrontEnd
+from ..core.limits import check_places
+from ..core.modelfile import load_arrays
 
 if TYPE_CHECKING:  # pragma: no cover - imported on first use (_model_class)
     from .baselines import PQLocalizer, RaBitQLocalizer
@@ -203,7 +203,7 @@ def _params_from_file(cls: type[PlaceLocalizer], params: dict[str, Any]) -> dict
     """The declared, non-runtime parameters of a header (a nested estimator rebuilt from its params).
 
     A parameter may hold an estimator only where its constraints declare one
-    (:class:`~btel._validation.Instance`, e.g. OPQ's ``pq``), and only of that class.
+    (:class:`~btel.core.validation.Instance`, e.g. OPQ's ``pq``), and only of that class.
     """
     declared = set(cls._parameter_constraints) - set(cls._runtime_params)
     unknown = sorted(set(params) - declared - set(cls._runtime_params))
@@ -229,7 +229,7 @@ def _params_from_file(cls: type[PlaceLocalizer], params: dict[str, Any]) -> dict
 
 
 #: Most places a model file may declare: a place index fits in uint32.
-#: A lower, memory-tied ceiling applies too: :func:`btel.limits.check_places` (``BTEL_MEMORY_LIMIT``).
+#: A lower, memory-tied ceiling applies too: :func:`btel.core.limits.check_places` (``BTEL_MEMORY_LIMIT``).
 MAX_PLACES = 2**32
 
 

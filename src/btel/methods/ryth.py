@@ -18,14 +18,14 @@ from typing import Any
 
 import numpy as np
 
-from .._validation import N_JOBS, RANDOM_STATE, Budget, DType, Interval, Options, check_positive_int, read_state_int
-from ..base import ArraySpec, PlaceLocalizer
+from ..core.validation import N_JOBS, RANDOM_STATE, Budget, DType, Interval, Options, check_positive_int, read_state_int
+from .base import ArraySpec, PlaceLocalizer
 from ..exceptions import BudgetTooSmallError, ModelFileError, NotEnoughPlacesError
 from ..learning.feature_selection import column_index_dtype
 from ..learning.hyperplanes import Hyperplanes
 from ..learning.linear import ColumnStats, default_C
 from ..learning.solvers import CLASSIFIERS, SOLVERS
-from ..storage import format_bytes, parse_budget
+from ..core.storage import format_bytes, parse_budget
 from ..learning.training import convergence_warning, fit_tasks, one_vs_rest_tasks
 
 __all__ = ["RYTHLocalizer", "coprime_periods", "crt"]
@@ -103,7 +103,7 @@ class RYTHLocalizer(PlaceLocalizer):
         As in :class:`btel.BTELocalizer` (max_iter None: the solver's default cap; classifiers that
         stop at it are counted in ``n_unconverged_`` and reported by one ``ConvergenceWarning``).
     normalize, whiten, delta
-        The front end (:mod:`btel.frontend`).
+        The front end (:mod:`btel.core.frontend`).
 
     Attributes
     ----------
@@ -114,7 +114,7 @@ class RYTHLocalizer(PlaceLocalizer):
     front_end_ : FrontEnd
     """
 
-    _linear_in_queries = True  # queries are only multiplied by hyperplanes (see btel.frontend.ScaledRows)
+    _linear_in_queries = True  # queries are only multiplied by hyperplanes (see btel.core.frontend.ScaledRows)
     _parameter_constraints = {
         "n_periods": [Interval(int, 1, 16)],
         "classifier": [Options(*CLASSIFIERS)],
@@ -291,7 +291,7 @@ class RYTHLocalizer(PlaceLocalizer):
 
     def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         """The decode first (soft, or CRT when it gives a valid place), then the rest by summed score."""
-        from ..base import put_first, top_k
+        from .base import put_first, top_k
 
         n = int(self.n_places_)
         rows = max(1, (1 << 22) // n)

@@ -7,10 +7,10 @@ from typing import Any
 
 import numpy as np
 
-from ..._validation import N_JOBS, RANDOM_STATE, Budget, check_params
-from ...base import ArraySpec, PlaceLocalizer
+from ...core.validation import N_JOBS, RANDOM_STATE, Budget, check_params
+from ..base import ArraySpec, PlaceLocalizer
 from ...exceptions import BudgetTooSmallError, ModelFileError
-from ...storage import format_bytes, parse_budget
+from ...core.storage import format_bytes, parse_budget
 from .rule import choose_method
 
 __all__ = ["AutoLocalizer"]
@@ -153,7 +153,7 @@ class AutoLocalizer(PlaceLocalizer):
         return self.model_._stored_arrays()
 
     def _fitted_state(self) -> dict[str, Any]:
-        from ...modelfile import jsonable
+        from ...core.modelfile import jsonable
 
         params = {k: jsonable(v) for k, v in self.model_.get_params(deep=False).items()
                   if k not in self.model_._runtime_params}

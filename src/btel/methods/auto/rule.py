@@ -101,7 +101,7 @@ per map:
    quarter of the budget costs more bits than it gives back (synthetic route at 7.8 B per place R@2
    0.354 plain vs 0.204 whitened; synthetic independent places at 16 B 0.605 vs 0.654). Below rank 8
    the transform is little more than the centring LSH already does (rank 8 is the smallest rank
-   that gave brute force the whitening's gain when :mod:`btel.shrink`'s rule was set): on Nordland
+   that gave brute force the whitening's gain when :mod:`btel.core.shrink`'s rule was set): on Nordland
    HOG at 64 KB (rank 2) whitened LSH scored 0.064 / 0.055 against plain 0.082 / 0.081; Gardens
    Point permuted at 4 KB (rank 0) went the other way, 0.135 against 0.105 (6 of 200 queries).
    The rank condition was added after the first frontier run, with the birthday bound of step 3.
@@ -165,7 +165,7 @@ from typing import Any
 
 import numpy as np
 
-from ...storage import format_bytes
+from ...core.storage import format_bytes
 from .statistics import ORDER_CONTINUITY, collision_bits, index_order, map_cone_ratio
 
 __all__ = ["ORDER_BITS_FACTOR", "SHRINK_LSH_BITS_PER_DIMENSION", "SHRINK_LSH_BYTES_PER_PLACE", "SHRINK_LSH_MIN_RANK",
@@ -191,8 +191,8 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
     Each is ``{"method", "params", "reason", "route_share", "bytes_per_place"}``; :class:`AutoLocalizer`
     fits the first that fits the budget.
     """
-    from ...frontend import FrontEnd
-    from ...shrink import shrink_rank
+    from ...core.frontend import FrontEnd
+    from ...core.shrink import shrink_rank
     from ..baselines import BruteForceNN
     from ..baselines.lsh import LSHLocalizer
 

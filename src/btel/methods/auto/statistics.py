@@ -9,8 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..._validation import check_descriptors, map_places
-from ...frontend import normalize_rows
+from ...core.validation import check_descriptors, map_places
+from ...core.frontend import normalize_rows
 
 __all__ = ["CONTINUITY_GAPS", "CONTINUITY_REFERENCE", "IndexOrder", "ORDER_CONTINUITY", "ROUTE_CONTINUITY",
            "ROUTE_SHARE", "ROUTE_WINDOW", "SHARE_SEARCH_ROWS", "SHARE_SPANS", "STAT_ROWS", "collision_bits", "index_order",

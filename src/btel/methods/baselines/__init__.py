@@ -1,4 +1,4 @@
-"""The baselines BTEL is compared with (SPEC §8), each a :class:`btel.base.PlaceLocalizer`.
+"""The baselines BTEL is compared with (SPEC §8), each a :class:`btel.methods.base.PlaceLocalizer`.
 
 Every baseline takes ``budget`` (bytes or ``"500KB"``), counts its storage by the one rule of
 SPEC §7 and ranks candidate places (``rank(Q, k)``). RYTH lives in :mod:`btel.methods.ryth`.
@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 from ..._lazy import lazy_names
 
 if TYPE_CHECKING:  # pragma: no cover - imported on first use (btel._lazy)
-    from ...base import PlaceLocalizer
+    from ..base import PlaceLocalizer
     from ._common import quiet_faiss
     from .bruteforce import BruteForceNN
     from .itq import ITQLocalizer

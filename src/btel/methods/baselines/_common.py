@@ -19,10 +19,10 @@ from typing import Any, ClassVar, Iterator
 
 import numpy as np
 
-from ...base import ArraySpec, PlaceLocalizer
+from ..base import ArraySpec, PlaceLocalizer
 from ...exceptions import BudgetTooSmallError, InvalidDescriptorsError, ModelFileError
-from ...storage import format_bytes
-from ...threads import faiss_threads, search_threads
+from ...core.storage import format_bytes
+from ...core.threads import faiss_threads, search_threads
 
 __all__ = ["quiet_faiss", "faiss_threads", "smallest_uint_dtype", "rank_unique_places", "raise_budget_too_small",
            "check_magnitude", "check_not_tiny", "check_model_values", "MAX_NORM", "MIN_NORM"]
@@ -235,7 +235,7 @@ class _RowLocalizer(PlaceLocalizer):
         # k places need at most k·(most rows of one place) rows.
         k_rows = k if self.row_places_ is None else \
             min(n_rows, k * int(np.bincount(self.row_places_.astype(np.int64)).max()))
-        # Single queries on one faiss thread unless n_jobs says otherwise (btel.threads).
+        # Single queries on one faiss thread unless n_jobs says otherwise (btel.core.threads).
         with faiss_threads(search_threads(self.n_jobs, Q.shape[0])):
             scores, rows = self._search_rows(Q, k_rows)
         # faiss answers −1 when no distance is finite (overflow, a corrupt index): never a place.

@@ -18,8 +18,8 @@ from typing import Any
 import faiss
 import numpy as np
 
-from ..._validation import N_JOBS, Budget
-from ...base import ArraySpec
+from ...core.validation import N_JOBS, Budget
+from ..base import ArraySpec
 from ...exceptions import ModelFileError
 from ._common import _RowLocalizer, check_magnitude, raise_budget_too_small
 
@@ -36,7 +36,7 @@ class BruteForceNN(_RowLocalizer):
         (plus the row → place table when ``places`` maps several rows to one place): if that
         exceeds the budget, ``fit`` raises :class:`~btel.exceptions.BudgetTooSmallError` naming it.
     normalize, whiten, delta
-        The front end (:mod:`btel.frontend`).
+        The front end (:mod:`btel.core.frontend`).
     n_jobs : int, optional
         faiss threads for fitting and searching (None: faiss' default, all cores; -1: all cores).
 

@@ -23,8 +23,8 @@ from typing import Any
 import faiss
 import numpy as np
 
-from ..._validation import N_JOBS, RANDOM_STATE, Budget, Interval, check_positive_int, read_state_int
-from ...base import ArraySpec
+from ...core.validation import N_JOBS, RANDOM_STATE, Budget, Interval, check_positive_int, read_state_int
+from ..base import ArraySpec
 from ...exceptions import InvalidParameterError, ModelFileError, NotEnoughPlacesError
 from ._common import _RowLocalizer, quiet_faiss, raise_budget_too_small
 from .pq import check_finite, pca_projection
@@ -48,7 +48,7 @@ class ITQLocalizer(_RowLocalizer):
     random_state : int or None
         Seed of the randomized PCA and of ITQ's initial rotation.
     normalize, whiten, delta
-        The front end (:mod:`btel.frontend`).
+        The front end (:mod:`btel.core.frontend`).
     n_jobs : int, optional
         faiss threads for fitting and searching (None: faiss' default, all cores; -1: all cores).
 

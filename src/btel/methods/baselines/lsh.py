@@ -44,8 +44,8 @@ from typing import Any
 import faiss
 import numpy as np
 
-from ..._validation import N_JOBS, RANDOM_STATE, Budget, Interval, Options, read_state_int
-from ...base import ArraySpec
+from ...core.validation import N_JOBS, RANDOM_STATE, Budget, Interval, Options, read_state_int
+from ..base import ArraySpec
 from ...exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError
 from . import signscan
 from ._common import _RowLocalizer, check_magnitude, check_model_values, raise_budget_too_small
@@ -219,7 +219,7 @@ class LSHLocalizer(_RowLocalizer):
     random_state : int or None
         Seed of the projection; None draws one. The seed used is recorded (``seed_``) and saved.
     normalize, whiten, delta
-        The front end (:mod:`btel.frontend`).
+        The front end (:mod:`btel.core.frontend`).
     n_jobs : int, optional
         faiss threads for the search.
 

@@ -27,9 +27,9 @@ from typing import Any
 import faiss
 import numpy as np
 
-from ..._validation import N_JOBS, Budget, Instance, Interval
-from ...base import ArraySpec
-from ...frontend import FrontEnd
+from ...core.validation import N_JOBS, Budget, Instance, Interval
+from ..base import ArraySpec
+from ...core.frontend import FrontEnd
 from ._common import _RowLocalizer, quiet_faiss
 from .pq import PQConfig, PQLocalizer, check_finite, pca_projection, pq_specs, read_config
 
@@ -51,7 +51,7 @@ class OPQLocalizer(_RowLocalizer):
     n_iter : int
         Rounds of rotation learning (faiss ``OPQMatrix.niter``; faiss' default is 50).
     normalize, whiten, delta
-        The front end (:mod:`btel.frontend`).
+        The front end (:mod:`btel.core.frontend`).
     n_jobs : int, optional
         faiss threads for fitting and searching (None: faiss' default, all cores; -1: all cores).
 

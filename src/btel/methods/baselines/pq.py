@@ -39,8 +39,8 @@ from typing import Any, Iterator
 import faiss
 import numpy as np
 
-from ..._validation import N_JOBS, RANDOM_STATE, Budget, Interval, check_positive_int, read_state_int
-from ...base import ArraySpec
+from ...core.validation import N_JOBS, RANDOM_STATE, Budget, Interval, check_positive_int, read_state_int
+from ..base import ArraySpec
 from ...exceptions import InvalidParameterError, ModelFileError, NotEnoughPlacesError
 from ._common import _RowLocalizer, check_model_values, quiet_faiss, raise_budget_too_small
 
@@ -124,7 +124,7 @@ class PQLocalizer(_RowLocalizer):
     random_state : int or None
         Seed of k-means and of the randomized PCA.
     normalize, whiten, delta
-        The front end (:mod:`btel.frontend`).
+        The front end (:mod:`btel.core.frontend`).
     n_jobs : int, optional
         faiss threads for fitting and searching (None: faiss' default, all cores; -1: all cores).
 

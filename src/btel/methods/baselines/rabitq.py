@@ -44,8 +44,8 @@ from typing import Any
 import faiss
 import numpy as np
 
-from ..._validation import N_JOBS, RANDOM_STATE, Budget, Interval, read_state_int
-from ...base import ArraySpec
+from ...core.validation import N_JOBS, RANDOM_STATE, Budget, Interval, read_state_int
+from ..base import ArraySpec
 from ...exceptions import BTELError, InvalidDescriptorsError, InvalidParameterError, ModelFileError
 from ._common import MAX_NORM, _RowLocalizer, check_model_values, raise_budget_too_small
 
@@ -86,7 +86,7 @@ class RaBitQLocalizer(_RowLocalizer):
     random_state : int or None
         Seed of the rotation; None draws one. The seed used is recorded (``seed_``) and saved.
     normalize, whiten, delta
-        The front end (:mod:`btel.frontend`).
+        The front end (:mod:`btel.core.frontend`).
     n_jobs : int, optional
         faiss threads for searching.
 

@@ -32,8 +32,8 @@ from typing import Any
 import faiss
 import numpy as np
 
-from ..._validation import N_JOBS, Budget, Interval, check_positive_int
-from ...base import ArraySpec
+from ...core.validation import N_JOBS, Budget, Interval, check_positive_int
+from ..base import ArraySpec
 from ...exceptions import InvalidDescriptorsError, InvalidParameterError, ModelFileError
 from ._common import MAX_NORM, _RowLocalizer, raise_budget_too_small
 
@@ -243,7 +243,7 @@ class SeqSLAM(_RowLocalizer):
     window : int
         Contrast-enhancement window R (and the confidence ratio's exclusion window).
     normalize, whiten, delta
-        The front end (:mod:`btel.frontend`); none by default — SeqSLAM's own front end is the
+        The front end (:mod:`btel.core.frontend`); none by default — SeqSLAM's own front end is the
         patch-normalised thumbnail and its contrast enhancement.
     n_jobs : int, optional
         faiss threads for fitting and searching (None: faiss' default, all cores; -1: all cores).

@@ -25,7 +25,7 @@ from typing import Iterator
 import faiss
 import numpy as np
 
-from ...topk import top_k
+from ...core.topk import top_k
 
 __all__ = ["TABLE_QUERIES", "BLOCK_VALUES", "BYTE_SIGNS", "byte_tables", "query_rows", "search", "scores",
            "scan_tables", "scan_blocks"]

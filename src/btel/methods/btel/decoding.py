@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...base import put_first, top_k
+from ..base import put_first, top_k
 from .compressed import compressed_code, decode_code, decode_margins
 from .encoding import _decode_constrained, n_bits_for
 from .full import full_costs, predict_full

@@ -16,7 +16,7 @@ whose margin has the sign of their true place's bit, next to two references:
 :func:`localizer_bit_accuracy` measures a fitted BTEL model (each query on its *true* region's
 tree, so that region errors do not mix in; the region accuracy is reported on its own), or a
  ``block_size > 1`` (bits of the true block). :func:`plot_bit_accuracy`
-draws the curves (matplotlib Agg, like :mod:`btel.plots`).
+draws the curves (matplotlib Agg, like :mod:`btel.evaluation.plots`).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from ..._validation import check_descriptors, check_is_fitted
+from ...core.validation import check_descriptors, check_is_fitted
 from .encoding import encode, n_bits_for
 from ...exceptions import InvalidParameterError
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..._validation import check_positive_int
+from ...core.validation import check_positive_int
 from ...exceptions import InvalidParameterError, NotEnoughPlacesError
 
 __all__ = ["n_bits_for", "encode", "decode", "decode_constrained", "decode_soft", "bit_codes"]

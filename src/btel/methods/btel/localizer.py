@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from ..._validation import BOOLEAN, N_JOBS, RANDOM_STATE, Budget, DType, Interval, Options, String, check_positive_int
-from ...base import PlaceLocalizer
+from ...core.validation import BOOLEAN, N_JOBS, RANDOM_STATE, Budget, DType, Interval, Options, String, check_positive_int
+from ..base import PlaceLocalizer
 from ...exceptions import InvalidParameterError
 from ...learning.distributed import BACKENDS
 from ...learning.feature_selection import column_index_dtype
@@ -135,7 +135,7 @@ class BTELocalizer(TreeDecoding, TreeModelFile, PlaceLocalizer):
         Several exemplars per place from extra traverses or augmented images go through
         ``fit(X, places)``.
     normalize, whiten, delta
-        The front end (:mod:`btel.frontend`): row normalisation ('l2' by default: global
+        The front end (:mod:`btel.core.frontend`): row normalisation ('l2' by default: global
         descriptors are compared by direction; 'none', 'power'), PCA whitening to that many
         dimensions (stored and counted), delta descriptors over a window of that many frames
         (queries are then one ordered traverse).
@@ -180,7 +180,7 @@ class BTELocalizer(TreeDecoding, TreeModelFile, PlaceLocalizer):
     (500,)
     """
 
-    _linear_in_queries = True  # queries are only multiplied by hyperplanes (see btel.frontend.ScaledRows)
+    _linear_in_queries = True  # queries are only multiplied by hyperplanes (see btel.core.frontend.ScaledRows)
     _parameter_constraints = {
         "scheme": [Options(*SCHEMES)],
         "classifier": [Options(*CLASSIFIERS)],

@@ -13,8 +13,8 @@ from typing import Any
 
 import numpy as np
 
-from ..._validation import read_state_int
-from ...base import ArraySpec
+from ...core.validation import read_state_int
+from ..base import ArraySpec
 from ...exceptions import InvalidParameterError, ModelFileError
 from ...learning.hyperplanes import Hyperplanes
 from .planning import array_specs, starts_dtype
@@ -28,7 +28,7 @@ MAX_REGIONS_IN_FILE = 1 << 16
 class TreeModelFile:
     """Saving and loading a BTEL model (mixed into :class:`~btel.methods.btel.localizer.BTELocalizer`).
 
-    The base class (:class:`btel.base.PlaceLocalizer`) writes and reads the file; these are the
+    The base class (:class:`btel.methods.base.PlaceLocalizer`) writes and reads the file; these are the
     method's parts of it. ``_restore`` rebuilds the structure through the estimator's
     ``_set_structure``, as ``fit`` does.
     """

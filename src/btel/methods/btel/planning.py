@@ -17,12 +17,12 @@ from typing import Sequence
 
 import numpy as np
 
-from ...base import ArraySpec
+from ..base import ArraySpec
 from .compressed import compressed_n_classifiers
 from ...exceptions import BudgetTooSmallError
 from ...learning.feature_selection import column_index_dtype
 from .full import full_n_classifiers
-from ...storage import format_bytes
+from ...core.storage import format_bytes
 
 __all__ = ["array_specs", "planned_bytes", "largest_fitting", "tree_sizes", "starts_dtype", "n_tree_classifiers",
            "raise_budget_too_small", "SCHEMES", "WEIGHT_DTYPES"]

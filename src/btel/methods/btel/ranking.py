@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from ..._validation import check_positive_int
+from ...core.validation import check_positive_int
 from .encoding import _check_margins as _check_decode_margins
 from .compressed import code_signs
 from .encoding import bit_codes

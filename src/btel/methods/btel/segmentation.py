@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from ..._validation import check_positive_int
+from ...core.validation import check_positive_int
 from ...exceptions import NotEnoughPlacesError
 
 __all__ = [

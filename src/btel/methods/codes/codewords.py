@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from ...base import top_k
-from ...threads import blas_threads, blas_threads_for_vector
+from ..base import top_k
+from ...core.threads import blas_threads, blas_threads_for_vector
 from .codebook import Codebook
 from .decoding import BYTE_SIGNS, DENSE_CACHE_BYTES, BlockDecoder, byte_table, packed_scores
 
@@ -62,7 +62,7 @@ def blas_for(n_queries: int, work_per_query: int) -> Any:
 def blas_for_decode(n_queries: int, largest_product: int) -> Any:
     """One BLAS thread for a decode's small products; for one query, none set while its largest
     matrix-vector product (``largest_product`` multiply-adds) is one BLAS runs on one thread anyway
-    (:func:`~btel.threads.blas_threads_for_vector`: setting and restoring a limit costs ≈ 4–5 µs)."""
+    (:func:`~btel.core.threads.blas_threads_for_vector`: setting and restoring a limit costs ≈ 4–5 µs)."""
     return blas_threads_for_vector(largest_product) if n_queries == 1 else blas_threads(1)
 
 

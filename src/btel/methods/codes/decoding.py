@@ -36,7 +36,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ...base import top_k
+from ..base import top_k
 from .codebook import Codebook
 
 __all__ = ["BlockDecoder", "ComposedRows", "DENSE_CACHE_BYTES", "BATCH_DENSE_FROM", "block_size", "choose_path", "composes", "best_of", "byte_table", "packed_scores", "BYTE_SIGNS",

@@ -21,7 +21,7 @@ index to K ≥ b code columns (error-correcting output codes, Dietterich & Bakir
    of their first queries says it is cheaper; the 'random' family (no blocks to bound) uses
    faiss' packed PQ scan past the dense cache. ``place_scores`` is the same sum as a matrix
    product in blocks of places. ``rank``, the HMM decoder and streaming come from the base class
-   (:class:`btel.base.PlaceLocalizer`) on top of them. Long maps of route families are decoded
+   (:class:`btel.methods.base.PlaceLocalizer`) on top of them. Long maps of route families are decoded
    coarse to fine (``decode``; approximate): the codebook at inference is
    :mod:`btel.methods.codes.codewords`.
 
@@ -49,14 +49,14 @@ from typing import Any
 
 import numpy as np
 
-from ..._validation import N_JOBS, RANDOM_STATE, Budget, Interval, Options, String
-from ...base import PlaceLocalizer
+from ...core.validation import N_JOBS, RANDOM_STATE, Budget, Interval, Options, String
+from ..base import PlaceLocalizer
 from ...exceptions import BudgetTooSmallError, InvalidParameterError
 from ...learning.distributed import BACKENDS
 from ...learning.feature_selection import column_index_dtype
 from ...learning.hyperplanes import check_fitted_weights
 from ...learning.linear import ColumnStats
-from ...storage import format_bytes
+from ...core.storage import format_bytes
 from .codebook import FAMILIES, MAX_COLUMNS, ROUTE_FAMILIES, Codebook
 from .codewords import RuntimeCache
 from .model_file import CodeModelFile
@@ -119,7 +119,7 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
         Parallel fitting of the code columns (as :class:`~btel.methods.btel.localizer.BTELocalizer`); runtime
         settings, not saved.
     normalize, whiten, delta
-        The front end (:mod:`btel.frontend`).
+        The front end (:mod:`btel.core.frontend`).
 
     Attributes
     ----------

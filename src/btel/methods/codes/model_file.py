@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from ..._validation import read_state_int
-from ...base import ArraySpec
+from ...core.validation import read_state_int
+from ..base import ArraySpec
 from ...exceptions import InvalidParameterError, ModelFileError
 from ...learning.hyperplanes import MAX_WEIGHT_NORM, weights_out_of_range
 from .codebook import FAMILIES, MAX_COLUMNS, ROUTE_FAMILIES, Codebook
@@ -44,7 +44,7 @@ def _code_rule(state: dict[str, Any]) -> int:
 class CodeModelFile:
     """Saving and loading a :class:`~btel.methods.codes.estimator.CodeLocalizer` (mixed into it).
 
-    The base class (:class:`btel.base.PlaceLocalizer`) writes and reads the file; these are the
+    The base class (:class:`btel.methods.base.PlaceLocalizer`) writes and reads the file; these are the
     method's parts of it. ``_restore`` ends in the estimator's ``_set_structure``, as ``fit`` does.
     """
 

@@ -39,12 +39,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...base import ArraySpec
+from ..base import ArraySpec
 from .codebook import max_columns, min_columns
 from ...exceptions import BudgetTooSmallError
 from ...learning.feature_selection import column_index_dtype
 from .quantise import WEIGHT_BITS, weight_specs
-from ...storage import format_bytes
+from ...core.storage import format_bytes
 
 __all__ = ["CodePlan", "code_array_specs", "code_planned_bytes", "plan_codes", "MAX_AUTO_CODES",
            "DEFAULT_CODES", "DEFAULT_BITS"]

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...base import ArraySpec
+from ..base import ArraySpec
 from ...exceptions import InvalidParameterError, ModelFileError
 
 __all__ = ["WEIGHT_BITS", "QuantisedWeights", "quantise", "pack_nibbles", "unpack_nibbles", "weight_specs",

@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from ...base import top_k
-from ...rows import ScaledRows
-from ...threads import blas_threads_for_vector, faiss_threads, search_threads
+from ..base import top_k
+from ...core.rows import ScaledRows
+from ...core.threads import blas_threads_for_vector, faiss_threads, search_threads
 from .codebook import ROUTE_FAMILIES
 from .codewords import BLOCK_VALUES, Codewords, blas_for, blas_for_decode
 from .decoding import BATCH_DENSE_FROM, BlockDecoder, DENSE_CACHE_BYTES, PROBE_QUERIES, ComposedRows, best_of, choose_path, composes
@@ -61,7 +61,7 @@ class CodeSearch:
     def _linear(self, Q: np.ndarray | ScaledRows, matrix: np.ndarray, offset: np.ndarray) -> np.ndarray:
         """(n, m) float32 ``q' @ matrix + offset`` of transformed queries q' (their d' kept columns).
 
-        Q may be lazily L2-normalised rows (:class:`~btel.rows.ScaledRows`): the scale is applied
+        Q may be lazily L2-normalised rows (:class:`~btel.core.rows.ScaledRows`): the scale is applied
         to the product, which commutes with it.
         """
         raw, scale = (Q.raw, Q.scale) if isinstance(Q, ScaledRows) else (Q, None)

@@ -62,7 +62,7 @@ import numpy as np
 from .codebook import Codebook
 from ...learning.distributed import fit_backend
 from ...learning.linear import ColumnStats
-from ...threads import blas_threads as limit_blas
+from ...core.threads import blas_threads as limit_blas
 from ...learning.training import Task, fit_tasks
 
 __all__ = ["CodeFit", "RELATIVE_ALPHA", "ridge_alpha", "fit_ridge_codes", "fit_liblinear_codes"]

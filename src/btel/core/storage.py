@@ -1,0 +1,107 @@
+"""Storage accounting: the one storage rule, byte budgets, and their units.
+
+The storage rule (SPEC §7), for every method in btel: **a model's storage is the sum of
+``ndarray.nbytes`` over the arrays that inference reads, at their stored dtype.** A model file
+(:mod:`btel.core.modelfile`) holds exactly those arrays plus a small JSON header, so ``file size −
+reported bytes`` is only the container overhead (a few hundred bytes per array; checked ≤ 4 KiB in
+the tests).
+
+The same rule, stated once for every method: **anything regenerated from a recorded seed costs 0
+bytes** (btel-codes' codewords, regenerated from (family, N, K, seed); lsh's d×P Gaussian
+projection, regenerated from its seed), **and anything learned is counted at its stored width**
+(weights, codebooks, rotations, codes, and every front-end array: PCA whitening at float32,
+shrinkage whitening's float16 mean and 4-bit basis). Runtime caches built from stored arrays
+(dequantised weights, unpacked codes, faiss indexes) are memory, not storage.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Mapping
+
+import numpy as np
+
+from ..exceptions import BudgetExceededError, InvalidParameterError
+
+__all__ = ["check_within_budget", "parse_budget", "format_bytes", "storage_breakdown"]
+
+_UNITS = {
+    "": 1,
+    "B": 1,
+    "KB": 1000,
+    "MB": 1000**2,
+    "GB": 1000**3,
+    "KIB": 1024,
+    "MIB": 1024**2,
+    "GIB": 1024**3,
+}
+
+
+def parse_budget(budget: int | float | str | None) -> int | None:
+    """Turn a byte budget into an integer number of bytes.
+
+    Decimal units as in the paper (``KB`` = 1000 B, ``MB`` = 10^6 B); binary units are
+    spelled ``KiB``/``MiB``. Case-insensitive, spaces allowed: ``"500KB"``, ``"2 MB"``,
+    ``"64KiB"``, ``1_000_000``.
+
+    Returns
+    -------
+    int or None
+        Bytes, or None when ``budget`` is None (no budget).
+    """
+    if budget is None:
+        return None
+    if isinstance(budget, bool):
+        raise InvalidParameterError(f"budget must be a number of bytes or a string like '500KB'; got {budget!r}.")
+    if isinstance(budget, (int, np.integer)):
+        value = float(budget)
+    elif isinstance(budget, (float, np.floating)):
+        value = float(budget)
+    elif isinstance(budget, str):
+        match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][+-]?[0-9]+)?)\s*([A-Za-z]*)\s*", budget)
+        unit = match.group(2).upper() if match else None
+        if match is None or unit not in _UNITS:
+            raise InvalidParameterError(
+                f"budget {budget!r} is not understood; write bytes or a size such as '500KB', "
+                "'2MB' or '64KiB' (KB = 1000 B, KiB = 1024 B)."
+            )
+        value = float(match.group(1)) * _UNITS[unit]
+    else:
+        raise InvalidParameterError(f"budget must be a number of bytes or a string like '500KB'; got {budget!r}.")
+    if not np.isfinite(value) or value <= 0:
+        raise InvalidParameterError(f"budget must be a positive number of bytes; got {budget!r}.")
+    return int(value)
+
+
+def format_bytes(n_bytes: float) -> str:
+    """Human-readable decimal size: ``format_bytes(492240) == '492.2 KB'``."""
+    for unit, size in (("GB", 1e9), ("MB", 1e6), ("KB", 1e3)):
+        if n_bytes >= size:
+            return f"{n_bytes / size:.1f} {unit}"
+    return f"{int(n_bytes)} B"
+
+
+def storage_breakdown(arrays: Mapping[str, np.ndarray]) -> dict[str, int]:
+    """Bytes per stored array: the one storage rule every method uses.
+
+    Parameters
+    ----------
+    arrays : mapping of str to ndarray
+        The arrays inference reads, at their stored dtype.
+
+    Returns
+    -------
+    dict of str to int
+        ``{name: array.nbytes}``; the model's storage is the sum of the values.
+    """
+    return {name: int(np.asarray(a).nbytes) for name, a in arrays.items()}
+
+
+
+
+def check_within_budget(label: str, nbytes: int | None, budget: int | None) -> None:
+    """Fail the run when a method stored more than its budget: a bug in its budget fitting."""
+    if budget is not None and nbytes is not None and nbytes > budget:
+        raise BudgetExceededError(
+            f"{label} stores {nbytes} B, over its budget of {budget} B: a bug in its budget fitting."
+        )

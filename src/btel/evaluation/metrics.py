@@ -1,0 +1,295 @@
+"""Metrics as plain functions of arrays (SPEC §9): recall at a tolerance, R@K, precision–recall.
+
+Queries are rows: query j is row j of the predictions and of a ranking. Ground truth defaults to
+frame-aligned traverses (the true place of query j is j); pass a
+:class:`~btel.datasets.groundtruth.GroundTruth` (or an array of true places) otherwise.
+
+Two names, one meaning each, everywhere (tables, CSV, JSON, plots):
+
+- **recall@t** — share of queries whose *point prediction* lies within t frames of the true place
+  (``|pred − true| ≤ t``). Needs one true place per query (frame-aligned traverses); reported at
+  the tolerances the route supports (:func:`default_tolerances`) and as a curve t = 0..t_max.
+- **R@K** — share of queries with at least one of the top K *ranked* candidates correct (within
+  ``k_tolerance`` frames, default 0, or among the positives). Every method ranks, and the first
+  candidate is the point prediction, so R@1 = recall@0 (at ``k_tolerance`` 0) for every method.
+- With explicit positives per query (VPR-Bench, GPS radius) the tolerance does not apply: only
+  R@K is reported (R@1/5/10/20 on the command line, the field's convention).
+
+Nothing here fits, times or writes anything: :mod:`btel.evaluation` is the harness that does.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+import numpy as np
+
+from ..core.validation import check_positive_int
+from ..datasets.groundtruth import GroundTruth
+from ..exceptions import InvalidParameterError
+
+__all__ = [
+    "DEFAULT_TOLERANCES",
+    "DEFAULT_KS",
+    "TABLE_KS",
+    "PR_CURVE_POINTS",
+    "TruthLike",
+    "check_ground_truth",
+    "default_tolerances",
+    "default_ks",
+    "default_curve_max",
+    "check_points",
+    "recall_at_tolerance",
+    "recall_curve",
+    "recall_at_k",
+    "precision_recall",
+    "thin_curve",
+]
+
+#: Tolerances (frames) at which recall is reported (SPEC §9).
+DEFAULT_TOLERANCES: tuple[int, ...] = (0, 1, 2, 5, 10, 20)
+#: K values for R@K (SPEC §9).
+DEFAULT_KS: tuple[int, ...] = (1, 5, 10, 20)
+#: K values printed by default (R@20 stays in the files when asked for with ``ks``).
+TABLE_KS: tuple[int, ...] = (1, 5, 10)
+
+TruthLike = GroundTruth | np.ndarray | Sequence[int] | None
+
+
+# -- recall -------------------------------------------------------------------------------------
+def check_ground_truth(true_places: TruthLike, n_queries: int, n_map: int | None = None, *,
+                       option: str = "ground_truth=") -> GroundTruth:
+    """The ground truth for ``n_queries`` query rows and a map of ``n_map`` places, checked.
+
+    Called before anything is fitted, so a mismatch costs nothing. ``option`` is how the caller
+    gives a ground truth (``"ground_truth="`` in Python, ``"--ground-truth"`` on the command line)
+    and is named in the messages.
+
+    Parameters
+    ----------
+    true_places : GroundTruth, array-like of int of shape (n_queries,), or None
+        None means frame-aligned (query j ↔ place j).
+    n_queries : int
+    n_map : int, optional
+
+    Returns
+    -------
+    GroundTruth
+
+    Raises
+    ------
+    InvalidParameterError
+        Counts that do not match, or frame alignment with more queries than places.
+    """
+    if isinstance(true_places, GroundTruth):
+        gt = true_places
+    elif true_places is None:
+        if n_map is not None and n_queries > n_map:
+            raise InvalidParameterError(
+                f"there are {n_queries} queries but only {n_map} map places, so the default frame-aligned "
+                f"ground truth (query j ↔ place j) cannot hold. Give the true places with {option}."
+            )
+        gt = GroundTruth.frame_aligned(n_queries, n_map=n_map)
+    else:
+        gt = GroundTruth.from_places(true_places, n_map=n_map)
+    if gt.n_queries != n_queries:
+        raise InvalidParameterError(
+            f"the ground truth ({option}) covers {gt.n_queries} queries but there are {n_queries} query rows."
+        )
+    if n_map is not None and gt.n_map is not None and gt.n_map != n_map:
+        raise InvalidParameterError(
+            f"the ground truth ({option}) refers to a map of {gt.n_map} places but the map has {n_map}."
+        )
+    if n_map is not None and gt.kind == "places" and gt.query_places.size and gt.query_places.max() >= n_map:
+        raise InvalidParameterError(
+            f"the ground truth ({option}) names map place {int(gt.query_places.max())} but the map has only "
+            f"{n_map} places (0..{n_map - 1})."
+        )
+    if n_map is not None and gt.kind == "positives" and gt.indices.size and gt.indices.max() >= n_map:
+        raise InvalidParameterError(
+            f"the ground truth ({option}) names map place {int(gt.indices.max())} as a positive but the map has "
+            f"only {n_map} places (0..{n_map - 1})."
+        )
+    return gt
+
+
+
+def default_tolerances(n_map: int | None, ground_truth: GroundTruth | None = None) -> tuple[int, ...]:
+    """The recall@t tolerances a route supports: :data:`DEFAULT_TOLERANCES` up to a tenth of the map.
+
+    A tolerance of 20 frames on a 111-frame route accepts over a third of the route as "correct";
+    so only tolerances t ≤ max(1, N // 10) are reported by default. Explicit positives (kind
+    ``"positives"``) have no tolerance: the result is ``()`` (report R@K instead).
+    """
+    if ground_truth is not None and not ground_truth.uses_tolerance:
+        return ()
+    if n_map is None:
+        return DEFAULT_TOLERANCES
+    limit = max(1, int(n_map) // 10)
+    return tuple(t for t in DEFAULT_TOLERANCES if t <= limit)
+
+
+def default_ks(n_map: int | None) -> tuple[int, ...]:
+    """R@K values for a map of ``n_map`` places: :data:`TABLE_KS` (K ≤ N)."""
+    return tuple(k for k in TABLE_KS if n_map is None or k <= n_map) or (1,)
+
+
+def default_curve_max(tolerances: Sequence[int], n_map: int | None) -> int:
+    """Right end of the recall@t curve: twice the largest reported tolerance (≥ 10), within the map."""
+    t_max = max(10, 2 * max(tolerances, default=0))
+    return t_max if n_map is None else max(0, min(t_max, int(n_map) - 1))
+
+
+def _predictions_1d(predictions: Any) -> np.ndarray:
+    pred = np.asarray(predictions)
+    if pred.ndim != 1 or pred.shape[0] == 0:
+        raise InvalidParameterError(
+            f"predictions must be a non-empty 1-D array (one place per query row); got shape {pred.shape}."
+        )
+    return pred
+
+
+def check_points(values: Iterable[Any], name: str, minimum: int) -> tuple[int, ...]:
+    """Tolerances or K values checked (ints ≥ ``minimum``, at least one), sorted, without repeats."""
+    points = tuple(check_positive_int(v, name, minimum=minimum) for v in values)
+    if not points:
+        raise InvalidParameterError(f"{name} is empty; give at least one value.")
+    return tuple(sorted(set(points)))
+
+
+def recall_at_tolerance(
+    predictions: Any, true_places: TruthLike = None, tolerances: Iterable[int] = DEFAULT_TOLERANCES
+) -> dict[int, float]:
+    """Recall at each tolerance: share of queries with ``|pred − true| ≤ t``.
+
+    Parameters
+    ----------
+    predictions : array-like of int, shape (n_queries,)
+        Predicted map place per query row.
+    true_places : array-like of int of shape (n_queries,), GroundTruth, or None
+        True place per query; None means frame-aligned (query j ↔ place j). With a GroundTruth
+        of explicit positives the tolerance does not apply (every t gives the same recall).
+    tolerances : iterable of int ≥ 0
+        Frames of slack.
+
+    Returns
+    -------
+    dict of int to float
+        Tolerance → recall in [0, 1], sorted by tolerance.
+    """
+    pred = _predictions_1d(predictions)
+    gt = check_ground_truth(true_places, pred.shape[0])
+    return {t: float(gt.is_correct(pred, t).mean()) for t in check_points(tolerances, "tolerances", 0)}
+
+
+def recall_curve(predictions: Any, true_places: TruthLike = None, max_tolerance: int = 80) -> np.ndarray:
+    """Recall at every tolerance t = 0, 1, …, ``max_tolerance``.
+
+    Returns
+    -------
+    curve : ndarray of shape (max_tolerance + 1,), dtype float64
+        ``curve[t]`` = recall at tolerance t (non-decreasing).
+    """
+    t_max = check_positive_int(max_tolerance, "max_tolerance", minimum=0)
+    pred = _predictions_1d(predictions)
+    gt = check_ground_truth(true_places, pred.shape[0])
+    if not gt.uses_tolerance:
+        return np.full(t_max + 1, gt.is_correct(pred).mean(), dtype=np.float64)
+    # Count queries by error (errors beyond t_max pooled in the last bin), then accumulate.
+    errors = np.minimum(gt.distances(pred), t_max + 1)
+    counts = np.bincount(errors, minlength=t_max + 2)[: t_max + 1]
+    return np.cumsum(counts) / gt.n_queries
+
+
+def recall_at_k(
+    ranked: Any, true_places: TruthLike = None, ks: Iterable[int] = DEFAULT_KS, tolerance: int = 0
+) -> dict[int, float]:
+    """R@K: share of queries with at least one of their top K candidates correct.
+
+    Parameters
+    ----------
+    ranked : array-like of int, shape (n_queries, k)
+        Candidate places per query row, best first (``PlaceLocalizer.rank``).
+    true_places : array-like of int of shape (n_queries,), GroundTruth, or None
+        As in :func:`recall_at_tolerance`.
+    ks : iterable of int ≥ 1
+        Each K must be ≤ the number of ranked columns.
+    tolerance : int, default 0
+        A candidate within this many frames of the true place counts.
+
+    Returns
+    -------
+    dict of int to float
+        K → R@K in [0, 1].
+    """
+    arr = np.asarray(ranked)
+    if arr.ndim != 2:
+        raise InvalidParameterError(f"ranked must be 2-D (n_queries, k); got shape {arr.shape}.")
+    points = check_points(ks, "ks", 1)
+    if points[-1] > arr.shape[1]:
+        raise InvalidParameterError(
+            f"R@{points[-1]} needs at least {points[-1]} ranked candidates per query; ranked has {arr.shape[1]}. "
+            f"Call rank(Q, k={points[-1]}) or lower ks."
+        )
+    gt = check_ground_truth(true_places, arr.shape[0])
+    found = np.logical_or.accumulate(gt.rank_correct(arr, tolerance), axis=1)
+    return {k: float(found[:, k - 1].mean()) for k in points}
+
+
+# -- precision–recall from the best-match score (VPR-Bench, VPR_Tutorial) ----------------------------
+#: Points kept of a PR curve in results (the curve is drawn from them; AUC-PR uses every point).
+PR_CURVE_POINTS = 256
+
+
+def precision_recall(best_scores: Any, correct: Any) -> dict[str, Any]:
+    """The precision–recall curve of accepting a query's top-1 match when its score passes a threshold.
+
+    Each query has one best match and its score (higher = more confident). Sweeping a threshold
+    from the highest score down: precision = correct accepted matches / accepted matches, recall =
+    correct accepted matches / all queries (every query has a true place in the map; VPR-Bench's and
+    VPR_Tutorial's convention). Scores are compared within one method only, so any method's own
+    scale serves (a monotone rescaling changes nothing).
+
+    Parameters
+    ----------
+    best_scores : array-like of float, shape (n_queries,)
+        Score of each query's best match (``search(Q, 1)[0][:, 0]``). NaN counts as least confident.
+    correct : array-like of bool, shape (n_queries,)
+        Whether that best match is a true place.
+
+    Returns
+    -------
+    dict
+        ``precision``, ``recall`` (ndarrays, one point per distinct threshold, recall increasing),
+        ``auc_pr`` (area under the step curve: Σ ΔRecall × precision, i.e. average precision with
+        recall over all queries) and ``recall_at_100_precision`` (the largest recall with no false
+        match accepted; 0 when the most confident match is wrong).
+    """
+    from sklearn.metrics import precision_recall_curve
+
+    scores = np.asarray(best_scores, dtype=np.float64).reshape(-1)
+    correct = np.asarray(correct, dtype=bool).reshape(-1)
+    if scores.shape != correct.shape or scores.size == 0:
+        raise InvalidParameterError(f"best_scores and correct must be 1-D of one length ≥ 1; got {scores.shape} "
+                                    f"and {correct.shape}.")
+    finite = np.isfinite(scores)
+    low = scores[finite].min() - 1.0 if finite.any() else 0.0
+    scores = np.where(np.isnan(scores), low, np.clip(scores, low, None))
+    n_correct = int(correct.sum())
+    if n_correct == 0:
+        return {"precision": np.zeros(1), "recall": np.zeros(1), "auc_pr": 0.0, "recall_at_100_precision": 0.0}
+    precision, recall, _ = precision_recall_curve(correct, scores)
+    # sklearn's recall counts correct top-1 matches only; VPR counts every query (a wrong top-1 is a miss).
+    precision, recall = precision[::-1], recall[::-1] * (n_correct / correct.size)
+    auc = float(np.sum(np.diff(recall) * precision[1:]))
+    perfect = recall[precision >= 1.0]
+    return {"precision": precision, "recall": recall, "auc_pr": auc,
+            "recall_at_100_precision": float(perfect.max()) if perfect.size else 0.0}
+
+
+def thin_curve(precision: np.ndarray, recall: np.ndarray, n: int = PR_CURVE_POINTS) -> tuple[list[float], list[float]]:
+    """At most ``n`` points of a PR curve, evenly spaced along it (first and last kept)."""
+    keep = np.unique(np.linspace(0, precision.size - 1, min(n, precision.size)).round().astype(int))
+    return [float(v) for v in precision[keep]], [float(v) for v in recall[keep]]
+

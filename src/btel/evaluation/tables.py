@@ -1,0 +1,198 @@
+"""Results as text: the console table of a run and the one-line description of an experiment row.
+
+One place for how results read on a terminal: :func:`format_table` (``btel evaluate``, ``btel
+demo``) and :func:`describe_row` (``btel experiment``). Both read :class:`~btel.evaluation.records.EvaluationResult`.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from .records import STATUS_DOES_NOT_FIT, EvaluationResult
+from ..core.storage import format_bytes
+
+__all__ = ["format_table", "describe_row", "metrics_csv_text", "predictions_csv_text", "rows_csv_text",
+           "SEQUENCE_MARK", "REFERENCE_MARK"]
+
+SEQUENCE_MARK = "†"
+REFERENCE_MARK = "*"
+
+
+def format_table(results: Sequence[EvaluationResult]) -> str:
+    """The results as a plain-text table, with the metrics the ground truth supports.
+
+    Columns: method, status, bytes, fit seconds, batch µs per query (median throughput), single-query
+    latency in µs, the thread count, recall@t for every tolerance any
+    row has (frame-aligned ground truth only) and R@K for every K. Rows that did not run show
+    their status and reason. ``†`` marks methods that use the query sequence (not comparable
+    with single-frame methods), ``*`` the unbudgeted reference; a legend line says so.
+    """
+    tolerances = sorted({t for r in results for t in r.recall})
+    ks = sorted({k for r in results for k in (r.recall_at_k or {})})
+    has_pr = any(r.auc_pr is not None for r in results)
+    metric_names = [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks] + (["AUC-PR", "R@100%P"] if has_pr else [])
+    width = max([len("method")] + [len(_row_label(r)) for r in results]) + 1
+    header = (f"{'method':<{width}} {'status':<12} {'bytes':>10} {'fit s':>7} {'batch µs/q':>10} {'1-query µs':>10} "
+              f"{'threads':>7} " + " ".join(f"{m:>9}" for m in metric_names))
+    lines = [header.rstrip(), "-" * len(header.rstrip())]
+    for r in results:
+        label = _row_label(r)
+        if not r.ok:
+            # The table says what the user needs to decide; the full message is in metrics.csv/json.
+            why = (f"needs ≥ {format_bytes(r.minimum_bytes)}"
+                   + (f" (budget {format_bytes(r.budget)})" if r.budget is not None else "")
+                   if r.status == STATUS_DOES_NOT_FIT and r.minimum_bytes is not None else (r.reason or ""))
+            lines.append(f"{label:<{width}} {r.status:<12} {why}")
+            continue
+        size = format_bytes(r.nbytes) if r.nbytes is not None else "?"
+        fit = f"{r.fit_time_s:.1f}" if r.fit_time_s is not None else "-"
+        values = [r.recall.get(t) for t in tolerances] + [(r.recall_at_k or {}).get(k) for k in ks]
+        if has_pr:
+            values += [r.auc_pr, r.recall_at_100_precision]
+        cells = " ".join(f"{v:>9.3f}" if v is not None else f"{'-':>9}" for v in values)
+        query = f"{r.query_time_s_per_query * 1e6:.1f}" if r.query_time_s_per_query is not None else "-"
+        latency = f"{r.query_latency_s * 1e6:.1f}" if r.query_latency_s is not None else "-"
+        threads = str(r.n_threads) if r.n_threads is not None else "-"
+        lines.append(f"{label:<{width}} {r.status:<12} {size:>10} {fit:>7} {query:>10} {latency:>10} {threads:>7} "
+                     f"{cells}".rstrip())
+    notes = []
+    repeats = {r.timing_repeats for r in results if r.ok and r.timing_repeats}
+    if repeats:
+        notes.append(f"batch µs/q: median of {'/'.join(map(str, sorted(repeats)))} timed predict calls on all queries "
+                     "after a warm-up, per query; 1-query µs: median latency of one query answered alone")
+    if tolerances:
+        notes.append("recall@t: point prediction within t frames of the true place")
+    if ks:
+        k_tol = max((r.tolerance_for_k for r in results if r.ok), default=0)
+        within = f" (within {k_tol} frames)" if k_tol else ""
+        notes.append(f"R@K: a correct place{within} among the top K ranked candidates")
+    if has_pr:
+        notes.append("AUC-PR, R@100%P: precision-recall of accepting each query's top-1 match by its score "
+                     "(recall over all queries)")
+    if any(r.reference for r in results):
+        notes.append(f"{REFERENCE_MARK} reference (unbudgeted)")
+    if any(r.uses_query_sequence for r in results):
+        notes.append(f"{SEQUENCE_MARK} uses the query sequence: not comparable with single-frame methods")
+    lines += [f"  {n}" for n in notes]
+    return "\n".join(lines)
+
+
+def _row_label(r: EvaluationResult) -> str:
+    return r.name + (REFERENCE_MARK if r.reference else "") + (SEQUENCE_MARK if r.uses_query_sequence else "")
+
+
+# -- CSV ------------------------------------------------------------------------------------------
+def _fmt(value: float | int | None) -> str:
+    if value is None:
+        return ""
+    return repr(float(value)) if isinstance(value, float) else str(value)
+
+
+def metrics_csv_text(results: Sequence[EvaluationResult]) -> str:
+    """The ``metrics.csv`` of a run folder: one row per record, every recall@t and R@K any row has."""
+    tolerances = sorted({t for r in results for t in r.recall})
+    ks = sorted({k for r in results for k in (r.recall_at_k or {})})
+    header = ["method", "status", "reference", "uses_query_sequence", "budget", "n_map", "n_queries", "nbytes",
+              "fit_time_s", "query_time_s_per_query", "query_latency_s", "n_threads"]
+    header += [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks] + ["auc_pr", "recall@100%precision", "reason"]
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(header)
+    for r in results:
+        row = [r.name, r.status, int(r.reference), int(r.uses_query_sequence), _fmt(r.budget), _fmt(r.n_map),
+               r.n_queries, _fmt(r.nbytes), _fmt(r.fit_time_s), _fmt(r.query_time_s_per_query),
+               _fmt(r.query_latency_s), _fmt(r.n_threads)]
+        row += [_fmt(r.recall.get(t)) for t in tolerances]
+        row += [_fmt((r.recall_at_k or {}).get(k)) for k in ks]
+        row += [_fmt(r.auc_pr), _fmt(r.recall_at_100_precision)]
+        row.append(r.reason or "")
+        writer.writerow(row)
+    return buffer.getvalue()
+
+
+def predictions_csv_text(r: EvaluationResult, query_names: Sequence[str] | None = None,
+                         db_names: Sequence[str] | None = None) -> str:
+    """The ``predictions_<method>.csv`` of the row ``r``.
+
+    Columns: ``query,prediction``; ``true`` (one true place per query) or ``positive`` (one of the
+    query's positives, -1 for none) and ``correct`` (0/1, the top-1 is a true place) when the
+    ground truth is known; ``rank_1…rank_K`` when the method ranked more than one candidate; and,
+    when the inputs name their rows (``btel extract``'s .json, hloc .h5), ``query_name``,
+    ``prediction_name`` and ``true_name`` / ``positive_name``. Row numbers always stay.
+    """
+    n = r.n_queries
+    columns: list[tuple[str, Sequence[Any]]] = [("query", np.arange(n)), ("prediction", r.predictions)]
+    gt = r.ground_truth
+    reference = None
+    if gt is not None and gt.kind == "places":
+        reference = ("true", np.asarray(gt.query_places))
+    elif gt is not None:
+        first = np.where(np.diff(gt.indptr) > 0, gt.indices[np.minimum(gt.indptr[:-1], max(gt.indices.size - 1, 0))], -1)
+        reference = ("positive", first)
+    if reference is not None:
+        columns.append(reference)
+        columns.append(("correct", gt.is_correct(r.predictions).astype(np.int64)))
+    if r.ranked is not None and r.ranked.shape[1] > 1:
+        columns += [(f"rank_{j + 1}", r.ranked[:, j]) for j in range(r.ranked.shape[1])]
+    if query_names is not None and len(query_names) == n:
+        from ..datasets.vpr_names import check_image_names
+
+        check_image_names(query_names, "query names")  # one CSV row per line
+        if db_names is not None:
+            check_image_names(db_names, "map names")
+        columns.append(("query_name", list(query_names)))
+        if db_names is not None:
+            named = np.asarray(list(db_names) + [""], dtype=object)  # -1 (no place) → ""
+            columns.append(("prediction_name", named[np.asarray(r.predictions)]))
+            if reference is not None:
+                columns.append((f"{reference[0]}_name", named[reference[1]]))
+    buffer = io.StringIO()
+    out = csv.writer(buffer, lineterminator="\n")
+    out.writerow([name for name, _ in columns])
+    for i in range(n):
+        out.writerow([int(v[i]) if isinstance(v, np.ndarray) and v.dtype.kind in "iub" else v[i] for _, v in columns])
+    return buffer.getvalue()
+
+
+def rows_csv_text(records: Sequence[EvaluationResult]) -> str:
+    """An experiment's ``results.csv``: the flat rows (:meth:`~btel.evaluation.records.EvaluationResult.to_row`),
+    one column per cell any row has, in order of first appearance."""
+    rows = [r.to_row() for r in records]
+    columns: list[str] = []
+    for row in rows:
+        columns.extend(k for k in row if k not in columns)
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=columns)
+    writer.writeheader()
+    writer.writerows(rows)
+    return buffer.getvalue()
+
+
+def describe_row(record: EvaluationResult) -> str:
+    """One human line for an experiment's row (``btel experiment``).
+
+    Metric names as everywhere in btel: ``recall@t`` is the point prediction within t frames,
+    ``R@K`` a correct place among the top K ranked candidates. ``†`` marks methods that use the
+    query sequence; the map→query direction is named when the row has one.
+    """
+    row = record.to_row()
+    name = record.name + (" †" if record.uses_query_sequence else "")
+    if row.get("direction") and "part" not in row:
+        name += f" [{row['direction']}]"
+    if record.status != "ok":
+        return f"{name:<30} {record.status}"
+    if "decoder" in row or "part" in row:  # the "beyond" experiment: say which read-out and where
+        where = row.get("direction") or f"shift {row.get('condition_shift')}"
+        label = f"{name} [{row.get('decoder', 'single')}, {where}]"
+        ranked = f" R@10={row['R@10']:.3f}" if row.get("R@10") is not None else ""
+        return (f"{label:<52} N={row['n_places']:<5} {format_bytes(row['nbytes']):>10}  "
+                f"recall@10={row['recall@10']:.3f}{ranked}")
+    size = format_bytes(row["nbytes"]) if row.get("nbytes") is not None else "-"
+    ranked = "".join(f" R@{k}={row[f'R@{k}']:.3f}" for k in (1, 10) if row.get(f"R@{k}") is not None)
+    return (f"{name:<30} N={row['n_places']:<5} {size:>10}  recall@0={row['recall@0']:.3f} "
+            f"recall@10={row['recall@10']:.3f} recall@20={row['recall@20']:.3f}{ranked}")

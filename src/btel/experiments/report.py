@@ -1,0 +1,254 @@
+"""``docs/results.md`` and ``docs/results.json`` from the latest experiment runs, in one command.
+
+``btel report --runs runs/experiments --docs docs`` reads ``<runs>/<experiment>/results.json``,
+copies each experiment's PNGs to ``docs/figures/`` and writes the tables, the commands that
+produced them, and a reading computed from the numbers (who wins at which budget, by how much).
+Sections other tools maintain in ``docs/results.md`` between ``<!-- name:start -->`` and
+``<!-- name:end -->`` markers (e.g. the scale benchmark's) are carried over unchanged.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+from typing import Any
+
+from ..exceptions import DataNotFoundError
+from . import EXPERIMENTS
+from ..core.storage import format_bytes
+
+__all__ = ["write_report"]
+
+_TITLES = {
+    "accuracy": "(a) Recall vs tolerance at ≤ 2 MB, N = 2000, both directions",
+    "vs-n": "(b) Recall@10 vs N at ≤ 0.5 MB (summer → winter)",
+    "vs-budget": "(c) Recall@10 vs budget at N = 3576 (summer → winter)",
+    "feature-ratio": "(d) BTE-C, feature ratio c = 0.1 … 1, r = 1 (summer → winter, N = 3576)",
+    "regions": "(e) BTEL, regions r = 1 … 20, c = 0.1 (summer → winter, N = 3576)",
+    "sequence-filter": "(f) Sequence filter a = 5, 20 at N = 3576, ≤ 1 MB (summer → winter)",
+    "beyond": "Beyond the paper: BTEL variants vs quantisers at the same bytes (the ladder)",
+    "front-ends": "Front ends: normalisation, delta descriptors and whitening, for every method",
+    "codes": "Output codes beyond the binary index (btel-codes) vs quantisers, 1 KB … 1 MB",
+    "frontier": "The accuracy-per-byte frontier: every method × 1 KB … 1 MB, routes and independent places, auto",
+}
+_TOLERANCES = (0, 1, 2, 5, 10, 20)
+_MARKER = re.compile(r"<!-- (?P<name>[\w-]+):start -->.*?<!-- (?P=name):end -->", re.S)
+
+
+def _table(rows: list[dict[str, Any]], extra: list[str]) -> list[str]:
+    # recall@t: the point prediction within t frames; R@K (ranked) is a separate column where present.
+    head = ["method", *extra, "N", "budget", "bytes", *[f"recall@{t}" for t in _TOLERANCES], "fit s"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        method = str(r["method"]) + (" †" if r.get("uses_query_sequence") else "")
+        cells = [method, *[str(r.get(k, "")) for k in extra], str(r["n_places"]),
+                 format_bytes(r["budget"]) if r.get("budget") else "none"]
+        if r.get("status", "ok") != "ok":
+            cells += [r["status"], *[""] * len(_TOLERANCES), ""]
+        else:
+            cells += [format_bytes(r["nbytes"]) if r.get("nbytes") is not None else "?",
+                      *[f"{r[f'recall@{t}']:.3f}" for t in _TOLERANCES],
+                      f"{r['fit_s']:.1f}" if r.get("fit_s") is not None else "–"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+def _is_btel(row: dict[str, Any]) -> bool:
+    return str(row.get("registry_name", row["method"])).startswith("btel")
+
+
+def _reading(name: str, rows: list[dict[str, Any]]) -> list[str]:
+    """Plain statements computed from the rows: the best BTEL variant against the best other method."""
+    ok = [r for r in rows if r.get("status", "ok") == "ok" and r.get("window", 0) == 0]
+    out: list[str] = []
+    groups: dict[Any, list[dict[str, Any]]] = {}
+    key = {"accuracy": "direction", "vs-n": "n_places", "vs-budget": "budget"}.get(name)
+    if key is None:
+        if ok:
+            best = max(ok, key=lambda r: r["recall@10"])
+            out.append(f"Best recall@10: {best['method']} at {best['recall@10']:.3f} ({format_bytes(best['nbytes'])}).")
+        if name == "sequence-filter":
+            for base in sorted({r["registry_name"] for r in rows if r.get("status", "ok") == "ok"}):
+                series = {r.get("window", 0): r["recall@10"] for r in rows if r["registry_name"] == base
+                          and r.get("status", "ok") == "ok"}
+                if 0 in series:
+                    out.append(f"{base}: recall@10 {series[0]:.3f} raw, " + ", ".join(
+                        f"{series[a]:.3f} with a = {a}" for a in sorted(series) if a))
+        return out
+    for r in ok:
+        groups.setdefault(r.get(key), []).append(r)
+    for value, group in groups.items():
+        budgeted = [r for r in group if r.get("budget")]
+        ours = [r for r in budgeted if _is_btel(r)]
+        theirs = [r for r in budgeted if not _is_btel(r)]
+        if not ours or not theirs:
+            continue
+        a = max(ours, key=lambda r: r["recall@10"])
+        b = max(theirs, key=lambda r: r["recall@10"])
+        label = format_bytes(value) if key == "budget" else (f"N = {value}" if key == "n_places" else value)
+        verdict = "wins" if a["recall@10"] > b["recall@10"] else ("ties" if a["recall@10"] == b["recall@10"] else "loses")
+        out.append(f"{label}: best BTEL ({a['method']}, {format_bytes(a['nbytes'])}) recall@10 = {a['recall@10']:.3f} "
+                   f"vs best other ({b['method']}, {format_bytes(b['nbytes'])}) {b['recall@10']:.3f} — BTEL {verdict}.")
+    return out
+
+
+def _beyond_lines(payload: dict[str, Any]) -> list[str]:
+    """The "beyond" experiment: ladder, then one table per part (Nordland, Gardens Point, synthetic)."""
+    budget = payload.get("budget")
+    n = next((r["n_places"] for r in payload["rows"] if r.get("part") == "nordland"), "?")
+    lines = [f"Validation protocol {' '.join(payload.get('protocol', {}).get('text', '').split())}", "",
+             f"### Ladder (Nordland, N = {n}, HOG, ≤ {format_bytes(budget) if budget else '?'})", "",
+             "| direction | measure | best BTEL variant (by validation) | its value | best of PQ / OPQ / ITQ | its value "
+             "| BTEL ≥ quantiser | chance |", "|---|---|---|---|---|---|---|---|"]
+    for direction, measures in payload.get("ladder", {}).items():
+        for measure, pick in measures.items():
+            ours, theirs = pick.get("btel"), pick.get("quantiser")
+            cell = (lambda p: (f"{p['method']} ({format_bytes(p['nbytes'])})", f"{p['value']:.3f}")
+                    if p else ("does not fit", "–"))
+            a, b = cell(ours), cell(theirs)
+            verdict = {True: "yes", False: "no"}.get(pick.get("btel_at_least_quantiser"), "–")
+            if "btel_reaches_0.5" in pick:
+                verdict += f"; BTEL ≥ 0.5: {'yes' if pick['btel_reaches_0.5'] else 'no'}"
+            lines.append(f"| {direction} | {measure} | {a[0]} | {a[1]} | {b[0]} | {b[1]} | {verdict} | "
+                         f"{pick.get('chance', float('nan')):.3f} |")
+    lines.append("")
+    parts = [("nordland", "Nordland, every method and read-out (reported stretches)", ["direction", "decoder"]),
+             ("gardens-point", "Gardens Point day → night (NetVLAD 500-D, N = 200), no tuning", []),
+             ("synthetic", "Synthetic routes: appearance change between traverses, no tuning", ["condition_shift"])]
+    for key, title, extra in parts:
+        rows = [dict(r, **{"R@10 (top 10 ranked)": f"{r['R@10']:.3f}" if r.get("R@10") is not None else ""})
+                for r in payload["rows"] if r.get("part") == key]
+        if rows:
+            lines += [f"### {title}", ""] + _table(rows, extra + (["R@10 (top 10 ranked)"] if key == "nordland" else []))
+            lines += [""]
+    return lines
+
+
+def _front_ends_lines(payload: dict[str, Any]) -> list[str]:
+    """The "front-ends" experiment: one pivot table per part and direction (method × front end), then a reading."""
+    rows = [r for r in payload["rows"] if r.get("direction")]
+    lines: list[str] = []
+    reading: list[str] = []
+    for part, direction in dict.fromkeys((r["part"], r["direction"]) for r in rows):
+        t = 10 if part == "nordland" else 2
+        group = [r for r in rows if r["part"] == part and r["direction"] == direction]
+        fronts = list(dict.fromkeys(r["front"] for r in group))
+        what = "Nordland HOG" if part == "nordland" else "Gardens Point NetVLAD"
+        n = group[0]["n_places"]
+        lines += [f"### {what} {direction}, N = {n}: recall@{t} (single frame / HMM)", "",
+                  "| method | " + " | ".join(fronts) + " |", "|---|" + "---|" * len(fronts)]
+        labels = dict.fromkeys((r["method"], r.get("budget")) for r in group)
+        for method, budget in labels:
+            cells = []
+            for front in fronts:
+                found = {r["decoder"]: r for r in group if r["method"] == method and r.get("budget") == budget
+                         and r["front"] == front}
+                single, hmm = found.get("single"), found.get("HMM")
+                if single is None:
+                    cells.append("–")
+                elif single.get("status", "ok") != "ok":
+                    cells.append(single["status"])
+                else:
+                    mark = " †" if single.get("uses") == "sequence" else ""
+                    cells.append(f"{single[f'recall@{t}']:.3f}{mark} / {hmm[f'recall@{t}']:.3f}" if hmm
+                                 else f"{single[f'recall@{t}']:.3f}{mark}")
+            where = format_bytes(budget) if budget else "no budget"
+            lines.append(f"| {method} ({where}) | " + " | ".join(cells) + " |")
+            ok = {r["front"]: r[f"recall@{t}"] for r in group if r["method"] == method and r.get("budget") == budget
+                  and r["decoder"] == "single" and r.get("status", "ok") == "ok"}
+            if "none" in ok and "l2" in ok:
+                moves = ", ".join(f"{f} {ok[f] - ok['none']:+.3f}" for f in fronts if f != "none" and f in ok)
+                reading.append(f"{what} {direction}, {method} ({where}): recall@{t} {ok['none']:.3f} on raw rows; "
+                               f"change by front end: {moves}.")
+        lines.append("")
+    lines += ["† the front end makes the method use the query sequence (delta descriptors); the HMM column "
+              "always does. Nothing was tuned on the reported queries.", ""]
+    if reading:
+        lines += ["How much each front end moved each method (single frame, against raw rows):", ""]
+        lines += [f"- {s}" for s in reading] + [""]
+    return lines
+
+
+def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path = "docs",
+                 reading_file: str | Path | None = None) -> Path:
+    """Write ``docs/results.md`` and ``docs/results.json`` from every experiment found in ``runs_dir``.
+
+    Parameters
+    ----------
+    reading_file : path, optional
+        A hand-written interpretation (Markdown) placed under "Reading"; default
+        ``docs/reading.md`` when it exists.
+
+    Returns
+    -------
+    Path of ``results.md``.
+    """
+    runs_dir, docs_dir = Path(runs_dir), Path(docs_dir)
+    found = {name: runs_dir / name / "results.json" for name in EXPERIMENTS if (runs_dir / name / "results.json").is_file()}
+    if not found:
+        raise DataNotFoundError(f"no experiment results under {str(runs_dir)!r}; run `btel experiment all` first.")
+    figures = docs_dir / "figures"
+    figures.mkdir(parents=True, exist_ok=True)
+    md_path, json_path = docs_dir / "results.md", docs_dir / "results.json"
+    kept = {m.group("name"): m.group(0) for m in _MARKER.finditer(md_path.read_text())} if md_path.exists() else {}
+
+    lines = ["# Results", "",
+             "Generated by `btel report` from the latest `btel experiment` runs; do not edit by hand "
+             "(except between marker comments, which other benchmark scripts maintain).", "",
+             "Data: Nordland `nordland64` (64×32 frames, every 10th frame of the NRK videos, CC BY 3.0), "
+             "frame-aligned seasons; tolerance in frames (≈ 200 m each). Descriptor: HOG 3780-D "
+             "(9 orientations, 4×4 cells, 2×2 blocks) for every method except SeqSLAM (64×32 patch-normalised "
+             "thumbnails). Front end: every method's default, rows L2-normalised (SeqSLAM: none); brute force "
+             "searches by cosine on them, its strongest honest form; the front-ends section compares the others. "
+             "Budgets are decimal (1 MB = 10⁶ B); every method's bytes follow the one storage rule "
+             "(README). Brute force is the unbudgeted reference.", "",
+             "Metrics: recall@t = share of queries whose point prediction is within t frames of the true place; "
+             "R@K = share with a correct place among the top K ranked candidates (R@1 = recall@0). "
+             "† marks methods that use the query sequence (SeqSLAM): not comparable with single-frame methods.", ""]
+    summary: dict[str, Any] = {}
+    for name, path in found.items():
+        payload = json.loads(path.read_text())
+        rows, run = payload["rows"], payload["run"]
+        summary[name] = {"run": run, "rows": rows, **{k: v for k, v in payload.items()
+                                                     if k not in ("run", "rows", "curves")}}
+        lines += [f"## {_TITLES[name]}", "",
+                  f"Command: `{run.get('command') or 'btel experiment ' + name}`"
+                  f"{' (quick mode)' if run.get('quick') else ''} — {run.get('date_utc', '')}, "
+                  f"{run.get('seconds', 0):.0f} s, btel {run.get('versions', {}).get('btel', '?')}.", ""]
+        if name == "beyond":
+            lines += _beyond_lines(payload)
+        elif name == "front-ends":
+            lines += _front_ends_lines(payload)
+        elif name == "codes":
+            from .codes import report_lines
+
+            lines += report_lines(payload, docs_dir)
+        elif name == "frontier":
+            from .frontier import report_lines as frontier_lines
+
+            lines += frontier_lines(payload, docs_dir)
+        else:
+            extra = {"accuracy": ["direction"], "sequence-filter": ["window"]}.get(name, [])
+            lines += _table(rows, extra) + [""]
+        for png in sorted((path.parent).glob("*.png")):
+            target = figures / f"{name}-{png.name}"
+            shutil.copyfile(png, target)
+            lines += [f"![{name} {png.stem}](figures/{target.name})", ""]
+        reading = [] if name in ("beyond", "front-ends", "codes", "frontier") else _reading(name, rows)
+        if reading:
+            lines += ["Reading (computed from the table):", ""] + [f"- {s}" for s in reading] + [""]
+    missing = [name for name in EXPERIMENTS if name not in found]
+    if missing:
+        lines += ["## Not yet run", "",
+                  "No results yet for: " + ", ".join(f"{_TITLES[n]} (`btel experiment {n}`)" for n in missing)
+                  + ". Run them and `btel report` again.", ""]
+    reading_path = Path(reading_file) if reading_file else docs_dir / "reading.md"
+    if reading_path.is_file():
+        lines += ["## Reading", "", reading_path.read_text().strip(), ""]
+    for block in kept.values():
+        lines += [block, ""]
+    md_path.write_text("\n".join(lines))
+    json_path.write_text(json.dumps(summary, indent=1) + "\n")
+    return md_path

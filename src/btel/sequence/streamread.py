@@ -1,0 +1,221 @@
+"""Readers of a descriptor stream: text lines as they arrive, or binary float32 frames.
+
+:func:`read_lines` reads any text or binary stream line by line (a file, followed as it grows, or a
+pipe). :func:`chunk_lines` reads a binary file or pipe in chunks and, on a pipe, also says when no
+further line is waiting (:data:`IDLE`): the caller answers what it holds before the read that would
+block, so a fast producer's lines are answered in blocks and a camera's frame as soon as it arrives.
+
+**Binary frames** (``btel localize --stream --binary``; :func:`read_frames`): each frame is a
+little-endian ``uint32`` count n, then n little-endian ``float32`` values — in numpy
+``np.uint32(d).tobytes() + x.astype("<f4").tobytes()``. n = d is a descriptor; n = 0 starts a new
+traverse (like a ``reset`` line); any other n is a malformed frame, reported and skipped. A count
+beyond the line limit (``$BTEL_MAX_LINE_BYTES``) means the input is not frames or lost its framing:
+the stream stops with :class:`~btel.exceptions.InvalidDescriptorsError`; so does a frame cut short
+by the end of the input.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import stat
+import time
+from typing import Any, BinaryIO, Iterator
+
+import numpy as np
+
+from ..exceptions import InvalidDescriptorsError
+from .lineparse import LineTooLong, max_line_bytes
+
+__all__ = ["read_lines", "chunk_lines", "read_frames", "is_pipe", "IDLE", "RESET", "BadFrame"]
+
+#: Yielded by :func:`chunk_lines` and :func:`read_frames` when no further input is waiting.
+IDLE = object()
+#: Yielded by :func:`read_frames` for a frame of 0 values: a new traverse starts.
+RESET = "reset"
+_CHUNK = 1 << 16
+
+
+class BadFrame:
+    """Stands for a binary frame that is not a descriptor (reported, then skipped)."""
+
+    def __init__(self, message: str) -> None:
+        self.text = message
+
+    def message(self) -> str:
+        return self.text
+
+
+def is_pipe(stream: Any) -> bool:
+    """True for a binary stream on a pipe, socket or terminal that can be polled (POSIX select)."""
+    try:
+        mode = os.fstat(stream.fileno()).st_mode
+    except (OSError, ValueError, AttributeError):
+        return False
+    return (os.name == "posix" and hasattr(stream, "read1") and not hasattr(stream, "encoding")
+            and (stat.S_ISFIFO(mode) or stat.S_ISSOCK(mode) or stat.S_ISCHR(mode)))
+
+
+def _waiting(fd: int) -> bool:
+    return bool(select.select([fd], [], [], 0)[0])
+
+
+def read_lines(stream: Any, *, follow: bool = False, poll_interval: float = 0.1,
+               idle_timeout: float | None = None, max_line: int | None = None) -> Iterator[Any]:
+    """Yield complete lines from ``stream`` as they arrive (a :class:`LineTooLong` for each over-long one).
+
+    Parameters
+    ----------
+    stream : text or binary file
+        A pipe (stdin) or a file. A pipe blocks until its next line; a file ends at EOF. A binary
+        stream yields bytes lines (decoded one line at a time by the caller, so a byte that is not
+        UTF-8 spoils only its own line).
+    follow : bool
+        Keep reading a file as it grows (``tail -f``): at EOF, wait ``poll_interval`` seconds and
+        try again. A line without its newline yet is held back until it is complete.
+    idle_timeout : float, optional
+        With ``follow``, stop after this many seconds without new data (default: never).
+    max_line : int, optional
+        Longest line in bytes (characters for a text stream), newline excluded; default
+        :func:`~btel.sequence.lineparse.max_line_bytes`. At most this much of a line is held in memory: a
+        longer one is read through and replaced by a :class:`LineTooLong`.
+    """
+    limit = max_line_bytes() if max_line is None else int(max_line)
+    pending: Any = None
+    skipping = False  # inside a line longer than the limit: read on to its end, keep nothing
+    last_data = time.monotonic()
+    while True:
+        chunk = stream.readline(limit + 1 - (len(pending) if pending is not None else 0))
+        if chunk:
+            last_data = time.monotonic()
+            complete = chunk.endswith(b"\n" if isinstance(chunk, bytes) else "\n")
+            if skipping:
+                if complete:
+                    skipping = False
+                    yield LineTooLong(limit)
+                continue
+            pending = chunk if pending is None else pending + chunk
+            if complete and len(pending) <= limit + 1:
+                yield pending
+                pending = None
+            elif len(pending) > limit:
+                pending = None
+                if complete:
+                    yield LineTooLong(limit)
+                else:
+                    skipping = True
+            continue
+        if not follow or (idle_timeout is not None and time.monotonic() - last_data >= idle_timeout):
+            break
+        time.sleep(poll_interval)
+    if skipping:
+        yield LineTooLong(limit)
+    elif pending:
+        yield pending  # the last line of a finished file may lack its newline
+
+
+def chunk_lines(stream: BinaryIO, *, max_line: int | None = None) -> Iterator[Any]:
+    """The lines of a binary stream read in chunks (bytes, or :class:`LineTooLong`); on a pipe
+    (:func:`is_pipe`) also :data:`IDLE` before each read that would wait.
+
+    Reads whatever has arrived (``read1``: up to 64 KiB from a pipe, 1 MiB from a file) and splits
+    it into lines itself — no call per line — so on a pipe it knows when its buffer holds no whole
+    line and the pipe has nothing more (``select``): then it yields :data:`IDLE`. Line limits as
+    :func:`read_lines`; ends at the end of the input.
+    """
+    limit = max_line_bytes() if max_line is None else int(max_line)
+    fd = stream.fileno() if is_pipe(stream) else None
+    read = getattr(stream, "read1", stream.read)
+    size = _CHUNK if fd is not None else 1 << 20
+    buf = b""
+    skipping = False
+    first = True  # the stream's own buffer may hold bytes read before: read them without asking the pipe
+    while True:
+        start = 0
+        while (end := buf.find(b"\n", start)) >= 0:
+            yield LineTooLong(limit) if end - start > limit else buf[start:end + 1]
+            start = end + 1
+        buf = buf[start:]
+        if len(buf) > limit:  # no newline within the limit: drop this line as it goes by
+            buf, skipping = b"", True
+        if fd is not None and not first and not _waiting(fd):
+            yield IDLE
+        first = False
+        chunk = read(size)
+        if not chunk:
+            break
+        if skipping:
+            end = chunk.find(b"\n")
+            if end < 0:
+                continue
+            yield LineTooLong(limit)
+            chunk, skipping = chunk[end + 1:], False
+        buf += chunk
+    if skipping:
+        yield LineTooLong(limit)
+    elif buf:
+        yield buf
+
+
+def read_frames(stream: BinaryIO, n_features: int, *, follow: bool = False, poll_interval: float = 0.1,
+                idle_timeout: float | None = None) -> Iterator[Any]:
+    """The binary frames of ``stream`` (module docstring): a (1, d) float32 row per descriptor,
+    :data:`RESET`, :class:`BadFrame`, and :data:`IDLE` when a pipe has nothing more waiting.
+
+    Raises
+    ------
+    InvalidDescriptorsError
+        A frame count beyond the limit (not frames, or framing lost), or a frame cut short by the end.
+    """
+    limit = max_line_bytes()
+    fd = stream.fileno() if is_pipe(stream) else None
+    number = 0
+    last_data = time.monotonic()
+
+    def read(n: int) -> bytes:
+        nonlocal last_data
+        out = b""
+        while len(out) < n:
+            chunk = stream.read(n - len(out))
+            if chunk:
+                out += chunk
+                last_data = time.monotonic()
+            elif not follow or (idle_timeout is not None and time.monotonic() - last_data >= idle_timeout):
+                return out
+            else:
+                time.sleep(poll_interval)
+        return out
+
+    while True:
+        if fd is not None and not _waiting(fd):
+            yield IDLE
+        head = read(4)
+        if not head:
+            return
+        number += 1
+        count = int.from_bytes(head.ljust(4, b"\0"), "little")
+        if len(head) < 4 or count * 4 > limit:
+            what = (f"the input ends inside its 4-byte count ({len(head)} bytes)" if len(head) < 4 else
+                    f"its count {count} values ({count * 4} bytes) exceeds the {limit}-byte limit "
+                    "($BTEL_MAX_LINE_BYTES)")
+            raise InvalidDescriptorsError(
+                f"frame {number}: {what}; binary frames are a little-endian uint32 count then that many "
+                "float32 values: the input is not btel frames, or lost its framing.")
+        payload = read(4 * count)
+        if len(payload) < 4 * count:
+            raise InvalidDescriptorsError(f"frame {number}: the input ends after {len(payload)} of its "
+                                          f"{4 * count} bytes (a frame cut short).")
+        if count == 0:
+            yield RESET
+        elif count != n_features:
+            yield BadFrame(f"a frame of {count} values; the model takes {n_features}.")
+        else:
+            row = np.frombuffer(payload, dtype="<f4").astype(np.float32).reshape(1, -1)
+            square = float(np.dot(row[0].astype(np.float64), row[0]))
+            if not np.isfinite(row).all():
+                yield BadFrame(f"value {int(np.flatnonzero(~np.isfinite(row[0]))[0]) + 1} is not finite.")
+            elif not square <= float(np.finfo(np.float32).max):
+                yield BadFrame(f"the values are too large: their squared norm ({square:.3g}) overflows "
+                               "float32.")
+            else:
+                yield row
