@@ -129,7 +129,8 @@ def test_run_plots_include_precision_recall_with_auc_in_the_legend(tmp_path: Pat
         scores = -np.abs(pred - np.arange(n)) + noise * rng.standard_normal(n)
         pr = precision_recall(scores, pred == np.arange(n))
         r = _result(name, pred, 10_000)
-        r.auc_pr, r.recall_at_100_precision = pr["auc_pr"], pr["recall_at_100_precision"]
+        r.auc_pr_vpr_bench, r.auc_pr_vpr_tutorial = pr["auc_pr_vpr_bench"], pr["auc_pr_vpr_tutorial"]
+        r.recall_at_100_precision = pr["recall_at_100_precision"]
         r.pr_curve = {"precision": pr["precision"].tolist(), "recall": pr["recall"].tolist()}
         rows.append(r)
     written = plot_run(rows, tmp_path)
@@ -140,7 +141,8 @@ def test_run_plots_include_precision_recall_with_auc_in_the_legend(tmp_path: Pat
     fig = plot_precision_recall(rows, tmp_path / "again.png")
     ax = fig.axes[0]
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
-    assert labels[0].startswith("sharp (10.0 KB): AUC ") and "R@100%P" in labels[0]
+    assert labels[0].startswith("sharp (10.0 KB): AUC-PR ") and "R@100%P" in labels[0]
+    assert "(VPR-Bench)" in labels[0] and "(VPR_Tutorial)" in labels[0]
     lines = ax.get_lines()
     assert len({line.get_marker() for line in lines}) == 3  # identical curves stay distinguishable
     assert ax.get_xlabel().startswith("recall") and ax.get_ylabel() == "precision"
