@@ -124,7 +124,8 @@ def test_auc_pr_on_gardens_point_netvlad_as_each_source(gardenspoint_netvlad) ->
     assert pr["auc_pr_vpr_bench"] == pytest.approx(auc(recall, precision), abs=1e-12)
     S = np.full((X.shape[0], Q.shape[0]), -np.inf)  # only the best match's score matters for single matching
     S[places[:, 0], np.arange(Q.shape[0])] = scores[:, 0]
-    expected = _vpr_tutorial_single_match(S, np.eye(X.shape[0], Q.shape[0], dtype=bool), VPR_TUTORIAL_THRESHOLDS)
+    truth = np.eye(X.shape[0], Q.shape[0], dtype=bool)
+    expected = _vpr_tutorial_single_match(S, truth, VPR_TUTORIAL_THRESHOLDS)
     assert pr["auc_pr_vpr_tutorial"] == pytest.approx(expected, abs=1e-12)
     r_at_1 = correct.mean()
     assert 0 < r_at_1 < 1 and pr["auc_pr_vpr_tutorial"] <= r_at_1 < pr["auc_pr_vpr_bench"]

@@ -212,13 +212,14 @@ def test_method_styles_are_fixed_per_method_and_never_repeat() -> None:
 
     names = method_names()
     assert len({(s.color, s.marker) for s in METHOD_STYLES.values()}) == len(METHOD_STYLES)
-    many = ["pq shrink", "bruteforce shrink", "mine", "theirs"] + names[::-1] + [f"run {i}" for i in range(30)]
+    many = ["pq shrink", "bruteforce shrink", "mine", "theirs", *names[::-1], *(f"run {i}" for i in range(30))]
     styles = method_styles(many)
     assert all(styles[n] == METHOD_STYLES[n] for n in names)  # the same whatever else the figure holds
     assert len({(s.color, s.marker) for s in styles.values()}) == len(styles)
     assert styles["pq shrink"].color == METHOD_STYLES["pq"].color  # a variant keeps its method's colour
     auto = method_styles(["lsh", "auto → lsh"])["auto → lsh"]
-    assert (auto.color, auto.marker, auto.hollow) == (METHOD_STYLES["lsh"].color, METHOD_STYLES["lsh"].marker, True)
+    lsh = METHOD_STYLES["lsh"]
+    assert (auto.color, auto.marker, auto.hollow) == (lsh.color, lsh.marker, True)
     assert method_styles(["bruteforce (reference, unbudgeted)"])["bruteforce (reference, unbudgeted)"] == \
         METHOD_STYLES["bruteforce"]
 
@@ -244,11 +245,13 @@ def test_every_run_figure_draws_a_method_in_its_one_style_auto_visible(tmp_path:
         rows.append(r)
     assert len(rows) >= 13
     figures = [_run_figure(rows, tmp_path / "t.png", kind="tolerance", title=None),
-               plot_precision_recall(rows, tmp_path / "pr.png"), plot_recall_vs_tolerance(rows, tmp_path / "r.png")]
+               plot_precision_recall(rows, tmp_path / "pr.png"),
+               plot_recall_vs_tolerance(rows, tmp_path / "r.png")]
     drawn = [_line_styles(fig) for fig in figures]
     assert all(d == drawn[0] for d in drawn[1:])  # one style per method across the figures
     assert len(set(drawn[0].values())) == len(rows)  # no repeats within a figure
-    assert drawn[0]["auto → lsh"][:2] == drawn[0]["lsh"][:2] and drawn[0]["auto → lsh"][3]  # lsh's, hollow
+    auto, lsh = drawn[0]["auto → lsh"], drawn[0]["lsh"]
+    assert auto[:2] == lsh[:2] and auto[3] and not lsh[3]  # lsh's colour and marker, hollow
 
 
 def test_precision_recall_figure_agrees_with_recall_at_full_precision(tmp_path: Path) -> None:

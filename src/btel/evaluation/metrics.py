@@ -14,6 +14,11 @@ Two names, one meaning each, everywhere (tables, CSV, JSON, plots):
   candidate is the point prediction, so R@1 = recall@0 (at ``k_tolerance`` 0) for every method.
 - With explicit positives per query (VPR-Bench, GPS radius) the tolerance does not apply: only
   R@K is reported (R@1/5/10/20 on the command line, the field's convention).
+- **AUC-PR** — area under the precision–recall curve of accepting each query's top-1 match by
+  its score, in two versions named by the code they reproduce: ``auc_pr_vpr_bench`` (VPR-Bench:
+  recall over the correct top-1 matches) and ``auc_pr_vpr_tutorial`` (VPR_Tutorial: recall over
+  the queries with a true place); :func:`precision_recall` gives both and the curve, one point
+  per distinct score.
 
 Nothing here fits, times or writes anything: :mod:`btel.evaluation` is the harness that does.
 """
@@ -250,8 +255,8 @@ def _comparable_scores(best_scores: Any, correct: Any) -> tuple[np.ndarray, np.n
     scores = np.asarray(best_scores, dtype=np.float64).reshape(-1)
     hits = np.asarray(correct, dtype=bool).reshape(-1)
     if scores.shape != hits.shape or scores.size == 0:
-        raise InvalidParameterError(f"best_scores and correct must be 1-D of one length ≥ 1; got {scores.shape} "
-                                    f"and {hits.shape}.")
+        raise InvalidParameterError(f"best_scores and correct must be 1-D of one length ≥ 1; got "
+                                    f"{scores.shape} and {hits.shape}.")
     finite = np.isfinite(scores)
     low, high = (scores[finite].min() - 1.0, scores[finite].max() + 1.0) if finite.any() else (0.0, 0.0)
     return np.clip(np.nan_to_num(scores, nan=low, neginf=low, posinf=high), low, high), hits
@@ -313,11 +318,13 @@ def precision_recall(best_scores: Any, correct: Any, *, n_relevant: int | None =
         with no false match accepted; 0 when the most confident match is wrong).
     """
     scores, hits = _comparable_scores(best_scores, correct)
-    n_relevant = scores.size if n_relevant is None else check_positive_int(n_relevant, "n_relevant", minimum=1)
+    if n_relevant is None:
+        n_relevant = scores.size
+    n_relevant = check_positive_int(n_relevant, "n_relevant", minimum=1)
     n_correct = int(hits.sum())
     if n_correct > n_relevant:
-        raise InvalidParameterError(f"{n_correct} top-1 matches are correct but n_relevant={n_relevant}: only "
-                                    "queries with a true place can be matched correctly.")
+        raise InvalidParameterError(f"{n_correct} top-1 matches are correct but n_relevant={n_relevant}: "
+                                    "only queries with a true place can be matched correctly.")
     order = np.argsort(-scores, kind="stable")
     ranked = scores[order]
     last = np.flatnonzero(np.r_[ranked[1:] != ranked[:-1], True])  # the last index of each distinct score
@@ -335,7 +342,8 @@ def precision_recall(best_scores: Any, correct: Any, *, n_relevant: int | None =
             "recall_at_100_precision": float(perfect.max()) if perfect.size else 0.0}
 
 
-def thin_curve(precision: np.ndarray, recall: np.ndarray, n: int = PR_CURVE_POINTS) -> tuple[list[float], list[float]]:
+def thin_curve(precision: np.ndarray, recall: np.ndarray,
+               n: int = PR_CURVE_POINTS) -> tuple[list[float], list[float]]:
     """At most ``n`` points of a PR curve, evenly spaced along it.
 
     The first and last points are kept, and so is the last point at precision 1 (the recall at

@@ -37,7 +37,8 @@ def format_table(results: Sequence[EvaluationResult]) -> str:
     tolerances = sorted({t for r in results for t in r.recall})
     ks = sorted({k for r in results for k in (r.recall_at_k or {})})
     has_pr = any(r.recall_at_100_precision is not None for r in results)
-    metric_names = [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks] + (list(PR_TABLE_NAMES) if has_pr else [])
+    metric_names = [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks]
+    metric_names += list(PR_TABLE_NAMES) if has_pr else []
     width = max([len("method")] + [len(_row_label(r)) for r in results]) + 1
     header = (f"{'method':<{width}} {'status':<12} {'bytes':>10} {'fit s':>7} {'batch µs/q':>10} {'1-query µs':>10} "
               f"{'threads':>7} " + " ".join(f"{m:>9}" for m in metric_names))
@@ -102,8 +103,8 @@ def metrics_csv_text(results: Sequence[EvaluationResult]) -> str:
     ks = sorted({k for r in results for k in (r.recall_at_k or {})})
     header = ["method", "status", "reference", "uses_query_sequence", "budget", "n_map", "n_queries", "nbytes",
               "fit_time_s", "query_time_s_per_query", "query_latency_s", "n_threads"]
-    header += [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks] + ["auc_pr_vpr_bench", "auc_pr_vpr_tutorial",
-                                                                      "recall@100%precision", "reason"]
+    header += [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks]
+    header += ["auc_pr_vpr_bench", "auc_pr_vpr_tutorial", "recall@100%precision", "reason"]
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(header)

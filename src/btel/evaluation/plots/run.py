@@ -125,7 +125,8 @@ def plot_recall_at_k(results: Sequence[EvaluationResult], path: str | os.PathLik
     ks = sorted({k for _, pts in series for k, _ in pts})
     styles = method_styles([_series(r) for r, _ in series])
     for r, pts in series:
-        ax.plot([k for k, _ in pts], [v for _, v in pts], label=_legend_label(r), **styles[_series(r)].kwargs())
+        ax.plot([k for k, _ in pts], [v for _, v in pts], label=_legend_label(r),
+                **styles[_series(r)].kwargs())
     ax.set_xticks(ks)
     ax.set_xlim(0.5, ks[-1] + 0.5)
     _finish_recall_plot(fig, ax, path, xlabel="K (ranked candidates)", ylabel="R@K", title=title)
@@ -278,7 +279,7 @@ def plot_run(results: Sequence[EvaluationResult], out_dir: str | os.PathLike, *,
 
 def plot_precision_recall(results: Sequence[EvaluationResult], path: str | os.PathLike, *,
                           title: str | None = None) -> Figure:
-    """Precision (y) against recall (x) of accepting each query's top-1 match by its score, one curve per method.
+    """Precision (y) against recall (x) of accepting each query's top-1 match by its score, per method.
 
     One point per distinct score threshold, joined by straight lines as VPR-Bench and VPR_Tutorial
     draw them, so a curve never shows precision 1 beyond its recall at 100 % precision; a method
@@ -321,7 +322,8 @@ def plot_precision_recall(results: Sequence[EvaluationResult], path: str | os.Pa
     ax.grid(True, alpha=0.3)
     ax.set_xlabel("recall (correct accepted top-1 matches / queries with a true place)")
     ax.set_ylabel("precision")
-    ax.legend(fontsize="x-small", loc="upper center", bbox_to_anchor=(0.5, -0.14), frameon=False)  # never on a curve
+    # The legend below the axes: never on a curve.
+    ax.legend(fontsize="x-small", loc="upper center", bbox_to_anchor=(0.5, -0.14), frameon=False)
     if title:
         import textwrap
 
