@@ -117,5 +117,5 @@ def test_gardens_point_rabitq_is_near_brute_force_from_16kb(gardenspoint_netvlad
         return float((np.abs(model.fit(X).predict(Q) - truth) <= 2).mean())
 
     rabitq, brute = r2(make_method("rabitq", budget="16KB")), r2(make_method("bruteforce"))
-    # Measured (benchmarks/bench_rabitq.py): 0.480 against brute force 0.480; the rule chose D = d = 500, B = 1.
+    # Measured (benchmarks/studies/rabitq_budget.py): 0.480 against brute force 0.480; the rule chose D = d = 500, B = 1.
     assert rabitq >= 0.9 * brute

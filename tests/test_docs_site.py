@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs" / "guide").glob("*.md"))]
 FENCE = re.compile(r"^```python\n(.*?)^```$", re.MULTILINE | re.DOTALL)
 DOCSTRING_LINES = 40
-HISTORY = re.compile(r"\bHistory\b\.|Added after|\bbefore this rule\b", re.IGNORECASE)
+HISTORY = re.compile(r"^\s*History\b|Added after|Before this rule", re.MULTILINE)
 # Module docstrings over the limit in other helpers' lanes when issue 36 was done; the lead
 # removes these entries when the lanes are merged.
 OVER_LIMIT_PENDING = {

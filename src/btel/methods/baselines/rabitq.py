@@ -28,13 +28,7 @@ more bits per dimension only refine what is kept, so dimensions are bought first
 ``nbits`` pins that part; the rule chooses the rest. Without a budget: D = d, B = 1 (the original
 RaBitQ). Nothing fits (D = 8, B = 1): :class:`~btel.exceptions.BudgetTooSmallError`.
 
-Measured (``benchmarks/bench_rabitq.py``) against asymmetric LSH (``lsh``'s defaults) at the same
-budget. Gardens Point recall@2: 0.295 / 0.475 / 0.48 / 0.48 / 0.47 / 0.48 at 4 / 8 / 16 / 32 / 64 /
-128 KB against 0.445 / 0.50 / 0.455 / 0.44 / 0.48 / 0.49. 1000 synthetic independent places, R@1:
-– / 0.085 / 0.535 / 0.933 / 0.980 / 1.0 against 0.136 / 0.499 / 0.708 / 0.974 / 0.997 / 1.0.
-Nordland HOG (3576 places, 3780-D): nothing fits below 18 KB, R@1 0.004 / 0.027 / 0.083 at 32 / 64 /
-128 KB against 0.008 / 0.047 / 0.111. Where it loses, the 4 factor bytes per row and a rotation to D ≤ d dimensions cost
-more than LSH's extra bits.
+Against asymmetric LSH at the same budget: ``docs/decisions/rabitq.md``.
 """
 
 from __future__ import annotations

@@ -32,8 +32,7 @@ Families (``c_ik`` is column k of place i):
   counter-based hash: one hash per 64 columns of a place, or one per bit under the rule of older
   model files; :mod:`btel.methods.codes.hashing`), so columns are balanced in expectation (within
   about ±√N/2 places) and neighbouring places share nothing. No route structure: for maps whose rows are independent places rather
-  than a route. (An exactly balanced column would need a permutation of all N places per column;
-  evaluating a keyed permutation per element was 30× slower to decode at N = 10⁶.)
+  than a route (why not exactly balanced: ``docs/decisions/codes-families.md``).
 
 Every number drawn from the seed comes from a counter-based hash (splitmix64 of seed, family,
 column, stream), not from a stateful generator, and every code is evaluated with exact integer or

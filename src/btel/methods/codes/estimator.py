@@ -30,17 +30,10 @@ stays sub-linear, and K is the dial that turns bytes into accuracy: the budget p
 (:mod:`btel.methods.codes.planning`) picks K, d' and the weight width that fill the budget; the
 model file is :mod:`btel.methods.codes.model_file`.
 
-**Relation to BTELocalizer.** ``btel-c`` (:class:`btel.methods.btel.localizer.BTELocalizer`) stays the paper's
-BTE-C, unchanged. This is a separate estimator rather than another option of ``BTELocalizer``: its
-solver (multi-output ridge), storage (quantised weights, shared columns), planner and decoder
-differ in every part, and only the codes themselves are shared — ``code='binary'`` and
-``code='offset'`` regenerate exactly the columns of BTE-C's plain and offset codes. What does not
-compose: **regions** (BTEL's KTS regions with a region classifier and one tree each) — the
-long-period code columns already play the region classifier's part (a coarse position along the
-route), and per-region codes would multiply the weights by r; **per-classifier feature selection**
-(BCSS / Witten–Tibshirani) — K × d' column indices would cost more than 4-bit weights; the kept
-columns are shared instead. The **sequence filter** and the **HMM decoder** compose: they read
-``predict`` and ``place_scores``.
+**Relation to BTELocalizer.** ``btel-c`` (:class:`btel.methods.btel.localizer.BTELocalizer`) stays
+the paper's BTE-C, unchanged; ``code='binary'`` and ``code='offset'`` regenerate its columns exactly.
+Regions and per-classifier feature selection do not compose with the codes, on purpose; the
+sequence filter and the HMM decoder do (``docs/decisions/codes-families.md``).
 """
 
 from __future__ import annotations

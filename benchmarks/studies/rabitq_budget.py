@@ -19,8 +19,8 @@ Maps (query j is place j in every one):
 A budget a method cannot meet is a "does not fit" cell (its BudgetTooSmallError), never an abort.
 One BLAS and one faiss thread throughout (the machine is shared).
 
-    python benchmarks/bench_rabitq.py            # ≈ 10 min on 2 shared cores
-    python benchmarks/bench_rabitq.py --quick    # Gardens Point and the synthetic map only
+    python benchmarks/studies/rabitq_budget.py            # ≈ 10 min on 2 shared cores
+    python benchmarks/studies/rabitq_budget.py --quick    # Gardens Point and the synthetic map only
 
 Writes ``benchmarks/results/bench_rabitq.json`` (every cell) and prints the tables.
 """
@@ -41,7 +41,7 @@ from btel.methods import make_method
 from btel.core.storage import parse_budget
 from btel.core.threads import limit_threads
 
-HERE = Path(__file__).resolve().parent
+HERE = Path(__file__).resolve().parents[1]  # benchmarks/
 BUDGETS = ("4KB", "8KB", "16KB", "32KB", "64KB", "128KB")
 BUDGETED = (("rabitq", "rabitq", {}), ("rabitq shrink", "rabitq", {"whiten": "shrink"}), ("lsh", "lsh", {}),
             ("lsh shrink", "lsh", {"whiten": "shrink"}),

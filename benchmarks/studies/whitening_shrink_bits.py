@@ -9,8 +9,8 @@ recall (recall@2 on Gardens Point and the synthetic route, recall@10 on Nordland
 of independent places). The basis is the only difference between the two columns; 4 bits cost half
 the bytes. One BLAS thread.
 
-    python benchmarks/bench_shrink_bits.py             # ≈ 1 min
-    python benchmarks/bench_shrink_bits.py --quick     # Gardens Point and small synthetic maps
+    python benchmarks/studies/whitening_shrink_bits.py             # ≈ 1 min
+    python benchmarks/studies/whitening_shrink_bits.py --quick     # Gardens Point and small synthetic maps
 
 Writes ``benchmarks/results/bench_shrink_bits.json`` and prints the table.
 """

@@ -9,7 +9,7 @@ is reported against 0.1, paired by seed. ρ is set through
 :data:`btel.methods.codes.solvers.RELATIVE_ALPHA` (restored afterwards): it is a rule, not a parameter
 of the estimator. One BLAS thread.
 
-    python benchmarks/bench_codes_ridge.py      # ≈ 1 min on 2 shared cores
+    python benchmarks/studies/codes_ridge.py      # ≈ 1 min on 2 shared cores
 
 Writes ``benchmarks/results/bench_codes_ridge.json`` and prints the table.
 """

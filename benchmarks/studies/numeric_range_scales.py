@@ -8,8 +8,8 @@ recall within 2 places on the scaled data, with the unscaled recall in the first
 btel error that refused it (``refused (…)``), or in bold any other exception. Writes ``benchmarks/results/study_scales.json`` and prints a
 markdown table::
 
-    python benchmarks/study_scales.py            # synthetic route, N = 200, d = 32
-    python benchmarks/study_scales.py --real     # Gardens Point NetVLAD (../shared/data)
+    python benchmarks/studies/numeric_range_scales.py            # synthetic route, N = 200, d = 32
+    python benchmarks/studies/numeric_range_scales.py --real     # Gardens Point NetVLAD (../shared/data)
 """
 
 from __future__ import annotations
@@ -25,12 +25,12 @@ from pathlib import Path
 import numpy as np
 
 SCALES = (1e-44, 1e-38, 1e-20, 1e-15, 1e15, 1e30)
-RESULTS = Path(__file__).resolve().parent / "results" / "study_scales.json"
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "study_scales.json"
 
 
 def _data(real: bool) -> tuple[np.ndarray, np.ndarray]:
     if real:
-        path = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "gardenspoint_netvlad" \
+        path = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "gardenspoint_netvlad" \
             / "hiddenRepr-GardensPoint.npz"
         with np.load(path) as data:
             return data["hlrTrain"].astype(np.float32), data["hlrTest"].astype(np.float32)

@@ -7,7 +7,7 @@ Nordland, recall@0 on maps of independent places). The cone ratio (‖mean row�
 the L2-normalised map, :func:`btel.methods.baselines.lsh.cone_ratio`) is what ``center='auto'`` reads.
 One BLAS thread.
 
-    python benchmarks/bench_lsh_center.py       # ≈ 3 min on 2 shared cores
+    python benchmarks/studies/lsh_centring.py       # ≈ 3 min on 2 shared cores
 
 Writes ``benchmarks/results/bench_lsh_center.json`` and prints the table.
 """
