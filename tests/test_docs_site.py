@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import ast
 import importlib
+import importlib.util
 import os
 import re
 from pathlib import Path
@@ -96,8 +97,8 @@ def test_no_module_docstring_over_the_limit() -> None:
     over = {path: len(doc.splitlines()) for path, doc in _module_docstrings()
             if len(doc.splitlines()) > DOCSTRING_LINES}
     unexpected = {path: n for path, n in over.items() if path not in OVER_LIMIT_PENDING}
-    assert not unexpected, f"module docstrings over {DOCSTRING_LINES} lines (move the evidence to docs/decisions): "\
-                           f"{unexpected}"
+    assert not unexpected, (f"module docstrings over {DOCSTRING_LINES} lines (move the evidence to "
+                            f"docs/decisions): {unexpected}")
     stale = sorted(OVER_LIMIT_PENDING - set(over))
     assert not stale, f"remove from OVER_LIMIT_PENDING, now within the limit: {stale}"
 
@@ -115,3 +116,44 @@ def test_site_config_names_every_page() -> None:
     missing = [p for p in pages if not p.startswith(excluded) and p not in config]
     assert not missing, f"pages not in mkdocs.yml's nav: {missing}"
     assert os.path.isfile(ROOT / "docs" / "figures" / "frontier-frontier_recall_vs_bytes.png")
+
+
+def test_readme_is_short_and_its_test_command_is_what_ci_runs() -> None:
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    lines = readme.splitlines()
+    assert len(lines) <= 200, f"README.md has {len(lines)} lines (at most 200)"
+    long = [number for number, line in enumerate(lines, 1) if len(line) > 200]
+    assert not long, f"README.md lines over 200 characters: {long}"
+    ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
+    command = re.search(r"# --- README: test command ---\n(.+)\n", ci)
+    assert command is not None, ".ci/run lost its '# --- README: test command ---' marker"
+    shown = f"```bash\n{command.group(1)}\n```"
+    assert shown in readme, f"README does not show CI's test command {command.group(1)!r}"
+    assert 'pip install -e ".[dev]"' in readme and "btel demo" in readme
+
+
+def test_readme_links_resolve() -> None:
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    targets = re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", readme)
+    missing = [t for t in targets if not t.startswith("http") and not (ROOT / t).exists()]
+    assert targets and not missing, f"README links to missing files: {missing}"
+
+
+def _rst_markup():
+    spec = importlib.util.spec_from_file_location("rst_markup", ROOT / "docs" / "_griffe" / "rst_markup.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_site_reads_rst_roles_tables_and_doctests_as_markdown() -> None:
+    markdown = _rst_markup().markdown
+    assert markdown("see :class:`~btel.exceptions.ModelFileError` and :func:`btel.load`") == \
+        "see `ModelFileError` and `btel.load`"
+    table = "\n".join(["intro", "", "====== =====", "where  what", "====== =====", "``a``  first",
+                       "       more", "``b``  second", "====== =====", "", "after"])
+    assert markdown(table).splitlines() == ["intro", "", "", "| where | what |", "| --- | --- |",
+                                            "| ``a`` | first more |", "| ``b`` | second |", "", "", "after"]
+    assert markdown("Pick one::\n\n    code\n") == "Pick one:\n\n    code"
+    assert markdown("text\n>>> import btel\n>>> btel.load\nafter") == \
+        "text\n```python\n>>> import btel\n>>> btel.load\n```\nafter"

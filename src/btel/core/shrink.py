@@ -84,7 +84,8 @@ def shrink_rank(n_features: int, n_rows: int | None, budget: int | None) -> int:
     return int(max(0, min(cap, share // ((int(n_features) + 1) // 2 + 8))))
 
 
-def fit_shrink(Z: np.ndarray, rank: int, levels: int = _LEVELS) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def fit_shrink(Z: np.ndarray, rank: int,
+               levels: int = _LEVELS) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Learn the stored arrays from the map rows ``Z`` (n, d) float32.
 
     Raises :class:`~btel.exceptions.InvalidDescriptorsError` when a column mean exceeds float16's range.

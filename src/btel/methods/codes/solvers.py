@@ -5,8 +5,8 @@ the (front-end transformed) map, written as ``margin_k(x) = (x − μ)·w_k + c_
 column means — so that the estimator can quantise w and fold μ into a bias afterwards
 (``bias_k = c_k − μ·w_k`` computed from the *stored* weights, as :mod:`btel.learning.linear` does).
 
-**Ridge** (``solver='ridge'``, the default of :class:`btel.methods.codes.estimator.CodeLocalizer`): all K columns
-solve one least-squares problem with a shared regulariser,
+**Ridge** (``solver='ridge'``, the default of :class:`btel.methods.codes.estimator.CodeLocalizer`):
+all K columns solve one least-squares problem with a shared regulariser,
 
     W = argmin ‖X_c W − C_c‖² + α‖W‖²,   X_c = X − μ (rows), C_c = C − c̄ (codes ±1, centred),
 
