@@ -59,9 +59,9 @@ def main() -> None:
                 values = {}
                 for rho in RHOS:
                     with ridge_rho(rho):
-                        values[rho] = [key_recall(make_method("btel-codes", budget=budget, code="periodic",
-                                                              random_state=seed).fit(X).predict(Q), base["key"])
-                                       for seed in range(args.seeds)]
+                        models = [make_method("btel-codes", budget=budget, code="periodic", random_state=seed)
+                                  for seed in range(args.seeds)]
+                        values[rho] = [key_recall(model.fit(X).predict(Q), base["key"]) for model in models]
                 row = {"dataset": base["dataset"], "key": base["key"], "budget": budget,
                        "values": {str(rho): v for rho, v in values.items()},
                        "versus_rule": {str(rho): paired_difference(values[rho], values[rule])
