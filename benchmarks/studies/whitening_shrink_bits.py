@@ -9,7 +9,7 @@ whitened rows is scored by the map's key recall (recall@2 on Gardens Point and t
 recall@10 on Nordland, recall@0 on maps of independent places). The basis is the only difference
 between the two columns; 4 bits cost half the bytes. One BLAS thread.
 
-    python benchmarks/studies/whitening_shrink_bits.py             # ≈ 1 min
+    python benchmarks/studies/whitening_shrink_bits.py             # ≈ 1–4 min
     python benchmarks/studies/whitening_shrink_bits.py --quick     # Gardens Point and small synthetic maps
 
 Writes ``benchmarks/results/bench_shrink_bits.json`` and prints the table.
