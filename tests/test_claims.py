@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from btel.core import claims
-from btel.evaluation.measure import evaluate
+from btel.evaluation import evaluate
 from btel.experiments._common import ModelCache
 from btel.methods import make_method
 from btel.evaluation.runs import RunWriter

@@ -257,6 +257,12 @@ class PlaceLocalizer(ParamsMixin, ABC):
         """One line on what fitting chose (planner values, the rule); empty when there is nothing to add."""
         return ""
 
+    def choice(self) -> dict[str, Any] | None:
+        """What this fitted model really runs, when it chose that at fit time (``auto``):
+        ``{"method": registry name, "params": dict, "reason": str, ...}``. None (the default): the
+        model is the method it was made as. Run folders record it beside each row."""
+        return None
+
     # -- inference --------------------------------------------------------------------------------
     @property
     def uses_query_sequence(self) -> bool:
