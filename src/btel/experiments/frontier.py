@@ -62,6 +62,7 @@ import numpy as np
 from ..evaluation.metrics import recall_at_tolerance
 from ..core.storage import format_bytes, parse_budget
 from ..core.threads import limit_threads
+from ..datasets.sources import gardens_point_path, load_gardens_point_netvlad
 from ._common import SEASONS, ExperimentRun, FittedRow, NordlandData, fit_and_predict
 
 __all__ = ["DATASETS", "auto_vs_oracle", "exp_frontier"]
@@ -133,10 +134,11 @@ def _row(base: dict[str, Any], label: str, name: str, params: dict[str, Any], X:
            "seed_values": [r[base["key"]] for r in runs],
            "seeds": [] if seeds is None else list(seeds[:len(runs)]),
            "uses_query_sequence": bool(model.uses_query_sequence)}
-    if name == "auto":
-        out["chose"] = model.choice_["method"] + "".join(f" {k}={v}" for k, v in model.choice_["params"].items())
-        out["route_share"] = model.choice_["route_share"]
-        out["reason"] = model.choice_["reason"]
+    choice = model.choice()  # what a method that chooses at fit time (auto) chose
+    if choice is not None:
+        out["chose"] = choice["method"] + "".join(f" {k}={v}" for k, v in choice["params"].items())
+        out["route_share"] = choice["route_share"]
+        out["reason"] = choice["reason"]
     return out
 
 
@@ -144,10 +146,9 @@ def _maps(data: NordlandData, quick: bool) -> list[tuple[dict[str, Any], np.ndar
     from ..datasets import synthetic_route
 
     out = []
-    gp = data.root.parent / "gardenspoint_netvlad" / "hiddenRepr-GardensPoint.npz"
+    gp = gardens_point_path(data.root.parent)
     if gp.is_file():
-        with np.load(gp, allow_pickle=False) as z:
-            X, Q = z["hlrTrain"].astype(np.float32), z["hlrTest"].astype(np.float32)
+        X, Q = load_gardens_point_netvlad(gp)
         out.append(({"dataset": "gardens-point", "regime": "route", "key": "recall@2",
                      "descriptor": "NetVLAD 500-D"}, X, Q))
         perm = np.random.default_rng(0).permutation(X.shape[0])

@@ -64,6 +64,9 @@ class PlaceLocalizer(ParamsMixin, ABC):
     #: True when a query's answer depends on the queries before it (SeqSLAM's sequence search). A
     #: delta front end makes any method sequence-based too: see :attr:`uses_query_sequence`.
     uses_sequence: ClassVar[bool] = False
+    #: The image descriptor the method was designed on (``btel.descriptors``' name, e.g. ``"patchnorm"``
+    #: for SeqSLAM's thumbnails); None: any descriptor (experiments then use HOG on images).
+    native_descriptor: ClassVar[str | None] = None
     #: Declared parameter constraints: name → list of accepted constraints (:mod:`btel.core.validation`).
     _parameter_constraints: ClassVar[dict[str, list[Any]]] = {}
     #: Parameters that say how a model runs, not what it learned: never restored from a model file.
