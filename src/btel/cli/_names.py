@@ -27,6 +27,24 @@ def pairs_paths(path: str, method_names: Sequence[str]) -> dict[str, Path]:
     return {m: base.with_name(f"{base.stem}-{safe_file_name(m)}{base.suffix}") for m in method_names}
 
 
+def plan_pairs(path: str | None, job_names: Sequence[str], names: tuple[list[str] | None, list[str] | None],
+               shape: tuple[int, int], queries: str, db: str | None, overwrite: bool) -> tuple[dict[str, Path], list[str], list[str]] | None:
+    """``--pairs``: (file per row name, query names, map names) — row numbers where the inputs have no
+    names, ``shape`` = (queries, map places) — every file refused now when it exists without
+    ``--overwrite``; None without ``--pairs``."""
+    from ._outputs import refuse_existing
+
+    if path is None:
+        return None
+    targets = pairs_paths(path, job_names)
+    for target in targets.values():
+        refuse_existing(target, "--pairs", overwrite)
+    q_names = names[0] or [str(i) for i in range(shape[0])]
+    db_names = names[1] or [str(i) for i in range(shape[1])]
+    check_pair_names(q_names, db_names, queries, db)
+    return targets, q_names, db_names
+
+
 def check_pair_names(query_names: Sequence[str], db_names: Sequence[str], queries: str = "--queries",
                      db: str | None = "--db") -> None:
     """Refuse (naming it) an image name that would not stay one field of one line in a pairs file."""

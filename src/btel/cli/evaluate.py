@@ -12,7 +12,6 @@ from ._jobs import _fit_jobs, _run_jobs
 from ._options import (EXIT_SOME_ROWS_FAILED, _BUDGET_HELP, _DELTA_HELP, _N_JOBS_HELP, _NO_PROGRESS_HELP, _ORDER_HELP,
                        _PARAMS_HELP, _REFERENCE_HELP, _TIMING_THREADS_HELP, _budgets, _int_list, _runtime_shortcuts,
                        _split)
-from ._outputs import refuse_existing
 
 _GT_HELP = ("Which map places are correct for each query. Default: frame-aligned (query j is place j). Files: .npz "
             "(query_places; indptr+indices positives; utmDb+utmQ+posDistThr), .npy (1-D true places, or VPR-Bench's "
@@ -59,11 +58,9 @@ def evaluate_cmd(ctx: click.Context, db, model_paths, queries, methods, budget, 
                  normalize, whiten, delta, no_progress, n_jobs, timing_threads) -> None:
     """Localize QUERIES with each method and write metrics.json, metrics.csv, predictions and plots to --out.
 
-    Methods are fitted on --db (--methods, each with --budget and its --param values) or loaded
-    from saved --model files. Everything is checked before anything is fitted; a method that does
-    not fit (or fails) becomes a row with its status and reason, and the run folder is rewritten
-    as each method finishes (Ctrl-C keeps what is done). Exit status: 0 every row ran; 3 some row
-    did not fit or failed; 1 bad data; 2 bad usage.
+    Methods are fitted on --db (--methods, --budget, --param) or loaded from --model files. All is checked
+    before any fit; a method that does not fit (or fails) becomes a row with its reason, and the run folder
+    is rewritten as each method finishes. Exit status: 0 all rows ran; 3 some did not; 1 bad data; 2 usage.
     """
     from ..datasets.sources import resolve_ground_truth
     from ..evaluation.inputs import common_map_size, run_title, saved_jobs
@@ -79,8 +76,7 @@ def evaluate_cmd(ctx: click.Context, db, model_paths, queries, methods, budget, 
     if out_dir is None and resume_dir is None:
         raise click.UsageError("give --out RUN_FOLDER (or --resume RUN to go on with an interrupted run).")
     out = Path(out_dir or resume_dir)
-    budgets = _budgets(budget) if budget else [None]
-    ks = _int_list(ks_text, "--k", minimum=1)
+    budgets, ks = _budgets(budget) if budget else [None], _int_list(ks_text, "--k", minimum=1)
     tolerance_list = _int_list(tolerances, "--tolerances", minimum=0) if tolerances is not None else None
     jobs = [] if db is None else _fit_jobs(_split(methods), budgets, param_texts, reference=not no_reference,
                                            shortcuts={**front, **_runtime_shortcuts(no_progress, n_jobs)})
@@ -111,16 +107,11 @@ def evaluate_cmd(ctx: click.Context, db, model_paths, queries, methods, budget, 
     click.echo(f"map: N = {n_map} places; queries: {Q.shape[0]} × {Q.shape[1]}; ground truth: {truth['rule']} "
                f"({truth['source']})")
     from ._gallery import input_names
+    from ._names import plan_pairs
 
-    pairs, names = None, input_names(db, queries, n_map, Q.shape[0])
-    if pairs_path is not None:
-        from ._names import check_pair_names, pairs_paths
-
-        targets = pairs_paths(pairs_path, [j.name for j in saved + jobs])
-        for target in targets.values():
-            refuse_existing(target, "--pairs", overwrite)
-        pairs = (targets, names[0] or [str(i) for i in range(Q.shape[0])], names[1] or [str(i) for i in range(n_map)])
-        check_pair_names(*pairs[1:], queries, db)
+    names = input_names(db, queries, n_map, Q.shape[0])
+    pairs = plan_pairs(pairs_path, [j.name for j in saved + jobs], names, (Q.shape[0], n_map), queries, db,
+                       overwrite)
     extra = {"db": str(Path(db).resolve()) if db else None, "models": list(model_paths), "budget": budgets,
              "queries": str(Path(queries).resolve()), "query_order": query_order}
     if _run_jobs(saved + jobs, X, Q, out=out, progress=not no_progress, extra=extra, pairs=pairs, ground_truth=gt,
