@@ -13,8 +13,8 @@ import sys
 from pathlib import Path
 
 #: Cells that hold wall-clock measurements or run metadata, not results.
-TIMING = {"fit_time_s", "query_time_s_per_query", "rank_time_s_per_query", "query_latency_s", "fit_s", "query_us",
-          "n_threads", "timing_repeats", "cached", "seconds", "timings"}
+TIMING = {"fit_time_s", "query_time_s_per_query", "rank_time_s_per_query", "query_latency_s", "fit_s",
+          "query_us", "n_threads", "timing_repeats", "cached", "seconds", "timings"}
 #: Fields added by this change (new information, absent before): reported, not counted as differences.
 ADDED = {"choice", "ground_truth_source", "positive_rule"}
 
@@ -35,12 +35,14 @@ def _diff(a: object, b: object, where: str, out: list[str]) -> None:
     elif isinstance(a, list) and isinstance(b, list) and len(a) == len(b):
         for i, (x, y) in enumerate(zip(a, b)):
             _diff(x, y, f"{where}[{i}]", out)
-    elif a != b and not (isinstance(a, float) and isinstance(b, float) and abs(a - b) <= 1e-12 * max(1, abs(a))):
+    elif a != b and not (isinstance(a, float) and isinstance(b, float)
+                         and abs(a - b) <= 1e-12 * max(1, abs(a))):
         out.append(f"  {where}: {a!r} -> {b!r}")
 
 
 def compare(before: Path, after: Path) -> int:
-    files = sorted(p.relative_to(before) for p in before.rglob("*.json") if p.name in ("metrics.json", "results.json"))
+    files = sorted(p.relative_to(before) for p in before.rglob("*.json")
+                   if p.name in ("metrics.json", "results.json"))
     differing = 0
     for rel in files:
         if not (after / rel).is_file():
@@ -53,7 +55,8 @@ def compare(before: Path, after: Path) -> int:
             out.append(f"  {len(a)} rows -> {len(b)} rows")
         for i, (x, y) in enumerate(zip(a, b)):
             _diff(x, y, f"row {i} ({x.get('name') or x.get('method')})", out)
-        print(f"{rel}: {len(a)} rows, {'same (timing cells aside)' if not out else f'{len(out)} differences'}")
+        verdict = "same (timing cells aside)" if not out else f"{len(out)} differences"
+        print(f"{rel}: {len(a)} rows, {verdict}")
         print("\n".join(out[:40]))
         differing += bool(out)
     return 1 if differing else 0

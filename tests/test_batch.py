@@ -17,7 +17,8 @@ from btel.methods import make_method
 
 def test_make_jobs_adds_the_unbudgeted_references_once() -> None:
     jobs = make_jobs(["pq", "itq"], ["4KB", "8KB"], {"pq": {"n_jobs": 1, "nbits": 8}})
-    assert [j.name for j in jobs] == ["pq@4KB", "pq@8KB", "itq@4KB", "itq@8KB", "bruteforce", "bruteforce shrink"]
+    assert [j.name for j in jobs] == ["pq@4KB", "pq@8KB", "itq@4KB", "itq@8KB", "bruteforce",
+                                      "bruteforce shrink"]
     assert [j.reference for j in jobs] == [False] * 4 + [True, True]
     assert jobs[0].settings == {"nbits": 8} and jobs[0].budget == 4000  # runtime parameters are not settings
     assert jobs[4].budget is None and jobs[5].method.get_params()["whiten"] == "shrink"
@@ -48,8 +49,9 @@ def test_run_methods_writes_a_run_that_describes_itself(tmp_path: Path) -> None:
 def test_run_methods_with_positives_records_their_rule(tmp_path: Path) -> None:
     route = synthetic_route(60, 8, seed=1)
     gt = GroundTruth.from_positives([[j, min(j + 1, 59)] for j in range(60)], n_map=60)
-    rows = run_methods(["bruteforce"], route.map, route.queries, out=tmp_path / "run", ground_truth=gt, ks=(1,),
-                       progress=False, truth={"source": "/data/gt.npz", "rule": "positives listed per query"})
+    rows = run_methods(["bruteforce"], route.map, route.queries, out=tmp_path / "run", ground_truth=gt,
+                       ks=(1,), progress=False,
+                       truth={"source": "/data/gt.npz", "rule": "positives listed per query"})
     assert rows[0].truth == {"source": "/data/gt.npz", "rule": "positives listed per query"}
     row = json.loads((tmp_path / "run" / "metrics.json").read_text())["results"][0]
     assert row["ground_truth"] == "positives" and row["positive_rule"] == "positives listed per query"

@@ -395,7 +395,8 @@ def test_ctrl_c_exits_130_with_plots_and_resume_skips_the_rows_done(tmp_path: Pa
         "pq": "ok", "itq": "not run", "btel-c": "not run", "bruteforce": "not run", "bruteforce shrink": "not run"}
     pq_predictions = (out / "predictions_pq.csv").read_text()
 
-    monkeypatch.setattr(ev, "measure", lambda method, *a, **kw: (calls.append(kw["name"]), real(method, *a, **kw))[1])
+    monkeypatch.setattr(ev, "measure",
+                        lambda method, *a, **kw: (calls.append(kw["name"]), real(method, *a, **kw))[1])
     calls.clear()
     result = run(*args, "--resume", out)
     assert result.exit_code == 0, result.output

@@ -125,4 +125,5 @@ def test_measure_on_gardens_point_equals_its_parts(gardenspoint_netvlad) -> None
     X, Q = gardenspoint_netvlad
     result = measure(make_method("bruteforce"), X, Q, ks=(1, 5))
     np.testing.assert_array_equal(result.predictions, make_method("bruteforce").fit(X).predict(Q))
-    assert result.fit_time_s > 0 and result.n_map == 200 and 0 < result.recall_at_k[1] <= result.recall_at_k[5]
+    assert result.fit_time_s > 0 and result.n_map == 200
+    assert 0 < result.recall_at_k[1] <= result.recall_at_k[5]

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from btel.datasets import GroundTruth
-from btel.datasets.sources import (gardens_point_path, load_gardens_point_netvlad, resolve_ground_truth, row_names,
-                                   truth_description)
+from btel.datasets.sources import (gardens_point_path, load_gardens_point_netvlad, resolve_ground_truth,
+                                   row_names, truth_description)
 from btel.exceptions import DataNotFoundError, InvalidParameterError
 
 
@@ -45,7 +45,8 @@ def _named(tmp_path: Path, stem: str, east: list[float]) -> str:
 
 def test_resolve_ground_truth_says_where_it_came_from_and_its_rule(tmp_path: Path) -> None:
     gt, truth = resolve_ground_truth(None, n_queries=5, n_map=5)
-    assert gt is None and truth["source"].startswith("frame-aligned") and truth["rule"] == "one true place per query"
+    assert gt is None and truth["source"].startswith("frame-aligned")
+    assert truth["rule"] == "one true place per query"
     GroundTruth.from_places(np.arange(5)).save(tmp_path / "gt.npz")
     gt, truth = resolve_ground_truth(str(tmp_path / "gt.npz"), n_queries=5, n_map=5)
     assert gt.uses_tolerance and Path(truth["source"]).is_file() and Path(truth["source"]).is_absolute()

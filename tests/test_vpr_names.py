@@ -81,8 +81,10 @@ def test_vpr_methods_evaluation_folder_end_to_end(gardenspoint_sample_dir: Path,
     auto = next(r for r in metrics["results"] if r["name"] == "auto")
     assert auto["choice"]["method"] in METHODS and auto["choice"]["reason"] and "params" in auto["choice"]
     for row in metrics["results"]:
-        assert (row["ground_truth_source"], row["positive_rule"]) == ("UTM in image names", "positives within 25 m")
-    assert metrics["run"]["extra"]["ground_truth"] == {"source": "UTM in image names", "rule": "positives within 25 m"}
+        assert row["ground_truth_source"] == "UTM in image names"
+        assert row["positive_rule"] == "positives within 25 m"
+    assert metrics["run"]["extra"]["ground_truth"] == {"source": "UTM in image names",
+                                                       "rule": "positives within 25 m"}
     assert {r["name"]: r["choice"] for r in metrics["results"]}["bruteforce"] is None
     assert (tmp_path / "auto" / "predictions_bruteforce-shrink.csv").is_file()
 

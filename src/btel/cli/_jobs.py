@@ -20,7 +20,6 @@ from ._params import _param_value
 def _valid_params(method: str) -> list[str]:
     """Parameter names of ``method`` (its ``get_params()`` keys), sorted; an unknown method is a usage error."""
     from ..methods.registry import METHODS, make_method
-
     if method not in METHODS:
         raise click.UsageError(f"unknown method {method!r}; choose from {', '.join(METHODS)} (see `btel methods`).")
 
@@ -87,19 +86,19 @@ def _naming(method: str) -> Iterator[None]:
 
 def _fit_jobs(names: list[str], budgets: list[str | None], param_texts: tuple[str, ...], *,
               reference: bool, shortcuts: dict[str, tuple[str, Any]] | None = None) -> list[Any]:
-    """The jobs of ``--methods`` × ``--budget`` with their ``--param`` values (:func:`btel.evaluation.make_jobs`:
-    the unbudgeted reference rows are added there)."""
+    """The jobs of ``--methods`` × ``--budget`` with their ``--param`` values (``make_jobs``)."""
     from ..evaluation.batch import make_jobs
     from ..methods.registry import REFERENCE_METHOD
 
     checked = [*names, REFERENCE_METHOD] if reference and REFERENCE_METHOD not in names else names
-    return make_jobs(names, budgets, _params_by_method(checked, param_texts, shortcuts=shortcuts), reference=reference)
+    params = _params_by_method(checked, param_texts, shortcuts=shortcuts)
+    return make_jobs(names, budgets, params, reference=reference)
 
 
 def _run_jobs(jobs: list[Any], X: Any, Q: Any, *, out: Path, extra: dict[str, Any], progress: bool,
               pairs: tuple[dict[str, Path], list[str], list[str]] | None = None, **options: Any) -> bool:
-    """:func:`btel.evaluation.run_methods` with the command line's echo; Ctrl-C exits 130. Then the
-    galleries and the ``--pairs`` files. Returns True when some row did not run."""
+    """:func:`btel.evaluation.run_methods` with the command line's echo (Ctrl-C: exit 130), then the
+    galleries and ``--pairs`` files. True when some row did not run."""
     from ..evaluation.batch import run_methods
     from ._gallery import galleries_after_run
 
@@ -115,6 +114,6 @@ def _run_jobs(jobs: list[Any], X: Any, Q: Any, *, out: Path, extra: dict[str, An
         targets, q_names, db_names = pairs
         for r in results:
             if r.name in targets and r.ok and r.ranked is not None:
-                n = write_pairs(targets[r.name], r.ranked, q_names, db_names, overwrite=options.get("overwrite", False))
-                click.echo(f"pairs ({r.name}, top {r.ranked.shape[1]}): {n} lines written to {targets[r.name]}")
+                n = write_pairs(targets[r.name], r.ranked, q_names, db_names, overwrite=options["overwrite"])
+                click.echo(f"pairs ({r.name}, top {r.ranked.shape[1]}): {n} lines in {targets[r.name]}")
     return any(not r.ok for r in results)

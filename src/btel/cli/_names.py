@@ -28,7 +28,8 @@ def pairs_paths(path: str, method_names: Sequence[str]) -> dict[str, Path]:
 
 
 def plan_pairs(path: str | None, job_names: Sequence[str], names: tuple[list[str] | None, list[str] | None],
-               shape: tuple[int, int], queries: str, db: str | None, overwrite: bool) -> tuple[dict[str, Path], list[str], list[str]] | None:
+               shape: tuple[int, int], queries: str, db: str | None,
+               overwrite: bool) -> tuple[dict[str, Path], list[str], list[str]] | None:
     """``--pairs``: (file per row name, query names, map names) — row numbers where the inputs have no
     names, ``shape`` = (queries, map places) — every file refused now when it exists without
     ``--overwrite``; None without ``--pairs``."""

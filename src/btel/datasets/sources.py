@@ -60,14 +60,14 @@ def load_gardens_point_netvlad(path: str | os.PathLike) -> tuple[np.ndarray, np.
     if path.is_dir():
         path = path / GARDENS_POINT_NETVLAD
     if not path.is_file():
-        raise DataNotFoundError(f"Gardens Point NetVLAD file {str(path)!r} not found; give the shared data folder "
-                                "holding gardenspoint_netvlad/hiddenRepr-GardensPoint.npz.")
+        raise DataNotFoundError(f"Gardens Point NetVLAD file {str(path)!r} not found; give the shared data "
+                                "folder holding gardenspoint_netvlad/hiddenRepr-GardensPoint.npz.")
     try:
         with np.load(path, allow_pickle=False) as z:
             X, Q = np.asarray(z["hlrTrain"], np.float32), np.asarray(z["hlrTest"], np.float32)
     except (KeyError, ValueError, OSError) as exc:
-        raise InvalidParameterError(f"{path}: not the Gardens Point NetVLAD file (arrays hlrTrain and hlrTest "
-                                    f"expected; {type(exc).__name__}: {exc}).") from None
+        raise InvalidParameterError(f"{path}: not the Gardens Point NetVLAD file (arrays hlrTrain and "
+                                    f"hlrTest expected; {type(exc).__name__}: {exc}).") from None
     if X.ndim != 2 or X.shape != Q.shape or not (np.isfinite(X).all() and np.isfinite(Q).all()):
         raise InvalidParameterError(f"{path}: hlrTrain {X.shape} and hlrTest {Q.shape} must be two finite "
                                     "matrices of one shape (frame-aligned day and night traverses).")
@@ -103,7 +103,8 @@ def truth_description(gt: Any, source: str, rule: str | None = None) -> dict[str
 
 
 def resolve_ground_truth(spec: str | None, *, n_queries: int, n_map: int, db: str | None = None,
-                         queries: str | None = None, threshold: float | None = None) -> tuple[Any, dict[str, str]]:
+                         queries: str | None = None,
+                         threshold: float | None = None) -> tuple[Any, dict[str, str]]:
     """A ground-truth spec as a :class:`~btel.datasets.GroundTruth` (None: frame-aligned) and its description.
 
     Parameters
@@ -136,8 +137,9 @@ def resolve_ground_truth(spec: str | None, *, n_queries: int, n_map: int, db: st
     from .vpr_names import DEFAULT_POSITIVE_DIST_THRESHOLD, utm_of_names
 
     if threshold is not None and spec != "utm":
-        raise InvalidParameterError("a positive distance threshold applies to the UTM ground truth (positions in the "
-                                    "image names); a ground-truth file says its own positives.")
+        raise InvalidParameterError("a positive distance threshold applies to the UTM ground truth "
+                                    "(positions in the image names); a ground-truth file says its own "
+                                    "positives.")
     if spec is None:
         return None, truth_description(None, "frame-aligned (query j is place j)")
     if spec != "utm":
@@ -151,12 +153,12 @@ def resolve_ground_truth(spec: str | None, *, n_queries: int, n_map: int, db: st
         found = None if path is None else row_names(path)
         if found is None:
             raise InvalidParameterError(
-                f"the UTM ground truth reads positions from image names, and the {what} descriptors {path} record "
-                "none; give descriptors written by `btel extract` (the names are in the .json beside them) or an "
-                "hloc .h5.")
+                f"the UTM ground truth reads positions from image names, and the {what} descriptors {path} "
+                "record none; give descriptors written by `btel extract` (the names are in the .json beside "
+                "them) or an hloc .h5.")
         if len(found) != n:
-            raise InvalidParameterError(f"{path}: {len(found)} image names recorded for {n} rows; the file and its "
-                                        ".json no longer match (re-run btel extract).")
+            raise InvalidParameterError(f"{path}: {len(found)} image names recorded for {n} rows; the file "
+                                        "and its .json no longer match (re-run btel extract).")
         utm[what] = utm_of_names(found, f"{what} {path}")
     gt = GroundTruth.from_utm(utm["map"], utm["queries"], threshold)
     return gt, truth_description(gt, "UTM in image names", f"positives within {threshold:g} m")

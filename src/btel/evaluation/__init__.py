@@ -33,4 +33,4 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .tables import format_table
     from .timing import QueryTiming, time_queries
 
-__getattr__, __dir__ = lazy_names(__name__, {name: module for module, names in _WHERE.items() for name in names})
+__getattr__, __dir__ = lazy_names(__name__, {n: where for where, names in _WHERE.items() for n in names})

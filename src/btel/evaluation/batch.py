@@ -112,7 +112,8 @@ def preflight(jobs: Sequence[Job], n_map: int | None, n_features: int | None, *,
         except BudgetTooSmallError as exc:
             out[job.name] = EvaluationResult.does_not_fit(job.name, exc, **common)
         except BTELError as exc:
-            out[job.name] = EvaluationResult.not_measured(job.name, STATUS_FAILED, _short_reason(exc), **common)
+            out[job.name] = EvaluationResult.not_measured(job.name, STATUS_FAILED, _short_reason(exc),
+                                                          **common)
     return out
 
 
@@ -213,9 +214,9 @@ def evaluate_all(
             on_start(index, job)
         try:
             done[job.name] = measure(job.method, X_map if job.fit else None, Q, ground_truth=gt,
-                                      tolerances=tolerances or None, ks=ks, k_tolerance=k_tolerance, name=job.name,
-                                      curve_max=curve_max, fit=job.fit, budget=job.budget, reference=job.reference,
-                                      timing_threads=timing_threads)
+                                     tolerances=tolerances or None, ks=ks, k_tolerance=k_tolerance,
+                                     name=job.name, curve_max=curve_max, fit=job.fit, budget=job.budget,
+                                     reference=job.reference, timing_threads=timing_threads)
         except BudgetTooSmallError as exc:
             done[job.name] = EvaluationResult.does_not_fit(job.name, exc, **common)
         except KeyboardInterrupt:
@@ -301,15 +302,17 @@ def make_jobs(methods: Sequence[str], budgets: Sequence[Any] = (None,),
     own = params.get(REFERENCE_METHOD, {})
     if added_reference and not set(white_params) & set(own) and "budget" not in own:
         kwargs = {**own, **white_params}
+        settings = {k: v for k, v in kwargs.items() if k not in RUNTIME_PARAMS}
         with method_named(REFERENCE_METHOD):
-            jobs.append(Job(white_label, make_method(REFERENCE_METHOD, **kwargs), reference=True, series=white_label,
-                            settings={k: v for k, v in kwargs.items() if k not in RUNTIME_PARAMS}))
+            jobs.append(Job(white_label, make_method(REFERENCE_METHOD, **kwargs), reference=True,
+                            series=white_label, settings=settings))
     return jobs
 
 
 def run_methods(methods: Sequence[str | Job], X_map: Any, Q: Any, *, out: str | Path,
                 budgets: Sequence[Any] = (None,), params: Mapping[str, Mapping[str, Any]] | None = None,
-                reference: bool = True, ground_truth: TruthLike = None, tolerances: Iterable[int] | None = None,
+                reference: bool = True, ground_truth: TruthLike = None,
+                tolerances: Iterable[int] | None = None,
                 ks: Iterable[int] = (1, 5, 10, 20), queries_are_route: bool = True, title: str | None = None,
                 extra: Mapping[str, Any] | None = None, overwrite: bool = False,
                 finished: Sequence[EvaluationResult] | None = None,
@@ -387,19 +390,23 @@ def run_methods(methods: Sequence[str | Job], X_map: Any, Q: Any, *, out: str | 
         writer = RunWriter(out, command=command, extra=extra, overwrite=overwrite)
     writer.query_names, writer.db_names = names
     unit = "frames" if queries_are_route else "map places"
-    bar = tqdm(total=len(jobs), unit="method", disable=None if progress else True, leave=False, file=sys.stderr)
+    bar = tqdm(total=len(jobs), unit="method", disable=None if progress else True, leave=False,
+               file=sys.stderr)
 
     def on_preflight(skipped: dict[str, EvaluationResult]) -> None:
         if skipped:
-            say(f"{len(skipped)} of {len(jobs)} rows cannot run (found before fitting; every other row runs):")
+            say(f"{len(skipped)} of {len(jobs)} rows cannot run "
+                "(found before fitting; every other row runs):")
             for name, r in skipped.items():
                 say(f"  {name}: {r.status}: {r.reason}")
             bar.update(len(skipped))
 
     def on_start(index: int, job: Job) -> None:
-        budget = "reference, unbudgeted" if job.reference else format_bytes(job.budget) if job.budget else "no budget"
+        budget = ("reference, unbudgeted" if job.reference else
+                  format_bytes(job.budget) if job.budget else "no budget")
         if bar.disable:
-            say(f"[{index + 1}/{len(jobs)}] {'fitting' if job.fit else 'evaluating'} {job.name} ({budget}) …")
+            doing = "fitting" if job.fit else "evaluating"
+            say(f"[{index + 1}/{len(jobs)}] {doing} {job.name} ({budget}) …")
         else:
             bar.set_description_str(f"{job.name} ({budget})")
 
@@ -415,8 +422,9 @@ def run_methods(methods: Sequence[str | Job], X_map: Any, Q: Any, *, out: str | 
 
     try:
         results = evaluate_all(jobs, X_map, Q, ground_truth=ground_truth, tolerances=tolerances, ks=ks,
-                               queries_are_route=queries_are_route, on_preflight=on_preflight, on_result=on_result,
-                               on_start=on_start, finished=finished or (), timing_threads=timing_threads)
+                               queries_are_route=queries_are_route, on_preflight=on_preflight,
+                               on_result=on_result, on_start=on_start, finished=finished or (),
+                               timing_threads=timing_threads)
     except KeyboardInterrupt:
         bar.close()
         _plot_partial_run(latest, out, title or out.name, unit, say)
@@ -434,8 +442,9 @@ def run_methods(methods: Sequence[str | Job], X_map: Any, Q: Any, *, out: str | 
     say(f"run folder: {report.out_dir}")
     failed = [r for r in results if not r.ok]
     if failed:
-        say(f"{len(failed)} of {len(results)} rows did not run: " + "; ".join(f"{r.name} ({r.status})" for r in failed)
-            + "; see their reason in the table.", err=True)
+        which = "; ".join(f"{r.name} ({r.status})" for r in failed)
+        say(f"{len(failed)} of {len(results)} rows did not run: {which}; see their reason in the table.",
+            err=True)
     return results
 
 

@@ -18,7 +18,7 @@ __all__ = ["saved_jobs", "common_map_size", "run_title"]
 
 
 def saved_jobs(paths: Sequence[str | os.PathLike], n_features: int) -> list[Job]:
-    """One ``fit=False`` job per saved model file (named by the file), each checked against the queries' width.
+    """One ``fit=False`` job per saved model file (named by the file), checked against the queries' width.
 
     Raises
     ------
@@ -31,8 +31,8 @@ def saved_jobs(paths: Sequence[str | os.PathLike], n_features: int) -> list[Job]
     for path in paths:
         model = load(path)
         if model.n_features_in_ != n_features:
-            raise InvalidParameterError(f"model {path} expects {model.n_features_in_}-D descriptors but the queries "
-                                        f"have {n_features}.")
+            raise InvalidParameterError(f"model {path} expects {model.n_features_in_}-D descriptors but the "
+                                        f"queries have {n_features}.")
         jobs.append(Job(Path(path).name.split(".")[0], model, fit=False))
     return jobs
 
@@ -47,12 +47,14 @@ def common_map_size(X_map: Any, Q: Any, saved: Sequence[Job]) -> int:
         not hold for all).
     """
     if X_map is not None and X_map.shape[1] != Q.shape[1]:
-        raise InvalidParameterError(f"the map has {X_map.shape[1]} dims but the queries have {Q.shape[1]}; describe "
-                                    "both with the same descriptor.")
-    sizes = {int(job.method.n_places_) for job in saved} | ({int(X_map.shape[0])} if X_map is not None else set())
+        raise InvalidParameterError(f"the map has {X_map.shape[1]} dims but the queries have {Q.shape[1]}; "
+                                    "describe both with the same descriptor.")
+    sizes = {int(job.method.n_places_) for job in saved}
+    if X_map is not None:
+        sizes.add(int(X_map.shape[0]))
     if len(sizes) != 1:
-        raise InvalidParameterError(f"the maps differ in size ({sorted(sizes)} places): the map descriptors and every "
-                                    "saved model must cover the same map for one ground truth to hold.")
+        raise InvalidParameterError(f"the maps differ in size ({sorted(sizes)} places): the map descriptors "
+                                    "and every saved model must cover one map for one ground truth to hold.")
     return sizes.pop()
 
 
@@ -68,5 +70,6 @@ def run_title(dataset: str, n_map: int, n_queries: int, budgets: Sequence[Any], 
     if source.startswith("frame-aligned"):
         said = "frame-aligned"
     else:
-        said = f"{truth['rule']} from {Path(source).name}" if os.path.isabs(source) else f"{truth['rule']} ({source})"
+        said = (f"{truth['rule']} from {Path(source).name}" if os.path.isabs(source)
+                else f"{truth['rule']} ({source})")
     return f"{dataset}: N = {n_map}, {n_queries} queries; {budget}; {said}"

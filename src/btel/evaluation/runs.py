@@ -32,8 +32,8 @@ from .records import EvaluationResult
 from .tables import metrics_csv_text, predictions_csv_text
 from ..exceptions import DataNotFoundError, InvalidParameterError, OutputExistsError
 
-__all__ = ["RunReport", "RunWriter", "check_run_folder", "run_metadata", "write_run", "recompute_recall_from_csv",
-           "safe_file_name"]
+__all__ = ["RunReport", "RunWriter", "check_run_folder", "run_metadata", "write_run",
+           "recompute_recall_from_csv", "safe_file_name"]
 
 
 @dataclass
@@ -92,7 +92,8 @@ def run_metadata(command: str | Sequence[str] | None = None) -> dict[str, Any]:
 
 def safe_file_name(name: str) -> str:
     """A row name as a file-name part: letters, digits, ``.``, ``_`` and ``-`` only, every other run of
-    characters one ``-`` (``"bruteforce shrink"`` → ``bruteforce-shrink``, ``"pq@100KB"`` → ``pq-100KB``)."""
+    characters one ``-`` (``"bruteforce shrink"`` → ``bruteforce-shrink``, ``"pq@100KB"`` →
+    ``pq-100KB``)."""
     return re.sub(r"[^A-Za-z0-9._-]+", "-", name).strip("._-") or "method"
 
 
@@ -316,12 +317,12 @@ def read_finished_rows(run: str | os.PathLike, queries: str | os.PathLike,
     meta, rows = read_unfinished_run(run)
     before = (meta.get("extra") or {}).get("queries")
     if before is not None and before != str(Path(queries).resolve()):
-        raise InvalidParameterError(f"the run {str(run)!r} localized {before}, not {queries}; give the same queries "
-                                    "(and map, models, options) as the interrupted run.")
+        raise InvalidParameterError(f"the run {str(run)!r} localized {before}, not {queries}; give the same "
+                                    "queries (and map, models, options) as the interrupted run.")
     done = [r for r in rows if r.ok]
     if echo is not None:
-        echo(f"resuming {run}: {len(done)} of {len(rows)} rows done ({', '.join(r.name for r in done) or 'none'}); "
-             "the others run now")
+        names = ", ".join(r.name for r in done) or "none"
+        echo(f"resuming {run}: {len(done)} of {len(rows)} rows done ({names}); the others run now")
     return done
 
 
@@ -340,7 +341,8 @@ def resume_writer(out_dir: str | os.PathLike, finished: Sequence[EvaluationResul
         writer.meta["extra"] = jsonable(dict(extra))
     writer.metrics_json = writer.out_dir / "metrics.json"
     writer.metrics_csv = writer.out_dir / "metrics.csv"
-    writer.predictions = {r.name: writer.out_dir / f"predictions_{safe_file_name(r.name)}.csv" for r in finished if r.ok}
+    writer.predictions = {r.name: writer.out_dir / f"predictions_{safe_file_name(r.name)}.csv"
+                          for r in finished if r.ok}
     writer.plots = []
     writer.query_names = writer.db_names = None
     return writer

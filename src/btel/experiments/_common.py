@@ -306,9 +306,11 @@ def fit_and_predict(name: str, params: dict[str, Any], X: np.ndarray, Q: np.ndar
     try:
         fit_s = timed_fit(model, X)
     except BudgetTooSmallError as exc:
-        return {"status": does_not_fit_status(exc.minimum), "nbytes": None, "minimum_bytes": int(exc.minimum or 0)}
+        return {"status": does_not_fit_status(exc.minimum), "nbytes": None,
+                "minimum_bytes": int(exc.minimum or 0)}
     check_within_budget(label, model.nbytes, budget)
-    record = measure(model, None, Q, name=label, fit=False, fit_time_s=fit_s, ks=(), budget=budget, timing_repeats=1)
+    record = measure(model, None, Q, name=label, fit=False, fit_time_s=fit_s, ks=(), budget=budget,
+                     timing_repeats=1)
     return FittedRow(model, record.predictions, fit_s, record.query_time_s_per_query * 1e6, record)
 
 
@@ -346,10 +348,10 @@ def fit_row(name: str, data: NordlandData, *, budget: Any, n_places: int | None,
         kwargs["budget"] = budget_bytes
     kwargs = {**(data.front_end or {}), **kwargs}
     method = make_method(name, **kwargs)
-    labels = {"registry_name": name, "map": map_season,
-              "front_end": {k: method.get_params()[k] for k in ("normalize", "whiten", "delta")}, **(extra or {})}
-    head = ("method", "registry_name", "n_places", "map", "budget", "front_end", "uses_query_sequence", *(extra or {}),
-            "status", "nbytes")
+    front = {k: method.get_params()[k] for k in ("normalize", "whiten", "delta")}
+    labels = {"registry_name": name, "map": map_season, "front_end": front, **(extra or {})}
+    head = ("method", "registry_name", "n_places", "map", "budget", "front_end", "uses_query_sequence",
+            *(extra or {}), "status", "nbytes")
     try:
         model, fit_s, cached = fit_model(name, kwargs, X, data)
     except BudgetTooSmallError as exc:
@@ -362,8 +364,8 @@ def fit_row(name: str, data: NordlandData, *, budget: Any, n_places: int | None,
         labels["cached"] = True
     if getattr(model, "n_unconverged_", None) is not None:
         labels["n_unconverged"] = int(model.n_unconverged_)
-    record = measure(model, None, Q, name=label or name, fit=False, fit_time_s=fit_s, tolerances=DEFAULT_TOLERANCES,
-                     curve_max=80, budget=budget_bytes, labels=labels)
+    record = measure(model, None, Q, name=label or name, fit=False, fit_time_s=fit_s,
+                     tolerances=DEFAULT_TOLERANCES, curve_max=80, budget=budget_bytes, labels=labels)
     check_within_budget(label or name, record.nbytes, budget_bytes)
     record.uses_query_sequence = bool(method.uses_query_sequence)
     record.columns = (*head, "fit_s", "query_us", *(f"recall@{t}" for t in record.recall),
