@@ -217,12 +217,10 @@ def real_rows(single_calls: int, repeats: int) -> list[dict[str, Any]]:
     if nordland.is_dir():
         import tempfile
 
-        from btel.descriptors.extract import extract_cached
+        from btel.datasets.nordland import NordlandData
 
         cache = Path(os.environ.get("BTEL_TEST_CACHE", Path(tempfile.gettempdir()) / "btel-test-cache"))
-        cache.mkdir(parents=True, exist_ok=True)
-        X, Q = (extract_cached(nordland / s, cache / f"nordland64-{s}-hog.npy", "hog", progress=False)[0]
-                for s in ("summer", "winter"))
+        X, Q = NordlandData(nordland, cache, progress=False).pair("hog")
         sets.append(("Nordland (HOG)", np.asarray(X, np.float32), np.asarray(Q, np.float32), 10))
     out = []
     for name, X, Q, tol in sets:

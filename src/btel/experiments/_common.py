@@ -38,7 +38,8 @@ import numpy as np
 from ..evaluation.measure import measure, timed_fit
 from ..evaluation.metrics import DEFAULT_TOLERANCES
 from ..evaluation.records import EvaluationResult, does_not_fit_status
-from ..exceptions import BudgetTooSmallError, DataNotFoundError
+from ..exceptions import BudgetTooSmallError
+from ..datasets.nordland import QUICK_FRAMES, SEASONS, NordlandData, default_nordland_root
 from ..methods.registry import make_method
 from ..core.storage import check_within_budget, parse_budget
 from ..evaluation.tables import describe_row, rows_csv_text
@@ -46,71 +47,6 @@ from ..evaluation.tables import describe_row, rows_csv_text
 __all__ = ["SEASONS", "QUICK_FRAMES", "NordlandData", "ExperimentRun", "default_nordland_root", "fit_row",
            "fit_rows", "fit_model", "ModelCache", "full_or_quick", "write_results", "describe_row",
            "data_fingerprint", "experiment_jobs", "fit_and_predict", "FittedRow"]
-
-SEASONS = ("summer", "winter")
-#: Frames per season read in quick mode.
-QUICK_FRAMES = 300
-
-
-def default_nordland_root() -> Path:
-    """``../shared/data/nordland64`` from the working directory (the layout CI and developers use)."""
-    return Path("..") / "shared" / "data" / "nordland64"
-
-
-@dataclass
-class NordlandData:
-    """Cached HOG and thumbnail descriptors of both Nordland seasons.
-
-    Parameters
-    ----------
-    root : path
-        Folder holding ``summer/`` and ``winter/`` (frame-aligned file names).
-    cache_dir : path
-        Where extracted descriptors are kept (``nordland64-<season>-<descriptor>.npy``).
-    """
-
-    root: Path
-    cache_dir: Path
-    progress: bool = True
-    #: Only the first ``max_frames`` frames of each season are read (quick mode); None = all.
-    max_frames: int | None = None
-    #: Front-end parameters given to every method (e.g. ``{"delta": 10}``); None: each method's default.
-    front_end: dict[str, Any] | None = None
-    _features: dict[tuple[str, str], np.ndarray] = field(default_factory=dict, repr=False)
-
-    def __post_init__(self) -> None:
-        self.root = Path(self.root)
-        self.cache_dir = Path(self.cache_dir)
-        missing = [s for s in SEASONS if not (self.root / s).is_dir()]
-        if missing:
-            raise DataNotFoundError(
-                f"Nordland folder {str(self.root)!r} lacks {', '.join(missing)}/; pass --data pointing at a "
-                "folder with summer/ and winter/ frame-aligned images (e.g. ../shared/data/nordland64)."
-            )
-
-    def features(self, season: str, descriptor: str) -> np.ndarray:
-        """Descriptors of every frame of ``season`` (rows in file-name order), extracted once."""
-        from ..descriptors.extract import extract_cached
-        from ..descriptors.images import list_images
-
-        key = (season, descriptor)
-        if key not in self._features:
-            paths = list_images(self.root / season)[: self.max_frames]
-            suffix = "" if self.max_frames is None else f"-first{self.max_frames}"
-            out = self.cache_dir / f"nordland64-{season}-{descriptor}{suffix}.npy"
-            X, _ = extract_cached(paths, out, descriptor, progress=self.progress)
-            self._features[key] = X
-        return self._features[key]
-
-    def pair(self, method: str, map_season: str = "summer", n_places: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(map, queries) for ``method``: the first ``n_places`` frames of both seasons."""
-        descriptor = make_method(method).native_descriptor or "hog"  # SeqSLAM: its thumbnails
-        query_season = SEASONS[1 - SEASONS.index(map_season)]
-        X = self.features(map_season, descriptor)
-        Q = self.features(query_season, descriptor)
-        n = X.shape[0] if n_places is None else min(n_places, X.shape[0])
-        return X[:n], Q[:n]
-
 
 @dataclass
 class ExperimentRun:
@@ -332,6 +268,11 @@ def fit_model(name: str, params: dict[str, Any], X: np.ndarray, data: "NordlandD
     return model_cache(data).fit(name, dict(params), np.asarray(X))
 
 
+def _descriptor_of(method: str) -> str:
+    """The image descriptor an experiment reads for ``method``: its own (SeqSLAM: thumbnails), else HOG."""
+    return make_method(method).native_descriptor or "hog"
+
+
 def fit_row(name: str, data: NordlandData, *, budget: Any, n_places: int | None, map_season: str = "summer",
             params: dict[str, Any] | None = None, label: str | None = None,
             extra: dict[str, Any] | None = None) -> EvaluationResult:
@@ -341,7 +282,7 @@ def fit_row(name: str, data: NordlandData, *, budget: Any, n_places: int | None,
     uses_query_sequence, ``extra``, status, nbytes, fit_s, query_us, recall@t (the paper's fixed
     tolerances and 0..80 curve whatever N), cached, n_unconverged, R@K.
     """
-    X, Q = data.pair(name, map_season, n_places)
+    X, Q = data.pair(_descriptor_of(name), map_season, n_places)
     kwargs = dict(params or {})
     budget_bytes = parse_budget(budget)
     if budget_bytes is not None:
@@ -393,7 +334,7 @@ def fit_rows(data: NordlandData, jobs: list[dict[str, Any]], *, desc: str = "fit
     from tqdm.auto import tqdm
 
     for job in jobs:  # read every descriptor matrix first, in this thread
-        data.pair(job["name"], job.get("map_season", "summer"), job.get("n_places"))
+        data.pair(_descriptor_of(job["name"]), job.get("map_season", "summer"), job.get("n_places"))
     workers = min(experiment_jobs(), max(1, len(jobs)))
     out: list[Any] = [None] * len(jobs)
     with tqdm(total=len(jobs), desc=desc, unit="fit", disable=None if data.progress else True, leave=False) as bar:
