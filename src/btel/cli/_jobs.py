@@ -36,7 +36,7 @@ def _params_by_method(methods: list[str], param_texts: tuple[str, ...], *,
     method), ``--param METHOD:NAME=VALUE`` (that method). A shortcut and ``--param`` setting the same
     name, or one name given twice in one layer, is a usage error; so is a name a method does not have.
     """
-    from ..evaluation.batch import RUNTIME_PARAMS
+    from ..evaluation.inputs import RUNTIME_PARAMS
 
     shortcuts = shortcuts or {}
     general: dict[str, Any] = {}
@@ -78,7 +78,7 @@ def _params_by_method(methods: list[str], param_texts: tuple[str, ...], *,
 @contextmanager
 def _naming(method: str) -> Iterator[None]:
     """A bad parameter value of ``method`` names the method (:func:`btel.evaluation.batch.method_named`)."""
-    from ..evaluation.batch import method_named
+    from ..evaluation.inputs import method_named
 
     with method_named(method):
         yield
@@ -87,7 +87,7 @@ def _naming(method: str) -> Iterator[None]:
 def _fit_jobs(names: list[str], budgets: list[str | None], param_texts: tuple[str, ...], *,
               reference: bool, shortcuts: dict[str, tuple[str, Any]] | None = None) -> list[Any]:
     """The jobs of ``--methods`` × ``--budget`` with their ``--param`` values (``make_jobs``)."""
-    from ..evaluation.batch import make_jobs
+    from ..evaluation.inputs import make_jobs
     from ..methods.registry import REFERENCE_METHOD
 
     checked = [*names, REFERENCE_METHOD] if reference and REFERENCE_METHOD not in names else names

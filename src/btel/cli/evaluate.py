@@ -70,7 +70,7 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
 
     front = {"delta": ("--delta", delta)} if delta is not None else {}
     if db is None and (not model_paths or param_texts or front):
-        raise click.UsageError("give --db (to fit --methods; --param and --delta need it) or --model files.")
+        raise click.UsageError("give --db (to fit --methods, --param, --delta); --model files keep theirs.")
     if resume_dir is not None and (overwrite or out_dir not in (None, resume_dir)):
         raise click.UsageError("--resume RUN writes on into RUN: drop --out and --overwrite.")
     if out_dir is None and resume_dir is None:

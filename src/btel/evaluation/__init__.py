@@ -7,10 +7,11 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from .._lazy import lazy_names
+from .measure import evaluate, measure, timed_fit  # eager: the function, never its module of one name
 
 _WHERE = {
-    ".measure": ("measure", "evaluate", "timed_fit"),
-    ".batch": ("Job", "preflight", "evaluate_all", "make_jobs", "run_methods", "RUNTIME_PARAMS"),
+    ".batch": ("preflight", "evaluate_all", "run_methods"),
+    ".inputs": ("Job", "make_jobs", "RUNTIME_PARAMS"),
     ".metrics": ("DEFAULT_TOLERANCES", "DEFAULT_KS", "TABLE_KS", "PR_CURVE_POINTS", "recall_at_tolerance",
                  "recall_curve", "recall_at_k", "default_tolerances", "default_ks", "default_curve_max",
                  "check_ground_truth", "precision_recall"),
@@ -20,11 +21,11 @@ _WHERE = {
     ".timing": ("QueryTiming", "time_queries"),
 }
 
-__all__ = [name for names in _WHERE.values() for name in names]
+__all__ = ["measure", "evaluate", "timed_fit", *(name for names in _WHERE.values() for name in names)]
 
 if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
-    from .batch import RUNTIME_PARAMS, Job, evaluate_all, make_jobs, preflight, run_methods
-    from .measure import evaluate, measure, timed_fit
+    from .batch import evaluate_all, preflight, run_methods
+    from .inputs import RUNTIME_PARAMS, Job, make_jobs
     from .metrics import (DEFAULT_KS, DEFAULT_TOLERANCES, PR_CURVE_POINTS, TABLE_KS, check_ground_truth,
                           default_curve_max, default_ks, default_tolerances, precision_recall, recall_at_k,
                           recall_at_tolerance, recall_curve)

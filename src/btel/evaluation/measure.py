@@ -4,7 +4,7 @@
 by :func:`btel.evaluation.timing.time_queries`) and returns one
 :class:`~btel.evaluation.records.EvaluationResult`: recall@t, R@K, precision–recall
 (:mod:`btel.evaluation.metrics`), timing, storage, and what the method really was
-(:meth:`~btel.methods.base.PlaceLocalizer.choice`). ``btel evaluate``, ``btel demo``
+(:meth:`~btel.methods.auto.AutoLocalizer.choice`). ``btel evaluate``, ``btel demo``
 (:func:`btel.evaluation.batch.run_methods`) and every experiment measure through it; a test fails
 when another module times a ``fit`` or a ``predict`` itself. :func:`evaluate` is its older name.
 

@@ -170,7 +170,7 @@ class EvaluationResult:
         ``positive_rule``.
     choice : dict or None
         What a method that chooses at fit time (``auto``) chose: ``{"method", "params",
-        "reason", …}`` from its :meth:`~btel.methods.base.PlaceLocalizer.choice`; None otherwise.
+        "reason", …}`` from its :meth:`~btel.methods.auto.AutoLocalizer.choice`; None otherwise.
     labels : dict
         An experiment's own cells of the row (``direction``, ``decoder``, ``family``, ``options``,
         …): what the row is, beside what was measured. Written by :meth:`to_row` only.

@@ -269,8 +269,9 @@ def fit_model(name: str, params: dict[str, Any], X: np.ndarray, data: "NordlandD
 
 
 def _descriptor_of(method: str) -> str:
-    """The image descriptor an experiment reads for ``method``: its own (SeqSLAM: thumbnails), else HOG."""
-    return make_method(method).native_descriptor or "hog"
+    """The image descriptor an experiment reads for ``method``: the one it declares it was built on
+    (``native_descriptor``: SeqSLAM's thumbnails), else HOG."""
+    return getattr(make_method(method), "native_descriptor", None) or "hog"
 
 
 def fit_row(name: str, data: NordlandData, *, budget: Any, n_places: int | None, map_season: str = "summer",

@@ -135,7 +135,7 @@ def _row(base: dict[str, Any], label: str, name: str, params: dict[str, Any], X:
            "seed_values": [r[base["key"]] for r in runs],
            "seeds": [] if seeds is None else list(seeds[:len(runs)]),
            "uses_query_sequence": bool(model.uses_query_sequence)}
-    choice = model.choice()  # what a method that chooses at fit time (auto) chose
+    choice = model.choice() if hasattr(model, "choice") else None  # what auto chose at fit time
     if choice is not None:
         out["chose"] = choice["method"] + "".join(f" {k}={v}" for k, v in choice["params"].items())
         out["route_share"] = choice["route_share"]

@@ -64,9 +64,6 @@ class PlaceLocalizer(ParamsMixin, ABC):
     #: True when a query's answer depends on the queries before it (SeqSLAM's sequence search). A
     #: delta front end makes any method sequence-based too: see :attr:`uses_query_sequence`.
     uses_sequence: ClassVar[bool] = False
-    #: The image descriptor the method was designed on (``btel.descriptors``' name, e.g. ``"patchnorm"``
-    #: for SeqSLAM's thumbnails); None: any descriptor (experiments then use HOG on images).
-    native_descriptor: ClassVar[str | None] = None
     #: Declared parameter constraints: name → list of accepted constraints (:mod:`btel.core.validation`).
     _parameter_constraints: ClassVar[dict[str, list[Any]]] = {}
     #: Parameters that say how a model runs, not what it learned: never restored from a model file.
@@ -259,12 +256,6 @@ class PlaceLocalizer(ParamsMixin, ABC):
     def summary(self) -> str:
         """One line on what fitting chose (planner values, the rule); empty when there is nothing to add."""
         return ""
-
-    def choice(self) -> dict[str, Any] | None:
-        """What this fitted model really runs, when it chose that at fit time (``auto``):
-        ``{"method": registry name, "params": dict, "reason": str, ...}``. None (the default): the
-        model is the method it was made as. Run folders record it beside each row."""
-        return None
 
     # -- inference --------------------------------------------------------------------------------
     @property
