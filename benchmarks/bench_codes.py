@@ -42,6 +42,7 @@ sys.path.insert(0, str(HERE))
 
 from _common import RESULTS_DIR, machine, write_results  # noqa: E402
 from btel.core.storage import format_bytes  # noqa: E402
+from btel.datasets.sources import gardens_point_path, load_gardens_point_netvlad  # noqa: E402
 
 DIM = 256
 BUDGETS = ("64KB", "256KB")
@@ -209,20 +210,17 @@ def real_rows(single_calls: int, repeats: int) -> list[dict[str, Any]]:
     if not data_root.is_dir():
         data_root = Path("/work/shared/data")
     sets = []
-    gp = data_root / "gardenspoint_netvlad" / "hiddenRepr-GardensPoint.npz"
+    gp = gardens_point_path(data_root)
     if gp.is_file():
-        with np.load(gp, allow_pickle=False) as z:
-            sets.append(("Gardens Point (NetVLAD)", z["hlrTrain"].astype(np.float32), z["hlrTest"].astype(np.float32), 2))
+        sets.append(("Gardens Point (NetVLAD)", *load_gardens_point_netvlad(gp), 2))
     nordland = data_root / "nordland64"
     if nordland.is_dir():
         import tempfile
 
-        from btel.descriptors.extract import extract_cached
+        from btel.datasets.nordland import NordlandData
 
         cache = Path(os.environ.get("BTEL_TEST_CACHE", Path(tempfile.gettempdir()) / "btel-test-cache"))
-        cache.mkdir(parents=True, exist_ok=True)
-        X, Q = (extract_cached(nordland / s, cache / f"nordland64-{s}-hog.npy", "hog", progress=False)[0]
-                for s in ("summer", "winter"))
+        X, Q = NordlandData(nordland, cache, progress=False).pair("hog")
         sets.append(("Nordland (HOG)", np.asarray(X, np.float32), np.asarray(Q, np.float32), 10))
     out = []
     for name, X, Q, tol in sets:

@@ -58,13 +58,10 @@ SOLVERS = ("liblinear", "newton", "lbfgs")
 def load_shape(name: str, quick: bool, data_dir: Path) -> dict[str, Any]:
     """Map, queries and the feature ratio of one shape."""
     if name == "nordland":
-        from btel.descriptors.extract import extract_cached
+        from btel.datasets.nordland import NordlandData
 
-        root = data_dir / "nordland64"
         cache = Path(os.environ.get("BTEL_TEST_CACHE", "/tmp/btel-test-cache"))
-        cache.mkdir(parents=True, exist_ok=True)
-        X, Q = (extract_cached(root / s, cache / f"nordland64-{s}-hog.npy", "hog", progress=False)[0]
-                for s in ("summer", "winter"))
+        X, Q = NordlandData(data_dir / "nordland64", cache, progress=False).pair("hog")
         if quick:
             X, Q = X[:1024], Q[:1024]
         return {"name": "Nordland HOG summer→winter", "X": X, "Q": Q, "feature_ratio": 1.0}

@@ -29,7 +29,7 @@ METHODS = {"pq": "32KB", "itq": "32KB", "btel-codes": "32KB", "btel-c": "32KB", 
 
 
 def main() -> None:
-    from btel.evaluation.measure import evaluate
+    from btel.evaluation import evaluate
     from btel.methods import make_method
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -51,7 +51,7 @@ from _common import RESULTS_DIR, write_results  # noqa: E402
 from btel import BTELocalizer  # noqa: E402
 from btel.methods.baselines import SeqSLAM, seqslam_match  # noqa: E402
 from btel.methods.btel.diagnostics import localizer_bit_accuracy, plot_bit_accuracy  # noqa: E402
-from btel.evaluation.measure import recall_at_k  # noqa: E402
+from btel.evaluation import recall_at_k  # noqa: E402
 from btel.exceptions import BudgetTooSmallError  # noqa: E402
 from btel.methods import make_method  # noqa: E402
 from btel.methods.btel.ranking import rank_places  # noqa: E402

@@ -54,9 +54,9 @@ def gardenspoint_sample_dir() -> Path:
 @pytest.fixture(scope="session")
 def gardenspoint_netvlad() -> tuple[np.ndarray, np.ndarray]:
     """(map, queries) 500-D descriptors for 200 Gardens Point places, float32."""
-    path = _require_shared("gardenspoint_netvlad") / "hiddenRepr-GardensPoint.npz"
-    with np.load(path, allow_pickle=False) as data:
-        return data["hlrTrain"].astype(np.float32), data["hlrTest"].astype(np.float32)
+    from btel.datasets.sources import load_gardens_point_netvlad
+
+    return load_gardens_point_netvlad(_require_shared("gardenspoint_netvlad").parent)
 
 
 def _read_grey_pixels(folder: Path, step: int) -> np.ndarray:

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from btel.core import claims as _claims
-from btel.evaluation.measure import evaluate
+from btel.evaluation import evaluate
 from btel.experiments._common import ModelCache
 from btel.methods import make_method
 from btel.evaluation.runs import RunWriter
@@ -331,7 +331,7 @@ def _check_run_folder_is_whole(run: Path) -> list[str]:
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX process limits")
-@pytest.mark.parametrize("limit", [3_000, 5_000, 28_000])  # fails at metrics.json, the first plot, the last
+@pytest.mark.parametrize("limit", [3_000, 7_000, 28_000])  # fails at metrics.json, the first plot, the last
 def test_a_full_disk_during_evaluate_keeps_whole_files_only(tmp_path: Path, limit: int) -> None:
     """Past the limit a write fails (EFBIG): the command ends in one line, and the run folder holds only
     files written whole (the rows finished before the failure), no temporary and no claim."""
@@ -346,7 +346,7 @@ def test_a_full_disk_during_evaluate_keeps_whole_files_only(tmp_path: Path, limi
         assert names == [], names
     else:  # the rows are on disk; the plots (26–30 KB each) fail at the first or a later one
         assert {"metrics.json", "metrics.csv", "predictions_bruteforce.csv"} <= set(names), names
-        assert limit > 5_000 or not [n for n in names if n.endswith(".png")], names
+        assert limit > 7_000 or not [n for n in names if n.endswith(".png")], names
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX umask")

@@ -15,7 +15,7 @@ from click.testing import CliRunner
 
 from btel.cli import main
 from btel.datasets import GroundTruth, synthetic_route
-from btel.evaluation.measure import EvaluationResult, Job, evaluate_all, format_table, preflight
+from btel.evaluation import EvaluationResult, Job, evaluate_all, format_table, preflight
 from btel.evaluation.tables import PR_TABLE_NAMES
 from btel.exceptions import BudgetTooSmallError
 from btel.methods import METHODS, make_method
@@ -370,12 +370,12 @@ def test_evaluate_reports_r_at_20_and_pr_by_default(tmp_path: Path) -> None:
 
 
 def test_ctrl_c_exits_130_with_plots_and_resume_skips_the_rows_done(tmp_path: Path, monkeypatch) -> None:
-    import btel.evaluation.measure as ev
+    import btel.evaluation.batch as ev
 
     route = synthetic_route(n_places=120, dim=16, seed=1)
     np.save(tmp_path / "db.npy", route.map)
     np.save(tmp_path / "q.npy", route.queries)
-    real = ev.evaluate
+    real = ev.measure
     calls: list[str] = []
 
     def interrupted_at_itq(method, *args, **kwargs):
@@ -384,7 +384,7 @@ def test_ctrl_c_exits_130_with_plots_and_resume_skips_the_rows_done(tmp_path: Pa
             raise KeyboardInterrupt
         return real(method, *args, **kwargs)
 
-    monkeypatch.setattr(ev, "evaluate", interrupted_at_itq)
+    monkeypatch.setattr(ev, "measure", interrupted_at_itq)
     out = tmp_path / "run"
     args = ["evaluate", "--db", tmp_path / "db.npy", "--queries", tmp_path / "q.npy", "--methods", "pq,itq,btel-c",
             "--budget", "4KB", "--no-progress"]
@@ -397,7 +397,8 @@ def test_ctrl_c_exits_130_with_plots_and_resume_skips_the_rows_done(tmp_path: Pa
         "pq": "ok", "itq": "not run", "btel-c": "not run", "bruteforce": "not run", "bruteforce shrink": "not run"}
     pq_predictions = (out / "predictions_pq.csv").read_text()
 
-    monkeypatch.setattr(ev, "evaluate", lambda method, *a, **kw: (calls.append(kw["name"]), real(method, *a, **kw))[1])
+    monkeypatch.setattr(ev, "measure",
+                        lambda method, *a, **kw: (calls.append(kw["name"]), real(method, *a, **kw))[1])
     calls.clear()
     result = run(*args, "--resume", out)
     assert result.exit_code == 0, result.output

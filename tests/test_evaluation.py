@@ -12,7 +12,7 @@ from sklearn.neighbors import NearestNeighbors
 from btel.core.validation import Options
 from btel.methods.base import ArraySpec, PlaceLocalizer
 from btel.datasets.groundtruth import GroundTruth
-from btel.evaluation.measure import (
+from btel.evaluation import (
     DEFAULT_TOLERANCES,
     evaluate,
     recall_at_k,
@@ -230,7 +230,7 @@ class _SlowFirstCall:
 
 
 def test_time_queries_warms_up_then_reports_medians(monkeypatch) -> None:
-    import btel.evaluation.measure as ev
+    import btel.evaluation.timing as ev
 
     clock = _Clock()
     monkeypatch.setattr(ev.time, "perf_counter", clock)
@@ -245,7 +245,7 @@ def test_time_queries_warms_up_then_reports_medians(monkeypatch) -> None:
 
 
 def test_evaluate_reports_batch_throughput_and_single_query_latency_apart(monkeypatch) -> None:
-    import btel.evaluation.measure as ev
+    import btel.evaluation as ev
 
     rng = np.random.default_rng(0)
     X = rng.standard_normal((40, 8)).astype(np.float32)
@@ -259,7 +259,7 @@ def test_evaluate_reports_batch_throughput_and_single_query_latency_apart(monkey
 
 
 def test_time_queries_stops_repeating_after_max_seconds(monkeypatch) -> None:
-    import btel.evaluation.measure as ev
+    import btel.evaluation.timing as ev
 
     clock = _Clock()
     monkeypatch.setattr(ev.time, "perf_counter", clock)
@@ -270,7 +270,7 @@ def test_time_queries_stops_repeating_after_max_seconds(monkeypatch) -> None:
 
 # -- precision-recall from the best-match score --------------------------------------------------------
 def test_precision_recall_by_hand() -> None:
-    from btel.evaluation.measure import precision_recall
+    from btel.evaluation import precision_recall
 
     # Most confident first: right, right, wrong, right; 5 queries (one wrong match scored lowest).
     scores = np.array([0.9, 0.8, 0.7, 0.6, 0.1])
@@ -295,7 +295,7 @@ def test_precision_recall_by_hand() -> None:
 
 
 def test_evaluate_reports_pr_from_search_scores() -> None:
-    from btel.evaluation.measure import format_table, precision_recall
+    from btel.evaluation import format_table, precision_recall
 
     rng = np.random.default_rng(0)
     X = rng.standard_normal((60, 8)).astype(np.float32)
@@ -320,7 +320,7 @@ def test_evaluate_reports_pr_from_search_scores() -> None:
 def test_time_queries_runs_with_the_thread_count_it_reports() -> None:
     from threadpoolctl import threadpool_info
 
-    import btel.evaluation.measure as ev
+    import btel.evaluation.timing as ev
 
     seen: list[int] = []
 

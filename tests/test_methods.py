@@ -123,10 +123,11 @@ def test_shared_layers_ask_the_method_not_its_class() -> None:
     """The evaluation pre-check and the experiments' cache never name a method class (issue 19)."""
     import inspect
 
+    import btel.evaluation.batch
     import btel.evaluation.measure
     import btel.experiments._common
 
-    for module in (btel.evaluation, btel.experiments._common):
+    for module in (btel.evaluation.measure, btel.evaluation.batch, btel.experiments._common):
         source = inspect.getsource(module)
         for name in ("BTELocalizer", "RYTHLocalizer", "PQLocalizer", "ITQLocalizer", "BruteForceNN", "CodeLocalizer"):
             assert f"isinstance(method, {name}" not in source and f"isinstance(model, {name}" not in source, \

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from btel.evaluation.measure import EvaluationResult, recall_at_tolerance, recall_curve
+from btel.evaluation import EvaluationResult, recall_at_tolerance, recall_curve
 from btel.exceptions import InvalidParameterError
 from btel.evaluation.plots import plot_recall_vs_n, plot_recall_vs_storage, plot_recall_vs_tolerance
 
@@ -118,7 +118,7 @@ def test_plot_real_gardenspoint_curve(gardenspoint_netvlad: tuple[np.ndarray, np
 
 
 def test_run_plots_include_precision_recall_with_auc_in_the_legend(tmp_path: Path) -> None:
-    from btel.evaluation.measure import precision_recall
+    from btel.evaluation import precision_recall
     from btel.evaluation.plots import plot_run
 
     rng = np.random.default_rng(0)

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from btel import BTELocalizer
 from btel.datasets import synthetic_route
 from btel.methods.btel.encoding import decode_constrained, decode_soft, n_bits_for
-from btel.evaluation.measure import recall_at_k
+from btel.evaluation import recall_at_k
 from btel.exceptions import InvalidParameterError, NotEnoughPlacesError, NotFittedError
 from btel.methods.btel.ranking import code_costs, kbest_codes, merge_region_kbest, soft_scores
 

@@ -17,7 +17,7 @@ import pytest
 import btel
 from btel import BTELocalizer
 from btel.methods.btel.encoding import n_bits_for
-from btel.evaluation.measure import recall_at_tolerance
+from btel.evaluation import recall_at_tolerance
 from btel.methods.btel.localizer import planned_bytes
 
 pytestmark = pytest.mark.realdata

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from btel.datasets import synthetic_route
-from btel.evaluation.measure import evaluate
+from btel.evaluation import evaluate
 from btel.exceptions import InvalidParameterError
 from btel.methods import make_method
 from btel.evaluation.records import EvaluationResult

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from btel.evaluation.measure import EvaluationResult, evaluate
+from btel.evaluation import EvaluationResult, evaluate
 from btel.exceptions import DataNotFoundError, InvalidParameterError
 from btel.methods import make_method
 from btel.evaluation.runs import recompute_recall_from_csv, run_metadata, write_run
@@ -45,7 +45,7 @@ def test_write_run_files_and_recomputed_recall(tmp_path: Path) -> None:
     report = write_run(results, out, command=["btel", "evaluate", "--out", str(out)], extra={"data": "toy"})
     names = sorted(p.name for p in out.iterdir())
     assert names == sorted(
-        ["metrics.json", "metrics.csv", "predictions_NN_euclid.csv", "predictions_NN_noisier.csv",
+        ["metrics.json", "metrics.csv", "predictions_NN-euclid.csv", "predictions_NN-noisier.csv",
          "predictions_ahead.csv", "recall_vs_tolerance.png", "recall_vs_storage.png", "precision_recall.png"]
     )
     metrics = json.loads(report.metrics_json.read_text())
@@ -98,7 +98,7 @@ def test_write_run_refuses_to_overwrite(tmp_path: Path) -> None:
     write_run(results[:1], out, overwrite=True, plots=False)
     # Stale files of the earlier run are gone; the user's own file is kept.
     assert not (out / "predictions_ahead.csv").exists()
-    assert (out / "predictions_NN_euclid.csv").exists() and (out / "notes.txt").exists()
+    assert (out / "predictions_NN-euclid.csv").exists() and (out / "notes.txt").exists()
     # An existing empty folder is fine.
     (tmp_path / "empty").mkdir()
     write_run(results[:1], tmp_path / "empty", plots=False)

@@ -10,6 +10,7 @@ from click.testing import CliRunner
 
 from btel.cli import main
 from btel.datasets.vpr_names import split_dataset_folder, utm_from_name, utm_of_names
+from btel.methods import METHODS
 from btel.exceptions import InvalidParameterError
 
 
@@ -71,6 +72,21 @@ def test_vpr_methods_evaluation_folder_end_to_end(gardenspoint_sample_dir: Path,
     wrong = runner.invoke(main, ["evaluate", "--db", str(db), "--queries", str(q), "--positive-dist-threshold", "10",
                                  "--out", str(tmp_path / "run3")])
     assert wrong.exit_code == 2 and "--ground-truth utm" in wrong.output
+    # The run describes itself: what auto chose and why, and the ground truth's source and 25 m rule.
+    result = runner.invoke(main, ["evaluate", "--db", str(db), "--queries", str(q), "--ground-truth", "utm",
+                                  "--budget", "64KB", "--query-order", "independent", "--no-progress",
+                                  "--out", str(tmp_path / "auto")])
+    assert result.exit_code == 0, result.output
+    metrics = json.loads((tmp_path / "auto" / "metrics.json").read_text())
+    auto = next(r for r in metrics["results"] if r["name"] == "auto")
+    assert auto["choice"]["method"] in METHODS and auto["choice"]["reason"] and "params" in auto["choice"]
+    for row in metrics["results"]:
+        assert row["ground_truth_source"] == "UTM in image names"
+        assert row["positive_rule"] == "positives within 25 m"
+    assert metrics["run"]["extra"]["ground_truth"] == {"source": "UTM in image names",
+                                                       "rule": "positives within 25 m"}
+    assert {r["name"]: r["choice"] for r in metrics["results"]}["bruteforce"] is None
+    assert (tmp_path / "auto" / "predictions_bruteforce-shrink.csv").is_file()
 
 
 # -- issue 34, item 3: names become structure -----------------------------------------------------------

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from btel.evaluation.measure import evaluate
+from btel.evaluation import evaluate
 from btel.exceptions import BudgetTooSmallError
 from btel.methods import make_method
 from btel.core.storage import parse_budget

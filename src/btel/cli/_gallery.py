@@ -108,15 +108,15 @@ def write_galleries(run: Path, *, n_rows: int = GALLERY_ROWS, overwrite: bool = 
             f"the match gallery needs the images of the run's inputs, and {' and '.join(missing)} "
             f"{'records' if len(missing) == 1 else 'record'} none on disk (descriptors written by btel extract record their image folder in the .json "
             "beside them; a --model run has no --db images).")
-    from ..evaluation.runs import _safe_name
+    from ..evaluation.runs import safe_file_name
 
     written = []
     for name in names:
-        predictions = run / f"predictions_{_safe_name(name)}.csv"
+        predictions = run / f"predictions_{safe_file_name(name)}.csv"
         read = _read_predictions(predictions) if predictions.is_file() else None
         if read is None or read["pred"].shape[0] != len(q_images):
             continue
-        target = run / f"gallery_{_safe_name(name)}.png"
+        target = run / f"gallery_{safe_file_name(name)}.png"
         if target.exists() and not overwrite:
             raise click.UsageError(f"{target} already exists; give --overwrite to draw it again.")
         written.append(plot_match_gallery(q_images, db_images, read["pred"], read["true"], read["correct"], target,

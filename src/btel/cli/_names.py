@@ -1,4 +1,4 @@
-"""Image names of descriptor rows, UTM ground truth from them, and hloc retrieval pairs files.
+"""Image names of descriptor rows (:func:`btel.datasets.sources.row_names`) and hloc retrieval pairs files.
 
 A descriptor matrix written by ``btel extract`` has a JSON sidecar listing its images; an hloc
 ``.h5`` names every row. Those names let the command line speak the inputs' language: a
@@ -8,62 +8,42 @@ reads (``query_name db_name`` per line).
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import click
 import numpy as np
 
-
-def row_names(path: str) -> list[str] | None:
-    """The image name of every row of the descriptor file ``path``, or None when it records none.
-
-    ``.npy`` written by ``btel extract``: the images in its sidecar ``PATH.json``; hloc ``.h5``
-    (``FILE.h5:PREFIX`` too): the group names.
-    """
-    from ..descriptors.npy import HDF5_SUFFIXES, load_hloc_global, split_prefix
-
-    file, prefix = split_prefix(path)
-    if file.suffix.lower() in HDF5_SUFFIXES:
-        return load_hloc_global(file, prefix)[1]
-    sidecar = Path(str(file) + ".json")
-    if file.suffix.lower() == ".npy" and sidecar.is_file():
-        try:
-            images = json.loads(sidecar.read_text(encoding="utf-8")).get("images")
-            return [str(entry[0]) for entry in images]
-        except (OSError, ValueError, AttributeError, TypeError, IndexError, KeyError):
-            return None
-    return None
-
-
-def utm_ground_truth(db: str, queries: str, n_map: int, n_queries: int, threshold: float) -> Any:
-    """Positives within ``threshold`` metres, from the UTM positions in the image names of both inputs."""
-    from ..datasets import GroundTruth
-    from ..datasets.vpr_names import utm_of_names
-
-    names = {}
-    for option, path, n in (("--db", db, n_map), ("--queries", queries, n_queries)):
-        found = row_names(path)
-        if found is None:
-            raise click.UsageError(f"--ground-truth utm reads positions from image names, and {option} {path} records "
-                                   "none; give descriptors written by `btel extract` (the names are in the .json "
-                                   "beside them) or an hloc .h5.")
-        if len(found) != n:
-            raise click.UsageError(f"{option} {path}: {len(found)} image names recorded for {n} rows; the file and "
-                                   "its .json no longer match (re-run btel extract).")
-        names[option] = found
-    return GroundTruth.from_utm(utm_of_names(names["--db"], f"--db {db}"),
-                                utm_of_names(names["--queries"], f"--queries {queries}"), threshold)
+from ..datasets.sources import row_names  # noqa: F401 (re-exported: the one reader of row names)
 
 
 def pairs_paths(path: str, method_names: Sequence[str]) -> dict[str, Path]:
     """``--pairs FILE``: FILE for a run of one method, else FILE with ``-<method>`` before its suffix."""
+    from ..evaluation.runs import safe_file_name
+
     base = Path(path)
     if len(method_names) == 1:
         return {method_names[0]: base}
-    return {m: base.with_name(f"{base.stem}-{m}{base.suffix}") for m in method_names}
+    return {m: base.with_name(f"{base.stem}-{safe_file_name(m)}{base.suffix}") for m in method_names}
+
+
+def plan_pairs(path: str | None, job_names: Sequence[str], names: tuple[list[str] | None, list[str] | None],
+               shape: tuple[int, int], queries: str, db: str | None,
+               overwrite: bool) -> tuple[dict[str, Path], list[str], list[str]] | None:
+    """``--pairs``: (file per row name, query names, map names) — row numbers where the inputs have no
+    names, ``shape`` = (queries, map places) — every file refused now when it exists without
+    ``--overwrite``; None without ``--pairs``."""
+    from ._outputs import refuse_existing
+
+    if path is None:
+        return None
+    targets = pairs_paths(path, job_names)
+    for target in targets.values():
+        refuse_existing(target, "--pairs", overwrite)
+    q_names = names[0] or [str(i) for i in range(shape[0])]
+    db_names = names[1] or [str(i) for i in range(shape[1])]
+    check_pair_names(q_names, db_names, queries, db)
+    return targets, q_names, db_names
 
 
 def check_pair_names(query_names: Sequence[str], db_names: Sequence[str], queries: str = "--queries",

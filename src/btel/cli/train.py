@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from typing import Any
 
 import click
@@ -90,13 +89,14 @@ def train(db: str, output: str, overwrite: bool, method: str, budget: str | None
     params = _params_by_method([method], param_texts, shortcuts=shortcuts)[method]
     refuse_existing(output, "-o", overwrite)
     X = _load_map(db)
-    start = time.perf_counter()
+    from ..evaluation.measure import timed_fit
+
     with _naming(method):
         model = make_method(method, **params)
-        model.fit(X)
+        seconds = timed_fit(model, X)
     regions = f", r = {model.n_regions_} regions" if getattr(model, "n_regions_", 1) > 1 else ""
     click.echo(f"fitted {method}{regions} on {X.shape[0]} places × {X.shape[1]} dims "
-               f"in {time.perf_counter() - start:.1f} s")
+               f"in {seconds:.1f} s")
     _echo_storage(model)
     path = model.save(output, overwrite=overwrite)  # no --overwrite: a racing train's file is never replaced
     click.echo(f"model written to {path} ({path.stat().st_size:,d} B on disk)")

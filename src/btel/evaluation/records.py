@@ -27,7 +27,7 @@ from ..datasets.groundtruth import GroundTruth
 from ..exceptions import InvalidParameterError
 
 __all__ = ["EvaluationResult", "STATUS_OK", "STATUS_REFUSED", "STATUS_DOES_NOT_FIT", "STATUS_FAILED",
-           "STATUS_NOT_RUN", "ROW_CELLS"]
+           "STATUS_NOT_RUN", "ROW_CELLS", "does_not_fit_status"]
 
 #: The status of a row that ran; anything else says why it did not.
 STATUS_OK = "ok"
@@ -36,6 +36,12 @@ STATUS_REFUSED = "refused"
 STATUS_DOES_NOT_FIT = "does not fit"
 STATUS_FAILED = "failed"
 STATUS_NOT_RUN = "not run"
+
+
+def does_not_fit_status(minimum: int | None) -> str:
+    """The status cell of an experiment's row whose method needs more bytes than its budget:
+    ``"does not fit (needs ≥ 1234 B)"`` (every experiment writes it from here)."""
+    return f"{STATUS_DOES_NOT_FIT} (needs ≥ {minimum} B)"
 
 #: Cells of a flat row (:meth:`EvaluationResult.to_row`) → the record's field. ``recall@t`` and
 #: ``R@K`` cells map to :attr:`~EvaluationResult.recall` and :attr:`~EvaluationResult.recall_at_k`;
@@ -52,6 +58,19 @@ def _params_of(method: Any) -> dict[str, Any]:
     if get_params is None:
         return {}
     return {str(k): jsonable(v) for k, v in get_params(deep=False).items()}
+
+
+def _choice_of(method: Any) -> dict[str, Any] | None:
+    """What a fitted method really runs when it chose at fit time (``auto``): its public
+    ``choice()`` made JSON-safe; None for a method that is what it was named."""
+    choice = getattr(method, "choice", None)
+    if not callable(choice):
+        return None
+    try:
+        found = choice()
+    except (AttributeError, NotImplementedError):  # not fitted, or a method outside btel's base
+        return None
+    return None if found is None else jsonable(dict(found))
 
 
 def _storage_of(method: Any) -> tuple[int | None, dict[str, int] | None]:
@@ -148,6 +167,14 @@ class EvaluationResult:
         plots draw one line per series. None: the row's own name.
     settings : dict or None
         The parameters set by the user for this row (``--param``), shown in plot legends.
+    truth : dict or None
+        Where the ground truth came from and which places count as correct: ``{"source": a file's
+        path, "UTM in image names" or "frame-aligned …", "rule": e.g. "positives within 25 m"}``
+        (:func:`btel.datasets.sources.resolve_ground_truth`); written as ``ground_truth_source`` and
+        ``positive_rule``.
+    choice : dict or None
+        What a method that chooses at fit time (``auto``) chose: ``{"method", "params",
+        "reason", …}`` from its :meth:`~btel.methods.auto.AutoLocalizer.choice`; None otherwise.
     labels : dict
         An experiment's own cells of the row (``direction``, ``decoder``, ``family``, ``options``,
         …): what the row is, beside what was measured. Written by :meth:`to_row` only.
@@ -188,6 +215,8 @@ class EvaluationResult:
     minimum_bytes: int | None = None
     series: str | None = None
     settings: dict[str, Any] | None = None
+    choice: dict[str, Any] | None = None
+    truth: dict[str, str] | None = None
     labels: dict[str, Any] = field(default_factory=dict)
     columns: tuple[str, ...] = field(default=(), repr=False)
 
@@ -208,6 +237,13 @@ class EvaluationResult:
                      uses_query_sequence=bool(getattr(method, "uses_query_sequence", False)),
                      minimum_bytes=minimum_bytes)
         return result
+
+    @classmethod
+    def does_not_fit(cls, name: str, exc: Any, **common: Any) -> "EvaluationResult":
+        """The row of a method whose budget is too small (``exc``: its
+        :class:`~btel.exceptions.BudgetTooSmallError`), status ``"does not fit"``, its minimum bytes."""
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        return cls.not_measured(name, STATUS_DOES_NOT_FIT, reason, minimum_bytes=exc.minimum, **common)
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "EvaluationResult":
@@ -235,7 +271,9 @@ class EvaluationResult:
                 tolerance_for_k=int(data.get("tolerance_for_k") or 0), status=str(data["status"]),
                 reason=data.get("reason"), budget=data.get("budget"), reference=bool(data.get("reference")),
                 uses_query_sequence=bool(data.get("uses_query_sequence")), minimum_bytes=data.get("minimum_bytes"),
-                series=data.get("series"), settings=data.get("settings"))
+                series=data.get("series"), settings=data.get("settings"), choice=data.get("choice"),
+                truth=(None if data.get("ground_truth_source") is None else
+                       {"source": data["ground_truth_source"], "rule": data.get("positive_rule")}))
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise InvalidParameterError(f"not a row of metrics.json ({type(exc).__name__}: {exc}).") from exc
         return result
@@ -248,6 +286,7 @@ class EvaluationResult:
             "reason": self.reason,
             "series": self.series or self.name,
             "settings": jsonable(self.settings) if self.settings else None,
+            "choice": self.choice,
             "reference": self.reference,
             "uses_query_sequence": self.uses_query_sequence,
             "budget": self.budget,
@@ -275,6 +314,8 @@ class EvaluationResult:
             "pr_curve": self.pr_curve,
             "chosen_method": self.chosen_method,
             "ground_truth": None if self.ground_truth is None else self.ground_truth.kind,
+            "ground_truth_source": None if self.truth is None else self.truth.get("source"),
+            "positive_rule": None if self.truth is None else self.truth.get("rule"),
         }
 
     def headline(self) -> dict[int, float]:

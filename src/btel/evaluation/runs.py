@@ -32,7 +32,8 @@ from .records import EvaluationResult
 from .tables import metrics_csv_text, predictions_csv_text
 from ..exceptions import DataNotFoundError, InvalidParameterError, OutputExistsError
 
-__all__ = ["RunReport", "RunWriter", "check_run_folder", "run_metadata", "write_run", "recompute_recall_from_csv"]
+__all__ = ["RunReport", "RunWriter", "check_run_folder", "run_metadata", "write_run",
+           "recompute_recall_from_csv", "safe_file_name"]
 
 
 @dataclass
@@ -89,8 +90,13 @@ def run_metadata(command: str | Sequence[str] | None = None) -> dict[str, Any]:
     }
 
 
-def _safe_name(name: str) -> str:
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._") or "method"
+def safe_file_name(name: str) -> str:
+    """A row name as a file-name part: letters, digits, ``.``, ``_`` and ``-`` only, every other run of
+    characters one ``-`` (``"bruteforce shrink"`` → ``bruteforce-shrink``, ``"pq@100KB"`` →
+    ``pq-100KB``)."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "-", name).strip("._-") or "method"
+
+
 
 
 #: Files a run folder may hold; with ``overwrite=True`` these (and only these) are removed first.
@@ -233,7 +239,7 @@ class RunWriter:
     def write(self, results: Sequence[EvaluationResult], *, complete: bool = False) -> None:
         """Write the metrics of every row so far, and the predictions of rows not written yet."""
         results = list(results)
-        safe = [_safe_name(r.name) for r in results]
+        safe = [safe_file_name(r.name) for r in results]
         if len(set(safe)) != len(safe):
             raise InvalidParameterError(
                 f"method names {[r.name for r in results]} are not distinct once made file-safe ({safe}); "
@@ -298,6 +304,28 @@ def read_unfinished_run(out_dir: str | os.PathLike) -> tuple[dict[str, Any], lis
         raise InvalidParameterError(f"{str(path)!r} is not a btel run's metrics ({exc}).") from exc
 
 
+def read_finished_rows(run: str | os.PathLike, queries: str | os.PathLike,
+                       echo: Any = None) -> list[EvaluationResult]:
+    """The rows of the interrupted run folder ``run`` to keep (status ok), after checking that it ran on
+    the query file ``queries``; ``echo(text)`` hears which rows are done.
+
+    Raises
+    ------
+    InvalidParameterError
+        The run localized another query file.
+    """
+    meta, rows = read_unfinished_run(run)
+    before = (meta.get("extra") or {}).get("queries")
+    if before is not None and before != str(Path(queries).resolve()):
+        raise InvalidParameterError(f"the run {str(run)!r} localized {before}, not {queries}; give the same "
+                                    "queries (and map, models, options) as the interrupted run.")
+    done = [r for r in rows if r.ok]
+    if echo is not None:
+        names = ", ".join(r.name for r in done) or "none"
+        echo(f"resuming {run}: {len(done)} of {len(rows)} rows done ({names}); the others run now")
+    return done
+
+
 def resume_writer(out_dir: str | os.PathLike, finished: Sequence[EvaluationResult], *,
                   command: str | Sequence[str] | None = None, extra: Mapping[str, Any] | None = None) -> "RunWriter":
     """A :class:`RunWriter` that goes on writing into an existing run folder: the predictions files of
@@ -313,7 +341,8 @@ def resume_writer(out_dir: str | os.PathLike, finished: Sequence[EvaluationResul
         writer.meta["extra"] = jsonable(dict(extra))
     writer.metrics_json = writer.out_dir / "metrics.json"
     writer.metrics_csv = writer.out_dir / "metrics.csv"
-    writer.predictions = {r.name: writer.out_dir / f"predictions_{_safe_name(r.name)}.csv" for r in finished if r.ok}
+    writer.predictions = {r.name: writer.out_dir / f"predictions_{safe_file_name(r.name)}.csv"
+                          for r in finished if r.ok}
     writer.plots = []
     writer.query_names = writer.db_names = None
     return writer
@@ -373,7 +402,7 @@ def write_run(
     results = list(results)
     if not results:
         raise InvalidParameterError("write_run needs at least one EvaluationResult.")
-    safe = [_safe_name(r.name) for r in results]
+    safe = [safe_file_name(r.name) for r in results]
     if len(set(safe)) != len(safe):
         raise InvalidParameterError(
             f"method names {[r.name for r in results]} are not distinct once made file-safe ({safe}); "

@@ -29,17 +29,17 @@ import json
 import os
 import tempfile
 import threading
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
 import numpy as np
 
-from ..evaluation.measure import evaluate
+from ..evaluation.measure import measure, timed_fit
 from ..evaluation.metrics import DEFAULT_TOLERANCES
-from ..evaluation.records import EvaluationResult
-from ..exceptions import BudgetTooSmallError, DataNotFoundError
+from ..evaluation.records import EvaluationResult, does_not_fit_status
+from ..exceptions import BudgetTooSmallError
+from ..datasets.nordland import QUICK_FRAMES, SEASONS, NordlandData, default_nordland_root
 from ..methods.registry import make_method
 from ..core.storage import check_within_budget, parse_budget
 from ..evaluation.tables import describe_row, rows_csv_text
@@ -47,73 +47,6 @@ from ..evaluation.tables import describe_row, rows_csv_text
 __all__ = ["SEASONS", "QUICK_FRAMES", "NordlandData", "ExperimentRun", "default_nordland_root", "fit_row",
            "fit_rows", "fit_model", "ModelCache", "full_or_quick", "write_results", "describe_row",
            "data_fingerprint", "experiment_jobs", "fit_and_predict", "FittedRow"]
-
-SEASONS = ("summer", "winter")
-#: Frames per season read in quick mode.
-QUICK_FRAMES = 300
-#: Methods that read patch-normalised thumbnails instead of HOG.
-THUMBNAIL_METHODS = {"seqslam"}
-
-
-def default_nordland_root() -> Path:
-    """``../shared/data/nordland64`` from the working directory (the layout CI and developers use)."""
-    return Path("..") / "shared" / "data" / "nordland64"
-
-
-@dataclass
-class NordlandData:
-    """Cached HOG and thumbnail descriptors of both Nordland seasons.
-
-    Parameters
-    ----------
-    root : path
-        Folder holding ``summer/`` and ``winter/`` (frame-aligned file names).
-    cache_dir : path
-        Where extracted descriptors are kept (``nordland64-<season>-<descriptor>.npy``).
-    """
-
-    root: Path
-    cache_dir: Path
-    progress: bool = True
-    #: Only the first ``max_frames`` frames of each season are read (quick mode); None = all.
-    max_frames: int | None = None
-    #: Front-end parameters given to every method (e.g. ``{"delta": 10}``); None: each method's default.
-    front_end: dict[str, Any] | None = None
-    _features: dict[tuple[str, str], np.ndarray] = field(default_factory=dict, repr=False)
-
-    def __post_init__(self) -> None:
-        self.root = Path(self.root)
-        self.cache_dir = Path(self.cache_dir)
-        missing = [s for s in SEASONS if not (self.root / s).is_dir()]
-        if missing:
-            raise DataNotFoundError(
-                f"Nordland folder {str(self.root)!r} lacks {', '.join(missing)}/; pass --data pointing at a "
-                "folder with summer/ and winter/ frame-aligned images (e.g. ../shared/data/nordland64)."
-            )
-
-    def features(self, season: str, descriptor: str) -> np.ndarray:
-        """Descriptors of every frame of ``season`` (rows in file-name order), extracted once."""
-        from ..descriptors.extract import extract_cached
-        from ..descriptors.images import list_images
-
-        key = (season, descriptor)
-        if key not in self._features:
-            paths = list_images(self.root / season)[: self.max_frames]
-            suffix = "" if self.max_frames is None else f"-first{self.max_frames}"
-            out = self.cache_dir / f"nordland64-{season}-{descriptor}{suffix}.npy"
-            X, _ = extract_cached(paths, out, descriptor, progress=self.progress)
-            self._features[key] = X
-        return self._features[key]
-
-    def pair(self, method: str, map_season: str = "summer", n_places: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(map, queries) for ``method``: the first ``n_places`` frames of both seasons."""
-        descriptor = "patchnorm" if method in THUMBNAIL_METHODS else "hog"
-        query_season = SEASONS[1 - SEASONS.index(map_season)]
-        X = self.features(map_season, descriptor)
-        Q = self.features(query_season, descriptor)
-        n = X.shape[0] if n_places is None else min(n_places, X.shape[0])
-        return X[:n], Q[:n]
-
 
 @dataclass
 class ExperimentRun:
@@ -266,9 +199,7 @@ class ModelCache:
             model = make_method(name, **params)
             if "progress" in model.get_params():  # one bar per experiment instead (fit_rows)
                 model.set_params(progress=False)
-            start = time.perf_counter()
-            model.fit(X)
-            fit_s = time.perf_counter() - start
+            fit_s = timed_fit(model, X)
             self.put(key, model, fit_s, {"method": name, "params": params, "n_places": int(X.shape[0])})
             if alias is not None and self.enabled and model.budget_saturated():
                 self._aliases[alias] = (key, int(model.nbytes))
@@ -289,37 +220,34 @@ class ModelCache:
 
 @dataclass
 class FittedRow:
-    """A method fitted under a budget and its answers to every query (:func:`fit_and_predict`)."""
+    """A method fitted under a budget and measured on every query (:func:`fit_and_predict`)."""
 
     model: Any
     pred: np.ndarray
     fit_s: float
     query_us: float
+    record: EvaluationResult
 
 
 def fit_and_predict(name: str, params: dict[str, Any], X: np.ndarray, Q: np.ndarray, budget: int | None,
                     label: str, *, progress: bool | None = None) -> FittedRow | dict[str, Any]:
-    """Fit one registered method under ``budget`` and predict every query, timing both.
+    """Fit one registered method under ``budget`` and measure it on every query (:func:`measure`).
 
-    A warm-up call builds the runtime caches (dequantised weights, codebook, faiss index) before the
-    timed prediction. Returns the fields of a "does not fit" row (with the minimum bytes) when the
-    budget is too small; ``progress`` (when given) is set on methods that have that parameter.
+    Returns the fields of a "does not fit" row (with the minimum bytes) when the budget is too
+    small; ``progress`` (when given) is set on methods that have that parameter.
     """
     model = make_method(name, **({"budget": budget} if budget is not None else {}), **params)
     if progress is not None and "progress" in model.get_params(deep=False):
         model.set_params(progress=progress)
-    start = time.perf_counter()
     try:
-        model.fit(X)
+        fit_s = timed_fit(model, X)
     except BudgetTooSmallError as exc:
-        return {"status": f"does not fit (needs ≥ {exc.minimum} B)", "nbytes": None,
+        return {"status": does_not_fit_status(exc.minimum), "nbytes": None,
                 "minimum_bytes": int(exc.minimum or 0)}
-    fit_s = time.perf_counter() - start
     check_within_budget(label, model.nbytes, budget)
-    model.predict(Q[:8])
-    start = time.perf_counter()
-    pred = model.predict(Q)
-    return FittedRow(model, pred, fit_s, (time.perf_counter() - start) / Q.shape[0] * 1e6)
+    record = measure(model, None, Q, name=label, fit=False, fit_time_s=fit_s, ks=(), budget=budget,
+                     timing_repeats=1)
+    return FittedRow(model, record.predictions, fit_s, record.query_time_s_per_query * 1e6, record)
 
 
 _CACHES: dict[str, ModelCache] = {}
@@ -340,16 +268,22 @@ def fit_model(name: str, params: dict[str, Any], X: np.ndarray, data: "NordlandD
     return model_cache(data).fit(name, dict(params), np.asarray(X))
 
 
+def _descriptor_of(method: str) -> str:
+    """The image descriptor an experiment reads for ``method``: the one it declares it was built on
+    (``native_descriptor``: SeqSLAM's thumbnails), else HOG."""
+    return getattr(make_method(method), "native_descriptor", None) or "hog"
+
+
 def fit_row(name: str, data: NordlandData, *, budget: Any, n_places: int | None, map_season: str = "summer",
             params: dict[str, Any] | None = None, label: str | None = None,
             extra: dict[str, Any] | None = None) -> EvaluationResult:
-    """Fit one method under a budget and evaluate it; a budget it cannot meet becomes a row, not an error.
+    """Fit one method under a budget and measure it; a budget it cannot meet becomes a row, not an error.
 
     The record's cells: method, registry_name, n_places, map, budget, front_end,
     uses_query_sequence, ``extra``, status, nbytes, fit_s, query_us, recall@t (the paper's fixed
     tolerances and 0..80 curve whatever N), cached, n_unconverged, R@K.
     """
-    X, Q = data.pair(name, map_season, n_places)
+    X, Q = data.pair(_descriptor_of(name), map_season, n_places)
     kwargs = dict(params or {})
     budget_bytes = parse_budget(budget)
     if budget_bytes is not None:
@@ -357,27 +291,28 @@ def fit_row(name: str, data: NordlandData, *, budget: Any, n_places: int | None,
     kwargs = {**(data.front_end or {}), **kwargs}
     method = make_method(name, **kwargs)
     front = {k: method.get_params()[k] for k in ("normalize", "whiten", "delta")}
-    row: dict[str, Any] = {"method": label or name, "registry_name": name, "n_places": int(X.shape[0]),
-                           "map": map_season, "budget": budget_bytes, "front_end": front,
-                           "uses_query_sequence": bool(method.uses_query_sequence), **(extra or {})}
+    labels = {"registry_name": name, "map": map_season, "front_end": front, **(extra or {})}
+    head = ("method", "registry_name", "n_places", "map", "budget", "front_end", "uses_query_sequence",
+            *(extra or {}), "status", "nbytes")
     try:
         model, fit_s, cached = fit_model(name, kwargs, X, data)
     except BudgetTooSmallError as exc:
-        row.update(status=f"does not fit (needs ≥ {exc.minimum} B)", nbytes=None, minimum_bytes=exc.minimum)
-        return EvaluationResult.from_row(row)
-    result = evaluate(model, None, Q, name=label or name, fit=False, tolerances=DEFAULT_TOLERANCES, curve_max=80)
-    check_within_budget(label or name, result.nbytes, budget_bytes)
-    # query_us holds its place in the row; its value is the measured record's (set below, exact).
-    row.update(status="ok", nbytes=result.nbytes, fit_s=fit_s, query_us=None,
-               **{f"recall@{t}": result.recall[t] for t in result.recall})
+        record = EvaluationResult.not_measured(label or name, does_not_fit_status(exc.minimum), str(exc),
+                                               n_map=int(X.shape[0]), budget=budget_bytes,
+                                               minimum_bytes=exc.minimum, method=method)
+        record.labels, record.columns = labels, (*head, "minimum_bytes")
+        return record
     if cached:
-        row["cached"] = True
+        labels["cached"] = True
     if getattr(model, "n_unconverged_", None) is not None:
-        row["n_unconverged"] = int(model.n_unconverged_)
-    if result.recall_at_k:
-        row.update({f"R@{k}": v for k, v in result.recall_at_k.items()})
-    record = EvaluationResult.from_row(row, measured=result)
-    record.query_time_s_per_query = result.query_time_s_per_query
+        labels["n_unconverged"] = int(model.n_unconverged_)
+    record = measure(model, None, Q, name=label or name, fit=False, fit_time_s=fit_s,
+                     tolerances=DEFAULT_TOLERANCES, curve_max=80, budget=budget_bytes, labels=labels)
+    check_within_budget(label or name, record.nbytes, budget_bytes)
+    record.uses_query_sequence = bool(method.uses_query_sequence)
+    record.columns = (*head, "fit_s", "query_us", *(f"recall@{t}" for t in record.recall),
+                      *(k for k in ("cached", "n_unconverged") if k in labels),
+                      *(f"R@{k}" for k in (record.recall_at_k or {})))
     return record
 
 
@@ -400,7 +335,7 @@ def fit_rows(data: NordlandData, jobs: list[dict[str, Any]], *, desc: str = "fit
     from tqdm.auto import tqdm
 
     for job in jobs:  # read every descriptor matrix first, in this thread
-        data.pair(job["name"], job.get("map_season", "summer"), job.get("n_places"))
+        data.pair(_descriptor_of(job["name"]), job.get("map_season", "summer"), job.get("n_places"))
     workers = min(experiment_jobs(), max(1, len(jobs)))
     out: list[Any] = [None] * len(jobs)
     with tqdm(total=len(jobs), desc=desc, unit="fit", disable=None if data.progress else True, leave=False) as bar:

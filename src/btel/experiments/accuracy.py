@@ -7,6 +7,7 @@ from pathlib import Path
 from ..evaluation.plots import NORDLAND_CREDIT, curve_label, plot_curves
 from ..core.storage import format_bytes
 from ._common import SEASONS, ExperimentRun, NordlandData, fit_rows, full_or_quick
+from ..methods.roles import REFERENCE_METHOD
 
 __all__ = ["exp_accuracy", "plot"]
 
@@ -18,7 +19,8 @@ def exp_accuracy(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:
     methods = full_or_quick(quick, ["btel-c", "btel-f", "btel-r", "pq", "opq", "itq", "ryth", "seqslam", "bruteforce"],
                             ["btel-c", "btel-r", "pq", "bruteforce"])
     rows, curves = [], {}
-    jobs = [dict(name=name, budget=None if name == "bruteforce" else budget, n_places=n, map_season=map_season)
+    jobs = [dict(name=name, budget=None if name == REFERENCE_METHOD else budget, n_places=n,
+                 map_season=map_season)
             for map_season in SEASONS for name in methods]
     for job, record in zip(jobs, fit_rows(data, jobs, desc="accuracy")):
         map_season, name = job["map_season"], job["name"]

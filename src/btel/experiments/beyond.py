@@ -34,7 +34,6 @@ is warmed up on validation frames. Gardens Point and the synthetic routes are no
 from __future__ import annotations
 
 import itertools
-import time
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +45,9 @@ from ..exceptions import BudgetTooSmallError
 from ..evaluation.plots import NORDLAND_CREDIT, finish_recall_plot, new_figure, plot_method_bars, plot_recall_vs_storage
 from ..evaluation.records import EvaluationResult
 from ..core.storage import check_within_budget, format_bytes, parse_budget
+from ..datasets.sources import gardens_point_path, load_gardens_point_netvlad
+from ..evaluation.measure import timed_fit
+from ..evaluation.records import does_not_fit_status
 from ._common import SEASONS, ExperimentRun, NordlandData, fit_model
 
 __all__ = ["exp_beyond", "plot", "BTEL_VARIANTS", "stretch_split"]
@@ -101,7 +103,7 @@ def _single_frame_row(base: dict[str, Any], fitted: tuple[Any, float] | int, Q: 
                       truth: np.ndarray) -> dict[str, Any]:
     """The result row of one fitted method read frame by frame (or its "does not fit" row)."""
     if isinstance(fitted, int):
-        return {**base, "status": f"does not fit (needs ≥ {fitted} B)", "nbytes": None, "minimum_bytes": fitted}
+        return {**base, "status": does_not_fit_status(fitted), "nbytes": None, "minimum_bytes": fitted}
     model, fit_s = fitted
     check_within_budget(base["method"], model.nbytes, base["budget"])
     return {**base, "status": "ok", "nbytes": int(model.nbytes), "fit_s": fit_s, **_recalls(model.predict(Q), truth)}
@@ -135,7 +137,7 @@ def _nordland_rows(data: NordlandData, budget: int, quick: bool, log: Any,
                     "options": opts}
             fitted = _fit(name, opts, X, budget, data)
             if isinstance(fitted, int):
-                rows.append({**base, "decoder": "single", "status": f"does not fit (needs ≥ {fitted} B)",
+                rows.append({**base, "decoder": "single", "status": does_not_fit_status(fitted),
                              "nbytes": None, "minimum_bytes": fitted})
                 continue
             model, fit_s = fitted
@@ -220,12 +222,11 @@ def _ladder(rows: list[dict[str, Any]], direction: str) -> dict[str, Any]:
 
 def _gardens_point_rows(root: Path, quick: bool, log: Any) -> list[dict[str, Any]]:
     """Part 2: budget sweep on Gardens Point NetVLAD (day → night, frame-aligned)."""
-    path = root.parent / "gardenspoint_netvlad" / "hiddenRepr-GardensPoint.npz"
+    path = gardens_point_path(root.parent)
     if not path.is_file():
         return [{"part": "gardens-point", "method": "-", "status": f"skipped: {path} not found", "n_places": 0,
                  "budget": None}]
-    with np.load(path, allow_pickle=False) as z:
-        X, Q = z["hlrTrain"].astype(np.float32), z["hlrTest"].astype(np.float32)
+    X, Q = load_gardens_point_netvlad(path)
     truth = np.arange(X.shape[0])
     budgets = ["4KB", "16KB"] if quick else ["1KB", "2KB", "4KB", "8KB", "16KB", "32KB", "64KB"]
     methods = [("BTE-C", "btel-c", {}), ("BTE-F", "btel-f", {}), ("BTE-C blocks B=4", "btel-c", {"block_size": 4}),
@@ -266,9 +267,8 @@ def _synthetic_rows(quick: bool, log: Any) -> list[dict[str, Any]]:
                     "n_places": n, "budget": b, "decoder": "single"}
             if "traverses" in label:  # variant 6: shared labels across traverses (fit(X, places))
                 model = make_method(name, budget=b, random_state=0)
-                start = time.perf_counter()
-                model.fit(np.concatenate([route.map, route.traverses[2]]), np.concatenate([truth, truth]))
-                fitted = (model, time.perf_counter() - start)
+                fitted = (model, timed_fit(model, np.concatenate([route.map, route.traverses[2]]),
+                                           np.concatenate([truth, truth])))
             else:
                 fitted = _fit(name, {}, route.map, b)
             rows.append(_single_frame_row(base, fitted, route.queries, truth))
@@ -307,10 +307,9 @@ def _diagnostics(data: NordlandData, root: Path, budget: int, out: Path,
                 curves["BTE-C"] = fitted[0].bit_accuracy(Q[:n], np.arange(n))
         curves["nearest neighbour's place (unbudgeted)"] = nearest_neighbour_bits(X[:n], Q[:n])
         per_descriptor[label + " summer→winter"] = curves
-    gp = root.parent / "gardenspoint_netvlad" / "hiddenRepr-GardensPoint.npz"
+    gp = gardens_point_path(root.parent)
     if gp.is_file():
-        with np.load(gp, allow_pickle=False) as z:
-            X, Q = z["hlrTrain"].astype(np.float32), z["hlrTest"].astype(np.float32)
+        X, Q = load_gardens_point_netvlad(gp)
         curves = {}
         for name, opts in (("BTE-C", {}), ("BTE-C offset codes m=2", {"code_copies": 2})):
             fitted = _fit("btel-c", opts, X, parse_budget("16KB"))

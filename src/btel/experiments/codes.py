@@ -40,6 +40,7 @@ import numpy as np
 
 from ..evaluation.metrics import DEFAULT_TOLERANCES, recall_at_tolerance
 from ..core.storage import format_bytes, parse_budget
+from ..datasets.sources import gardens_point_path, load_gardens_point_netvlad
 from ._common import SEASONS, ExperimentRun, FittedRow, NordlandData, fit_and_predict
 
 __all__ = ["exp_codes", "TARGETS", "check_targets"]
@@ -122,12 +123,11 @@ def _baselines(with_today: bool) -> list[tuple]:
 
 
 def _gardens_point(root: Path, quick: bool, log: Any) -> tuple[list[dict[str, Any]], dict[str, Any]]:
-    path = root.parent / "gardenspoint_netvlad" / "hiddenRepr-GardensPoint.npz"
+    path = gardens_point_path(root.parent)
     if not path.is_file():
         return [{"part": "gardens-point", "dataset": "Gardens Point", "method": "-", "n_places": 0, "budget": None,
                  "nbytes": None, "status": f"skipped: {path} not found", "minimum_bytes": None}], {}
-    with np.load(path, allow_pickle=False) as z:
-        X, Q = z["hlrTrain"].astype(np.float32), z["hlrTest"].astype(np.float32)
+    X, Q = load_gardens_point_netvlad(path)
     part = {"part": "gardens-point", "dataset": "Gardens Point", "direction": "day→night",
             "descriptor": "NetVLAD 500-D", "n_places": int(X.shape[0])}
     families = ("periodic",) if quick else FAMILIES

@@ -30,6 +30,8 @@ from ..evaluation.metrics import DEFAULT_TOLERANCES, recall_at_k, recall_at_tole
 from ..exceptions import BudgetTooSmallError
 from ..evaluation.plots import NORDLAND_CREDIT, plot_method_bars
 from ..core.storage import check_within_budget, format_bytes, parse_budget
+from ..datasets.sources import gardens_point_path, load_gardens_point_netvlad
+from ..evaluation.records import does_not_fit_status
 from ._common import SEASONS, ExperimentRun, NordlandData, fit_model
 
 __all__ = ["exp_front_ends", "plot", "FRONT_ENDS"]
@@ -63,7 +65,7 @@ def _rows_for(data: NordlandData, label: str, name: str, params: dict[str, Any],
     try:
         model, fit_s, _ = fit_model(name, {**params, **({"budget": budget_bytes} if budget_bytes else {})}, X, data)
     except BudgetTooSmallError as exc:
-        return [{**row, "decoder": "single", "status": f"does not fit (needs ≥ {exc.minimum} B)", "nbytes": None,
+        return [{**row, "decoder": "single", "status": does_not_fit_status(exc.minimum), "nbytes": None,
                  "minimum_bytes": exc.minimum}]
     check_within_budget(label, model.nbytes, budget_bytes)
     common = {**row, "status": "ok", "nbytes": int(model.nbytes), "fit_s": fit_s}
@@ -103,11 +105,10 @@ def _nordland(data: NordlandData, quick: bool, log: Any) -> list[dict[str, Any]]
 
 
 def _gardens_point(data: NordlandData, quick: bool, log: Any) -> list[dict[str, Any]]:
-    path = data.root.parent / "gardenspoint_netvlad" / "hiddenRepr-GardensPoint.npz"
+    path = gardens_point_path(data.root.parent)
     if not path.is_file():
         return [{"part": "gardens-point", "method": "-", "status": f"skipped: {path} not found", "n_places": 0}]
-    with np.load(path, allow_pickle=False) as z:
-        X, Q = z["hlrTrain"].astype(np.float32), z["hlrTest"].astype(np.float32)
+    X, Q = load_gardens_point_netvlad(path)
     methods = [("brute force", "bruteforce", None, {}), ("PQ", "pq", "32KB", {}), ("OPQ", "opq", "32KB", {}),
                ("ITQ", "itq", "32KB", {}), ("BTE-C", "btel-c", "32KB", {}),
                ("BTE-C offset codes m=2", "btel-c", "32KB", {"code_copies": 2}),

@@ -62,7 +62,9 @@ import numpy as np
 from ..evaluation.metrics import recall_at_tolerance
 from ..core.storage import format_bytes, parse_budget
 from ..core.threads import limit_threads
+from ..datasets.sources import gardens_point_path, load_gardens_point_netvlad
 from ._common import SEASONS, ExperimentRun, FittedRow, NordlandData, fit_and_predict
+from ..methods.registry import make_method
 
 __all__ = ["DATASETS", "auto_vs_oracle", "exp_frontier"]
 
@@ -133,10 +135,11 @@ def _row(base: dict[str, Any], label: str, name: str, params: dict[str, Any], X:
            "seed_values": [r[base["key"]] for r in runs],
            "seeds": [] if seeds is None else list(seeds[:len(runs)]),
            "uses_query_sequence": bool(model.uses_query_sequence)}
-    if name == "auto":
-        out["chose"] = model.choice_["method"] + "".join(f" {k}={v}" for k, v in model.choice_["params"].items())
-        out["route_share"] = model.choice_["route_share"]
-        out["reason"] = model.choice_["reason"]
+    choice = model.choice() if hasattr(model, "choice") else None  # what auto chose at fit time
+    if choice is not None:
+        out["chose"] = choice["method"] + "".join(f" {k}={v}" for k, v in choice["params"].items())
+        out["route_share"] = choice["route_share"]
+        out["reason"] = choice["reason"]
     return out
 
 
@@ -144,10 +147,9 @@ def _maps(data: NordlandData, quick: bool) -> list[tuple[dict[str, Any], np.ndar
     from ..datasets import synthetic_route
 
     out = []
-    gp = data.root.parent / "gardenspoint_netvlad" / "hiddenRepr-GardensPoint.npz"
+    gp = gardens_point_path(data.root.parent)
     if gp.is_file():
-        with np.load(gp, allow_pickle=False) as z:
-            X, Q = z["hlrTrain"].astype(np.float32), z["hlrTest"].astype(np.float32)
+        X, Q = load_gardens_point_netvlad(gp)
         out.append(({"dataset": "gardens-point", "regime": "route", "key": "recall@2",
                      "descriptor": "NetVLAD 500-D"}, X, Q))
         perm = np.random.default_rng(0).permutation(X.shape[0])
@@ -198,10 +200,11 @@ def auto_vs_oracle(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         sub = [r for r in rows if r["dataset"] == dataset and r.get("budget") and r.get("status") == "ok"]
         for budget in sorted({r["budget"] for r in sub}):
             here = [r for r in sub if r["budget"] == budget]
-            auto = next((r for r in here if r["method"] == "auto"), None)
-            others = [r for r in here if r["method"] != "auto"] or here
+            # A row of a method that chose at fit time (auto) says what it chose; the others are candidates.
+            auto = next((r for r in here if "chose" in r), None)
+            others = [r for r in here if "chose" not in r] or here
             best = max(others, key=lambda r: r["value"])  # auto refits one of the others: never its own oracle
-            registered = [r for r in here if r["method"] == r["registry_name"] and r["method"] != "auto"]
+            registered = [r for r in here if r["method"] == r["registry_name"] and "chose" not in r]
             best_registered = max(registered, key=lambda r: r["value"]) if registered else None
             # The reference: asymmetric LSH on i.i.d. Gaussian hyperplanes (``lsh``'s default is structured).
             lsh = next((r for r in here if r["method"] == "lsh gaussian"), None) or \
@@ -304,7 +307,8 @@ def _one_map(base: dict[str, Any], X: np.ndarray, Q: np.ndarray, budgets: tuple[
     raw = X.shape[0] * X.shape[1] * 4
     budgets = tuple(b for b in budgets if parse_budget(b) <= raw)
     for label, name, params in FAST[:5] if quick else FAST:
-        seeds = None if name == "bruteforce" else (SEEDS[:2] if quick else SEEDS)
+        seeded = "random_state" in make_method(name).get_params()  # brute force draws nothing at random
+        seeds = (SEEDS[:2] if quick else SEEDS) if seeded else None
         for budget in budgets:
             rows.append(_row(base, label, name, params, X, Q, parse_budget(budget), seeds))
             keep(rows[-1])
@@ -317,7 +321,7 @@ def _one_map(base: dict[str, Any], X: np.ndarray, Q: np.ndarray, budgets: tuple[
         rows.append(_row(base, label, "bruteforce", params, X, Q, None))
         keep(rows[-1])
     seconds[base["dataset"]] = time.perf_counter() - start
-    auto = [r for r in rows if r["dataset"] == base["dataset"] and r["method"] == "auto" and r["status"] == "ok"]
+    auto = [r for r in rows if r["dataset"] == base["dataset"] and "chose" in r and r["status"] == "ok"]
     log(f"{base['dataset']}: {seconds[base['dataset']]:.0f} s; auto " +
         ", ".join(f"{format_bytes(r['budget'])} {r['chose']} {r['value']:.3f}" for r in auto))
 

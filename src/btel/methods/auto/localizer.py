@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from ...core.validation import N_JOBS, RANDOM_STATE, Budget, check_params
+from ...core.validation import N_JOBS, RANDOM_STATE, Budget, check_is_fitted, check_params
 from ..base import ArraySpec, PlaceLocalizer
 from ...exceptions import BudgetTooSmallError, ModelFileError
 from ...core.storage import format_bytes, parse_budget
@@ -118,6 +118,12 @@ class AutoLocalizer(PlaceLocalizer):
         raise BudgetTooSmallError(f"budget {format_bytes(budget or 0)} ({budget} B) is too small for auto: neither "
                                   f"lsh nor btel-codes fits ({'; '.join(str(e) for e in errors)}).",
                                   budget=budget, minimum=smallest.minimum)
+
+    def choice(self) -> dict[str, Any]:
+        """What the rule chose: ``{"method", "params", "reason", "refused"}`` (a copy of ``choice_``)."""
+        check_is_fitted(self, "choice_")
+        return {k: (dict(v) if isinstance(v, dict) else list(v) if isinstance(v, list) else v)
+                for k, v in self.choice_.items()}
 
     def summary(self) -> str:
         """One line: what the rule chose and why."""

@@ -260,6 +260,8 @@ class SeqSLAM(_RowLocalizer):
     """
 
     uses_sequence = True
+    #: The image descriptor SeqSLAM was built on (patch-normalised thumbnails): experiments read it.
+    native_descriptor = "patchnorm"
     #: SeqSLAM's own front end is the thumbnail and its contrast enhancement: no normalisation.
     front_end_defaults = {"normalize": "none", "whiten": None, "delta": None}
     _parameter_constraints = {

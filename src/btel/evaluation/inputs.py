@@ -1,0 +1,186 @@
+"""What a run of several methods is measured on: its jobs (methods by name, saved models), one map, a title.
+
+:func:`make_jobs` turns names, budgets and parameters into :class:`Job` rows (the unbudgeted
+reference added); ``btel evaluate`` and ``btel demo`` parse their options, call these, then
+:func:`btel.evaluation.run_methods`.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ..core.storage import format_bytes, parse_budget
+from ..exceptions import InvalidParameterError
+
+__all__ = ["Job", "make_jobs", "method_named", "RUNTIME_PARAMS", "saved_jobs", "common_map_size", "run_title"]
+
+#: Parameters set by runtime flags (progress bars, parallel fits): they change how a method runs,
+#: not what it computes, so they are applied where a method has them and left out of its settings.
+RUNTIME_PARAMS = frozenset({"progress", "n_jobs"})
+
+
+@dataclass
+class Job:
+    """One row of an evaluation run: a method to fit (or an already fitted one) under a budget.
+
+    Attributes
+    ----------
+    name : str
+        Row name (distinct within a run).
+    method : estimator
+        Unfitted (``fit=True``) or fitted (``fit=False``, e.g. a saved model).
+    fit : bool
+    reference : bool
+        The unbudgeted reference row (brute force).
+    series : str, optional
+        The method this row is one point of, when a run has several budgets (``pq`` for ``pq@100KB``).
+    settings : dict, optional
+        The parameters the user set for this row (``--param code=random``), shown in plot legends
+        so that two rows of one method can be told apart.
+    """
+
+    name: str
+    method: Any
+    fit: bool = True
+    reference: bool = False
+    series: str | None = None
+    settings: dict[str, Any] | None = None
+
+    @property
+    def budget(self) -> int | None:
+        return parse_budget(getattr(self.method, "budget", None))
+
+
+
+
+@contextmanager
+def method_named(method: str) -> Iterator[None]:
+    """A bad parameter value found while building ``method`` names the method, not its class."""
+    try:
+        yield
+    except InvalidParameterError as exc:
+        message = re.sub(r"^[A-Z][A-Za-z]+: ", "", str(exc))  # "BTELocalizer: C must be …"
+        raise InvalidParameterError(f"{method}: {message}") from exc
+
+
+def make_jobs(methods: Sequence[str], budgets: Sequence[Any] = (None,),
+              params: Mapping[str, Mapping[str, Any]] | None = None, *, reference: bool = True) -> list[Job]:
+    """One job per (method, budget); the reference method (brute force) once, unbudgeted.
+
+    Brute force stores every map descriptor, so it is the upper reference, not a contender under the
+    budget: it runs without a budget unless ``params`` gives it one
+    (:data:`btel.methods.registry.REFERENCE_METHOD` says which method it is). With ``reference``
+    and the reference not among ``methods``, it is added, and the same search on shrinkage-whitened
+    rows (:data:`btel.methods.roles.WHITENED_REFERENCE`) is a second reference row beside it —
+    unless ``params`` gives the reference a front end or budget of its own.
+
+    Parameters
+    ----------
+    methods : sequence of str
+        Registered method names.
+    budgets : sequence of int, str or None
+        One row per method and budget (``pq@100KB`` names the row when there are several).
+    params : mapping of str to mapping, optional
+        Method name → its parameters (:data:`RUNTIME_PARAMS` among them are not shown as settings).
+    reference : bool, default True
+        Add the reference rows when ``methods`` does not name the reference.
+
+    Returns
+    -------
+    list of Job
+    """
+    from ..methods.registry import REFERENCE_METHOD, make_method
+    from ..methods.roles import WHITENED_REFERENCE
+
+    params = {name: dict(p) for name, p in (params or {}).items()}
+    budgets = list(budgets) or [None]
+    names = list(methods)
+    added_reference = reference and REFERENCE_METHOD not in names
+    if added_reference:
+        names.append(REFERENCE_METHOD)
+    jobs = []
+    for name in names:
+        given = params.get(name, {})
+        is_reference = name == REFERENCE_METHOD and "budget" not in given
+        settings = {k: v for k, v in given.items() if k != "budget" and k not in RUNTIME_PARAMS}
+        for budget in ([None] if is_reference else budgets):
+            label = name if len(budgets) == 1 or is_reference else f"{name}@{budget}"
+            kwargs = {**given, **({"budget": budget} if budget is not None and "budget" not in given else {})}
+            with method_named(name):
+                jobs.append(Job(label, make_method(name, **kwargs), reference=is_reference, series=name,
+                                settings=settings or None))
+    white_label, white_params = WHITENED_REFERENCE
+    own = params.get(REFERENCE_METHOD, {})
+    if added_reference and not set(white_params) & set(own) and "budget" not in own:
+        kwargs = {**own, **white_params}
+        settings = {k: v for k, v in kwargs.items() if k not in RUNTIME_PARAMS}
+        with method_named(REFERENCE_METHOD):
+            jobs.append(Job(white_label, make_method(REFERENCE_METHOD, **kwargs), reference=True,
+                            series=white_label, settings=settings))
+    return jobs
+
+
+
+
+def saved_jobs(paths: Sequence[str | os.PathLike], n_features: int) -> list[Job]:
+    """One ``fit=False`` job per saved model file (named by the file), checked against the queries' width.
+
+    Raises
+    ------
+    InvalidParameterError
+        A model fitted on descriptors of another dimension.
+    """
+    from ..methods.registry import load
+
+    jobs = []
+    for path in paths:
+        model = load(path)
+        if model.n_features_in_ != n_features:
+            raise InvalidParameterError(f"model {path} expects {model.n_features_in_}-D descriptors but the "
+                                        f"queries have {n_features}.")
+        jobs.append(Job(Path(path).name.split(".")[0], model, fit=False))
+    return jobs
+
+
+def common_map_size(X_map: Any, Q: Any, saved: Sequence[Job]) -> int:
+    """The number of map places the map descriptors and every saved model share.
+
+    Raises
+    ------
+    InvalidParameterError
+        The map and queries differ in width, or the maps differ in size (one ground truth could
+        not hold for all).
+    """
+    if X_map is not None and X_map.shape[1] != Q.shape[1]:
+        raise InvalidParameterError(f"the map has {X_map.shape[1]} dims but the queries have {Q.shape[1]}; "
+                                    "describe both with the same descriptor.")
+    sizes = {int(job.method.n_places_) for job in saved}
+    if X_map is not None:
+        sizes.add(int(X_map.shape[0]))
+    if len(sizes) != 1:
+        raise InvalidParameterError(f"the maps differ in size ({sorted(sizes)} places): the map descriptors "
+                                    "and every saved model must cover one map for one ground truth to hold.")
+    return sizes.pop()
+
+
+def run_title(dataset: str, n_map: int, n_queries: int, budgets: Sequence[Any], truth: dict[str, str], *,
+              saved: bool = False, fitted: bool = True) -> str:
+    """The plots' title: data set, sizes, budgets, ground truth (source and rule)."""
+    given = [b for b in budgets if b is not None]
+    if given:
+        budget = "budget " + ", ".join(format_bytes(parse_budget(b)) for b in given)
+    else:
+        budget = ("saved models" + (" and unbudgeted methods" if fitted else "")) if saved else "no budget"
+    source = truth["source"]
+    if source.startswith("frame-aligned"):
+        said = "frame-aligned"
+    else:
+        said = (f"{truth['rule']} from {Path(source).name}" if os.path.isabs(source)
+                else f"{truth['rule']} ({source})")
+    return f"{dataset}: N = {n_map}, {n_queries} queries; {budget}; {said}"
