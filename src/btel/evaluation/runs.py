@@ -67,6 +67,8 @@ def _package_version(*names: str) -> str | None:
 
 def run_metadata(command: str | Sequence[str] | None = None) -> dict[str, Any]:
     """Where and how a run was made: command line, library versions, platform, UTC date."""
+    from .. import __version__
+
     if command is None:
         command = shlex.join(sys.argv)
     elif not isinstance(command, str):
@@ -75,7 +77,7 @@ def run_metadata(command: str | Sequence[str] | None = None) -> dict[str, Any]:
         "command": command,
         "date_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "versions": {
-            "btel": _version("btel"),
+            "btel": __version__,
             "python": platform.python_version(),
             "numpy": np.__version__,
             "scipy": _package_version("scipy"),
