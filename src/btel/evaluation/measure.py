@@ -30,7 +30,7 @@ from .metrics import (DEFAULT_KS, DEFAULT_TOLERANCES, PR_CURVE_POINTS, TABLE_KS,
                       recall_at_k, recall_at_tolerance, recall_curve, thin_curve)
 from .records import (STATUS_DOES_NOT_FIT, STATUS_FAILED, STATUS_NOT_RUN, STATUS_OK, STATUS_REFUSED,
                       EvaluationResult, _params_of, _storage_of)
-from ..core.storage import parse_budget
+from ..core.storage import budget_of
 from .tables import format_table
 from .timing import QueryTiming, time_queries
 
@@ -196,7 +196,7 @@ def evaluate(
         ranked=ranked,
         ground_truth=gt,
         tolerance_for_k=int(k_tolerance),
-        budget=budget if budget is not None else parse_budget(getattr(method, "budget", None)),
+        budget=budget if budget is not None else budget_of(method),
         reference=bool(reference),
         uses_query_sequence=bool(getattr(method, "uses_query_sequence", False)),
     )
@@ -245,7 +245,7 @@ class Job:
 
     @property
     def budget(self) -> int | None:
-        return parse_budget(getattr(self.method, "budget", None))
+        return budget_of(self.method)
 
 
 

@@ -37,11 +37,12 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..core.params import ParamsMixin
-from ..core.validation import check_descriptors, check_is_fitted, check_params, check_positive_int, map_places
+from ..core.validation import (Budget, check_descriptors, check_is_fitted, check_params, check_positive_int,
+                               map_places)
 from ..exceptions import (BudgetTooSmallError, InvalidAnswerError, InvalidDescriptorsError,
                          NotEnoughPlacesError)
-from ..core.frontend import FRONT_END_CONSTRAINTS, FrontEnd, traverse_starts, with_front_end_parameters
-from ..core.storage import format_bytes, parse_budget, storage_breakdown
+from ..core.frontend import FRONT_END_CONSTRAINTS, FRONT_END_MEANINGS, FrontEnd, traverse_starts, with_front_end_parameters
+from ..core.storage import budget_of, format_bytes, storage_breakdown
 from ..core.modelfile import ArraySpec, jsonable, save_arrays
 from ..sequence.querystream import QueryStream
 from ..core.topk import put_first, top_k
@@ -65,7 +66,16 @@ class PlaceLocalizer(ParamsMixin, ABC):
     #: delta front end makes any method sequence-based too: see :attr:`uses_query_sequence`.
     uses_sequence: ClassVar[bool] = False
     #: Declared parameter constraints: name → list of accepted constraints (:mod:`btel.core.validation`).
+    #: The budget's and the front end's are declared here once for every method (``__init_subclass__``).
     _parameter_constraints: ClassVar[dict[str, list[Any]]] = {}
+    #: One sentence per shared parameter, for a docstring that does not describe it
+    #: (:func:`btel.core.paramdocs.parameter_meanings`).
+    _parameter_meanings: ClassVar[dict[str, str]] = {
+        "budget": "Byte budget of everything stored (500000, '500KB', '2MB', '64KiB'); None: unbudgeted.",
+        **FRONT_END_MEANINGS}
+    #: The byte budget (``int``, ``'500KB'`` or None), a parameter of every method: read it with
+    #: :func:`btel.core.storage.budget_of`, which parses it.
+    budget: int | str | None = None
     #: Parameters that say how a model runs, not what it learned: never restored from a model file.
     _runtime_params: ClassVar[tuple[str, ...]] = ()
     #: The fitted attribute whose presence means "fitted" (set last by fit and load).
@@ -91,7 +101,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
             raise TypeError(f"{cls.__name__} must implement _search or _place_scores (the method's primitive).")
         if "__init__" in cls.__dict__:
             cls.__init__ = with_front_end_parameters(cls.__dict__["__init__"], dict(cls.front_end_defaults))
-        cls._parameter_constraints = {**cls._parameter_constraints, **FRONT_END_CONSTRAINTS}
+        cls._parameter_constraints = {"budget": [Budget()], **cls._parameter_constraints, **FRONT_END_CONSTRAINTS}
 
     # -- to implement ---------------------------------------------------------------------------
     @abstractmethod
@@ -180,7 +190,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
         """
         start = time.perf_counter()
         X, labels, n_places = self._check_fit_input(X, places)
-        budget, front = parse_budget(getattr(self, "budget", None)), FrontEnd.of(self)
+        budget, front = budget_of(self), FrontEnd.of(self)
         reserved = self._front_end_bytes(X.shape[0], X.shape[1], budget)
         if labels is None:  # one place per row, as the planner counts: refuse the budget before transforming
             self._check_plan(X.shape[0], front.n_features_out(X.shape[1]), budget, reserved)

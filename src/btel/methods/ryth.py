@@ -18,14 +18,14 @@ from typing import Any
 
 import numpy as np
 
-from ..core.validation import N_JOBS, RANDOM_STATE, Budget, DType, Interval, Options, check_positive_int, read_state_int
+from ..core.validation import N_JOBS, RANDOM_STATE, DType, Interval, Options, check_positive_int, read_state_int
 from .base import ArraySpec, PlaceLocalizer
 from ..exceptions import BudgetTooSmallError, ModelFileError, NotEnoughPlacesError
 from ..learning.feature_selection import column_index_dtype
 from ..learning.hyperplanes import Hyperplanes
 from ..learning.linear import ColumnStats, default_C
 from ..learning.solvers import CLASSIFIERS, SOLVERS
-from ..core.storage import format_bytes, parse_budget
+from ..core.storage import budget_of, format_bytes
 from ..learning.training import convergence_warning, fit_tasks, one_vs_rest_tasks
 
 __all__ = ["RYTHLocalizer", "coprime_periods", "crt"]
@@ -123,7 +123,6 @@ class RYTHLocalizer(PlaceLocalizer):
         "feature_ratio": [None, Interval(float, 0, 1, closed="right")],
         "n_features": [None, Interval(int, 1, None)],
         "sparsity": [Interval(float, 0, None, closed="neither")],
-        "budget": [Budget()],
         "dtype": [DType("float32", "float16")],
         "decode": [Options("soft", "crt")],
         "max_iter": [None, Interval(int, 1, 2**31 - 1)],  # None: the solver's own cap; liblinear takes a C int
@@ -206,7 +205,7 @@ class RYTHLocalizer(PlaceLocalizer):
         if not hasattr(self, "n_selected_"):
             return False
         d = self.front_end_.n_features_out(int(self.n_features_in_))
-        return int(self.n_selected_) == self._cap(d, parse_budget(self.budget))
+        return int(self.n_selected_) == self._cap(d, budget_of(self))
 
     def _fit(self, X: np.ndarray, places: np.ndarray | None, n_places: int, budget: int | None,
              reserved: int) -> None:

@@ -23,7 +23,7 @@ from typing import Any
 import faiss
 import numpy as np
 
-from ...core.validation import N_JOBS, RANDOM_STATE, Budget, Interval, check_positive_int, read_state_int
+from ...core.validation import N_JOBS, RANDOM_STATE, Interval, check_positive_int, read_state_int
 from ..base import ArraySpec
 from ...exceptions import InvalidParameterError, ModelFileError, NotEnoughPlacesError
 from ._common import _RowLocalizer, quiet_faiss, raise_budget_too_small
@@ -65,7 +65,6 @@ class ITQLocalizer(_RowLocalizer):
 
     _min_rows = 8
     _parameter_constraints = {
-        "budget": [Budget()],
         "code_bits": [None, Interval(int, 8, None)],
         "random_state": RANDOM_STATE,
         "n_jobs": N_JOBS,

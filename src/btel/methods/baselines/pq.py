@@ -39,7 +39,7 @@ from typing import Any, Iterator
 import faiss
 import numpy as np
 
-from ...core.validation import N_JOBS, RANDOM_STATE, Budget, Interval, check_positive_int, read_state_int
+from ...core.validation import N_JOBS, RANDOM_STATE, Interval, check_positive_int, read_state_int
 from ..base import ArraySpec
 from ...exceptions import InvalidParameterError, ModelFileError, NotEnoughPlacesError
 from ._common import _RowLocalizer, check_model_values, quiet_faiss, raise_budget_too_small
@@ -151,7 +151,6 @@ class PQLocalizer(_RowLocalizer):
 
     _float32_distances = True  # a map of tiny rows is refused at fit (_common.MIN_NORM)
     _parameter_constraints = {
-        "budget": [Budget()],
         "n_subquantizers": [None, Interval(int, 1, 1 << 16)],
         "nbits": [None, Interval(int, 1, 8)],
         "pca_dim": [None, Interval(int, 1, None)],

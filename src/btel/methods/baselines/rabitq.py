@@ -44,7 +44,7 @@ from typing import Any
 import faiss
 import numpy as np
 
-from ...core.validation import N_JOBS, RANDOM_STATE, Budget, Interval, read_state_int
+from ...core.validation import N_JOBS, RANDOM_STATE, Interval, read_state_int
 from ..base import ArraySpec
 from ...exceptions import BTELError, InvalidDescriptorsError, InvalidParameterError, ModelFileError
 from ._common import MAX_NORM, _RowLocalizer, check_model_values, raise_budget_too_small
@@ -113,7 +113,6 @@ class RaBitQLocalizer(_RowLocalizer):
 
     _float32_distances = True  # a map of tiny rows is refused at fit (_common.MIN_NORM)
     _parameter_constraints = {
-        "budget": [Budget()],
         "dim": [None, Interval(int, 1, None)],
         "nbits": [None, Interval(int, 1, MAX_NBITS)],
         "random_state": RANDOM_STATE,

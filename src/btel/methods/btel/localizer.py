@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ...core.validation import BOOLEAN, N_JOBS, RANDOM_STATE, Budget, DType, Interval, Options, String, check_positive_int
+from ...core.validation import BOOLEAN, N_JOBS, RANDOM_STATE, DType, Interval, Options, String, check_positive_int
 from ..base import PlaceLocalizer
 from ...exceptions import InvalidParameterError
 from ...learning.distributed import BACKENDS
@@ -190,7 +190,6 @@ class BTELocalizer(TreeDecoding, TreeModelFile, PlaceLocalizer):
         "n_features": [None, Interval(int, 1, None)],
         "sparsity": [Interval(float, 0, None, closed="neither")],
         "n_regions": [Options("auto"), Interval(int, 1, None)],
-        "budget": [Budget()],
         "dtype": [DType(*WEIGHT_DTYPES)],
         "decode": [Options(*DECODERS)],
         "max_regions": [Interval(int, 1, None)],

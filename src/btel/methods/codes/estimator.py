@@ -49,7 +49,7 @@ from typing import Any
 
 import numpy as np
 
-from ...core.validation import N_JOBS, RANDOM_STATE, Budget, Interval, Options, String
+from ...core.validation import N_JOBS, RANDOM_STATE, Interval, Options, String
 from ..base import PlaceLocalizer
 from ...exceptions import BudgetTooSmallError, InvalidParameterError
 from ...learning.distributed import BACKENDS
@@ -155,7 +155,6 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
         "n_codes": [None, Interval(int, 1, MAX_COLUMNS)],
         "n_features": [None, Interval(int, 1, None)],
         "weight_bits": [None, Options(*WEIGHT_BITS)],
-        "budget": [Budget()],
         "solver": [Options(*SOLVERS)],
         "alpha": [None, Interval(float, 0, None, closed="neither")],
         "C": [Interval(float, 0, None, closed="neither")],
