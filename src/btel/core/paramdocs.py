@@ -31,17 +31,18 @@ def _parameters_section(doc: str) -> str:
 def parameter_meanings(cls: type) -> dict[str, str]:
     """Parameter name → one sentence: from ``cls``'s numpydoc ``Parameters``, else ``_parameter_meanings``.
 
-    An entry naming several parameters (``normalize, whiten, delta``) with no description of its
-    own (or one that only points elsewhere) does not hide the declared meanings.
+    An entry naming several parameters (``normalize, whiten, delta``) describes them together, so
+    a meaning declared for one of them is more precise and wins.
     """
     meanings: dict[str, str] = {}
+    shared: dict[str, str] = {}
     names: list[str] = []
     text: list[str] = []
 
     def flush() -> None:
         sentence = _plain(_SENTENCE_END.split(" ".join(text).strip(), maxsplit=1)[0])
-        if sentence and len(names) == 1:
-            meanings[names[0]] = sentence
+        for name in names if sentence else ():
+            (meanings if len(names) == 1 else shared)[name] = sentence
     for line in _parameters_section(inspect.getdoc(cls) or "").splitlines():
         if line and not line[0].isspace() and (match := _ENTRY.match(line.strip())):
             flush()
@@ -49,7 +50,7 @@ def parameter_meanings(cls: type) -> dict[str, str]:
         elif line.strip():
             text.append(line.strip())
     flush()
-    return {**getattr(cls, "_parameter_meanings", {}), **meanings}
+    return {**shared, **getattr(cls, "_parameter_meanings", {}), **meanings}
 
 
 def _plain(text: str, limit: int = 140) -> str:
@@ -64,7 +65,7 @@ def describe_constraints(constraints: list[Any]) -> str:
 
 
 def parameter_table(estimator: Any) -> list[tuple[str, Any, str, str, bool]]:
-    """``(name, default, allowed values, meaning, runtime?)`` for every parameter of ``estimator``, by name."""
+    """``(name, default, allowed values, meaning, runtime?)`` of every parameter of ``estimator``."""
     cls = type(estimator)
     constraints = getattr(cls, "_parameter_constraints", {})
     meanings = parameter_meanings(cls)

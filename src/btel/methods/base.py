@@ -41,7 +41,8 @@ from ..core.validation import (Budget, check_descriptors, check_is_fitted, check
                                map_places)
 from ..exceptions import (BudgetTooSmallError, InvalidAnswerError, InvalidDescriptorsError,
                          NotEnoughPlacesError)
-from ..core.frontend import FRONT_END_CONSTRAINTS, FRONT_END_MEANINGS, FrontEnd, traverse_starts, with_front_end_parameters
+from ..core.frontend import (FRONT_END_CONSTRAINTS, FRONT_END_MEANINGS, FrontEnd, traverse_starts,
+                             with_front_end_parameters)
 from ..core.storage import budget_of, format_bytes, storage_breakdown
 from ..core.modelfile import ArraySpec, jsonable, save_arrays
 from ..sequence.querystream import QueryStream
@@ -101,7 +102,8 @@ class PlaceLocalizer(ParamsMixin, ABC):
             raise TypeError(f"{cls.__name__} must implement _search or _place_scores (the method's primitive).")
         if "__init__" in cls.__dict__:
             cls.__init__ = with_front_end_parameters(cls.__dict__["__init__"], dict(cls.front_end_defaults))
-        cls._parameter_constraints = {"budget": [Budget()], **cls._parameter_constraints, **FRONT_END_CONSTRAINTS}
+        cls._parameter_constraints = {"budget": [Budget()], **cls._parameter_constraints,
+                                      **FRONT_END_CONSTRAINTS}
 
     # -- to implement ---------------------------------------------------------------------------
     @abstractmethod
