@@ -8,7 +8,6 @@ reads (``query_name db_name`` per line).
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -17,30 +16,25 @@ import click
 import numpy as np
 
 
-def row_names(path: str) -> list[str] | None:
-    """The image name of every row of the descriptor file ``path``, or None when it records none.
+def input_names(db: str | None, queries: str, n_map: int, n_queries: int) -> tuple[list[str] | None, list[str] | None]:
+    """The image names of the query rows and of the map rows, each None when unknown or not one per row."""
+    from ..datasets.row_names import row_names
+    from ..datasets.vpr_names import check_image_names
 
-    ``.npy`` written by ``btel extract``: the images in its sidecar ``PATH.json``; hloc ``.h5``
-    (``FILE.h5:PREFIX`` too): the group names.
-    """
-    from ..descriptors.npy import HDF5_SUFFIXES, load_hloc_global, split_prefix
-
-    file, prefix = split_prefix(path)
-    if file.suffix.lower() in HDF5_SUFFIXES:
-        return load_hloc_global(file, prefix)[1]
-    sidecar = Path(str(file) + ".json")
-    if file.suffix.lower() == ".npy" and sidecar.is_file():
-        try:
-            images = json.loads(sidecar.read_text(encoding="utf-8")).get("images")
-            return [str(entry[0]) for entry in images]
-        except (OSError, ValueError, AttributeError, TypeError, IndexError, KeyError):
-            return None
-    return None
+    q_names = row_names(queries)
+    db_names = row_names(db) if db else None
+    q_names = q_names if q_names is not None and len(q_names) == n_queries else None
+    db_names = db_names if db_names is not None and len(db_names) == n_map else None
+    for option, path, names in (("--queries", queries, q_names), ("--db", db, db_names)):
+        if names is not None:  # they go into CSV files, one row per line
+            check_image_names(names, f"{option} {path}")
+    return q_names, db_names
 
 
 def utm_ground_truth(db: str, queries: str, n_map: int, n_queries: int, threshold: float) -> Any:
     """Positives within ``threshold`` metres, from the UTM positions in the image names of both inputs."""
     from ..datasets import GroundTruth
+    from ..datasets.row_names import row_names
     from ..datasets.vpr_names import utm_of_names
 
     names = {}
@@ -90,3 +84,25 @@ def write_pairs(path: Path, ranked: np.ndarray, query_names: Sequence[str], db_n
     with atomic_output(path, overwrite=overwrite, text=True) as fh:
         fh.write("\n".join(lines) + "\n")
     return len(lines)
+
+
+def write_predictions(path: str | Path, predictions: np.ndarray, ranked: np.ndarray | None,
+                      query_names: Sequence[str] | None, db_names: Sequence[str] | None, *,
+                      overwrite: bool) -> None:
+    """``btel localize``'s CSV: ``query,prediction`` per query, then ``query_name`` and
+    ``prediction_name`` when the names are known, then ``rank_1 … rank_K`` with a ranking.
+    Written whole or not at all; ``overwrite=False`` keeps a file another process wrote meanwhile."""
+    import csv
+
+    from ..core.claims import atomic_output
+
+    head = ["query", "prediction", *(["query_name"] if query_names else []),
+            *(["prediction_name"] if db_names else []),
+            *([f"rank_{j + 1}" for j in range(ranked.shape[1])] if ranked is not None else [])]
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    with atomic_output(path, overwrite=overwrite, text=True) as fh:
+        writer = csv.writer(fh)
+        writer.writerow(head)
+        for i, p in enumerate(predictions.tolist()):
+            writer.writerow([i, p, *([query_names[i]] if query_names else []), *([db_names[p]] if db_names else []),
+                             *(ranked[i].tolist() if ranked is not None else [])])

@@ -8,6 +8,7 @@ from typing import Any
 import click
 
 from ..methods.roles import DEFAULT_METHOD
+from ._errors import InputError
 from ._inputs import _load_matrix
 from ._jobs import _fit_jobs, _run_jobs
 from ._options import (EXIT_SOME_ROWS_FAILED, _BUDGET_HELP, _DELTA_HELP, _N_JOBS_HELP, _NO_PROGRESS_HELP, _ORDER_HELP,
@@ -82,8 +83,8 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
     is listed at once. A method that does not fit (or fails) becomes a row with its status and
     reason; every other row is kept. metrics.json / metrics.csv are rewritten as each method
     finishes, so a crash or Ctrl-C keeps what is done.
-    Exit status: 0 every row ran; 3 the run finished but some row did not fit or failed;
-    1 bad data; 2 bad usage.
+    Exit status: 0 every row ran; 1 the run finished but some row did not fit or failed (or a
+    failure while running); 2 bad usage or input; 130 Ctrl-C.
 
     \b
     Metrics: recall@t = the point prediction within t frames of the true place (frame-aligned
@@ -127,18 +128,18 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
     if db is not None:
         X = _load_matrix(db, "map descriptors")
         if X.shape[1] != Q.shape[1]:
-            raise click.ClickException(
+            raise InputError(
                 f"--db has {X.shape[1]} dims but --queries has {Q.shape[1]}; describe both with the same descriptor.")
     saved = []
     for path in model_paths:
         model = load(path)
         if model.n_features_in_ != Q.shape[1]:
-            raise click.ClickException(f"--model {path} expects {model.n_features_in_}-D descriptors but --queries "
+            raise InputError(f"--model {path} expects {model.n_features_in_}-D descriptors but --queries "
                                        f"has {Q.shape[1]}.")
         saved.append(Job(Path(path).name.split(".")[0], model, fit=False))
     n_maps = {int(j.method.n_places_) for j in saved} | ({X.shape[0]} if X is not None else set())
     if len(n_maps) > 1:
-        raise click.ClickException(f"the maps differ in size ({sorted(n_maps)} places): --db and every --model "
+        raise InputError(f"the maps differ in size ({sorted(n_maps)} places): --db and every --model "
                                    "must cover the same map for one ground truth to hold.")
     n_map = n_maps.pop()
     if positive_dist_threshold is not None and ground_truth != "utm":
@@ -168,7 +169,7 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
                    "saved models" + (" and unbudgeted methods" if jobs else "") if saved else "no budget")
     title = f"{dataset}: N = {n_map}, {Q.shape[0]} queries; {budget_part}; {truth}"
     click.echo(f"map: N = {n_map} places; queries: {Q.shape[0]} × {Q.shape[1]}; ground truth: {truth}")
-    from ._gallery import input_names
+    from ._names import input_names
 
     pairs, names = None, input_names(db, queries, n_map, Q.shape[0])
     if pairs_path is not None:
@@ -199,7 +200,7 @@ def _ground_truth_file(path: str, n_queries: int, n_map: int) -> Any:
     try:
         return GroundTruth.from_file(path, n_queries=n_queries, n_map=n_map)
     except InvalidParameterError as exc:
-        raise click.ClickException(f"--ground-truth: {exc}") from None
+        raise InputError(f"--ground-truth: {exc}") from None
 
 
 def _finished_rows(run: str, queries: str) -> list[Any]:
