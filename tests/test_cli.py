@@ -220,6 +220,15 @@ def test_param_values_are_json_literals_or_text(text: str, value: object) -> Non
     assert _param_value(text) == value and type(_param_value(text)) is type(value)
 
 
+def test_train_help_shows_param_and_hides_the_old_method_flags() -> None:
+    from btel.cli.train import ALIASES
+
+    text = " ".join(run("train", "--help").output.split())
+    assert "--param NAME=VALUE" in text and "--budget" in text and "--seed" in text
+    assert not [flag for flag in [*ALIASES, "tolerance"] if f"--{flag} " in text]
+    assert "still work as aliases of --param" in text
+
+
 def test_train_param_fills_the_same_parameters_as_the_shortcuts(small_pair, tmp_path: Path) -> None:
     from btel import load
 

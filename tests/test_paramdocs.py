@@ -8,10 +8,10 @@ import pytest
 from btel.core.paramdocs import parameter_meanings, parameter_table
 from btel.core.validation import Interval
 from btel.methods import METHODS, make_method
-from btel.methods.base import ArraySpec, PlaceLocalizer
+from test_answers import _Fixed
 
 
-class _Newcomer(PlaceLocalizer):
+class _Newcomer(_Fixed):
     """A method as a newcomer writes it: its docstring lists its own parameter only.
 
     Parameters
@@ -27,21 +27,7 @@ class _Newcomer(PlaceLocalizer):
     def __init__(self, *, budget: int | str | None = None, depth: int = 3) -> None:
         self.budget = budget
         self.depth = depth
-
-    def _fit(self, X, places, n_places, budget, reserved) -> None:
-        pass
-
-    def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        return np.zeros((Q.shape[0], k)), np.zeros((Q.shape[0], k), dtype=np.int64)
-
-    def _stored_arrays(self) -> dict[str, np.ndarray]:
-        return {}
-
-    def _array_specs(self, state) -> dict[str, ArraySpec]:
-        return {}
-
-    def _restore(self, arrays, state) -> None:
-        pass
+        self.answer, self.score = 0, 0.0  # what the toy method it builds on answers (not parameters)
 
 
 def test_a_new_method_needs_no_docstring_entry_for_the_shared_parameters() -> None:
@@ -81,3 +67,19 @@ def test_a_shared_docstring_entry_yields_to_a_declared_meaning() -> None:
 def test_every_registered_parameter_has_allowed_values_and_a_meaning(name: str) -> None:
     rows = parameter_table(make_method(name))
     assert rows and all(meaning and allowed for _, _, allowed, meaning, _ in rows), name
+
+
+def test_every_planner_takes_rows_then_features() -> None:
+    """Every ``planned_bytes`` reads ``(n_rows, n_features, *, what the method chose)``: one order."""
+    import inspect
+
+    from btel.core.frontend import FrontEnd
+    from btel.methods.btel.planning import planned_bytes
+
+    planners = [FrontEnd.planned_bytes, planned_bytes]
+    planners += [type(make_method(n)).planned_bytes for n in METHODS if hasattr(make_method(n), "planned_bytes")]
+    assert len(planners) >= 8
+    for planner in planners:
+        params = [p for p in inspect.signature(planner).parameters.values() if p.name != "self"]
+        assert [p.name for p in params[:2]] == ["n_rows", "n_features"], planner.__qualname__
+        assert all(p.kind is p.KEYWORD_ONLY for p in params[2:]), planner.__qualname__

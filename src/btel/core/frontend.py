@@ -218,8 +218,9 @@ class FrontEnd:
     def nbytes(self) -> int:
         return int(sum(a.nbytes for a in self.arrays().values()))
 
-    def planned_bytes(self, n_features: int, n_rows: int | None = None) -> int:
-        """Bytes the fitted front end will store for d = ``n_features`` (known before fitting)."""
+    def planned_bytes(self, n_rows: int | None, n_features: int) -> int:
+        """Bytes the fitted front end will store for ``n_rows`` map rows of d = ``n_features`` (known
+        before fitting; the rows matter to shrinkage whitening only)."""
         if self.whiten == "shrink":
             from .shrink import shrink_bytes, shrink_rank
 

@@ -251,7 +251,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
     def _front_end_bytes(self, n_rows: int, n_features: int, budget: int | None) -> int:
         """Bytes of the front end's stored arrays, or the error ``fit`` raises when they alone fill the budget."""
         front = FrontEnd.of(self)
-        reserved = front.planned_bytes(n_features, n_rows)
+        reserved = front.planned_bytes(n_rows, n_features)
         if budget is not None and reserved >= budget:
             raise BudgetTooSmallError(
                 f"budget {format_bytes(budget)} ({budget} B) is too small for {type(self).__name__} with "

@@ -163,9 +163,11 @@ class RYTHLocalizer(PlaceLocalizer):
         self.random_state = random_state
 
     @staticmethod
-    def planned_bytes(periods: list[int], n_selected: int, n_features_in: int, dtype: str = "float32") -> int:
-        """Bytes for these periods and d': the sum of :func:`ryth_specs`."""
-        return int(sum(s.nbytes for s in ryth_specs(periods, n_selected, n_features_in, dtype).values()))
+    def planned_bytes(n_rows: int, n_features: int, *, periods: list[int], n_selected: int,
+                      dtype: str = "float32") -> int:
+        """Bytes for these periods and d' = ``n_selected`` of ``n_features`` columns: the sum of
+        :func:`ryth_specs` (the ``n_rows`` places enter through the periods)."""
+        return int(sum(s.nbytes for s in ryth_specs(periods, n_selected, n_features, dtype).values()))
 
     def _cap(self, d: int, budget: int | None) -> int:
         """The most descriptor columns the parameters allow (the budget may select fewer)."""
@@ -186,10 +188,12 @@ class RYTHLocalizer(PlaceLocalizer):
         cap = self._cap(d, budget)
         if budget is None:
             return periods, cap
-        n_selected = next((m for m in range(cap, 0, -1)
-                           if self.planned_bytes(periods, m, d, dtype) + reserved <= budget), 0)
+        def planned(m: int) -> int:
+            return self.planned_bytes(n_places, d, periods=periods, n_selected=m, dtype=dtype) + reserved
+
+        n_selected = next((m for m in range(cap, 0, -1) if planned(m) <= budget), 0)
         if n_selected == 0:
-            minimum = self.planned_bytes(periods, 1, d, dtype) + reserved
+            minimum = planned(1)
             raise BudgetTooSmallError(
                 f"budget {format_bytes(budget)} ({budget} B) is too small for RYTH with periods {periods}: "
                 f"the smallest model (d' = 1) needs {minimum} B. Raise the budget or use fewer periods.",

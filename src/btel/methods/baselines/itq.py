@@ -84,7 +84,7 @@ class ITQLocalizer(_RowLocalizer):
         self.n_jobs = n_jobs
 
     @staticmethod
-    def planned_bytes(code_bits: int, n_rows: int, n_features: int) -> int:
+    def planned_bytes(n_rows: int, n_features: int, *, code_bits: int) -> int:
         """Codes (n_rows·b/8) + projection (d·b float32) + mean (d float32)."""
         return n_rows * (code_bits // 8) + (n_features * code_bits + n_features) * 4
 
@@ -110,9 +110,10 @@ class ITQLocalizer(_RowLocalizer):
             options = list(range(8, largest + 1, 8))
         if budget is None:
             return options[0]
-        fitting = [b for b in options if self.planned_bytes(b, n_rows, n_features) + extra_bytes <= budget]
+        fitting = [b for b in options
+                   if self.planned_bytes(n_rows, n_features, code_bits=b) + extra_bytes <= budget]
         if not fitting:
-            minimum = self.planned_bytes(options[0], n_rows, n_features) + extra_bytes
+            minimum = self.planned_bytes(n_rows, n_features, code_bits=options[0]) + extra_bytes
             detail = f"{options[0]}-bit codes, {n_features}×{options[0]} projection"
             raise_budget_too_small("ITQ", budget, minimum, detail)
         return max(fitting)

@@ -181,7 +181,8 @@ class PQLocalizer(_RowLocalizer):
         """Bytes of the stored d×p projection (0 when p = d, unless a rotation is ``always`` stored)."""
         return 0 if dim == n_features and not always else n_features * dim * 4
 
-    def planned_bytes(self, config: PQConfig, n_rows: int, n_features: int, *, always_project: bool = False) -> int:
+    def planned_bytes(self, n_rows: int, n_features: int, *, config: PQConfig,
+                      always_project: bool = False) -> int:
         """Storage of ``config`` for ``n_rows`` map rows of dimension ``n_features`` (no row table)."""
         return n_rows * config.code_size + config.codebook_bytes + \
             self.projection_bytes(n_features, config.dim, always_project)
@@ -256,7 +257,7 @@ class PQLocalizer(_RowLocalizer):
         if budget is None:
             return self._default_config(n_rows, n_features)
         options = [
-            (c, self.planned_bytes(c, n_rows, n_features, always_project=always_project) + extra_bytes)
+            (c, self.planned_bytes(n_rows, n_features, config=c, always_project=always_project) + extra_bytes)
             for c in self.candidates(n_rows, n_features)
         ]
         if not options:

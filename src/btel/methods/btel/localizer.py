@@ -298,7 +298,7 @@ class BTELocalizer(TreeDecoding, TreeModelFile, PlaceLocalizer):
         if largest_fitting([n_blocks], d, self._cap(d, budget), budget - reserved, self.scheme, dtype,
                            int(self.code_copies)) < 1:
             raise_budget_too_small(f"BTEL ({self.scheme}, N = {n_rows}, r = 1)", budget,
-                                   planned_bytes([n_blocks], 1, d, **kw) + reserved,
+                                   planned_bytes(n_blocks, d, n_selected=1, **kw) + reserved,
                                    "Raise the budget, use dtype='float16', or fewer regions.")
 
     def budget_saturated(self) -> bool:
@@ -342,7 +342,7 @@ class BTELocalizer(TreeDecoding, TreeModelFile, PlaceLocalizer):
             if n_selected < 1:
                 raise_budget_too_small(
                     f"BTEL ({self.scheme}, N = {n_places}, r = {len(sizes)})", budget,
-                    planned_bytes(list(sizes), 1, d, **kw) + reserved,
+                    planned_bytes(int(sum(sizes)), d, n_selected=1, region_sizes=list(sizes), **kw) + reserved,
                     "Raise the budget, use dtype='float16', or fewer regions.")
 
         stats = ColumnStats.of(X)
