@@ -179,7 +179,7 @@ def test_train_and_localize_refuse_an_existing_output_without_overwrite(small_pa
     (["evaluate", "--db", "DB", "--queries", "DB", "--budget", "500KB,64", "--out", "OUT"], 2, ["did you mean 64KB?"]),
     (["train", "DB", "-o", "OUT", "--method", "nope"], 2, ["unknown method 'nope'", "btel-c", "pq"]),
     (["evaluate", "--db", "DB", "--queries", "DB", "--methods", "pq,nope", "--out", "OUT"], 2, ["unknown method 'nope'"]),
-    (["info", "MISSING"], 1, ["Train one with `btel train DB -o MODEL`"]),
+    (["info", "MISSING"], 2, ["Train one with `btel train DB -o MODEL`"]),
 ])
 def test_errors_speak_cli(args, code, words, small_pair, tmp_path: Path) -> None:
     db, _ = small_pair

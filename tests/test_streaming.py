@@ -434,7 +434,7 @@ def test_a_cut_or_unframed_binary_input_stops_with_a_named_error(route, model_pa
                                                                   message: str) -> None:
     result = CliRunner().invoke(main, ["localize", str(model_path), "--stream", "--binary"],
                                 input=frames(route.queries[:2]) + tail)
-    assert result.exit_code == 1 and message in result.stderr
+    assert result.exit_code == 2 and message in result.stderr
     assert len(result.stdout.split()) == 2  # the frames before it were answered
 
 

@@ -5,7 +5,7 @@ The library names its own API in messages (``fit_on=``, ``key=``, ``dtype='float
 error reaches the command line its message is rewritten here, phrase by phrase, into the options
 that do the same thing. A phrase not listed is shown as it is.
 
-:func:`exit_status` sorts an error into the statuses of :mod:`btel.cli._options`: what the user
+:func:`exit_status` sorts an error into the statuses below (shared by every command): what the user
 gave (options, parameters, input files, an existing output) exits 2, what went wrong while
 running exits 1.
 """
@@ -18,7 +18,17 @@ import zipfile
 
 import click
 
-from ._options import EXIT_FAILURE, EXIT_USAGE
+#: Exit status of every command (module docstring of :mod:`btel.cli`): a failure while running (a fit that
+#: raised, a disk that filled up, a missing optional package) …
+EXIT_FAILURE = 1
+#: … a usage or input error (an unknown option or parameter, a bad value, an unreadable or hostile input
+#: file, an output that exists without --overwrite): nothing was run, fix the command line …
+EXIT_USAGE = 2
+#: … after Ctrl-C (128 + SIGINT, what a shell reports for an interrupted program).
+EXIT_INTERRUPTED = 130
+#: A finished evaluate/demo run in which some row did not fit or failed: the run folder is written and each
+#: such row says why, but not every row was measured (docs/decisions/cli-exit-codes.md).
+EXIT_SOME_ROWS_FAILED = EXIT_FAILURE
 
 #: Library errors that end a command with one line (besides btel's own): what a hostile or damaged
 #: input file can raise from a library (zip, csv, deep nesting, huge numbers, missing keys), and what

@@ -10,10 +10,12 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
-import numpy as np
+
+if TYPE_CHECKING:  # numpy is imported by the commands that need it: `btel --help` does not wait for it
+    import numpy as np
 
 
 def input_names(db: str | None, queries: str, n_map: int, n_queries: int) -> tuple[list[str] | None, list[str] | None]:

@@ -12,17 +12,8 @@ from typing import Any
 
 import click
 
-#: Exit status of every command (module docstring of :mod:`btel.cli`): a failure while running (a fit that
-#: raised, a disk that filled up, a missing optional package) …
-EXIT_FAILURE = 1
-#: … a usage or input error (an unknown option or parameter, a bad value, an unreadable or hostile input
-#: file, an output that exists without --overwrite): nothing was run, fix the command line …
-EXIT_USAGE = 2
-#: … after Ctrl-C (128 + SIGINT, what a shell reports for an interrupted program).
-EXIT_INTERRUPTED = 130
-#: A finished evaluate/demo run in which some row did not fit or failed: the run folder is written and each
-#: such row says why, but not every row was measured (docs/decisions/cli-exit-codes.md).
-EXIT_SOME_ROWS_FAILED = EXIT_FAILURE
+from ._errors import EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_SOME_ROWS_FAILED, EXIT_USAGE  # noqa: F401 - shared
+
 
 _VALUE_HELP = ("VALUE is read as JSON when it is a JSON literal (3, 0.5, true, null, \"x\"), else kept as text "
                "(auto, float16). `btel methods --params` lists every method's parameters.")

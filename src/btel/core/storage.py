@@ -73,6 +73,10 @@ def parse_budget(budget: int | float | str | None) -> int | None:
     return int(value)
 
 
+#: What a method's ``budget`` parameter is, in one sentence (``btel methods --params``).
+BUDGET_MEANING = "Byte budget of everything stored (500000, '500KB', '2MB', '64KiB'); None: unbudgeted."
+
+
 def budget_of(estimator: Any) -> int | None:
     """The byte budget of ``estimator`` (its ``budget`` parameter, declared on
     :class:`btel.methods.base.PlaceLocalizer`), parsed: bytes, or None when it has none."""

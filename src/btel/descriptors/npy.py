@@ -249,13 +249,14 @@ def load_descriptor_matrix(
 
 
 def _starts_as_pickle(path: Path) -> bool:
-    """True when ``path`` starts as a pickle does (protocol 2 and later: byte 0x80, then the protocol)."""
+    """True when ``path`` starts as a pickle (byte 0x80, then protocol 2 to 5) or as a .npy file (whose
+    objects numpy would unpickle) does."""
     try:
         with open(path, "rb") as fh:
-            head = fh.read(2)
+            head = fh.read(6)
     except OSError:
         return False
-    return len(head) == 2 and head[0] == 0x80 and 2 <= head[1] <= 5
+    return head == b"\x93NUMPY" or (len(head) >= 2 and head[0] == 0x80 and 2 <= head[1] <= 5)
 
 
 def _open_mapped(path: Path, mmap_mode: str | None) -> Any:
