@@ -38,7 +38,7 @@ def main() -> None:
             f = BTELocalizer(scheme="full", n_features=args.n_features, n_jobs=-1).fit(route.map)
             f_bytes, f_source = f.nbytes, "fitted"
         else:
-            f_bytes, f_source = planned_bytes([n], args.n_features, args.dim, scheme="full"), "planned"
+            f_bytes, f_source = planned_bytes(n, args.dim, n_selected=args.n_features, scheme="full"), "planned"
         rows.append({"n_places": n, "btec_bytes": c.nbytes, "btec_fit_s": c_fit, "btef_bytes": f_bytes,
                      "btef_source": f_source, "bruteforce_bytes": n * args.dim * 4})
 

@@ -420,7 +420,8 @@ def read_names(path: str) -> str:
     import tempfile
     from pathlib import Path
 
-    from btel.cli._names import row_names, write_pairs
+    from btel.cli._names import write_pairs
+    from btel.datasets.row_names import row_names
     from btel.datasets import GroundTruth
     from btel.datasets.vpr_names import check_image_names
     from btel.evaluation.records import EvaluationResult

@@ -83,7 +83,7 @@ def test_evaluate_reports_it_in_one_line(tmp_path: Path) -> None:
     proc = subprocess.run([sys.executable, "-m", "btel.cli", "evaluate", "--model", str(path), "--queries",
                            str(tmp_path / "q.npy"), "--out", str(tmp_path / "run")],
                           capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 1, proc.stderr
+    assert proc.returncode == 2, proc.stderr
     assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
     assert "bias of 3.4e+38" in proc.stderr and not (tmp_path / "run" / "metrics.json").exists()
 

@@ -28,10 +28,10 @@ def test_rule_reproduces_the_spec_reference_configuration():
     pq = PQLocalizer(budget="500KB")
     config = pq.choose_config(3576, 3780, 500_000)
     assert config == PQConfig(3780, 140, 4)
-    assert pq.planned_bytes(config, 3576, 3780) == 492_240
+    assert pq.planned_bytes(3576, 3780, config=config) == 492_240
     # And the 28 × 4-bit point of the same paragraph (292 KB).
     pinned = PQLocalizer(n_subquantizers=28, nbits=4, pca_dim=3780)
-    assert pinned.planned_bytes(pinned.choose_config(3576, 3780, 292_000), 3576, 3780) == 291_984
+    assert pinned.planned_bytes(3576, 3780, config=pinned.choose_config(3576, 3780, 292_000)) == 291_984
 
 
 @pytest.mark.parametrize("always_project", [False, True], ids=["pq", "opq-rotation"])
@@ -41,7 +41,7 @@ def test_rule_takes_the_most_code_bits_that_fit(always_project, budget):
     n_rows, d = 400, 48
 
     def planned(c):
-        return model.planned_bytes(c, n_rows, d, always_project=always_project)
+        return model.planned_bytes(n_rows, d, config=c, always_project=always_project)
 
     chosen = model.choose_config(n_rows, d, budget, always_project=always_project)
     chosen_bytes = planned(chosen)
@@ -58,8 +58,8 @@ def test_rule_takes_the_most_code_bits_that_fit(always_project, budget):
 
 def test_opq_counts_its_rotation_even_without_reduction():
     config = PQConfig(48, 8, 4)
-    assert PQLocalizer().planned_bytes(config, 400, 48, always_project=True) == \
-        PQLocalizer().planned_bytes(config, 400, 48) + 48 * 48 * 4
+    assert PQLocalizer().planned_bytes(400, 48, config=config, always_project=True) == \
+        PQLocalizer().planned_bytes(400, 48, config=config) + 48 * 48 * 4
 
 
 def test_rule_is_deterministic_and_monotone_in_budget():
@@ -73,7 +73,8 @@ def test_budget_error_names_the_smallest_configuration():
     with pytest.raises(BudgetTooSmallError) as info:
         PQLocalizer().choose_config(400, 48, 500)
     minimum = info.value.minimum
-    assert minimum == min(PQLocalizer().planned_bytes(c, 400, 48) for c in PQLocalizer().candidates(400, 48))
+    pq = PQLocalizer()
+    assert minimum == min(pq.planned_bytes(400, 48, config=c) for c in pq.candidates(400, 48))
     assert f"{minimum} B" in str(info.value) and "p = " in str(info.value)
 
 
@@ -163,12 +164,12 @@ def test_itq_code_length_rule(data):
     X, _ = data
     itq = ITQLocalizer()
     assert itq.choose_code_bits(400, 48, None) == 48
-    assert itq.planned_bytes(16, 400, 48) == 400 * 2 + (48 * 16 + 48) * 4
-    budget = itq.planned_bytes(24, 400, 48) + 10
+    assert itq.planned_bytes(400, 48, code_bits=16) == 400 * 2 + (48 * 16 + 48) * 4
+    budget = itq.planned_bytes(400, 48, code_bits=24) + 10
     assert itq.choose_code_bits(400, 48, budget) == 24
     with pytest.raises(BudgetTooSmallError) as info:
         itq.choose_code_bits(400, 48, 100)
-    assert info.value.minimum == itq.planned_bytes(8, 400, 48)
+    assert info.value.minimum == itq.planned_bytes(400, 48, code_bits=8)
     with pytest.raises(InvalidParameterError, match="multiple of 8"):
         ITQLocalizer(code_bits=12).fit(X)
     with pytest.raises(NotEnoughPlacesError):

@@ -179,7 +179,7 @@ def test_train_and_localize_refuse_an_existing_output_without_overwrite(small_pa
     (["evaluate", "--db", "DB", "--queries", "DB", "--budget", "500KB,64", "--out", "OUT"], 2, ["did you mean 64KB?"]),
     (["train", "DB", "-o", "OUT", "--method", "nope"], 2, ["unknown method 'nope'", "btel-c", "pq"]),
     (["evaluate", "--db", "DB", "--queries", "DB", "--methods", "pq,nope", "--out", "OUT"], 2, ["unknown method 'nope'"]),
-    (["info", "MISSING"], 1, ["Train one with `btel train DB -o MODEL`"]),
+    (["info", "MISSING"], 2, ["Train one with `btel train DB -o MODEL`"]),
 ])
 def test_errors_speak_cli(args, code, words, small_pair, tmp_path: Path) -> None:
     db, _ = small_pair
@@ -220,6 +220,15 @@ def test_param_values_are_json_literals_or_text(text: str, value: object) -> Non
     assert _param_value(text) == value and type(_param_value(text)) is type(value)
 
 
+def test_train_help_shows_param_and_hides_the_old_method_flags() -> None:
+    from btel.cli.train import ALIASES
+
+    text = " ".join(run("train", "--help").output.split())
+    assert "--param NAME=VALUE" in text and "--budget" in text and "--seed" in text
+    assert not [flag for flag in [*ALIASES, "tolerance"] if f"--{flag} " in text]
+    assert "still work as aliases of --param" in text
+
+
 def test_train_param_fills_the_same_parameters_as_the_shortcuts(small_pair, tmp_path: Path) -> None:
     from btel import load
 
@@ -250,8 +259,13 @@ def test_train_param_fills_the_same_parameters_as_the_shortcuts(small_pair, tmp_
         (["--param", "pq:nbits=4"], 2, ["'pq', which is not a method of this run"]),
         (["--feature-ratio", "0.2", "--param", "feature_ratio=0.3"], 2, ["both set feature_ratio"]),
         (["--param", "n_features=4", "--param", "n_features=5"], 2, ["twice"]),
-        (["--method", "btel-c", "--param", "classifier=tree"], 1, ["btel-c: classifier must be one of", "svm", "logistic", "tree"]),
-        (["--method", "btel-c", "--param", "feature_ratio=lots"], 1, ["btel-c: feature_ratio must be None or a number > 0 and ≤ 1"]),
+        (["--method", "btel-c", "--param", "classifier=tree"], 2,
+         ["--param classifier=tree: btel-c's classifier must be one of", "svm", "logistic"]),
+        (["--method", "btel-c", "--param", "feature_ratio=lots"], 2,
+         ["--param feature_ratio=lots: btel-c's feature_ratio must be None or a number > 0 and ≤ 1"]),
+        (["--method", "pq", "--param", 'budget={"KB": 5}'], 2,
+         ['--param budget={"KB": 5}: pq\'s budget must be a byte budget such as']),
+        (["--method", "btel-c", "--regions", "many"], 2, ["--regions many: btel-c's n_regions must be"]),
     ],
 )
 def test_train_param_errors_name_method_parameter_and_choices(args, code, message, small_pair, tmp_path: Path) -> None:
@@ -277,7 +291,7 @@ def test_runtime_flags_apply_where_the_method_has_them_and_are_ignored_elsewhere
     result = run("train", db, "-o", out, "--method", method, *budget, "--no-progress", "--n-jobs", "1")
     assert result.exit_code == 0, result.output
     assert type(load(out)) is type(make_method(method))  # runtime settings are not saved: check what was passed
-    from btel.cli._jobs import _params_by_method
+    from btel.cli._params import _params_by_method
 
     given = _params_by_method([method], (), shortcuts={"progress": ("--no-progress", False),
                                                        "n_jobs": ("--n-jobs", 1)})[method]

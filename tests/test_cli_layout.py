@@ -119,10 +119,10 @@ def test_the_roles_are_registered_methods() -> None:
     from btel.methods import roles as _method_roles
     from btel.methods import registry
 
-    assert _method_roles.DEFAULT_METHOD in REGISTRY and _method_roles.REFERENCE_METHOD in REGISTRY
-    assert _method_roles.DEMO_METHODS and set(_method_roles.DEMO_METHODS) <= set(REGISTRY)
+    assert roles.DEFAULT_METHOD in REGISTRY and roles.REFERENCE_METHOD in REGISTRY
+    assert roles.DEMO_METHODS and set(roles.DEMO_METHODS) <= set(REGISTRY)
     assert (registry.DEFAULT_METHOD, registry.REFERENCE_METHOD, registry.DEMO_METHODS) == (
-        _method_roles.DEFAULT_METHOD, _method_roles.REFERENCE_METHOD, _method_roles.DEMO_METHODS)
+        roles.DEFAULT_METHOD, roles.REFERENCE_METHOD, roles.DEMO_METHODS)
 
 
 @pytest.mark.parametrize("command, role", [("train", "DEFAULT_METHOD"), ("evaluate", "DEFAULT_METHOD"),

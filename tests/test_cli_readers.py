@@ -109,7 +109,7 @@ def descriptors(tmp_path: Path) -> tuple[Path, Path]:
 
 
 def _one_line_error(result) -> str:
-    assert result.exit_code == 1, (result.exit_code, result.output, result.exception)
+    assert result.exit_code == 2, (result.exit_code, result.output, result.exception)
     assert isinstance(result.exception, SystemExit)
     lines = [line for line in result.output.splitlines() if line.startswith("Error:")]
     assert len(lines) == 1 and "Traceback" not in result.output, result.output
@@ -148,7 +148,7 @@ def test_a_real_process_prints_one_line(tmp_path: Path, descriptors: tuple[Path,
     proc = subprocess.run([sys.executable, "-m", "btel.cli", "evaluate", "--db", str(db), "--queries", str(q),
                            "--ground-truth", str(gt), "--out", str(tmp_path / "run")],
                           capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert proc.stderr.strip().count("\n") == 0 and "BTEL_MEMORY_LIMIT" in proc.stderr
 
 

@@ -82,7 +82,7 @@ def test_same_budget_buys_more_features_per_bit(route):
     assert tol.n_blocks_ == 50 and tol.n_bits_ == 6 and plain.n_bits_ == 9
     assert tol.nbytes <= budget and plain.nbytes <= budget
     assert tol.n_selected_ > plain.n_selected_
-    assert tol.nbytes == planned_bytes([50], tol.n_selected_, 64)
+    assert tol.nbytes == planned_bytes(50, 64, n_selected=tol.n_selected_)
     pred = tol.predict(route.queries)
     assert set(np.unique(pred)) <= set(block_centres(np.arange(50), 8, 400).tolist())
 
@@ -127,7 +127,7 @@ def test_offset_codes_store_more_classifiers_and_decode_softly(route):
     ecoc = _fit(route.map, feature_ratio=0.5, code_copies=3)
     K = compressed_n_classifiers(400, 3)
     assert len(ecoc.hyperplanes_) == K > plain.n_bits_
-    assert ecoc.nbytes == planned_bytes([400], ecoc.n_selected_, 64, code_copies=3)
+    assert ecoc.nbytes == planned_bytes(400, 64, n_selected=ecoc.n_selected_, code_copies=3)
     margins = ecoc.decision_function(route.queries)
     assert margins.shape == (400, K)
     expected = np.argmax(margins @ code_signs(400, 3).T, axis=1)

@@ -47,7 +47,7 @@ def test_methods_that_do_not_fit_become_rows_and_are_listed_before_fitting(route
     out = tmp_path / "run"
     result = run("evaluate", "--db", db, "--queries", q, "--methods", "btel-c,itq,seqslam,pq", "--budget", "1.2KB",
                  "--param", "btel-c:progress=false", "--no-progress", "--out", out)
-    assert result.exit_code == 3, result.output
+    assert result.exit_code == 1, result.output
     text = result.output
     assert "2 of 6 rows cannot run" in text
     first_fit = text.index("[1/6] fitting")
@@ -143,7 +143,7 @@ def test_existing_folder_and_ground_truth_counts_are_checked_before_any_fit(rout
     GroundTruth.from_places(np.arange(150)).save(tmp_path / "gt.npz")
     result = run("evaluate", "--db", db, "--queries", q, "--methods", "btel-c", "--ground-truth", tmp_path / "gt.npz",
                  "--out", tmp_path / "new", "--no-progress")
-    assert result.exit_code == 1 and "] fitting" not in result.output
+    assert result.exit_code == 2 and "] fitting" not in result.output
     assert "--ground-truth" in result.output and "ground_truth=" not in result.output
     assert "150 queries but there are 200" in result.output and not (tmp_path / "new").exists()
 
@@ -244,7 +244,7 @@ def test_sequence_methods_are_marked_and_refused_when_rows_are_not_a_route(route
     out = tmp_path / "independent"
     result = run("evaluate", "--db", db, "--queries", q, "--methods", "seqslam,btel-c,pq", "--param", "pq:delta=3",
                  "--param", "btel-c:progress=false", "--query-order", "independent", "--out", out, "--no-progress")
-    assert result.exit_code == 3, result.output
+    assert result.exit_code == 1, result.output
     status = {r["method"]: r["status"] for r in _csv_rows(out / "metrics.csv")}
     assert status == {"seqslam": "refused", "btel-c": "ok", "pq": "refused", "bruteforce": "ok",
                       "bruteforce shrink": "ok"}

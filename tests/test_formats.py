@@ -130,7 +130,7 @@ def test_cli_refuses_an_h5_holding_map_and_queries_without_a_prefix(tmp_path: Pa
 def test_cli_names_npz_arrays_in_cli_syntax(tmp_path: Path) -> None:
     np.savez(tmp_path / "both.npz", a=np.ones((5, 4), np.float32), b=np.ones((5, 4), np.float32))
     result = CliRunner().invoke(main, ["train", str(tmp_path / "both.npz"), "-o", str(tmp_path / "m.npz")])
-    assert result.exit_code == 1 and f"choose one: {tmp_path / 'both.npz'}:a." in result.output
+    assert result.exit_code == 2 and f"choose one: {tmp_path / 'both.npz'}:a." in result.output
     assert "key=" not in result.output
 
 

@@ -213,7 +213,7 @@ def test_cli_extract_delta(gardenspoint_sample_dir, tmp_path) -> None:
     plain = np.load(tmp_path / "ref-delta.plain.npy")
     np.testing.assert_allclose(np.load(out), delta_descriptors(plain, 2), atol=1e-6)
     result = _run("extract", gardenspoint_sample_dir / "ref", "-o", tmp_path / "x.npy", "--delta", 6, "--no-progress")
-    assert result.exit_code == 1 and "2w = 12" in result.output  # 10 images are too few for W = 6
+    assert result.exit_code == 2 and "2w = 12" in result.output  # 10 images are too few for W = 6
 
 
 def test_experiment_front_end_override_is_refused_where_the_experiment_sets_it() -> None:

@@ -114,7 +114,7 @@ def test_fitted_full_model_stores_the_planned_classifiers(n: int, dtype: str) ->
     X = synthetic_route(n, 32, n_traverses=1, seed=n).map
     model = BTELocalizer(scheme="full", dtype=dtype, progress=False, random_state=0).fit(X)
     assert len(model.hyperplanes_) == full_n_classifiers(n) == n - 1
-    assert model.nbytes == planned_bytes([n], model.n_selected_, 32, scheme="full", dtype=dtype)
+    assert model.nbytes == planned_bytes(n, 32, n_selected=model.n_selected_, scheme="full", dtype=dtype)
     # Far-off queries still decode to valid places.
     Q = 1e3 * np.random.default_rng(0).standard_normal((200, 32))
     pred = model.predict(Q)
@@ -125,7 +125,8 @@ def test_full_model_with_regions_stores_one_tree_per_region() -> None:
     route = synthetic_route(120, 32, n_traverses=1, n_regions=3, seed=1)
     model = BTELocalizer(scheme="full", n_regions=3, progress=False, random_state=0).fit(route.map)
     assert len(model.hyperplanes_) == sum(int(n_k) - 1 for n_k in model.region_sizes_) == 120 - 3
-    assert model.nbytes == planned_bytes(list(model.region_sizes_), model.n_selected_, 32, scheme="full")
+    assert model.nbytes == planned_bytes(int(sum(model.region_sizes_)), 32, n_selected=model.n_selected_,
+                                         region_sizes=list(model.region_sizes_), scheme="full")
     pred = model.predict(route.map)
     assert np.all((pred >= 0) & (pred < 120))
 

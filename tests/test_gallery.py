@@ -107,9 +107,9 @@ def test_show_says_why_without_images(gardenspoint_netvlad: tuple[np.ndarray, np
     assert result.exit_code == 0, result.output
     assert not list(run.glob("gallery_*")) and "query_name" not in (run / "predictions_bruteforce.csv").read_text()
     shown = runner.invoke(main, ["show", str(run)])
-    assert shown.exit_code == 1 and "record none on disk" in shown.output and "Traceback" not in shown.output
+    assert shown.exit_code == 2 and "record none on disk" in shown.output and "Traceback" not in shown.output
     missing = runner.invoke(main, ["show", str(tmp_path / "nowhere")])
-    assert missing.exit_code == 1 and "no metrics.json" in missing.output
+    assert missing.exit_code == 2 and "no metrics.json" in missing.output
 
 
 @pytest.mark.realdata
@@ -235,6 +235,6 @@ def test_a_gallery_opens_only_images_inside_the_recorded_folder(tmp_path: Path) 
     key["images"][1][0] = "../secret.png"  # an edited .json pointing outside its folder
     sidecar.write_text(json.dumps(key))
     result = CliRunner().invoke(main, ["show", str(run), "--overwrite"])
-    assert result.exit_code == 1 and isinstance(result.exception, SystemExit), result.output
+    assert result.exit_code == 2 and isinstance(result.exception, SystemExit), result.output
     assert result.output.count("\n") == 1
     assert "'../secret.png' (row 1) is not a plain file name" in result.output

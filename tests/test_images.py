@@ -76,7 +76,7 @@ def test_a_png_whose_idat_length_lies_is_refused_before_opencv_allocates_it(tmp_
         read_image(path, grey=True)
     result = CliRunner().invoke(main, ["extract", str(folder), "-o", str(tmp_path / "x.npy"),
                                        "--no-progress"])
-    assert result.exit_code == 1 and result.exception is not None
+    assert result.exit_code == 2 and result.exception is not None
     assert result.output.count("\n") == 1 and "chunks are damaged" in result.output
 
 

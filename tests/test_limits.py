@@ -70,7 +70,7 @@ def test_localize_reports_it_in_one_line(huge_n_file: tuple[Path, Path], extra: 
     out = str(queries.with_suffix(".csv"))
     proc = subprocess.run([sys.executable, "-m", "btel.cli", "localize", str(path), str(queries), "-o", out, *extra],
                           capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and "BTEL_MEMORY_LIMIT" in proc.stderr
 
 

@@ -99,7 +99,8 @@ def test_every_option_predicts_valid_places_and_reports_planned_bytes(route, par
     assert margins.shape == (N, n_bits_for(N)) and margins.dtype == np.float32
     breakdown = model.storage_breakdown()
     assert model.nbytes == sum(breakdown.values())
-    assert model.nbytes == planned_bytes(list(model.region_sizes_), model.n_selected_, d,
+    assert model.nbytes == planned_bytes(int(sum(model.region_sizes_)), d, n_selected=model.n_selected_,
+                                         region_sizes=list(model.region_sizes_),
                                          scheme=params["scheme"], dtype=params["dtype"])
     assert model.hyperplanes_.weights.dtype == np.dtype(params["dtype"])
     assert model.hyperplanes_.bias.dtype == np.float32
@@ -231,9 +232,9 @@ def test_compressed_bytes_grow_with_log_n_full_bytes_with_n() -> None:
     for n in sizes:
         X = synthetic_route(n, 64, n_traverses=1, seed=n).map
         model = BTELocalizer(n_features=16, progress=False, n_jobs=2, random_state=0).fit(X)
-        assert model.nbytes == planned_bytes([n], 16, 64)
+        assert model.nbytes == planned_bytes(n, 64, n_selected=16)
         fitted[n] = model.nbytes
-    full = {n: planned_bytes([n], 16, 64, scheme="full") for n in sizes}
+    full = {n: planned_bytes(n, 64, n_selected=16, scheme="full") for n in sizes}
     print("BTE-C bytes:", fitted, " BTE-F planned bytes:", full)
     assert fitted[1024] < fitted[4096] < fitted[16384] < fitted[65536]
     assert fitted[65536] / fitted[1024] <= 1.7  # log: 16 bits / 10 bits = 1.6
@@ -269,10 +270,12 @@ def test_reported_bytes_never_exceed_the_budget(n, d, budget, scheme, dtype, n_r
     event(f"fits ({scheme}, r = {'auto' if n_regions == 'auto' else model.n_regions_})")
     sizes = list(model.region_sizes_)
     assert model.nbytes <= budget
-    assert planned_bytes(sizes, model.n_selected_, d, scheme=scheme, dtype=dtype) == model.nbytes
+    assert planned_bytes(int(sum(sizes)), d, n_selected=model.n_selected_, region_sizes=sizes, scheme=scheme,
+                         dtype=dtype) == model.nbytes
     # The largest d' that fits: one more column would not.
     if model.n_selected_ < d:
-        assert planned_bytes(sizes, model.n_selected_ + 1, d, scheme=scheme, dtype=dtype) > budget
+        assert planned_bytes(int(sum(sizes)), d, n_selected=model.n_selected_ + 1, region_sizes=sizes,
+                             scheme=scheme, dtype=dtype) > budget
 
 
 def test_budget_caps_by_feature_ratio(route) -> None:
@@ -284,7 +287,7 @@ def test_budget_caps_by_feature_ratio(route) -> None:
 def test_budget_lowers_automatic_region_count(route) -> None:
     free = BTELocalizer(n_regions="auto", max_regions=10, progress=False, random_state=0).fit(route.map)
     assert free.n_regions_ >= 3
-    tight = planned_bytes([200], 1, 64)  # only r = 1 fits at d' = 1
+    tight = planned_bytes(200, 64, n_selected=1)  # only r = 1 fits at d' = 1
     model = BTELocalizer(n_regions="auto", max_regions=10, budget=tight, progress=False, random_state=0).fit(route.map)
     assert model.n_regions_ < free.n_regions_ and model.nbytes <= tight
 

@@ -421,7 +421,7 @@ def test_cli_reports_a_damaged_descriptor_archive_in_one_line(tmp_path) -> None:
     data[len(data) // 2] ^= 0xFF  # inside the array's bytes: a bad CRC
     (tmp_path / "db.npz").write_bytes(bytes(data))
     result = CliRunner().invoke(main, ["train", str(tmp_path / "db.npz"), "-o", str(tmp_path / "m.npz")])
-    assert result.exit_code == 1
+    assert result.exit_code == 2
     assert result.stderr.startswith("Error: ") and "damaged .npz archive" in result.stderr
     assert len(result.stderr.strip().splitlines()) == 1 and result.exception is None or \
         isinstance(result.exception, SystemExit)
@@ -431,7 +431,7 @@ def test_cli_reports_a_bad_model_file_in_one_line(files, queries, tmp_path) -> N
     np.save(tmp_path / "q.npy", queries)
     path = rewrite(files["btel-c"], tmp_path / "m.npz", header_text=lambda t: t.replace('"fit_time": ', '"fit_time": ' + "[" * 100_000 + "]" * 100_000 + ', "x": '))
     result = CliRunner().invoke(main, ["localize", str(path), str(tmp_path / "q.npy"), "-o", str(tmp_path / "p.csv")])
-    assert result.exit_code == 1 and len(result.stderr.strip().splitlines()) == 1
+    assert result.exit_code == 2 and len(result.stderr.strip().splitlines()) == 1
     assert result.stderr.startswith("Error: ") and "nested too deeply" in result.stderr
 
 

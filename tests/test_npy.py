@@ -78,7 +78,7 @@ def test_to_float32_npy_rewrites_in_blocks_then_maps_without_a_copy(tmp_path: Pa
 def test_train_on_a_large_fortran_file_is_one_line(tmp_path: Path) -> None:
     path = _sparse_npy(tmp_path / "map.npy", "<f4", True, (3_000_000, 100))
     result = CliRunner().invoke(main, ["train", str(path), "-o", str(tmp_path / "m.btel")])
-    assert result.exit_code == 1 and isinstance(result.exception, SystemExit)
+    assert result.exit_code == 2 and isinstance(result.exception, SystemExit)
     assert result.output.count("\n") == 1 and "to_float32_npy" in result.output
 
 

@@ -53,7 +53,8 @@ def test_nordland_summer_to_winter(nordland, name: str, tmp_path: Path) -> None:
     assert pred.dtype == np.int64 and pred.shape == (n,)
     assert np.all((pred >= 0) & (pred < n))
     scheme = params.get("scheme", "compressed")
-    assert model.nbytes == planned_bytes(list(model.region_sizes_), model.n_selected_, d, scheme=scheme)
+    assert model.nbytes == planned_bytes(int(sum(model.region_sizes_)), d, n_selected=model.n_selected_,
+                                         region_sizes=list(model.region_sizes_), scheme=scheme)
     if name == "regions-10":
         assert model.n_regions_ == 10 and np.all(model.region_sizes_ >= 2)
         region = model.predict_region(winter)
@@ -70,8 +71,8 @@ def test_nordland_full_scheme_storage_is_linear_compressed_logarithmic(nordland)
     summer, _ = nordland
     n, d = summer.shape
     d_sel = round(0.1 * d)
-    compressed = planned_bytes([n], d_sel, d)
-    full = planned_bytes([n], d_sel, d, scheme="full")
+    compressed = planned_bytes(n, d, n_selected=d_sel)
+    full = planned_bytes(n, d, n_selected=d_sel, scheme="full")
     # N − 1 node classifiers against ceil(log2 N) bit classifiers, of the same size each.
     assert full * n_bits_for(n) == compressed * (n - 1)
 

@@ -136,7 +136,7 @@ def test_evaluate_refuses_names_that_would_break_its_files_before_fitting(tmp_pa
     result = CliRunner().invoke(main, ["evaluate", "--db", f"{feats}:db/", "--queries", f"{feats}:query/",
                                        "--methods", "bruteforce", "--no-reference", "--pairs", str(pairs),
                                        "--k", "3", "--no-progress", "--out", str(out)])
-    assert result.exit_code == 1 and isinstance(result.exception, SystemExit), result.output
+    assert result.exit_code == 2 and isinstance(result.exception, SystemExit), result.output
     error = [line for line in result.output.splitlines() if line.startswith("Error:")]
     assert len(error) == 1 and repr(bad) in error[0] and "fitting" not in result.output
     assert not pairs.exists() and not out.exists()

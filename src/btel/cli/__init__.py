@@ -1,14 +1,15 @@
 """The ``btel`` command line: from descriptors (or images) to a model, predictions and a recall report.
 
-Every subcommand has ``--help``. Failures print one line ``Error: …`` on stderr and exit with a
-non-zero code (1 for bad data or models; 2 for bad usage, such as an output that exists — or that a
-racing command wrote first — without ``--overwrite``; 3 when ``evaluate``/``demo`` finished
-but some method did not fit or failed: its row says why); no traceback unless ``BTEL_DEBUG=1``.
-Warnings (a distorting resize, a capped PCA) print one line ``Warning: …`` on stderr.
+Every subcommand has ``--help``. Failures print one line ``Error: …`` on stderr, in the command
+line's words, and exit with the same status in every command: 2 for a usage or input error (an
+unknown option or parameter, a value its method refuses, an unreadable input file, an output that
+exists without ``--overwrite``): nothing ran; 1 for a failure while running (a fit that raised, a
+full disk; ``evaluate``/``demo`` also when the run finished but some row did not fit or failed: its
+row says why); 130 after Ctrl-C. No traceback unless ``BTEL_DEBUG=1``. Warnings (a distorting
+resize, a capped PCA) print one line ``Warning: …`` on stderr.
 
-Any parameter of any method is set with ``--param NAME=VALUE`` (``train``, ``evaluate``, ``demo``);
-the named BTEL options of ``train`` are shortcuts that fill the same parameters. Names are checked
-against the method's ``get_params()`` before anything is fitted.
+Any parameter of any method is set with ``--param NAME=VALUE`` (``train``, ``evaluate``, ``demo``),
+checked against the method's parameters and their declared constraints before anything is fitted.
 
 This package holds the group (:func:`main`) and how it reports errors; each command is one module
 (``train``, ``evaluate``, …), and what several commands share sits in the ``_``-prefixed modules.
@@ -18,17 +19,15 @@ No module here names a method: the defaults and the reference row come from
 
 from __future__ import annotations
 
-import csv
 import importlib
 import os
 import warnings
-import zipfile
 from typing import TYPE_CHECKING, Any
 
 import click
 
 from .. import __version__
-from ._options import EXIT_INTERRUPTED, EXIT_SOME_ROWS_FAILED
+from ._options import EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_SOME_ROWS_FAILED, EXIT_USAGE
 
 if TYPE_CHECKING:  # pragma: no cover - each command's module is imported when that command runs
     from ._gallery import show_cmd
@@ -42,13 +41,7 @@ if TYPE_CHECKING:  # pragma: no cover - each command's module is imported when t
     from .report import report
     from .train import train
 
-__all__ = ["main", "EXIT_SOME_ROWS_FAILED", "EXIT_INTERRUPTED"]
-
-#: Errors that end a command with one line and exit 1, besides btel's own (added when handling, so that
-#: btel.exceptions is imported only then): what a hostile or damaged input file can still raise from a
-#: library (zip, csv, deep nesting, huge numbers, missing keys).
-_LIBRARY_INPUT_ERRORS = (OSError, ValueError, zipfile.BadZipFile, csv.Error, RecursionError, OverflowError,
-                         LookupError, MemoryError, EOFError)
+__all__ = ["main", "EXIT_FAILURE", "EXIT_USAGE", "EXIT_INTERRUPTED", "EXIT_SOME_ROWS_FAILED"]
 
 def _show_warning(message: Any, category: type, filename: str, lineno: int, file: Any = None,
                   line: str | None = None) -> None:
@@ -66,7 +59,7 @@ _COMMANDS = {"demo": ("demo", "demo"), "extract": ("extract", "extract"), "train
 
 
 class _Group(click.Group):
-    """Turns btel's own errors into one-line messages with exit code 1; imports a command when it is used."""
+    """Errors as one-line messages and exit statuses (module docstring); a command imported when used."""
 
     def list_commands(self, ctx: click.Context) -> list[str]:
         return sorted({*_COMMANDS, *self.commands})
@@ -84,20 +77,22 @@ class _Group(click.Group):
             return super().invoke(ctx)
         except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort):
             raise
+        except KeyboardInterrupt:
+            click.echo("Interrupted.", err=True)
+            raise click.exceptions.Exit(EXIT_INTERRUPTED) from None
         except Exception as exc:
-            from ..exceptions import BTELError, OutputExistsError
+            from ..exceptions import BTELError
+            from ._errors import LIBRARY_ERRORS, InputError, cli_message, exit_status
 
-            if not isinstance(exc, (BTELError, *_LIBRARY_INPUT_ERRORS)) or os.environ.get("BTEL_DEBUG"):
+            if not isinstance(exc, (BTELError, *LIBRARY_ERRORS)) or os.environ.get("BTEL_DEBUG"):
                 raise
-            from ._errors import cli_message
-
-            if isinstance(exc, OutputExistsError):  # an output that exists without --overwrite: bad usage (2)
-                raise click.UsageError(cli_message(str(exc))) from exc
             message = str(exc) or type(exc).__name__
             if not isinstance(exc, (BTELError, OSError, ValueError)):  # a library's error: say which
                 message = f"{type(exc).__name__}: {message}"
             message = cli_message(message)
-            raise click.ClickException(message.splitlines()[0] if len(message) > 2000 else message) from exc
+            error = (InputError if exit_status(exc) == EXIT_USAGE else click.ClickException)(
+                message.splitlines()[0] if len(message) > 2000 else message)
+            raise error from exc
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})

@@ -1,14 +1,60 @@
-"""Error messages in the command line's words.
+"""Errors in the command line's words, and the exit status of each kind.
 
 The library names its own API in messages (``fit_on=``, ``key=``, ``dtype='float16'``,
 ``BTELocalizer.fit(...)``): right for a Python user, wrong for someone typing ``btel``. When an
 error reaches the command line its message is rewritten here, phrase by phrase, into the options
 that do the same thing. A phrase not listed is shown as it is.
+
+:func:`exit_status` sorts an error into the statuses below (shared by every command): what the user
+gave (options, parameters, input files, an existing output) exits 2, what went wrong while
+running exits 1.
 """
 
 from __future__ import annotations
 
+import csv
 import re
+import zipfile
+
+import click
+
+#: Exit status of every command (module docstring of :mod:`btel.cli`): a failure while running (a fit that
+#: raised, a disk that filled up, a missing optional package) …
+EXIT_FAILURE = 1
+#: … a usage or input error (an unknown option or parameter, a bad value, an unreadable or hostile input
+#: file, an output that exists without --overwrite): nothing was run, fix the command line …
+EXIT_USAGE = 2
+#: … after Ctrl-C (128 + SIGINT, what a shell reports for an interrupted program).
+EXIT_INTERRUPTED = 130
+#: A finished evaluate/demo run in which some row did not fit or failed: the run folder is written and each
+#: such row says why, but not every row was measured (docs/decisions/cli-exit-codes.md).
+EXIT_SOME_ROWS_FAILED = EXIT_FAILURE
+
+#: Library errors that end a command with one line (besides btel's own): what a hostile or damaged
+#: input file can raise from a library (zip, csv, deep nesting, huge numbers, missing keys), and what
+#: running can (a full disk, memory).
+LIBRARY_ERRORS = (OSError, ValueError, zipfile.BadZipFile, csv.Error, RecursionError, OverflowError,
+                  LookupError, MemoryError, EOFError)
+#: OSErrors that are about a path the user gave, not about the machine (a full disk, an I/O error).
+_PATH_ERRORS = (FileNotFoundError, FileExistsError, IsADirectoryError, NotADirectoryError, PermissionError)
+
+
+class InputError(click.ClickException):
+    """A usage or input error found while running (a file's content, a run folder): one line, exit 2,
+    without the usage text a click.UsageError prints."""
+
+    exit_code = EXIT_USAGE
+
+
+def exit_status(exc: BaseException) -> int:
+    """2 for an error in what the user gave, 1 for a failure while running (module docstring)."""
+    from ..exceptions import BTELError, BudgetExceededError, InvalidAnswerError, MissingDependencyError
+
+    if isinstance(exc, (BudgetExceededError, InvalidAnswerError, MissingDependencyError, MemoryError)):
+        return EXIT_FAILURE  # a method's bug, a damaged answer, a missing package, the machine
+    if isinstance(exc, OSError) and not isinstance(exc, (BTELError, *_PATH_ERRORS)):
+        return EXIT_FAILURE  # a full disk, an I/O error
+    return EXIT_USAGE
 
 #: (library phrase, command-line phrase): regular expressions, applied in order.
 CLI_WORDS: tuple[tuple[str, str], ...] = (

@@ -1,9 +1,6 @@
-"""Image names in the predictions and the match gallery of a run (``btel evaluate``, ``btel show``).
-
-Descriptors written by ``btel extract`` record their images (names, and the folder since this
-version) in the ``.json`` beside them; a run records its ``--db`` and ``--queries``. From those a
-finished run folder can show what each method retrieved: ``gallery_<method>.png``.
-"""
+"""The match gallery of a run (``btel evaluate``, ``btel show``): what each method retrieved,
+``gallery_<method>.png``, drawn from the images that the run's ``--db`` and ``--queries`` record
+(:func:`btel.datasets.row_names.row_images`)."""
 
 from __future__ import annotations
 
@@ -14,47 +11,10 @@ from typing import Any
 
 import click
 
+from ._errors import InputError
+
 #: Queries shown in a gallery (rows of the figure).
 GALLERY_ROWS = 8
-
-
-def input_names(db: str | None, queries: str, n_map: int, n_queries: int) -> tuple[list[str] | None, list[str] | None]:
-    """The image names of the query rows and of the map rows, each None when unknown or not one per row."""
-    from ..datasets.vpr_names import check_image_names
-    from ._names import row_names
-
-    q_names = row_names(queries)
-    db_names = row_names(db) if db else None
-    q_names = q_names if q_names is not None and len(q_names) == n_queries else None
-    db_names = db_names if db_names is not None and len(db_names) == n_map else None
-    for option, path, names in (("--queries", queries, q_names), ("--db", db, db_names)):
-        if names is not None:  # they go into the predictions CSV, one row per line
-            check_image_names(names, f"{option} {path}")
-    return q_names, db_names
-
-
-def row_images(path: str | None) -> list[Path] | None:
-    """The image file of every row of the descriptors ``path`` (from ``btel extract``'s .json), or
-    None when they are not recorded or no longer on disk. A recorded name that is not a plain file
-    name (``../x``, a control character) raises :class:`~btel.exceptions.InvalidParameterError`."""
-    from ..datasets.vpr_names import check_image_names
-
-    if not path:
-        return None
-    sidecar = Path(str(path) + ".json")
-    try:
-        key = json.loads(sidecar.read_text(encoding="utf-8"))
-        folder = key.get("folder")
-        names = [str(entry[0]) for entry in key["images"]] if folder else None
-    except (OSError, ValueError, AttributeError, TypeError, IndexError, KeyError):
-        return None
-    if names is None:
-        return None
-    check_image_names(names, str(sidecar), file_name=True)  # images inside the folder, nowhere else
-    files = [Path(folder) / name for name in names]
-    if not files or not all(f.is_file() for f in files):
-        return None
-    return files
 
 
 def _read_predictions(path: Path) -> dict[str, Any] | None:
@@ -83,31 +43,31 @@ def write_galleries(run: Path, *, n_rows: int = GALLERY_ROWS, overwrite: bool = 
 
     Raises
     ------
-    click.ClickException
+    InputError
         ``run`` has no metrics.json, or the images of its inputs are not recorded / not on disk
         (the message says which).
     """
+    from ..datasets.row_names import row_images
     from ..evaluation.gallery import plot_match_gallery
 
     meta_path = run / "metrics.json"
     if not meta_path.is_file():
-        raise click.ClickException(f"{run} has no metrics.json; give a run folder written by btel evaluate.")
+        raise InputError(f"{run} has no metrics.json; give a run folder written by btel evaluate.")
     try:
         payload = json.loads(meta_path.read_text(encoding="utf-8"))
         extra = payload["run"].get("extra") or {}
         names = [r["name"] for r in payload["results"] if r.get("status", "ok") == "ok"]
     except (ValueError, KeyError, TypeError, AttributeError) as exc:
-        raise click.ClickException(f"{meta_path} is not a btel run's metrics ({exc}).") from None
+        raise InputError(f"{meta_path} is not a btel run's metrics ({exc}).") from None
     db, queries = extra.get("db"), extra.get("queries")
     q_images, db_images = row_images(queries), row_images(db)
     if q_images is None or db_images is None:
-        missing = [f"{option} {path}" if path else f"{option} (not given)" for option, path, images in (("--db", db, db_images),
-                                                                    ("--queries", queries, q_images))
-                   if images is None]
-        raise click.ClickException(
+        missing = [f"{option} {path}" if path else f"{option} (not given)" for option, path, images
+                   in (("--db", db, db_images), ("--queries", queries, q_images)) if images is None]
+        raise InputError(
             f"the match gallery needs the images of the run's inputs, and {' and '.join(missing)} "
-            f"{'records' if len(missing) == 1 else 'record'} none on disk (descriptors written by btel extract record their image folder in the .json "
-            "beside them; a --model run has no --db images).")
+            f"{'records' if len(missing) == 1 else 'record'} none on disk (descriptors written by btel extract "
+            "record their image folder in the .json beside them; a --model run has no --db images).")
     from ..evaluation.runs import safe_file_name
 
     written = []
@@ -128,6 +88,7 @@ def write_galleries(run: Path, *, n_rows: int = GALLERY_ROWS, overwrite: bool = 
 def galleries_after_run(run: Path, extra: dict[str, Any]) -> None:
     """``btel evaluate`` on image inputs: draw the galleries of the finished run ``run``. An image
     that cannot be read costs the figure only (a warning): the run is already written."""
+    from ..datasets.row_names import row_images
     from ..exceptions import BTELError
 
     try:
@@ -153,6 +114,6 @@ def show_cmd(run: str, n_rows: int, overwrite: bool) -> None:
     """
     written = write_galleries(Path(run), n_rows=n_rows, overwrite=overwrite)
     if not written:
-        raise click.ClickException(f"{run}: no method's predictions name a true place to show.")
+        raise InputError(f"{run}: no method's predictions name a true place to show.")
     for path in written:
         click.echo(f"gallery: {path}")

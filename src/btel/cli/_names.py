@@ -1,4 +1,4 @@
-"""Image names of descriptor rows (:func:`btel.datasets.sources.row_names`) and hloc retrieval pairs files.
+"""Image names of descriptor rows (:func:`btel.datasets.row_names.row_names`) and hloc retrieval pairs files.
 
 A descriptor matrix written by ``btel extract`` has a JSON sidecar listing its images; an hloc
 ``.h5`` names every row. Those names let the command line speak the inputs' language: a
@@ -10,11 +10,27 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import click
-import numpy as np
 
-from ..datasets.sources import row_names  # noqa: F401 (re-exported: the one reader of row names)
+if TYPE_CHECKING:  # numpy is imported by the commands that need it: `btel --help` does not wait for it
+    import numpy as np
+
+from ..datasets.row_names import row_names  # noqa: F401 (re-exported: the one reader of row names)
+
+
+def input_names(db: str | None, queries: str, n_map: int, n_queries: int) -> tuple[list[str] | None, list[str] | None]:
+    """The image names of the query rows and of the map rows, each None when unknown or not one per row."""
+    from ..datasets.vpr_names import check_image_names
+
+    q_names = row_names(queries)
+    db_names = row_names(db) if db else None
+    q_names = q_names if q_names is not None and len(q_names) == n_queries else None
+    db_names = db_names if db_names is not None and len(db_names) == n_map else None
+    for option, path, names in (("--queries", queries, q_names), ("--db", db, db_names)):
+        if names is not None:  # they go into CSV files, one row per line
+            check_image_names(names, f"{option} {path}")
+    return q_names, db_names
 
 
 def pairs_paths(path: str, method_names: Sequence[str]) -> dict[str, Path]:
@@ -70,3 +86,25 @@ def write_pairs(path: Path, ranked: np.ndarray, query_names: Sequence[str], db_n
     with atomic_output(path, overwrite=overwrite, text=True) as fh:
         fh.write("\n".join(lines) + "\n")
     return len(lines)
+
+
+def write_predictions(path: str | Path, predictions: np.ndarray, ranked: np.ndarray | None,
+                      query_names: Sequence[str] | None, db_names: Sequence[str] | None, *,
+                      overwrite: bool) -> None:
+    """``btel localize``'s CSV: ``query,prediction`` per query, then ``query_name`` and
+    ``prediction_name`` when the names are known, then ``rank_1 … rank_K`` with a ranking.
+    Written whole or not at all; ``overwrite=False`` keeps a file another process wrote meanwhile."""
+    import csv
+
+    from ..core.claims import atomic_output
+
+    head = ["query", "prediction", *(["query_name"] if query_names else []),
+            *(["prediction_name"] if db_names else []),
+            *([f"rank_{j + 1}" for j in range(ranked.shape[1])] if ranked is not None else [])]
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    with atomic_output(path, overwrite=overwrite, text=True) as fh:
+        writer = csv.writer(fh)
+        writer.writerow(head)
+        for i, p in enumerate(predictions.tolist()):
+            writer.writerow([i, p, *([query_names[i]] if query_names else []), *([db_names[p]] if db_names else []),
+                             *(ranked[i].tolist() if ranked is not None else [])])

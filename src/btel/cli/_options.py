@@ -12,10 +12,8 @@ from typing import Any
 
 import click
 
-#: Exit status of a finished evaluate/demo run in which some method did not fit or failed.
-EXIT_SOME_ROWS_FAILED = 3
-#: Exit status after Ctrl-C (128 + SIGINT, what a shell reports for an interrupted program).
-EXIT_INTERRUPTED = 130
+from ._errors import EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_SOME_ROWS_FAILED, EXIT_USAGE  # noqa: F401 - shared
+
 
 _VALUE_HELP = ("VALUE is read as JSON when it is a JSON literal (3, 0.5, true, null, \"x\"), else kept as text "
                "(auto, float16). `btel methods --params` lists every method's parameters.")

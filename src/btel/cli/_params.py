@@ -1,17 +1,16 @@
-"""``btel methods --params``: each parameter's allowed values and meaning, from one source each.
-
-The allowed values come from the method's declared ``_parameter_constraints`` (what ``fit``
-checks); the meaning is the first sentence of the parameter's entry in the class docstring
-(numpydoc ``Parameters`` section). Nothing is written twice, so the listing cannot drift from the
-code.
-"""
+"""``--param NAME=VALUE``, the one way to set a method's parameters: names checked against the
+method's ``get_params()``, values against its declared ``_parameter_constraints``, before anything is
+fitted; a refusal is a usage error in the command line's words."""
 
 from __future__ import annotations
 
-import inspect
 import json
-import re
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
+
+import click
+
 
 def _param_value(text: str) -> Any:
     """VALUE of ``--param NAME=VALUE``: the JSON literal it spells (``3``, ``0.5``, ``true``, ``null``,
@@ -35,62 +34,81 @@ def _param_text(value: Any) -> str:
         return repr(value)
 
 
-_HEADING = re.compile(r"^(\w[\w ]*)\n-{3,}\s*$", re.MULTILINE)
-_ENTRY = re.compile(r"^([A-Za-z_][\w]*(?:\s*,\s*[A-Za-z_][\w]*)*)\s*(?::.*)?$")
+def _method_class(method: str) -> type:
+    """The class of the registered ``method``; an unknown name is a usage error."""
+    from ..methods.registry import METHODS, make_method
+
+    if method not in METHODS:
+        raise click.UsageError(f"unknown method {method!r}; choose from {', '.join(METHODS)} "
+                               "(see `btel methods`).")
+    return type(make_method(method))
 
 
-def parameter_meanings(cls: type) -> dict[str, str]:
-    """Parameter name → the first sentence of its description in ``cls``'s numpydoc ``Parameters``."""
-    doc = inspect.getdoc(cls) or ""
-    headings = list(_HEADING.finditer(doc))
-    section = ""
-    for i, h in enumerate(headings):
-        if h.group(1).strip() == "Parameters":
-            end = headings[i + 1].start() if i + 1 < len(headings) else len(doc)
-            section = doc[h.end():end]
-            break
-    meanings: dict[str, str] = {}
-    names: list[str] = []
-    text: list[str] = []
+def _check_value(method: str, name: str, value: Any, given: str) -> Any:
+    """``value``, or a usage error in the words of ``given`` (as typed) when the constraints refuse it."""
+    from ..core.paramdocs import describe_constraints
 
-    def flush() -> None:
-        if names:
-            sentence = _plain(re.split(r"(?<=\.)(?<!e\.g\.)(?<!i\.e\.)\s", " ".join(text).strip(), maxsplit=1)[0])
-            for n in names:
-                meanings[n] = sentence
-    for line in section.splitlines():
-        if line and not line[0].isspace():
-            match = _ENTRY.match(line.strip())
-            if match:
-                flush()
-                names, text = [n.strip() for n in match.group(1).split(",")], []
-                continue
-        if line.strip():
-            text.append(line.strip())
-    flush()
-    return meanings
+    constraints = getattr(_method_class(method), "_parameter_constraints", {}).get(name)
+    if constraints is None or any(value is None if c is None else c.accepts(value) for c in constraints):
+        return value
+    raise click.UsageError(f"{given}: {method}'s {name} must be {describe_constraints(constraints)}.")
 
 
-def _plain(text: str, limit: int = 140) -> str:
-    """reST markup off (``x`` → x, :mod:`y` → y), and at most ``limit`` characters."""
-    text = re.sub(r":\w+:`~?([^`]+)`", r"\1", text).replace("``", "")
-    return text if len(text) <= limit else text[: limit - 1].rstrip() + "…"
+def _params_by_method(methods: list[str], param_texts: tuple[str, ...], *,
+                      shortcuts: dict[str, tuple[str, Any]] | None = None) -> dict[str, dict[str, Any]]:
+    """Each method's parameters, every name and value checked before anything is fitted.
 
+    Layers, later ones overriding: ``shortcuts`` (parameter name → (option, value) of each named
+    option given), ``--param NAME=VALUE`` (every method), ``--param METHOD:NAME=VALUE`` (that
+    method). A shortcut and ``--param`` setting one name, a name given twice in one layer, a name a
+    method does not have, or a value its constraints refuse, is a usage error.
+    """
+    from ..evaluation.inputs import RUNTIME_PARAMS  # runtime flags: how a method runs, not what it computes
 
-def describe_constraints(constraints: list[Any]) -> str:
-    """``None or an int in [1, 64]``: the declared constraints in words."""
-    return " or ".join("None" if c is None else c.describe() for c in constraints)
-
-
-def parameter_lines(model: Any, *, runtime: set[str] | frozenset[str] = frozenset()) -> list[str]:
-    """One line per parameter of ``model``: ``name=default — allowed values — meaning``."""
-    cls = type(model)
-    constraints = getattr(cls, "_parameter_constraints", {})
-    meanings = parameter_meanings(cls)
-    out = []
-    for name, default in sorted(model.get_params(deep=False).items()):
-        allowed = describe_constraints(constraints[name]) if name in constraints else "any"
-        meaning = meanings.get(name, "")
-        tag = " [runtime]" if name in runtime else ""
-        out.append(f"{name}={_param_text(default)}{tag}: {allowed}" + (f" — {meaning}" if meaning else ""))
+    shortcuts = shortcuts or {}
+    layers: dict[str, dict[str, tuple[Any, str]]] = {"": {}}
+    for text in param_texts:
+        key, eq, raw = text.partition("=")
+        target, _, name = key.strip().rpartition(":")
+        if not eq or not name.isidentifier():
+            raise click.UsageError(f"--param {text!r} is not NAME=VALUE (or METHOD:NAME=VALUE), "
+                                   "e.g. feature_ratio=0.25.")
+        if target and target not in methods:
+            raise click.UsageError(f"--param {text!r} is for {target!r}, which is not a method of this run "
+                                   f"({', '.join(methods)}).")
+        layer = layers.setdefault(target, {})
+        if name in layer:
+            raise click.UsageError(f"--param sets {key.strip()} twice; give it once.")
+        if name in shortcuts and name not in RUNTIME_PARAMS:  # a runtime flag yields to an explicit --param
+            raise click.UsageError(f"{shortcuts[name][0]} and --param {key.strip()}=… both set {name}; "
+                                   "give one of them.")
+        layer[name] = (_param_value(raw), f"--param {text}")
+    out: dict[str, dict[str, Any]] = {}
+    for method in methods:
+        valid = sorted(_method_class(method)._get_param_names())
+        for name, (option, _) in shortcuts.items():
+            if name not in valid and name not in RUNTIME_PARAMS:
+                raise click.UsageError(f"{option} sets parameter {name!r}, which {method} does not have; "
+                                       f"{method} takes: {', '.join(valid)}.")
+        given = {**layers[""], **layers.get(method, {})}
+        for name in given:
+            if name not in valid:
+                hint = (f" (--param {name}=… applies to every method; write METHOD:{name}=… for one)"
+                        if name in layers[""] and len(methods) > 1 else "")
+                raise click.UsageError(f"{method} has no parameter {name!r}{hint}; "
+                                       f"{method} takes: {', '.join(valid)}.")
+        # Runtime flags (--no-progress, --n-jobs) change how a method runs, not what it computes: they apply
+        # where the method has the parameter and are ignored elsewhere, so one command line fits every method.
+        typed = {n: (v, f"{o} {_param_text(v)}") for n, (o, v) in shortcuts.items() if n in valid}
+        out[method] = {n: _check_value(method, n, v, text) for n, (v, text) in {**typed, **given}.items()}
     return out
+
+
+@contextmanager
+def _naming(method: str) -> Iterator[None]:
+    """A bad parameter value found while building, fitting or evaluating ``method`` names the method
+    (:func:`btel.evaluation.inputs.method_named`)."""
+    from ..evaluation.inputs import method_named
+
+    with method_named(method):
+        yield

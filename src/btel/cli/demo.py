@@ -38,7 +38,7 @@ def demo(ctx: click.Context, n_places: int, dim: int, budget: str, methods: str,
     query traverse under an appearance change, frame-aligned. Every method gets --budget except
     brute force, the unbudgeted reference (see --no-reference; added with a second, whitened row when
     --methods does not name it); the same rule as `btel evaluate`.
-    A method that does not fit the budget becomes a row saying so; exit status 3 then.
+    A method that does not fit the budget becomes a row saying so; exit status 1 then.
     """
     from ..datasets import synthetic_route
 

@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from ..methods.roles import DEFAULT_METHOD
+from ._errors import InputError
 from ._inputs import _load_matrix
 from ._jobs import _fit_jobs, _run_jobs
 from ._options import (EXIT_SOME_ROWS_FAILED, _BUDGET_HELP, _DELTA_HELP, _N_JOBS_HELP, _NO_PROGRESS_HELP,
@@ -60,7 +61,8 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
 
     Methods are fitted on --db (--methods, --budget, --param) or loaded from --model files. All is
     checked before any fit; a method that does not fit (or fails) becomes a row with its reason, and
-    the run folder is rewritten as each finishes. Exit: 0 all ran; 3 some did not; 1 bad data; 2 usage.
+    the run folder is rewritten as each finishes. Exit: 0 all ran; 1 some did not, or a failure;
+    2 usage or input; 130 Ctrl-C.
     """
     from ..datasets.sources import resolve_ground_truth
     from ..evaluation.inputs import common_map_size, run_title, saved_jobs
@@ -97,7 +99,7 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
         given, truth = resolve_ground_truth(ground_truth, n_queries=Q.shape[0], n_map=n_map, db=db,
                                             queries=queries, threshold=positive_dist_threshold)
     except InvalidParameterError as exc:
-        raise click.ClickException(f"--ground-truth: {exc}") from None
+        raise InputError(f"--ground-truth: {exc}") from None
     gt = check_ground_truth(given, Q.shape[0], n_map, option="--ground-truth")
     if tolerance_list is not None and not gt.uses_tolerance:
         raise click.UsageError("--tolerances needs one true place per query; --ground-truth lists explicit "
@@ -106,8 +108,7 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
                       saved=bool(saved), fitted=bool(jobs))
     click.echo(f"map: N = {n_map} places; queries: {Q.shape[0]} × {Q.shape[1]}; "
                f"ground truth: {truth['rule']} ({truth['source']})")
-    from ._gallery import input_names
-    from ._names import plan_pairs
+    from ._names import input_names, plan_pairs
     names = input_names(db, queries, n_map, Q.shape[0])
     pairs = plan_pairs(pairs_path, [j.name for j in saved + jobs], names, (Q.shape[0], n_map), queries, db,
                        overwrite)

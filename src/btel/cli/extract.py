@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import re
 from pathlib import Path
 from typing import Any
@@ -57,8 +56,8 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
     from ..datasets.vpr_names import split_dataset_folder
     from ..descriptors import get_descriptor
     from ..descriptors.base import load_descriptor
-    from ..descriptors.extract import extract_cached
     from ..core.storage import format_bytes
+    from ..descriptors.extract import extract_cached, extract_delta_cached, is_extraction_of
 
     if split_dataset_folder(images_dir) is not None:
         root = Path(images_dir)
@@ -90,9 +89,12 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
         refuse_existing(save_descriptor, "--save-descriptor", overwrite)
     if delta is not None:
         refuse_existing(output, "-o", overwrite)
-        _extract_delta(images_dir, output, model, fit_on, no_progress, force, delta, overwrite)
+        D, X, plain = extract_delta_cached(images_dir, output, model, delta, fit_on=fit_on, progress=not no_progress,
+                                           force=force, overwrite=overwrite)
+        click.echo(f"{X.shape[0]} images → {D.shape[1]}-D delta descriptors (W = {delta}) of "
+                   f"{type(model).__name__} written to {output} (plain descriptors kept in {plain})")
         return
-    cache = Path(output).exists() and _is_cache_of(output, images_dir, model, fit_on)
+    cache = Path(output).exists() and is_extraction_of(output, images_dir, model, fit_on)
     if Path(output).exists() and not overwrite and not cache:
         refuse_existing(output, "-o", overwrite)
     # A new OUTPUT is published only if still absent (a racing extract's is kept); a cache of the same
@@ -110,36 +112,3 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
         parts = ", ".join(f"{k} {format_bytes(v.nbytes)}" for k, v in model._stored_arrays().items())
         click.echo(f"fitted descriptor written to {path} ({format_bytes(path.stat().st_size)}"
                    f"{': ' + parts if parts else ''})")
-
-
-def _is_cache_of(output: str, images_dir: str, model: Any, fit_on: str | None) -> bool:
-    """``output`` was written by an extraction of these images with this descriptor (its JSON sidecar says so):
-    reusing or recomputing it replaces nothing."""
-    from ..descriptors.extract import extraction_key, same_extraction
-    from ..descriptors.images import list_images
-
-    sidecar = Path(str(output) + ".json")
-    try:
-        return same_extraction(json.loads(sidecar.read_text()), extraction_key(list_images(images_dir), model, fit_on))
-    except (OSError, ValueError):
-        return False
-
-
-def _extract_delta(images_dir: str, output: str, model: Any, fit_on: str | None, no_progress: bool, force: bool,
-                   window: int, overwrite: bool) -> None:
-    """``extract --delta W``: the plain descriptors (cached beside OUTPUT), then their delta, written to OUTPUT."""
-    import numpy as np
-
-    from ..descriptors import delta_descriptors
-    from ..descriptors.extract import extract_cached
-
-    plain = Path(output).with_name(Path(output).stem + ".plain.npy")
-    X, _ = extract_cached(images_dir, plain, model, fit_on=fit_on, progress=not no_progress, force=force)
-    from ..core.claims import atomic_output
-
-    D = delta_descriptors(X, window)
-    Path(output).parent.mkdir(parents=True, exist_ok=True)
-    with atomic_output(output, overwrite=overwrite) as fh:  # whole or not at all; a racing file is kept
-        np.save(fh, D)
-    click.echo(f"{X.shape[0]} images → {D.shape[1]}-D delta descriptors (W = {window}) of {type(model).__name__} "
-               f"written to {output} (plain descriptors kept in {plain})")

@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-import csv
 import sys
-from pathlib import Path
 from typing import Any
 
 import click
 
+from ._errors import InputError
 from ._inputs import _load_matrix
+from ._names import input_names, write_predictions
 from ._outputs import refuse_existing
 
 
@@ -18,6 +18,9 @@ from ._outputs import refuse_existing
 @click.argument("queries", required=False, type=click.Path(dir_okay=False))
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="Predictions CSV to write (not with --stream).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing OUTPUT predictions file.")
+@click.option("--db", type=click.Path(dir_okay=False), default=None,
+              help="The map descriptors MODEL was trained on (hloc .h5[:PREFIX], or btel extract's .npy): "
+                   "their image names are written beside the predicted places.")
 @click.option("--sequence-filter", "window", type=int, default=None,
               help="Apply the paper's sequence filter with window a (queries must be consecutive frames).")
 @click.option("--stream", is_flag=True,
@@ -36,13 +39,14 @@ from ._outputs import refuse_existing
 @click.option("--follow", is_flag=True, help="With --stream --input: keep reading as the file grows (like tail -f).")
 @click.option("--idle-timeout", type=float, default=None,
               help="With --follow: stop after this many seconds without a new line (default: run until Ctrl-C).")
-def localize(model_path: str, queries: str | None, output: str | None, overwrite: bool, window: int | None,
-             stream: bool, binary: bool, input_path: str | None, hmm: bool, top_k: int | None, follow: bool,
-             idle_timeout: float | None) -> None:
+def localize(model_path: str, queries: str | None, output: str | None, overwrite: bool, db: str | None,
+             window: int | None, stream: bool, binary: bool, input_path: str | None, hmm: bool,
+             top_k: int | None, follow: bool, idle_timeout: float | None) -> None:
     """Predict the place of every query with a saved MODEL.
 
     \b
-    Batch:  btel localize MODEL QUERIES.npy -o predictions.csv   (writes query,prediction CSV)
+    Batch:  btel localize MODEL QUERIES.npy -o predictions.csv   (query,prediction CSV; with names
+            from QUERIES and --db, also query_name,prediction_name)
     Stream: producer | btel localize MODEL --stream --sequence-filter 5   (or --hmm)
             btel localize MODEL --stream --input frames.txt --follow
             camera | btel localize MODEL --stream --binary   (float32 frames, see --binary)
@@ -52,43 +56,36 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
     """
     from .. import load
 
+    batch = (queries, output, db, top_k) != (None,) * 4
+    streaming = (input_path, idle_timeout) != (None, None) or follow or binary
+    for broken, message in (
+            (hmm and window is not None, "choose --hmm or --sequence-filter, not both."),
+            (stream and batch, "--stream reads stdin (or --input) and writes stdout; QUERIES, -o, --db and "
+                               "--top-k are for batch localization."),
+            (not stream and streaming, "--input, --follow, --idle-timeout and --binary need --stream."),
+            (not stream and None in (queries, output), "give QUERIES and -o/--output (or use --stream)."),
+            (follow and input_path is None, "--follow needs --input FILE (stdin waits for new lines anyway)."),
+            (idle_timeout is not None and not follow, "--idle-timeout only applies with --follow.")):
+        if broken:
+            raise click.UsageError(message)
     if stream:
-        if top_k is not None:
-            raise click.UsageError("--top-k applies to batch localization, not --stream.")
-        if hmm and window is not None:
-            raise click.UsageError("choose --hmm or --sequence-filter, not both.")
-        if queries is not None or output is not None:
-            raise click.UsageError("--stream reads stdin (or --input) and writes stdout; drop QUERIES and -o.")
-        _localize_stream(load(model_path), input_path, follow, idle_timeout, window, hmm, binary)
-        return
-    if input_path is not None or follow or idle_timeout is not None or binary:
-        raise click.UsageError("--input, --follow, --idle-timeout and --binary only apply with --stream.")
-    if queries is None or output is None:
-        raise click.UsageError("give QUERIES and -o/--output (or use --stream).")
-    if hmm and window is not None:
-        raise click.UsageError("choose --hmm or --sequence-filter, not both.")
+        return _localize_stream(load(model_path), input_path, follow, idle_timeout, window, hmm, binary)
     refuse_existing(output, "-o", overwrite)
     model = load(model_path)
     Q = _load_matrix(queries, "query descriptors")
+    q_names, db_names = input_names(db, queries, model.n_places_, Q.shape[0])
+    if db is not None and db_names is None:
+        raise InputError(f"--db {db} does not name one image per place of MODEL ({model.n_places_}); give "
+                         "the map MODEL was trained on (an hloc .h5, or btel extract's .npy with its .json).")
     predictions = model.predict_sequence(Q, "hmm") if hmm else model.predict(Q)
     if window is not None:
         from ..sequence.filter import filter_sequence
 
         predictions = filter_sequence(predictions, window, n_places=model.n_places_)
     ranked = model.rank(Q, top_k) if top_k is not None else None
-    Path(output).parent.mkdir(parents=True, exist_ok=True)
-    from ..core.claims import atomic_output
-
-    # Whole or not at all; without --overwrite a file another process wrote meanwhile is kept.
-    with atomic_output(output, overwrite=overwrite, text=True) as fh:
-        writer = csv.writer(fh)
-        head = ["query", "prediction"]
-        if ranked is not None:
-            head += [f"rank_{j + 1}" for j in range(ranked.shape[1])]
-        writer.writerow(head)
-        for i, p in enumerate(predictions.tolist()):
-            writer.writerow([i, p, *(ranked[i].tolist() if ranked is not None else [])])
-    click.echo(f"{len(predictions)} predictions written to {output}")
+    write_predictions(output, predictions, ranked, q_names, db_names, overwrite=overwrite)
+    named = " with image names" if q_names or db_names else ""
+    click.echo(f"{len(predictions)} predictions{named} written to {output}")
 
 
 def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_timeout: float | None,
@@ -96,10 +93,6 @@ def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_time
     """The --stream loop: one output line per well-formed input line, flushed before more input is awaited."""
     from ..sequence.streaming import localize_stream
 
-    if follow and input_path is None:
-        raise click.UsageError("--follow needs --input FILE (stdin already waits for new lines).")
-    if idle_timeout is not None and not follow:
-        raise click.UsageError("--idle-timeout only applies with --follow.")
     n_bad = n_out = 0
     unit = "frame" if binary else "line"
 
@@ -117,10 +110,8 @@ def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_time
                                         idle_timeout=idle_timeout, binary=binary, on_flush=out.flush):
             out.write(f"{place}\n")  # flushed by on_flush: a reader of the pipe sees each answer at once
             n_out += 1
-    except KeyboardInterrupt:  # stopping a --follow stream is the normal way to end it
-        pass
-    finally:
+    finally:  # Ctrl-C, the usual end of a --follow stream, still says what was skipped (then exits 130)
         if input_path is not None:
             source.close()
-    if n_bad:
-        click.echo(f"{n_out} predictions; {n_bad} malformed {unit}(s) skipped", err=True)
+        if n_bad:
+            click.echo(f"{n_out} predictions; {n_bad} malformed {unit}(s) skipped", err=True)

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import click
+
+from ._params import _param_text
 
 
 @click.command(name="methods")
@@ -22,8 +26,14 @@ def methods_cmd(show_params: bool) -> None:
         mark = " †" if model.uses_query_sequence else ""
         click.echo(f"{name:<{width}}  {DESCRIPTIONS.get(name, '')}{mark}")
         if show_params:
-            from ._params import parameter_lines
-
-            runtime = set(getattr(model, "_runtime_params", ()))
-            for line in parameter_lines(model, runtime=runtime):
+            for line in parameter_lines(model):
                 click.echo(" " * (width + 4) + line)
+
+
+def parameter_lines(model: Any) -> list[str]:
+    """One line per parameter of ``model``: ``name=default [runtime]: allowed values — meaning``."""
+    from ..core.paramdocs import parameter_table
+
+    return [f"{name}={_param_text(default)}{' [runtime]' if runtime else ''}: {allowed}"
+            + (f" — {meaning}" if meaning else "")
+            for name, default, allowed, meaning, runtime in parameter_table(model)]

@@ -2,90 +2,69 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import click
 
 from ..methods.roles import DEFAULT_METHOD
 from ._inputs import _load_map
-from ._jobs import _naming, _params_by_method
-from ._options import _DELTA_HELP, _FRONT_END_HELP, _N_JOBS_HELP, _NO_PROGRESS_HELP, _PARAM_HELP, _check_budget
+from ._options import _N_JOBS_HELP, _NO_PROGRESS_HELP, _PARAM_HELP, _check_budget
 from ._outputs import refuse_existing
+from ._params import _naming, _param_value, _params_by_method
 from .info import _echo_storage
+
+#: Flags of earlier versions, kept working but hidden from --help: each sets one parameter, read as
+#: --param reads its VALUE, and goes through the same checks (`--regions 4` is `--param n_regions=4`).
+ALIASES = {"regions": "n_regions", "feature-ratio": "feature_ratio", "n-features": "n_features",
+           "classifier": "classifier", "dtype": "dtype", "backend": "backend", "scheduler": "scheduler",
+           "block-size": "block_size", "code-copies": "code_copies", "exemplar-radius": "exemplar_radius",
+           "normalize": "normalize", "whiten": "whiten", "delta": "delta"}
+
+
+def _alias_name(flag: str) -> str:
+    return f"alias_{flag.replace('-', '_')}"
+
+
+def _aliases(command: Callable[..., Any]) -> Callable[..., Any]:
+    """The hidden options of :data:`ALIASES` (and ``--tolerance T``, block_size from a tolerance)."""
+    for flag in [*ALIASES, "tolerance"]:
+        command = click.option(f"--{flag}", _alias_name(flag), default=None, hidden=True)(command)
+    return command
 
 
 @click.command()
 @click.argument("db", type=click.Path())
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Model file to write (.npz).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Model file to write (.npz).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing OUTPUT model file.")
 @click.option("--method", default=DEFAULT_METHOD, show_default=True, help="Method name (see `btel methods`).")
-@click.option("--budget", default=None, help="Byte budget, e.g. 500KB, 2MB, 64KiB.")
+@click.option("--budget", default=None,
+              help="Byte budget, e.g. 500KB, 2MB, 64KiB (same as --param budget=…).")
 @click.option("--param", "param_texts", multiple=True, metavar="NAME=VALUE", help=_PARAM_HELP)
-@click.option("--regions", default=None, help="BTEL: number of regions r, or 'auto'.")
-@click.option("--feature-ratio", type=float, default=None, help="BTEL: c = d'/d.")
-@click.option("--n-features", type=int, default=None, help="BTEL: d' directly.")
-@click.option("--classifier", type=click.Choice(["svm", "logistic"]), default=None, help="BTEL classifier.")
-@click.option("--dtype", type=click.Choice(["float32", "float16"]), default=None, help="BTEL stored weight dtype.")
+@click.option("--seed", "random_state", type=int, default=None,
+              help="Random seed (same as --param random_state=…).")
 @click.option("--n-jobs", type=int, default=None, help=_N_JOBS_HELP)
-@click.option("--backend", type=click.Choice(["threads", "loky", "dask"]), default=None,
-              help="BTEL: where the classifier fits run — threads (default), loky processes, or a Dask cluster "
-                   "(pip install btel[dask]).")
-@click.option("--scheduler", default=None, help="With --backend dask: the scheduler address, e.g. tcp://10.0.0.5:8786.")
 @click.option("--no-progress", is_flag=True, help=_NO_PROGRESS_HELP)
-@click.option("--seed", "random_state", type=int, default=None, help="Random seed (random_state).")
-@click.option("--block-size", type=int, default=None,
-              help="BTEL: tolerance-aware codes, index blocks of B places and answer the block centre.")
-@click.option("--tolerance", type=int, default=None,
-              help="BTEL: the tolerance t you need (frames); sets --block-size to the largest power of two ≤ t.")
-@click.option("--code-copies", type=int, default=None, help="BTEL: offset (error-correcting) codes, m copies.")
-@click.option("--exemplar-radius", type=int, default=None, help="BTEL: multi-exemplar weights within ±e places.")
-@click.option("--normalize", type=click.Choice(["none", "l2", "power"]), default=None, help=_FRONT_END_HELP)
-@click.option("--whiten", type=int, default=None, metavar="P", help="PCA-whiten to P dimensions (front end).")
-@click.option("--delta", type=int, default=None, metavar="W", help=_DELTA_HELP)
-def train(db: str, output: str, overwrite: bool, method: str, budget: str | None, param_texts: tuple[str, ...], regions: str | None,
-          feature_ratio: float | None, n_features: int | None, classifier: str | None, dtype: str | None,
-          n_jobs: int | None, backend: str | None, scheduler: str | None, no_progress: bool,
-          random_state: int | None, block_size: int | None, tolerance: int | None, code_copies: int | None,
-          exemplar_radius: int | None, normalize: str | None, whiten: int | None, delta: int | None) -> None:
+@_aliases
+def train(db: str, output: str, overwrite: bool, method: str, budget: str | None,
+          param_texts: tuple[str, ...], random_state: int | None, n_jobs: int | None, no_progress: bool,
+          **aliases: str | None) -> None:
     """Fit a model on map descriptors DB and save it; prints the storage breakdown.
 
     DB is a .npy matrix (row i = place i; memory-mapped, so maps larger than RAM work), an .npz,
-    or a folder of .npy shards taken in natural file-name order (shard_2 before shard_10).
+    an hloc .h5, or a folder of .npy shards taken in natural file-name order (shard_2 before shard_10).
 
     \b
     Any parameter of --method is set with --param NAME=VALUE, e.g.
       btel train db.npy -o m.npz --method pq --param n_subquantizers=16 --param nbits=8
-
-    --budget and the options after --param are shortcuts that fill the same parameters (--regions
-    is n_regions, --seed random_state, --no-progress progress=false, --block-size and --tolerance
-    block_size, the others by their own names). Each must be a parameter of --method (see `btel
-    methods --params`), and a shortcut and --param may not set the same one.
+      btel train db.npy -o m.npz --method btel-r --budget 500KB --param n_regions=auto --param whiten=256
+    `btel methods --params` lists every method's parameters and their allowed values. The flags of
+    earlier versions (--regions, --feature-ratio, --whiten, …) still work as aliases of --param.
     """
     from ..methods.registry import make_method
 
-    if scheduler is not None and backend != "dask":
-        raise click.UsageError("--scheduler only applies with --backend dask.")
-    if block_size is not None and tolerance is not None:
-        raise click.UsageError("give --block-size or --tolerance, not both.")
-    if tolerance is not None:
-        from ..methods.registry import block_size_for_tolerance
-
-        block_size = block_size_for_tolerance(tolerance)
-    n_regions: Any = None
-    if regions is not None:
-        n_regions = _regions(regions)
-    named = {"budget": ("--budget", budget), "n_regions": ("--regions", n_regions),
-             "feature_ratio": ("--feature-ratio", feature_ratio), "n_features": ("--n-features", n_features),
-             "classifier": ("--classifier", classifier), "dtype": ("--dtype", dtype), "n_jobs": ("--n-jobs", n_jobs),
-             "backend": ("--backend", backend), "scheduler": ("--scheduler", scheduler),
-             "progress": ("--no-progress", False if no_progress else None),
-             "random_state": ("--seed", random_state),
-             "block_size": ("--tolerance" if tolerance is not None else "--block-size", block_size),
-             "code_copies": ("--code-copies", code_copies), "exemplar_radius": ("--exemplar-radius", exemplar_radius),
-             "normalize": ("--normalize", normalize), "whiten": ("--whiten", whiten), "delta": ("--delta", delta)}
-    shortcuts = {name: (option, value) for name, (option, value) in named.items() if value is not None}
-    if budget is not None:
-        _check_budget(budget)
+    shortcuts = _shortcuts(budget, random_state, n_jobs, no_progress, aliases)
     params = _params_by_method([method], param_texts, shortcuts=shortcuts)[method]
     refuse_existing(output, "-o", overwrite)
     X = _load_map(db)
@@ -102,21 +81,27 @@ def train(db: str, output: str, overwrite: bool, method: str, budget: str | None
     click.echo(f"model written to {path} ({path.stat().st_size:,d} B on disk)")
 
 
-def _regions(text: str) -> int | str:
-    """``--regions``: an integer, or a word that ``n_regions`` accepts (asked of the registered methods that
-    have the parameter, so the command line does not spell their options)."""
-    try:
-        return int(text)
-    except ValueError:
-        pass
-    from ..exceptions import InvalidParameterError
-    from ..methods.registry import METHODS, make_method
+def _shortcuts(budget: str | None, random_state: int | None, n_jobs: int | None, no_progress: bool,
+               aliases: dict[str, str | None]) -> dict[str, tuple[str, Any]]:
+    """Parameter name → (option, value) of each named option given (see ``_params_by_method``)."""
+    if budget is not None:
+        _check_budget(budget)
+    out: dict[str, tuple[str, Any]] = {
+        name: (option, value) for name, option, value in (
+            ("budget", "--budget", budget), ("random_state", "--seed", random_state),
+            ("n_jobs", "--n-jobs", n_jobs), ("progress", "--no-progress", False if no_progress else None))
+        if value is not None}
+    given = {flag: aliases[_alias_name(flag)] for flag in [*ALIASES, "tolerance"]
+             if aliases[_alias_name(flag)] is not None}
+    if "tolerance" in given:
+        if "block-size" in given:
+            raise click.UsageError("give --block-size or --tolerance, not both.")
+        from ..methods.registry import block_size_for_tolerance
 
-    for name in METHODS:
-        if "n_regions" in make_method(name).get_params():
-            try:
-                make_method(name, n_regions=text)
-            except InvalidParameterError:
-                continue
-            return text
-    raise click.UsageError(f"--regions must be an integer or 'auto'; got {text!r}.")
+        tolerance = _param_value(given.pop("tolerance"))
+        if not isinstance(tolerance, int) or isinstance(tolerance, bool) or tolerance < 1:
+            raise click.UsageError(f"--tolerance takes a number of frames ≥ 1; got {tolerance!r}.")
+        out["block_size"] = ("--tolerance", block_size_for_tolerance(tolerance))
+    for flag, text in given.items():
+        out[ALIASES[flag]] = (f"--{flag}", _param_value(text))
+    return out

@@ -46,7 +46,8 @@ from .rows import (NORMALIZATIONS, TINY_SQUARED_NORM, ScaledRows, delta_descript
 
 __all__ = ["FrontEnd", "FrontEndStream", "ScaledRows", "delta_descriptors", "normalize_rows", "row_norms",
            "traverse_starts",
-           "NORMALIZATIONS", "FRONT_END_CONSTRAINTS", "with_front_end_parameters"]
+           "NORMALIZATIONS", "FRONT_END_CONSTRAINTS", "FRONT_END_MEANINGS",
+           "with_front_end_parameters"]
 
 #: Longest delta window (frames per half window).
 MAX_DELTA = 1000
@@ -58,6 +59,13 @@ FRONT_END_CONSTRAINTS: dict[str, list[Any]] = {
     # A window of w frames keeps 2w frames per streamed query (and reads 2w·d values each frame):
     # windows are tens of frames; 1000 bounds what a model file can ask for.
     "delta": [None, Interval(int, 1, MAX_DELTA)],
+}
+#: What each front-end parameter does, in one sentence (``btel methods --params`` shows it).
+FRONT_END_MEANINGS: dict[str, str] = {
+    "normalize": "Row normalisation before anything else: l2, power (signed square root, then l2) or none.",
+    "whiten": "PCA-whitening to this many dimensions, or shrink (shrinkage whitening); its arrays count in the "
+              "bytes.",
+    "delta": "Delta descriptors over W frames: mean of the last W minus the W before (uses the query sequence).",
 }
 
 # Rows transformed at a time (bounds the float64 temporaries on large, memory-mapped maps).
@@ -96,10 +104,9 @@ class FrontEnd:
     def of(cls, estimator: Any) -> "FrontEnd":
         """The (unfitted) front end an estimator's ``normalize``/``whiten``/``delta`` parameters ask for
         (declared once for every method in :class:`btel.methods.base.PlaceLocalizer`)."""
-        from .storage import parse_budget
+        from .storage import budget_of
 
-        return cls(estimator.normalize, estimator.whiten, estimator.delta,
-                   budget=parse_budget(getattr(estimator, "budget", None)))
+        return cls(estimator.normalize, estimator.whiten, estimator.delta, budget=budget_of(estimator))
 
     @property
     def is_identity(self) -> bool:
@@ -212,8 +219,9 @@ class FrontEnd:
     def nbytes(self) -> int:
         return int(sum(a.nbytes for a in self.arrays().values()))
 
-    def planned_bytes(self, n_features: int, n_rows: int | None = None) -> int:
-        """Bytes the fitted front end will store for d = ``n_features`` (known before fitting)."""
+    def planned_bytes(self, n_rows: int | None, n_features: int) -> int:
+        """Bytes the fitted front end will store for ``n_rows`` map rows of d = ``n_features`` (known
+        before fitting; the rows matter to shrinkage whitening only)."""
         if self.whiten == "shrink":
             from .shrink import shrink_bytes, shrink_rank
 

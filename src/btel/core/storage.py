@@ -17,13 +17,13 @@ shrinkage whitening's float16 mean and 4-bit basis). Runtime caches built from s
 from __future__ import annotations
 
 import re
-from typing import Mapping
+from typing import Any, Mapping
 
 import numpy as np
 
 from ..exceptions import BudgetExceededError, InvalidParameterError
 
-__all__ = ["check_within_budget", "parse_budget", "format_bytes", "storage_breakdown"]
+__all__ = ["check_within_budget", "parse_budget", "budget_of", "format_bytes", "storage_breakdown"]
 
 _UNITS = {
     "": 1,
@@ -71,6 +71,16 @@ def parse_budget(budget: int | float | str | None) -> int | None:
     if not np.isfinite(value) or value <= 0:
         raise InvalidParameterError(f"budget must be a positive number of bytes; got {budget!r}.")
     return int(value)
+
+
+#: What a method's ``budget`` parameter is, in one sentence (``btel methods --params``).
+BUDGET_MEANING = "Byte budget of everything stored (500000, '500KB', '2MB', '64KiB'); None: unbudgeted."
+
+
+def budget_of(estimator: Any) -> int | None:
+    """The byte budget of ``estimator`` (its ``budget`` parameter, declared on
+    :class:`btel.methods.base.PlaceLocalizer`), parsed: bytes, or None when it has none."""
+    return parse_budget(getattr(estimator, "budget", None))
 
 
 def format_bytes(n_bytes: float) -> str:

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..exceptions import DataNotFoundError, InvalidParameterError
+from .row_names import row_names  # noqa: F401 (re-exported)
 
 __all__ = ["GARDENS_POINT_NETVLAD", "gardens_point_path", "load_gardens_point_netvlad", "row_names",
            "resolve_ground_truth", "truth_description"]
@@ -72,27 +73,6 @@ def load_gardens_point_netvlad(path: str | os.PathLike) -> tuple[np.ndarray, np.
         raise InvalidParameterError(f"{path}: hlrTrain {X.shape} and hlrTest {Q.shape} must be two finite "
                                     "matrices of one shape (frame-aligned day and night traverses).")
     return X, Q
-
-
-def row_names(path: str) -> list[str] | None:
-    """The image name of every row of the descriptor file ``path``, or None when it records none.
-
-    ``.npy`` written by ``btel extract``: the images in its sidecar ``PATH.json``; hloc ``.h5``
-    (``FILE.h5:PREFIX`` too): the group names.
-    """
-    from ..descriptors.npy import HDF5_SUFFIXES, load_hloc_global, split_prefix
-
-    file, prefix = split_prefix(path)
-    if file.suffix.lower() in HDF5_SUFFIXES:
-        return load_hloc_global(file, prefix)[1]
-    sidecar = Path(str(file) + ".json")
-    if file.suffix.lower() == ".npy" and sidecar.is_file():
-        try:
-            images = json.loads(sidecar.read_text(encoding="utf-8")).get("images")
-            return [str(entry[0]) for entry in images]
-        except (OSError, ValueError, AttributeError, TypeError, IndexError, KeyError):
-            return None
-    return None
 
 
 def truth_description(gt: Any, source: str, rule: str | None = None) -> dict[str, str]:

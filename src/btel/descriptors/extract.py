@@ -174,3 +174,43 @@ def extract_cached(
     with atomic_output(sidecar, text=True) as fh:
         fh.write(json.dumps(key, indent=1))
     return X, False
+
+
+def is_extraction_of(output: str | os.PathLike, images: str | os.PathLike, model: ImageDescriptor,
+                     fit_on: Any = None) -> bool:
+    """True when ``output`` was written by an extraction of these images with this descriptor (its JSON
+    sidecar says so): reusing or recomputing it replaces nothing of the user's."""
+    from .images import list_images
+
+    try:
+        cached = json.loads(Path(str(output) + ".json").read_text())
+        return same_extraction(cached, extraction_key(list_images(images), model, fit_on))
+    except (OSError, ValueError):
+        return False
+
+
+def extract_delta_cached(images: str | os.PathLike, output: str | os.PathLike, model: ImageDescriptor,
+                         window: int, *, fit_on: Any = None, progress: bool = True, force: bool = False,
+                         overwrite: bool = False) -> tuple[np.ndarray, np.ndarray, Path]:
+    """Delta descriptors over ``window`` frames into ``output`` (.npy); the plain descriptors they come
+    from are cached beside it (``<stem>.plain.npy``, :func:`extract_cached`).
+
+    Returns
+    -------
+    D : ndarray of shape (n_images, dim), float32
+        What ``output`` holds (:func:`btel.core.frontend.delta_descriptors`).
+    X : ndarray of shape (n_images, dim), float32
+        The plain descriptors.
+    plain : Path
+        Where they are cached.
+    """
+    from ..core.frontend import delta_descriptors
+
+    output = Path(output)
+    plain = output.with_name(output.stem + ".plain.npy")
+    X, _ = extract_cached(images, plain, model, fit_on=fit_on, progress=progress, force=force)
+    D = delta_descriptors(X, window)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_output(output, overwrite=overwrite) as fh:  # whole or not at all; a racing file is kept
+        np.save(fh, D)
+    return D, X, plain

@@ -248,12 +248,29 @@ def load_descriptor_matrix(
     return check_descriptors(array, name=name)
 
 
+def _starts_as_pickle(path: Path) -> bool:
+    """True when ``path`` starts as a pickle (byte 0x80, then protocol 2 to 5) or as a .npy file (whose
+    objects numpy would unpickle) does."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(6)
+    except OSError:
+        return False
+    return head == b"\x93NUMPY" or (len(head) >= 2 and head[0] == 0x80 and 2 <= head[1] <= 5)
+
+
 def _open_mapped(path: Path, mmap_mode: str | None) -> Any:
     """``np.load(path, mmap_mode=…)`` without pickles; every numpy failure becomes
     :class:`InvalidDescriptorsError`."""
     try:
         return np.load(path, mmap_mode=mmap_mode, allow_pickle=False)
     except ValueError as exc:
+        if "pickle" in str(exc).lower() and not _starts_as_pickle(path):  # numpy says "pickle" for any non-.npy
+            raise InvalidDescriptorsError(
+                f"{str(path)!r} is not a .npy file (it does not start with NumPy's header); btel reads .npy, .npz, "
+                "hloc .h5 and folders of .npy shards. A text matrix converts with "
+                "np.save('X.npy', np.loadtxt(path, dtype=np.float32))."
+            ) from exc
         if "pickle" in str(exc).lower():
             raise InvalidDescriptorsError(
                 f"{str(path)!r} holds Python objects (a pickled array); btel never unpickles files because "

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ..core.storage import format_bytes, parse_budget
+from ..core.storage import budget_of, format_bytes, parse_budget
 from ..exceptions import InvalidParameterError
 
 __all__ = ["Job", "make_jobs", "method_named", "RUNTIME_PARAMS", "saved_jobs", "common_map_size", "run_title"]
@@ -54,7 +54,7 @@ class Job:
 
     @property
     def budget(self) -> int | None:
-        return parse_budget(getattr(self.method, "budget", None))
+        return budget_of(self.method)
 
 
 

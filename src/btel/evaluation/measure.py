@@ -21,13 +21,13 @@ from typing import Any
 
 import numpy as np
 
-from ..core.storage import parse_budget
 from ..core.validation import check_descriptors, check_positive_int
 from ..datasets.groundtruth import GroundTruth, check_predictions
 from ..exceptions import InvalidAnswerError, InvalidParameterError
 from .metrics import (DEFAULT_KS, TruthLike, check_ground_truth, check_points, default_curve_max,
                       default_tolerances, precision_recall, recall_at_k, recall_at_tolerance, recall_curve,
                       thin_curve)
+from ..core.storage import budget_of
 from .records import EvaluationResult, _choice_of, _params_of, _storage_of
 from .timing import time_queries
 
@@ -209,7 +209,7 @@ def measure(
         ground_truth=gt,
         tolerance_for_k=int(k_tolerance),
         chosen_method=(getattr(method, "choice_", None) or {}).get("method"),  # auto: what it chose
-        budget=budget if budget is not None else parse_budget(getattr(method, "budget", None)),
+        budget=budget if budget is not None else budget_of(method),
         reference=bool(reference),
         uses_query_sequence=bool(getattr(method, "uses_query_sequence", False)),
         choice=_choice_of(method),

@@ -16,15 +16,11 @@ Everything else is built here on that primitive alone, so it behaves the same fo
 - :meth:`storage_breakdown` / :attr:`nbytes` / :meth:`save` — the storage rule (:mod:`btel.core.storage`) and
   the model file (:mod:`btel.core.modelfile`; ``btel.load`` reads it back).
 
-``fit(X, places=None)`` is a template: it validates the parameters against the class's declared
-``_parameter_constraints``, validates the descriptors and place labels, fits the front end
-(:mod:`btel.core.frontend`: normalisation, delta descriptors, whitening — every method has one and stores
-it) and calls the method's ``_fit(X, places, n_places, budget, reserved)`` on the transformed map,
-with ``reserved`` bytes of the budget already taken by the front end and the row → place table.
-A subclass implements ``_fit``, ``_search`` or ``_place_scores``, ``_stored_arrays`` (name → array,
-exactly what inference reads), ``_fitted_state`` (JSON scalars), ``_array_specs(state)`` (the
-shape and dtype of every stored array implied by the state, checked on load) and
-``_restore(arrays, state)``.
+``fit(X, places=None)`` is a template: it checks the parameters against the declared
+``_parameter_constraints`` and the data, fits the front end (:mod:`btel.core.frontend`) and calls
+``_fit(X, places, n_places, budget, reserved)`` on the transformed map (``reserved``: bytes the front
+end takes). A subclass implements ``_fit``, ``_search`` or ``_place_scores``, ``_stored_arrays``
+(exactly what inference reads), ``_fitted_state``, ``_array_specs(state)`` and ``_restore``.
 """
 
 from __future__ import annotations
@@ -37,11 +33,11 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..core.params import ParamsMixin
-from ..core.validation import check_descriptors, check_is_fitted, check_params, check_positive_int, map_places
+from ..core.validation import Budget, check_descriptors, check_is_fitted, check_params, check_positive_int, map_places
 from ..exceptions import (BudgetTooSmallError, InvalidAnswerError, InvalidDescriptorsError,
                          NotEnoughPlacesError)
-from ..core.frontend import FRONT_END_CONSTRAINTS, FrontEnd, traverse_starts, with_front_end_parameters
-from ..core.storage import format_bytes, parse_budget, storage_breakdown
+from ..core.frontend import FRONT_END_CONSTRAINTS, FRONT_END_MEANINGS, FrontEnd, traverse_starts, with_front_end_parameters
+from ..core.storage import BUDGET_MEANING, budget_of, format_bytes, storage_breakdown
 from ..core.modelfile import ArraySpec, jsonable, save_arrays
 from ..sequence.querystream import QueryStream
 from ..core.topk import put_first, top_k
@@ -64,8 +60,12 @@ class PlaceLocalizer(ParamsMixin, ABC):
     #: True when a query's answer depends on the queries before it (SeqSLAM's sequence search). A
     #: delta front end makes any method sequence-based too: see :attr:`uses_query_sequence`.
     uses_sequence: ClassVar[bool] = False
-    #: Declared parameter constraints: name → list of accepted constraints (:mod:`btel.core.validation`).
+    #: Declared constraints (:mod:`btel.core.validation`) and meanings (:mod:`btel.core.paramdocs`) of the
+    #: parameters; the budget's and the front end's are declared here once for every method.
     _parameter_constraints: ClassVar[dict[str, list[Any]]] = {}
+    _parameter_meanings: ClassVar[dict[str, str]] = {"budget": BUDGET_MEANING, **FRONT_END_MEANINGS}
+    #: The byte budget, a parameter of every method: parsed by :func:`btel.core.storage.budget_of`.
+    budget: int | str | None = None
     #: Parameters that say how a model runs, not what it learned: never restored from a model file.
     _runtime_params: ClassVar[tuple[str, ...]] = ()
     #: The fitted attribute whose presence means "fitted" (set last by fit and load).
@@ -91,7 +91,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
             raise TypeError(f"{cls.__name__} must implement _search or _place_scores (the method's primitive).")
         if "__init__" in cls.__dict__:
             cls.__init__ = with_front_end_parameters(cls.__dict__["__init__"], dict(cls.front_end_defaults))
-        cls._parameter_constraints = {**cls._parameter_constraints, **FRONT_END_CONSTRAINTS}
+        cls._parameter_constraints = {"budget": [Budget()], **cls._parameter_constraints, **FRONT_END_CONSTRAINTS}
 
     # -- to implement ---------------------------------------------------------------------------
     @abstractmethod
@@ -180,7 +180,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
         """
         start = time.perf_counter()
         X, labels, n_places = self._check_fit_input(X, places)
-        budget, front = parse_budget(getattr(self, "budget", None)), FrontEnd.of(self)
+        budget, front = budget_of(self), FrontEnd.of(self)
         reserved = self._front_end_bytes(X.shape[0], X.shape[1], budget)
         if labels is None:  # one place per row, as the planner counts: refuse the budget before transforming
             self._check_plan(X.shape[0], front.n_features_out(X.shape[1]), budget, reserved)
@@ -239,7 +239,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
     def _front_end_bytes(self, n_rows: int, n_features: int, budget: int | None) -> int:
         """Bytes of the front end's stored arrays, or the error ``fit`` raises when they alone fill the budget."""
         front = FrontEnd.of(self)
-        reserved = front.planned_bytes(n_features, n_rows)
+        reserved = front.planned_bytes(n_rows, n_features)
         if budget is not None and reserved >= budget:
             raise BudgetTooSmallError(
                 f"budget {format_bytes(budget)} ({budget} B) is too small for {type(self).__name__} with "

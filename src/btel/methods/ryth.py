@@ -18,14 +18,14 @@ from typing import Any
 
 import numpy as np
 
-from ..core.validation import N_JOBS, RANDOM_STATE, Budget, DType, Interval, Options, check_positive_int, read_state_int
+from ..core.validation import N_JOBS, RANDOM_STATE, DType, Interval, Options, check_positive_int, read_state_int
 from .base import ArraySpec, PlaceLocalizer
 from ..exceptions import BudgetTooSmallError, ModelFileError, NotEnoughPlacesError
 from ..learning.feature_selection import column_index_dtype
 from ..learning.hyperplanes import Hyperplanes
 from ..learning.linear import ColumnStats, default_C
 from ..learning.solvers import CLASSIFIERS, SOLVERS
-from ..core.storage import format_bytes, parse_budget
+from ..core.storage import budget_of, format_bytes
 from ..learning.training import convergence_warning, fit_tasks, one_vs_rest_tasks
 
 __all__ = ["RYTHLocalizer", "coprime_periods", "crt"]
@@ -123,7 +123,6 @@ class RYTHLocalizer(PlaceLocalizer):
         "feature_ratio": [None, Interval(float, 0, 1, closed="right")],
         "n_features": [None, Interval(int, 1, None)],
         "sparsity": [Interval(float, 0, None, closed="neither")],
-        "budget": [Budget()],
         "dtype": [DType("float32", "float16")],
         "decode": [Options("soft", "crt")],
         "max_iter": [None, Interval(int, 1, 2**31 - 1)],  # None: the solver's own cap; liblinear takes a C int
@@ -164,9 +163,11 @@ class RYTHLocalizer(PlaceLocalizer):
         self.random_state = random_state
 
     @staticmethod
-    def planned_bytes(periods: list[int], n_selected: int, n_features_in: int, dtype: str = "float32") -> int:
-        """Bytes for these periods and d': the sum of :func:`ryth_specs`."""
-        return int(sum(s.nbytes for s in ryth_specs(periods, n_selected, n_features_in, dtype).values()))
+    def planned_bytes(n_rows: int, n_features: int, *, periods: list[int], n_selected: int,
+                      dtype: str = "float32") -> int:
+        """Bytes for these periods and d' = ``n_selected`` of ``n_features`` columns: the sum of
+        :func:`ryth_specs` (the ``n_rows`` places enter through the periods)."""
+        return int(sum(s.nbytes for s in ryth_specs(periods, n_selected, n_features, dtype).values()))
 
     def _cap(self, d: int, budget: int | None) -> int:
         """The most descriptor columns the parameters allow (the budget may select fewer)."""
@@ -187,10 +188,12 @@ class RYTHLocalizer(PlaceLocalizer):
         cap = self._cap(d, budget)
         if budget is None:
             return periods, cap
-        n_selected = next((m for m in range(cap, 0, -1)
-                           if self.planned_bytes(periods, m, d, dtype) + reserved <= budget), 0)
+        def planned(m: int) -> int:
+            return self.planned_bytes(n_places, d, periods=periods, n_selected=m, dtype=dtype) + reserved
+
+        n_selected = next((m for m in range(cap, 0, -1) if planned(m) <= budget), 0)
         if n_selected == 0:
-            minimum = self.planned_bytes(periods, 1, d, dtype) + reserved
+            minimum = planned(1)
             raise BudgetTooSmallError(
                 f"budget {format_bytes(budget)} ({budget} B) is too small for RYTH with periods {periods}: "
                 f"the smallest model (d' = 1) needs {minimum} B. Raise the budget or use fewer periods.",
@@ -206,7 +209,7 @@ class RYTHLocalizer(PlaceLocalizer):
         if not hasattr(self, "n_selected_"):
             return False
         d = self.front_end_.n_features_out(int(self.n_features_in_))
-        return int(self.n_selected_) == self._cap(d, parse_budget(self.budget))
+        return int(self.n_selected_) == self._cap(d, budget_of(self))
 
     def _fit(self, X: np.ndarray, places: np.ndarray | None, n_places: int, budget: int | None,
              reserved: int) -> None:

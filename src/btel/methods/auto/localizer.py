@@ -7,10 +7,10 @@ from typing import Any
 
 import numpy as np
 
-from ...core.validation import N_JOBS, RANDOM_STATE, Budget, check_is_fitted, check_params
+from ...core.validation import N_JOBS, RANDOM_STATE, check_is_fitted, check_params
 from ..base import ArraySpec, PlaceLocalizer
 from ...exceptions import BudgetTooSmallError, ModelFileError
-from ...core.storage import format_bytes, parse_budget
+from ...core.storage import budget_of, format_bytes
 from .rule import choose_method
 
 __all__ = ["AutoLocalizer"]
@@ -44,7 +44,7 @@ class AutoLocalizer(PlaceLocalizer):
     fit_time_ : float
     """
 
-    _parameter_constraints = {"budget": [Budget()], "random_state": RANDOM_STATE, "n_jobs": N_JOBS}
+    _parameter_constraints = {"random_state": RANDOM_STATE, "n_jobs": N_JOBS}
     _runtime_params = ("n_jobs",)
     #: The method registry (:mod:`btel.methods` sets it when it registers this class; this module
     #: does not import the registry, which imports it).
@@ -72,7 +72,7 @@ class AutoLocalizer(PlaceLocalizer):
         """
         start = time.perf_counter()
         X, labels, n_places = self._check_fit_input(X, places)
-        budget = parse_budget(self.budget)
+        budget = budget_of(self)
         candidates = choose_method(X, labels, n_places, budget, self.whiten)
         refused: list[str] = []
         error: BudgetTooSmallError | None = None

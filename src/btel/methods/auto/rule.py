@@ -227,7 +227,7 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
         return [{**c, **stats} for c in ({**codes, "reason": why}, lsh)]
     kind = "independent places" if order.kind == "independent" else "ordered map with bits to spare for LSH"
     front = FrontEnd(normalize="l2", whiten=white("shrink"), budget=budget)
-    exact = BruteForceNN.planned_bytes(n_rows, front.n_features_out(d)) + front.planned_bytes(d, n_rows)
+    exact = BruteForceNN.planned_bytes(n_rows, front.n_features_out(d)) + front.planned_bytes(n_rows, d)
     if budget is None or exact <= budget:
         out.append({"method": "bruteforce", "params": {"whiten": white("shrink")},
                     "reason": f"{kind} ({where}); brute force on shrinkage-whitened rows fits "

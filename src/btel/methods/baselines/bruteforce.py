@@ -18,7 +18,7 @@ from typing import Any
 import faiss
 import numpy as np
 
-from ...core.validation import N_JOBS, Budget
+from ...core.validation import N_JOBS
 from ..base import ArraySpec
 from ...exceptions import ModelFileError
 from ._common import _RowLocalizer, check_magnitude, raise_budget_too_small
@@ -60,7 +60,7 @@ class BruteForceNN(_RowLocalizer):
     """
 
     _float32_distances = True  # a map of tiny rows is refused at fit (_common.MIN_NORM)
-    _parameter_constraints = {"budget": [Budget()], "n_jobs": N_JOBS}
+    _parameter_constraints = {"n_jobs": N_JOBS}
 
     def __init__(self, *, budget: int | str | None = None, n_jobs: int | None = None) -> None:
         self.budget = budget

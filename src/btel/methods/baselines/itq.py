@@ -23,7 +23,7 @@ from typing import Any
 import faiss
 import numpy as np
 
-from ...core.validation import N_JOBS, RANDOM_STATE, Budget, Interval, check_positive_int, read_state_int
+from ...core.validation import N_JOBS, RANDOM_STATE, Interval, check_positive_int, read_state_int
 from ..base import ArraySpec
 from ...exceptions import InvalidParameterError, ModelFileError, NotEnoughPlacesError
 from ._common import _RowLocalizer, quiet_faiss, raise_budget_too_small
@@ -65,7 +65,6 @@ class ITQLocalizer(_RowLocalizer):
 
     _min_rows = 8
     _parameter_constraints = {
-        "budget": [Budget()],
         "code_bits": [None, Interval(int, 8, None)],
         "random_state": RANDOM_STATE,
         "n_jobs": N_JOBS,
@@ -85,7 +84,7 @@ class ITQLocalizer(_RowLocalizer):
         self.n_jobs = n_jobs
 
     @staticmethod
-    def planned_bytes(code_bits: int, n_rows: int, n_features: int) -> int:
+    def planned_bytes(n_rows: int, n_features: int, *, code_bits: int) -> int:
         """Codes (n_rows·b/8) + projection (d·b float32) + mean (d float32)."""
         return n_rows * (code_bits // 8) + (n_features * code_bits + n_features) * 4
 
@@ -111,9 +110,10 @@ class ITQLocalizer(_RowLocalizer):
             options = list(range(8, largest + 1, 8))
         if budget is None:
             return options[0]
-        fitting = [b for b in options if self.planned_bytes(b, n_rows, n_features) + extra_bytes <= budget]
+        fitting = [b for b in options
+                   if self.planned_bytes(n_rows, n_features, code_bits=b) + extra_bytes <= budget]
         if not fitting:
-            minimum = self.planned_bytes(options[0], n_rows, n_features) + extra_bytes
+            minimum = self.planned_bytes(n_rows, n_features, code_bits=options[0]) + extra_bytes
             detail = f"{options[0]}-bit codes, {n_features}×{options[0]} projection"
             raise_budget_too_small("ITQ", budget, minimum, detail)
         return max(fitting)

@@ -44,7 +44,7 @@ from typing import Any
 import faiss
 import numpy as np
 
-from ...core.validation import N_JOBS, RANDOM_STATE, Budget, Interval, Options, read_state_int
+from ...core.validation import N_JOBS, RANDOM_STATE, Interval, Options, read_state_int
 from ..base import ArraySpec
 from ...exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError
 from . import signscan
@@ -247,7 +247,6 @@ class LSHLocalizer(_RowLocalizer):
     """
 
     _parameter_constraints = {
-        "budget": [Budget()],
         "n_bits": [None, Interval(int, 8, MAX_BITS)],
         "scoring": [Options("asymmetric", "hamming")],
         "center": [Options(True, False, "auto")],

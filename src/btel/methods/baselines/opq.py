@@ -27,7 +27,7 @@ from typing import Any
 import faiss
 import numpy as np
 
-from ...core.validation import N_JOBS, Budget, Instance, Interval
+from ...core.validation import N_JOBS, Instance, Interval
 from ..base import ArraySpec
 from ...core.frontend import FrontEnd
 from ._common import _RowLocalizer, quiet_faiss
@@ -70,7 +70,6 @@ class OPQLocalizer(_RowLocalizer):
 
     _float32_distances = True  # a map of tiny rows is refused at fit (_common.MIN_NORM)
     _parameter_constraints = {
-        "budget": [Budget()],
         "pq": [None, Instance(PQLocalizer)],
         "n_iter": [Interval(int, 1, 10_000)],
         "n_jobs": N_JOBS,

@@ -39,7 +39,7 @@ from typing import Any, Iterator
 import faiss
 import numpy as np
 
-from ...core.validation import N_JOBS, RANDOM_STATE, Budget, Interval, check_positive_int, read_state_int
+from ...core.validation import N_JOBS, RANDOM_STATE, Interval, check_positive_int, read_state_int
 from ..base import ArraySpec
 from ...exceptions import InvalidParameterError, ModelFileError, NotEnoughPlacesError
 from ._common import _RowLocalizer, check_model_values, quiet_faiss, raise_budget_too_small
@@ -151,7 +151,6 @@ class PQLocalizer(_RowLocalizer):
 
     _float32_distances = True  # a map of tiny rows is refused at fit (_common.MIN_NORM)
     _parameter_constraints = {
-        "budget": [Budget()],
         "n_subquantizers": [None, Interval(int, 1, 1 << 16)],
         "nbits": [None, Interval(int, 1, 8)],
         "pca_dim": [None, Interval(int, 1, None)],
@@ -182,7 +181,8 @@ class PQLocalizer(_RowLocalizer):
         """Bytes of the stored d×p projection (0 when p = d, unless a rotation is ``always`` stored)."""
         return 0 if dim == n_features and not always else n_features * dim * 4
 
-    def planned_bytes(self, config: PQConfig, n_rows: int, n_features: int, *, always_project: bool = False) -> int:
+    def planned_bytes(self, n_rows: int, n_features: int, *, config: PQConfig,
+                      always_project: bool = False) -> int:
         """Storage of ``config`` for ``n_rows`` map rows of dimension ``n_features`` (no row table)."""
         return n_rows * config.code_size + config.codebook_bytes + \
             self.projection_bytes(n_features, config.dim, always_project)
@@ -257,7 +257,7 @@ class PQLocalizer(_RowLocalizer):
         if budget is None:
             return self._default_config(n_rows, n_features)
         options = [
-            (c, self.planned_bytes(c, n_rows, n_features, always_project=always_project) + extra_bytes)
+            (c, self.planned_bytes(n_rows, n_features, config=c, always_project=always_project) + extra_bytes)
             for c in self.candidates(n_rows, n_features)
         ]
         if not options:

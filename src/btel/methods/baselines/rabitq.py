@@ -38,7 +38,7 @@ from typing import Any
 import faiss
 import numpy as np
 
-from ...core.validation import N_JOBS, RANDOM_STATE, Budget, Interval, read_state_int
+from ...core.validation import N_JOBS, RANDOM_STATE, Interval, read_state_int
 from ..base import ArraySpec
 from ...exceptions import BTELError, InvalidDescriptorsError, InvalidParameterError, ModelFileError
 from ._common import MAX_NORM, _RowLocalizer, check_model_values, raise_budget_too_small
@@ -107,7 +107,6 @@ class RaBitQLocalizer(_RowLocalizer):
 
     _float32_distances = True  # a map of tiny rows is refused at fit (_common.MIN_NORM)
     _parameter_constraints = {
-        "budget": [Budget()],
         "dim": [None, Interval(int, 1, None)],
         "nbits": [None, Interval(int, 1, MAX_NBITS)],
         "random_state": RANDOM_STATE,
@@ -131,8 +130,9 @@ class RaBitQLocalizer(_RowLocalizer):
     def _n_factors(nbits: int) -> int:
         return 2 if nbits == 1 else 5
 
-    def planned_bytes(self, dim: int, nbits: int, n_rows: int) -> int:
-        """Codes, factors and centroid of D dimensions × B bits for ``n_rows`` rows (no row table)."""
+    def planned_bytes(self, n_rows: int, n_features: int, *, dim: int, nbits: int) -> int:
+        """Codes, factors and centroid of D dimensions × B bits for ``n_rows`` rows (no row table); the
+        seeded rotation of the ``n_features`` dimensions is not stored."""
         width = self._value_dtype().itemsize
         per_row = -(-dim // 8) + -(-dim * (nbits - 1) // 8) + self._n_factors(nbits) * width
         return n_rows * per_row + dim * width
@@ -149,11 +149,11 @@ class RaBitQLocalizer(_RowLocalizer):
             return dims[-1], bits[0]
 
         def fits(D: int, B: int) -> bool:
-            return reserved + self.planned_bytes(D, B, n_rows) <= budget
+            return reserved + self.planned_bytes(n_rows, n_features, dim=D, nbits=B) <= budget
 
         fitting = [D for D in dims if fits(D, bits[0])]
         if not fitting:
-            minimum = reserved + self.planned_bytes(dims[0], bits[0], n_rows)
+            minimum = reserved + self.planned_bytes(n_rows, n_features, dim=dims[0], nbits=bits[0])
             raise_budget_too_small("RaBitQ", budget, minimum,
                                    f"D = {dims[0]} dimensions × {bits[0]} bit(s) for {n_rows} rows + "
                                    f"{self._n_factors(bits[0])} {self._value_dtype().name} factors each")

@@ -32,7 +32,7 @@ from typing import Any
 import faiss
 import numpy as np
 
-from ...core.validation import N_JOBS, Budget, Interval, check_positive_int
+from ...core.validation import N_JOBS, Interval, check_positive_int
 from ..base import ArraySpec
 from ...exceptions import InvalidDescriptorsError, InvalidParameterError, ModelFileError
 from ._common import MAX_NORM, _RowLocalizer, raise_budget_too_small
@@ -265,7 +265,6 @@ class SeqSLAM(_RowLocalizer):
     #: SeqSLAM's own front end is the thumbnail and its contrast enhancement: no normalisation.
     front_end_defaults = {"normalize": "none", "whiten": None, "delta": None}
     _parameter_constraints = {
-        "budget": [Budget()],
         "ds": [Interval(int, 1, 10_000)],
         "vmin": [Interval(float, 0, 1e6)],
         "vmax": [Interval(float, 0, 1e6)],

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ...core.validation import BOOLEAN, N_JOBS, RANDOM_STATE, Budget, DType, Interval, Options, String, check_positive_int
+from ...core.validation import BOOLEAN, N_JOBS, RANDOM_STATE, DType, Interval, Options, String, check_positive_int
 from ..base import PlaceLocalizer
 from ...exceptions import InvalidParameterError
 from ...learning.distributed import BACKENDS
@@ -190,7 +190,6 @@ class BTELocalizer(TreeDecoding, TreeModelFile, PlaceLocalizer):
         "n_features": [None, Interval(int, 1, None)],
         "sparsity": [Interval(float, 0, None, closed="neither")],
         "n_regions": [Options("auto"), Interval(int, 1, None)],
-        "budget": [Budget()],
         "dtype": [DType(*WEIGHT_DTYPES)],
         "decode": [Options(*DECODERS)],
         "max_regions": [Interval(int, 1, None)],
@@ -299,7 +298,7 @@ class BTELocalizer(TreeDecoding, TreeModelFile, PlaceLocalizer):
         if largest_fitting([n_blocks], d, self._cap(d, budget), budget - reserved, self.scheme, dtype,
                            int(self.code_copies)) < 1:
             raise_budget_too_small(f"BTEL ({self.scheme}, N = {n_rows}, r = 1)", budget,
-                                   planned_bytes([n_blocks], 1, d, **kw) + reserved,
+                                   planned_bytes(n_blocks, d, n_selected=1, **kw) + reserved,
                                    "Raise the budget, use dtype='float16', or fewer regions.")
 
     def budget_saturated(self) -> bool:
@@ -343,7 +342,7 @@ class BTELocalizer(TreeDecoding, TreeModelFile, PlaceLocalizer):
             if n_selected < 1:
                 raise_budget_too_small(
                     f"BTEL ({self.scheme}, N = {n_places}, r = {len(sizes)})", budget,
-                    planned_bytes(list(sizes), 1, d, **kw) + reserved,
+                    planned_bytes(int(sum(sizes)), d, n_selected=1, region_sizes=list(sizes), **kw) + reserved,
                     "Raise the budget, use dtype='float16', or fewer regions.")
 
         stats = ColumnStats.of(X)

@@ -91,30 +91,39 @@ def array_specs(
 
 
 def planned_bytes(
-    region_sizes: Sequence[int] | np.ndarray,
-    n_selected: int,
-    n_features_in: int,
+    n_rows: int,
+    n_features: int,
     *,
+    n_selected: int,
+    region_sizes: Sequence[int] | np.ndarray | None = None,
     scheme: str = "compressed",
     dtype: str = "float32",
     code_copies: int = 1,
 ) -> int:
-    """Bytes a BTEL model will store, computed before fitting: the sum of :func:`array_specs`."""
-    return int(sum(spec.nbytes for spec in array_specs(region_sizes, n_selected, n_features_in, scheme=scheme,
+    """Bytes a BTEL model will store, computed before fitting: the sum of :func:`array_specs`.
+
+    ``n_rows`` places (or blocks) indexed over ``n_features`` descriptor dimensions, ``n_selected``
+    of them kept; ``region_sizes`` (summing to ``n_rows``) splits them into regions (default: one).
+    """
+    sizes = [int(n_rows)] if region_sizes is None else [int(s) for s in region_sizes]
+    if sum(sizes) != n_rows:
+        raise ValueError(f"region sizes {sizes} do not add up to n_rows = {n_rows}.")
+    return int(sum(spec.nbytes for spec in array_specs(sizes, n_selected, n_features, scheme=scheme,
                                                        dtype=dtype, code_copies=code_copies).values()))
 
 
 def largest_fitting(sizes: Sequence[int], d: int, cap: int, budget: int, scheme: str, dtype: str,
                     code_copies: int = 1) -> int:
     """Largest d' ≤ cap whose planned bytes fit the budget (0 when even d' = 1 does not)."""
-    kw = dict(scheme=scheme, dtype=dtype, code_copies=code_copies)
-    if planned_bytes(sizes, cap, d, **kw) <= budget:
+    kw = dict(region_sizes=sizes, scheme=scheme, dtype=dtype, code_copies=code_copies)
+    n = int(sum(sizes))
+    if planned_bytes(n, d, n_selected=cap, **kw) <= budget:
         return cap
     # Below d the bytes are affine in d': solve, then step down past rounding.
-    b1 = planned_bytes(sizes, 1, d, **kw)
-    slope = planned_bytes(sizes, 2, d, **kw) - b1 if d > 2 else b1
+    b1 = planned_bytes(n, d, n_selected=1, **kw)
+    slope = planned_bytes(n, d, n_selected=2, **kw) - b1 if d > 2 else b1
     guess = min(cap, d - 1, 1 + (budget - b1) // max(slope, 1)) if budget >= b1 else 0
-    while guess >= 1 and planned_bytes(sizes, guess, d, **kw) > budget:
+    while guess >= 1 and planned_bytes(n, d, n_selected=guess, **kw) > budget:
         guess -= 1
     return int(max(guess, 0))
 

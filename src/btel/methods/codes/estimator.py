@@ -12,18 +12,13 @@ a place's index to K ≥ b code columns (error-correcting output codes, Dietteri
 3. the weights are stored at 32, 16, 8 or 4 bits with one scale per column
    (:mod:`btel.methods.codes.quantise`);
 4. a query's K margins m are decoded softly over every place: score_i = m · c_i (the Gaussian
-   log-likelihood of the margins up to a constant). The exact top k is found by the cheapest
-   exact path for the shape (:func:`btel.methods.codes.decoding.choose_path`, a measured rule):
-   on small maps one dense product with the float32 codewords (cached when N·8⌈K/8⌉·4 ≤ 32 MB);
-   on larger ones a bounded search over blocks of consecutive places
-   (:mod:`btel.methods.codes.decoding`: per-block upper bounds from the columns constant on the
-   block, blocks scored in order of their bound until none left can beat the k-th best, from
-   packed codewords filled on demand, never stored); batches take the dense product when a probe
-   of their first queries says it is cheaper; the 'random' family (no blocks to bound) uses
-   faiss' packed PQ scan. ``place_scores`` is the same sum as a matrix product in blocks of
-   places; ``rank``, the HMM decoder and streaming come from the base class
-   (:class:`btel.methods.base.PlaceLocalizer`). Long maps of route families are decoded coarse to
-   fine (``decode``; approximate): the codebook at inference is :mod:`btel.methods.codes.codewords`.
+   log-likelihood of the margins up to a constant). The exact top k comes from the cheapest exact
+   path for the shape (:func:`btel.methods.codes.decoding.choose_path`, a measured rule): one dense
+   product with the float32 codewords on small maps, a bounded search over blocks of consecutive
+   places on larger ones (:mod:`btel.methods.codes.decoding`), faiss' packed PQ scan for the
+   'random' family. ``place_scores`` is the same sum in blocks of places; ``rank``, the HMM decoder
+   and streaming come from the base class. Long maps of route families are decoded coarse to fine
+   (``decode``; approximate; :mod:`btel.methods.codes.codewords`).
 
 Storage is K·d' weights (plus K scales and biases, and d' column indices), independent of N, so it
 stays sub-linear, and K is the dial that turns bytes into accuracy: the budget planner
@@ -42,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from ...core.validation import N_JOBS, RANDOM_STATE, Budget, Interval, Options, String
+from ...core.validation import N_JOBS, RANDOM_STATE, Interval, Options, String
 from ..base import PlaceLocalizer
 from ...exceptions import BudgetTooSmallError, InvalidParameterError
 from ...learning.distributed import BACKENDS
@@ -148,7 +143,6 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
         "n_codes": [None, Interval(int, 1, MAX_COLUMNS)],
         "n_features": [None, Interval(int, 1, None)],
         "weight_bits": [None, Options(*WEIGHT_BITS)],
-        "budget": [Budget()],
         "solver": [Options(*SOLVERS)],
         "alpha": [None, Interval(float, 0, None, closed="neither")],
         "C": [Interval(float, 0, None, closed="neither")],

@@ -1,0 +1,66 @@
+"""The image of every row of a descriptor file: its name, and its file when still on disk.
+
+``btel extract`` writes a ``.json`` beside each ``.npy`` listing its images (and, since the
+folder was recorded, where they are); an hloc ``.h5`` names every row by its group. These names
+let predictions, retrieval pairs and galleries speak of images, not row numbers.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+__all__ = ["row_names", "row_images"]
+
+_SIDECAR_ERRORS = (OSError, ValueError, AttributeError, TypeError, IndexError, KeyError)
+
+
+def _sidecar(path: str | os.PathLike) -> dict | None:
+    try:
+        key = json.loads(Path(str(path) + ".json").read_text(encoding="utf-8"))
+    except _SIDECAR_ERRORS:
+        return None
+    return key if isinstance(key, dict) else None
+
+
+def row_names(path: str | os.PathLike) -> list[str] | None:
+    """The image name of every row of the descriptor file ``path``, or None when it records none.
+
+    ``.npy`` written by ``btel extract``: the images in its sidecar ``PATH.json``; hloc ``.h5``
+    (``FILE.h5:PREFIX`` too): the group names, in the rows' order.
+    """
+    from ..descriptors.npy import HDF5_SUFFIXES, load_hloc_global, split_prefix
+
+    file, prefix = split_prefix(path)
+    if file.suffix.lower() in HDF5_SUFFIXES:
+        return load_hloc_global(file, prefix)[1]
+    if file.suffix.lower() != ".npy" or (key := _sidecar(file)) is None:
+        return None
+    try:
+        return [str(entry[0]) for entry in key["images"]]
+    except _SIDECAR_ERRORS:
+        return None
+
+
+def row_images(path: str | os.PathLike | None) -> list[Path] | None:
+    """The image file of every row of the descriptors ``path`` (from ``btel extract``'s .json), or
+    None when they are not recorded or no longer on disk.
+
+    Raises
+    ------
+    InvalidParameterError
+        A recorded name is not a plain file name inside the folder (``../x``, a control character).
+    """
+    from .vpr_names import check_image_names
+
+    key = _sidecar(path) if path else None
+    if key is None or not key.get("folder"):
+        return None
+    try:
+        names = [str(entry[0]) for entry in key["images"]]
+    except _SIDECAR_ERRORS:
+        return None
+    check_image_names(names, f"{path}.json", file_name=True)  # images inside the folder, nowhere else
+    files = [Path(key["folder"]) / name for name in names]
+    return files if files and all(f.is_file() for f in files) else None

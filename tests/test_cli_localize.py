@@ -1,0 +1,89 @@
+"""``btel localize`` writes image names beside the indices when its inputs name their rows."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from btel import load
+from btel.cli import main
+
+h5py = pytest.importorskip("h5py")
+
+
+def _invoke(*args) -> "click.testing.Result":  # noqa: F821
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="", encoding="utf-8") as fh:
+        return list(csv.DictReader(fh))
+
+
+def _hloc_file(path: Path, X: np.ndarray, Q: np.ndarray) -> tuple[list[str], list[str]]:
+    """hloc's usual layout: map and queries in one file, under db/ and query/."""
+    db = [f"db/place_{i:03d}.jpg" for i in range(len(X))]
+    queries = [f"query/frame_{j:03d}.jpg" for j in range(len(Q))]
+    with h5py.File(path, "w") as fh:
+        for name, x in [*zip(db, X), *zip(queries, Q)]:
+            fh.create_group(name).create_dataset("global_descriptor", data=x)
+    return db, queries
+
+
+@pytest.mark.realdata
+def test_localize_on_an_hloc_file_writes_query_and_place_names(gardenspoint_netvlad, tmp_path: Path) -> None:
+    X, Q = (a[:100] for a in gardenspoint_netvlad)  # the first 100 places: a few seconds
+    feats = tmp_path / "feats.h5"
+    db_names, q_names = _hloc_file(feats, X, Q)
+    model, out = tmp_path / "m.npz", tmp_path / "p.csv"
+    assert _invoke("train", f"{feats}:db/", "-o", model, "--method", "bruteforce").exit_code == 0
+    result = _invoke("localize", model, f"{feats}:query/", "--db", f"{feats}:db/", "-o", out, "--top-k", "3")
+    assert result.exit_code == 0, result.output
+    assert "with image names" in result.output
+    rows = _rows(out)
+    assert list(rows[0]) == ["query", "prediction", "query_name", "prediction_name", "rank_1", "rank_2", "rank_3"]
+    predictions = load(model).predict(Q)
+    assert [int(r["prediction"]) for r in rows] == predictions.tolist()
+    assert [r["query_name"] for r in rows] == q_names
+    assert [r["prediction_name"] for r in rows] == [db_names[p] for p in predictions]
+    assert np.mean(predictions == np.arange(len(Q))) > 0.1  # exact place, day vs night: 10x chance (1/100)
+
+
+def test_query_names_alone_and_a_db_that_does_not_match(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    X = rng.standard_normal((20, 8)).astype(np.float32)
+    feats = tmp_path / "feats.h5"
+    _, q_names = _hloc_file(feats, X, X[:5] + 0.01)
+    model = tmp_path / "m.npz"
+    assert _invoke("train", f"{feats}:db/", "-o", model, "--method", "bruteforce").exit_code == 0
+    result = _invoke("localize", model, f"{feats}:query/", "-o", tmp_path / "a.csv")
+    assert result.exit_code == 0, result.output
+    rows = _rows(tmp_path / "a.csv")
+    assert list(rows[0]) == ["query", "prediction", "query_name"] and [r["query_name"] for r in rows] == q_names
+    # --db naming 5 images for a 20-place model: refused before writing, as an input error.
+    result = _invoke("localize", model, f"{feats}:query/", "--db", f"{feats}:query/", "-o", tmp_path / "b.csv")
+    assert result.exit_code == 2 and "does not name one image per place of MODEL (20)" in result.output
+    assert not (tmp_path / "b.csv").exists()
+    np.save(tmp_path / "plain.npy", X[:5])  # no names recorded: numbers only, as before
+    result = _invoke("localize", model, tmp_path / "plain.npy", "-o", tmp_path / "c.csv")
+    assert result.exit_code == 0 and list(_rows(tmp_path / "c.csv")[0]) == ["query", "prediction"]
+
+
+@pytest.mark.realdata
+def test_localize_names_from_btel_extract(gardenspoint_sample_dir: Path, tmp_path: Path) -> None:
+    """Descriptors written by `btel extract` name their images in the .json beside them."""
+    db, q, model, out = (tmp_path / n for n in ("db.npy", "q.npy", "m.npz", "p.csv"))
+    for folder, target in (("ref", db), ("query", q)):
+        result = _invoke("extract", gardenspoint_sample_dir / folder, "-o", target, "--no-progress")
+        assert result.exit_code == 0, result.output
+    assert _invoke("train", db, "-o", model, "--method", "bruteforce").exit_code == 0
+    assert _invoke("localize", model, q, "--db", db, "-o", out).exit_code == 0
+    rows = _rows(out)
+    ref = sorted(p.name for p in (gardenspoint_sample_dir / "ref").iterdir())
+    assert {r["query_name"] for r in rows} == {p.name for p in (gardenspoint_sample_dir / "query").iterdir()}
+    assert all(r["prediction_name"] == sorted(ref, key=lambda n: int(n.split(".")[0]))[int(r["prediction"])]
+               for r in rows)
