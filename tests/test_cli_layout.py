@@ -116,7 +116,7 @@ def test_the_checker_lets_through_what_is_not_a_method_name() -> None:
 
 
 def test_the_roles_are_registered_methods() -> None:
-    from btel.methods import roles as _method_roles
+    from btel.methods import roles
     from btel.methods import registry
 
     assert roles.DEFAULT_METHOD in REGISTRY and roles.REFERENCE_METHOD in REGISTRY
