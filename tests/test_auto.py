@@ -1,4 +1,4 @@
-"""auto: the method chosen from the map and budget alone, recorded in the model file and summary."""
+"""auto: the map-only rule (btel.methods.auto.rule) and its statistics, recorded in the model file and summary."""
 
 from __future__ import annotations
 
@@ -84,17 +84,32 @@ def test_an_ordered_map_with_fewer_bits_than_the_birthday_bound_gets_output_code
     assert choose_method(X[perm], None, 2048, 4096)[0]["method"] == "lsh"
 
 
-def test_lsh_is_whitened_only_when_the_budget_affords_a_useful_rank() -> None:
-    from btel.methods.auto import SHRINK_LSH_MIN_RANK
-    from btel.core.shrink import shrink_rank
+def test_the_map_only_rule_never_whitens_and_centres_lsh_only_short_of_d_bits_on_a_cone() -> None:
+    """Independent places: plain cosine rows at any budget; in a cone, centred LSH while P < d, plain from P ≥ d."""
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(200, 500)).astype(np.float32)
+    for budget in (8_000, 64_000, 300_000):
+        first = choose_method(X, None, 200, budget)[0]
+        assert first["method"] == "lsh" and first["params"] == {"center": False}, first
+    cone = X + 2.0 * np.abs(X).max() * np.ones(500, dtype=np.float32)
+    short = choose_method(cone, None, 200, 8_000)[0]             # P = 320 < d = 500
+    assert short["params"] == {"center": True} and "centred rows" in short["reason"]
+    many = choose_method(cone, None, 200, 64_000)[0]             # P = 2560 ≥ d
+    assert many["params"] == {"center": False} and "P = 2560 ≥ d = 500" in many["reason"]
+    # A user's whiten is given to every candidate.
+    assert all(c["params"].get("whiten") == "shrink" for c in choose_method(X, None, 200, 64_000, "shrink"))
 
-    X = np.random.default_rng(3).normal(size=(200, 500)).astype(np.float32)   # independent places
-    assert shrink_rank(500, 200, 8_000) < SHRINK_LSH_MIN_RANK <= shrink_rank(500, 200, 64_000)
-    low = choose_method(X, None, 200, 8_000)        # 40 B per place, but rank 3
-    assert low[0]["method"] == "lsh" and not low[0]["params"]["whiten"]
-    high = choose_method(X, None, 200, 64_000)
-    assert high[0]["method"] == "lsh" and high[0]["params"]["whiten"] == "shrink"
-    assert f"rank {shrink_rank(500, 200, 64_000)}" in high[0]["reason"]
+
+def test_pq_from_256_bytes_per_row_while_the_sketch_is_short_of_d_and_exact_search_when_it_fits() -> None:
+    from btel.methods.auto import PQ_BYTES_PER_ROW
+
+    X = np.random.default_rng(4).normal(size=(400, 4096)).astype(np.float32)
+    assert [c["method"] for c in choose_method(X, None, 400, 400 * PQ_BYTES_PER_ROW)] == ["pq", "lsh", "btel-codes"]
+    assert choose_method(X, None, 400, 400 * (PQ_BYTES_PER_ROW - 1))[0]["method"] == "lsh"
+    assert choose_method(X, None, 400, 400 * 600)[0]["method"] == "lsh"          # P = 4800 ≥ d: no PQ
+    assert choose_method(X, None, 400, 400 * 4096 * 4)[0]["method"] == "bruteforce"
+    assert choose_method(X, None, 400, None)[0] == {**choose_method(X, None, 400, None)[0], "method": "bruteforce",
+                                                    "params": {}}
 
 
 def test_an_ordered_cone_that_cannot_afford_lsh_mean_gets_output_codes() -> None:
@@ -150,19 +165,6 @@ def test_an_ordered_cone_in_snippets_of_three_keeps_lsh() -> None:
     exact = {name: np.mean([(make_method(name, budget=4_000, random_state=seed).fit(X).predict(Q)
                              == np.arange(600)).mean() for seed in range(2)]) for name in ("lsh", "btel-codes")}
     assert exact["lsh"] > 2 * exact["btel-codes"]
-
-
-def test_lsh_is_whitened_only_with_at_least_d_bits_per_row() -> None:
-    """Rank and bytes per place suffice, but P < d bits per row: plain LSH (bench_lsh_whitening)."""
-    from btel.core.shrink import shrink_rank
-
-    X = np.random.default_rng(4).normal(size=(1000, 2048)).astype(np.float32)  # independent places
-    assert shrink_rank(2048, 1000, 128_000) >= 8 and 8 * 128_000 / 1000 < 2048
-    few = choose_method(X, None, 1000, 128_000)       # 1024 bits per row against d = 2048
-    assert few[0]["method"] == "lsh" and not few[0]["params"]["whiten"]
-    many = choose_method(X, None, 1000, 300_000)      # 2400 bits per row
-    assert many[0]["method"] == "lsh" and many[0]["params"]["whiten"] == "shrink"
-    assert "2400 bits per row ≥ d = 2048" in many[0]["reason"]
 
 
 @pytest.mark.parametrize("budget", [2_000, 20_000, None])
