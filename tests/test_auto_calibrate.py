@@ -194,3 +194,44 @@ def test_gardens_point_mapped_at_night_calibration_scores_every_candidate_paired
         assert chosen["p_adjusted"] < ALPHA and chosen["difference"] > 0
     # Whatever it chose, the held-out (odd) queries agree with the calibration within noise.
     assert abs(recall - chosen["score"]) < 0.15
+
+
+@pytest.mark.realdata
+def test_cli_train_calibrate_on_the_gardens_point_sample_writes_the_table_and_no_query(gardenspoint_sample_dir,
+                                                                                       tmp_path) -> None:
+    from click.testing import CliRunner
+
+    from btel.cli import main
+    from btel.core.modelfile import HEADER_KEY
+
+    run = CliRunner()
+    for part in ("ref", "query"):
+        done = run.invoke(main, ["extract", str(gardenspoint_sample_dir / part), "-o", str(tmp_path / f"{part}.npy"),
+                                 "--no-progress"])
+        assert done.exit_code == 0, done.output
+    model = tmp_path / "m.npz"
+    done = run.invoke(main, ["train", str(tmp_path / "ref.npy"), "-o", str(model), "--budget", "4KB",
+                             "--calibrate", str(tmp_path / "query.npy"), "--calibrate-tolerance", "1"])
+    assert done.exit_code == 0, done.output
+    info = run.invoke(main, ["info", str(model)])
+    assert info.exit_code == 0 and "calibration: 10 queries (tolerance 1)" in info.output
+    assert "btel-codes periodic" in info.output and "map-only pick" in info.output
+    Q = np.load(tmp_path / "query.npy")
+    with np.load(model, allow_pickle=False) as z:
+        stored = {k: z[k] for k in z.files if k != HEADER_KEY}
+    assert not any(a.ndim == 2 and a.shape[1] == Q.shape[1] for a in stored.values())   # no descriptor rows
+    assert sum(a.nbytes for a in stored.values()) <= 4_000 < Q[0].nbytes   # less than one query descriptor
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--method", "lsh", "--calibrate", "q.npy"], "--method auto"),
+    (["--calibrate-truth", "gt.npy"], "apply with --calibrate"),
+])
+def test_cli_train_refuses_calibration_options_without_auto_or_queries(args, message, tmp_path) -> None:
+    from click.testing import CliRunner
+
+    from btel.cli import main
+
+    np.save(tmp_path / "db.npy", np.ones((4, 3), dtype=np.float32))
+    done = CliRunner().invoke(main, ["train", str(tmp_path / "db.npy"), "-o", str(tmp_path / "m.npz"), *args])
+    assert done.exit_code == 2 and message in done.output

@@ -43,11 +43,20 @@ from .info import _echo_storage
 @click.option("--normalize", type=click.Choice(["none", "l2", "power"]), default=None, help=_FRONT_END_HELP)
 @click.option("--whiten", type=int, default=None, metavar="P", help="PCA-whiten to P dimensions (front end).")
 @click.option("--delta", type=int, default=None, metavar="W", help=_DELTA_HELP)
+@click.option("--calibrate", "calibrate", type=click.Path(), default=None, metavar="QUERIES",
+              help="auto: labelled query descriptors to choose the method on (scored, never stored in the model).")
+@click.option("--calibrate-truth", type=click.Path(dir_okay=False), default=None, metavar="GT",
+              help="With --calibrate: their ground truth, any file --ground-truth of `btel evaluate` reads, or "
+                   "'utm' (positions in the image names of DB and QUERIES). Default: frame-aligned.")
+@click.option("--calibrate-tolerance", type=click.IntRange(min=0), default=None, metavar="T",
+              help="With --calibrate and true places: correct within T places (calibration_tolerance; default 0).")
 def train(db: str, output: str, overwrite: bool, method: str, budget: str | None, param_texts: tuple[str, ...], regions: str | None,
           feature_ratio: float | None, n_features: int | None, classifier: str | None, dtype: str | None,
           n_jobs: int | None, backend: str | None, scheduler: str | None, no_progress: bool,
           random_state: int | None, block_size: int | None, tolerance: int | None, code_copies: int | None,
-          exemplar_radius: int | None, normalize: str | None, whiten: int | None, delta: int | None) -> None:
+          exemplar_radius: int | None, normalize: str | None, whiten: int | None, delta: int | None,
+          calibrate: str | None = None, calibrate_truth: str | None = None,
+          calibrate_tolerance: int | None = None) -> None:
     """Fit a model on map descriptors DB and save it; prints the storage breakdown.
 
     DB is a .npy matrix (row i = place i; memory-mapped, so maps larger than RAM work), an .npz,
@@ -61,6 +70,10 @@ def train(db: str, output: str, overwrite: bool, method: str, budget: str | None
     is n_regions, --seed random_state, --no-progress progress=false, --block-size and --tolerance
     block_size, the others by their own names). Each must be a parameter of --method (see `btel
     methods --params`), and a shortcut and --param may not set the same one.
+
+    \b
+    With --method auto and labelled queries, --calibrate QUERIES --calibrate-truth GT chooses among
+    every candidate on those queries (btel.methods.auto.calibrate); `btel info` shows the table.
     """
     from ..methods.registry import make_method
 
@@ -84,22 +97,49 @@ def train(db: str, output: str, overwrite: bool, method: str, budget: str | None
              "block_size": ("--tolerance" if tolerance is not None else "--block-size", block_size),
              "code_copies": ("--code-copies", code_copies), "exemplar_radius": ("--exemplar-radius", exemplar_radius),
              "normalize": ("--normalize", normalize), "whiten": ("--whiten", whiten), "delta": ("--delta", delta)}
+    if calibrate is None and (calibrate_truth is not None or calibrate_tolerance is not None):
+        raise click.UsageError("--calibrate-truth and --calibrate-tolerance apply with --calibrate QUERIES.")
+    if calibrate is not None and method != "auto":
+        raise click.UsageError(f"--calibrate chooses auto's method on labelled queries; --method is {method!r}. "
+                               "Use --method auto (or evaluate the methods with `btel evaluate`).")
+    named["calibration_tolerance"] = ("--calibrate-tolerance", calibrate_tolerance)
     shortcuts = {name: (option, value) for name, (option, value) in named.items() if value is not None}
     if budget is not None:
         _check_budget(budget)
     params = _params_by_method([method], param_texts, shortcuts=shortcuts)[method]
     refuse_existing(output, "-o", overwrite)
     X = _load_map(db)
+    calibration = None if calibrate is None else _calibration(db, calibrate, calibrate_truth, X.shape[0])
     start = time.perf_counter()
     with _naming(method):
         model = make_method(method, **params)
-        model.fit(X)
+        model.fit(X) if calibration is None else model.fit(X, calibration=calibration)
     regions = f", r = {model.n_regions_} regions" if getattr(model, "n_regions_", 1) > 1 else ""
     click.echo(f"fitted {method}{regions} on {X.shape[0]} places × {X.shape[1]} dims "
                f"in {time.perf_counter() - start:.1f} s")
     _echo_storage(model)
     path = model.save(output, overwrite=overwrite)  # no --overwrite: a racing train's file is never replaced
     click.echo(f"model written to {path} ({path.stat().st_size:,d} B on disk)")
+
+
+def _calibration(db: str, queries: str, truth: str | None, n_map: int) -> tuple[Any, Any]:
+    """``--calibrate QUERIES --calibrate-truth GT``: the labelled queries and their ground truth."""
+    from ..datasets import GroundTruth
+    from ..exceptions import InvalidParameterError
+    from ._inputs import _load_matrix
+
+    Q = _load_matrix(queries, "calibration queries")
+    if truth == "utm":
+        from ..datasets.vpr_names import DEFAULT_POSITIVE_DIST_THRESHOLD
+        from ._names import utm_ground_truth
+
+        return Q, utm_ground_truth(db, queries, n_map, Q.shape[0], DEFAULT_POSITIVE_DIST_THRESHOLD)
+    try:
+        gt = (GroundTruth.frame_aligned(Q.shape[0], n_map=n_map) if truth is None
+              else GroundTruth.from_file(truth, n_queries=Q.shape[0], n_map=n_map))
+    except InvalidParameterError as exc:
+        raise click.ClickException(f"--calibrate-truth: {exc}") from None
+    return Q, gt.query_places if gt.kind == "places" else gt
 
 
 def _regions(text: str) -> int | str:

@@ -14,18 +14,19 @@ with each, and compares each candidate with the map-only pick (:mod:`btel.method
 - the switch goes to the best-scoring candidate whose adjusted p-value is below :data:`ALPHA`; with
   none, the map-only pick stays.
 
-Each row of the table also states the calibration queries a difference of
-:data:`REFERENCE_DIFFERENCE` would need at the observed discordance rate (McNemar's sample size,
-Connor 1987, power 0.8, one-sided, at the Bonferroni level of the candidates: a conservative bound).
+Each row also states the calibration queries a difference of :data:`REFERENCE_DIFFERENCE` (and the
+observed one) would need at the observed discordance rate (McNemar's sample size, Connor 1987,
+power 0.8, one-sided, at the Bonferroni level of the candidates: a conservative bound).
 
 Cost bound: candidates are compared on at most :func:`compared_rows` map places (:data:`MAX_ROWS`,
 and :data:`MAX_VALUES` rows × d), each fitted at most ``len(SEEDS)`` times. A larger map is compared
 on a subsample (up to half of it the calibration queries' true places, the rest evenly spaced, in
 index order) at the same bytes per row — a front end's fixed cost (a whitening basis, a mean) then
-weighs more than on the whole map; the winner is refitted on the whole map at the whole budget. The candidates are the fast registered methods and every front-end variant; the sequence
-methods (``seqslam``, which reads the query order) and the slow paper variants (``btel-c``,
-``btel-f``, ``btel-r``, ``btel-auto``, ``ryth``: minutes of fit on a few thousand rows) are not
-candidates. Calibration queries are read, scored and dropped: the model stores no query and no
+weighs more than on the whole map; the winner is refitted on the whole map at the whole budget.
+OPQ and RaBitQ (an O(d³) d × d rotation per fit) are candidates up to :data:`MAX_ROTATION_FEATURES`
+dimensions. Not candidates: the sequence methods (``seqslam`` reads the query order) and the slow
+paper variants (``btel-c``, ``btel-f``, ``btel-r``, ``btel-auto``, ``ryth``: minutes of fit on a
+few thousand rows). Calibration queries are read, scored and dropped: the model stores no query and no
 query-derived array, only the table of scalars (``choice_['calibration']``).
 """
 
@@ -39,7 +40,7 @@ import numpy as np
 
 from ...core.storage import format_bytes
 from ...core.validation import check_descriptors
-from ...exceptions import BudgetTooSmallError, DimensionMismatchError, InvalidParameterError
+from ...exceptions import BTELError, BudgetTooSmallError, DimensionMismatchError, InvalidParameterError
 
 __all__ = ["ALPHA", "MAX_ROWS", "REFERENCE_DIFFERENCE", "SEEDS", "calibration_candidates", "check_calibration",
            "choose_calibrated", "decide", "max_t_pvalues", "mcnemar_exact", "queries_needed"]
@@ -60,6 +61,9 @@ TEST = ("paired per-query differences against the map-only pick; one-sided max-T
 #: The difference in calibration recall the "queries needed" column is stated for.
 REFERENCE_DIFFERENCE = 0.05
 
+#: Candidates whose fit costs O(d³) (a learned or random d × d rotation: OPQ, RaBitQ) are compared only
+#: on descriptors of at most this many dimensions.
+MAX_ROTATION_FEATURES = 1024
 #: (label, method, params, seeded): the calibrated candidates (module docstring).
 CANDIDATES: tuple[tuple[str, str, dict[str, Any], bool], ...] = (
     ("lsh", "lsh", {"center": False}, True),
@@ -79,11 +83,14 @@ CANDIDATES: tuple[tuple[str, str, dict[str, Any], bool], ...] = (
 )
 
 
-def calibration_candidates(whiten: Any = None) -> list[dict[str, Any]]:
-    """The candidates as ``{"label", "method", "params", "seeded"}``; a user's ``whiten`` pins the front end."""
+def calibration_candidates(whiten: Any = None, n_features: int | None = None) -> list[dict[str, Any]]:
+    """The candidates as ``{"label", "method", "params", "seeded"}``; a user's ``whiten`` pins the front end,
+    and OPQ and RaBitQ are left out above :data:`MAX_ROTATION_FEATURES` dimensions."""
     out = []
     for label, method, params, seeded in CANDIDATES:
         if whiten is not None and params.get("whiten", None) not in (None, whiten):
+            continue
+        if method in ("opq", "rabitq") and n_features is not None and n_features > MAX_ROTATION_FEATURES:
             continue
         out.append({"label": label, "method": method, "seeded": seeded,
                     "params": dict(params) if whiten is None else {**params, "whiten": whiten}})
@@ -271,7 +278,7 @@ def choose_calibrated(X: np.ndarray, places: np.ndarray | None, budget: int | No
         mask = np.isin(labels, back)
         Xc, pc = X[mask], (None if places is None else np.searchsorted(back, labels[mask]))
         sub_budget = None if budget is None else int(budget * np.count_nonzero(mask) / X.shape[0])
-    candidates = calibration_candidates(whiten)
+    candidates = calibration_candidates(whiten, X.shape[1])
     key = (map_only["method"], sorted(map_only["params"].items()))
     if not any((c["method"], sorted(c["params"].items())) == key for c in candidates):
         candidates.insert(0, {"label": "map-only pick", "method": map_only["method"],
@@ -289,6 +296,9 @@ def choose_calibrated(X: np.ndarray, places: np.ndarray | None, budget: int | No
                 runs.append(truth.is_correct(pred if back is None else back[pred], tolerance))
         except BudgetTooSmallError as exc:
             table.append({**entry, "status": f"does not fit (needs ≥ {format_bytes(exc.minimum or 0)})"})
+            continue
+        except BTELError as exc:  # a candidate that cannot index this map (too few rows to train, …)
+            table.append({**entry, "status": f"cannot fit: {str(exc)[:160]}"})
             continue
         correct[cand["label"]] = np.mean(runs, axis=0)
         table.append({**entry, "status": "ok", "score": round(float(correct[cand["label"]].mean()), 4),

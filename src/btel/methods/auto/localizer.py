@@ -10,7 +10,7 @@ import numpy as np
 
 from ...core.validation import N_JOBS, RANDOM_STATE, Budget, Interval, check_params
 from ..base import ArraySpec, PlaceLocalizer
-from ...exceptions import BudgetTooSmallError, ModelFileError
+from ...exceptions import BudgetTooSmallError, ModelFileError, NotEnoughPlacesError
 from ...core.storage import format_bytes, parse_budget
 from .rule import choose_method
 
@@ -135,6 +135,9 @@ class AutoLocalizer(PlaceLocalizer):
                 refused.append(f"{choice['method']} {choice['params']} needs ≥ {exc.minimum} B")
                 error = exc if error is None or (exc.minimum or 0) < (error.minimum or 0) else error
                 continue
+            except NotEnoughPlacesError as exc:  # e.g. PQ's codebooks on a map of a few rows
+                refused.append(f"{choice['method']} {choice['params']}: {exc}")
+                continue
             self.model_ = model
             self.choice_ = {**choice, "params": {k: v for k, v in choice["params"].items() if v is not None},
                             "refused": refused}
@@ -161,7 +164,7 @@ class AutoLocalizer(PlaceLocalizer):
                 self._inner(choice["method"], choice["params"]).check_budget(X.shape[0], X.shape[1], budget)
                 first = choice
                 break
-            except BudgetTooSmallError:
+            except (BudgetTooSmallError, NotEnoughPlacesError):
                 continue
         picked = choose_calibrated(X, labels, budget, Q, truth, int(self.calibration_tolerance), first,
                                    lambda m, p, b: self._inner(m, p, b), self.whiten)
