@@ -1,4 +1,4 @@
-"""auto: the map-only rule (btel.methods.auto.rule) and its statistics, recorded in the model file and summary."""
+"""auto: the map-only rule (btel.methods.auto.rule) and its statistics, in the model file and summary."""
 
 from __future__ import annotations
 
@@ -84,32 +84,38 @@ def test_an_ordered_map_with_fewer_bits_than_the_birthday_bound_gets_output_code
     assert choose_method(X[perm], None, 2048, 4096)[0]["method"] == "lsh"
 
 
-def test_the_map_only_rule_never_whitens_and_centres_lsh_only_short_of_d_bits_on_a_cone() -> None:
-    """Independent places: plain cosine rows at any budget; in a cone, centred LSH while P < d, plain from P ≥ d."""
+def test_the_rule_whitens_independent_places_from_d_bits_and_centres_a_cone_short_of_d_bits() -> None:
+    """Independent places: plain LSH while P < d, shrinkage-whitened from P ≥ d; a cone: centred while P < d;
+    an ordered map (a route of many bits) is never whitened by the rule."""
     rng = np.random.default_rng(3)
     X = rng.normal(size=(200, 500)).astype(np.float32)
-    for budget in (8_000, 64_000, 300_000):
+    short = choose_method(X, None, 200, 8_000)[0]                    # P = 320 < d = 500
+    assert short["method"] == "lsh" and short["params"] == {"center": False}, short
+    for budget in (64_000, 300_000):                                  # P ≥ d
         first = choose_method(X, None, 200, budget)[0]
-        assert first["method"] == "lsh" and first["params"] == {"center": False}, first
+        assert first["params"] == {"whiten": "shrink", "center": False} and "whitened" in first["reason"]
+    exact = choose_method(X, None, 200, None)[0]
+    assert exact["method"] == "bruteforce" and exact["params"] == {"whiten": "shrink"}
     cone = X + 2.0 * np.abs(X).max() * np.ones(500, dtype=np.float32)
-    short = choose_method(cone, None, 200, 8_000)[0]             # P = 320 < d = 500
-    assert short["params"] == {"center": True} and "centred rows" in short["reason"]
-    many = choose_method(cone, None, 200, 64_000)[0]             # P = 2560 ≥ d
-    assert many["params"] == {"center": False} and "P = 2560 ≥ d = 500" in many["reason"]
+    centred = choose_method(cone, None, 200, 8_000)[0]
+    assert centred["params"] == {"center": True} and "centred rows" in centred["reason"]
+    route = synthetic_route(2048, 256, condition_shift=1.0, seed=7).map        # ordered: continuity ≥ 0.6
+    many = choose_method(route, None, 2048, 256_000)[0]                        # P = 1000 ≥ d = 256
+    assert many["method"] == "lsh" and "whiten" not in many["params"]
     # A user's whiten is given to every candidate.
-    assert all(c["params"].get("whiten") == "shrink" for c in choose_method(X, None, 200, 64_000, "shrink"))
+    assert all(c["params"].get("whiten") == 64 for c in choose_method(X, None, 200, 64_000, 64))
 
 
 def test_pq_from_256_bytes_per_row_while_the_sketch_is_short_of_d_and_exact_search_when_it_fits() -> None:
     from btel.methods.auto import PQ_BYTES_PER_ROW
 
     X = np.random.default_rng(4).normal(size=(400, 4096)).astype(np.float32)
-    assert [c["method"] for c in choose_method(X, None, 400, 400 * PQ_BYTES_PER_ROW)] == ["pq", "lsh", "btel-codes"]
+    methods = [c["method"] for c in choose_method(X, None, 400, 400 * PQ_BYTES_PER_ROW)]
+    assert methods == ["pq", "lsh", "btel-codes"]
     assert choose_method(X, None, 400, 400 * (PQ_BYTES_PER_ROW - 1))[0]["method"] == "lsh"
     assert choose_method(X, None, 400, 400 * 600)[0]["method"] == "lsh"          # P = 4800 ≥ d: no PQ
     assert choose_method(X, None, 400, 400 * 4096 * 4)[0]["method"] == "bruteforce"
-    assert choose_method(X, None, 400, None)[0] == {**choose_method(X, None, 400, None)[0], "method": "bruteforce",
-                                                    "params": {}}
+    assert choose_method(X, None, 400, None)[0]["method"] == "bruteforce"
 
 
 def test_an_ordered_cone_that_cannot_afford_lsh_mean_gets_output_codes() -> None:

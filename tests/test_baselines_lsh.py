@@ -85,7 +85,8 @@ def test_effective_bits_count_centred_bits_whole_and_uncentred_bits_at_their_ent
     assert lsh.effective_bits(200, 500, 4_000, 0.2) == pytest.approx(160 * sign_bit_entropy(0.2))
     assert lsh.effective_bits(3576, 3780, 500, 0.75) == 0.0   # no code fits
     # The default front end is the plain one: uncentred bits at their entropy at any budget.
-    assert LSHLocalizer().effective_bits(3576, 3780, 64_000, 0.75) == pytest.approx(143 * sign_bit_entropy(0.75))
+    plain = LSHLocalizer().effective_bits(3576, 3780, 64_000, 0.75)
+    assert plain == pytest.approx(143 * sign_bit_entropy(0.75))
 
 
 def test_projection_is_regenerated_from_the_recorded_seed(pair, tmp_path) -> None:
@@ -359,24 +360,27 @@ def _recall(pred: np.ndarray, tolerance: int) -> float:
 
 
 @pytest.mark.realdata
-@pytest.mark.parametrize("data", ["gardens-point", "nordland-hog", "synthetic-route", "synthetic-independent"])
+@pytest.mark.parametrize("data", ["gardens-point", "nordland-hog", "synthetic-route",
+                                  "synthetic-independent"])
 def test_lsh_with_4d_bits_is_within_002_of_brute_force_on_the_same_front_end(data, request) -> None:
-    """Approximations converge: asymmetric LSH at 4·d bits per row (mean over seeds 0–2) against exact cosine."""
+    """Approximations converge: asymmetric LSH at 4·d bits per row (mean of seeds 0–2) against cosine."""
     if data == "gardens-point":
         X, Q = request.getfixturevalue("gardenspoint_netvlad")
         tolerance = 2
     elif data == "nordland-hog":
         summer, winter = request.getfixturevalue("nordland_hog")
-        rows = np.arange(0, summer.shape[0], 20)               # every 20th frame: 179 places, recall within 1
+        rows = np.arange(0, summer.shape[0], 20)     # every 20th frame: 179 places, recall within 1
         X, Q, tolerance = summer[rows], winter[rows], 1
     else:
         from btel.datasets import synthetic_route
 
         route = synthetic_route(1000, 256, condition_shift=1.0, seed=11)
-        perm = np.random.default_rng(1).permutation(1000) if data == "synthetic-independent" else np.arange(1000)
-        X, Q, tolerance = route.map[perm], route.queries[perm], (0 if data == "synthetic-independent" else 2)
+        independent = data == "synthetic-independent"
+        perm = np.random.default_rng(1).permutation(1000) if independent else np.arange(1000)
+        X, Q, tolerance = route.map[perm], route.queries[perm], (0 if independent else 2)
     d = X.shape[1]
     exact = _recall(make_method("bruteforce").fit(X).predict(Q), tolerance)
-    lsh = np.mean([_recall(LSHLocalizer(budget=X.shape[0] * d // 2, random_state=seed).fit(X).predict(Q), tolerance)
+    budget = X.shape[0] * d // 2                 # 4·d bits per row
+    lsh = np.mean([_recall(LSHLocalizer(budget=budget, random_state=seed).fit(X).predict(Q), tolerance)
                    for seed in range(3)])
     assert abs(lsh - exact) <= 0.02, (lsh, exact)

@@ -43,8 +43,16 @@ def _label(method: str, params: dict[str, Any]) -> str:
     return method + "".join(f" {k}={v}" for k, v in sorted(params.items()))
 
 
-def candidate_rows(key: str, X: np.ndarray, Q: np.ndarray, budget: int, tol: int, skip: set[str],
-                   cache: dict[tuple[str, int, str], dict[str, Any]], out: Path) -> dict[str, dict[str, Any]]:
+def candidate_rows(
+    key: str,
+    X: np.ndarray,
+    Q: np.ndarray,
+    budget: int,
+    tol: int,
+    skip: set[str],
+    cache: dict[tuple[str, int, str], dict[str, Any]],
+    out: Path,
+) -> dict[str, dict[str, Any]]:
     """Every candidate's per-query correctness (mean over seeds) on every query, from the cache or fitted."""
     from btel import make_method
     from btel.exceptions import BudgetTooSmallError
@@ -56,8 +64,14 @@ def candidate_rows(key: str, X: np.ndarray, Q: np.ndarray, budget: int, tol: int
     rule = choose_method(X, None, X.shape[0], budget)
     for c in rule:  # the rule's candidates too (the map-only pick may be none of the calibrated ones)
         if all(c["method"] != d["method"] or c["params"] != d["params"] for d in cands):
-            cands.append({"label": _label(c["method"], c["params"]), "method": c["method"],
-                          "params": dict(c["params"]), "seeded": c["method"] != "bruteforce"})
+            cands.append(
+                {
+                    "label": _label(c["method"], c["params"]),
+                    "method": c["method"],
+                    "params": dict(c["params"]),
+                    "seeded": c["method"] != "bruteforce",
+                }
+            )
     rows: dict[str, dict[str, Any]] = {}
     for c in cands:
         if c["label"] in skip:
@@ -71,12 +85,24 @@ def candidate_rows(key: str, X: np.ndarray, Q: np.ndarray, budget: int, tol: int
                 params = c["params"] if seed is None else {**c["params"], "random_state": seed}
                 model = make_method(c["method"], budget=budget, **params).fit(X)
                 runs.append((np.abs(model.predict(Q) - truth) <= tol).astype(np.float64))
-            row = {"status": "ok", "correct": np.mean(runs, axis=0).round(3).tolist(), "nbytes": int(model.nbytes),
-                   "unused": int(getattr(model, "unused_budget", lambda: 0)())}
+            row = {
+                "status": "ok",
+                "correct": np.mean(runs, axis=0).round(3).tolist(),
+                "nbytes": int(model.nbytes),
+                "unused": int(getattr(model, "unused_budget", lambda: 0)()),
+            }
         except BudgetTooSmallError:
             row = {"status": "does not fit"}
-        row.update({"map": key, "budget": budget, "label": c["label"], "method": c["method"], "params": c["params"],
-                    "seconds": round(time.perf_counter() - start, 2)})
+        row.update(
+            {
+                "map": key,
+                "budget": budget,
+                "label": c["label"],
+                "method": c["method"],
+                "params": c["params"],
+                "seconds": round(time.perf_counter() - start, 2),
+            }
+        )
         with out.open("a") as fh:
             fh.write(json.dumps(row) + "\n")
         cache[(key, budget, c["label"])] = rows[c["label"]] = row
@@ -106,33 +132,52 @@ def cell(key: str, X: np.ndarray, budget: int, rows: dict[str, dict[str, Any]]) 
         best_eval.append(max(float(v[ev].mean()) for v in correct.values()))
     best_label = max(correct, key=lambda k: correct[k].mean())
     both = np.concatenate(calibrated).mean()
-    return {"map": key, "budget": budget, "best": best_label, "best_recall": round(float(correct[best_label].mean()), 4),
-            "map_only": pick, "map_only_recall": round(float(correct[pick].mean()), 4),
-            "map_only_ratio": round(float(correct[pick].mean() / max(correct[best_label].mean(), 1e-12)), 4),
-            "calibrated": chosen, "calibrated_confidence": confidence,
-            "calibrated_recall": round(float(both), 4),
-            "calibrated_ratio_halves": [round(float(c.mean() / max(b, 1e-12)), 4) for c, b in zip(calibrated, best_eval)],
-            "best_eval_halves": [round(b, 4) for b in best_eval],
-            "map_only_eval_halves": [round(float(m.mean()), 4) for m in map_eval]}
+    return {
+        "map": key,
+        "budget": budget,
+        "best": best_label,
+        "best_recall": round(float(correct[best_label].mean()), 4),
+        "map_only": pick,
+        "map_only_recall": round(float(correct[pick].mean()), 4),
+        "map_only_ratio": round(float(correct[pick].mean() / max(correct[best_label].mean(), 1e-12)), 4),
+        "calibrated": chosen,
+        "calibrated_confidence": confidence,
+        "calibrated_recall": round(float(both), 4),
+        "calibrated_ratio_halves": [
+            round(float(c.mean() / max(b, 1e-12)), 4) for c, b in zip(calibrated, best_eval)
+        ],
+        "best_eval_halves": [round(b, 4) for b in best_eval],
+        "map_only_eval_halves": [round(float(m.mean()), 4) for m in map_eval],
+    }
 
 
 def markdown(cells: list[dict[str, Any]], command: str) -> str:
-    lines = [f"Command: `{command}`", "",
-             "| map | budget | best (oracle) | map-only pick | map-only | / best | calibrated picks (even→odd, odd→even) "
-             "| calibrated | / best per half |", "|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        f"Command: `{command}`",
+        "",
+        "| map | budget | best (oracle) | map-only pick | map-only | / best "
+        "| calibrated picks (even→odd, odd→even) | calibrated | / best per half |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     from btel.core.storage import format_bytes
 
     for c in cells:
-        lines.append(f"| {c['map']} | {format_bytes(c['budget'])} | {c['best']} {c['best_recall']:.3f} | {c['map_only']} | "
-                     f"{c['map_only_recall']:.3f} | {c['map_only_ratio']:.2f} | {' / '.join(c['calibrated'])} | "
-                     f"{c['calibrated_recall']:.3f} | {' / '.join(f'{r:.2f}' for r in c['calibrated_ratio_halves'])} |")
+        lines.append(
+            f"| {c['map']} | {format_bytes(c['budget'])} | {c['best']} {c['best_recall']:.3f} "
+            f"| {c['map_only']} | "
+            f"{c['map_only_recall']:.3f} | {c['map_only_ratio']:.2f} | {' / '.join(c['calibrated'])} | "
+            f"{c['calibrated_recall']:.3f} | {' / '.join(f'{r:.2f}' for r in c['calibrated_ratio_halves'])} |"
+        )
     ok_map = sum(c["map_only_ratio"] >= 0.95 for c in cells)
     ok_cal = sum(min(c["calibrated_ratio_halves"]) >= 0.95 for c in cells)
     mean_map = np.mean([c["map_only_recall"] for c in cells])
     mean_cal = np.mean([c["calibrated_recall"] for c in cells])
-    lines += ["", f"Map-only ≥ 0.95 × best in {ok_map} of {len(cells)} cells; calibrated ≥ 0.95 × the best row on "
-                  f"both evaluation halves in {ok_cal} of {len(cells)}; mean recall over the cells: map-only "
-                  f"{mean_map:.4f}, calibrated {mean_cal:.4f}."]
+    lines += [
+        "",
+        f"Map-only ≥ 0.95 × best in {ok_map} of {len(cells)} cells; calibrated ≥ 0.95 × the best row on "
+        f"both evaluation halves in {ok_cal} of {len(cells)}; mean recall over the cells: map-only "
+        f"{mean_map:.4f}, calibrated {mean_cal:.4f}.",
+    ]
     return "\n".join(lines)
 
 
@@ -145,8 +190,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rows", type=Path, default=RESULTS_DIR / "study_auto_rows.jsonl")
     parser.add_argument("--maps", nargs="*", default=None, help="dataset names (default: every frontier map)")
     parser.add_argument("--budgets", nargs="*", default=list(BUDGETS))
-    parser.add_argument("--skip-large", nargs="*", default=["opq", "rabitq", "itq"],
-                        help="candidates left out on maps of more than 2**22 values (their fit or queries take minutes)")
+    parser.add_argument(
+        "--skip-large",
+        nargs="*",
+        default=["opq", "rabitq", "itq"],
+        help="candidates left out on maps of more than 2**22 values (their fit or queries take minutes)",
+    )
     parser.add_argument("--markdown", type=Path, default=None)
     args = parser.parse_args(argv)
     cache: dict[tuple[str, int, str], dict[str, Any]] = {}
@@ -167,8 +216,12 @@ def main(argv: list[str] | None = None) -> int:
                 rows = candidate_rows(key, X, Q, budget, TOLERANCE[base["key"]], skip, cache, args.rows)
                 cells.append(cell(key, X, budget, rows))
                 print(json.dumps(cells[-1]), flush=True)
-    command = "python benchmarks/studies/study_auto.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    write_results("study_auto", {"command": command, "seconds": round(time.perf_counter() - start, 1), "cells": cells})
+    command = "python benchmarks/studies/study_auto.py " + " ".join(
+        argv if argv is not None else sys.argv[1:]
+    )
+    write_results(
+        "study_auto", {"command": command, "seconds": round(time.perf_counter() - start, 1), "cells": cells}
+    )
     text = markdown(cells, command)
     print(text)
     if args.markdown:

@@ -35,20 +35,36 @@ def main() -> int:
                     X, Q = r.map[perm], r.queries[perm]
                     for per_row in (32, 64, 128, 256, 512):
                         budget = per_row * 2000
-                        out = {"d": d, "shift": shift, "seed": seed, "bytes_per_row": per_row,
-                               "bits_per_dimension": round(8 * per_row / d, 3)}
-                        for label, name, params in (("lsh", "lsh", {}), ("lsh centred", "lsh", {"center": True}),
-                                                    ("pq", "pq", {})):
+                        out = {
+                            "d": d,
+                            "shift": shift,
+                            "seed": seed,
+                            "bytes_per_row": per_row,
+                            "bits_per_dimension": round(8 * per_row / d, 3),
+                        }
+                        for label, name, params in (
+                            ("lsh", "lsh", {}),
+                            ("lsh centred", "lsh", {"center": True}),
+                            ("pq", "pq", {}),
+                        ):
                             try:
                                 pred = make_method(name, budget=budget, **params).fit(X).predict(Q)
                                 out[label] = round(float(np.mean(pred == np.arange(2000))), 4)
-                            except Exception as exc:  # noqa: BLE001 - a budget PQ cannot use is a row, not a crash
+                            except (
+                                Exception
+                            ) as exc:  # noqa: BLE001 - a budget PQ cannot use is a row, not a crash
                                 out[label] = None
                                 out[label + " error"] = type(exc).__name__
                         rows.append(out)
                         print(out, flush=True)
-    write_results("study_pq_vs_lsh", {"command": "python benchmarks/studies/study_pq_vs_lsh.py",
-                                      "seconds": round(time.perf_counter() - start, 1), "rows": rows})
+    write_results(
+        "study_pq_vs_lsh",
+        {
+            "command": "python benchmarks/studies/study_pq_vs_lsh.py",
+            "seconds": round(time.perf_counter() - start, 1),
+            "rows": rows,
+        },
+    )
     return 0
 
 

@@ -44,12 +44,14 @@ from .info import _echo_storage
 @click.option("--whiten", type=int, default=None, metavar="P", help="PCA-whiten to P dimensions (front end).")
 @click.option("--delta", type=int, default=None, metavar="W", help=_DELTA_HELP)
 @click.option("--calibrate", "calibrate", type=click.Path(), default=None, metavar="QUERIES",
-              help="auto: labelled query descriptors to choose the method on (scored, never stored in the model).")
+              help="auto: labelled query descriptors to choose the method on (scored, never stored in the "
+                   "model).")
 @click.option("--calibrate-truth", type=click.Path(dir_okay=False), default=None, metavar="GT",
-              help="With --calibrate: their ground truth, any file --ground-truth of `btel evaluate` reads, or "
-                   "'utm' (positions in the image names of DB and QUERIES). Default: frame-aligned.")
+              help="With --calibrate: their ground truth, any file --ground-truth of `btel evaluate` reads, "
+                   "or 'utm' (positions in the image names of DB and QUERIES). Default: frame-aligned.")
 @click.option("--calibrate-tolerance", type=click.IntRange(min=0), default=None, metavar="T",
-              help="With --calibrate and true places: correct within T places (calibration_tolerance; default 0).")
+              help="With --calibrate and true places: correct within T places (calibration_tolerance; "
+                   "default 0).")
 def train(db: str, output: str, overwrite: bool, method: str, budget: str | None, param_texts: tuple[str, ...], regions: str | None,
           feature_ratio: float | None, n_features: int | None, classifier: str | None, dtype: str | None,
           n_jobs: int | None, backend: str | None, scheduler: str | None, no_progress: bool,
@@ -100,8 +102,8 @@ def train(db: str, output: str, overwrite: bool, method: str, budget: str | None
     if calibrate is None and (calibrate_truth is not None or calibrate_tolerance is not None):
         raise click.UsageError("--calibrate-truth and --calibrate-tolerance apply with --calibrate QUERIES.")
     if calibrate is not None and method != "auto":
-        raise click.UsageError(f"--calibrate chooses auto's method on labelled queries; --method is {method!r}. "
-                               "Use --method auto (or evaluate the methods with `btel evaluate`).")
+        raise click.UsageError(f"--calibrate chooses auto's method on labelled queries; --method is "
+                               f"{method!r}. Use --method auto (or compare methods with `btel evaluate`).")
     named["calibration_tolerance"] = ("--calibrate-tolerance", calibrate_tolerance)
     shortcuts = {name: (option, value) for name, (option, value) in named.items() if value is not None}
     if budget is not None:

@@ -24,7 +24,8 @@ if TYPE_CHECKING:  # pragma: no cover - imported on first use (btel._lazy)
                              map_cone_ratio, route_continuity, route_share)
 
 __all__ = ["AutoLocalizer", "CONTINUITY_GAPS", "CONTINUITY_REFERENCE", "IndexOrder", "ORDER_BITS_FACTOR",
-           "ORDER_CONTINUITY", "PQ_BYTES_PER_ROW", "ROUTE_CONTINUITY", "ROUTE_SHARE", "ROUTE_WINDOW", "STAT_ROWS",
+           "ORDER_CONTINUITY", "PQ_BYTES_PER_ROW", "ROUTE_CONTINUITY", "ROUTE_SHARE", "ROUTE_WINDOW",
+           "STAT_ROWS",
            "calibration_candidates", "choose_calibrated", "choose_method",
            "collision_bits", "front_end_variant", "index_order", "map_cone_ratio", "mcnemar_exact",
            "route_continuity", "route_share"]

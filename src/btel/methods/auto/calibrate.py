@@ -42,8 +42,19 @@ from ...core.storage import format_bytes
 from ...core.validation import check_descriptors
 from ...exceptions import BTELError, BudgetTooSmallError, DimensionMismatchError, InvalidParameterError
 
-__all__ = ["ALPHA", "MAX_ROWS", "REFERENCE_DIFFERENCE", "SEEDS", "calibration_candidates", "check_calibration",
-           "choose_calibrated", "decide", "max_t_pvalues", "mcnemar_exact", "queries_needed"]
+__all__ = [
+    "ALPHA",
+    "MAX_ROWS",
+    "REFERENCE_DIFFERENCE",
+    "SEEDS",
+    "calibration_candidates",
+    "check_calibration",
+    "choose_calibrated",
+    "decide",
+    "max_t_pvalues",
+    "mcnemar_exact",
+    "queries_needed",
+]
 
 #: Family-wise error level of the switch (max-T over the candidates).
 ALPHA = 0.05
@@ -56,8 +67,10 @@ MAX_VALUES = 1 << 22
 #: Random sign flips of the max-T adjustment (:func:`max_t_pvalues`).
 N_BOOT = 4000
 #: The test, as recorded in the table.
-TEST = ("paired per-query differences against the map-only pick; one-sided max-T paired sign-flip permutation over "
-        "all candidates (Westfall–Young); exact McNemar p per candidate for reference")
+TEST = (
+    "paired per-query differences against the map-only pick; one-sided max-T paired sign-flip "
+    "permutation over all candidates (Westfall–Young); exact McNemar p per candidate for reference"
+)
 #: The difference in calibration recall the "queries needed" column is stated for.
 REFERENCE_DIFFERENCE = 0.05
 
@@ -92,22 +105,31 @@ def calibration_candidates(whiten: Any = None, n_features: int | None = None) ->
             continue
         if method in ("opq", "rabitq") and n_features is not None and n_features > MAX_ROTATION_FEATURES:
             continue
-        out.append({"label": label, "method": method, "seeded": seeded,
-                    "params": dict(params) if whiten is None else {**params, "whiten": whiten}})
+        out.append(
+            {
+                "label": label,
+                "method": method,
+                "seeded": seeded,
+                "params": dict(params) if whiten is None else {**params, "whiten": whiten},
+            }
+        )
     return out
 
 
 def mcnemar_exact(wins: int, losses: int) -> float:
-    """One-sided exact McNemar p-value: P(≥ ``wins`` of ``wins + losses`` discordant pairs | no difference)."""
+    """One-sided exact McNemar p-value: P(≥ ``wins`` of ``wins + losses`` discordant pairs | no
+    difference)."""
     from scipy.stats import binomtest
 
     n = int(wins) + int(losses)
     return 1.0 if n == 0 else float(binomtest(int(wins), n, 0.5, alternative="greater").pvalue)
 
 
-def queries_needed(discordance: float, difference: float = REFERENCE_DIFFERENCE, alpha: float = ALPHA,
-                   power: float = 0.8) -> int | None:
-    """Calibration queries McNemar's test needs to detect ``difference`` at this discordance rate (Connor 1987).
+def queries_needed(
+    discordance: float, difference: float = REFERENCE_DIFFERENCE, alpha: float = ALPHA, power: float = 0.8
+) -> int | None:
+    """Calibration queries McNemar's test needs to detect ``difference`` at this discordance rate
+    (Connor 1987).
 
     n = (z_α·√ψ + z_β·√(ψ − δ²))² / δ², ψ the share of discordant queries, one-sided. None when ψ ≤ δ²
     (the observed discordance cannot hold such a difference).
@@ -118,7 +140,7 @@ def queries_needed(discordance: float, difference: float = REFERENCE_DIFFERENCE,
     if psi <= delta * delta:
         return None
     z_a, z_b = norm.ppf(1 - alpha), norm.ppf(power)
-    return int(math.ceil((z_a * math.sqrt(psi) + z_b * math.sqrt(psi - delta * delta)) ** 2 / delta ** 2))
+    return int(math.ceil((z_a * math.sqrt(psi) + z_b * math.sqrt(psi - delta * delta)) ** 2 / delta**2))
 
 
 def max_t_pvalues(diffs: np.ndarray, n_boot: int = N_BOOT, seed: int = 0) -> np.ndarray:
@@ -144,10 +166,10 @@ def max_t_pvalues(diffs: np.ndarray, n_boot: int = N_BOOT, seed: int = 0) -> np.
     k, n = diffs.shape
     if k == 0:
         return np.zeros(0)
-    squares = (diffs ** 2).sum(axis=1)
+    squares = (diffs**2).sum(axis=1)
 
     def t_of(means: np.ndarray) -> np.ndarray:
-        var = np.maximum(squares / n - means ** 2, 0.0) * n / max(n - 1, 1)
+        var = np.maximum(squares / n - means**2, 0.0) * n / max(n - 1, 1)
         se = np.sqrt(var / n)
         return np.where(se > 0, means / np.where(se > 0, se, 1.0), np.where(means > 0, np.inf, -np.inf))
 
@@ -158,40 +180,53 @@ def max_t_pvalues(diffs: np.ndarray, n_boot: int = N_BOOT, seed: int = 0) -> np.
         signs = rng.choice([-1.0, 1.0], size=(min(256, n_boot - start), n))
         peak[start : start + signs.shape[0]] = t_of(signs @ diffs.T / n).max(axis=1)
     live = np.abs(diffs).sum(axis=1) > 0
-    return np.array([float((np.count_nonzero(peak >= tk) + 1) / (n_boot + 1)) if ok else 1.0
-                     for tk, ok in zip(t, live)])
+    return np.array(
+        [float((np.count_nonzero(peak >= tk) + 1) / (n_boot + 1)) if ok else 1.0 for tk, ok in zip(t, live)]
+    )
 
 
-def check_calibration(calibration: Any, n_features: int, n_places: int, tolerance: int) -> tuple[np.ndarray, Any]:
+def check_calibration(
+    calibration: Any, n_features: int, n_places: int, tolerance: int
+) -> tuple[np.ndarray, Any]:
     """``(Q, truth)`` checked: Q (n_queries, n_features) finite numbers, truth an int array of true places
     in [0, n_places) or a :class:`~btel.datasets.GroundTruth` over n_queries queries."""
     from ...datasets.groundtruth import GroundTruth
 
     if not isinstance(calibration, (tuple, list)) or len(calibration) != 2:
-        raise InvalidParameterError("calibration must be a pair (Q, truth): the calibration queries (n_queries, "
-                                    "n_features) and each one's true place (int array) or a GroundTruth.")
+        raise InvalidParameterError(
+            "calibration must be a pair (Q, truth): the calibration queries (n_queries, "
+            "n_features) and each one's true place (int array) or a GroundTruth."
+        )
     Q = check_descriptors(calibration[0], name="calibration queries")
     if Q.shape[1] != n_features:
-        raise DimensionMismatchError(f"calibration queries have {Q.shape[1]} features; the map has {n_features}. "
-                                     "Describe the queries with the map's descriptor.")
+        raise DimensionMismatchError(
+            f"calibration queries have {Q.shape[1]} features; the map has {n_features}. "
+            "Describe the queries with the map's descriptor."
+        )
     if Q.shape[0] < 2:
         raise InvalidParameterError(f"calibration needs at least 2 queries; got {Q.shape[0]}.")
     truth = calibration[1]
     if isinstance(truth, GroundTruth):
         if truth.n_queries != Q.shape[0]:
-            raise InvalidParameterError(f"the calibration ground truth covers {truth.n_queries} queries; "
-                                        f"there are {Q.shape[0]} calibration queries.")
+            raise InvalidParameterError(
+                f"the calibration ground truth covers {truth.n_queries} queries; "
+                f"there are {Q.shape[0]} calibration queries."
+            )
         if truth.n_map is not None and truth.n_map > n_places:
-            raise InvalidParameterError(f"the calibration ground truth names {truth.n_map} map places; the map has "
-                                        f"{n_places}.")
+            raise InvalidParameterError(
+                f"the calibration ground truth names {truth.n_map} map places; the map has " f"{n_places}."
+            )
         return Q, truth
     arr = np.asarray(truth)
     if arr.ndim != 1 or arr.shape[0] != Q.shape[0] or not np.issubdtype(arr.dtype, np.integer):
-        raise InvalidParameterError(f"the calibration truth must be an int array of shape ({Q.shape[0]},), one true "
-                                    f"place per query, or a GroundTruth; got {arr.dtype} of shape {arr.shape}.")
+        raise InvalidParameterError(
+            f"the calibration truth must be an int array of shape ({Q.shape[0]},), one true "
+            f"place per query, or a GroundTruth; got {arr.dtype} of shape {arr.shape}."
+        )
     if arr.size and (arr.min() < 0 or arr.max() >= n_places):
-        raise InvalidParameterError(f"calibration true places must lie in [0, {n_places}); got "
-                                    f"[{arr.min()}, {arr.max()}].")
+        raise InvalidParameterError(
+            f"calibration true places must lie in [0, {n_places}); got " f"[{arr.min()}, {arr.max()}]."
+        )
     if int(tolerance) < 0:
         raise InvalidParameterError(f"calibration_tolerance must be ≥ 0; got {tolerance}.")
     return Q, GroundTruth.from_places(arr.astype(np.int64), n_map=n_places)
@@ -229,26 +264,47 @@ def decide(table: list[dict[str, Any]], correct: dict[str, np.ndarray], pick: st
     """
     tested = [e for e in table if e.get("status") == "ok" and e["candidate"] != pick and pick in correct]
     n = next(iter(correct.values())).size if correct else 0
-    diffs = np.stack([correct[e["candidate"]] - correct[pick] for e in tested]) if tested else np.zeros((0, n))
+    diffs = (
+        np.stack([correct[e["candidate"]] - correct[pick] for e in tested]) if tested else np.zeros((0, n))
+    )
     adjusted = max_t_pvalues(diffs)
     for e, diff, p_adj in zip(tested, diffs, adjusted):
         wins, losses = int(np.count_nonzero(diff > 0)), int(np.count_nonzero(diff < 0))
         psi, alpha = (wins + losses) / diff.size, ALPHA / len(tested)
-        e.update({"difference": round(float(diff.mean()), 4), "wins": wins, "losses": losses,
-                  "p_mcnemar": round(mcnemar_exact(wins, losses), 4), "p_adjusted": round(float(p_adj), 4),
-                  "confidence": round(1.0 - float(p_adj), 4), "queries_needed": queries_needed(psi, alpha=alpha),
-                  "queries_needed_observed": (queries_needed(psi, abs(float(diff.mean())), alpha)
-                                              if diff.mean() != 0 else None)})
+        e.update(
+            {
+                "difference": round(float(diff.mean()), 4),
+                "wins": wins,
+                "losses": losses,
+                "p_mcnemar": round(mcnemar_exact(wins, losses), 4),
+                "p_adjusted": round(float(p_adj), 4),
+                "confidence": round(1.0 - float(p_adj), 4),
+                "queries_needed": queries_needed(psi, alpha=alpha),
+                "queries_needed_observed": (
+                    queries_needed(psi, abs(float(diff.mean())), alpha) if diff.mean() != 0 else None
+                ),
+            }
+        )
     better = [e for e in tested if e["p_adjusted"] < ALPHA and e["difference"] > 0]
     chosen = max(better, key=lambda e: e["score"])["candidate"] if better else pick
     for e in table:
-        e["role"] = "chosen" if e["candidate"] == chosen else "map-only pick" if e["candidate"] == pick else ""
+        e["role"] = (
+            "chosen" if e["candidate"] == chosen else "map-only pick" if e["candidate"] == pick else ""
+        )
     return chosen
 
 
-def choose_calibrated(X: np.ndarray, places: np.ndarray | None, budget: int | None, Q: np.ndarray, truth: Any,
-                      tolerance: int, map_only: dict[str, Any], make: Callable[[str, dict[str, Any], int | None], Any],
-                      whiten: Any = None) -> dict[str, Any]:
+def choose_calibrated(
+    X: np.ndarray,
+    places: np.ndarray | None,
+    budget: int | None,
+    Q: np.ndarray,
+    truth: Any,
+    tolerance: int,
+    map_only: dict[str, Any],
+    make: Callable[[str, dict[str, Any], int | None], Any],
+    whiten: Any = None,
+) -> dict[str, Any]:
     """Score every candidate on the calibration queries; the table and the chosen candidate.
 
     Parameters
@@ -272,7 +328,9 @@ def choose_calibrated(X: np.ndarray, places: np.ndarray | None, budget: int | No
         ``{"method", "params", "label", "calibration": {…table…}}``.
     """
     labels = np.arange(X.shape[0]) if places is None else places
-    back = _subsample(int(labels.max()) + 1, truth, tolerance, compared_rows(X.shape[1]))  # kept places, in index order
+    back = _subsample(
+        int(labels.max()) + 1, truth, tolerance, compared_rows(X.shape[1])
+    )  # kept places, in index order
     Xc, pc, sub_budget = X, places, budget
     if back is not None:  # the subsample's place i is the whole map's place back[i]
         mask = np.isin(labels, back)
@@ -281,8 +339,15 @@ def choose_calibrated(X: np.ndarray, places: np.ndarray | None, budget: int | No
     candidates = calibration_candidates(whiten, X.shape[1])
     key = (map_only["method"], sorted(map_only["params"].items()))
     if not any((c["method"], sorted(c["params"].items())) == key for c in candidates):
-        candidates.insert(0, {"label": "map-only pick", "method": map_only["method"],
-                              "params": dict(map_only["params"]), "seeded": map_only["method"] != "bruteforce"})
+        candidates.insert(
+            0,
+            {
+                "label": "map-only pick",
+                "method": map_only["method"],
+                "params": dict(map_only["params"]),
+                "seeded": map_only["method"] != "bruteforce",
+            },
+        )
     table: list[dict[str, Any]] = []
     correct: dict[str, np.ndarray] = {}
     for cand in candidates:
@@ -301,14 +366,33 @@ def choose_calibrated(X: np.ndarray, places: np.ndarray | None, budget: int | No
             table.append({**entry, "status": f"cannot fit: {str(exc)[:160]}"})
             continue
         correct[cand["label"]] = np.mean(runs, axis=0)
-        table.append({**entry, "status": "ok", "score": round(float(correct[cand["label"]].mean()), 4),
-                      "fit_s": round(time.perf_counter() - start, 2)})
+        table.append(
+            {
+                **entry,
+                "status": "ok",
+                "score": round(float(correct[cand["label"]].mean()), 4),
+                "fit_s": round(time.perf_counter() - start, 2),
+            }
+        )
     pick = next(c["label"] for c in candidates if (c["method"], sorted(c["params"].items())) == key)
     chosen = decide(table, correct, pick)
     spec = next(c for c in candidates if c["label"] == chosen)
-    return {"label": chosen, "method": spec["method"], "params": dict(spec["params"]),
-            "calibration": {"n_queries": int(Q.shape[0]), "tolerance": int(tolerance), "seeds": list(SEEDS),
-                            "alpha": ALPHA, "test": TEST,
-                            "map_only": pick, "chosen": chosen, "switched": chosen != pick,
-                            "rows_compared": int(Xc.shape[0]), "budget_compared": sub_budget,
-                            "reference_difference": REFERENCE_DIFFERENCE, "table": table}}
+    return {
+        "label": chosen,
+        "method": spec["method"],
+        "params": dict(spec["params"]),
+        "calibration": {
+            "n_queries": int(Q.shape[0]),
+            "tolerance": int(tolerance),
+            "seeds": list(SEEDS),
+            "alpha": ALPHA,
+            "test": TEST,
+            "map_only": pick,
+            "chosen": chosen,
+            "switched": chosen != pick,
+            "rows_compared": int(Xc.shape[0]),
+            "budget_compared": sub_budget,
+            "reference_difference": REFERENCE_DIFFERENCE,
+            "table": table,
+        },
+    }

@@ -1,5 +1,5 @@
-"""``AutoLocalizer``: the method :mod:`btel.methods.auto.rule` chooses (or :mod:`~btel.methods.auto.calibrate`,
-given labelled queries), fitted and answered behind the one interface."""
+"""``AutoLocalizer``: the method :mod:`btel.methods.auto.rule` chooses (or
+:mod:`~btel.methods.auto.calibrate`, given labelled queries), fitted and answered behind the one interface."""
 
 from __future__ import annotations
 
@@ -22,11 +22,13 @@ def calibration_table(calibration: dict[str, Any] | None) -> str:
     if not isinstance(calibration, dict) or not isinstance(calibration.get("table"), list):
         return ""
     c = calibration
-    head = (f"calibration: {c.get('n_queries')} queries (tolerance {c.get('tolerance')}), seeds {c.get('seeds')}, "
-            f"{c.get('rows_compared')} map rows compared; map-only pick {c.get('map_only')}, "
+    head = (f"calibration: {c.get('n_queries')} queries (tolerance {c.get('tolerance')}), "
+            f"seeds {c.get('seeds')}, {c.get('rows_compared')} map rows compared; "
+            f"map-only pick {c.get('map_only')}, "
             f"chosen {c.get('chosen')}")
+    reference = "n for " + format(c.get("reference_difference", 0.05), "g")
     lines = [head, f"  {'candidate':<28} {'score':>6} {'diff':>7} {'p (adj.)':>9} {'conf.':>6} "
-                   f"{'n for ' + format(c.get('reference_difference', 0.05), 'g'):>9} {'n for diff':>9}  note"]
+                   f"{reference:>9} {'n for diff':>9}  note"]
     for e in c["table"]:
         if not isinstance(e, dict):
             continue
@@ -94,8 +96,9 @@ class AutoLocalizer(PlaceLocalizer):
     def _inner(self, method: str, params: dict[str, Any], budget: Any = "same") -> PlaceLocalizer:
         model = self._registry.make_method(method)
         valid = model.get_params(deep=False)
-        extra = {"budget": self.budget if budget == "same" else budget, "normalize": self.normalize, "delta": self.delta,
-                 "random_state": self.random_state, "n_jobs": self.n_jobs, "progress": False}
+        extra = {"budget": self.budget if budget == "same" else budget, "normalize": self.normalize,
+                 "delta": self.delta, "random_state": self.random_state, "n_jobs": self.n_jobs,
+                 "progress": False}
         model.set_params(**{k: v for k, v in {**extra, **params}.items() if k in valid})
         return model
 

@@ -10,13 +10,15 @@ descriptor width, the rule reads the map's index order (:mod:`~btel.methods.auto
 4. **Otherwise** → ``lsh``; ``pq`` instead when P < d and the budget gives at least
    :data:`PQ_BYTES_PER_ROW` bytes per row.
 
-The front end of steps 3–4 is the plain cosine one, except that ``lsh`` centres the rows
-(``center=True``) when P < d and they lie in a cone (cone ratio ≥ 0.5): uncentred sign bits then
-carry far less than a bit each, and with fewer bits than dimensions the sketch, not the metric,
-limits. Whitening is never chosen from the map: whether it carries over from the map's condition to
-the queries' cannot be read from the map (the same route gains from it mapped by day and loses
-mapped by night). With labelled queries, calibrate (:mod:`btel.methods.auto.calibrate`): every
-front-end variant — whitened, centred, plain — is among the calibrated candidates.
+The front end of steps 3–4: **whitened** (``whiten='shrink'``) on independent places (continuity
+< 0.6) when P ≥ d — with bits to spare the metric, not the sketch, limits, and whitening sharpens
+the exact-place match, which is all independent places ask; along an ordered map it flattens the
+slow variation that a tolerance of a few places relies on, so there it is never chosen from the map.
+**Centred** (``lsh`` ``center=True``) when P < d and the rows lie in a cone (cone ratio ≥ 0.5):
+uncentred sign bits then carry far less than a bit each. **Plain cosine** otherwise. Whether a
+transform carries over from the map's condition to the queries' cannot be read from the map: with
+labelled queries, calibrate (:mod:`btel.methods.auto.calibrate`) — every front-end variant is among
+the calibrated candidates.
 
 Thresholds: the three of the index order, :data:`ORDER_BITS_FACTOR`, P against d,
 :data:`PQ_BYTES_PER_ROW` and the cone ratio. The mechanisms, the maps made to test them and the
@@ -43,11 +45,15 @@ ORDER_BITS_FACTOR = 2.0
 PQ_BYTES_PER_ROW = 256
 
 
-def front_end_variant(n_rows: int, d: int, budget: int | None, cone: float) -> tuple[str, str]:
-    """``('centre' | 'plain', why)``: the front end of steps 3–4 (module docstring)."""
+def front_end_variant(n_rows: int, d: int, budget: int | None, cone: float, kind: str) -> tuple[str, str]:
+    """``('shrink' | 'centre' | 'plain', why)``: the front end of steps 3–4 (module docstring); ``kind`` is
+    :func:`~btel.methods.auto.statistics.index_order`'s."""
     from ..baselines.lsh import CENTER_CONE
 
     bits = None if budget is None else 8 * budget / n_rows
+    if kind == "independent" and (bits is None or bits >= d):
+        room = "no budget" if bits is None else f"P = {bits:.0f} ≥ d = {d}"
+        return "shrink", f"independent places, {room}: shrinkage-whitened rows"
     if bits is not None and bits < d and cone >= CENTER_CONE and 2 * d <= budget / 8:
         return "centre", f"P = {bits:.0f} < d = {d}, cone ratio {cone:.2f} ≥ {CENTER_CONE}: centred rows"
     room = "no budget" if bits is None else f"P = {bits:.0f} {'≥' if bits >= d else '<'} d = {d}"
@@ -55,7 +61,7 @@ def front_end_variant(n_rows: int, d: int, budget: int | None, cone: float) -> t
 
 
 def _variant_params(method: str, variant: str, whiten: Any) -> dict[str, Any]:
-    params: dict[str, Any] = {}
+    params: dict[str, Any] = {"whiten": "shrink"} if variant == "shrink" else {}
     if method == "lsh":
         params["center"] = variant == "centre"
     if whiten is not None:  # the user's front end wins
@@ -92,7 +98,7 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
              "cone_ratio": round(cone, 4), "bits_per_row": None if bits is None else round(bits, 1),
              "bytes_per_place": None if budget is None else round(budget / n_rows, 2),
              "n_places": int(n_places), "n_rows": int(n_rows), "n_features": int(d)}
-    variant, front_why = front_end_variant(n_rows, d, budget, cone)
+    variant, front_why = front_end_variant(n_rows, d, budget, cone, order.kind)
     plain = {} if whiten is None else {"whiten": whiten}
     lsh_plain = {"method": "lsh", "params": {**plain, "center": False}, "reason": "fallback: plain LSH"}
     codes = {"method": "btel-codes", "params": {**plain, "code": "periodic"},
@@ -106,10 +112,11 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
         stats["lsh_effective_bits"] = round(effective, 1)
         few = ORDER_BITS_FACTOR * collision_bits(n_rows)
         if effective < few:
-            out.append({**codes, "reason": f"ordered map ({order.why}); LSH would carry ≈ {effective:.1f} effective "
-                                           f"bits per row (P = {bits:.0f}, cone ratio {cone:.2f}, {'centred' if centred else 'uncentred'}) "
-                                           f"< {ORDER_BITS_FACTOR:g} × 2·log2 N = {few:.1f}: "
-                                           "periodic output codes filling the budget"})
+            how = "centred" if centred else "uncentred"
+            why = (f"ordered map ({order.why}); LSH would carry ≈ {effective:.1f} effective bits per row "
+                   f"(P = {bits:.0f}, cone ratio {cone:.2f}, {how}) < {ORDER_BITS_FACTOR:g} × 2·log2 N = "
+                   f"{few:.1f}: periodic output codes filling the budget")
+            out.append({**codes, "reason": why})
     if not out:
         kind = {"route": "route", "ordered": "ordered map", "independent": "independent places"}[order.kind]
         where = f"{kind} ({order.why})"
