@@ -106,15 +106,11 @@ def test_the_rule_whitens_independent_places_from_d_bits_and_centres_a_cone_shor
     assert all(c["params"].get("whiten") == 64 for c in choose_method(X, None, 200, 64_000, 64))
 
 
-def test_pq_from_256_bytes_per_row_while_the_sketch_is_short_of_d_and_exact_search_when_it_fits() -> None:
-    from btel.methods.auto import PQ_BYTES_PER_ROW
-
+def test_exact_search_when_the_float32_map_fits_and_lsh_below_it() -> None:
     X = np.random.default_rng(4).normal(size=(400, 4096)).astype(np.float32)
-    methods = [c["method"] for c in choose_method(X, None, 400, 400 * PQ_BYTES_PER_ROW)]
-    assert methods == ["pq", "lsh", "btel-codes"]
-    assert choose_method(X, None, 400, 400 * (PQ_BYTES_PER_ROW - 1))[0]["method"] == "lsh"
-    assert choose_method(X, None, 400, 400 * 600)[0]["method"] == "lsh"          # P = 4800 ≥ d: no PQ
+    assert [c["method"] for c in choose_method(X, None, 400, 400 * 256)] == ["lsh", "btel-codes"]
     assert choose_method(X, None, 400, 400 * 4096 * 4)[0]["method"] == "bruteforce"
+    assert choose_method(X, None, 400, 400 * 4096 * 4 - 1)[0]["method"] == "lsh"
     assert choose_method(X, None, 400, None)[0]["method"] == "bruteforce"
 
 

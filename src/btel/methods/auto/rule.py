@@ -7,8 +7,7 @@ descriptor width, the rule reads the map's index order (:mod:`~btel.methods.auto
 2. **Ordered map** (continuity ≥ 0.6) where LSH's codes would carry fewer than
    :data:`ORDER_BITS_FACTOR` × 2·log2 N effective bits per row (the birthday bound) → the same codes.
 3. **The exact search fits** (no budget, or N·d float32 values within it) → brute force.
-4. **Otherwise** → ``lsh``; ``pq`` instead when P < d and the budget gives at least
-   :data:`PQ_BYTES_PER_ROW` bytes per row.
+4. **Otherwise** → ``lsh`` (asymmetric scoring, the budget filled up to 16·d bits per row).
 
 The front end of steps 3–4: **whitened** (``whiten='shrink'``) on independent places (continuity
 < 0.6) when P ≥ d — with bits to spare the metric, not the sketch, limits, and whitening sharpens
@@ -20,9 +19,9 @@ transform carries over from the map's condition to the queries' cannot be read f
 labelled queries, calibrate (:mod:`btel.methods.auto.calibrate`) — every front-end variant is among
 the calibrated candidates.
 
-Thresholds: the three of the index order, :data:`ORDER_BITS_FACTOR`, P against d,
-:data:`PQ_BYTES_PER_ROW` and the cone ratio. The mechanisms, the maps made to test them and the
-development figures are on ``docs/decisions/auto-rule.md`` (``benchmarks/studies/study_auto.py``).
+Thresholds: the three of the index order, :data:`ORDER_BITS_FACTOR`, P against d and the cone
+ratio; PQ, OPQ and RaBitQ are calibrated candidates, not map-only ones. The mechanisms, the maps
+made to test them and the figures: ``docs/decisions/auto-rule.md``.
 
 A choice that does not fit the budget falls back to the next candidate (plain ``lsh``, then
 ``btel-codes``); what was chosen and why is recorded in ``choice_``.
@@ -37,12 +36,10 @@ import numpy as np
 from ...core.storage import format_bytes
 from .statistics import collision_bits, index_order, map_cone_ratio
 
-__all__ = ["ORDER_BITS_FACTOR", "PQ_BYTES_PER_ROW", "choose_method", "front_end_variant"]
+__all__ = ["ORDER_BITS_FACTOR", "choose_method", "front_end_variant"]
 
 #: An ordered map gets output codes while LSH's effective bits per row are below this × 2·log2 N.
 ORDER_BITS_FACTOR = 2.0
-#: PQ instead of LSH from this many bytes per map row (while P < d).
-PQ_BYTES_PER_ROW = 256
 
 
 def front_end_variant(n_rows: int, d: int, budget: int | None, cone: float, kind: str) -> tuple[str, str]:
@@ -124,10 +121,6 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
             room = "no budget" if budget is None else f"N·d float32 = {format_bytes(n_rows * d * 4)} fits"
             out.append({"method": "bruteforce", "params": _variant_params("bruteforce", variant, whiten),
                         "reason": f"{where}; {room}: exact search; {front_why}"})
-        elif bits < d and budget / n_rows >= PQ_BYTES_PER_ROW:
-            out.append({"method": "pq", "params": _variant_params("pq", variant, whiten),
-                        "reason": f"{where}; {budget / n_rows:.0f} B per row ≥ {PQ_BYTES_PER_ROW} and "
-                                  f"P = {bits:.0f} < d = {d}: product quantisation"})
         out.append({"method": "lsh", "params": _variant_params("lsh", variant, whiten),
                     "reason": f"{where}; asymmetric LSH; {front_why}"})
     out += [c for c in (lsh_plain, codes) if all(c["method"] != o["method"] or c["params"] != o["params"]
