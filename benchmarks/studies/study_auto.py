@@ -187,7 +187,20 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_data_arguments(parser)
-    parser.add_argument("--rows", type=Path, default=RESULTS_DIR / "study_auto_rows.jsonl")
+    parser.add_argument(
+        "--rows",
+        type=Path,
+        default=RESULTS_DIR / "study_auto_rows.jsonl",
+        help="candidate results: read, and appended to as they come",
+    )
+    parser.add_argument(
+        "--more-rows", type=Path, nargs="*", default=[], help="more candidate results to read"
+    )
+    parser.add_argument(
+        "--cached-only",
+        action="store_true",
+        help="fit nothing: the cells whose candidates (the map-only pick at least) are all read",
+    )
     parser.add_argument("--maps", nargs="*", default=None, help="dataset names (default: every frontier map)")
     parser.add_argument("--budgets", nargs="*", default=list(BUDGETS))
     parser.add_argument(
@@ -199,8 +212,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--markdown", type=Path, default=None)
     args = parser.parse_args(argv)
     cache: dict[tuple[str, int, str], dict[str, Any]] = {}
-    if args.rows.is_file():
-        for line in args.rows.read_text().splitlines():
+    for path in [args.rows, *args.more_rows]:
+        for line in path.read_text().splitlines() if path.is_file() else []:
             r = json.loads(line)
             cache[(r["map"], r["budget"], r["label"])] = r
     cells = []
@@ -213,8 +226,16 @@ def main(argv: list[str] | None = None) -> int:
             skip = set(args.skip_large) if X.size > (1 << 22) else set()
             for b in args.budgets:
                 budget = parse_budget(b)
-                rows = candidate_rows(key, X, Q, budget, TOLERANCE[base["key"]], skip, cache, args.rows)
-                cells.append(cell(key, X, budget, rows))
+                if args.cached_only:
+                    rows = {k[2]: r for k, r in cache.items() if k[0] == key and k[1] == budget}
+                else:
+                    rows = candidate_rows(key, X, Q, budget, TOLERANCE[base["key"]], skip, cache, args.rows)
+                try:
+                    cells.append(cell(key, X, budget, rows))
+                except StopIteration:  # --cached-only: the map-only pick was not run (yet)
+                    print(f"{key} {budget}: the map-only pick has no result; cell left out", flush=True)
+                    continue
+                cells[-1]["candidates"] = sorted(k for k, r in rows.items() if r["status"] == "ok")
                 print(json.dumps(cells[-1]), flush=True)
     command = "python benchmarks/studies/study_auto.py " + " ".join(
         argv if argv is not None else sys.argv[1:]

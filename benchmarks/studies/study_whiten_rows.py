@@ -40,12 +40,25 @@ def main(argv: list[str] | None = None) -> int:
                 for label, params in (("plain", {}), ("whitened", {"whiten": "shrink"})):
                     pred = make_method("bruteforce", **params).fit(X[idx]).predict(Q[idx])
                     recall[label] = float(np.mean(np.abs(pred - np.arange(idx.size)) <= tol))
-                rows.append({"direction": name, "n_rows": int(idx.size), "rows_per_dimension": idx.size / 3780,
-                             "tolerance": tol, **recall, "difference": recall["whitened"] - recall["plain"]})
+                rows.append(
+                    {
+                        "direction": name,
+                        "n_rows": int(idx.size),
+                        "rows_per_dimension": idx.size / 3780,
+                        "tolerance": tol,
+                        **recall,
+                        "difference": recall["whitened"] - recall["plain"],
+                    }
+                )
                 print(rows[-1], flush=True)
-    write_results("study_whiten_rows", {"command": "python benchmarks/studies/study_whiten_rows.py "
-                                        + " ".join(argv or sys.argv[1:]),
-                                        "seconds": round(time.perf_counter() - start, 1), "rows": rows})
+    write_results(
+        "study_whiten_rows",
+        {
+            "command": "python benchmarks/studies/study_whiten_rows.py " + " ".join(argv or sys.argv[1:]),
+            "seconds": round(time.perf_counter() - start, 1),
+            "rows": rows,
+        },
+    )
     return 0
 
 
