@@ -59,7 +59,7 @@ __all__ = [
 ]
 
 __getattr__, __dir__ = lazy_names(__name__, {
-    "delta_descriptors": "..frontend", "augmented_views": ".augment",
+    "delta_descriptors": "..core.frontend", "augmented_views": ".augment",
     **dict.fromkeys(("ImageDescriptor", "get_descriptor", "load_descriptor", "register_descriptor"), ".base"),
     **dict.fromkeys(("DenseVLADDescriptor", "dense_rootsift", "vlad_encode"), ".densevlad"),
     "extract_descriptors": ".extract", "HOGDescriptor": ".hog",
