@@ -21,25 +21,19 @@ unpacked copy (:mod:`~btel.methods.baselines.signscan`: lookup tables for a few 
 rows unpacked to ±1 for batches). ``'hamming'`` — the query is binarised too and the codes are
 searched by Hamming distance (faiss ``knn_hamming``); score = −distance.
 
-Budget rule: P = ⌊8·(budget − reserved − mean bytes) / n_rows⌋ bits per row (every bit the budget
-holds; at least 8), at most :data:`MAX_BITS_PER_DIMENSION` × d (16·d bits = 2·d bytes, the size of
-the row at float16: the asymmetric score then lies within noise of the cosine it estimates, and
-from there brute force at float16 precision is the better use of the bytes) and :data:`MAX_BITS`;
-without a budget P = :data:`DEFAULT_BITS`. A model stopped by the cap says so
-(:meth:`LSHLocalizer.budget_saturated`, :meth:`LSHLocalizer.unused_budget`, its summary). ``n_bits``
-pins P. The codes are stored as one stream of n_rows·P bits (⌈n_rows·P/8⌉ bytes): when P is a
-multiple of 8 that is the (n_rows, P/8) byte matrix, otherwise a flat byte array (and the state
-records n_rows). The planner needs only the shapes, so ``fit`` refuses a budget before it
-transforms the map.
+Budget rule: P = ⌊8·(budget − reserved − mean bytes) / n_rows⌋ bits per row (at least 8), at most
+16·d (the row's size at float16; the score is then within noise of the cosine it estimates, and
+``budget_saturated()`` / ``unused_budget()`` say the cap stopped it); no budget: P =
+:data:`DEFAULT_BITS`; ``n_bits`` pins P. Codes are one stream of n_rows·P bits: the (n_rows, P/8)
+byte matrix when 8 divides P, else a flat byte array (the state records n_rows). The planner
+needs only the shapes, so ``fit`` refuses a budget before it transforms the map.
 
-Front end: the plain cosine one by default (``center=False``), so that with bits to spare the
-codes approach cosine brute force on the same front end. ``center=True`` subtracts the map mean (d
-float16, counted) before the projection, so the hyperplanes cut through the data rather than past
-it; that is centred cosine, another search, chosen explicitly (``auto`` treats it as a front-end
-variant). ``center='auto'`` centres when the map's rows lie in a cone — ‖mean row‖ ≥
-:data:`CENTER_CONE` × their RMS length — and the mean costs at most :data:`CENTER_SHARE` of the
-budget. :meth:`LSHLocalizer.effective_bits` counts an uncentred sign bit at :func:`sign_bit_entropy`
-of the cone: for unit rows in a cone of ratio c a random hyperplane leaves a share
+Front end: plain cosine by default (``center=False``): with bits to spare the codes approach
+cosine brute force. ``center=True`` subtracts the map mean (d float16, counted) before the
+projection — centred cosine, another search. ``center='auto'``: when the rows lie in a cone
+(‖mean row‖ ≥ :data:`CENTER_CONE` × RMS length) and the mean costs ≤ :data:`CENTER_SHARE` of the
+budget. :meth:`LSHLocalizer.effective_bits` counts an uncentred sign bit at
+:func:`sign_bit_entropy` of the cone ratio c: a random hyperplane leaves a share
 Φ(−|z|·c/√(1 − c²)), z ~ N(0, 1), of the rows on its minority side. Evidence:
 ``docs/decisions/lsh-centring.md``.
 """
@@ -64,8 +58,7 @@ __all__ = ["LSHLocalizer", "projection_matrix", "make_projection", "PROJECTIONS"
 
 #: Without a budget, codes have this many bits.
 DEFAULT_BITS = 256
-#: Most bits per row the budget rule gives per dimension of the (front-end transformed) rows
-#: (module docstring: 16·d bits are the bytes of the row at float16).
+#: Most bits per row the budget rule gives per dimension (16·d bits: the row's size at float16).
 MAX_BITS_PER_DIMENSION = 16
 #: Most bits per row at all (``n_bits`` and model files).
 MAX_BITS = 1 << 16
@@ -209,7 +202,6 @@ def row_codes(stream: np.ndarray, n_rows: int, n_bits: int) -> np.ndarray:
     return out
 
 
-
 class LSHLocalizer(_RowLocalizer):
     """Sign random projections of the map, P bits per row filling the budget, asymmetric or Hamming search.
 
@@ -222,9 +214,8 @@ class LSHLocalizer(_RowLocalizer):
     scoring : {'asymmetric', 'hamming'}
         Projected query against the ±1 codes (default), or binarised query by Hamming distance.
     center : bool or 'auto'
-        False (default): the plain cosine front end. True: subtract the map mean (stored as d float16
-        values, counted) before projecting (centred cosine); 'auto': when the rows lie in a cone
-        (‖mean‖ ≥ 0.5 × RMS length) and the mean costs at most 1/8 of the budget.
+        False (default): plain cosine. True: subtract the map mean (d float16, counted) before
+        projecting (centred cosine). 'auto': for a cone, when the mean is cheap (module docstring).
     projection : {'hadamard', 'orthogonal', 'gaussian'}
         Sign flips and Walsh–Hadamard transforms (default), QR-orthonormalised Gaussian blocks, or i.i.d.
         Gaussian hyperplanes (module docstring); all regenerated from the seed, 0 bytes.
@@ -299,18 +290,17 @@ class LSHLocalizer(_RowLocalizer):
 
     @staticmethod
     def max_bits(n_features: int) -> int:
-        """The most bits per row the budget rule gives rows of ``n_features`` values (module docstring)."""
+        """The most bits per row the budget rule gives rows of ``n_features`` values."""
         return int(min(MAX_BITS, max(8, MAX_BITS_PER_DIMENSION * int(n_features))))
 
     def budget_saturated(self) -> bool:
         """True when the budget rule stopped at :meth:`max_bits`: a larger budget gives the same codes."""
-        return self.n_bits is None and parse_budget(self.budget) is not None \
-            and int(self.n_bits_) >= self.max_bits(self.front_end_.n_features_out(int(self.n_features_in_)))
+        d = self.front_end_.n_features_out(int(self.n_features_in_))
+        return self.n_bits is None and self.budget is not None and int(self.n_bits_) >= self.max_bits(d)
 
     def unused_budget(self) -> int:
-        """Bytes of the budget this model leaves unspent because it cannot use them (0 when not saturated)."""
-        budget = parse_budget(self.budget)
-        return int(budget - self.nbytes) if budget is not None and self.budget_saturated() else 0
+        """Bytes of the budget left unspent because the model cannot use them (0 when not saturated)."""
+        return int(parse_budget(self.budget) - self.nbytes) if self.budget_saturated() else 0
 
     def effective_bits(self, n_rows: int, n_features: int, budget: int | None, cone: float,
                        reserved: int = 0) -> float:
@@ -328,8 +318,7 @@ class LSHLocalizer(_RowLocalizer):
 
         Returns
         -------
-        float
-            0 when no code fits the budget.
+        float (0 when no code fits the budget)
         """
         in_cone = cone >= CENTER_CONE
         try:
