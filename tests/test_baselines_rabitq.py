@@ -1,4 +1,5 @@
-"""RaBitQ: seeded rotation (0 B), codes and per-row factors filling the budget, searched from the stored arrays."""
+"""RaBitQ: seeded rotation (0 B), codes and per-row factors filling the budget, searched from the
+stored arrays."""
 
 from __future__ import annotations
 
@@ -32,7 +33,8 @@ def test_dimensions_then_bits_fill_the_budget_and_the_rotation_costs_nothing(pai
     model = make_method("rabitq", budget=budget).fit(X)
     D, B = model.dim_, model.nbits_
     assert model.nbytes == 400 * per_row(D, B) + 2 * D <= budget
-    assert set(model.storage_breakdown()) == ({"signs", "factors", "centroid"} | ({"ex_codes"} if B > 1 else set()))
+    expected = {"signs", "factors", "centroid"} | ({"ex_codes"} if B > 1 else set())
+    assert set(model.storage_breakdown()) == expected
     if D < 64:  # dimensions first: B = 1 and the next multiple of 8 would not fit
         assert B == 1 and 400 * per_row(D + 8, 1) + 2 * (D + 8) > budget
     elif B < MAX_NBITS:  # then bits: one more would not fit
@@ -117,5 +119,6 @@ def test_gardens_point_rabitq_is_near_brute_force_from_16kb(gardenspoint_netvlad
         return float((np.abs(model.fit(X).predict(Q) - truth) <= 2).mean())
 
     rabitq, brute = r2(make_method("rabitq", budget="16KB")), r2(make_method("bruteforce"))
-    # Measured (benchmarks/bench_rabitq.py): 0.480 against brute force 0.480; the rule chose D = d = 500, B = 1.
+    # Measured (benchmarks/studies/rabitq_budget.py): 0.480 against brute force 0.480; the rule chose
+    # D = d = 500, B = 1.
     assert rabitq >= 0.9 * brute

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from btel.core import claims
+from btel.core import claims as _claims
 from btel.evaluation.measure import evaluate
 from btel.experiments._common import ModelCache
 from btel.methods import make_method

@@ -109,14 +109,14 @@ def test_the_checker_finds_each_kind_of_violation(source: str, what: str) -> Non
 def test_the_checker_lets_through_what_is_not_a_method_name() -> None:
     source = ('"""Docstring: e.g. --methods btel-c,btel-r,pq --param bruteforce:budget=1MB."""\n'
               "from ..methods.registry import REFERENCE_METHOD, make_method\n"
-              "from .._method_roles import DEFAULT_METHOD\n"
+              "from ..methods.roles import DEFAULT_METHOD\n"
               'HELP = "number of regions r, or \'auto\'."\n'
               'x = {"route": 1, "l2": 2, "": 3}\n')
     assert violations(source) == []
 
 
 def test_the_roles_are_registered_methods() -> None:
-    from btel.methods import roles
+    from btel.methods import roles as _method_roles
     from btel.methods import registry
 
     assert _method_roles.DEFAULT_METHOD in REGISTRY and _method_roles.REFERENCE_METHOD in REGISTRY

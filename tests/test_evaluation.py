@@ -276,16 +276,20 @@ def test_precision_recall_by_hand() -> None:
     scores = np.array([0.9, 0.8, 0.7, 0.6, 0.1])
     correct = np.array([True, True, False, True, False])
     pr = precision_recall(scores, correct)
-    np.testing.assert_allclose(pr["recall"], [0, 0.2, 0.4, 0.4, 0.6, 0.6])
-    np.testing.assert_allclose(pr["precision"], [1, 1, 1, 2 / 3, 3 / 4, 3 / 5])
+    np.testing.assert_allclose(pr["recall"], [0.2, 0.4, 0.4, 0.6, 0.6])  # one point per distinct score
+    np.testing.assert_allclose(pr["precision"], [1, 1, 2 / 3, 3 / 4, 3 / 5])
     assert pr["recall_at_100_precision"] == pytest.approx(0.4)
-    assert pr["auc_pr"] == pytest.approx(0.2 + 0.2 + 0.2 * 3 / 4)
+    # VPR-Bench: recall over the 3 correct matches, (0, 1) first, trapezoids.
+    assert pr["auc_pr_vpr_bench"] == pytest.approx(1 / 3 + 1 / 3 + 1 / 3 * (2 / 3 + 3 / 4) / 2)
+    # VPR_Tutorial: recall over the 5 queries; its 100 thresholds hit every gap between these scores.
+    assert pr["auc_pr_vpr_tutorial"] == pytest.approx(0.2 + 0.2 + 0.2 * (2 / 3 + 3 / 4) / 2)
     # Only the order of the scores matters (each method's own scale).
     again = precision_recall(np.exp(scores) * 7 - 3, correct)
-    assert again["auc_pr"] == pytest.approx(pr["auc_pr"])
+    assert again["auc_pr_vpr_bench"] == pytest.approx(pr["auc_pr_vpr_bench"])
     # The most confident match wrong: no recall at 100 % precision; no correct match: zeros.
     assert precision_recall([0.9, 0.1], [False, True])["recall_at_100_precision"] == 0.0
-    assert precision_recall([0.9, 0.1], [False, False])["auc_pr"] == 0.0
+    none_right = precision_recall([0.9, 0.1], [False, False])
+    assert none_right["auc_pr_vpr_bench"] == 0.0 and none_right["auc_pr_vpr_tutorial"] == 0.0
     with pytest.raises(InvalidParameterError):
         precision_recall([0.1, 0.2], [True])
 
@@ -300,13 +304,17 @@ def test_evaluate_reports_pr_from_search_scores() -> None:
     result = evaluate(method, None, Q, fit=False, ks=(1, 5))
     scores, places = method.search(Q, 1)
     expected = precision_recall(scores[:, 0], places[:, 0] == np.arange(60))
-    assert result.auc_pr == pytest.approx(expected["auc_pr"])
+    assert result.auc_pr_vpr_bench == pytest.approx(expected["auc_pr_vpr_bench"])
+    assert result.auc_pr_vpr_tutorial == pytest.approx(expected["auc_pr_vpr_tutorial"])
     assert result.recall_at_100_precision == pytest.approx(expected["recall_at_100_precision"])
-    assert 0 < result.auc_pr <= result.recall_at_k[1] <= 1
+    # VPR_Tutorial's recall stops at R@1; VPR-Bench's (over the correct matches) reaches 1.
+    assert 0 < result.auc_pr_vpr_tutorial <= result.recall_at_k[1] < result.auc_pr_vpr_bench <= 1
     summary = json.loads(json.dumps(result.to_dict()))
-    assert summary["auc_pr"] == pytest.approx(result.auc_pr)
+    assert summary["auc_pr_vpr_bench"] == pytest.approx(result.auc_pr_vpr_bench)
+    assert summary["auc_pr_vpr_tutorial"] == pytest.approx(result.auc_pr_vpr_tutorial)
     assert len(summary["pr_curve"]["recall"]) == len(summary["pr_curve"]["precision"]) <= 256
-    assert "AUC-PR" in format_table([result]) and "R@100%P" in format_table([result])
+    table = format_table([result])
+    assert "AUC-PR:VB" in table and "AUC-PR:VT" in table and "R@100%P" in table and "VPR_Tutorial" in table
 
 
 def test_time_queries_runs_with_the_thread_count_it_reports() -> None:

@@ -50,7 +50,7 @@ def test_the_harness_catches_a_writer_that_replaces_what_it_should_keep(tmp_path
     """With the publish step of old (a rename whatever is there), racing saves all 'succeed': a failure.
     The rename waits a second, so every racer has passed the early existence check before any publishes."""
     summary = _run(
-        "import os, time\nfrom btel import _claims\n"
+        "import os, time\nfrom btel.core import claims as _claims\n"
         "def replace_later(tmp, path, *, overwrite):\n    time.sleep(1.0)\n    os.replace(tmp, path)\n"
         "_claims.publish = replace_later\n"
         "print(json.dumps(fw.run_cases(2, seed=0, writers=('save',), families=('race',))))", tmp_path)

@@ -129,7 +129,8 @@ def test_run_plots_include_precision_recall_with_auc_in_the_legend(tmp_path: Pat
         scores = -np.abs(pred - np.arange(n)) + noise * rng.standard_normal(n)
         pr = precision_recall(scores, pred == np.arange(n))
         r = _result(name, pred, 10_000)
-        r.auc_pr, r.recall_at_100_precision = pr["auc_pr"], pr["recall_at_100_precision"]
+        r.auc_pr_vpr_bench, r.auc_pr_vpr_tutorial = pr["auc_pr_vpr_bench"], pr["auc_pr_vpr_tutorial"]
+        r.recall_at_100_precision = pr["recall_at_100_precision"]
         r.pr_curve = {"precision": pr["precision"].tolist(), "recall": pr["recall"].tolist()}
         rows.append(r)
     written = plot_run(rows, tmp_path)
@@ -140,7 +141,8 @@ def test_run_plots_include_precision_recall_with_auc_in_the_legend(tmp_path: Pat
     fig = plot_precision_recall(rows, tmp_path / "again.png")
     ax = fig.axes[0]
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
-    assert labels[0].startswith("sharp (10.0 KB): AUC ") and "R@100%P" in labels[0]
+    assert labels[0].startswith("sharp (10.0 KB): AUC-PR ") and "R@100%P" in labels[0]
+    assert "(VPR-Bench)" in labels[0] and "(VPR_Tutorial)" in labels[0]
     lines = ax.get_lines()
     assert len({line.get_marker() for line in lines}) == 3  # identical curves stay distinguishable
     assert ax.get_xlabel().startswith("recall") and ax.get_ylabel() == "precision"
@@ -189,3 +191,90 @@ def test_run_figures_name_the_rows_that_did_not_run(tmp_path: Path) -> None:
     finally:
         plots._run_figure = real
     assert written and titles == ["toy — not shown: itq (does not fit)"]
+
+
+# -- one style per method ----------------------------------------------------------------------------
+def _line_styles(fig) -> dict[str, tuple]:
+    """Legend label's method part → (colour, marker, line style, hollow) of its curve."""
+    from matplotlib.colors import to_hex
+
+    out = {}
+    for line in fig.axes[0].get_lines():
+        name = line.get_label().split(" (", 1)[0]
+        out[name] = (to_hex(line.get_color()), line.get_marker(), line.get_linestyle(),
+                     line.get_markerfacecolor() == "none")
+    return out
+
+
+def test_method_styles_are_fixed_per_method_and_never_repeat() -> None:
+    from btel.evaluation.plots.styles import METHOD_STYLES, method_styles
+    from btel.methods.registry import method_names
+
+    names = method_names()
+    assert len({(s.color, s.marker) for s in METHOD_STYLES.values()}) == len(METHOD_STYLES)
+    many = ["pq shrink", "bruteforce shrink", "mine", "theirs", *names[::-1], *(f"run {i}" for i in range(30))]
+    styles = method_styles(many)
+    assert all(styles[n] == METHOD_STYLES[n] for n in names)  # the same whatever else the figure holds
+    assert len({(s.color, s.marker) for s in styles.values()}) == len(styles)
+    assert styles["pq shrink"].color == METHOD_STYLES["pq"].color  # a variant keeps its method's colour
+    auto = method_styles(["lsh", "auto → lsh"])["auto → lsh"]
+    lsh = METHOD_STYLES["lsh"]
+    assert (auto.color, auto.marker, auto.hollow) == (lsh.color, lsh.marker, True)
+    assert method_styles(["bruteforce (reference, unbudgeted)"])["bruteforce (reference, unbudgeted)"] == \
+        METHOD_STYLES["bruteforce"]
+
+
+def test_every_run_figure_draws_a_method_in_its_one_style_auto_visible(tmp_path: Path) -> None:
+    from btel.evaluation.metrics import precision_recall
+    from btel.evaluation.plots import plot_precision_recall
+    from btel.evaluation.plots.run import _run_figure
+    from btel.methods.registry import method_names
+
+    rng = np.random.default_rng(1)
+    n = 80
+    rows = []
+    for i, name in enumerate(method_names() + ["pq shrink"]):
+        pred = np.clip(np.arange(n) + rng.integers(-i // 3, i // 3 + 1, n), 0, n - 1)
+        r = _result(name, pred, 1000 + 10 * i)
+        pr = precision_recall(rng.random(n), pred == np.arange(n))
+        r.pr_curve = {"precision": pr["precision"].tolist(), "recall": pr["recall"].tolist()}
+        r.recall_at_100_precision = pr["recall_at_100_precision"]
+        if name == "auto":
+            r.chosen_method = "lsh"
+            r.predictions, r.pr_curve = rows[method_names().index("lsh")].predictions, rows[-1].pr_curve
+        rows.append(r)
+    assert len(rows) >= 13
+    figures = [_run_figure(rows, tmp_path / "t.png", kind="tolerance", title=None),
+               plot_precision_recall(rows, tmp_path / "pr.png"),
+               plot_recall_vs_tolerance(rows, tmp_path / "r.png")]
+    drawn = [_line_styles(fig) for fig in figures]
+    assert all(d == drawn[0] for d in drawn[1:])  # one style per method across the figures
+    assert len(set(drawn[0].values())) == len(rows)  # no repeats within a figure
+    auto, lsh = drawn[0]["auto → lsh"], drawn[0]["lsh"]
+    assert auto[:2] == lsh[:2] and auto[3] and not lsh[3]  # lsh's colour and marker, hollow
+
+
+def test_precision_recall_figure_agrees_with_recall_at_full_precision(tmp_path: Path) -> None:
+    from btel.evaluation.metrics import precision_recall
+    from btel.evaluation.plots import plot_precision_recall
+
+    n = 50
+    correct = np.arange(n) % 3 == 0
+    cases = {"tied": np.zeros(n), "graded": np.where(correct, 1.0, 0.0) + np.linspace(0, 0.5, n),
+             "wrong first": np.r_[2.0, np.linspace(0, 1, n - 1)]}
+    rows = []
+    for name, scores in cases.items():
+        pr = precision_recall(scores, correct)
+        r = _result(name, np.arange(n), 500)
+        r.pr_curve = {"precision": pr["precision"].tolist(), "recall": pr["recall"].tolist()}
+        r.recall_at_100_precision = pr["recall_at_100_precision"]
+        rows.append(r)
+    fig = plot_precision_recall(rows, tmp_path / "pr.png")
+    for r, line in zip(rows, fig.axes[0].get_lines()):
+        x, y = np.asarray(line.get_xdata(), float), np.asarray(line.get_ydata(), float)
+        at_one = x[y >= 1.0]
+        assert (at_one.max() if at_one.size else 0.0) == pytest.approx(r.recall_at_100_precision)
+        assert line.get_drawstyle() == "default"  # straight lines between thresholds: no invented steps
+    tied = fig.axes[0].get_lines()[0]
+    assert len(tied.get_xdata()) == 1 and tied.get_marker() not in (None, "", "None")  # one visible point
+    assert tied.get_ydata()[0] == pytest.approx(correct.mean())

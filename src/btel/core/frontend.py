@@ -175,7 +175,8 @@ class FrontEnd:
         """
         plain_l2 = self.normalize == "l2" and self.delta is None and self.whiten is None
         if plain_l2 and X.shape[0] == 1 and X.dtype == np.float32:  # one query (µs count here): Python arithmetic
-            squares = float(np.dot(X[0], X[0]))
+            with np.errstate(over="ignore", invalid="ignore"):  # an overflow is caught just below
+                squares = float(np.dot(X[0], X[0]))
             # else the general path: a float64 sum, the finiteness check, tiny rows scaled in float64
             if math.isfinite(squares) and (squares == 0.0 and not X[0].any() or squares >= TINY_SQUARED_NORM):
                 scale = np.float32(1.0 / math.sqrt(squares) if squares > 0 else 1.0)  # a zero row stays zero

@@ -37,7 +37,8 @@ def row_norms(X: np.ndarray, *, check_finite: bool = False, name: str = "X") -> 
     finiteness check, so validated queries are read once for both).
     """
     if X.shape[0] == 1 and X.dtype == np.float32 and X.ndim == 2:  # one query (streaming): BLAS' sdot
-        sq1 = float(np.dot(X[0], X[0]))
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is summed again in float64
+            sq1 = float(np.dot(X[0], X[0]))
         if not math.isfinite(sq1) or sq1 < TINY_SQUARED_NORM:
             sq1 = float(np.dot(X[0].astype(np.float64), X[0].astype(np.float64)))
             if check_finite and not math.isfinite(sq1):
@@ -100,7 +101,8 @@ def normalize_rows(X: np.ndarray, how: str = "l2", *, check_finite: bool = False
     if X.shape[0] == 1 and not 0 < norms[0] * norms[0] < TINY_SQUARED_NORM:  # one query, not tiny: one scaled copy
         return np.multiply(X, np.float32(1.0 / norms[0] if norms[0] > 0 else 1.0), dtype=np.float32)
     tiny = np.flatnonzero((norms > 0) & (norms * norms < TINY_SQUARED_NORM))
-    inverse = (1.0 / np.where(norms > 0, norms, 1.0)).astype(np.float32)
+    with np.errstate(over="ignore"):  # tiny rows' inverses overflow float32: they are set to 1 next
+        inverse = (1.0 / np.where(norms > 0, norms, 1.0)).astype(np.float32)
     inverse[tiny] = 1.0
     out = np.empty(X.shape, dtype=np.float32)
     step = max(1, min(_CHUNK_ROWS, (1 << 20) // max(X.shape[1], 1)))

@@ -11,13 +11,7 @@ for every method and map:
   :data:`SHRINK_MAX_RANK` (32) and at most min(d, n_rows − 2); without a budget r is that cap.
   With r = 0 the transform is centring only.
 
-The rule was fixed on Gardens Point NetVLAD (day→night, N = 200, d = 500) and Nordland HOG
-(summer→winter, N = 3576, d = 3780) with brute force on the whitened rows, before the frontier
-experiment ran: taking the discarded eigenvalues as their *mean* (the first version) fell to
-R@2 0.30 at r = 32 on Gardens Point, while s_{r+1} gave 0.545 / 0.555 / 0.52 at r = 8 / 32 / 199
-(cosine 0.48) for λ = 1 × mean eigenvalue; λ = 0.05 gave 0.425 at full rank. On Nordland R@10
-(tolerance 10) went 0.381 (cosine) → 0.480 / 0.468 / 0.406 at r = 8 / 32 / 255: a small rank is
-what helps, hence the cap of 32.
+Why these choices (the figures and the study commands): ``docs/decisions/whitening.md``.
 
 Because the result is L2-normalised, a global scale does not matter and the transform is stored as
 
@@ -25,15 +19,9 @@ Because the result is L2-normalised, a global scale does not matter and the tran
 
 with U the d×r eigenvectors. Stored (all counted by the storage rule): μ as d float16 values,
 U at 4 bits per entry (levels −7 … 7, two to a byte, one float32 scale per column), g as r float32
-values — 2d + r·(⌈d/2⌉ + 8) bytes. The 4-bit basis scores level with int8 with brute force on
-the whitened rows (``python benchmarks/bench_shrink_bits.py``, every development map at ranks
-4 … 32: differences −0.015 … +0.010 on Gardens Point's 200 queries, at most three queries either
-way, and within ±0.003 on Nordland) at half the bytes, so a budget's quarter affords about twice
-the rank. Model files written with the int8 basis (``frontend_shrink_basis``, before
-the 4-bit one) load and answer as before.
-
-Measured: ``btel experiment frontier`` (docs/results.md), brute force on shrinkage-whitened rows
-beside cosine brute force.
+values — 2d + r·(⌈d/2⌉ + 8) bytes.
+The 4-bit basis scores level with int8 at half the bytes; model files written with the int8 basis
+(``frontend_shrink_basis``) load and answer as before.
 """
 
 from __future__ import annotations
@@ -96,7 +84,8 @@ def shrink_rank(n_features: int, n_rows: int | None, budget: int | None) -> int:
     return int(max(0, min(cap, share // ((int(n_features) + 1) // 2 + 8))))
 
 
-def fit_shrink(Z: np.ndarray, rank: int, levels: int = _LEVELS) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def fit_shrink(Z: np.ndarray, rank: int,
+               levels: int = _LEVELS) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Learn the stored arrays from the map rows ``Z`` (n, d) float32.
 
     Raises :class:`~btel.exceptions.InvalidDescriptorsError` when a column mean exceeds float16's range.

@@ -169,7 +169,8 @@ def evaluate(
         best_scores = np.asarray(method.search(Q, k=1)[0])[:, 0]
     pr = None
     if best_scores is not None and best_scores.shape == (n_queries,):
-        pr = precision_recall(best_scores, gt.is_correct(predictions, k_tolerance))
+        pr = precision_recall(best_scores, gt.is_correct(predictions, k_tolerance),
+                              n_relevant=max(1, gt.n_queries - gt.n_without_positives))
 
     nbytes, breakdown = _storage_of(method)
     return EvaluationResult(
@@ -188,7 +189,8 @@ def evaluate(
         query_latency_s=timing.latency_s,
         n_threads=timing.n_threads,
         timing_repeats=timing.repeats,
-        auc_pr=None if pr is None else pr["auc_pr"],
+        auc_pr_vpr_bench=None if pr is None else pr["auc_pr_vpr_bench"],
+        auc_pr_vpr_tutorial=None if pr is None else pr["auc_pr_vpr_tutorial"],
         recall_at_100_precision=None if pr is None else pr["recall_at_100_precision"],
         pr_curve=None if pr is None else dict(zip(("precision", "recall"), thin_curve(pr["precision"],
                                                                                         pr["recall"]))),
@@ -196,6 +198,7 @@ def evaluate(
         ranked=ranked,
         ground_truth=gt,
         tolerance_for_k=int(k_tolerance),
+        chosen_method=(getattr(method, "choice_", None) or {}).get("method"),  # auto: what it chose
         budget=budget if budget is not None else parse_budget(getattr(method, "budget", None)),
         reference=bool(reference),
         uses_query_sequence=bool(getattr(method, "uses_query_sequence", False)),

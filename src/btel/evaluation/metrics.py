@@ -14,6 +14,11 @@ Two names, one meaning each, everywhere (tables, CSV, JSON, plots):
   candidate is the point prediction, so R@1 = recall@0 (at ``k_tolerance`` 0) for every method.
 - With explicit positives per query (VPR-Bench, GPS radius) the tolerance does not apply: only
   R@K is reported (R@1/5/10/20 on the command line, the field's convention).
+- **AUC-PR** — area under the precision–recall curve of accepting each query's top-1 match by
+  its score, in two versions named by the code they reproduce: ``auc_pr_vpr_bench`` (VPR-Bench:
+  recall over the correct top-1 matches) and ``auc_pr_vpr_tutorial`` (VPR_Tutorial: recall over
+  the queries with a true place); :func:`precision_recall` gives both and the curve, one point
+  per distinct score.
 
 Nothing here fits, times or writes anything: :mod:`btel.evaluation` is the harness that does.
 """
@@ -45,6 +50,7 @@ __all__ = [
     "recall_at_k",
     "precision_recall",
     "thin_curve",
+    "VPR_TUTORIAL_THRESHOLDS",
 ]
 
 #: Tolerances (frames) at which recall is reported (SPEC §9).
@@ -238,18 +244,61 @@ def recall_at_k(
 
 
 # -- precision–recall from the best-match score (VPR-Bench, VPR_Tutorial) ----------------------------
-#: Points kept of a PR curve in results (the curve is drawn from them; AUC-PR uses every point).
+#: Points kept of a PR curve in results (the curve is drawn from them; the AUCs use every point).
 PR_CURVE_POINTS = 256
+#: Thresholds of VPR_Tutorial's ``createPR`` (its ``n_thresh`` default).
+VPR_TUTORIAL_THRESHOLDS = 100
 
 
-def precision_recall(best_scores: Any, correct: Any) -> dict[str, Any]:
-    """The precision–recall curve of accepting a query's top-1 match when its score passes a threshold.
+def _comparable_scores(best_scores: Any, correct: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Scores as finite float64 (NaN and −inf least confident, +inf most) and correctness as bool."""
+    scores = np.asarray(best_scores, dtype=np.float64).reshape(-1)
+    hits = np.asarray(correct, dtype=bool).reshape(-1)
+    if scores.shape != hits.shape or scores.size == 0:
+        raise InvalidParameterError(f"best_scores and correct must be 1-D of one length ≥ 1; got "
+                                    f"{scores.shape} and {hits.shape}.")
+    finite = np.isfinite(scores)
+    low, high = (scores[finite].min() - 1.0, scores[finite].max() + 1.0) if finite.any() else (0.0, 0.0)
+    return np.clip(np.nan_to_num(scores, nan=low, neginf=low, posinf=high), low, high), hits
 
-    Each query has one best match and its score (higher = more confident). Sweeping a threshold
-    from the highest score down: precision = correct accepted matches / accepted matches, recall =
-    correct accepted matches / all queries (every query has a true place in the map; VPR-Bench's and
-    VPR_Tutorial's convention). Scores are compared within one method only, so any method's own
-    scale serves (a monotone rescaling changes nothing).
+
+def _vpr_tutorial_auc(scores: np.ndarray, hits: np.ndarray, n_relevant: int,
+                      n_thresh: int = VPR_TUTORIAL_THRESHOLDS) -> float:
+    """VPR_Tutorial's AUC: ``n_thresh`` evenly spaced thresholds from the highest score to the
+    lowest, the point (recall 0, precision 1) first, trapezoids between the points."""
+    descending = np.sort(scores)[::-1]
+    true_so_far = np.cumsum(hits[np.argsort(-scores, kind="stable")])
+    thresholds = np.linspace(descending[0], descending[-1], n_thresh)
+    accepted = scores.size - np.searchsorted(descending[::-1], thresholds, side="left")  # score ≥ threshold
+    true_accepted = true_so_far[accepted - 1]
+    precision = np.concatenate([[1.0], true_accepted / accepted])
+    recall = np.concatenate([[0.0], true_accepted / n_relevant])
+    return float(np.trapezoid(precision, recall))
+
+
+def precision_recall(best_scores: Any, correct: Any, *, n_relevant: int | None = None) -> dict[str, Any]:
+    """Precision–recall of accepting a query's top-1 match when its score passes a threshold.
+
+    Each query has one best match and its score (higher = more confident). A threshold accepts
+    the matches scored at or above it; precision = correct accepted / accepted. The curve has one
+    point per *distinct* score (tied scores enter together: constant scores give one point), so it
+    cannot show a precision no threshold reaches. Only the order of one method's scores matters.
+
+    Two areas under the curve, each as its source's code computes it (they differ by a large
+    factor on the same matches, so compare a figure only with its own source's tables):
+
+    - ``auc_pr_vpr_bench`` — VPR-Bench (Zaffar et al. 2021, ``performance_comparison.py`` in
+      github.com/MubarizZaffar/VPR-Bench): sklearn's ``precision_recall_curve`` over the top-1
+      correctness and the scores, so recall = correct accepted / *correct top-1 matches* (it
+      reaches 1 whatever R@1 is), then trapezoidal ``auc``. 0 when no top-1 match is correct
+      (VPR-Bench's code gives NaN there).
+    - ``auc_pr_vpr_tutorial`` — VPR_Tutorial (Schubert et al. 2023, ``evaluation/metrics.py``
+      ``createPR`` with single-best-match and ``demo.py`` in github.com/stschubert/VPR_Tutorial):
+      recall = correct accepted / *queries with a true place in the map* (at most R@1),
+      :data:`VPR_TUTORIAL_THRESHOLDS` evenly spaced thresholds, (0, 1) prepended, trapezoids.
+
+    The returned curve and ``recall_at_100_precision`` use VPR_Tutorial's recall, over every
+    distinct threshold.
 
     Parameters
     ----------
@@ -257,39 +306,51 @@ def precision_recall(best_scores: Any, correct: Any) -> dict[str, Any]:
         Score of each query's best match (``search(Q, 1)[0][:, 0]``). NaN counts as least confident.
     correct : array-like of bool, shape (n_queries,)
         Whether that best match is a true place.
+    n_relevant : int, optional
+        Queries that have a true place in the map (default: all of them).
 
     Returns
     -------
     dict
-        ``precision``, ``recall`` (ndarrays, one point per distinct threshold, recall increasing),
-        ``auc_pr`` (area under the step curve: Σ ΔRecall × precision, i.e. average precision with
-        recall over all queries) and ``recall_at_100_precision`` (the largest recall with no false
-        match accepted; 0 when the most confident match is wrong).
+        ``precision``, ``recall``, ``thresholds`` (float64 ndarrays, one point per distinct score,
+        highest threshold first, so recall is non-decreasing), ``auc_pr_vpr_bench``,
+        ``auc_pr_vpr_tutorial`` and ``recall_at_100_precision`` (the largest recall of a point
+        with no false match accepted; 0 when the most confident match is wrong).
     """
-    from sklearn.metrics import precision_recall_curve
-
-    scores = np.asarray(best_scores, dtype=np.float64).reshape(-1)
-    correct = np.asarray(correct, dtype=bool).reshape(-1)
-    if scores.shape != correct.shape or scores.size == 0:
-        raise InvalidParameterError(f"best_scores and correct must be 1-D of one length ≥ 1; got {scores.shape} "
-                                    f"and {correct.shape}.")
-    finite = np.isfinite(scores)
-    low = scores[finite].min() - 1.0 if finite.any() else 0.0
-    scores = np.where(np.isnan(scores), low, np.clip(scores, low, None))
-    n_correct = int(correct.sum())
-    if n_correct == 0:
-        return {"precision": np.zeros(1), "recall": np.zeros(1), "auc_pr": 0.0, "recall_at_100_precision": 0.0}
-    precision, recall, _ = precision_recall_curve(correct, scores)
-    # sklearn's recall counts correct top-1 matches only; VPR counts every query (a wrong top-1 is a miss).
-    precision, recall = precision[::-1], recall[::-1] * (n_correct / correct.size)
-    auc = float(np.sum(np.diff(recall) * precision[1:]))
+    scores, hits = _comparable_scores(best_scores, correct)
+    if n_relevant is None:
+        n_relevant = scores.size
+    n_relevant = check_positive_int(n_relevant, "n_relevant", minimum=1)
+    n_correct = int(hits.sum())
+    if n_correct > n_relevant:
+        raise InvalidParameterError(f"{n_correct} top-1 matches are correct but n_relevant={n_relevant}: "
+                                    "only queries with a true place can be matched correctly.")
+    order = np.argsort(-scores, kind="stable")
+    ranked = scores[order]
+    last = np.flatnonzero(np.r_[ranked[1:] != ranked[:-1], True])  # the last index of each distinct score
+    true_accepted = np.cumsum(hits[order])[last]
+    precision = true_accepted / (last + 1.0)
+    recall = true_accepted / n_relevant
     perfect = recall[precision >= 1.0]
-    return {"precision": precision, "recall": recall, "auc_pr": auc,
+    if n_correct:
+        # sklearn's curve: these points with recall over the correct matches, then (recall 0, precision 1).
+        bench = float(np.trapezoid(np.r_[1.0, precision], np.r_[0.0, true_accepted / n_correct]))
+    else:
+        bench = 0.0
+    return {"precision": precision, "recall": recall, "thresholds": ranked[last], "auc_pr_vpr_bench": bench,
+            "auc_pr_vpr_tutorial": _vpr_tutorial_auc(scores, hits, n_relevant),
             "recall_at_100_precision": float(perfect.max()) if perfect.size else 0.0}
 
 
-def thin_curve(precision: np.ndarray, recall: np.ndarray, n: int = PR_CURVE_POINTS) -> tuple[list[float], list[float]]:
-    """At most ``n`` points of a PR curve, evenly spaced along it (first and last kept)."""
-    keep = np.unique(np.linspace(0, precision.size - 1, min(n, precision.size)).round().astype(int))
-    return [float(v) for v in precision[keep]], [float(v) for v in recall[keep]]
+def thin_curve(precision: np.ndarray, recall: np.ndarray,
+               n: int = PR_CURVE_POINTS) -> tuple[list[float], list[float]]:
+    """At most ``n`` points of a PR curve, evenly spaced along it.
 
+    The first and last points are kept, and so is the last point at precision 1 (the recall at
+    100 % precision), so the thinned curve shows the same R@100%P as the full one.
+    """
+    precision, recall = np.asarray(precision, dtype=np.float64), np.asarray(recall, dtype=np.float64)
+    keep = np.linspace(0, precision.size - 1, max(2, min(n, precision.size))).round().astype(int)
+    perfect = np.flatnonzero(precision >= 1.0)
+    keep = np.unique(np.r_[keep, perfect[-1:]]) if precision.size > 1 else np.zeros(1, dtype=int)
+    return [float(v) for v in precision[keep]], [float(v) for v in recall[keep]]

@@ -109,13 +109,17 @@ class EvaluationResult:
         Threads the numerical libraries could use while timing.
     timing_repeats : int or None
         Timed batch calls behind ``query_time_s_per_query``.
-    auc_pr : float or None
-        Area under the precision–recall curve of accepting each query's top-1 match by its score
-        (:func:`precision_recall`); None when the method gives no scores.
+    auc_pr_vpr_bench, auc_pr_vpr_tutorial : float or None
+        Area under the precision–recall curve of accepting each query's top-1 match by its score,
+        as VPR-Bench and as VPR_Tutorial compute it (:func:`precision_recall` says how they
+        differ); None when the method gives no scores.
     recall_at_100_precision : float or None
         Recall at 100 % precision on that curve.
     pr_curve : dict or None
         ``{"precision": [...], "recall": [...]}``, at most :data:`PR_CURVE_POINTS` points.
+    chosen_method : str or None
+        For a method that picks another (``auto``): the registered name it chose (the plots draw
+        ``auto → <choice>``).
     predictions : ndarray of shape (n_queries,), dtype int64
         Predicted place per query row (not written to JSON; see ``predictions_<name>.csv``).
     ranked : ndarray of shape (n_queries, k), dtype int64, or None
@@ -167,9 +171,11 @@ class EvaluationResult:
     query_latency_s: float | None = None
     n_threads: int | None = None
     timing_repeats: int | None = None
-    auc_pr: float | None = None
+    auc_pr_vpr_bench: float | None = None
+    auc_pr_vpr_tutorial: float | None = None
     recall_at_100_precision: float | None = None
     pr_curve: dict[str, list[float]] | None = field(default=None, repr=False)
+    chosen_method: str | None = None
     predictions: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64), repr=False)
     ranked: np.ndarray | None = field(default=None, repr=False)
     ground_truth: GroundTruth | None = field(default=None, repr=False)
@@ -222,8 +228,10 @@ class EvaluationResult:
                 nbytes=data.get("nbytes"), storage_breakdown=data.get("storage_breakdown"),
                 fit_time_s=data.get("fit_time_s"), query_time_s_per_query=data.get("query_time_s_per_query"),
                 rank_time_s_per_query=data.get("rank_time_s_per_query"), query_latency_s=data.get("query_latency_s"),
-                n_threads=data.get("n_threads"), timing_repeats=data.get("timing_repeats"), auc_pr=data.get("auc_pr"),
+                n_threads=data.get("n_threads"), timing_repeats=data.get("timing_repeats"),
+                auc_pr_vpr_bench=data.get("auc_pr_vpr_bench"), auc_pr_vpr_tutorial=data.get("auc_pr_vpr_tutorial"),
                 recall_at_100_precision=data.get("recall_at_100_precision"), pr_curve=data.get("pr_curve"),
+                chosen_method=data.get("chosen_method"),
                 tolerance_for_k=int(data.get("tolerance_for_k") or 0), status=str(data["status"]),
                 reason=data.get("reason"), budget=data.get("budget"), reference=bool(data.get("reference")),
                 uses_query_sequence=bool(data.get("uses_query_sequence")), minimum_bytes=data.get("minimum_bytes"),
@@ -261,9 +269,11 @@ class EvaluationResult:
             "query_latency_s": self.query_latency_s,
             "n_threads": self.n_threads,
             "timing_repeats": self.timing_repeats,
-            "auc_pr": self.auc_pr,
+            "auc_pr_vpr_bench": self.auc_pr_vpr_bench,
+            "auc_pr_vpr_tutorial": self.auc_pr_vpr_tutorial,
             "recall_at_100_precision": self.recall_at_100_precision,
             "pr_curve": self.pr_curve,
+            "chosen_method": self.chosen_method,
             "ground_truth": None if self.ground_truth is None else self.ground_truth.kind,
         }
 

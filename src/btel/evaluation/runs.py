@@ -75,7 +75,7 @@ def run_metadata(command: str | Sequence[str] | None = None) -> dict[str, Any]:
         "command": command,
         "date_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "versions": {
-            "btel": _version("btel"),
+            "btel": _package_version("btel"),
             "python": platform.python_version(),
             "numpy": np.__version__,
             "scipy": _package_version("scipy"),

@@ -17,10 +17,12 @@ from .records import STATUS_DOES_NOT_FIT, EvaluationResult
 from ..core.storage import format_bytes
 
 __all__ = ["format_table", "describe_row", "metrics_csv_text", "predictions_csv_text", "rows_csv_text",
-           "SEQUENCE_MARK", "REFERENCE_MARK"]
+           "SEQUENCE_MARK", "REFERENCE_MARK", "PR_TABLE_NAMES"]
 
 SEQUENCE_MARK = "†"
 REFERENCE_MARK = "*"
+#: The precision–recall columns of the console table: AUC-PR by VPR-Bench and by VPR_Tutorial, R@100%P.
+PR_TABLE_NAMES = ("AUC-PR:VB", "AUC-PR:VT", "R@100%P")
 
 
 def format_table(results: Sequence[EvaluationResult]) -> str:
@@ -34,8 +36,9 @@ def format_table(results: Sequence[EvaluationResult]) -> str:
     """
     tolerances = sorted({t for r in results for t in r.recall})
     ks = sorted({k for r in results for k in (r.recall_at_k or {})})
-    has_pr = any(r.auc_pr is not None for r in results)
-    metric_names = [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks] + (["AUC-PR", "R@100%P"] if has_pr else [])
+    has_pr = any(r.recall_at_100_precision is not None for r in results)
+    metric_names = [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks]
+    metric_names += list(PR_TABLE_NAMES) if has_pr else []
     width = max([len("method")] + [len(_row_label(r)) for r in results]) + 1
     header = (f"{'method':<{width}} {'status':<12} {'bytes':>10} {'fit s':>7} {'batch µs/q':>10} {'1-query µs':>10} "
               f"{'threads':>7} " + " ".join(f"{m:>9}" for m in metric_names))
@@ -53,7 +56,7 @@ def format_table(results: Sequence[EvaluationResult]) -> str:
         fit = f"{r.fit_time_s:.1f}" if r.fit_time_s is not None else "-"
         values = [r.recall.get(t) for t in tolerances] + [(r.recall_at_k or {}).get(k) for k in ks]
         if has_pr:
-            values += [r.auc_pr, r.recall_at_100_precision]
+            values += [r.auc_pr_vpr_bench, r.auc_pr_vpr_tutorial, r.recall_at_100_precision]
         cells = " ".join(f"{v:>9.3f}" if v is not None else f"{'-':>9}" for v in values)
         query = f"{r.query_time_s_per_query * 1e6:.1f}" if r.query_time_s_per_query is not None else "-"
         latency = f"{r.query_latency_s * 1e6:.1f}" if r.query_latency_s is not None else "-"
@@ -72,8 +75,9 @@ def format_table(results: Sequence[EvaluationResult]) -> str:
         within = f" (within {k_tol} frames)" if k_tol else ""
         notes.append(f"R@K: a correct place{within} among the top K ranked candidates")
     if has_pr:
-        notes.append("AUC-PR, R@100%P: precision-recall of accepting each query's top-1 match by its score "
-                     "(recall over all queries)")
+        notes.append("AUC-PR, R@100%P: precision-recall of accepting each query's top-1 match by its score")
+        notes.append("AUC-PR:VB as VPR-Bench computes it (recall over correct top-1 matches); AUC-PR:VT and "
+                     "R@100%P as VPR_Tutorial (recall over queries with a true place)")
     if any(r.reference for r in results):
         notes.append(f"{REFERENCE_MARK} reference (unbudgeted)")
     if any(r.uses_query_sequence for r in results):
@@ -99,7 +103,8 @@ def metrics_csv_text(results: Sequence[EvaluationResult]) -> str:
     ks = sorted({k for r in results for k in (r.recall_at_k or {})})
     header = ["method", "status", "reference", "uses_query_sequence", "budget", "n_map", "n_queries", "nbytes",
               "fit_time_s", "query_time_s_per_query", "query_latency_s", "n_threads"]
-    header += [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks] + ["auc_pr", "recall@100%precision", "reason"]
+    header += [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks]
+    header += ["auc_pr_vpr_bench", "auc_pr_vpr_tutorial", "recall@100%precision", "reason"]
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(header)
@@ -109,7 +114,7 @@ def metrics_csv_text(results: Sequence[EvaluationResult]) -> str:
                _fmt(r.query_latency_s), _fmt(r.n_threads)]
         row += [_fmt(r.recall.get(t)) for t in tolerances]
         row += [_fmt((r.recall_at_k or {}).get(k)) for k in ks]
-        row += [_fmt(r.auc_pr), _fmt(r.recall_at_100_precision)]
+        row += [_fmt(r.auc_pr_vpr_bench), _fmt(r.auc_pr_vpr_tutorial), _fmt(r.recall_at_100_precision)]
         row.append(r.reason or "")
         writer.writerow(row)
     return buffer.getvalue()

@@ -16,6 +16,7 @@ from ...exceptions import InvalidParameterError
 from ..records import EvaluationResult
 from ...core.storage import format_bytes
 from ._figure import _DPI, _FIGSIZE, _finish_recall_plot, _new_figure, _save
+from .styles import auto_label, method_styles
 from .sweeps import plot_recall_vs_storage
 
 __all__ = ["plot_recall_vs_tolerance", "plot_recall_at_k", "plot_run", "plot_precision_recall"]
@@ -50,6 +51,7 @@ def plot_recall_vs_tolerance(
         raise InvalidParameterError("nothing to plot: results is empty.")
     fig, ax = _new_figure()
     right = 0
+    styles = method_styles([_series(r) for r in results])
     for r in results:
         name = str(r.name)
         label = _legend_label(r)
@@ -57,19 +59,19 @@ def plot_recall_vs_tolerance(
         if curve is not None and len(curve):
             y = np.asarray(curve, dtype=float)
             x = np.arange(y.shape[0])
-            marker, drawstyle = None, "steps-post"  # recall is defined at whole frames only
+            every, drawstyle = max(1, y.size // 6), "steps-post"  # recall is defined at whole frames only
         else:
             recall = r.recall or {}
             if not recall:
                 raise InvalidParameterError(f"result {name!r} has neither a recall curve nor recall points.")
             pairs = sorted((int(t), float(v)) for t, v in recall.items())
             x, y = np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs])
-            marker, drawstyle = "o", "default"
+            every, drawstyle = 1, "default"
         if max_tolerance is not None:
             keep = x <= max_tolerance
             x, y = x[keep], y[keep]
         right = max(right, int(x.max()) if x.size else 0)
-        ax.plot(x, y, marker=marker, drawstyle=drawstyle, label=label, linestyle=_linestyle(r))
+        ax.plot(x, y, drawstyle=drawstyle, label=label, markevery=every, **styles[_series(r)].kwargs())
     ax.set_xlabel("tolerance t (frames)")
     ax.set_ylabel("recall@t")
     ax.set_ylim(0.0, 1.02)
@@ -87,7 +89,7 @@ def plot_recall_vs_tolerance(
 def _legend_label(r: EvaluationResult) -> str:
     """``name code=random (bytes)``; the parameters the user set, and what the reference row and
     sequence methods are."""
-    name = str(r.name)
+    name = auto_label(r.chosen_method) if r.chosen_method else str(r.name)
     settings = r.settings or {}
     if settings:
         name += " " + " ".join(f"{k}={v}" for k, v in sorted(settings.items()))
@@ -98,11 +100,6 @@ def _legend_label(r: EvaluationResult) -> str:
     if r.uses_query_sequence:
         notes.append("† query sequence")
     return f"{name} ({', '.join(notes)})" if notes else name
-
-
-def _linestyle(r: EvaluationResult) -> str:
-    """Dashed for rows that are not single-frame methods under the budget (reference, sequence)."""
-    return "--" if r.reference or r.uses_query_sequence else "-"
 
 
 def plot_recall_at_k(results: Sequence[EvaluationResult], path: str | os.PathLike, *, title: str | None = None) -> Figure:
@@ -126,8 +123,10 @@ def plot_recall_at_k(results: Sequence[EvaluationResult], path: str | os.PathLik
         raise InvalidParameterError("nothing to plot: no result has R@K.")
     fig, ax = _new_figure()
     ks = sorted({k for _, pts in series for k, _ in pts})
+    styles = method_styles([_series(r) for r, _ in series])
     for r, pts in series:
-        ax.plot([k for k, _ in pts], [v for _, v in pts], marker="o", label=_legend_label(r), linestyle=_linestyle(r))
+        ax.plot([k for k, _ in pts], [v for _, v in pts], label=_legend_label(r),
+                **styles[_series(r)].kwargs())
     ax.set_xticks(ks)
     ax.set_xlim(0.5, ks[-1] + 0.5)
     _finish_recall_plot(fig, ax, path, xlabel="K (ranked candidates)", ylabel="R@K", title=title)
@@ -136,7 +135,9 @@ def plot_recall_at_k(results: Sequence[EvaluationResult], path: str | os.PathLik
 
 
 def _series(r: EvaluationResult) -> str:
-    return str(r.series or r.name)
+    """The series a record belongs to (one style per series); ``auto → lsh`` for auto's rows."""
+    name = str(r.series or r.name)
+    return f"{name} → {r.chosen_method}" if r.chosen_method else name
 
 
 def _panels(results: Sequence[EvaluationResult]) -> list[tuple[int | None, list[EvaluationResult]]]:
@@ -160,8 +161,7 @@ def _run_figure(results: Sequence[EvaluationResult], path: Path, *, kind: str, t
 
     panels = _panels(results)
     series = list(dict.fromkeys(_series(r) for r in results))
-    colours = {name: f"C{i % 10}" for i, name in enumerate(series)}
-    markers = {name: "osD^v<>ph*"[i // 10 % 10] for i, name in enumerate(series)}
+    styles = method_styles(series)
     rows_of_legend = -(-max(len(members) for _, members in panels) // 2)
     width = min(6.4 * len(panels), 19.2)
     fig = Figure(figsize=(width, 4.0 + 0.2 * rows_of_legend), dpi=_DPI)
@@ -171,7 +171,7 @@ def _run_figure(results: Sequence[EvaluationResult], path: Path, *, kind: str, t
         right = 1
         for r in members:
             name = _series(r)
-            style = dict(color=colours[name], linestyle=_linestyle(r), label=_legend_label(r))
+            style = dict(styles[name].kwargs(), label=_legend_label(r))
             if kind == "tolerance":
                 curve = r.recall_curve
                 curve = np.asarray(curve if curve is not None else [], dtype=float)
@@ -180,14 +180,14 @@ def _run_figure(results: Sequence[EvaluationResult], path: Path, *, kind: str, t
                     # bytes) still show one marker of each.
                     index = series.index(name)
                     every = max(len(series), curve.size // 6)
-                    start = (index * max(1, every // len(series))) % every
-                    ax.plot(np.arange(curve.size), curve, drawstyle="steps-post", marker="osD^v<>ph*"[index % 10],
-                            markersize=4, markevery=(start, every), **style)
+                    start = min((index * max(1, every // len(series))) % every, curve.size - 1)
+                    ax.plot(np.arange(curve.size), curve, drawstyle="steps-post", markevery=(start, every),
+                            **{"markersize": 4, **style})
                     right = max(right, curve.size - 1)
             else:
                 pts = sorted((int(k), float(v)) for k, v in (r.recall_at_k or {}).items())
                 if pts:
-                    ax.plot([k for k, _ in pts], [v for _, v in pts], marker=markers[name], **style)
+                    ax.plot([k for k, _ in pts], [v for _, v in pts], **style)
                     right = max(right, pts[-1][0])
         if kind == "tolerance":
             ax.set_xlim(0, right)  # twice the largest reported tolerance, not a fixed 80 frames
@@ -277,12 +277,16 @@ def plot_run(results: Sequence[EvaluationResult], out_dir: str | os.PathLike, *,
     return written
 
 
-def plot_precision_recall(results: Sequence[EvaluationResult], path: str | os.PathLike, *, title: str | None = None) -> Figure:
-    """Precision (y) against recall (x) of accepting each query's top-1 match by its score, one curve per method.
+def plot_precision_recall(results: Sequence[EvaluationResult], path: str | os.PathLike, *,
+                          title: str | None = None) -> Figure:
+    """Precision (y) against recall (x) of accepting each query's top-1 match by its score, per method.
 
-    The legend gives each method's AUC-PR and recall at 100 % precision. Curves that coincide (two
-    methods with the same answers) stay visible: each method has its own marker, placed at
-    different points along the curve.
+    One point per distinct score threshold, joined by straight lines as VPR-Bench and VPR_Tutorial
+    draw them, so a curve never shows precision 1 beyond its recall at 100 % precision; a method
+    whose scores are all equal is one point. Recall is VPR_Tutorial's (over the queries with a true
+    place). The legend gives both AUC-PRs (:func:`~btel.evaluation.metrics.precision_recall`) and
+    R@100%P. Curves that coincide stay visible: each method has its own style
+    (:func:`~btel.evaluation.plots.styles.method_styles`), markers at different points.
 
     Parameters
     ----------
@@ -303,29 +307,38 @@ def plot_precision_recall(results: Sequence[EvaluationResult], path: str | os.Pa
     fig = Figure(figsize=(_FIGSIZE[0], _FIGSIZE[1] + 0.25 * len(series)), dpi=_DPI)
     FigureCanvasAgg(fig)
     ax = fig.add_subplot(1, 1, 1)
-    markers = "osD^v<>ph*"
+    styles = method_styles([_series(r) for r in series])
     for i, r in enumerate(series):
         curve = r.pr_curve
         recall, precision = np.asarray(curve["recall"], float), np.asarray(curve["precision"], float)
-        auc, perfect = r.auc_pr, r.recall_at_100_precision
-        label = _legend_label(r) + (f": AUC {auc:.3f}, R@100%P {perfect:.3f}" if auc is not None else "")
+        label = _legend_label(r) + _pr_note(r)
         n_marks = 6
-        start = (i * max(1, recall.size // (n_marks * len(series)))) % max(1, recall.size)
-        ax.plot(recall, precision, drawstyle="steps-post", color=f"C{i % 10}", linestyle=_linestyle(r),
-                marker=markers[i % len(markers)], markevery=(start, max(1, recall.size // n_marks)), markersize=5,
-                label=label)
+        every = max(1, recall.size // n_marks)
+        start = min((i * max(1, every // len(series))) % every, recall.size - 1)
+        ax.plot(recall, precision, markevery=(start, every) if recall.size > 2 * n_marks else None,
+                label=label, **{"markersize": 5, **styles[_series(r)].kwargs()})
     ax.set_xlim(0.0, 1.0)
     ax.set_ylim(0.0, 1.02)
     ax.grid(True, alpha=0.3)
-    ax.set_xlabel("recall (correct accepted top-1 matches / all queries)")
+    ax.set_xlabel("recall (correct accepted top-1 matches / queries with a true place)")
     ax.set_ylabel("precision")
-    ax.legend(fontsize="x-small", loc="upper center", bbox_to_anchor=(0.5, -0.14), frameon=False)  # never on a curve
+    # The legend below the axes: never on a curve.
+    ax.legend(fontsize="x-small", loc="upper center", bbox_to_anchor=(0.5, -0.14), frameon=False)
     if title:
         import textwrap
 
         ax.set_title(textwrap.fill(title, width=70), fontsize="small")
     _save(fig, path)
     return fig
+
+
+def _pr_note(r: EvaluationResult) -> str:
+    """``: AUC-PR 0.524 (VPR-Bench), 0.205 (VPR_Tutorial), R@100%P 0.000`` — what the record holds."""
+    parts = [f"{v:.3f} ({source})" for v, source in ((r.auc_pr_vpr_bench, "VPR-Bench"),
+                                                   (r.auc_pr_vpr_tutorial, "VPR_Tutorial")) if v is not None]
+    notes = ([f"AUC-PR {', '.join(parts)}"] if parts else []) + (
+        [f"R@100%P {r.recall_at_100_precision:.3f}"] if r.recall_at_100_precision is not None else [])
+    return f": {', '.join(notes)}" if notes else ""
 
 
 def _legend_label_short(r: EvaluationResult) -> str:

@@ -12,6 +12,7 @@ from matplotlib.figure import Figure
 from ...exceptions import InvalidParameterError
 from ..records import EvaluationResult
 from ._figure import _FIGSIZE, _bytes_axis, _finish_recall_plot, _new_figure, _recall_at, _save
+from .styles import method_styles
 
 __all__ = ["plot_recall_vs_storage", "plot_recall_vs_n", "plot_curves", "plot_parameter_sweep", "plot_method_bars",
            "curve_label"]
@@ -43,9 +44,10 @@ def _plot_rows(
         y = _recall_at(row.recall, tolerance, f"row {i} ({row.name})")
         series.setdefault(str(row.name), []).append((float(x), y))
     fig, ax = _new_figure()
+    styles = method_styles(list(series))
     for method, points in series.items():
         points.sort()
-        ax.plot([p[0] for p in points], [p[1] for p in points], marker="o", label=method)
+        ax.plot([p[0] for p in points], [p[1] for p in points], label=method, **styles[method].kwargs())
     for i, budget in enumerate(sorted(set(budgets))):
         ax.axvline(budget, color="grey", linestyle=":", linewidth=1, label="budget" if i == 0 else None)
     xs = [p[0] for points in series.values() for p in points] + list(budgets)
@@ -136,8 +138,10 @@ def plot_curves(
     if not curves:
         raise InvalidParameterError("nothing to plot: no curves.")
     fig, ax = _new_figure()
+    styles = method_styles(list(curves))
     for label, values in curves.items():
-        ax.step(np.arange(len(values)), values, where="post", label=label)
+        ax.plot(np.arange(len(values)), values, drawstyle="steps-post", label=label,
+                markevery=max(1, len(values) // 6), **{"markersize": 4, **styles[label].kwargs()})
     _finish_recall_plot(fig, ax, path, xlabel="tolerance t (frames)", ylabel=ylabel, title=title, credit=credit,
                         legend_size="x-small")
     return fig

@@ -5,8 +5,8 @@ from the recorded seed, subtract the mean of the rotated map (the centroid c) an
 residual r = x − c: one sign bit per dimension, plus B − 1 magnitude bits when B > 1, plus the
 per-row correction factors that make RaBitQ's distance estimate unbiased (‖r‖², ‖r‖ / ⟨x̄, r/‖r‖⟩,
 and for B > 1 an error bound and two factors of the extra bits). The query is rotated the same way
-and kept in float (faiss ``IndexRaBitQ`` with ``qb = 0``): an exact linear scan of the estimated
-L2 distances, score = −estimate.
+and kept in float (faiss ``IndexRaBitQ`` with ``qb = 0``): an exact linear scan of the estimated L2
+distances, score = −estimate.
 
 Storage (the one rule, SPEC §7): the rotation is regenerated from the seed (0 bytes, as LSH's
 projection and btel-codes' codewords); everything learned is counted at its stored width:
@@ -28,13 +28,7 @@ more bits per dimension only refine what is kept, so dimensions are bought first
 ``nbits`` pins that part; the rule chooses the rest. Without a budget: D = d, B = 1 (the original
 RaBitQ). Nothing fits (D = 8, B = 1): :class:`~btel.exceptions.BudgetTooSmallError`.
 
-Measured (``benchmarks/bench_rabitq.py``) against asymmetric LSH (``lsh``'s defaults) at the same
-budget. Gardens Point recall@2: 0.295 / 0.475 / 0.48 / 0.48 / 0.47 / 0.48 at 4 / 8 / 16 / 32 / 64 /
-128 KB against 0.445 / 0.50 / 0.455 / 0.44 / 0.48 / 0.49. 1000 synthetic independent places, R@1:
-– / 0.085 / 0.535 / 0.933 / 0.980 / 1.0 against 0.136 / 0.499 / 0.708 / 0.974 / 0.997 / 1.0.
-Nordland HOG (3576 places, 3780-D): nothing fits below 18 KB, R@1 0.004 / 0.027 / 0.083 at 32 / 64 /
-128 KB against 0.008 / 0.047 / 0.111. Where it loses, the 4 factor bytes per row and a rotation to D ≤ d dimensions cost
-more than LSH's extra bits.
+Against asymmetric LSH at the same budget: ``docs/decisions/rabitq.md``.
 """
 
 from __future__ import annotations
@@ -143,11 +137,12 @@ class RaBitQLocalizer(_RowLocalizer):
         per_row = -(-dim // 8) + -(-dim * (nbits - 1) // 8) + self._n_factors(nbits) * width
         return n_rows * per_row + dim * width
 
-    def choose_config(self, n_rows: int, n_features: int, budget: int | None, reserved: int = 0) -> tuple[int, int]:
+    def choose_config(self, n_rows: int, n_features: int, budget: int | None,
+                      reserved: int = 0) -> tuple[int, int]:
         """(D, B), the rotated dimensions and bits per dimension ``fit`` uses (module docstring)."""
         if self.dim is not None and self.dim > n_features:
-            raise InvalidParameterError(f"dim = {self.dim} exceeds the descriptor dimension {n_features} (after the "
-                                        f"front end); use dim ≤ {n_features}.")
+            raise InvalidParameterError(f"dim = {self.dim} exceeds the descriptor dimension {n_features} "
+                                        f"(after the front end); use dim ≤ {n_features}.")
         dims = [int(self.dim)] if self.dim is not None else _dims(n_features)
         bits = [int(self.nbits)] if self.nbits is not None else list(range(1, MAX_NBITS + 1))
         if budget is None:
@@ -188,7 +183,7 @@ class RaBitQLocalizer(_RowLocalizer):
         index.add(Y)
         codes = faiss.vector_to_array(index.codes).reshape(n_rows, index.code_size)
         s, e = -(-D // 8), -(-D * (B - 1) // 8)
-        factors = codes[:, s : s + 12].copy().view(np.float32) if B > 1 else codes[:, s:].copy().view(np.float32)
+        factors = (codes[:, s : s + 12] if B > 1 else codes[:, s:]).copy().view(np.float32)
         if B > 1:
             factors = np.hstack([factors, codes[:, s + 12 + e :].copy().view(np.float32)])
         with np.errstate(over="ignore"):
@@ -198,8 +193,9 @@ class RaBitQLocalizer(_RowLocalizer):
                    for a in (stored, self.centroid_)):
             raise InvalidDescriptorsError(
                 f"RaBitQ's correction factors of this map overflow their stored {dtype.name} or exceed "
-                f"{MAX_NORM:.0e} (they hold squared row lengths: rows longer than about 1e9 after the front end "
-                "are too long). Scale the descriptors down (normalize='none' stores float32 factors).")
+                f"{MAX_NORM:.0e} (they hold squared row lengths: rows longer than about 1e9 after the "
+                "front end are too long). Scale the descriptors down (normalize='none' stores float32 "
+                "factors).")
         self.signs_ = np.ascontiguousarray(codes[:, :s])
         self.ex_codes_ = np.ascontiguousarray(codes[:, s + 12 : s + 12 + e]) if B > 1 else None
         self.factors_ = stored
@@ -211,15 +207,19 @@ class RaBitQLocalizer(_RowLocalizer):
         index = faiss.IndexRaBitQ(D, faiss.METRIC_L2, B)
         expected = -(-D // 8) + -(-D * (B - 1) // 8) + 4 * self._n_factors(B)
         if index.code_size != expected:
-            raise BTELError(f"this faiss ({faiss.__version__}) lays out RaBitQ codes in {index.code_size} bytes, "
-                            f"not {expected}; btel's RaBitQ needs faiss-cpu ≥ 1.13.2 (verified on 1.15.1).")
+            raise BTELError(f"this faiss ({faiss.__version__}) lays out RaBitQ codes in "
+                            f"{index.code_size} bytes, not {expected}; btel's RaBitQ needs faiss-cpu "
+                            "≥ 1.13.2 (verified on 1.15.1).")
         index.qb = 0  # the query stays in float
         faiss.copy_array_to_vector(self.centroid_.astype(np.float32), index.center)
         index.is_trained = True
         return index
 
     def _build_index(self) -> Any:
-        """The faiss index re-assembled from the stored arrays (codes = signs | factors | ex-codes | ex-factors)."""
+        """The faiss index re-assembled from the stored arrays.
+
+        Its codes are signs | factors | ex-codes | ex-factors, row by row.
+        """
         index = self._empty_index()
         f = np.ascontiguousarray(self.factors_, dtype=np.float32)
         if self.nbits_ == 1:
@@ -232,13 +232,15 @@ class RaBitQLocalizer(_RowLocalizer):
 
     # -- inference -----------------------------------------------------------------------------
     def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        dist, rows = self._index.search(np.ascontiguousarray(np.asarray(Q, dtype=np.float32) @ self.rotation_), k)
+        rotated = np.ascontiguousarray(np.asarray(Q, dtype=np.float32) @ self.rotation_)
+        dist, rows = self._index.search(rotated, k)
         return np.negative(dist, dtype=np.float64), rows.astype(np.int64, copy=False)
 
     def summary(self) -> str:
         """One line: D, B, seed, factor width and the front end."""
-        return (f"rabitq: {self.dim_} rotated dimensions × {self.nbits_} bit(s), rotation from seed {self.seed_} "
-                f"(0 B), {self.factors_.dtype.name} factors; front end {self.front_end_.describe()}")
+        return (f"rabitq: {self.dim_} rotated dimensions × {self.nbits_} bit(s), rotation from seed "
+                f"{self.seed_} (0 B), {self.factors_.dtype.name} factors; "
+                f"front end {self.front_end_.describe()}")
 
     # -- storage and files ---------------------------------------------------------------------
     def _model_arrays(self) -> dict[str, np.ndarray]:
@@ -269,8 +271,8 @@ class RaBitQLocalizer(_RowLocalizer):
         n_rows = arrays["signs"].shape[0]
         if arrays["factors"].shape[0] != n_rows or (B > 1 and arrays["ex_codes"].shape[0] != n_rows) \
                 or (B == 1 and "ex_codes" in arrays):
-            raise ModelFileError("the RaBitQ model file's signs, factors and ex_codes do not have one row per map "
-                                 "row each (or it holds ex_codes for 1-bit codes).")
+            raise ModelFileError("the RaBitQ model file's signs, factors and ex_codes do not have one row "
+                                 "per map row each (or it holds ex_codes for 1-bit codes).")
         self.dim_, self.nbits_, self.seed_ = int(state["dim"]), B, int(state["seed"])
         self.signs_ = np.ascontiguousarray(arrays["signs"])
         self.ex_codes_ = np.ascontiguousarray(arrays["ex_codes"]) if B > 1 else None

@@ -14,7 +14,7 @@ depend on the batch it came in — and neither holds an unpacked copy of the cod
   buffers (at most 2 × BLOCK_VALUES float32) are kept per thread between scans.
 
 :data:`TABLE_QUERIES` is where the blocks' one matrix product per block starts to beat a table per
-query. Evidence: ``docs/decisions/lsh-projection.md`` (``benchmarks/bench_lsh_scan.py``).
+query. Evidence: ``docs/decisions/lsh-projection.md`` (``benchmarks/studies/lsh_projection_scan.py``).
 """
 
 from __future__ import annotations

@@ -3,18 +3,17 @@
 BTEL's tree code is the smallest member of the error-correcting output codes (Dietterich & Bakiri
 1995): place i gets a codeword c_i ∈ {−1, +1}^K, one linear model per column predicts it, and a
 query is decoded to the place whose codeword agrees best with the K predicted scores
-(:mod:`btel.methods.codes.estimator`). The codewords here are *implicit*: a pure function of the place index, the
-family, N, K and a seed, so a model stores its K·d' weights and no codebook (0 bytes; the family,
-K and seed are in the model header), and :meth:`Codebook.codewords` regenerates any rows on demand —
-in chunks, so a million places × K columns is never held at once.
+(:mod:`btel.methods.codes.estimator`). The codewords here are *implicit*: a pure function of the
+place index, the family, N, K and a seed, so a model stores its K·d' weights and no codebook (0
+bytes; the family, K and seed are in the model header), and :meth:`Codebook.codewords` regenerates
+any rows on demand — in chunks, so a million places × K columns is never held at once.
 
 Families (``c_ik`` is column k of place i):
 
 - ``binary`` — the paper's BTE-C code, K = b = ⌈log2 N⌉: column j is bit j (MSB first) of i,
   +1 for a 1 bit (:func:`btel.methods.btel.compressed.code_signs` with one copy).
-- ``offset`` — BTE-C's offset (error-correcting) codes: the first K columns of the BTE-C code with
-  the fewest copies m that has at least K columns (:func:`btel.methods.btel.compressed.compressed_code`); for
-  K = ``compressed_n_classifiers(N, m)`` it is exactly ``code_signs(N, m)``. At most
+- ``offset`` — BTE-C's offset codes: the first K columns of the BTE-C code with the fewest copies m
+  that has at least K columns (:func:`btel.methods.btel.compressed.compressed_code`); at most
   ``max_columns('offset', N)`` distinct columns exist (m ≤ 256).
 - ``periodic`` — multi-scale square waves in quadrature pairs: frequency h has period
   P_h = exp(log 4 + u_h·(log P_max − log 4)), P_max = max(N, 8), with u_h stratified in
@@ -24,16 +23,16 @@ Families (``c_ik`` is column k of place i):
   places share most of their codeword (errors stay local), and the quadrature pair makes the
   code's kernel E[c_i·c_j] a function of |i − j| only. Stratified periods and quadrature pairs
   approximate that kernel with fewer columns than independent draws.
-- ``blocks`` — random contiguous-block codes at many scales: column k cuts the route into blocks
-  of L_k places (log-uniform stratified in [1, N/8], so at least 8 blocks) at a random offset, and
-  colours exactly half of the blocks +1 (a keyed permutation of the blocks). L = 1 is a random code; long blocks are
-  BTE-C-like splits with random boundaries. E[c_i·c_j] ≈ max(0, 1 − |i − j|/L) averaged over scales.
+- ``blocks`` — random contiguous-block codes at many scales: column k cuts the route into blocks of
+  L_k places (log-uniform stratified in [1, N/8], so at least 8 blocks) at a random offset, and
+  colours exactly half of the blocks +1 (a keyed permutation of the blocks). L = 1 is a random code;
+  long blocks are BTE-C-like splits with random boundaries. E[c_i·c_j] ≈ max(0, 1 − |i − j|/L)
+  averaged over scales.
 - ``random`` — random codes: every (place, column) bit is an independent fair coin (bits of a
   counter-based hash: one hash per 64 columns of a place, or one per bit under the rule of older
   model files; :mod:`btel.methods.codes.hashing`), so columns are balanced in expectation (within
-  about ±√N/2 places) and neighbouring places share nothing. No route structure: for maps whose rows are independent places rather
-  than a route. (An exactly balanced column would need a permutation of all N places per column;
-  evaluating a keyed permutation per element was 30× slower to decode at N = 10⁶.)
+  about ±√N/2 places; ``docs/decisions/codes-families.md`` says why not exactly) and neighbouring
+  places share nothing. No route structure: for maps of independent places rather than a route.
 
 Every number drawn from the seed comes from a counter-based hash (splitmix64 of seed, family,
 column, stream), not from a stateful generator, and every code is evaluated with exact integer or
@@ -52,8 +51,8 @@ import numpy as np
 from ..btel.compressed import compressed_code, compressed_n_classifiers
 from ..btel.encoding import n_bits_for
 from ...exceptions import InvalidParameterError
-from .hashing import (CURRENT_RULE, RULES, buffer, grouped_packed, grouped_positive, hash_keys, keyed_permutation,
-                      per_bit_positive)
+from .hashing import (CURRENT_RULE, RULES, buffer, grouped_packed, grouped_positive, hash_keys,
+                      keyed_permutation, per_bit_positive)
 
 __all__ = ["FAMILIES", "ROUTE_FAMILIES", "Codebook", "max_columns", "keyed_permutation", "hash_uniform"]
 
@@ -73,12 +72,15 @@ _STREAMS = {"period": 1, "phase": 2, "scale": 3, "offset": 4, "permutation": 5}
 _FAMILY_IDS = {name: i + 1 for i, name in enumerate(FAMILIES)}
 #: Elements (rows × columns) generated at a time by :meth:`Codebook.iter_blocks` (uint64 work arrays of 4 MB).
 _BLOCK_ELEMENTS = 1 << 19
-#: Shortest block whose periodic sums :meth:`Codebook.block_sums` counts in closed form (shorter: summing is as fast).
+#: Shortest block whose periodic sums :meth:`Codebook.block_sums` counts in closed form
+#: (shorter: summing is as fast).
 _CLOSED_FORM_BLOCK = 8
 
 
-def _periodic_positive(i: np.ndarray, frequency: np.ndarray, phase: np.ndarray, work: dict | None) -> np.ndarray:
-    """(n, K) bool: place i's periodic column k is +1, i.e. (i·F_k + Φ_k) mod 2⁶⁴ < 2⁶³, for places i (n, 1) int64."""
+def _periodic_positive(i: np.ndarray, frequency: np.ndarray, phase: np.ndarray,
+                       work: dict | None) -> np.ndarray:
+    """(n, K) bool: place i's periodic column k is +1, i.e. (i·F_k + Φ_k) mod 2⁶⁴ < 2⁶³, for places
+    i (n, 1) int64."""
     shape = (i.shape[0], frequency.size)
     with np.errstate(over="ignore"):
         t = np.multiply(i.astype(_U64), frequency, out=buffer(work, "z", shape, _U64))
@@ -99,7 +101,8 @@ def _offset_copies(n_places: int, n_codes: int) -> int:
         if compressed_n_classifiers(n_places, m) >= n_codes:
             return m
     raise InvalidParameterError(
-        f"the offset family has at most {max_columns('offset', n_places)} distinct columns for N = {n_places}; "
+        f"the offset family has at most {max_columns('offset', n_places)} distinct columns for "
+        f"N = {n_places}; "
         f"got n_codes = {n_codes}. Use fewer codes or the periodic family."
     )
 
@@ -158,13 +161,15 @@ class Codebook:
             raise InvalidParameterError(f"a codebook needs N ≥ 2 places; got {n}.")
         low, high = min_columns(self.family, n), max_columns(self.family, n)
         if self.family == "binary" and k != low:
-            raise InvalidParameterError(f"the binary family has exactly b = {low} columns for N = {n}; got {k}.")
+            raise InvalidParameterError(
+                f"the binary family has exactly b = {low} columns for N = {n}; got {k}.")
         if not low <= k <= high:
             raise InvalidParameterError(
                 f"the {self.family} family takes K in [{low}, {high}] columns for N = {n}; got {k}.")
         if int(self.seed) < 0:
             raise InvalidParameterError(f"the code seed must be ≥ 0; got {self.seed}.")
-        if isinstance(self.rule, bool) or not isinstance(self.rule, (int, np.integer)) or self.rule not in RULES:
+        if (isinstance(self.rule, bool) or not isinstance(self.rule, (int, np.integer))
+                or self.rule not in RULES):
             raise InvalidParameterError(f"the code rule must be one of {RULES}; got {self.rule!r}.")
         object.__setattr__(self, "rule", int(self.rule) if self.family == "random" else CURRENT_RULE)
         object.__setattr__(self, "_params", self._column_parameters())
@@ -201,7 +206,8 @@ class Codebook:
             offset = np.floor(hash_uniform(seed, self.family, "offset", column) * length).astype(np.int64)
             n_blocks = (n - 1 + offset) // length + 1
             return {"block": length, "offset": offset, "n_blocks": n_blocks,
-                    "key": hash_keys(seed, _FAMILY_IDS["blocks"], column), "length": length.astype(np.float64)}
+                    "key": hash_keys(seed, _FAMILY_IDS["blocks"], column),
+                    "length": length.astype(np.float64)}
         if self.rule == 1:  # a key per column
             return {"key": hash_keys(seed, _FAMILY_IDS["random"], column), "length": np.ones(k)}
         # A key per group of 64 columns (another key chain than rule 1's).
@@ -254,12 +260,14 @@ class Codebook:
         out -= np.int8(1)
         return out
 
-    def packed(self, places: np.ndarray, out: np.ndarray | None = None, work: dict | None = None) -> np.ndarray:
-        """Packed codewords of the given places: +1 → bit 1, column j in bit j % 8 of byte j // 8, unused high bits
-        of the last byte 0 (``np.packbits(codewords(places) > 0, axis=1, bitorder='little')``).
+    def packed(self, places: np.ndarray, out: np.ndarray | None = None,
+               work: dict | None = None) -> np.ndarray:
+        """Packed codewords of the given places: +1 → bit 1, column j in bit j % 8 of byte j // 8,
+        unused high bits of the last byte 0
+        (``np.packbits(codewords(places) > 0, axis=1, bitorder='little')``).
 
-        The random family's current rule writes its hashes' bytes (:func:`~btel.methods.codes.hashing.grouped_packed`):
-        no ±1 codewords and no bit packing.
+        The random family's current rule writes its hashes' bytes
+        (:func:`~btel.methods.codes.hashing.grouped_packed`): no ±1 codewords and no bit packing.
 
         Parameters
         ----------
@@ -326,7 +334,8 @@ class Codebook:
             yield a, b, self.codewords(np.arange(a, b), work=work)
 
     def block_signs(self, block: int) -> np.ndarray:
-        """Per block of ``block`` consecutive places: +1 / −1 where a column is constant on it, 0 where it varies.
+        """Per block of ``block`` consecutive places: +1 / −1 where a column is constant on it, 0 where
+        it varies.
 
         The blocks are places [j·B, min(N, (j + 1)·B)). The periodic family is answered in closed form
         from its fixed-point phases (no codeword is generated: milliseconds at N = 10⁶): column k is
@@ -386,13 +395,15 @@ class Codebook:
         rows = max(block, (_BLOCK_ELEMENTS // max(self.n_codes, 1)) // block * block)
         for a, b, codes in self.iter_blocks(rows=rows):  # a is a multiple of block
             full, j = (b - a) // block, a // block
-            out[j : j + full] = codes[: full * block].reshape(full, block, self.n_codes).sum(axis=1, dtype=np.int32)
+            whole = codes[: full * block].reshape(full, block, self.n_codes)
+            out[j : j + full] = whole.sum(axis=1, dtype=np.int32)
             if full * block < b - a:  # the shorter last block
                 out[j + full] = codes[full * block :].sum(axis=0, dtype=np.int32)
         return out
 
     def _periodic_counts(self, block: int, n_blocks: int) -> np.ndarray:
-        """Positive places per (block, column) of the periodic family, for the first ``n_blocks`` blocks of B places.
+        """Positive places per (block, column) of the periodic family, for the first ``n_blocks``
+        blocks of B places.
 
         Place a + i of column k is positive iff (T + i·F) mod 2⁶⁴ < 2⁶³, with T = a·F + Φ the block's
         start phase. As a function of T, place i is positive on the circular half-open interval
@@ -412,9 +423,11 @@ class Codebook:
                 on = np.sort(_U64(0) - step)
                 off = np.sort(on + half)
                 # count(0) − #{s_i = 0} + #{e_i = 0}: then #{s_i ≤ T} − #{e_i ≤ T} adds the rest.
-                base = int(np.count_nonzero(step < half) - np.count_nonzero(on == 0) + np.count_nonzero(off == 0))
+                base = int(np.count_nonzero(step < half) - np.count_nonzero(on == 0)
+                           + np.count_nonzero(off == 0))
                 t = a * f + phi
-                out[:, k] = base + np.searchsorted(on, t, side="right") - np.searchsorted(off, t, side="right")
+                out[:, k] = (base + np.searchsorted(on, t, side="right")
+                             - np.searchsorted(off, t, side="right"))
         return out
 
     def to_header(self) -> dict[str, int | str]:

@@ -1,46 +1,39 @@
 """BTEL beyond the binary index: K ≥ b implicit output codes, fitted to a byte budget.
 
-:class:`CodeLocalizer` generalises BTE-C (:mod:`btel.methods.btel.compressed`) from the b bits of a place's
-index to K ≥ b code columns (error-correcting output codes, Dietterich & Bakiri 1995):
+:class:`CodeLocalizer` generalises BTE-C (:mod:`btel.methods.btel.compressed`) from the b bits of
+a place's index to K ≥ b code columns (error-correcting output codes, Dietterich & Bakiri 1995):
 
-1. place i has a codeword c_i ∈ {−1, +1}^K from a family (:mod:`btel.methods.codes.codebook`: ``periodic``,
-   ``blocks``, ``random``, and BTE-C's own ``binary`` and ``offset`` codes), regenerated from
-   (family, N, K, seed) — never stored;
+1. place i has a codeword c_i ∈ {−1, +1}^K from a family (:mod:`btel.methods.codes.codebook`:
+   ``periodic``, ``blocks``, ``random``, and BTE-C's own ``binary`` and ``offset`` codes),
+   regenerated from (family, N, K, seed) — never stored;
 2. one linear model per column predicts it from the descriptor, all K fitted as one multi-output
-   ridge problem in closed form (or one liblinear SVM per column; :mod:`btel.methods.codes.solvers`), on
-   d' shared columns of largest variance;
-3. the weights are stored at 32, 16, 8 or 4 bits with one scale per column (:mod:`btel.methods.codes.quantise`);
+   ridge problem in closed form (or one liblinear SVM per column;
+   :mod:`btel.methods.codes.solvers`), on d' shared columns of largest variance;
+3. the weights are stored at 32, 16, 8 or 4 bits with one scale per column
+   (:mod:`btel.methods.codes.quantise`);
 4. a query's K margins m are decoded softly over every place: score_i = m · c_i (the Gaussian
    log-likelihood of the margins up to a constant). The exact top k is found by the cheapest
-   exact path for the shape (:func:`btel.methods.codes.decoding.choose_path`, a measured rule): on small
-   maps one dense product with the float32 codewords (cached when N·8⌈K/8⌉·4 ≤ 32 MB); on
-   larger ones a bounded search over blocks of consecutive places (:mod:`btel.methods.codes.decoding`:
-   per-block upper bounds from the columns constant on the block, blocks scored in order of
-   their bound — from the float32 codewords while cached, else from packed ones, N·⌈K/8⌉ bytes
-   filled on demand, never stored — until no unscored block can beat the k-th best); batches take the dense product when a probe
+   exact path for the shape (:func:`btel.methods.codes.decoding.choose_path`, a measured rule):
+   on small maps one dense product with the float32 codewords (cached when N·8⌈K/8⌉·4 ≤ 32 MB);
+   on larger ones a bounded search over blocks of consecutive places
+   (:mod:`btel.methods.codes.decoding`: per-block upper bounds from the columns constant on the
+   block, blocks scored in order of their bound until none left can beat the k-th best, from
+   packed codewords filled on demand, never stored); batches take the dense product when a probe
    of their first queries says it is cheaper; the 'random' family (no blocks to bound) uses
-   faiss' packed PQ scan past the dense cache. ``place_scores`` is the same sum as a matrix
-   product in blocks of places. ``rank``, the HMM decoder and streaming come from the base class
-   (:class:`btel.methods.base.PlaceLocalizer`) on top of them. Long maps of route families are decoded
-   coarse to fine (``decode``; approximate): the codebook at inference is
-   :mod:`btel.methods.codes.codewords`.
+   faiss' packed PQ scan. ``place_scores`` is the same sum as a matrix product in blocks of
+   places; ``rank``, the HMM decoder and streaming come from the base class
+   (:class:`btel.methods.base.PlaceLocalizer`). Long maps of route families are decoded coarse to
+   fine (``decode``; approximate): the codebook at inference is :mod:`btel.methods.codes.codewords`.
 
 Storage is K·d' weights (plus K scales and biases, and d' column indices), independent of N, so it
 stays sub-linear, and K is the dial that turns bytes into accuracy: the budget planner
 (:mod:`btel.methods.codes.planning`) picks K, d' and the weight width that fill the budget; the
 model file is :mod:`btel.methods.codes.model_file`.
 
-**Relation to BTELocalizer.** ``btel-c`` (:class:`btel.methods.btel.localizer.BTELocalizer`) stays the paper's
-BTE-C, unchanged. This is a separate estimator rather than another option of ``BTELocalizer``: its
-solver (multi-output ridge), storage (quantised weights, shared columns), planner and decoder
-differ in every part, and only the codes themselves are shared — ``code='binary'`` and
-``code='offset'`` regenerate exactly the columns of BTE-C's plain and offset codes. What does not
-compose: **regions** (BTEL's KTS regions with a region classifier and one tree each) — the
-long-period code columns already play the region classifier's part (a coarse position along the
-route), and per-region codes would multiply the weights by r; **per-classifier feature selection**
-(BCSS / Witten–Tibshirani) — K × d' column indices would cost more than 4-bit weights; the kept
-columns are shared instead. The **sequence filter** and the **HMM decoder** compose: they read
-``predict`` and ``place_scores``.
+**Relation to BTELocalizer.** ``btel-c`` (:class:`btel.methods.btel.localizer.BTELocalizer`) stays
+the paper's BTE-C, unchanged; ``code='binary'`` and ``code='offset'`` regenerate its columns exactly.
+Regions and per-classifier feature selection do not compose with the codes, on purpose; the
+sequence filter and the HMM decoder do (``docs/decisions/codes-families.md``).
 """
 
 from __future__ import annotations
@@ -213,19 +206,20 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
             raise InvalidParameterError("scheduler only applies with backend='dask'.")
         if self.decode == "coarse" and self.code != "auto" and self.code not in ROUTE_FAMILIES:
             raise InvalidParameterError(
-                f"decode='coarse' needs codes that change slowly along the route ({', '.join(ROUTE_FAMILIES)}); "
-                f"the {self.code} family has none. Use decode='exact'.")
+                "decode='coarse' needs codes that change slowly along the route "
+                f"({', '.join(ROUTE_FAMILIES)}); the {self.code} family has none. Use decode='exact'.")
 
     def _choose_family(self, X: np.ndarray, places: np.ndarray | None) -> tuple[str, str]:
-        """The code family and why: ``code`` itself, or for 'auto' periodic on a route or an ordered map, random
-        on independent places."""
+        """The code family and why: ``code`` itself, or for 'auto' periodic on a route or an ordered
+        map, random on independent places."""
         if self.code != "auto":
             return self.code, "given"
         from ..auto import index_order
 
         order = index_order(X, places)
         family = "random" if order.kind == "independent" else "periodic"
-        kind = {"route": "a route", "ordered": "an ordered map", "independent": "independent places"}[order.kind]
+        kinds = {"route": "a route", "ordered": "an ordered map", "independent": "independent places"}
+        kind = kinds[order.kind]
         return family, f"code='auto': {kind} ({order.why}) → {family}"
 
     def _plan(self, n_places: int, d: int, budget: int | None, reserved: int,
@@ -283,8 +277,9 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
         if self.solver == "ridge":
             fitted = fit_ridge_codes(X, cols, codebook, places, alpha=self.alpha, **common)
         else:
-            fitted = fit_liblinear_codes(X, cols, codebook, places, C=float(self.C), max_iter=int(self.max_iter),
-                                         random_state=self.random_state, **common)
+            fitted = fit_liblinear_codes(X, cols, codebook, places, C=float(self.C),
+                                         max_iter=int(self.max_iter), random_state=self.random_state,
+                                         **common)
         weights = quantise(fitted.weights, plan.bits)
         # The bias from the stored weights, so quantisation does not shift every margin by (w − w_q)·μ.
         stored = weights.dequantise().astype(np.float64)

@@ -5,8 +5,8 @@ the (front-end transformed) map, written as ``margin_k(x) = (x − μ)·w_k + c_
 column means — so that the estimator can quantise w and fold μ into a bias afterwards
 (``bias_k = c_k − μ·w_k`` computed from the *stored* weights, as :mod:`btel.learning.linear` does).
 
-**Ridge** (``solver='ridge'``, the default of :class:`btel.methods.codes.estimator.CodeLocalizer`): all K columns
-solve one least-squares problem with a shared regulariser,
+**Ridge** (``solver='ridge'``, the default of :class:`btel.methods.codes.estimator.CodeLocalizer`):
+all K columns solve one least-squares problem with a shared regulariser,
 
     W = argmin ‖X_c W − C_c‖² + α‖W‖²,   X_c = X − μ (rows), C_c = C − c̄ (codes ±1, centred),
 
@@ -18,35 +18,10 @@ without holding the (n, K) code matrix (a million places × 1024 columns would b
 column groups are independent tasks on threads, processes or a Dask cluster
 (:func:`btel.learning.distributed.fit_backend`), like BTEL's classifier fits.
 
-Regularisation rule (fixed in advance, not tuned on any reported query):
-``α = ρ · tr(X_cᵀX_c) / rank`` — ρ = 0.1 times the mean non-zero eigenvalue of the centred Gram
-matrix, so the rule is invariant to the scale of the descriptors. ρ was first chosen on synthetic
-routes (N = 2000, d = 256, appearance change 0.3 and 0.8, where ρ ∈ [0.01, 0.1] was best and ρ ≥ 1
-lost up to half the recall within 2 frames) before it was run on the reported data, as 0.03; on
-Gardens Point the whole range ρ ∈ [0.003, 0.3] gave recall within 2 frames 0.58–0.62 at K = 128
-(within the noise of 200 queries). Generalised cross-validation on the map chose ρ ≈ 0.3–1, i.e. it
-favours the smoothing that predicts a held-out *map* frame from its neighbours, not the
-decorrelation between places that helps a query under another condition; it is therefore not the
-default.
-
-ρ = 0.1, the top of that range, since the frontier experiment mapped Gardens Point in both
-directions: a small α lets the ridge lean on the map's quiet directions, which the night map has
-and the day queries fill, so mapped at night the codes lost to LSH at every budget. Periodic codes
-at ρ = 0.03 / 0.1 / 0.3 on every route map of ``btel experiment frontier`` (three seeds, recall@2;
-Nordland recall@10; 1 / 4 / 16 / 64 / 256 KB; ``python benchmarks/bench_codes_ridge.py``):
-
-- Gardens Point by day: 0.318 / 0.328 / 0.345, 0.473 / 0.467 / 0.460, 0.580 / 0.578 / 0.538,
-  0.652 / 0.633 / 0.632, 0.633 / 0.628 / 0.620;
-- Gardens Point at night: 0.248 / 0.263 / 0.285, 0.390 / 0.418 / 0.453, 0.495 / 0.532 / 0.562,
-  0.508 / 0.588 / 0.633, 0.502 / 0.598 / 0.640;
-- Nordland HOG: within −0.003 … +0.008 of ρ = 0.03 at 0.1 in both directions (+0.010 … +0.015 at
-  0.3 from 64 KB);
-- the synthetic route: −0.004 … +0.007 at 0.1, down to −0.025 at 0.3.
-
-ρ = 0.1 moves no development cell down by more than 0.019 (Gardens Point by day at 64 KB) and the
-night-mapped route up by 0.015 … 0.096; ρ = 0.3 would cost the day map 0.042 at 16 KB. On the
-synthetic routes of ``benchmarks/bench_cone_route.py`` and ``bench_ordered_snippets.py`` the codes
-moved by +0.006 and +0.012 on average (−0.015 … +0.056 per row).
+Regularisation rule (fixed in advance, the same on every map): ``α = ρ · tr(X_cᵀX_c) / rank`` —
+ρ = :data:`RELATIVE_ALPHA` (0.1) times the mean non-zero eigenvalue of the centred Gram matrix, so the
+rule is invariant to the scale of the descriptors. Why 0.1 and not the value generalised
+cross-validation picks, with the study's table: ``docs/decisions/codes-ridge.md``.
 
 **liblinear** (``solver='liblinear'``): one linear SVM per column on the column's sign
 (:func:`btel.learning.training.fit_tasks`, standardised columns folded into the weights), the K fits in

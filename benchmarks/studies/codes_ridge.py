@@ -9,7 +9,7 @@ is reported against 0.1, paired by seed. ρ is set through
 :data:`btel.methods.codes.solvers.RELATIVE_ALPHA` (restored afterwards): it is a rule, not a parameter
 of the estimator. One BLAS thread.
 
-    python benchmarks/bench_codes_ridge.py      # ≈ 1 min on 2 shared cores
+    python benchmarks/studies/codes_ridge.py      # ≈ 1 min on 2 shared cores
 
 Writes ``benchmarks/results/bench_codes_ridge.json`` and prints the table.
 """
@@ -59,9 +59,9 @@ def main() -> None:
                 values = {}
                 for rho in RHOS:
                     with ridge_rho(rho):
-                        values[rho] = [key_recall(make_method("btel-codes", budget=budget, code="periodic",
-                                                              random_state=seed).fit(X).predict(Q), base["key"])
-                                       for seed in range(args.seeds)]
+                        models = [make_method("btel-codes", budget=budget, code="periodic", random_state=seed)
+                                  for seed in range(args.seeds)]
+                        values[rho] = [key_recall(model.fit(X).predict(Q), base["key"]) for model in models]
                 row = {"dataset": base["dataset"], "key": base["key"], "budget": budget,
                        "values": {str(rho): v for rho, v in values.items()},
                        "versus_rule": {str(rho): paired_difference(values[rho], values[rule])

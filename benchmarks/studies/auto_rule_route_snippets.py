@@ -10,7 +10,7 @@ the route share, the continuity, auto's choice, and recall@0 (exact place, the s
 fair tolerance) of periodic codes, LSH and whitened LSH at 4, 16 and 64 KB (seeds 0 … ``--seeds`` − 1)
 and of auto.
 
-    python benchmarks/bench_route_snippets.py      # ≈ 1 min on 2 shared cores
+    python benchmarks/studies/auto_rule_route_snippets.py      # ≈ 1 min on 2 shared cores
 
 Writes ``benchmarks/results/bench_route_snippets.json`` and prints the table.
 """
@@ -38,7 +38,7 @@ CANDIDATES = (("codes", "btel-codes", {"code": "periodic"}), ("lsh", "lsh", {}),
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3)
-    parser.add_argument("--data", type=Path, default=Path(__file__).resolve().parent.parent.parent / "shared" / "data"
+    parser.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[3] / "shared" / "data"
                         / "gardenspoint_netvlad" / "hiddenRepr-GardensPoint.npz")
     args = parser.parse_args()
     with np.load(args.data, allow_pickle=False) as z:

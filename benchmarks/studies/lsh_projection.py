@@ -9,9 +9,9 @@ Nordland, recall@0 on maps of independent places). The table gives the mean over
 difference hadamard − orthogonal with its standard error (runs paired by seed; the projections draw
 different random numbers, so the pairing removes no variance). One BLAS and one faiss thread.
 
-    python benchmarks/bench_lsh_projection.py             # ≈ 5 min on 2 shared cores
-    python benchmarks/bench_lsh_projection.py --quick     # Gardens Point and small synthetic maps
-    python benchmarks/bench_lsh_projection.py --seeds 20 --maps permuted,"synthetic route" \
+    python benchmarks/studies/lsh_projection.py             # ≈ 5 min on 2 shared cores
+    python benchmarks/studies/lsh_projection.py --quick     # Gardens Point and small synthetic maps
+    python benchmarks/studies/lsh_projection.py --seeds 20 --maps permuted,"synthetic route" \
         --budgets 4KB,16KB,64KB --name bench_lsh_projection_seeds20     # more seeds on chosen cells
 
 Writes ``benchmarks/results/<name>.json`` (default ``bench_lsh_projection``) and prints the table (the

@@ -12,8 +12,8 @@ scoring, its default projection) under seeds 0 … ``--seeds`` − 1, on
 
 P is the plain LSH's bits per row (8 · budget / N). One BLAS and one faiss thread.
 
-    python benchmarks/bench_lsh_whitening.py               # ≈ 4 min on 2 shared cores
-    python benchmarks/bench_lsh_whitening.py --frontier    # and the frontier's maps
+    python benchmarks/studies/auto_rule_lsh_whitening.py               # ≈ 4 min on 2 shared cores
+    python benchmarks/studies/auto_rule_lsh_whitening.py --frontier    # and the frontier's maps
 
 Writes ``benchmarks/results/bench_lsh_whitening.json`` and prints the table.
 """

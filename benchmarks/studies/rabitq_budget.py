@@ -19,8 +19,8 @@ Maps (query j is place j in every one):
 A budget a method cannot meet is a "does not fit" cell (its BudgetTooSmallError), never an abort.
 One BLAS and one faiss thread throughout (the machine is shared).
 
-    python benchmarks/bench_rabitq.py            # ≈ 10 min on 2 shared cores
-    python benchmarks/bench_rabitq.py --quick    # Gardens Point and the synthetic map only
+    python benchmarks/studies/rabitq_budget.py            # ≈ 10 min on 2 shared cores
+    python benchmarks/studies/rabitq_budget.py --quick    # Gardens Point and the synthetic map only
 
 Writes ``benchmarks/results/bench_rabitq.json`` (every cell) and prints the tables.
 """
@@ -41,7 +41,7 @@ from btel.methods import make_method
 from btel.core.storage import parse_budget
 from btel.core.threads import limit_threads
 
-HERE = Path(__file__).resolve().parent
+HERE = Path(__file__).resolve().parents[1]  # benchmarks/
 BUDGETS = ("4KB", "8KB", "16KB", "32KB", "64KB", "128KB")
 BUDGETED = (("rabitq", "rabitq", {}), ("rabitq shrink", "rabitq", {"whiten": "shrink"}), ("lsh", "lsh", {}),
             ("lsh shrink", "lsh", {"whiten": "shrink"}),
@@ -68,14 +68,16 @@ def maps(shared: Path, cache: Path, quick: bool) -> list[tuple[str, np.ndarray, 
     return out
 
 
-def cell(name: str, params: dict[str, Any], X: np.ndarray, Q: np.ndarray, budget: int | None) -> dict[str, Any]:
+def cell(name: str, params: dict[str, Any], X: np.ndarray, Q: np.ndarray,
+         budget: int | None) -> dict[str, Any]:
     model = make_method(name, **({"budget": budget} if budget else {}), **params)
     start = time.perf_counter()
     try:
         result = evaluate(model, X, Q, tolerances=(0, 2, 10), ks=(), budget=budget, timing_repeats=1)
     except BudgetTooSmallError as exc:
         return {"status": "does not fit", "minimum": exc.minimum}
-    row = {"status": "ok", "nbytes": int(model.nbytes), **{f"recall@{t}": float(v) for t, v in result.recall.items()},
+    row = {"status": "ok", "nbytes": int(model.nbytes),
+           **{f"recall@{t}": float(v) for t, v in result.recall.items()},
            "fit_s": result.fit_time_s, "wall_s": time.perf_counter() - start}
     if name == "rabitq":
         row["dim"], row["nbits"] = int(model.dim_), int(model.nbits_)
@@ -84,7 +86,8 @@ def cell(name: str, params: dict[str, Any], X: np.ndarray, Q: np.ndarray, budget
 
 def table(rows: list[dict[str, Any]], dataset: str, key: str) -> str:
     labels = [label for label, _, _ in BUDGETED + REFERENCES]
-    lines = [f"{dataset}: {key}", "| method | " + " | ".join(BUDGETS) + " |", "|---" * (len(BUDGETS) + 1) + "|"]
+    lines = [f"{dataset}: {key}", "| method | " + " | ".join(BUDGETS) + " |",
+             "|---" * (len(BUDGETS) + 1) + "|"]
     for label in labels:
         cells = []
         for b in BUDGETS:
@@ -114,13 +117,13 @@ def main() -> None:
                                  **cell(name, params, X, Q, budget)})
                     print(json.dumps(rows[-1], ensure_ascii=False), flush=True)
             for label, name, params in REFERENCES:
-                rows.append({"dataset": dataset, "n_places": int(X.shape[0]), "d": int(X.shape[1]), "method": label,
-                             "registry_name": name, "options": params, "budget": None,
+                rows.append({"dataset": dataset, "n_places": int(X.shape[0]), "d": int(X.shape[1]),
+                             "method": label, "registry_name": name, "options": params, "budget": None,
                              **cell(name, params, X, Q, None)})
                 print(json.dumps(rows[-1], ensure_ascii=False), flush=True)
             args.out.write_text(json.dumps({"rows": rows, "budgets": BUDGETS}, indent=1, ensure_ascii=False))
-    args.out.write_text(json.dumps({"rows": rows, "budgets": BUDGETS, "wall_s": time.perf_counter() - started},
-                                   indent=1, ensure_ascii=False))
+    summary = {"rows": rows, "budgets": BUDGETS, "wall_s": time.perf_counter() - started}
+    args.out.write_text(json.dumps(summary, indent=1, ensure_ascii=False))
     for dataset in dict.fromkeys(r["dataset"] for r in rows):
         keys = ("recall@0", "recall@2") if dataset == "gardens-point" else \
             ("recall@0", "recall@10") if dataset.startswith("nordland") else ("recall@0",)

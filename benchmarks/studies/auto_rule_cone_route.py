@@ -13,7 +13,7 @@ LSH's effective bits per row over the birthday bound 2·log2 N and what auto cho
 × the bound); the summary counts the rows where that was the better of the two, apart for the
 maps whose route share reaches auto's route branch (the easy N = 210 route, 0.60).
 
-    python benchmarks/bench_cone_route.py      # ≈ 1 min on 2 shared cores
+    python benchmarks/studies/auto_rule_cone_route.py      # ≈ 1 min on 2 shared cores
 
 Writes ``benchmarks/results/bench_cone_route.json`` and prints the table.
 """

@@ -7,8 +7,8 @@
    KD-tree computes per query and per pair on position sets shaped like VPR data (street grids,
    routes) and on the adversarial ring, against the bound.
 
-    python benchmarks/bench_reader_bounds.py            # ≈ 2 min on 2 shared cores
-    python benchmarks/bench_reader_bounds.py --quick    # smaller images and position sets
+    python benchmarks/studies/reader_bounds.py            # ≈ 2 min on 2 shared cores
+    python benchmarks/studies/reader_bounds.py --quick    # smaller images and position sets
 
 Writes ``benchmarks/results/bench_reader_bounds.json`` and prints both tables as markdown.
 """
@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
+HERE = Path(__file__).resolve().parent  # benchmarks/studies: its _common re-exports the helpers
 sys.path.insert(0, str(HERE))
 
 from _common import write_results  # noqa: E402

@@ -13,7 +13,7 @@ query by (both scans timed from the raw queries, their rounding to the exact gri
 
 Best of 5 rounds, one thread (BLAS and faiss), milliseconds per batch. The load average is recorded.
 
-    python benchmarks/bench_lsh_scan.py
+    python benchmarks/studies/lsh_projection_scan.py
 
 Writes ``benchmarks/results/bench_lsh_scan.json``.
 """

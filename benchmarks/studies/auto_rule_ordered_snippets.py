@@ -21,7 +21,7 @@ once used. Two kinds of map tell the two apart:
 Periodic and random output codes and LSH run under seeds 0 … ``--seeds`` − 1; auto is counted right
 when it chose the better of periodic codes and LSH.
 
-    python benchmarks/bench_ordered_snippets.py      # ≈ 1 min on 2 shared cores
+    python benchmarks/studies/auto_rule_ordered_snippets.py      # ≈ 1 min on 2 shared cores
 
 Writes ``benchmarks/results/bench_ordered_snippets.json`` and prints the table.
 """

@@ -2,15 +2,15 @@
 
 For each map of ``btel experiment frontier`` (Gardens Point NetVLAD 500-D and the same rows permuted,
 Nordland HOG both directions, the synthetic route and the synthetic independent places) and ranks
-r = 4, 8, 16, 32, the shrinkage whitening of :mod:`btel.core.shrink` is fitted on the L2-normalised map,
-its eigenvector basis quantised per column to int8 (levels ±127, what files before the 4-bit basis
-stored) and to 4 bits (levels ±7, what ``fit_shrink`` stores), and cosine brute force on the whitened rows is scored by the map's key
-recall (recall@2 on Gardens Point and the synthetic route, recall@10 on Nordland, recall@0 on maps
-of independent places). The basis is the only difference between the two columns; 4 bits cost half
-the bytes. One BLAS thread.
+r = 4, 8, 16, 32, the shrinkage whitening of :mod:`btel.core.shrink` is fitted on the L2-normalised
+map, its eigenvector basis quantised per column to int8 (levels ±127, what files before the 4-bit
+basis stored) and to 4 bits (levels ±7, what ``fit_shrink`` stores), and cosine brute force on the
+whitened rows is scored by the map's key recall (recall@2 on Gardens Point and the synthetic route,
+recall@10 on Nordland, recall@0 on maps of independent places). The basis is the only difference
+between the two columns; 4 bits cost half the bytes. One BLAS thread.
 
-    python benchmarks/bench_shrink_bits.py             # ≈ 1 min
-    python benchmarks/bench_shrink_bits.py --quick     # Gardens Point and small synthetic maps
+    python benchmarks/studies/whitening_shrink_bits.py             # ≈ 1–4 min
+    python benchmarks/studies/whitening_shrink_bits.py --quick     # Gardens Point and small synthetic maps
 
 Writes ``benchmarks/results/bench_shrink_bits.json`` and prints the table.
 """
@@ -49,11 +49,12 @@ def main() -> None:
                     recall[bits] = key_recall((B @ A.T).argmax(axis=1), base["key"])
                 rows.append({"dataset": base["dataset"], "key": base["key"], "rank": rank,
                              "n_features": int(X.shape[1]), **recall})
-                print(f"{base['dataset']:<24} r = {rank:>2} (d = {X.shape[1]:>4})  int8 {recall['int8']:.3f}  "
+                print(f"{base['dataset']:<24} r = {rank:>2} (d = {X.shape[1]:>4})  "
+                      f"int8 {recall['int8']:.3f}  "
                       f"4-bit {recall['4-bit']:.3f}  difference {recall['4-bit'] - recall['int8']:+.3f}  "
                       f"({base['key']})", flush=True)
-    out = write_results("bench_shrink_bits", {"rows": rows, "quick": args.quick, "seconds": time.time() - start,
-                                              "load": os.getloadavg()})
+    out = write_results("bench_shrink_bits", {"rows": rows, "quick": args.quick,
+                                              "seconds": time.time() - start, "load": os.getloadavg()})
     print(f"wrote {out} ({time.time() - start:.0f} s)")
 
 

@@ -5,11 +5,11 @@ method, front end (its default, and ``normalize='none'``) and scale s, the map a
 a synthetic route (or Gardens Point NetVLAD with ``--real``) are multiplied by s in float64 and
 stored as float32; the model is fitted, saved, loaded and asked ``predict``. A cell is the
 recall within 2 places on the scaled data, with the unscaled recall in the first column, or the
-btel error that refused it (``refused (…)``), or in bold any other exception. Writes ``benchmarks/results/study_scales.json`` and prints a
-markdown table::
+btel error that refused it (``refused (…)``), or in bold any other exception. Writes
+``benchmarks/results/study_scales.json`` and prints a markdown table::
 
-    python benchmarks/study_scales.py            # synthetic route, N = 200, d = 32
-    python benchmarks/study_scales.py --real     # Gardens Point NetVLAD (../shared/data)
+    python benchmarks/studies/numeric_range_scales.py            # synthetic route, N = 200, d = 32
+    python benchmarks/studies/numeric_range_scales.py --real     # Gardens Point NetVLAD (../shared/data)
 """
 
 from __future__ import annotations
@@ -25,12 +25,12 @@ from pathlib import Path
 import numpy as np
 
 SCALES = (1e-44, 1e-38, 1e-20, 1e-15, 1e15, 1e30)
-RESULTS = Path(__file__).resolve().parent / "results" / "study_scales.json"
+RESULTS = Path(__file__).resolve().parents[1] / "results" / "study_scales.json"
 
 
 def _data(real: bool) -> tuple[np.ndarray, np.ndarray]:
     if real:
-        path = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "gardenspoint_netvlad" \
+        path = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "gardenspoint_netvlad" \
             / "hiddenRepr-GardensPoint.npz"
         with np.load(path) as data:
             return data["hlrTrain"].astype(np.float32), data["hlrTest"].astype(np.float32)
@@ -61,7 +61,8 @@ def cell(method: str, params: dict, X: np.ndarray, Q: np.ndarray, scale: float, 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--real", action="store_true", help="Gardens Point NetVLAD instead of a synthetic route")
+    parser.add_argument("--real", action="store_true",
+                        help="Gardens Point NetVLAD instead of a synthetic route")
     parser.add_argument("--methods", default=None, help="comma-separated (default: every registered method)")
     parser.add_argument("--out", default=str(RESULTS))
     args = parser.parse_args()
@@ -76,7 +77,8 @@ def main() -> None:
         for method in methods:
             for front in ("default", "none"):
                 params = {} if front == "default" else {"normalize": "none"}
-                row = {"method": method, "front_end": front, "unscaled": cell(method, params, X, Q, 1.0, Path(tmp))}
+                row = {"method": method, "front_end": front,
+                       "unscaled": cell(method, params, X, Q, 1.0, Path(tmp))}
                 row.update({f"{s:g}": cell(method, params, X, Q, s, Path(tmp)) for s in SCALES})
                 rows.append(row)
                 print(" | ".join(str(v) for v in row.values()), file=sys.stderr, flush=True)
@@ -88,7 +90,8 @@ def main() -> None:
     summary = {"data": "gardens point netvlad" if args.real else "synthetic route N=200 d=32 seed 0",
                "metric": "recall within 2 places", "rows": rows, "seconds": round(time.time() - start, 1),
                "command": " ".join([Path(sys.executable).name, *sys.argv])}
-    out = Path(args.out if not args.real or args.out != str(RESULTS) else RESULTS.with_name("study_scales_real.json"))
+    real_default = args.real and args.out == str(RESULTS)
+    out = Path(RESULTS.with_name("study_scales_real.json") if real_default else args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(summary, indent=1) + "\n")
     print(f"\nwritten to {out} ({summary['seconds']} s)", file=sys.stderr)

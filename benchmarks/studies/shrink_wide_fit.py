@@ -5,13 +5,14 @@ seconds and the traced peak memory (numpy allocations, tracemalloc) of ``fit_shr
 it took (randomized SVD, Gram matrix, full SVD; :func:`btel.core.shrink._top_directions`), and for the wide
 maps it sends to the Gram matrix the seconds of the full SVD it replaced, on the same rows.
 
-    python benchmarks/bench_shrink_fit.py
+    python benchmarks/studies/shrink_wide_fit.py
 
 Writes ``benchmarks/results/bench_shrink_fit.json``.
 """
 
 from __future__ import annotations
 
+import argparse
 import os
 import time
 import tracemalloc
@@ -34,6 +35,7 @@ def route(n: int, d: int, k: int = RANK + 1) -> str:
 
 
 def main() -> None:
+    argparse.ArgumentParser(description=__doc__.split("\n")[0]).parse_args()
     rng = np.random.default_rng(0)
     rows, load, start = [], os.getloadavg(), time.time()
     with limit_threads(1):

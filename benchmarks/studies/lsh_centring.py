@@ -7,7 +7,7 @@ Nordland, recall@0 on maps of independent places). The cone ratio (‖mean row�
 the L2-normalised map, :func:`btel.methods.baselines.lsh.cone_ratio`) is what ``center='auto'`` reads.
 One BLAS thread.
 
-    python benchmarks/bench_lsh_center.py       # ≈ 3 min on 2 shared cores
+    python benchmarks/studies/lsh_centring.py       # ≈ 3 min on 2 shared cores
 
 Writes ``benchmarks/results/bench_lsh_center.json`` and prints the table.
 """
@@ -41,18 +41,19 @@ def main() -> None:
             for budget in BUDGETS:
                 if budget > X.size * 4:
                     continue
-                values = {name: [key_recall(make_method("lsh", budget=budget, center=center, random_state=seed)
-                                            .fit(X).predict(Q), base["key"])
+                values = {name: [key_recall(make_method("lsh", budget=budget, center=center,
+                                                        random_state=seed).fit(X).predict(Q), base["key"])
                                  for seed in range(args.seeds)]
                           for name, center in (("centred", True), ("uncentred", False))}
-                row = {"dataset": base["dataset"], "key": base["key"], "budget": budget, "cone_ratio": ratio, **values,
-                       **paired_difference(values["centred"], values["uncentred"])}
+                row = {"dataset": base["dataset"], "key": base["key"], "budget": budget, "cone_ratio": ratio,
+                       **values, **paired_difference(values["centred"], values["uncentred"])}
                 rows.append(row)
-                print(f"{base['dataset']:<24} cone {ratio:.2f} {budget // 1000:>4} KB  centred {np.mean(values['centred']):.3f}"
-                      f"  uncentred {np.mean(values['uncentred']):.3f}  difference {signed(row)}  ({base['key']})",
-                      flush=True)
-    out = write_results("bench_lsh_center", {"rows": rows, "seeds": args.seeds, "seconds": time.time() - start,
-                                             "load": os.getloadavg()})
+                print(f"{base['dataset']:<24} cone {ratio:.2f} {budget // 1000:>4} KB  "
+                      f"centred {np.mean(values['centred']):.3f}  "
+                      f"uncentred {np.mean(values['uncentred']):.3f}  "
+                      f"difference {signed(row)}  ({base['key']})", flush=True)
+    out = write_results("bench_lsh_center", {"rows": rows, "seeds": args.seeds,
+                                             "seconds": time.time() - start, "load": os.getloadavg()})
     print(f"wrote {out} ({time.time() - start:.0f} s)")
 
 
