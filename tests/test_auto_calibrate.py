@@ -289,7 +289,7 @@ def test_cli_train_calibrate_on_the_gardens_point_sample_writes_the_table_and_no
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--method", "lsh", "--calibrate", "q.npy"], "--method auto"),
+        (["--method", "lsh", "--calibrate", "q.npy"], "Use --method auto"),
         (["--calibrate-truth", "gt.npy"], "apply with --calibrate"),
     ],
 )

@@ -101,9 +101,9 @@ def train(db: str, output: str, overwrite: bool, method: str, budget: str | None
              "normalize": ("--normalize", normalize), "whiten": ("--whiten", whiten), "delta": ("--delta", delta)}
     if calibrate is None and (calibrate_truth is not None or calibrate_tolerance is not None):
         raise click.UsageError("--calibrate-truth and --calibrate-tolerance apply with --calibrate QUERIES.")
-    if calibrate is not None and method != "auto":
-        raise click.UsageError(f"--calibrate chooses auto's method on labelled queries; --method is "
-                               f"{method!r}. Use --method auto (or compare methods with `btel evaluate`).")
+    if calibrate is not None and "calibration" not in _fit_parameters(method):
+        raise click.UsageError(f"--calibrate chooses a method on labelled queries, which --method {method} "
+                               "does not do. Use --method auto (or compare methods with `btel evaluate`).")
     named["calibration_tolerance"] = ("--calibrate-tolerance", calibrate_tolerance)
     shortcuts = {name: (option, value) for name, (option, value) in named.items() if value is not None}
     if budget is not None:
@@ -122,6 +122,15 @@ def train(db: str, output: str, overwrite: bool, method: str, budget: str | None
     _echo_storage(model)
     path = model.save(output, overwrite=overwrite)  # no --overwrite: a racing train's file is never replaced
     click.echo(f"model written to {path} ({path.stat().st_size:,d} B on disk)")
+
+
+def _fit_parameters(method: str) -> set[str]:
+    """The parameters of ``method``'s fit (``calibration`` where it chooses on labelled queries)."""
+    import inspect
+
+    from ..methods.registry import make_method
+
+    return set(inspect.signature(make_method(method).fit).parameters)
 
 
 def _calibration(db: str, queries: str, truth: str | None, n_map: int) -> tuple[Any, Any]:
