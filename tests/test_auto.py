@@ -1,4 +1,4 @@
-"""auto: the method chosen from the map and budget alone, recorded in the model file and summary."""
+"""auto: the map-only rule (btel.methods.auto.rule) and its statistics, in the model file and summary."""
 
 from __future__ import annotations
 
@@ -84,17 +84,34 @@ def test_an_ordered_map_with_fewer_bits_than_the_birthday_bound_gets_output_code
     assert choose_method(X[perm], None, 2048, 4096)[0]["method"] == "lsh"
 
 
-def test_lsh_is_whitened_only_when_the_budget_affords_a_useful_rank() -> None:
-    from btel.methods.auto import SHRINK_LSH_MIN_RANK
-    from btel.core.shrink import shrink_rank
+def test_the_rule_whitens_independent_places_from_d_bits_and_centres_a_cone_short_of_d_bits() -> None:
+    """Independent places: plain LSH while P < d, shrinkage-whitened from P ≥ d; a cone: centred while P < d;
+    an ordered map (a route of many bits) is never whitened by the rule."""
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(200, 500)).astype(np.float32)
+    short = choose_method(X, None, 200, 8_000)[0]                    # P = 320 < d = 500
+    assert short["method"] == "lsh" and short["params"] == {"center": False}, short
+    for budget in (64_000, 300_000):                                  # P ≥ d
+        first = choose_method(X, None, 200, budget)[0]
+        assert first["params"] == {"whiten": "shrink", "center": False} and "whitened" in first["reason"]
+    exact = choose_method(X, None, 200, None)[0]
+    assert exact["method"] == "bruteforce" and exact["params"] == {"whiten": "shrink"}
+    cone = X + 2.0 * np.abs(X).max() * np.ones(500, dtype=np.float32)
+    centred = choose_method(cone, None, 200, 8_000)[0]
+    assert centred["params"] == {"center": True} and "centred rows" in centred["reason"]
+    route = synthetic_route(2048, 256, condition_shift=1.0, seed=7).map        # ordered: continuity ≥ 0.6
+    many = choose_method(route, None, 2048, 256_000)[0]                        # P = 1000 ≥ d = 256
+    assert many["method"] == "lsh" and "whiten" not in many["params"]
+    # A user's whiten is given to every candidate.
+    assert all(c["params"].get("whiten") == 64 for c in choose_method(X, None, 200, 64_000, 64))
 
-    X = np.random.default_rng(3).normal(size=(200, 500)).astype(np.float32)   # independent places
-    assert shrink_rank(500, 200, 8_000) < SHRINK_LSH_MIN_RANK <= shrink_rank(500, 200, 64_000)
-    low = choose_method(X, None, 200, 8_000)        # 40 B per place, but rank 3
-    assert low[0]["method"] == "lsh" and not low[0]["params"]["whiten"]
-    high = choose_method(X, None, 200, 64_000)
-    assert high[0]["method"] == "lsh" and high[0]["params"]["whiten"] == "shrink"
-    assert f"rank {shrink_rank(500, 200, 64_000)}" in high[0]["reason"]
+
+def test_exact_search_when_the_float32_map_fits_and_lsh_below_it() -> None:
+    X = np.random.default_rng(4).normal(size=(400, 4096)).astype(np.float32)
+    assert [c["method"] for c in choose_method(X, None, 400, 400 * 256)] == ["lsh", "btel-codes"]
+    assert choose_method(X, None, 400, 400 * 4096 * 4)[0]["method"] == "bruteforce"
+    assert choose_method(X, None, 400, 400 * 4096 * 4 - 1)[0]["method"] == "lsh"
+    assert choose_method(X, None, 400, None)[0]["method"] == "bruteforce"
 
 
 def test_an_ordered_cone_that_cannot_afford_lsh_mean_gets_output_codes() -> None:
@@ -150,19 +167,6 @@ def test_an_ordered_cone_in_snippets_of_three_keeps_lsh() -> None:
     exact = {name: np.mean([(make_method(name, budget=4_000, random_state=seed).fit(X).predict(Q)
                              == np.arange(600)).mean() for seed in range(2)]) for name in ("lsh", "btel-codes")}
     assert exact["lsh"] > 2 * exact["btel-codes"]
-
-
-def test_lsh_is_whitened_only_with_at_least_d_bits_per_row() -> None:
-    """Rank and bytes per place suffice, but P < d bits per row: plain LSH (bench_lsh_whitening)."""
-    from btel.core.shrink import shrink_rank
-
-    X = np.random.default_rng(4).normal(size=(1000, 2048)).astype(np.float32)  # independent places
-    assert shrink_rank(2048, 1000, 128_000) >= 8 and 8 * 128_000 / 1000 < 2048
-    few = choose_method(X, None, 1000, 128_000)       # 1024 bits per row against d = 2048
-    assert few[0]["method"] == "lsh" and not few[0]["params"]["whiten"]
-    many = choose_method(X, None, 1000, 300_000)      # 2400 bits per row
-    assert many[0]["method"] == "lsh" and many[0]["params"]["whiten"] == "shrink"
-    assert "2400 bits per row ≥ d = 2048" in many[0]["reason"]
 
 
 @pytest.mark.parametrize("budget", [2_000, 20_000, None])

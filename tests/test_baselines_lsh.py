@@ -30,7 +30,8 @@ def test_bits_fill_the_budget_and_only_codes_and_mean_are_stored(pair, budget, c
     if cone:  # every row plus one shared direction: the unit rows then lie in a narrow cone
         X = X + 3 * np.abs(X).max() * np.ones(X.shape[1], dtype=np.float32)
     assert (cone_ratio(btel.core.frontend.normalize_rows(X)) >= CENTER_CONE) == cone
-    model = make_method("lsh", budget=budget).fit(X)
+    assert make_method("lsh", budget=budget).fit(X).mean_ is None   # the default: plain cosine, never centred
+    model = make_method("lsh", budget=budget, center="auto").fit(X)
     # center='auto': the float16 mean only for a cone, and only when it costs ≤ 1/8 of the budget.
     centred = cone and 2 * 64 <= budget / 8
     assert (model.mean_ is not None) == centred
@@ -77,12 +78,15 @@ def test_sign_bit_entropy_matches_the_entropy_of_simulated_uncentred_bits() -> N
 def test_effective_bits_count_centred_bits_whole_and_uncentred_bits_at_their_entropy() -> None:
     from btel.methods.baselines.lsh import sign_bit_entropy
 
-    lsh = LSHLocalizer()
+    lsh = LSHLocalizer(center="auto")
     # Nordland's shape (N = 3576, d = 3780, cone ratio 0.75): 16 KB cannot afford the 7.6 KB mean, 64 KB can.
     assert lsh.effective_bits(3576, 3780, 16_000, 0.75) == pytest.approx(35 * sign_bit_entropy(0.75))
     assert lsh.effective_bits(3576, 3780, 64_000, 0.75) == 8 * (64_000 - 2 * 3780) // 3576
     assert lsh.effective_bits(200, 500, 4_000, 0.2) == pytest.approx(160 * sign_bit_entropy(0.2))
     assert lsh.effective_bits(3576, 3780, 500, 0.75) == 0.0   # no code fits
+    # The default front end is the plain one: uncentred bits at their entropy at any budget.
+    plain = LSHLocalizer().effective_bits(3576, 3780, 64_000, 0.75)
+    assert plain == pytest.approx(143 * sign_bit_entropy(0.75))
 
 
 def test_projection_is_regenerated_from_the_recorded_seed(pair, tmp_path) -> None:
@@ -337,3 +341,46 @@ def test_a_model_file_with_orthogonal_blocks_loads_and_answers_as_it_was_fitted(
     R = projection_matrix(64, model.n_bits_, 0, "orthogonal")
     np.testing.assert_array_equal(again.projection_.matrix(), R)
     np.testing.assert_array_equal(again.search(Q, 5)[1], model.search(Q, 5)[1])
+
+
+@pytest.mark.parametrize("n_rows, d", [(200, 16), (50, 100)])
+def test_bits_stop_at_16_d_and_the_model_says_the_rest_of_the_budget_is_unused(n_rows, d) -> None:
+    X = np.random.default_rng(d).normal(size=(n_rows, d)).astype(np.float32)
+    capped = LSHLocalizer(budget=n_rows * 4 * d).fit(X)           # room for 32·d bits per row
+    assert capped.n_bits_ == 16 * d and capped.budget_saturated()
+    assert capped.unused_budget() == n_rows * 4 * d - capped.nbytes > 0
+    assert f"{capped.unused_budget()} B unused" in capped.summary()
+    filled = LSHLocalizer(budget=n_rows * d).fit(X)               # 8·d bits per row: all spent
+    assert filled.n_bits_ == 8 * d and not filled.budget_saturated() and filled.unused_budget() == 0
+    assert not LSHLocalizer(budget=n_rows * 4 * d, n_bits=64).fit(X).budget_saturated()   # pinned: never
+
+
+def _recall(pred: np.ndarray, tolerance: int) -> float:
+    return float(np.mean(np.abs(pred - np.arange(pred.shape[0])) <= tolerance))
+
+
+@pytest.mark.realdata
+@pytest.mark.parametrize("data", ["gardens-point", "nordland-hog", "synthetic-route",
+                                  "synthetic-independent"])
+def test_lsh_with_4d_bits_is_within_002_of_brute_force_on_the_same_front_end(data, request) -> None:
+    """Approximations converge: asymmetric LSH at 4·d bits per row (mean of seeds 0–2) against cosine."""
+    if data == "gardens-point":
+        X, Q = request.getfixturevalue("gardenspoint_netvlad")
+        tolerance = 2
+    elif data == "nordland-hog":
+        summer, winter = request.getfixturevalue("nordland_hog")
+        rows = np.arange(0, summer.shape[0], 20)     # every 20th frame: 179 places, recall within 1
+        X, Q, tolerance = summer[rows], winter[rows], 1
+    else:
+        from btel.datasets import synthetic_route
+
+        route = synthetic_route(1000, 256, condition_shift=1.0, seed=11)
+        independent = data == "synthetic-independent"
+        perm = np.random.default_rng(1).permutation(1000) if independent else np.arange(1000)
+        X, Q, tolerance = route.map[perm], route.queries[perm], (0 if independent else 2)
+    d = X.shape[1]
+    exact = _recall(make_method("bruteforce").fit(X).predict(Q), tolerance)
+    budget = X.shape[0] * d // 2                 # 4·d bits per row
+    lsh = np.mean([_recall(LSHLocalizer(budget=budget, random_state=seed).fit(X).predict(Q), tolerance)
+                   for seed in range(3)])
+    assert abs(lsh - exact) <= 0.02, (lsh, exact)

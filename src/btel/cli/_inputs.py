@@ -54,3 +54,33 @@ def _load_map(path: str) -> np.ndarray:
 
     # A .npy map is memory-mapped: pages are read as the fit needs them, never copied whole.
     return load_descriptor_matrix(path, mmap_mode="r" if Path(path).suffix.lower() == ".npy" else None)
+
+
+def check_calibration_options(method: str, queries: str | None, truth: str | None, tolerance: int | None) -> None:
+    """``--calibrate-*`` only with ``--calibrate``, and only for a method whose ``fit`` takes calibration."""
+    import inspect
+
+    from ..methods.registry import make_method
+
+    if queries is None and (truth is not None or tolerance is not None):
+        raise click.UsageError("--calibrate-truth and --calibrate-tolerance apply with --calibrate QUERIES.")
+    if queries is not None and "calibration" not in inspect.signature(make_method(method).fit).parameters:
+        raise click.UsageError(f"--calibrate chooses a method on labelled queries, which --method {method} does "
+                               "not do; use --method auto (or compare methods with `btel evaluate`).")
+
+
+def calibration_input(db: str, queries: str, truth: str | None, n_map: int) -> tuple[np.ndarray, object]:
+    """``--calibrate QUERIES --calibrate-truth GT``: the labelled queries and their ground truth (true
+    places as an int array, or the :class:`~btel.datasets.GroundTruth` of positives)."""
+    from ..datasets.sources import resolve_ground_truth
+    from ..evaluation.metrics import check_ground_truth
+    from ..exceptions import InvalidParameterError
+    from ._errors import InputError
+
+    Q = _load_matrix(queries, "calibration queries")
+    try:
+        given, _ = resolve_ground_truth(truth, n_queries=Q.shape[0], n_map=n_map, db=db, queries=queries)
+    except InvalidParameterError as exc:
+        raise InputError(f"--calibrate-truth: {exc}") from None
+    gt = check_ground_truth(given, Q.shape[0], n_map, option="--calibrate-truth")
+    return Q, (gt.query_places if gt.kind == "places" else gt)

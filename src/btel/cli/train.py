@@ -8,7 +8,7 @@ from typing import Any
 import click
 
 from ..methods.roles import DEFAULT_METHOD
-from ._inputs import _load_map
+from ._inputs import _load_map, calibration_input, check_calibration_options
 from ._options import _N_JOBS_HELP, _NO_PROGRESS_HELP, _PARAM_HELP, _check_budget
 from ._outputs import refuse_existing
 from ._params import _naming, _param_value, _params_by_method
@@ -46,9 +46,15 @@ def _aliases(command: Callable[..., Any]) -> Callable[..., Any]:
               help="Random seed (same as --param random_state=…).")
 @click.option("--n-jobs", type=int, default=None, help=_N_JOBS_HELP)
 @click.option("--no-progress", is_flag=True, help=_NO_PROGRESS_HELP)
+@click.option("--calibrate", type=click.Path(), default=None, metavar="QUERIES",
+              help="auto: labelled queries from your deployment conditions to choose the method on.")
+@click.option("--calibrate-truth", default=None, metavar="GT", help="Their ground truth (as --ground-truth).")
+@click.option("--calibrate-tolerance", type=click.IntRange(min=0), default=None, metavar="T",
+              help="With --calibrate and true places: correct within T places (--param calibration_tolerance).")
 @_aliases
 def train(db: str, output: str, overwrite: bool, method: str, budget: str | None,
           param_texts: tuple[str, ...], random_state: int | None, n_jobs: int | None, no_progress: bool,
+          calibrate: str | None, calibrate_truth: str | None, calibrate_tolerance: int | None,
           **aliases: str | None) -> None:
     """Fit a model on map descriptors DB and save it; prints the storage breakdown.
 
@@ -61,18 +67,24 @@ def train(db: str, output: str, overwrite: bool, method: str, budget: str | None
       btel train db.npy -o m.npz --method btel-r --budget 500KB --param n_regions=auto --param whiten=256
     `btel methods --params` lists every method's parameters and their allowed values. The flags of
     earlier versions (--regions, --feature-ratio, --whiten, …) still work as aliases of --param.
+    With --method auto, --calibrate QUERIES --calibrate-truth GT chooses among every candidate on
+    those labelled queries (never stored in the model); `btel info` shows the table.
     """
     from ..methods.registry import make_method
 
     shortcuts = _shortcuts(budget, random_state, n_jobs, no_progress, aliases)
+    if calibrate_tolerance is not None:
+        shortcuts["calibration_tolerance"] = ("--calibrate-tolerance", calibrate_tolerance)
+    check_calibration_options(method, calibrate, calibrate_truth, calibrate_tolerance)
     params = _params_by_method([method], param_texts, shortcuts=shortcuts)[method]
     refuse_existing(output, "-o", overwrite)
     X = _load_map(db)
+    fit_params = {"calibration": calibration_input(db, calibrate, calibrate_truth, X.shape[0])} if calibrate else {}
     from ..evaluation.measure import timed_fit
 
     with _naming(method):
         model = make_method(method, **params)
-        seconds = timed_fit(model, X)
+        seconds = timed_fit(model, X, **fit_params)
     regions = f", r = {model.n_regions_} regions" if getattr(model, "n_regions_", 1) > 1 else ""
     click.echo(f"fitted {method}{regions} on {X.shape[0]} places × {X.shape[1]} dims "
                f"in {seconds:.1f} s")

@@ -37,17 +37,18 @@ logger = logging.getLogger(__name__)
 
 
 
-def timed_fit(method: Any, X: Any, y: Any = None) -> float:
-    """Fit ``method`` on ``X`` (and ``y`` when given) and return the wall-clock seconds it took.
+def timed_fit(method: Any, X: Any, y: Any = None, **fit_params: Any) -> float:
+    """Fit ``method`` on ``X`` (and ``y``, and ``fit_params`` such as auto's ``calibration``, when
+    given) and return the wall-clock seconds it took.
 
     The one place btel times a fit: :func:`measure` and the experiments' model cache both call it.
     Whatever ``fit`` raises (e.g. :class:`~btel.exceptions.BudgetTooSmallError`) propagates.
     """
     start = time.perf_counter()
     if y is None:
-        method.fit(X)
+        method.fit(X, **fit_params)
     else:
-        method.fit(X, y)
+        method.fit(X, y, **fit_params)
     return time.perf_counter() - start
 
 

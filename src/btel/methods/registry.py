@@ -86,9 +86,9 @@ _ENTRIES: dict[str, _Entry] = {
     "rabitq": _Entry(".baselines.rabitq", "RaBitQLocalizer", {},
                      "RaBitQ: seeded rotation (0 B), D dims × B bits + row factors, filling the budget"),
     "auto": _Entry(".auto.localizer", "AutoLocalizer", {},
-                   "the method, code family and front end chosen from the map and the budget alone "
-                   "(btel.methods.auto): output codes on routes, whitened brute force or LSH on independent "
-                   "places"),
+                   "the method and front end chosen from the map and the budget (btel.methods.auto): output "
+                   "codes on routes, brute force or LSH elsewhere; fit(X, calibration=(Q, truth)) chooses "
+                   "on labelled queries"),
 }
 
 #: One line per method (``btel methods``).

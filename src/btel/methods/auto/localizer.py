@@ -1,4 +1,5 @@
-"""``AutoLocalizer``: the method :mod:`btel.methods.auto.rule` chooses, fitted and answered behind the one interface."""
+"""``AutoLocalizer``: the method :mod:`btel.methods.auto.rule` chooses (or
+:mod:`~btel.methods.auto.calibrate`, given labelled queries), fitted and answered behind the one interface."""
 
 from __future__ import annotations
 
@@ -7,22 +8,54 @@ from typing import Any
 
 import numpy as np
 
-from ...core.validation import N_JOBS, RANDOM_STATE, check_is_fitted, check_params
+from ...core.validation import N_JOBS, RANDOM_STATE, Interval, check_is_fitted, check_params
 from ..base import ArraySpec, PlaceLocalizer
-from ...exceptions import BudgetTooSmallError, ModelFileError
+from ...exceptions import BudgetTooSmallError, ModelFileError, NotEnoughPlacesError
 from ...core.storage import budget_of, format_bytes
 from .rule import choose_method
 
-__all__ = ["AutoLocalizer"]
+__all__ = ["AutoLocalizer", "calibration_table"]
+
+
+def calibration_table(calibration: dict[str, Any] | None) -> str:
+    """The calibration table as aligned text lines ('' without one)."""
+    if not isinstance(calibration, dict) or not isinstance(calibration.get("table"), list):
+        return ""
+    c = calibration
+    head = (f"calibration: {c.get('n_queries')} queries (tolerance {c.get('tolerance')}), "
+            f"seeds {c.get('seeds')}, {c.get('rows_compared')} map rows compared; "
+            f"map-only pick {c.get('map_only')}, "
+            f"chosen {c.get('chosen')}")
+    reference = "n for " + format(c.get("reference_difference", 0.05), "g")
+    lines = [head, f"  {'candidate':<28} {'score':>6} {'diff':>7} {'p (adj.)':>9} {'conf.':>6} "
+                   f"{reference:>9} {'n for diff':>9}  note"]
+    for e in c["table"]:
+        if not isinstance(e, dict):
+            continue
+        if e.get("status") != "ok":
+            lines.append(f"  {str(e.get('candidate')):<28} {'':>6} {'':>7} {'':>9} {'':>6} {'':>9} {'':>9}  "
+                         f"{e.get('status')}")
+            continue
+        diff = "" if "difference" not in e else f"{e['difference']:+.3f}"
+        p = "" if "p_adjusted" not in e else f"{e['p_adjusted']:.3f}"
+        conf = "" if "confidence" not in e else f"{e['confidence']:.2f}"
+        need = "" if e.get("queries_needed") is None else str(e["queries_needed"])
+        need_obs = "" if e.get("queries_needed_observed") is None else str(e["queries_needed_observed"])
+        lines.append(f"  {str(e.get('candidate')):<28} {e.get('score', float('nan')):>6.3f} {diff:>7} {p:>9} "
+                     f"{conf:>6} {need:>9} {need_obs:>9}  {e.get('role', '')}")
+    return "\n".join(lines)
 
 
 class AutoLocalizer(PlaceLocalizer):
-    """The method chosen from the map and budget alone (module docstring), behind the one interface.
+    """The method chosen from the map and budget (or from labelled queries), behind the one interface.
 
     Parameters
     ----------
     budget : int or str, optional
         Bytes (or ``"64KB"``); the chosen method fills it.
+    calibration_tolerance : int
+        With ``fit(X, calibration=(Q, truth))`` and true places as ints: a calibration query is
+        correct when the prediction lies within this many places of its truth.
     normalize, delta
         Given to the chosen method's front end.
     whiten : None, int or 'shrink'
@@ -37,34 +70,49 @@ class AutoLocalizer(PlaceLocalizer):
     model_ : PlaceLocalizer
         The fitted chosen method.
     choice_ : dict
-        ``method``, ``params``, ``reason`` and the map statistics (``route_share``, ``bytes_per_place``…).
+        ``method``, ``params``, ``reason`` and the map statistics (``route_share``, ``bytes_per_place``…);
+        after a calibrated fit also ``calibration``: the table of every candidate (score, paired
+        difference against the map-only pick, p-values, confidence, queries needed), no query.
     front_end_ : FrontEnd
         The chosen method's front end.
     n_places_, n_features_in_ : int
     fit_time_ : float
     """
 
-    _parameter_constraints = {"random_state": RANDOM_STATE, "n_jobs": N_JOBS}
+    _parameter_constraints = {"calibration_tolerance": [Interval(int, 0, None)],
+                              "random_state": RANDOM_STATE, "n_jobs": N_JOBS}
     _runtime_params = ("n_jobs",)
     #: The method registry (:mod:`btel.methods` sets it when it registers this class; this module
     #: does not import the registry, which imports it).
     _registry: Any = None
 
-    def __init__(self, *, budget: int | str | None = None, random_state: int | None = 0, n_jobs: int | None = None) -> None:
+    def __init__(self, *, budget: int | str | None = None, calibration_tolerance: int = 0,
+                 random_state: int | None = 0, n_jobs: int | None = None) -> None:
         self.budget = budget
+        self.calibration_tolerance = calibration_tolerance
         self.random_state = random_state
         self.n_jobs = n_jobs
 
-    def _inner(self, method: str, params: dict[str, Any]) -> PlaceLocalizer:
+    def _inner(self, method: str, params: dict[str, Any], budget: Any = "same") -> PlaceLocalizer:
         model = self._registry.make_method(method)
         valid = model.get_params(deep=False)
-        extra = {"budget": self.budget, "normalize": self.normalize, "delta": self.delta,
-                 "random_state": self.random_state, "n_jobs": self.n_jobs, "progress": False}
+        extra = {"budget": self.budget if budget == "same" else budget, "normalize": self.normalize,
+                 "delta": self.delta, "random_state": self.random_state, "n_jobs": self.n_jobs,
+                 "progress": False}
         model.set_params(**{k: v for k, v in {**extra, **params}.items() if k in valid})
         return model
 
-    def fit(self, X: Any, places: Any = None) -> "AutoLocalizer":
-        """Choose by the rule, then fit the chosen method (the first candidate that fits the budget).
+    def fit(self, X: Any, places: Any = None, calibration: Any = None) -> "AutoLocalizer":
+        """Choose by the rule (or by calibration), then fit the chosen method on the whole map.
+
+        Parameters
+        ----------
+        X : array-like of shape (n_rows, n_features)
+        places : array-like of shape (n_rows,), int, optional
+        calibration : (Q, truth), optional
+            Labelled queries: Q (n_queries, n_features), truth an int array (n_queries,) of true
+            places or a :class:`~btel.datasets.GroundTruth`. Scored and dropped, never stored
+            (:mod:`btel.methods.auto.calibrate`).
 
         Returns
         -------
@@ -73,7 +121,13 @@ class AutoLocalizer(PlaceLocalizer):
         start = time.perf_counter()
         X, labels, n_places = self._check_fit_input(X, places)
         budget = budget_of(self)
+        if calibration is not None:  # checked before any work
+            from .calibrate import check_calibration
+
+            calibration = check_calibration(calibration, X.shape[1], n_places, self.calibration_tolerance)
         candidates = choose_method(X, labels, n_places, budget, self.whiten)
+        if calibration is not None:
+            candidates = self._calibrated(X, labels, budget, *calibration, candidates)
         refused: list[str] = []
         error: BudgetTooSmallError | None = None
         for choice in candidates:
@@ -83,6 +137,9 @@ class AutoLocalizer(PlaceLocalizer):
             except BudgetTooSmallError as exc:
                 refused.append(f"{choice['method']} {choice['params']} needs ≥ {exc.minimum} B")
                 error = exc if error is None or (exc.minimum or 0) < (error.minimum or 0) else error
+                continue
+            except NotEnoughPlacesError as exc:  # e.g. PQ's codebooks on a map of a few rows
+                refused.append(f"{choice['method']} {choice['params']}: {exc}")
                 continue
             self.model_ = model
             self.choice_ = {**choice, "params": {k: v for k, v in choice["params"].items() if v is not None},
@@ -99,6 +156,29 @@ class AutoLocalizer(PlaceLocalizer):
         self.n_places_ = int(n_places)
         return self
 
+    def _calibrated(self, X: np.ndarray, labels: np.ndarray | None, budget: int | None, Q: np.ndarray,
+                    truth: Any, candidates: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        """The calibrated choice first, then the rule's candidates (the fallbacks)."""
+        from .calibrate import choose_calibrated
+
+        first = candidates[0]
+        for choice in candidates:  # the map-only pick: the first candidate that fits
+            try:
+                self._inner(choice["method"], choice["params"]).check_budget(X.shape[0], X.shape[1], budget)
+                first = choice
+                break
+            except (BudgetTooSmallError, NotEnoughPlacesError):
+                continue
+        picked = choose_calibrated(X, labels, budget, Q, truth, int(self.calibration_tolerance), first,
+                                   lambda m, p, b: self._inner(m, p, b), self.whiten)
+        c = picked["calibration"]
+        why = (f"calibrated on {c['n_queries']} labelled queries: {picked['label']} "
+               + (f"beats the map-only pick {c['map_only']} beyond noise" if c["switched"]
+                  else f"(the map-only pick: no candidate better beyond noise at α = {c['alpha']})"))
+        stats = {k: v for k, v in first.items() if k not in ("method", "params", "reason")}
+        return [{**stats, "method": picked["method"], "params": picked["params"], "reason": why,
+                 "calibration": c}] + candidates
+
     def check_budget(self, n_rows: int, n_features: int, budget: int | None,
                      reserved: int | None = None) -> None:
         """Raise what ``fit`` would raise for this map shape and budget, without fitting.
@@ -107,8 +187,8 @@ class AutoLocalizer(PlaceLocalizer):
         more bytes), so auto fits exactly when one of those two does; the minimum is the smaller one.
         """
         errors: list[BudgetTooSmallError] = []
-        for method, params in (("lsh", {"whiten": self.whiten}), ("btel-codes", {"code": "periodic",
-                                                                               "whiten": self.whiten})):
+        for method, params in (("lsh", {"whiten": self.whiten, "center": False}),
+                               ("btel-codes", {"code": "periodic", "whiten": self.whiten})):
             try:
                 self._inner(method, params).check_budget(n_rows, n_features, budget)
                 return
@@ -126,12 +206,14 @@ class AutoLocalizer(PlaceLocalizer):
                 for k, v in self.choice_.items()}
 
     def summary(self) -> str:
-        """One line: what the rule chose and why."""
+        """What the rule chose and why (one line), and the calibration table when there is one."""
         c = self.choice_
         params = ", ".join(f"{k}={v}" for k, v in c["params"].items())
         inner = self.model_.summary()
-        return (f"auto chose {c['method']}{f' ({params})' if params else ''}: {c['reason']}"
+        line = (f"auto chose {c['method']}{f' ({params})' if params else ''}: {c['reason']}"
                 + (f" — {inner}" if inner else "") + (f" [refused: {'; '.join(c['refused'])}]" if c["refused"] else ""))
+        table = calibration_table(c.get("calibration"))
+        return line if not table else line + "\n" + table
 
     # -- the one primitive, from the chosen method ------------------------------------------------
     @property

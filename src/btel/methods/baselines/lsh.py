@@ -21,20 +21,21 @@ unpacked copy (:mod:`~btel.methods.baselines.signscan`: lookup tables for a few 
 rows unpacked to ±1 for batches). ``'hamming'`` — the query is binarised too and the codes are
 searched by Hamming distance (faiss ``knn_hamming``); score = −distance.
 
-Budget rule: P = ⌊8·(budget − reserved − mean bytes) / n_rows⌋ bits per row (every bit the budget
-holds; at least 8), at most :data:`MAX_BITS`; without a budget P = :data:`DEFAULT_BITS`. ``n_bits``
-pins P. The codes are stored as one stream of n_rows·P bits (⌈n_rows·P/8⌉ bytes): when P is a
-multiple of 8 that is the (n_rows, P/8) byte matrix, otherwise a flat byte array (and the state
-records n_rows). The planner needs only the shapes, so ``fit`` refuses a budget before it
-transforms the map.
+Budget rule: P = ⌊8·(budget − reserved − mean bytes) / n_rows⌋ bits per row (at least 8), at most
+16·d (the row's size at float16; the score is then within noise of the cosine it estimates, and
+``budget_saturated()`` / ``unused_budget()`` say the cap stopped it); no budget: P =
+:data:`DEFAULT_BITS`; ``n_bits`` pins P. Codes are one stream of n_rows·P bits: the (n_rows, P/8)
+byte matrix when 8 divides P, else a flat byte array (the state records n_rows). The planner
+needs only the shapes, so ``fit`` refuses a budget before it transforms the map.
 
-``center=True`` subtracts the map mean (d float16, counted) before the projection, so the
-hyperplanes cut through the data rather than past it. ``center='auto'`` (default) does so when the
-map's rows lie in a cone — ‖mean row‖ ≥ :data:`CENTER_CONE` × their RMS length — and the mean costs
-at most :data:`CENTER_SHARE` of the budget. :meth:`LSHLocalizer.effective_bits` (what
-:mod:`btel.methods.auto` asks) counts an uncentred sign bit at :func:`sign_bit_entropy` of the cone:
-for unit rows in a cone of ratio c a random hyperplane leaves a share Φ(−|z|·c/√(1 − c²)), z ~ N(0, 1),
-of the rows on its minority side. Evidence: ``docs/decisions/lsh-centring.md``.
+Front end: plain cosine by default (``center=False``): with bits to spare the codes approach
+cosine brute force. ``center=True`` subtracts the map mean (d float16, counted) before the
+projection — centred cosine, another search. ``center='auto'``: when the rows lie in a cone
+(‖mean row‖ ≥ :data:`CENTER_CONE` × RMS length) and the mean costs ≤ :data:`CENTER_SHARE` of the
+budget. :meth:`LSHLocalizer.effective_bits` counts an uncentred sign bit at
+:func:`sign_bit_entropy` of the cone ratio c: a random hyperplane leaves a share
+Φ(−|z|·c/√(1 − c²)), z ~ N(0, 1), of the rows on its minority side. Evidence:
+``docs/decisions/lsh-centring.md``.
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ from typing import Any
 import faiss
 import numpy as np
 
+from ...core.storage import budget_of
 from ...core.validation import N_JOBS, RANDOM_STATE, Interval, Options, read_state_int
 from ..base import ArraySpec
 from ...exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError
@@ -56,8 +58,10 @@ __all__ = ["LSHLocalizer", "projection_matrix", "make_projection", "PROJECTIONS"
 
 #: Without a budget, codes have this many bits.
 DEFAULT_BITS = 256
-#: Most bits per row the budget rule gives (beyond this, asymmetric LSH is within noise of cosine).
-MAX_BITS = 8192
+#: Most bits per row the budget rule gives per dimension (16·d bits: the row's size at float16).
+MAX_BITS_PER_DIMENSION = 16
+#: Most bits per row at all (``n_bits`` and model files).
+MAX_BITS = 1 << 16
 #: ``center='auto'`` centres when the float16 mean costs at most this share of the budget ...
 CENTER_SHARE = 1 / 8
 #: ... and the map's rows lie in a cone: ‖mean row‖ at least this × their RMS length (module docstring).
@@ -198,7 +202,6 @@ def row_codes(stream: np.ndarray, n_rows: int, n_bits: int) -> np.ndarray:
     return out
 
 
-
 class LSHLocalizer(_RowLocalizer):
     """Sign random projections of the map, P bits per row filling the budget, asymmetric or Hamming search.
 
@@ -211,8 +214,8 @@ class LSHLocalizer(_RowLocalizer):
     scoring : {'asymmetric', 'hamming'}
         Projected query against the ±1 codes (default), or binarised query by Hamming distance.
     center : bool or 'auto'
-        Subtract the map mean (stored as d float16 values, counted) before projecting; 'auto': when
-        the rows lie in a cone (‖mean‖ ≥ 0.5 × RMS length) and the mean costs at most 1/8 of the budget.
+        False (default): plain cosine. True: subtract the map mean (d float16, counted) before
+        projecting (centred cosine). 'auto': for a cone, when the mean is cheap (module docstring).
     projection : {'hadamard', 'orthogonal', 'gaussian'}
         Sign flips and Walsh–Hadamard transforms (default), QR-orthonormalised Gaussian blocks, or i.i.d.
         Gaussian hyperplanes (module docstring); all regenerated from the seed, 0 bytes.
@@ -256,7 +259,7 @@ class LSHLocalizer(_RowLocalizer):
     }
 
     def __init__(self, *, budget: int | str | None = None, n_bits: int | None = None, scoring: str = "asymmetric",
-                 center: bool | str = "auto", projection: str = "hadamard", random_state: int | None = 0,
+                 center: bool | str = False, projection: str = "hadamard", random_state: int | None = 0,
                  n_jobs: int | None = None) -> None:
         self.budget = budget
         self.n_bits = n_bits
@@ -275,7 +278,7 @@ class LSHLocalizer(_RowLocalizer):
         elif budget is None:
             bits = DEFAULT_BITS
         else:
-            bits = min(MAX_BITS, 8 * (budget - reserved - mean_bytes) // n_rows)
+            bits = min(self.max_bits(n_features), 8 * (budget - reserved - mean_bytes) // n_rows)
         needed = reserved + mean_bytes + code_bytes(n_rows, max(bits, 8))
         if budget is not None and (bits < 8 or needed > budget):
             minimum = reserved + mean_bytes + code_bytes(n_rows, max(bits if self.n_bits else 8, 8))
@@ -283,6 +286,20 @@ class LSHLocalizer(_RowLocalizer):
                                    f"{max(bits, 8) if self.n_bits else 8}-bit codes for {n_rows} rows"
                                    + (f" + the {n_features}-value float16 mean" if mean_bytes else ""))
         return bits
+
+    @staticmethod
+    def max_bits(n_features: int) -> int:
+        """The most bits per row the budget rule gives rows of ``n_features`` values."""
+        return int(min(MAX_BITS, max(8, MAX_BITS_PER_DIMENSION * int(n_features))))
+
+    def budget_saturated(self) -> bool:
+        """True when the budget rule stopped at :meth:`max_bits`: a larger budget gives the same codes."""
+        d = self.front_end_.n_features_out(int(self.n_features_in_))
+        return self.n_bits is None and self.budget is not None and int(self.n_bits_) >= self.max_bits(d)
+
+    def unused_budget(self) -> int:
+        """Bytes of the budget left unspent because the model cannot use them (0 when not saturated)."""
+        return int(budget_of(self) - self.nbytes) if self.budget_saturated() else 0
 
     def effective_bits(self, n_rows: int, n_features: int, budget: int | None, cone: float,
                        reserved: int = 0) -> float:
@@ -300,8 +317,7 @@ class LSHLocalizer(_RowLocalizer):
 
         Returns
         -------
-        float
-            0 when no code fits the budget.
+        float (0 when no code fits the budget)
         """
         in_cone = cone >= CENTER_CONE
         try:
@@ -374,9 +390,12 @@ class LSHLocalizer(_RowLocalizer):
     def summary(self) -> str:
         """One line: bits per row, scoring, seed and the front end."""
         centred = "centred" if self.mean_ is not None else "uncentred"
+        unused = self.unused_budget()
+        cap = (f"; budget saturated at {MAX_BITS_PER_DIMENSION}·d bits per row, {unused} B unused"
+               if unused else "")
         return (f"lsh: {self.n_bits_} bits per row, {self.scoring} scoring, {self.projection} projection "
                 f"from seed {self.seed_} (0 B), {centred}; front end "
-                f"{self.front_end_.describe()}")
+                f"{self.front_end_.describe()}{cap}")
 
     def _model_arrays(self) -> dict[str, np.ndarray]:
         if getattr(self, "_stored_codes", None) is None:  # built once, when asked: nbytes asks for it often
