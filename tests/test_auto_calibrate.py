@@ -57,7 +57,7 @@ def test_the_table_holds_every_candidate_scored_on_the_same_queries(calibrated) 
             assert e["wins"] + e["losses"] <= 120 and 0 <= e["p_adjusted"] <= 1
             assert e["confidence"] == pytest.approx(1 - e["p_adjusted"], abs=1e-4)
     unfit = [e for e in c["table"] if e["status"] != "ok"]
-    assert all("does not fit" in e["status"] for e in unfit)
+    assert all(e["status"] == "over budget" and e["needs"].endswith("B") for e in unfit)
     assert c["chosen"] in calibrated.summary() and "n for 0.05" in calibrated.summary()
 
 

@@ -66,7 +66,7 @@ def check_calibration_options(method: str, queries: str | None, truth: str | Non
         raise click.UsageError("--calibrate-truth and --calibrate-tolerance apply with --calibrate QUERIES.")
     if queries is not None and "calibration" not in inspect.signature(make_method(method).fit).parameters:
         raise click.UsageError(f"--calibrate chooses a method on labelled queries, which --method {method} does "
-                               "not do; use --method auto (or compare methods with `btel evaluate`).")
+                               "not do. Use --method auto (or compare methods with `btel evaluate`).")
 
 
 def calibration_input(db: str, queries: str, truth: str | None, n_map: int) -> tuple[np.ndarray, object]:

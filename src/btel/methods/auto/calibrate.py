@@ -360,7 +360,8 @@ def choose_calibrated(
                 pred = make(cand["method"], params, sub_budget).fit(Xc, pc).predict(Q)
                 runs.append(truth.is_correct(pred if back is None else back[pred], tolerance))
         except BudgetTooSmallError as exc:
-            table.append({**entry, "status": f"does not fit (needs ≥ {format_bytes(exc.minimum or 0)})"})
+            # the candidate's own bytes at this budget: a calibration-table cell, not a run's row status
+            table.append({**entry, "status": "over budget", "needs": format_bytes(exc.minimum or 0)})
             continue
         except BTELError as exc:  # a candidate that cannot index this map (too few rows to train, …)
             table.append({**entry, "status": f"cannot fit: {str(exc)[:160]}"})

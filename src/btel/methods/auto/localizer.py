@@ -34,7 +34,7 @@ def calibration_table(calibration: dict[str, Any] | None) -> str:
             continue
         if e.get("status") != "ok":
             lines.append(f"  {str(e.get('candidate')):<28} {'':>6} {'':>7} {'':>9} {'':>6} {'':>9} {'':>9}  "
-                         f"{e.get('status')}")
+                         f"{e.get('status')}" + (f", needs ≥ {e['needs']}" if e.get("needs") else ""))
             continue
         diff = "" if "difference" not in e else f"{e['difference']:+.3f}"
         p = "" if "p_adjusted" not in e else f"{e['p_adjusted']:.3f}"
