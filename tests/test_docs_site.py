@@ -24,11 +24,6 @@ PAGES = [ROOT / "README.md", *sorted((ROOT / "docs" / "guide").glob("*.md"))]
 FENCE = re.compile(r"^```python\n(.*?)^```$", re.MULTILINE | re.DOTALL)
 DOCSTRING_LINES = 40
 HISTORY = re.compile(r"^\s*History\b|Added after|Before this rule", re.MULTILINE)
-# Module docstrings over the limit in other helpers' lanes when issue 36 was done; the lead
-# removes these entries when the lanes are merged.
-OVER_LIMIT_PENDING = {
-    "src/btel/experiments/frontier.py",  # pending h38-measure
-}
 API_PACKAGES = {
     "btel": "btel.md", "btel.methods": "methods.md", "btel.methods.base": "methods.md",
     "btel.methods.btel": "methods.md", "btel.methods.codes": "methods.md", "btel.methods.auto": "methods.md",
@@ -95,16 +90,12 @@ def _module_docstrings() -> list[tuple[str, str]]:
 def test_no_module_docstring_over_the_limit() -> None:
     over = {path: len(doc.splitlines()) for path, doc in _module_docstrings()
             if len(doc.splitlines()) > DOCSTRING_LINES}
-    unexpected = {path: n for path, n in over.items() if path not in OVER_LIMIT_PENDING}
-    assert not unexpected, (f"module docstrings over {DOCSTRING_LINES} lines (move the evidence to "
-                            f"docs/decisions): {unexpected}")
-    stale = sorted(OVER_LIMIT_PENDING - set(over))
-    assert not stale, f"remove from OVER_LIMIT_PENDING, now within the limit: {stale}"
+    assert not over, (f"module docstrings over {DOCSTRING_LINES} lines (move the evidence to "
+                      f"docs/decisions): {over}")
 
 
-def test_no_history_in_module_docstrings_outside_pending_lanes() -> None:
-    found = [path for path, doc in _module_docstrings()
-             if path not in OVER_LIMIT_PENDING and HISTORY.search(doc)]
+def test_no_history_in_module_docstrings() -> None:
+    found = [path for path, doc in _module_docstrings() if HISTORY.search(doc)]
     assert not found, f"module docstrings telling a history (move it to docs/decisions): {found}"
 
 

@@ -59,10 +59,9 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
                  timing_threads: int) -> None:
     """Localize QUERIES with each method; write metrics.json, metrics.csv, predictions and plots to --out.
 
-    Methods are fitted on --db (--methods, --budget, --param) or loaded from --model files. All is
-    checked before any fit; a method that does not fit (or fails) becomes a row with its reason, and
-    the run folder is rewritten as each finishes. Exit: 0 all ran; 1 some did not, or a failure;
-    2 usage or input; 130 Ctrl-C.
+    Methods are fitted on --db (--methods, --budget, --param) or loaded from --model files; all is checked
+    before any fit, and a method that does not fit (or fails) becomes a row with its reason. Exit: 0 all
+    ran; 1 some did not, or a failure; 2 usage or input; 130 Ctrl-C.
     """
     from ..datasets.sources import resolve_ground_truth
     from ..evaluation.inputs import common_map_size, run_title, saved_jobs

@@ -32,23 +32,11 @@ run reports its choice, its recall, the oracle's and their ratio (the target: �
 is a row of its own). Brute force (cosine, and on shrinkage-whitened rows) is the
 unbudgeted reference of every map.
 
-Every seeded row at every budget is the mean over :data:`SEEDS` (``random_state`` 0, 1, 2; two in
-``--quick``): with one seed, LSH on orthogonal and on Gaussian hyperplanes traded places by a few
-hundredths in single cells, which decided "auto ≥ LSH" by noise. A row whose answers do not change
-between the first two seeds runs once. auto against LSH is also reported paired by seed.
-
-Cost control (≤ 15 min on 2 cores; the run records its wall time per map): the whole run uses one
-faiss and one BLAS thread (:func:`btel.core.threads.limit_threads`), the fastest setting measured on the
-shared 2-core machine — ITQ at 1 MB on the 2048-row synthetic route fitted in 8.0 s on one thread
-against 41.8 s with faiss' default two, PQ 8.6 s against 45.4 s (OpenMP workers spin against the
-other processes; an earlier run with the defaults spent 176 s on Gardens Point, 2 s on one thread).
-A budget larger than the map itself in float32 (N·d·4 bytes: Gardens Point's 400 KB map at 1 MB) is
-skipped for every method: brute force stores the whole map in less, and it is the unbudgeted
-reference row. The registered methods whose fit takes tens of seconds to minutes on the larger
-maps (BTE-C, BTE-F, BTEL with regions, btel-auto, RYTH, OPQ, SeqSLAM) run at 64 KB only, and on
-Nordland in the summer→winter direction only (the codes and beyond experiments have their other
-budgets); the fast ones (auto, LSH, btel-codes, PQ, ITQ, brute force) run at every budget on every
-map. Every finished row is appended to ``rows.jsonl`` as it comes.
+Every seeded row is the mean over :data:`SEEDS` (two in ``--quick``); a row whose answers do not
+change between the first two seeds runs once. The run stays within 15 min on 2 cores: one faiss and
+one BLAS thread, budgets larger than the float32 map skipped, the slow registered methods at 64 KB
+only (summer→winter on Nordland); every finished row is appended to ``rows.jsonl`` as it comes.
+Why each of these: ``docs/decisions/frontier.md``.
 """
 
 from __future__ import annotations
