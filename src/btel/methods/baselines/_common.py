@@ -119,8 +119,9 @@ def check_magnitude(X: np.ndarray, name: str, *, error: type[Exception] = Invali
     Squared norms are summed in X's own float32: one that overflows is far beyond the bound anyway.
     Returns the largest squared norm (float32 arithmetic: 0 when every row underflows).
     """
-    if X.shape[0] == 1 and X.dtype == np.float32:  # one query (µs count here): BLAS' sdot (no FP warnings)
-        square = float(np.dot(X[0], X[0]))
+    if X.shape[0] == 1 and X.dtype == np.float32:  # one query (µs count here): BLAS' sdot
+        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is named by the full check below
+            square = float(np.dot(X[0], X[0]))
         if square <= MAX_NORM**2:  # False for NaN and overflow: the full check names it
             return square
     largest = 0.0
