@@ -25,7 +25,7 @@ def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | 
 
     \b
     NAME: accuracy | vs-n | vs-budget | feature-ratio | regions | sequence-filter | beyond |
-          front-ends | codes | all
+          front-ends | codes | frontier | all
     Every method runs with its default front end (rows L2-normalised; SeqSLAM none) unless --delta.
     Each writes results.csv, results.json and PNG plots into OUT/NAME/; `btel report` turns the
     latest runs into docs/results.md.
