@@ -60,7 +60,8 @@ def time_queries(method: Any, Q: np.ndarray, *, repeats: int = 5, n_single: int 
     method : fitted estimator with ``predict``
     Q : ndarray of shape (n_queries, n_features)
     repeats : int, default 5
-        Timed batch calls.
+        Timed batch calls. 0 times the one call that gives the predictions (no warm-up, no
+        single-query latency): the cheapest honest figure, for sweeps that fit hundreds of rows.
     n_single : int, default 50
         Queries timed one at a time (the first ones of ``Q``); 0 skips the latency.
     warmup : int, default 1
@@ -88,6 +89,12 @@ def time_queries(method: Any, Q: np.ndarray, *, repeats: int = 5, n_single: int 
 def _time_queries(method: Any, Q: np.ndarray, repeats: int, n_single: int, warmup: int,
                   max_seconds: float) -> tuple[np.ndarray, QueryTiming]:
     n_queries = Q.shape[0]
+    if repeats <= 0:
+        start = time.perf_counter()
+        predictions = method.predict(Q)
+        elapsed = time.perf_counter() - start
+        return predictions, QueryTiming(batch_s_per_query=elapsed / n_queries, latency_s=None,
+                                        n_threads=max_threads(), repeats=1, n_single=0)
     predictions = method.predict(Q)
     for _ in range(max(0, warmup - 1)):
         method.predict(Q)

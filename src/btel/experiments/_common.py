@@ -230,8 +230,12 @@ class FittedRow:
 
 
 def fit_and_predict(name: str, params: dict[str, Any], X: np.ndarray, Q: np.ndarray, budget: int | None,
-                    label: str, *, progress: bool | None = None) -> FittedRow | dict[str, Any]:
+                    label: str, *, progress: bool | None = None, timing_repeats: int = 1
+                    ) -> FittedRow | dict[str, Any]:
     """Fit one registered method under ``budget`` and measure it on every query (:func:`measure`).
+
+    ``timing_repeats`` is :func:`measure`'s (0: the predicting call alone is timed). No
+    precision–recall pass: these experiments report recall and times only.
 
     Returns the fields of a "does not fit" row (with the minimum bytes) when the budget is too
     small; ``progress`` (when given) is set on methods that have that parameter.
@@ -246,7 +250,7 @@ def fit_and_predict(name: str, params: dict[str, Any], X: np.ndarray, Q: np.ndar
                 "minimum_bytes": int(exc.minimum or 0)}
     check_within_budget(label, model.nbytes, budget)
     record = measure(model, None, Q, name=label, fit=False, fit_time_s=fit_s, ks=(), budget=budget,
-                     timing_repeats=1)
+                     timing_repeats=timing_repeats, precision_recall=False)
     return FittedRow(model, record.predictions, fit_s, record.query_time_s_per_query * 1e6, record)
 
 
