@@ -52,7 +52,8 @@ def parse_fixed(lines: list[bytes], d: int) -> np.ndarray | None:
     if len(e) != n_lines * d or not all(line.endswith(b"\n") for line in lines):
         return None
     windows = np.lib.stride_tricks.as_strided(a, (len(a) - 31, 32), (1, 1))
-    t = windows[e - 24]  # bytes 4..27: the token 'D.dddddddddddddddddde+XX'; byte 3 its sign; 28 the separator
+    # Bytes 4..27: the token 'D.dddddddddddddddddde+XX'; byte 3: its sign; byte 28: the separator.
+    t = windows[e - 24]
     w = t.view(_U4)
     neg = t[:, 3] == ord("-")
     sep = t[:, 28].reshape(n_lines, d)
@@ -86,11 +87,13 @@ def parse_fixed(lines: list[bytes], d: int) -> np.ndarray | None:
 
 
 def orjson_only(lines: list[bytes]) -> list[list[float]]:
-    return [orjson.loads(b"[" + (line if b"," in line else line.replace(b" ", b",")) + b"]") for line in lines]
+    loads = orjson.loads
+    return [loads(b"[" + (line if b"," in line else line.replace(b" ", b",")) + b"]") for line in lines]
 
 
 def float_per_token(lines: list[bytes]) -> np.ndarray:
-    return np.array([[float(t) for t in line.replace(b",", b" ").split()] for line in lines]).astype(np.float32)
+    values = [[float(t) for t in line.replace(b",", b" ").split()] for line in lines]
+    return np.array(values).astype(np.float32)
 
 
 def main() -> None:
@@ -137,9 +140,9 @@ def main() -> None:
                    "lines_per_s": args.block / seconds, "us_per_line": seconds / args.block * 1e6,
                    "ratio_vs_parse_lines": best["parse_lines"] / seconds, "load": [load[0], load_after[0]]}
             rows.append(row)
-            print(f"{name:<14} {key:<34} {row['lines_per_s']:>9,.0f} lines/s  {row['us_per_line']:6.1f} µs/line  "
-                  f"{row['ratio_vs_parse_lines']:5.2f}× parse_lines  (load {load[0]:.1f} → {load_after[0]:.1f})",
-                  flush=True)
+            print(f"{name:<14} {key:<34} {row['lines_per_s']:>9,.0f} lines/s  "
+                  f"{row['us_per_line']:6.1f} µs/line  {row['ratio_vs_parse_lines']:5.2f}× parse_lines  "
+                  f"(load {load[0]:.1f} → {load_after[0]:.1f})", flush=True)
     path = write_results("stream_parsers", {"rows": rows, "command": " ".join(["python", *sys.argv])})
     print(f"wrote {path}")
 
