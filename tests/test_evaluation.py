@@ -268,6 +268,33 @@ def test_time_queries_stops_repeating_after_max_seconds(monkeypatch) -> None:
     assert timing.repeats == 3 and timing.latency_s is None  # 1 + 1 + 1 s passes 2.5 s
 
 
+def test_time_queries_with_no_repeats_times_the_predicting_call_alone(monkeypatch) -> None:
+    import btel.evaluation.timing as ev
+
+    clock = _Clock()
+    monkeypatch.setattr(ev.time, "perf_counter", clock)
+    method = _SlowFirstCall(clock)
+    predictions, timing = ev.time_queries(method, np.zeros((10, 4), np.float32), repeats=0)
+    np.testing.assert_array_equal(predictions, np.arange(10))
+    assert method.calls == 1 and timing.repeats == 1 and timing.latency_s is None and timing.n_single == 0
+    assert timing.batch_s_per_query == pytest.approx(100.0 / 10)  # un-warmed: the first call's cost
+
+
+def test_measure_without_precision_recall_skips_the_scoring_pass() -> None:
+    import btel
+    from btel.evaluation import measure
+
+    X = np.random.default_rng(0).standard_normal((60, 16)).astype(np.float32)
+    calls = []
+    model = btel.make_method("bruteforce").fit(X)
+    real = model.search
+    model.search = lambda Q, k=1: calls.append(k) or real(Q, k=k)
+    light = measure(model, None, X, fit=False, ks=(), score_answers=False, timing_repeats=0)
+    assert calls == [] and light.auc_pr_vpr_bench is None and light.recall[0] == 1.0
+    full = measure(model, None, X, fit=False, ks=())
+    assert calls == [1] and full.auc_pr_vpr_bench is not None
+
+
 # -- precision-recall from the best-match score --------------------------------------------------------
 def test_precision_recall_by_hand() -> None:
     from btel.evaluation import precision_recall

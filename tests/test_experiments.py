@@ -162,3 +162,57 @@ def test_frontier_rows_average_seeds_and_pair_them(monkeypatch) -> None:
     assert paired["diff_se"] == pytest.approx(0.1 / np.sqrt(3))
     single = frontier.paired_difference({"value": 0.55, "seed_values": [0.55]}, b)
     assert single["diff"] == pytest.approx(0.55 - 0.5) and single["diff_seeds"] == 3
+
+
+def test_frontier_calibrated_row_answers_each_query_with_a_model_calibrated_on_the_other_half(monkeypatch) -> None:
+    """Cross-fitting: the calibration of the model that answers a query never contains that query."""
+    from btel.datasets import synthetic_route
+    from btel.experiments import frontier
+    from btel.methods.auto import AutoLocalizer
+
+    route = synthetic_route(120, 16, condition_shift=1.0, seed=5)
+    seen: list[tuple[np.ndarray, np.ndarray]] = []  # (calibration truths, the queries it then answers)
+    real_fit, real_predict = AutoLocalizer.fit, AutoLocalizer.predict
+
+    def fit(self, X, places=None, calibration=None):
+        self._test_cal = np.asarray(calibration[1])
+        return real_fit(self, X, places, calibration)
+
+    def predict(self, Q):
+        rows = [int(np.flatnonzero((route.queries == q).all(axis=1))[0]) for q in np.asarray(Q)]
+        seen.append((self._test_cal, np.asarray(rows)))
+        return real_predict(self, Q)
+
+    monkeypatch.setattr(AutoLocalizer, "fit", fit)
+    monkeypatch.setattr(AutoLocalizer, "predict", predict)
+    base = {"dataset": "route", "key": "recall@2", "n_places": 120}
+    row = frontier._calibrated_row(base, route.map, route.queries, 4000, (0, 1))
+    assert row["status"] == "ok" and row["seeds"] == [0, 1] and len(seen) == 4
+    for cal, answered in seen:
+        assert not set(cal) & set(answered) and len(cal) + len(answered) == 120
+    assert row["value"] == pytest.approx(np.mean(row["seed_values"]))
+    assert row["value"] == pytest.approx(np.mean(row["half_values"]), abs=1e-9)  # equal halves (N even)
+    assert row["nbytes"] <= 4000 and {len(v) for v in row["calibrated_choices"].values()} == {2}
+
+
+def test_frontier_verdicts_name_autos_pick_and_never_count_auto_as_its_own_oracle() -> None:
+    from btel.experiments import frontier
+
+    def row(method, name, options, value, **extra):
+        return {"dataset": "m", "budget": 4000, "status": "ok", "key": "recall@0", "method": method,
+                "registry_name": name, "options": options, "value": value, "half_values": [value, value],
+                "seed_values": [value], **extra}
+
+    rows = [row("lsh", "lsh", {}, 0.50), row("lsh centred", "lsh", {"center": True}, 0.40),
+            row("pq", "pq", {}, 0.60),
+            row("auto", "auto", {}, 0.40, chose="lsh center=True", chose_method="lsh",
+                chose_params={"center": True}, route_share=0.0),
+            row("auto calibrated", "auto", {}, 0.99,
+                calibrated_choices={"even": [{"chose": "pq", "switched": True}], "odd": []})]
+    (v,) = frontier.auto_vs_oracle(rows)
+    assert v["best"] == "pq" and v["auto_pick_row"] == "lsh centred"
+    assert v["meets_0.95"] is False and v["calibrated_meets_0.95"] is True
+    assert v["calibrated_switches"] == 1 and v["calibrated_minus_auto"]["diff"] == pytest.approx(0.59)
+    assert "calibrated in 1 of 1" in " ".join(frontier._counts([v])).replace("Calibrated auto (every query "
+                                                                            "answered by a model calibrated on "
+                                                                            "the other half) in", "calibrated in")

@@ -68,7 +68,7 @@ def measure(
     reference: bool = False,
     timing_repeats: int = 5,
     timing_threads: int | None = 1,
-    precision_recall: bool = True,
+    score_answers: bool = True,
     fit_time_s: float | None = None,
     labels: dict[str, Any] | None = None,
 ) -> EvaluationResult:
@@ -111,7 +111,7 @@ def measure(
     timing_repeats : int, default 5
         Timed batch calls behind the query-time median (:func:`time_queries`: warm-up, repeats,
         and single-query latency timed apart); 0 times the predicting call alone.
-    precision_recall : bool, default True
+    score_answers : bool, default True
         Score every answer (``search(Q, k=1)`` when the method has no ranking asked for) and report
         the precision–recall figures; False skips that pass (the AUC-PR fields are then None).
     fit_time_s : float, optional
@@ -180,10 +180,10 @@ def measure(
         # No ranking: the point prediction is the one candidate, so R@K is known for K = 1 only.
         r_at_k = recall_at_k(predictions[:, None], gt, (1,), tolerance=k_tolerance)
 
-    if best_scores is None and has_search and precision_recall:
+    if best_scores is None and has_search and score_answers:
         best_scores = np.asarray(method.search(Q, k=1)[0])[:, 0]
     pr = None
-    if precision_recall and best_scores is not None and best_scores.shape == (n_queries,):
+    if score_answers and best_scores is not None and best_scores.shape == (n_queries,):
         pr = precision_recall(best_scores, gt.is_correct(predictions, k_tolerance),
                               n_relevant=max(1, gt.n_queries - gt.n_without_positives))
 

@@ -250,7 +250,7 @@ def fit_and_predict(name: str, params: dict[str, Any], X: np.ndarray, Q: np.ndar
                 "minimum_bytes": int(exc.minimum or 0)}
     check_within_budget(label, model.nbytes, budget)
     record = measure(model, None, Q, name=label, fit=False, fit_time_s=fit_s, ks=(), budget=budget,
-                     timing_repeats=timing_repeats, precision_recall=False)
+                     timing_repeats=timing_repeats, score_answers=False)
     return FittedRow(model, record.predictions, fit_s, record.query_time_s_per_query * 1e6, record)
 
 
