@@ -196,7 +196,7 @@ def test_frontier_calibrated_row_answers_each_query_with_a_model_calibrated_on_t
 
 
 def test_frontier_verdicts_name_autos_pick_and_never_count_auto_as_its_own_oracle() -> None:
-    from btel.experiments import frontier
+    from btel.experiments import frontier, frontier_verdicts
 
     def row(method, name, options, value, **extra):
         return {"dataset": "m", "budget": 4000, "status": "ok", "key": "recall@0", "method": method,
@@ -213,6 +213,6 @@ def test_frontier_verdicts_name_autos_pick_and_never_count_auto_as_its_own_oracl
     assert v["best"] == "pq" and v["auto_pick_row"] == "lsh centred"
     assert v["meets_0.95"] is False and v["calibrated_meets_0.95"] is True
     assert v["calibrated_switches"] == 1 and v["calibrated_minus_auto"]["diff"] == pytest.approx(0.59)
-    assert "calibrated in 1 of 1" in " ".join(frontier._counts([v])).replace("Calibrated auto (every query "
+    assert "calibrated in 1 of 1" in " ".join(frontier_verdicts._counts([v])).replace("Calibrated auto (every query "
                                                                             "answered by a model calibrated on "
                                                                             "the other half) in", "calibrated in")

@@ -56,7 +56,11 @@ def _table(rows: list[dict[str, Any]], extra: list[str]) -> list[str]:
 
 
 def _is_btel(row: dict[str, Any]) -> bool:
-    return str(row.get("registry_name", row["method"])).startswith("btel")
+    """Is the row's method one that encodes place indices (asked of the method, by its registry name)?"""
+    from ..methods.registry import make_method, method_names
+
+    name = str(row.get("registry_name", row["method"]))
+    return name in method_names() and make_method(name).encodes_place_index
 
 
 def _reading(name: str, rows: list[dict[str, Any]]) -> list[str]:

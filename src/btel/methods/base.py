@@ -60,6 +60,9 @@ class PlaceLocalizer(ParamsMixin, ABC):
     #: True when a query's answer depends on the queries before it (SeqSLAM's sequence search). A
     #: delta front end makes any method sequence-based too: see :attr:`uses_query_sequence`.
     uses_sequence: ClassVar[bool] = False
+    #: True for the methods that learn classifiers predicting a place's index code (BTEL's encodings
+    #: and output codes): the results page sets the best of them against the best other method.
+    encodes_place_index: ClassVar[bool] = False
     #: Declared constraints (:mod:`btel.core.validation`) and meanings (:mod:`btel.core.paramdocs`) of the
     #: parameters; the budget's and the front end's are declared here once for every method.
     _parameter_constraints: ClassVar[dict[str, list[Any]]] = {}

@@ -10,6 +10,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from ...exceptions import InvalidParameterError
+from ...methods.roles import REFERENCE_METHOD
 from ..records import EvaluationResult
 from ._figure import _FIGSIZE, _bytes_axis, _finish_recall_plot, _new_figure, _recall_at, _save
 from .styles import method_styles
@@ -125,7 +126,7 @@ def plot_recall_vs_n(
 
 def curve_label(method: str, sequence_methods: set[str]) -> str:
     """A curve's legend entry: the method, marked as the reference or as using the query sequence."""
-    if method == "bruteforce":
+    if method == REFERENCE_METHOD:
         return f"{method} (reference, unbudgeted)"
     return f"{method} † query sequence" if method in sequence_methods else method
 

@@ -180,6 +180,8 @@ class BTELocalizer(TreeDecoding, TreeModelFile, PlaceLocalizer):
     (500,)
     """
 
+    encodes_place_index = True
+
     _linear_in_queries = True  # queries are only multiplied by hyperplanes (see btel.core.frontend.ScaledRows)
     _parameter_constraints = {
         "scheme": [Options(*SCHEMES)],

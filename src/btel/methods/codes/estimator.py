@@ -138,6 +138,8 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
     (True, (500,))
     """
 
+    encodes_place_index = True
+
     _parameter_constraints = {
         "code": [Options("auto", *FAMILIES)],
         "n_codes": [None, Interval(int, 1, MAX_COLUMNS)],
