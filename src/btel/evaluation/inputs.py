@@ -177,7 +177,8 @@ def calibrate_jobs(jobs: Sequence[Job], calibration: tuple[Any, Any],
             ignored.append(job.name)
             continue
         job.fit_params = {**(job.fit_params or {}), "calibration": calibration}
-        if tolerance is not None and "calibration_tolerance" in job.method.get_params():
+        own = job.method.get_params() if callable(getattr(job.method, "get_params", None)) else {}
+        if tolerance is not None and "calibration_tolerance" in own:
             if "calibration_tolerance" in (job.settings or {}):
                 raise InvalidParameterError(
                     f"{job.name}: the calibration tolerance is set twice (--calibrate-tolerance and "
