@@ -87,12 +87,33 @@ def test_auto_is_calibrated_the_others_are_not_and_the_table_is_in_the_run(files
 def test_calibrating_on_the_evaluated_queries_warns_the_evaluation_is_optimistic(files, tmp_path) -> None:
     result = run("evaluate", "--db", files["db"], "--queries", files["q_even"], "--ground-truth",
                  files["t_even"], "--methods", "auto", "--no-reference", "--budget", "800B", "--calibrate",
-                 files["q_even"], "--calibrate-truth", files["t_even"], "--no-progress", "--out", tmp_path / "run")
+                 files["q_even"], "--calibrate-truth", files["t_even"], "--no-progress", "--out",
+                 tmp_path / "run")
     assert result.exit_code == 0, result.output
     warned = [line for line in result.stderr.splitlines() if "optimistic" in line]
     assert warned == [f"Warning: {N // 2} of the {N // 2} evaluated queries are calibration queries: the "
                       "evaluation is then optimistic; calibrate on a held-out part."]
     assert "--calibrate:" not in result.stderr  # every row was calibrated: nothing to say
+
+
+def test_calibration_ground_truth_utm_from_the_image_names(files, tmp_path: Path) -> None:
+    """--calibrate-truth utm: positives within --positive-dist-threshold metres (place i at 10·i m east)."""
+    for stem, src, east in (("db", "db", np.arange(N) * 10.0), ("cal", "q_even", np.arange(0, N, 2) * 10.0 + 1)):
+        np.save(tmp_path / f"{stem}.npy", np.load(files[src]))
+        images = [[f"@{500000 + e:.2f}@4000000.00@55@H@@.jpg", None] for e in east]
+        (tmp_path / f"{stem}.npy.json").write_text(json.dumps({"images": images}))
+    out = tmp_path / "run"
+    result = run("evaluate", "--db", tmp_path / "db.npy", "--queries", files["q_odd"], "--ground-truth",
+                 files["t_odd"], "--methods", "auto", "--no-reference", "--budget", "800B", "--calibrate",
+                 tmp_path / "cal.npy", "--calibrate-truth", "utm", "--positive-dist-threshold", "5",
+                 "--no-progress", "--out", out)
+    assert result.exit_code == 0, result.output
+    payload = json.loads((out / "metrics.json").read_text())
+    assert payload["run"]["extra"]["calibration"]["ground_truth"] == {"source": "UTM in image names",
+                                                                      "rule": "positives within 5 m"}
+    assert payload["run"]["extra"]["ground_truth"]["source"] == str(files["t_odd"].resolve())
+    c = payload["results"][0]["choice"]["calibration"]
+    assert c["n_queries"] == N // 2 and sum(e["status"] == "ok" for e in c["table"]) >= 5
 
 
 @pytest.mark.parametrize("args, message", [
