@@ -46,8 +46,8 @@ def calibration_options(command: Any) -> Any:
     """``--calibrate QUERIES``, ``--calibrate-truth GT``, ``--calibrate-tolerance T`` (train, evaluate)."""
     for option in reversed([
         click.option("--calibrate", type=click.Path(dir_okay=False), default=None, metavar="QUERIES",
-                     help="Labelled queries from your deployment conditions that auto chooses its method on "
-                          "(never stored in a model); methods whose fit takes none ignore them."),
+                     help="Labelled queries from your deployment conditions, for the methods that choose on "
+                          "them (auto: every candidate scored, a switch only beyond noise); never stored."),
         click.option("--calibrate-truth", default=None, metavar="GT",
                      help="The ground truth of --calibrate (any form --ground-truth takes, utm included; "
                           "default frame-aligned)."),

@@ -33,7 +33,7 @@ FILE, FOLDER = dict(type=click.Path(dir_okay=False), default=None), dict(type=cl
 @click.option("--param", "param_texts", multiple=True, metavar="[METHOD:]NAME=VALUE", help=_PARAMS_HELP)
 @click.option("--ground-truth", **FILE, help=_GT_HELP)
 @click.option("--positive-dist-threshold", type=float, default=None, metavar="METRES",
-              help="With --ground-truth utm: the positives' radius (default 25, VPR-methods-evaluation's).")
+              help="With --ground-truth (or --calibrate-truth) utm: the positives' radius (default 25).")
 @click.option("--pairs", "pairs_path", **FILE, help=_PAIRS_HELP)
 @click.option("--tolerances", default=None, metavar="T,T,…",
               help="recall@t tolerances in frames (default 0,1,2,5,10,20 up to a tenth of the map).")
