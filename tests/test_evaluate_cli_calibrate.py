@@ -34,7 +34,8 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     r = synthetic_route(N, 16, condition_shift=1.5, noise=0.4, seed=5)
     places = np.arange(N)
     arrays = {"db": r.map, "q_even": r.queries[::2], "q_odd": r.queries[1::2], "t_even": places[::2],
-              "t_odd": places[1::2], "t_short": places[:7]}
+              "t_odd": places[1::2], "t_short": places[:7], "narrow": r.queries[::2, :8],
+              "nan": np.where(places[::2, None] == 4, np.nan, r.queries[::2])}
     for name, a in arrays.items():
         np.save(d / f"{name}.npy", a)
     return {name: d / f"{name}.npy" for name in arrays} | {"dir": d}
@@ -125,6 +126,8 @@ def test_calibration_ground_truth_utm_from_the_image_names(files, tmp_path: Path
       "{q_even}", "--calibrate-truth", "{t_even}", "--calibrate-tolerance", "1"], "set twice"),
     (["--db", "{db}", "--methods", "auto", "--calibrate", "{q_even}", "--calibrate-truth", "{t_short}"],
      "--calibrate-truth:"),
+    (["--db", "{db}", "--calibrate", "{narrow}", "--calibrate-truth", "{t_even}"], "have 8 dims but the map"),
+    (["--db", "{db}", "--calibrate", "{nan}", "--calibrate-truth", "{t_even}"], "NaN or infinite values"),
     (["--db", "{db}", "--calibrate", "{q_even}", "--calibrate-truth", "{t_even}", "--positive-dist-threshold",
       "10"], "--positive-dist-threshold applies to it (and --calibrate-truth utm) only"),
 ])

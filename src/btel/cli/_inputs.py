@@ -136,8 +136,12 @@ def calibrate_evaluation(jobs: list[Any], Q: np.ndarray, db: str, queries: str, 
 
     from ..evaluation.inputs import calibrate_jobs
     from ..exceptions import InvalidParameterError
+    from ._errors import InputError
 
     Qc, given, said = calibration_input(db, queries, truth, n_map, threshold)
+    if Qc.shape[1] != Q.shape[1]:
+        raise InputError(f"--calibrate: the calibration queries have {Qc.shape[1]} dims but the map and queries "
+                         f"{Q.shape[1]}; describe them with the same descriptor.")
     try:
         ignored = calibrate_jobs(jobs, (Qc, given), tolerance)
     except InvalidParameterError as exc:
