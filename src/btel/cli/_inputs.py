@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -56,31 +56,105 @@ def _load_map(path: str) -> np.ndarray:
     return load_descriptor_matrix(path, mmap_mode="r" if Path(path).suffix.lower() == ".npy" else None)
 
 
-def check_calibration_options(method: str, queries: str | None, truth: str | None, tolerance: int | None) -> None:
-    """``--calibrate-*`` only with ``--calibrate``, and only for a method whose ``fit`` takes calibration."""
-    import inspect
-
-    from ..methods.registry import make_method
-
-    if queries is None and (truth is not None or tolerance is not None):
-        raise click.UsageError("--calibrate-truth and --calibrate-tolerance apply with --calibrate QUERIES.")
-    if queries is not None and "calibration" not in inspect.signature(make_method(method).fit).parameters:
-        raise click.UsageError(f"--calibrate chooses a method on labelled queries, which --method {method} does "
-                               "not do. Use --method auto (or compare methods with `btel evaluate`).")
-
-
-def calibration_input(db: str, queries: str, truth: str | None, n_map: int) -> tuple[np.ndarray, object]:
-    """``--calibrate QUERIES --calibrate-truth GT``: the labelled queries and their ground truth (true
-    places as an int array, or the :class:`~btel.datasets.GroundTruth` of positives)."""
+def read_ground_truth(spec: str | None, option: str, *, n_queries: int, n_map: int, db: str | None,
+                      queries: str, threshold: float | None = None) -> tuple[Any, dict[str, str]]:
+    """``--ground-truth`` / ``--calibrate-truth`` read and checked against the query and map counts: the
+    checked :class:`~btel.datasets.GroundTruth` and its ``{"source", "rule"}``; ``threshold`` (metres)
+    applies to ``utm`` only."""
     from ..datasets.sources import resolve_ground_truth
     from ..evaluation.metrics import check_ground_truth
     from ..exceptions import InvalidParameterError
     from ._errors import InputError
 
-    Q = _load_matrix(queries, "calibration queries")
     try:
-        given, _ = resolve_ground_truth(truth, n_queries=Q.shape[0], n_map=n_map, db=db, queries=queries)
+        given, truth = resolve_ground_truth(spec, n_queries=n_queries, n_map=n_map, db=db, queries=queries,
+                                            threshold=threshold if spec == "utm" else None)
     except InvalidParameterError as exc:
-        raise InputError(f"--calibrate-truth: {exc}") from None
-    gt = check_ground_truth(given, Q.shape[0], n_map, option="--calibrate-truth")
-    return Q, (gt.query_places if gt.kind == "places" else gt)
+        raise InputError(f"{option}: {exc}") from None
+    return check_ground_truth(given, n_queries, n_map, option=option), truth
+
+
+def check_utm_options(ground_truth: str | None, calibrate_truth: str | None, db: str | None,
+                      threshold: float | None) -> None:
+    """``--ground-truth utm`` reads the map's image names from ``--db``; ``--positive-dist-threshold`` is
+    its radius (and that of ``--calibrate-truth utm``)."""
+    if (ground_truth == "utm" and db is None) or (threshold and "utm" not in (ground_truth, calibrate_truth)):
+        raise click.UsageError("--ground-truth utm reads image names from --db (give it); "
+                               "--positive-dist-threshold applies to it (and --calibrate-truth utm) only.")
+
+
+def _check_calibration_flags(queries: str | None, truth: str | None, tolerance: int | None) -> None:
+    if queries is None and (truth is not None or tolerance is not None):
+        raise click.UsageError("--calibrate-truth and --calibrate-tolerance apply with --calibrate QUERIES.")
+
+
+def check_calibration_options(method: str, queries: str | None, truth: str | None,
+                              tolerance: int | None) -> None:
+    """``--calibrate-*`` only with ``--calibrate``, and only for a method whose ``fit`` takes calibration."""
+    from ..evaluation.inputs import takes_calibration
+    from ..methods.registry import make_method
+
+    _check_calibration_flags(queries, truth, tolerance)
+    if queries is not None and not takes_calibration(make_method(method)):
+        raise click.UsageError(f"--calibrate chooses a method on labelled queries, which --method {method} does "
+                               "not do. Use --method auto (or compare methods with `btel evaluate`).")
+
+
+def check_evaluate_calibration(jobs: list[Any], db: str | None, queries: str | None, truth: str | None,
+                               tolerance: int | None) -> None:
+    """``btel evaluate``'s ``--calibrate-*``: with ``--calibrate``, which needs methods to fit (``--db``), one
+    of them choosing on labelled queries. Raises a usage error before anything is read."""
+    from ..evaluation.inputs import takes_calibration
+
+    _check_calibration_flags(queries, truth, tolerance)
+    if queries is None:
+        return
+    if db is None:
+        raise click.UsageError("--calibrate chooses a method while fitting it on --db; saved --model files "
+                               "are fitted already. Give --db and --methods auto.")
+    if not any(takes_calibration(job.method) for job in jobs):
+        raise click.UsageError(f"--calibrate chooses a method on labelled queries, which none of "
+                               f"{', '.join(job.name for job in jobs)} does. Add auto to --methods.")
+
+
+def calibration_input(db: str, queries: str, truth: str | None, n_map: int,
+                      threshold: float | None = None) -> tuple[np.ndarray, object, dict[str, str]]:
+    """``--calibrate QUERIES --calibrate-truth GT``: the labelled queries, their ground truth (true places
+    as an int array, or the :class:`~btel.datasets.GroundTruth` of positives) and its description."""
+    Q = _load_matrix(queries, "calibration queries")
+    gt, said = read_ground_truth(truth, "--calibrate-truth", n_queries=Q.shape[0], n_map=n_map, db=db,
+                                 queries=queries, threshold=threshold)
+    return Q, (gt.query_places if gt.kind == "places" else gt), said
+
+
+def calibrate_evaluation(jobs: list[Any], Q: np.ndarray, db: str, queries: str, truth: str | None,
+                         tolerance: int | None, n_map: int, threshold: float | None) -> dict[str, Any]:
+    """Give the jobs whose method takes calibration the labelled ``queries``; say on stderr which jobs
+    fit without them and when evaluated queries (``Q``) are among them (an optimistic evaluation).
+    The run's metadata of the calibration."""
+    import numpy as np
+
+    from ..evaluation.inputs import calibrate_jobs
+    from ..exceptions import InvalidParameterError
+    from ._errors import InputError
+
+    Qc, given, said = calibration_input(db, queries, truth, n_map, threshold)
+    if Qc.shape[1] != Q.shape[1]:
+        raise InputError(f"--calibrate: the calibration queries have {Qc.shape[1]} dims but the map and queries "
+                         f"{Q.shape[1]}; describe them with the same descriptor.")
+    try:
+        ignored = calibrate_jobs(jobs, (Qc, given), tolerance)
+    except InvalidParameterError as exc:
+        raise click.UsageError(str(exc)) from None
+    calibrated = [job.name for job in jobs if job.name not in ignored]
+    if ignored:
+        click.echo(f"--calibrate: {', '.join(calibrated)} chosen on the {Qc.shape[0]} labelled queries; "
+                   f"{', '.join(ignored)} fitted on the map alone (no calibration in their fit, or saved).",
+                   err=True)
+    rows = {np.ascontiguousarray(q, dtype=np.float32).tobytes() for q in Qc}
+    shared = sum(np.ascontiguousarray(q, dtype=np.float32).tobytes() in rows for q in Q)
+    if shared:
+        click.echo(f"Warning: {shared} of the {Q.shape[0]} evaluated queries are calibration queries: the "
+                   "evaluation is then optimistic; calibrate on a held-out part.", err=True)
+    return {"queries": str(Path(queries).resolve()), "n_queries": int(Qc.shape[0]), "ground_truth": said,
+            "tolerance": tolerance, "calibrated": calibrated, "not_calibrated": ignored}

@@ -42,6 +42,23 @@ _FRONT_END_HELP = ("Front end of every method (default: rows L2-normalised, SeqS
                    "--whiten P (PCA-whitening to P dims, counted in the bytes), --delta W.")
 
 
+def calibration_options(command: Any) -> Any:
+    """``--calibrate QUERIES``, ``--calibrate-truth GT``, ``--calibrate-tolerance T`` (train, evaluate)."""
+    for option in reversed([
+        click.option("--calibrate", type=click.Path(dir_okay=False), default=None, metavar="QUERIES",
+                     help="Labelled queries from your deployment conditions, for the methods that choose on "
+                          "them (auto: every candidate scored, a switch only beyond noise); never stored."),
+        click.option("--calibrate-truth", default=None, metavar="GT",
+                     help="The ground truth of --calibrate (any form --ground-truth takes, utm included; "
+                          "default frame-aligned)."),
+        click.option("--calibrate-tolerance", type=click.IntRange(min=0), default=None, metavar="T",
+                     help="With --calibrate and true places: correct within T places "
+                          "(--param calibration_tolerance)."),
+    ]):
+        command = option(command)
+    return command
+
+
 def _runtime_shortcuts(no_progress: bool, n_jobs: int | None) -> dict[str, tuple[str, Any]]:
     """The runtime flags given, as shortcuts (parameter → (option, value)) for :func:`._jobs._params_by_method`."""
     out: dict[str, tuple[str, Any]] = {}

@@ -7,12 +7,12 @@ from pathlib import Path
 import click
 
 from ..methods.roles import DEFAULT_METHOD
-from ._errors import InputError
-from ._inputs import _load_matrix
+from ._inputs import (_load_matrix, calibrate_evaluation, check_evaluate_calibration, check_utm_options,
+                      read_ground_truth)
 from ._jobs import _fit_jobs, _run_jobs
 from ._options import (EXIT_SOME_ROWS_FAILED, _BUDGET_HELP, _DELTA_HELP, _N_JOBS_HELP, _NO_PROGRESS_HELP,
                        _ORDER_HELP, _PARAMS_HELP, _REFERENCE_HELP, _TIMING_THREADS_HELP, _budgets, _int_list,
-                       _runtime_shortcuts, _split)
+                       _runtime_shortcuts, _split, calibration_options)
 
 _GT_HELP = ("Which map places are correct for each query. Default: frame-aligned (query j is place j). "
             "Files: .npz (query_places; indptr+indices; utmDb+utmQ+posDistThr), .npy (true places, or "
@@ -33,7 +33,7 @@ FILE, FOLDER = dict(type=click.Path(dir_okay=False), default=None), dict(type=cl
 @click.option("--param", "param_texts", multiple=True, metavar="[METHOD:]NAME=VALUE", help=_PARAMS_HELP)
 @click.option("--ground-truth", **FILE, help=_GT_HELP)
 @click.option("--positive-dist-threshold", type=float, default=None, metavar="METRES",
-              help="With --ground-truth utm: the positives' radius (default 25, VPR-methods-evaluation's).")
+              help="With --ground-truth (or --calibrate-truth) utm: the positives' radius (default 25).")
 @click.option("--pairs", "pairs_path", **FILE, help=_PAIRS_HELP)
 @click.option("--tolerances", default=None, metavar="T,T,…",
               help="recall@t tolerances in frames (default 0,1,2,5,10,20 up to a tenth of the map).")
@@ -50,22 +50,23 @@ FILE, FOLDER = dict(type=click.Path(dir_okay=False), default=None), dict(type=cl
 @click.option("--n-jobs", type=int, default=None, help=_N_JOBS_HELP)
 @click.option("--timing-threads", type=click.IntRange(min=0), default=1, show_default=True,
               help=_TIMING_THREADS_HELP)
+@calibration_options
 @click.pass_context
 def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...], queries: str,
                  methods: str, budget: str | None, no_reference: bool, param_texts: tuple[str, ...],
                  ground_truth: str | None, positive_dist_threshold: float | None, pairs_path: str | None,
                  tolerances: str | None, ks_text: str, query_order: str, out_dir: str | None, overwrite: bool,
                  resume_dir: str | None, delta: int | None, no_progress: bool, n_jobs: int | None,
-                 timing_threads: int) -> None:
+                 timing_threads: int, calibrate: str | None, calibrate_truth: str | None,
+                 calibrate_tolerance: int | None) -> None:
     """Localize QUERIES with each method; write metrics.json, metrics.csv, predictions and plots to --out.
 
     Methods are fitted on --db (--methods, --budget, --param) or loaded from --model files; all is checked
     before any fit, and a method that does not fit (or fails) becomes a row with its reason. Exit: 0 all
-    ran; 1 some did not, or a failure; 2 usage or input; 130 Ctrl-C.
+    ran; 1 some did not, or a failure; 2 usage or input; 130 Ctrl-C. With --calibrate, the methods whose
+    fit takes labelled queries (auto) choose on them; metrics.json and calibration.md hold their table.
     """
-    from ..datasets.sources import resolve_ground_truth
     from ..evaluation.inputs import common_map_size, run_title, saved_jobs
-    from ..evaluation.metrics import check_ground_truth
     from ..evaluation.runs import check_run_folder, read_finished_rows
     from ..exceptions import InvalidParameterError
 
@@ -81,6 +82,7 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
     tolerance_list = _int_list(tolerances, "--tolerances", minimum=0) if tolerances is not None else None
     jobs = [] if db is None else _fit_jobs(_split(methods), budgets, param_texts, reference=not no_reference,
                                            shortcuts={**front, **_runtime_shortcuts(no_progress, n_jobs)})
+    check_evaluate_calibration(jobs, db, calibrate, calibrate_truth, calibrate_tolerance)
     try:
         finished = None if resume_dir is None else read_finished_rows(resume_dir, queries, echo=click.echo)
     except InvalidParameterError as exc:
@@ -91,15 +93,9 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
     X = _load_matrix(db, "map descriptors") if db is not None else None
     saved = saved_jobs(model_paths, Q.shape[1])
     n_map = common_map_size(X, Q, saved)
-    if (ground_truth == "utm" and db is None) or (positive_dist_threshold and ground_truth != "utm"):
-        raise click.UsageError("--ground-truth utm reads image names from --db (give it); "
-                               "--positive-dist-threshold applies to it only.")
-    try:
-        given, truth = resolve_ground_truth(ground_truth, n_queries=Q.shape[0], n_map=n_map, db=db,
-                                            queries=queries, threshold=positive_dist_threshold)
-    except InvalidParameterError as exc:
-        raise InputError(f"--ground-truth: {exc}") from None
-    gt = check_ground_truth(given, Q.shape[0], n_map, option="--ground-truth")
+    check_utm_options(ground_truth, calibrate_truth, db, positive_dist_threshold)
+    gt, truth = read_ground_truth(ground_truth, "--ground-truth", n_queries=Q.shape[0], n_map=n_map, db=db,
+                                  queries=queries, threshold=positive_dist_threshold)
     if tolerance_list is not None and not gt.uses_tolerance:
         raise click.UsageError("--tolerances needs one true place per query; --ground-truth lists explicit "
                                "positives, which have no tolerance. Use --k (R@K) instead.")
@@ -113,6 +109,9 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
                        overwrite)
     extra = {"db": str(Path(db).resolve()) if db else None, "models": list(model_paths), "budget": budgets,
              "queries": str(Path(queries).resolve()), "query_order": query_order}
+    if calibrate:
+        extra["calibration"] = calibrate_evaluation(saved + jobs, Q, db, calibrate, calibrate_truth,
+                                                    calibrate_tolerance, n_map, positive_dist_threshold)
     if _run_jobs(saved + jobs, X, Q, out=out, progress=not no_progress, extra=extra, pairs=pairs,
                  ground_truth=gt, truth=truth, title=title, names=names, tolerances=tolerance_list, ks=ks,
                  overwrite=overwrite, queries_are_route=query_order == "route", finished=finished,

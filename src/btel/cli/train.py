@@ -9,7 +9,7 @@ import click
 
 from ..methods.roles import DEFAULT_METHOD
 from ._inputs import _load_map, calibration_input, check_calibration_options
-from ._options import _N_JOBS_HELP, _NO_PROGRESS_HELP, _PARAM_HELP, _check_budget
+from ._options import _N_JOBS_HELP, _NO_PROGRESS_HELP, _PARAM_HELP, _check_budget, calibration_options
 from ._outputs import refuse_existing
 from ._params import _naming, _param_value, _params_by_method
 from .info import _echo_storage
@@ -46,11 +46,7 @@ def _aliases(command: Callable[..., Any]) -> Callable[..., Any]:
               help="Random seed (same as --param random_state=…).")
 @click.option("--n-jobs", type=int, default=None, help=_N_JOBS_HELP)
 @click.option("--no-progress", is_flag=True, help=_NO_PROGRESS_HELP)
-@click.option("--calibrate", type=click.Path(), default=None, metavar="QUERIES",
-              help="auto: labelled queries from your deployment conditions to choose the method on.")
-@click.option("--calibrate-truth", default=None, metavar="GT", help="Their ground truth (as --ground-truth).")
-@click.option("--calibrate-tolerance", type=click.IntRange(min=0), default=None, metavar="T",
-              help="With --calibrate and true places: correct within T places (--param calibration_tolerance).")
+@calibration_options
 @_aliases
 def train(db: str, output: str, overwrite: bool, method: str, budget: str | None,
           param_texts: tuple[str, ...], random_state: int | None, n_jobs: int | None, no_progress: bool,
@@ -79,7 +75,8 @@ def train(db: str, output: str, overwrite: bool, method: str, budget: str | None
     params = _params_by_method([method], param_texts, shortcuts=shortcuts)[method]
     refuse_existing(output, "-o", overwrite)
     X = _load_map(db)
-    fit_params = {"calibration": calibration_input(db, calibrate, calibrate_truth, X.shape[0])} if calibrate else {}
+    fit_params = ({"calibration": calibration_input(db, calibrate, calibrate_truth, X.shape[0])[:2]}
+                  if calibrate else {})
     from ..evaluation.measure import timed_fit
 
     with _naming(method):

@@ -23,7 +23,7 @@ from .inputs import Job, make_jobs
 from .measure import _tolerances_for, measure
 from .metrics import DEFAULT_KS, TruthLike, check_ground_truth
 from .records import STATUS_FAILED, STATUS_NOT_RUN, STATUS_REFUSED, EvaluationResult
-from .tables import format_table
+from .tables import format_calibration, format_table
 
 __all__ = ["preflight", "evaluate_all", "run_methods"]
 
@@ -177,7 +177,8 @@ def evaluate_all(
             done[job.name] = measure(job.method, X_map if job.fit else None, Q, ground_truth=gt,
                                      tolerances=tolerances or None, ks=ks, k_tolerance=k_tolerance,
                                      name=job.name, curve_max=curve_max, fit=job.fit, budget=job.budget,
-                                     reference=job.reference, timing_threads=timing_threads)
+                                     reference=job.reference, timing_threads=timing_threads,
+                                     fit_params=job.fit_params)
         except BudgetTooSmallError as exc:
             done[job.name] = EvaluationResult.does_not_fit(job.name, exc, **common)
         except KeyboardInterrupt:
@@ -332,6 +333,9 @@ def run_methods(methods: Sequence[str | Job], X_map: Any, Q: Any, *, out: str | 
     for row in results:
         row.truth = truth
     say(format_table(results))
+    calibration = format_calibration(results)
+    if calibration:
+        say(calibration)
     report = writer.finish(results, title=title, tolerance_unit=unit)
     say(f"run folder: {report.out_dir}")
     failed = [r for r in results if not r.ok]

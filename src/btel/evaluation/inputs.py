@@ -18,7 +18,8 @@ from typing import Any
 from ..core.storage import budget_of, format_bytes, parse_budget
 from ..exceptions import InvalidParameterError
 
-__all__ = ["Job", "make_jobs", "method_named", "RUNTIME_PARAMS", "saved_jobs", "common_map_size", "run_title"]
+__all__ = ["Job", "make_jobs", "method_named", "RUNTIME_PARAMS", "saved_jobs", "common_map_size", "run_title",
+           "takes_calibration", "calibrate_jobs"]
 
 #: Parameters set by runtime flags (progress bars, parallel fits): they change how a method runs,
 #: not what it computes, so they are applied where a method has them and left out of its settings.
@@ -43,6 +44,9 @@ class Job:
     settings : dict, optional
         The parameters the user set for this row (``--param code=random``), shown in plot legends
         so that two rows of one method can be told apart.
+    fit_params : dict, optional
+        Keyword arguments of the row's ``fit`` beside the map (``calibration=(Q, truth)``,
+        :func:`calibrate_jobs`).
     """
 
     name: str
@@ -51,6 +55,7 @@ class Job:
     reference: bool = False
     series: str | None = None
     settings: dict[str, Any] | None = None
+    fit_params: dict[str, Any] | None = None
 
     @property
     def budget(self) -> int | None:
@@ -126,6 +131,61 @@ def make_jobs(methods: Sequence[str], budgets: Sequence[Any] = (None,),
     return jobs
 
 
+
+
+def takes_calibration(method: Any) -> bool:
+    """Whether ``method.fit`` takes labelled queries (a ``calibration`` argument): the method is asked, by
+    its fit's signature, never by its class or name."""
+    import inspect
+
+    fit = getattr(method, "fit", None)
+    try:
+        return callable(fit) and "calibration" in inspect.signature(fit).parameters
+    except (TypeError, ValueError):  # a fit whose signature cannot be read takes nothing more
+        return False
+
+
+def calibrate_jobs(jobs: Sequence[Job], calibration: tuple[Any, Any],
+                   tolerance: int | None = None) -> list[str]:
+    """Give every job to fit whose method takes calibration (:func:`takes_calibration`) the labelled
+    queries; the names of the jobs that ignore them.
+
+    Parameters
+    ----------
+    jobs : sequence of Job
+        Changed in place: a calibrated job's ``fit_params["calibration"]`` is set, and its method's
+        ``calibration_tolerance`` (where it has one) when ``tolerance`` is given.
+    calibration : (Q, truth)
+        The calibration queries, array of shape (n_calibration, n_features), and their ground truth
+        (true places, int array of shape (n_calibration,), or a :class:`~btel.datasets.GroundTruth`).
+    tolerance : int, optional
+        Places of slack of a calibration query's true place.
+
+    Returns
+    -------
+    list of str
+        Jobs not calibrated: saved (already fitted) models and methods whose fit takes no calibration.
+
+    Raises
+    ------
+    InvalidParameterError
+        ``tolerance`` given for a job whose settings already set ``calibration_tolerance``.
+    """
+    ignored = []
+    for job in jobs:
+        if not (job.fit and takes_calibration(job.method)):
+            ignored.append(job.name)
+            continue
+        job.fit_params = {**(job.fit_params or {}), "calibration": calibration}
+        own = job.method.get_params() if callable(getattr(job.method, "get_params", None)) else {}
+        if tolerance is not None and "calibration_tolerance" in own:
+            if "calibration_tolerance" in (job.settings or {}):
+                raise InvalidParameterError(
+                    f"{job.name}: the calibration tolerance is set twice (--calibrate-tolerance and "
+                    "--param calibration_tolerance); give one.")
+            job.method.set_params(calibration_tolerance=tolerance)
+            job.settings = {**(job.settings or {}), "calibration_tolerance": tolerance}
+    return ignored
 
 
 def saved_jobs(paths: Sequence[str | os.PathLike], n_features: int) -> list[Job]:

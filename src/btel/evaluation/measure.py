@@ -71,6 +71,7 @@ def measure(
     score_answers: bool = True,
     fit_time_s: float | None = None,
     labels: dict[str, Any] | None = None,
+    fit_params: dict[str, Any] | None = None,
 ) -> EvaluationResult:
     """Fit ``method`` on the map, localize the queries, and measure everything SPEC §9 asks for.
 
@@ -119,6 +120,9 @@ def measure(
         :func:`timed_fit` before it was cached), recorded as ``fit_time_s``.
     labels : dict, optional
         An experiment's own cells of the row (:attr:`EvaluationResult.labels`).
+    fit_params : dict, optional
+        Keyword arguments of ``fit`` beside the map, e.g. auto's ``calibration=(Q, truth)``
+        (the fit time then includes the calibration).
 
     Returns
     -------
@@ -143,7 +147,7 @@ def measure(
     curve_max = (default_curve_max(tolerances, n_map) if curve_max is None
                  else check_positive_int(curve_max, "curve_max", minimum=0))
 
-    fit_time = timed_fit(method, X_map) if fit else fit_time_s
+    fit_time = timed_fit(method, X_map, **(fit_params or {})) if fit else fit_time_s
 
     raw, timing = time_queries(method, Q, repeats=timing_repeats, threads=timing_threads)
     query_time = timing.batch_s_per_query

@@ -29,7 +29,7 @@ import numpy as np
 from ..core.modelfile import jsonable
 from .metrics import DEFAULT_TOLERANCES, recall_at_tolerance
 from .records import EvaluationResult
-from .tables import metrics_csv_text, predictions_csv_text
+from .tables import calibration_markdown, metrics_csv_text, predictions_csv_text
 from ..exceptions import DataNotFoundError, InvalidParameterError, OutputExistsError
 
 __all__ = ["RunReport", "RunWriter", "check_run_folder", "run_metadata", "write_run",
@@ -48,6 +48,8 @@ class RunReport:
         Method name → its ``predictions_<name>.csv``.
     plots : list of Path
         PNG files.
+    calibration : Path or None
+        ``calibration.md``, the calibration tables of the rows that chose on labelled queries.
     """
 
     out_dir: Path
@@ -55,6 +57,7 @@ class RunReport:
     metrics_csv: Path
     predictions: dict[str, Path]
     plots: list[Path]
+    calibration: Path | None = None
 
 
 def _package_version(*names: str) -> str | None:
@@ -101,7 +104,7 @@ def safe_file_name(name: str) -> str:
 
 #: Files a run folder may hold; with ``overwrite=True`` these (and only these) are removed first.
 _RUN_FILE_PATTERNS = ("metrics.json", "metrics.csv", "predictions_*.csv", "gallery_*.png", "recall_vs_*.png", "recall_at_k.png",
-                      "precision_recall.png", ".metrics.*.tmp")
+                      "precision_recall.png", ".metrics.*.tmp", "calibration.md")
 
 
 _LOCK_NAME = ".btel-run.lock"
@@ -203,7 +206,8 @@ class RunWriter:
     non-empty folder is refused unless ``overwrite``. :meth:`write` rewrites ``metrics.json`` and
     ``metrics.csv`` atomically with every row so far (rows that did not run included, with their
     status and reason) and writes the new rows' predictions; ``metrics.json`` says
-    ``"complete": false`` until :meth:`finish` draws the plots and marks it complete. A crash or
+    ``"complete": false`` until :meth:`finish` draws the plots (and writes ``calibration.md`` when a
+    row chose on labelled queries) and marks it complete. A crash or
     Ctrl-C between methods therefore leaves every finished method on disk.
 
     Parameters
@@ -270,8 +274,13 @@ class RunWriter:
         ``tolerance_unit``: ``"frames"`` (queries along a route) or ``"map places"`` (independent
         queries), for the plots' axis labels (:func:`btel.evaluation.plots.plot_run`)."""
         results = list(results)
+        calibration = None
         try:
             self.write(results, complete=True)
+            text = calibration_markdown(results, title)
+            if text:
+                calibration = self.out_dir / "calibration.md"
+                _atomic_write_text(calibration, text)
             measured = [r for r in results if r.ok]
             if plots and measured:
                 from . import plots as _plots
@@ -280,7 +289,8 @@ class RunWriter:
                                              not_run=[r for r in results if not r.ok], tolerance_unit=tolerance_unit)
         finally:
             self.close()
-        return RunReport(self.out_dir, self.metrics_json, self.metrics_csv, dict(self.predictions), list(self.plots))
+        return RunReport(self.out_dir, self.metrics_json, self.metrics_csv, dict(self.predictions), list(self.plots),
+                         calibration)
 
 
 # -- resuming an interrupted run (btel evaluate --resume) ------------------------------------------------
@@ -369,7 +379,9 @@ def write_run(
     - ``predictions_<method>.csv`` — columns ``query,prediction``, ``true`` when the ground truth
       has one true place per query, and ``rank_1…rank_K`` (rows that ran only);
     - ``recall_vs_tolerance.png`` (frame-aligned ground truth) or ``recall_at_k.png`` (explicit
-      positives), and ``recall_vs_storage.png`` when storage is known.
+      positives), and ``recall_vs_storage.png`` when storage is known;
+    - ``calibration.md`` when a row chose its method on labelled queries (auto with ``calibration``):
+      its calibration table (:func:`~btel.evaluation.tables.calibration_markdown`).
 
     Parameters
     ----------

@@ -16,8 +16,8 @@ import numpy as np
 from .records import STATUS_DOES_NOT_FIT, EvaluationResult
 from ..core.storage import format_bytes
 
-__all__ = ["format_table", "describe_row", "metrics_csv_text", "predictions_csv_text", "rows_csv_text",
-           "SEQUENCE_MARK", "REFERENCE_MARK", "PR_TABLE_NAMES"]
+__all__ = ["format_table", "format_calibration", "calibration_markdown", "describe_row", "metrics_csv_text",
+           "predictions_csv_text", "rows_csv_text", "SEQUENCE_MARK", "REFERENCE_MARK", "PR_TABLE_NAMES"]
 
 SEQUENCE_MARK = "†"
 REFERENCE_MARK = "*"
@@ -83,6 +83,43 @@ def format_table(results: Sequence[EvaluationResult]) -> str:
     if any(r.uses_query_sequence for r in results):
         notes.append(f"{SEQUENCE_MARK} uses the query sequence: not comparable with single-frame methods")
     lines += [f"  {n}" for n in notes]
+    return "\n".join(lines)
+
+
+#: What the calibration table's columns say (calibration.md).
+CALIBRATION_LEGEND = ("score: calibration recall (a query's prediction correct within the tolerance); diff: its "
+                      "paired difference with the map-only pick on the same queries; p (adj.): one-sided, adjusted "
+                      "over every candidate; conf.: 1 − p; n for …: the calibration queries that difference "
+                      "would need (power 0.8).")
+
+
+def _calibration_tables(results: Sequence[EvaluationResult]) -> list[tuple[str, str, dict[str, Any]]]:
+    """(row name, its calibration table as text, the table) of every row that chose on labelled queries."""
+    from ..methods.registry import calibration_table  # the text auto's summary() and `btel info` show
+
+    found = [(r.name, (r.choice or {}).get("calibration")) for r in results]
+    return [(name, calibration_table(c), c) for name, c in found if calibration_table(c)]
+
+
+def format_calibration(results: Sequence[EvaluationResult]) -> str:
+    """The calibration table of every row whose method chose on labelled queries (``choice["calibration"]``:
+    each candidate's calibration recall, its paired difference with the map-only pick, adjusted p,
+    confidence, the queries a difference needs, the switch); '' when no row did."""
+    return "\n".join(f"{name} — {table}" for name, table, _ in _calibration_tables(results))
+
+
+def calibration_markdown(results: Sequence[EvaluationResult], title: str | None = None) -> str:
+    """A run folder's ``calibration.md``: :func:`format_calibration`'s tables, one section per row;
+    '' when no row chose on labelled queries."""
+    tables = _calibration_tables(results)
+    if not tables:
+        return ""
+    lines = ["# Calibration", ""] + ([title, ""] if title else []) + [CALIBRATION_LEGEND, ""]
+    for name, table, c in tables:
+        switched = (f"switched from the map-only pick {c.get('map_only')} to {c.get('chosen')}"
+                    if c.get("switched") else f"kept the map-only pick {c.get('map_only')}")
+        lines += [f"## {name}", "", f"{switched} (family-wise α = {c.get('alpha')}; {c.get('test')}).", "",
+                  "```text", table, "```", ""]
     return "\n".join(lines)
 
 

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any, Callable, NamedTuple
 from .roles import DEFAULT_METHOD, DEMO_METHODS, REFERENCE_METHOD
 from ..core.validation import Instance, check_params, read_state_int
 from .base import PlaceLocalizer
-from .auto.localizer import AutoLocalizer
+from .auto.localizer import AutoLocalizer, calibration_table
 from .baselines import _BASELINE_CLASSES
 from ..exceptions import BTELError, InvalidParameterError, ModelFileError, ResourceLimitError
 from ..core.frontend import FrontEnd
@@ -41,7 +41,8 @@ if TYPE_CHECKING:  # pragma: no cover - imported on first use (_model_class)
     from .ryth import RYTHLocalizer
 
 __all__ = ["REGISTRY", "METHODS", "DESCRIPTIONS", "MODEL_CLASSES", "make_method", "method_names", "load",
-           "DEFAULT_METHOD", "REFERENCE_METHOD", "DEMO_METHODS", "block_size_for_tolerance"]
+           "DEFAULT_METHOD", "REFERENCE_METHOD", "DEMO_METHODS", "block_size_for_tolerance",
+           "calibration_table"]
 
 
 class _Entry(NamedTuple):
