@@ -57,14 +57,11 @@ _PREDICT_CHUNK_ROWS = 4096
 class PlaceLocalizer(ParamsMixin, ABC):
     """Base class of every localization method (module docstring); scikit-learn's contract, not its import."""
 
-    #: True when a query's answer depends on the queries before it (SeqSLAM's sequence search). A
-    #: delta front end makes any method sequence-based too: see :attr:`uses_query_sequence`.
+    #: An answer depends on the queries before it (SeqSLAM; any method with delta: uses_query_sequence).
     uses_sequence: ClassVar[bool] = False
-    #: True for the methods that learn classifiers predicting a place's index code (BTEL's encodings
-    #: and output codes): the results page sets the best of them against the best other method.
+    #: True where classifiers predict a place's index code (BTEL, output codes): the results page asks.
     encodes_place_index: ClassVar[bool] = False
-    #: Declared constraints (:mod:`btel.core.validation`) and meanings (:mod:`btel.core.paramdocs`) of the
-    #: parameters; the budget's and the front end's are declared here once for every method.
+    #: Parameters' constraints (core.validation) and meanings (core.paramdocs); budget and front end here.
     _parameter_constraints: ClassVar[dict[str, list[Any]]] = {}
     _parameter_meanings: ClassVar[dict[str, str]] = {"budget": BUDGET_MEANING, **FRONT_END_MEANINGS}
     #: The byte budget, a parameter of every method: parsed by :func:`btel.core.storage.budget_of`.

@@ -181,7 +181,6 @@ class BTELocalizer(TreeDecoding, TreeModelFile, PlaceLocalizer):
     """
 
     encodes_place_index = True
-
     _linear_in_queries = True  # queries are only multiplied by hyperplanes (see btel.core.frontend.ScaledRows)
     _parameter_constraints = {
         "scheme": [Options(*SCHEMES)],
