@@ -248,7 +248,7 @@ def _plots(rows: list[dict[str, Any]], out: Path) -> list[Path]:
     import matplotlib
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
-    from matplotlib.ticker import FuncFormatter
+    from matplotlib.ticker import FuncFormatter, NullFormatter
 
     written: list[Path] = []
 
@@ -262,7 +262,8 @@ def _plots(rows: list[dict[str, Any]], out: Path) -> list[Path]:
     styles = {label: {"color": palette[i % len(palette)], "marker": "*" if label.startswith("brute") else "os^Dv"[i // 10 % 5],
                       "linewidth": 1} for i, label in enumerate(labels)}
     styles["auto"] = {"color": "black", "marker": "o", "linewidth": 3}
-    styles["auto calibrated"] = {"color": "black", "marker": "s", "linewidth": 1.5, "linestyle": "--"}
+    styles["auto calibrated"] = {"color": "#7b2cbf", "marker": "s", "linewidth": 1.5, "linestyle": "--",
+                                 "markerfacecolor": "none", "markersize": 7}
     for xkey, fname, xlabel in (("nbytes", "frontier_recall_vs_bytes.png", "stored bytes"),
                                 ("bytes_per_place", "frontier_recall_vs_bytes_per_place.png", "stored bytes per place")):
         cols = 3
@@ -273,7 +274,7 @@ def _plots(rows: list[dict[str, Any]], out: Path) -> list[Path]:
             sub = [r for r in rows if r["dataset"] == dataset and r.get("status") == "ok"]
             for label in dict.fromkeys(r["method"] for r in sub):
                 pts = sorted((r[xkey], r["value"]) for r in sub if r["method"] == label)
-                ax.plot([p[0] for p in pts], [p[1] for p in pts], markersize=4, label=label, **styles[label])
+                ax.plot([p[0] for p in pts], [p[1] for p in pts], label=label, **{"markersize": 4, **styles[label]})
             # auto's pick per budget: a ring in the colour of the row it chose, around auto's point
             for r in sub:
                 if r["method"] != "auto":
@@ -286,6 +287,7 @@ def _plots(rows: list[dict[str, Any]], out: Path) -> list[Path]:
             ax.set_xscale("log")
             if xkey == "nbytes":
                 ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _p: format_bytes(v)))
+                ax.xaxis.set_minor_formatter(NullFormatter())  # 2×10⁴-style minor labels clash with "10.0 KB"
             ax.set_title(f"{dataset} ({sub[0]['key'] if sub else ''})", fontsize="medium")
             ax.set_xlabel(xlabel)
             ax.set_ylim(0, 1.02)
