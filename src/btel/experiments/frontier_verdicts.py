@@ -140,7 +140,7 @@ def report_lines(payload: dict[str, Any], docs_dir: Path) -> list[str]:
              "exact place, recall@0). Oracle = the best row of the table at that budget (every method and variant "
              "that fits); auto chooses from the map and budget alone; calibrated auto also from half of the queries with "
              "their true places (even or odd queries, interleaved), answers the other half, then the halves swap, "
-             "so no query is answered by a model calibrated on it. To keep the run within 15 min, BTE-C, BTE-F, "
+             "so no query is answered by a model calibrated on it. To bound the run's time, BTE-C, BTE-F, "
              "BTEL with regions, btel-auto, RYTH, OPQ, RaBitQ and SeqSLAM run at 64 KB only and not on Nordland "
              "winter→summer (RaBitQ at every budget: benchmarks/bench_rabitq.py) "
              "(empty cells); a budget larger than the map itself in float32 is not run for any method (Gardens Point "
