@@ -21,8 +21,9 @@ power 0.8, one-sided, at the Bonferroni level of the candidates: a conservative 
 Cost bound: candidates are compared on at most :func:`compared_rows` map places (:data:`MAX_ROWS`,
 and :data:`MAX_VALUES` rows × d), each fitted at most ``len(SEEDS)`` times. A larger map is compared
 on a subsample (up to half of it the calibration queries' true places, the rest evenly spaced, in
-index order) at the same bytes per row — a front end's fixed cost (a whitening basis, a mean) then
-weighs more than on the whole map; the winner is refitted on the whole map at the whole budget.
+index order) at the same bytes per row — a candidate's fixed cost (PQ's codebooks and projection, a
+whitening basis) then weighs more than on the whole map, which handicaps those candidates; the
+winner is refitted on the whole map at the whole budget.
 OPQ and RaBitQ (an O(d³) d × d rotation per fit) are candidates up to :data:`MAX_ROTATION_FEATURES`
 dimensions. Not candidates: the sequence methods (``seqslam`` reads the query order) and the slow
 paper variants (``btel-c``, ``btel-f``, ``btel-r``, ``btel-auto``, ``ryth``: minutes of fit on a
@@ -61,9 +62,9 @@ ALPHA = 0.05
 #: Seeds each seeded candidate is fitted at; its per-query correctness is the mean over them.
 SEEDS = (0, 1)
 #: Map rows compared at most (larger maps: a subsample at the same bytes per row) ...
-MAX_ROWS = 2048
-#: ... and at most this many map values (rows × d): wide descriptors are compared on fewer rows.
-MAX_VALUES = 1 << 22
+MAX_ROWS = 4096
+#: ... and at most this many map values (rows × d, 64 MB of float32): wide descriptors on fewer rows.
+MAX_VALUES = 1 << 24
 #: Random sign flips of the max-T adjustment (:func:`max_t_pvalues`).
 N_BOOT = 4000
 #: The test, as recorded in the table.
