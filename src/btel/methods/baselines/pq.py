@@ -318,9 +318,9 @@ class PQLocalizer(_RowLocalizer):
     def _projected(self, Q: np.ndarray) -> np.ndarray:
         return Q if self.projection_ is None else np.ascontiguousarray(Q @ self.projection_, dtype=np.float32)
 
-    def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    def _search_rows(self, Q: np.ndarray, k: int, scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
         dist, rows = self._index.search(self._projected(Q), k)
-        return np.negative(dist, dtype=np.float64), rows.astype(np.int64, copy=False)
+        return np.negative(dist, dtype=np.float64) if scores else None, rows.astype(np.int64, copy=False)
 
     # -- storage and files ---------------------------------------------------------------------
     def _model_arrays(self) -> dict[str, np.ndarray]:
