@@ -241,3 +241,29 @@ def test_a_single_query_too_long_for_float32_distances_is_refused_without_normal
             call(np.vstack([X[:2], q])[2:])
     # Normalised (the default front end), the same query is a unit row: answered.
     assert 0 <= make_method(name, n_jobs=1).fit(X).predict(q)[0] < N_PLACES
+
+
+@pytest.mark.parametrize("name", ["bruteforce", "pq", "opq", "itq", "rabitq", "lsh"])
+def test_predict_reads_rows_only_and_answers_as_search(name) -> None:
+    from btel.methods import make_method
+
+    rng = np.random.default_rng(1)
+    X = rng.normal(size=(N_PLACES, DIM)).astype(np.float32)
+    Q = X[::25] + 0.1 * rng.normal(size=(12, DIM)).astype(np.float32)
+    for places in (None, np.repeat(np.arange(N_PLACES // 2), 2)):  # row i = place i, then a row table
+        model = make_method(name, n_jobs=1).fit(X, places=places)
+        best = model.search(Q, 1)[1][:, 0]
+        np.testing.assert_array_equal(model.predict(Q), best)
+        np.testing.assert_array_equal([model.predict(Q[i : i + 1])[0] for i in range(len(Q))], best)
+    seen: list[bool] = []
+    model = make_method(name, n_jobs=1).fit(X)
+    search_rows = model._search_rows
+
+    def spy(Q, k, scores=True):
+        seen.append(scores)
+        return search_rows(Q, k, scores)
+
+    model._search_rows = spy
+    model.predict(Q[:1])
+    model.search(Q[:1], 1)
+    assert seen == [False, True]  # predict asks for no scores; search does
