@@ -267,3 +267,27 @@ def test_predict_reads_rows_only_and_answers_as_search(name) -> None:
     model.predict(Q[:1])
     model.search(Q[:1], 1)
     assert seen == [False, True]  # predict asks for no scores; search does
+
+
+@pytest.mark.parametrize("name", ["pq", "itq", "bruteforce"])
+def test_one_query_fast_path_refuses_what_the_general_path_refuses(name) -> None:
+    from btel.exceptions import DimensionMismatchError, InvalidDescriptorsError, NotFittedError
+    from btel.methods import make_method
+
+    X = np.random.default_rng(2).normal(size=(N_PLACES, DIM)).astype(np.float32)
+    with pytest.raises(NotFittedError):
+        make_method(name).predict(X[:1])
+    model = make_method(name).fit(X)
+    for bad in (np.nan, np.inf):
+        q = X[:1].copy()
+        q[0, 5] = bad
+        for call in (model.predict, lambda q: model.search(q, 1)):
+            with pytest.raises(InvalidDescriptorsError, match="row 0, column 5"):
+                call(q)
+    with pytest.raises(DimensionMismatchError):
+        model.predict(X[:1, :-1])
+    best = model.predict(X[3:4])
+    # float64, a strided view and a list take the general path, with the same answer.
+    for q in (X[3:4].astype(np.float64), np.asfortranarray(np.vstack([X[3], X[3]]))[:1], X[3:4].tolist()):
+        np.testing.assert_array_equal(model.predict(q), best)
+    assert model.predict(X[3:4]).shape == (1,) and model.search(X[3:4], 1)[0].dtype == np.float64

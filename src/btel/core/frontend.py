@@ -113,6 +113,11 @@ class FrontEnd:
         return self.normalize == "none" and self.whiten is None and self.delta is None
 
     @property
+    def plain_l2(self) -> bool:
+        """True for the L2 normalisation alone (no delta, no whitening): a query row is divided by its length."""
+        return self.normalize == "l2" and self.delta is None and self.whiten is None
+
+    @property
     def uses_sequence(self) -> bool:
         """True with delta descriptors: a query's answer depends on the frames before it."""
         return self.delta is not None
@@ -180,9 +185,9 @@ class FrontEnd:
         ``lazy``: the caller only multiplies the rows by matrices, so a plain L2 normalisation
         comes back as :class:`ScaledRows` (no normalised copy of X).
         """
-        plain_l2 = self.normalize == "l2" and self.delta is None and self.whiten is None
+        plain_l2 = self.plain_l2
         if plain_l2 and X.shape[0] == 1 and X.dtype == np.float32:  # one query (µs count here): Python arithmetic
-            squares = one_row_squares(X[0])
+            squares = one_row_squares(X)
             # else the general path: the finiteness check naming the value, tiny rows scaled in float64 (a zero
             # float64 sum of squares of float32 values is a zero row: none underflows)
             if math.isfinite(squares) and (squares == 0.0 or squares >= TINY_SQUARED_NORM):

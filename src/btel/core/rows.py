@@ -28,7 +28,7 @@ TINY_SQUARED_NORM = 1e-30
 
 
 def one_row_squares(row: np.ndarray) -> float:
-    """Sum of squares of one float32 row, in float64 (NaN or inf when the row holds NaN or inf).
+    """Sum of squares of one float32 row (shape (d,) or (1, d)), in float64 (NaN or inf when it holds NaN or inf).
 
     float64 products of float32 values neither overflow nor underflow, so no floating-point error state
     is set for this sum (``np.errstate`` costs more than the sum of one query); a floating-point error
@@ -36,7 +36,7 @@ def one_row_squares(row: np.ndarray) -> float:
     """
     wide = row.astype(np.float64)
     try:
-        return float(wide.dot(wide))
+        return float(np.vdot(wide, wide))
     except (FloatingPointError, RuntimeWarning):
         return math.nan
 
@@ -52,7 +52,7 @@ def row_norms(X: np.ndarray, *, check_finite: bool = False, name: str = "X") -> 
     finiteness check, so validated queries are read once for both).
     """
     if X.shape[0] == 1 and X.dtype == np.float32 and X.ndim == 2:  # one query (streaming): one float64 dot
-        sq1 = one_row_squares(X[0])
+        sq1 = one_row_squares(X)
         if check_finite and not math.isfinite(sq1):
             from .validation import raise_if_non_finite
 

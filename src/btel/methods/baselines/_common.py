@@ -10,6 +10,7 @@ extra is stored.
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import re
 import sys
@@ -21,7 +22,7 @@ import numpy as np
 
 from ..base import ArraySpec, PlaceLocalizer
 from ...exceptions import BudgetTooSmallError, InvalidDescriptorsError, ModelFileError
-from ...core.rows import one_row_squares
+from ...core.rows import TINY_SQUARED_NORM, one_row_squares
 from ...core.storage import format_bytes
 from ...core.threads import faiss_threads, search_threads
 
@@ -121,7 +122,7 @@ def check_magnitude(X: np.ndarray, name: str, *, error: type[Exception] = Invali
     Returns the largest squared norm (float32 arithmetic: 0 when every row underflows).
     """
     if X.shape[0] == 1 and X.dtype == np.float32:  # one query (µs count here): one float64 dot, no FP state
-        square = one_row_squares(X[0])
+        square = one_row_squares(X)
         if square <= MAX_NORM**2:  # False for NaN and inf: the full check names it
             return square
     largest = 0.0
@@ -242,6 +243,38 @@ class _RowLocalizer(PlaceLocalizer):
             return scores, rows
         places, place_scores = rank_unique_places(rows, self.row_places_, k, scores)
         return place_scores, places
+
+    def predict(self, Q: Any) -> np.ndarray:
+        """Place index of each query (:meth:`PlaceLocalizer.predict`); one query by :meth:`_one_query`."""
+        one = self._one_query(Q, False)
+        return one[1][0] if one is not None else super().predict(Q)
+
+    def search(self, Q: Any, k: int = 10) -> tuple[np.ndarray, np.ndarray]:
+        """The ``k`` best places per query (:meth:`PlaceLocalizer.search`); one query's best by :meth:`_one_query`."""
+        one = self._one_query(Q, True) if type(k) is int and k == 1 else None
+        return one if one is not None else super().search(Q, k)
+
+    def _one_query(self, Q: Any, scores: bool) -> tuple[np.ndarray | None, np.ndarray] | None:
+        """(scores, rows) (1, 1) of the best row of one query of the common kind, or None: the general path.
+
+        The common kind is a C-contiguous float32 row of the fitted width, the plain L2 front end, row i = place i
+        and faiss' default threads; it takes the shortest path to the index with every check kept: the row's
+        finite length (its float64 sum of squares), one faiss thread, the answer within the map, a finite
+        score. Any other query, or one these checks refuse, takes the general path, which names the problem.
+        """
+        n_places = getattr(self, self._fitted_marker, None)  # None: not fitted (the general path says so)
+        if not (type(Q) is np.ndarray and n_places is not None and self.front_end_.plain_l2
+                and Q.shape == (1, self.n_features_in_) and Q.dtype == np.float32 and Q.flags.c_contiguous
+                and self.row_places_ is None and self.n_jobs is None):
+            return None
+        squares = one_row_squares(Q)
+        if not (math.isfinite(squares) and squares >= TINY_SQUARED_NORM):
+            return None
+        with faiss_threads(1):
+            values, rows = self._search_rows(Q * (1.0 / math.sqrt(squares)), 1, scores)
+        if not 0 <= rows.item(0) < n_places or scores and not math.isfinite(values.item(0)):
+            return None
+        return values, rows
 
     def _predict(self, Q: np.ndarray) -> np.ndarray:
         if self.row_places_ is not None:  # a place scores its best row: the ranking of _search
