@@ -226,9 +226,10 @@ def large_rows(calls: int, cache: Path, sweep: int = 0, probe: bool = True) -> l
 
 
 def binary_index_probe(model: Any, Q: np.ndarray, hnsw_places: int = 100_000) -> dict[str, Any]:
-    """Whether a binary index over the random family's packed codewords could stand in for its exact decode:
-    faiss IndexBinaryFlat (Hamming to the margins' signs) timed and compared with the exact decode, the Hamming
-    distance of the exact best codeword against the nearest and a typical one, IndexBinaryHNSW's build time."""
+    """Whether a binary index over the random family's packed codewords could stand in for its exact
+    decode: faiss IndexBinaryFlat (Hamming to the margins' signs) timed and compared with the exact decode,
+    the Hamming distance of the exact best codeword against the nearest and a typical one, and
+    IndexBinaryHNSW's build time."""
     import faiss
 
     from btel.core.threads import limit_threads
@@ -257,14 +258,16 @@ def binary_index_probe(model: Any, Q: np.ndarray, hnsw_places: int = 100_000) ->
     out = {"queries": len(Q), "flat_single_ms": float(np.median(single) * 1e3),
            "flat_top1_same_as_exact": float(np.mean(rows[:, 0] == exact)),
            "exact_in_flat_top1000": float(np.mean((rows == exact[:, None]).any(axis=1))),
-           "hamming_exact_best_median": float(np.median(of_exact)), "hamming_nearest_median": float(np.median(dist[:, 0])),
+           "hamming_exact_best_median": float(np.median(of_exact)),
+           "hamming_nearest_median": float(np.median(dist[:, 0])),
            "hamming_typical": K / 2, "bits": K, "hnsw_places": hnsw_places, "hnsw_build_s": hnsw_s,
            "load": list(os.getloadavg())}
     model.set_params(decode="auto")
-    print(f"    random codes, binary index over the packed codewords: IndexBinaryFlat {out['flat_single_ms']:.2f} ms a "
-          f"query, its top 1 the exact answer {out['flat_top1_same_as_exact']:.3f} (exact in its top 1000 "
-          f"{out['exact_in_flat_top1000']:.3f}); Hamming of the exact best {out['hamming_exact_best_median']:.0f}, "
-          f"nearest {out['hamming_nearest_median']:.0f}, typical {K / 2:.0f} of {K} bits; IndexBinaryHNSW build "
+    print(f"    random codes, binary index over the packed codewords: IndexBinaryFlat "
+          f"{out['flat_single_ms']:.2f} ms a query, its top 1 the exact answer "
+          f"{out['flat_top1_same_as_exact']:.3f} (exact in its top 1000 {out['exact_in_flat_top1000']:.3f}); "
+          f"Hamming of the exact best {out['hamming_exact_best_median']:.0f}, nearest "
+          f"{out['hamming_nearest_median']:.0f}, typical {K / 2:.0f} of {K} bits; IndexBinaryHNSW build "
           f"{hnsw_s:.1f} s for {hnsw_places:,d} places (load {out['load'][0]:.1f})", flush=True)
     return out
 

@@ -114,7 +114,7 @@ class FrontEnd:
 
     @property
     def plain_l2(self) -> bool:
-        """True for the L2 normalisation alone (no delta, no whitening): a query row is divided by its length."""
+        """True for the L2 normalisation alone (no delta, no whitening): a row is divided by its length."""
         return self.normalize == "l2" and self.delta is None and self.whiten is None
 
     @property
@@ -188,8 +188,8 @@ class FrontEnd:
         plain_l2 = self.plain_l2
         if plain_l2 and X.shape[0] == 1 and X.dtype == np.float32:  # one query (µs count here): Python arithmetic
             squares = one_row_squares(X)
-            # else the general path: the finiteness check naming the value, tiny rows scaled in float64 (a zero
-            # float64 sum of squares of float32 values is a zero row: none underflows)
+            # else the general path: the finiteness check naming the value, tiny rows scaled in float64 (a
+            # zero float64 sum of squares of float32 values is a zero row: none underflows)
             if math.isfinite(squares) and (squares == 0.0 or squares >= TINY_SQUARED_NORM):
                 scale = 1.0 / math.sqrt(squares) if squares > 0 else 1.0  # a zero row stays zero
                 # A Python float times a float32 array is float32 arithmetic (NEP 50): X * np.float32(scale).

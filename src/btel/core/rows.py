@@ -14,8 +14,8 @@ import numpy as np
 from .validation import check_descriptors, check_positive_int
 from ..exceptions import InvalidParameterError, NotEnoughPlacesError
 
-__all__ = ["ScaledRows", "delta_descriptors", "normalize_rows", "one_row_squares", "row_norms", "traverse_starts",
-           "NORMALIZATIONS"]
+__all__ = ["ScaledRows", "delta_descriptors", "normalize_rows", "one_row_squares", "row_norms",
+           "traverse_starts", "NORMALIZATIONS"]
 
 NORMALIZATIONS = ("none", "l2", "power")
 
@@ -28,7 +28,7 @@ TINY_SQUARED_NORM = 1e-30
 
 
 def one_row_squares(row: np.ndarray) -> float:
-    """Sum of squares of one float32 row (shape (d,) or (1, d)), in float64 (NaN or inf when it holds NaN or inf).
+    """Sum of squares of one float32 row, (d,) or (1, d), in float64 (NaN or inf when it holds NaN or inf).
 
     float64 products of float32 values neither overflow nor underflow, so no floating-point error state
     is set for this sum (``np.errstate`` costs more than the sum of one query); a floating-point error

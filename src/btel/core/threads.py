@@ -135,7 +135,7 @@ class faiss_threads:  # noqa: N801 (a context used like a function, as before)
     __slots__ = ("wanted", "previous")
 
     def __init__(self, n_jobs: int | None) -> None:
-        if not (type(n_jobs) is int and n_jobs >= 1):  # the common case (a single query's 1) checks nothing more
+        if not (type(n_jobs) is int and n_jobs >= 1):  # the common case (a single query's 1): nothing more
             check_n_jobs(n_jobs)
         self.wanted = None if n_jobs is None else (os.cpu_count() or 1) if n_jobs == -1 else n_jobs
         self.previous: int | None = None

@@ -272,7 +272,8 @@ class PlaceLocalizer(ParamsMixin, ABC):
         # as is; a normalising front end checks NaN/inf in its own pass over Q (the row norms): one read.
         if not (type(Q) is np.ndarray and Q.shape == (1, self.n_features_in_) and Q.dtype == np.float32
                 and Q.flags.c_contiguous and front.checks_finite):
-            Q = check_descriptors(Q, name="Q", n_features=self.n_features_in_, check_finite=not front.checks_finite)
+            Q = check_descriptors(Q, name="Q", n_features=self.n_features_in_,
+                                  check_finite=not front.checks_finite)
         return front.transform(Q, check_finite=True, lazy=self._linear_in_queries)
 
     def _check_k(self, k: Any) -> int:

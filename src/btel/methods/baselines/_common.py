@@ -199,11 +199,12 @@ class _RowLocalizer(PlaceLocalizer):
         """Fit the row index on ``X`` within ``budget − reserved`` bytes (``budget`` may be None)."""
 
     @abstractmethod
-    def _search_rows(self, Q: np.ndarray, k: int, scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
+    def _search_rows(self, Q: np.ndarray, k: int,
+                     scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
         """(scores, rows): the ``k`` best map rows per query, best first, float64 and int64 (n_queries, k).
 
-        ``scores=False``: the caller reads the rows only (:meth:`predict` of a map without a row table), so the
-        scores may be None (no conversion of the index's distances).
+        ``scores=False``: the caller reads the rows only (:meth:`predict` of a map without a row table), so
+        the scores may be None (no conversion of the index's distances).
         """
 
     @abstractmethod
@@ -250,17 +251,19 @@ class _RowLocalizer(PlaceLocalizer):
         return one[1][0] if one is not None else super().predict(Q)
 
     def search(self, Q: Any, k: int = 10) -> tuple[np.ndarray, np.ndarray]:
-        """The ``k`` best places per query (:meth:`PlaceLocalizer.search`); one query's best by :meth:`_one_query`."""
+        """The ``k`` best places per query (:meth:`PlaceLocalizer.search`); one query's best by
+        :meth:`_one_query`."""
         one = self._one_query(Q, True) if type(k) is int and k == 1 else None
         return one if one is not None else super().search(Q, k)
 
     def _one_query(self, Q: Any, scores: bool) -> tuple[np.ndarray | None, np.ndarray] | None:
         """(scores, rows) (1, 1) of the best row of one query of the common kind, or None: the general path.
 
-        The common kind is a C-contiguous float32 row of the fitted width, the plain L2 front end, row i = place i
-        and faiss' default threads; it takes the shortest path to the index with every check kept: the row's
-        finite length (its float64 sum of squares), one faiss thread, the answer within the map, a finite
-        score. Any other query, or one these checks refuse, takes the general path, which names the problem.
+        The common kind is a C-contiguous float32 row of the fitted width, the plain L2 front end, row i =
+        place i and faiss' default threads; it takes the shortest path to the index with every check kept:
+        the row's finite length (its float64 sum of squares), one faiss thread, the answer within the map, a
+        finite score. Any other query, or one these checks refuse, takes the general path, which names the
+        problem.
         """
         n_places = getattr(self, self._fitted_marker, None)  # None: not fitted (the general path says so)
         if not (type(Q) is np.ndarray and n_places is not None and self.front_end_.plain_l2
@@ -283,7 +286,7 @@ class _RowLocalizer(PlaceLocalizer):
 
     def _checked_rows(self, Q: np.ndarray, k: int, scores: bool) -> tuple[np.ndarray | None, np.ndarray]:
         """:meth:`_search_rows` on the right number of faiss threads, every row answered checked."""
-        if self.front_end_.normalize == "none":  # a normalising front end hands over finite rows of length ≤ 1
+        if self.front_end_.normalize == "none":  # a normalising front end hands over finite rows, length ≤ 1
             check_magnitude(Q, "Q")
         # Single queries on one faiss thread unless n_jobs says otherwise (btel.core.threads).
         with faiss_threads(search_threads(self.n_jobs, Q.shape[0])):
@@ -294,8 +297,9 @@ class _RowLocalizer(PlaceLocalizer):
             bad = np.flatnonzero(((rows < 0) | (rows >= n_rows)).any(axis=1))
             if bad.size:
                 raise InvalidDescriptorsError(
-                    f"query row {int(bad[0])} has no finite distance to the map ({type(self).__name__}): its values "
-                    "are too large for float32 arithmetic, or the model holds invalid values. Check the descriptors."
+                    f"query row {int(bad[0])} has no finite distance to the map ({type(self).__name__}): its "
+                    "values are too large for float32 arithmetic, or the model holds invalid values. Check "
+                    "the descriptors."
                 )
         return values, rows
 

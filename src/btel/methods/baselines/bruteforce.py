@@ -95,12 +95,14 @@ class BruteForceNN(_RowLocalizer):
         index.add(self.descriptors_)
         return index
 
-    def _search_rows(self, Q: np.ndarray, k: int, scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
+    def _search_rows(self, Q: np.ndarray, k: int,
+                     scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
         values, rows = self._index.search(Q, k)
         rows = rows.astype(np.int64, copy=False)
         if not scores:
             return None, rows
-        return np.negative(values, dtype=np.float64) if self.metric == "l2" else values.astype(np.float64), rows
+        scores_ = np.negative(values, dtype=np.float64) if self.metric == "l2" else values.astype(np.float64)
+        return scores_, rows
 
     def _model_arrays(self) -> dict[str, np.ndarray]:
         return {"descriptors": self.descriptors_}

@@ -150,7 +150,8 @@ class ITQLocalizer(_RowLocalizer):
         index.add(np.ascontiguousarray(self.codes_))
         return index
 
-    def _search_rows(self, Q: np.ndarray, k: int, scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
+    def _search_rows(self, Q: np.ndarray, k: int,
+                     scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
         dist, rows = self._index.search(self.encode_centred(Q - self.mean_), k)
         return np.negative(dist, dtype=np.float64) if scores else None, rows.astype(np.int64, copy=False)
 

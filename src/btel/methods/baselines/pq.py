@@ -319,7 +319,8 @@ class PQLocalizer(_RowLocalizer):
         # float32 @ float32 is a C-contiguous float32 array: what faiss reads as is.
         return Q if self.projection_ is None else Q @ self.projection_
 
-    def _search_rows(self, Q: np.ndarray, k: int, scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
+    def _search_rows(self, Q: np.ndarray, k: int,
+                     scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
         dist, rows = self._index.search(self._projected(Q), k)  # faiss' labels are int64
         return np.negative(dist, dtype=np.float64) if scores else None, rows
 

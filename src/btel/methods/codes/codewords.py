@@ -114,7 +114,8 @@ class CandidateScan:
         self.index = _pattern_index(groups)
         self.view = _codes_view(self.index, capacity, groups)
 
-    def search(self, m: np.ndarray, packed: np.ndarray, places: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    def search(self, m: np.ndarray, packed: np.ndarray, places: np.ndarray,
+               k: int) -> tuple[np.ndarray, np.ndarray]:
         """(scores (k,) float32, rows (k,) int64), best first, for margins (1, 8·groups) float32 over the packed
         codewords ``packed[places]`` ((n_places, groups) uint8; at most ``capacity`` places), rows counted in
         ``places``."""
@@ -192,7 +193,8 @@ class Codewords:
         return self.packed[places] if self.fill(places) else None
 
     def fill(self, places: np.ndarray) -> bool:
-        """Make the packed codewords of ``places`` present in :attr:`packed` (False past :data:`PACKED_CACHE_BYTES`)."""
+        """Make the packed codewords of ``places`` present in :attr:`packed` (False past the cache's size:
+        :data:`PACKED_CACHE_BYTES`)."""
         n, groups = self.n_places, -(-self.n_codes // 8)
         if n * groups > PACKED_CACHE_BYTES:
             return False
