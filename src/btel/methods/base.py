@@ -26,7 +26,6 @@ end takes). A subclass implements ``_fit``, ``_search`` or ``_place_scores``, ``
 from __future__ import annotations
 
 import inspect
-import math
 import time
 from abc import ABC, abstractmethod
 from typing import Any, ClassVar
@@ -268,12 +267,8 @@ class PlaceLocalizer(ParamsMixin, ABC):
         """Validated queries (float32, 2-D, finite, the fitted dimension) through the front end."""
         check_is_fitted(self, self._fitted_marker)
         front = self.front_end_
-        # One C-contiguous float32 row of the fitted width (a single query) is what check_descriptors returns
-        # as is; a normalising front end checks NaN/inf in its own pass over Q (the row norms): one read.
-        if not (type(Q) is np.ndarray and Q.shape == (1, self.n_features_in_) and Q.dtype == np.float32
-                and Q.flags.c_contiguous and front.checks_finite):
-            Q = check_descriptors(Q, name="Q", n_features=self.n_features_in_,
-                                  check_finite=not front.checks_finite)
+        # A normalising front end checks NaN/inf in its own pass over Q (the row norms): one read.
+        Q = check_descriptors(Q, name="Q", n_features=self.n_features_in_, check_finite=not front.checks_finite)
         return front.transform(Q, check_finite=True, lazy=self._linear_in_queries)
 
     def _check_k(self, k: Any) -> int:
@@ -367,8 +362,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
             Naming the cause: overflowing scores (a damaged or hostile model file) or a place outside the map.
         """
         n = int(self.n_places_)
-        if scores is not None and scores.size and not (math.isfinite(scores.item(0)) if scores.size == 1
-                                                       else np.isfinite(scores).all()):
+        if scores is not None and scores.size and not np.isfinite(scores).all():
             bad = int(np.argwhere(~np.isfinite(scores))[0][0])
             raise InvalidAnswerError(
                 f"{type(self).__name__} produced non-finite scores (first at query row {bad}): its stored weights "
