@@ -18,7 +18,9 @@ the two medians is what the targets are stated in, so the machine's load (printe
   their recall@0 / @10 and how often they equal the exact decode (queries at every 1000th place).
   The fitted 10⁶ models are cached under ``--cache`` (the route takes minutes to generate and each
   fit minutes more); load and first query are timed with the modules already imported (import time
-  is the start-up's).
+  is the start-up's). For the random family, a probe of binary indexes over its packed codewords
+  (``--no-probe`` skips it): faiss IndexBinaryFlat's single query and agreement with the exact decode,
+  Hamming distances of the exact best codeword, IndexBinaryHNSW's build time on 10⁵ places.
 
     python benchmarks/bench_single_query.py                # N = 10⁴ rows (≈ 2 min)
     python benchmarks/bench_single_query.py --large        # and the N = 10⁶ rows (first run: fits, ≈ 20 min)
@@ -160,7 +162,7 @@ def _print(row: dict[str, Any]) -> None:
           f"(load {row['load'][0]:.1f})", flush=True)
 
 
-def large_rows(calls: int, cache: Path, sweep: int = 0) -> list[dict[str, Any]]:
+def large_rows(calls: int, cache: Path, sweep: int = 0, probe: bool = True) -> list[dict[str, Any]]:
     """N = 10⁶: fit (cached), load + first query, single queries of both code families."""
     import btel
     from btel.methods.codes.estimator import CodeLocalizer
@@ -210,6 +212,8 @@ def large_rows(calls: int, cache: Path, sweep: int = 0) -> list[dict[str, Any]]:
             row["agrees_with_exact"] = float(np.mean(exact == pred[:200]))
         if code == "periodic" and sweep:
             row["block_sweep"] = block_sweep(model, Q[:sweep])
+        if code == "random" and probe:
+            row["binary_index_probe"] = binary_index_probe(model, Q[:200])
         del first
         out.append(row)
         print(f"  N = {n:,d} {row['method']:<30} load {load_s:.3f} s, load + first query {first_s:.3f} s "
@@ -218,6 +222,53 @@ def large_rows(calls: int, cache: Path, sweep: int = 0) -> list[dict[str, Any]]:
               f"R@0 {row['recall@0']:.3f} R@10 {row['recall@10']:.3f}"
               + (f", same as exact {row['agrees_with_exact']:.2f}" if "agrees_with_exact" in row else "")
               + f" (load {row['load'][0]:.1f})", flush=True)
+    return out
+
+
+def binary_index_probe(model: Any, Q: np.ndarray, hnsw_places: int = 100_000) -> dict[str, Any]:
+    """Whether a binary index over the random family's packed codewords could stand in for its exact
+    decode: faiss IndexBinaryFlat (Hamming to the margins' signs) timed and compared with the exact decode,
+    the Hamming distance of the exact best codeword against the nearest and a typical one, and
+    IndexBinaryHNSW's build time."""
+    import faiss
+
+    from btel.core.threads import limit_threads
+
+    model.set_params(decode="exact")
+    exact = model.predict(Q)
+    scan, K = model._codewords.adc_index().index, int(model.n_codes_)
+    codes = faiss.vector_to_array(scan.codes).reshape(-1, scan.code_size)
+    bits = (model._padded_margins(model._check_queries(Q)) >= 0).astype(np.uint8)
+    bits[:, K:] = 1  # padding columns: +1 codewords (zero margins), no Hamming distance
+    signs = np.packbits(bits, axis=1, bitorder="little")
+    with limit_threads(1):
+        flat = faiss.IndexBinaryFlat(8 * scan.code_size)
+        flat.add(codes)
+        single = []
+        for i in range(min(50, len(Q))):
+            start = time.perf_counter()
+            flat.search(signs[i : i + 1], 1)
+            single.append(time.perf_counter() - start)
+        dist, rows = flat.search(signs, 1000)
+        hnsw = faiss.IndexBinaryHNSW(8 * scan.code_size, 16)
+        start = time.perf_counter()
+        hnsw.add(codes[:hnsw_places])
+        hnsw_s = time.perf_counter() - start
+    of_exact = np.unpackbits(codes[exact] ^ signs, axis=1).sum(axis=1)
+    out = {"queries": len(Q), "flat_single_ms": float(np.median(single) * 1e3),
+           "flat_top1_same_as_exact": float(np.mean(rows[:, 0] == exact)),
+           "exact_in_flat_top1000": float(np.mean((rows == exact[:, None]).any(axis=1))),
+           "hamming_exact_best_median": float(np.median(of_exact)),
+           "hamming_nearest_median": float(np.median(dist[:, 0])),
+           "hamming_typical": K / 2, "bits": K, "hnsw_places": hnsw_places, "hnsw_build_s": hnsw_s,
+           "load": list(os.getloadavg())}
+    model.set_params(decode="auto")
+    print(f"    random codes, binary index over the packed codewords: IndexBinaryFlat "
+          f"{out['flat_single_ms']:.2f} ms a query, its top 1 the exact answer "
+          f"{out['flat_top1_same_as_exact']:.3f} (exact in its top 1000 {out['exact_in_flat_top1000']:.3f}); "
+          f"Hamming of the exact best {out['hamming_exact_best_median']:.0f}, nearest "
+          f"{out['hamming_nearest_median']:.0f}, typical {K / 2:.0f} of {K} bits; IndexBinaryHNSW build "
+          f"{hnsw_s:.1f} s for {hnsw_places:,d} places (load {out['load'][0]:.1f})", flush=True)
     return out
 
 
@@ -251,12 +302,13 @@ def main() -> None:
     parser.add_argument("--large", action="store_true", help="also the N = 10⁶ rows")
     parser.add_argument("--large-only", action="store_true", help="only the N = 10⁶ rows")
     parser.add_argument("--sweep", type=int, default=200, help="queries of the 10⁶ coarse block sweep (0: none)")
+    parser.add_argument("--no-probe", action="store_true", help="skip the random family's binary-index probe")
     parser.add_argument("--cache", type=Path, default=RESULTS_DIR / "cache", help="where the 10⁶ models are kept")
     args = parser.parse_args()
     load_before = os.getloadavg()
     rows = [] if args.large_only else small_rows(args.calls)
     if args.large or args.large_only:
-        rows += large_rows(min(args.calls, 1000), args.cache, args.sweep)
+        rows += large_rows(min(args.calls, 1000), args.cache, args.sweep, not args.no_probe)
     path = write_results("bench_single_query", {"rows": rows, "load_before": list(load_before),
                                                 "load_after": list(os.getloadavg()), "calls": args.calls})
     print(f"wrote {path}")

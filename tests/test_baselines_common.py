@@ -241,3 +241,53 @@ def test_a_single_query_too_long_for_float32_distances_is_refused_without_normal
             call(np.vstack([X[:2], q])[2:])
     # Normalised (the default front end), the same query is a unit row: answered.
     assert 0 <= make_method(name, n_jobs=1).fit(X).predict(q)[0] < N_PLACES
+
+
+@pytest.mark.parametrize("name", ["bruteforce", "pq", "opq", "itq", "rabitq", "lsh"])
+def test_predict_reads_rows_only_and_answers_as_search(name) -> None:
+    from btel.methods import make_method
+
+    rng = np.random.default_rng(1)
+    X = rng.normal(size=(N_PLACES, DIM)).astype(np.float32)
+    Q = X[::25] + 0.1 * rng.normal(size=(12, DIM)).astype(np.float32)
+    for places in (None, np.repeat(np.arange(N_PLACES // 2), 2)):  # row i = place i, then a row table
+        model = make_method(name, n_jobs=1).fit(X, places=places)
+        best = model.search(Q, 1)[1][:, 0]
+        np.testing.assert_array_equal(model.predict(Q), best)
+        np.testing.assert_array_equal([model.predict(Q[i : i + 1])[0] for i in range(len(Q))], best)
+    seen: list[bool] = []
+    model = make_method(name, n_jobs=1).fit(X)
+    search_rows = model._search_rows
+
+    def spy(Q, k, scores=True):
+        seen.append(scores)
+        return search_rows(Q, k, scores)
+
+    model._search_rows = spy
+    model.predict(Q[:1])
+    model.search(Q[:1], 1)
+    assert seen == [False, True]  # predict asks for no scores; search does
+
+
+@pytest.mark.parametrize("name", ["pq", "itq", "bruteforce"])
+def test_one_query_fast_path_refuses_what_the_general_path_refuses(name) -> None:
+    from btel.exceptions import DimensionMismatchError, InvalidDescriptorsError, NotFittedError
+    from btel.methods import make_method
+
+    X = np.random.default_rng(2).normal(size=(N_PLACES, DIM)).astype(np.float32)
+    with pytest.raises(NotFittedError):
+        make_method(name).predict(X[:1])
+    model = make_method(name).fit(X)
+    for bad in (np.nan, np.inf):
+        q = X[:1].copy()
+        q[0, 5] = bad
+        for call in (model.predict, lambda q: model.search(q, 1)):
+            with pytest.raises(InvalidDescriptorsError, match="row 0, column 5"):
+                call(q)
+    with pytest.raises(DimensionMismatchError):
+        model.predict(X[:1, :-1])
+    best = model.predict(X[3:4])
+    # float64, a strided view and a list take the general path, with the same answer.
+    for q in (X[3:4].astype(np.float64), np.asfortranarray(np.vstack([X[3], X[3]]))[:1], X[3:4].tolist()):
+        np.testing.assert_array_equal(model.predict(q), best)
+    assert model.predict(X[3:4]).shape == (1,) and model.search(X[3:4], 1)[0].dtype == np.float64

@@ -347,3 +347,20 @@ def test_one_query_with_nan_or_inf_is_refused_by_the_l2_front_end(bad) -> None:
     for lazy in (False, True):
         with pytest.raises(InvalidDescriptorsError, match="row 0, column 3"):
             FrontEnd(normalize="l2").transform(q, check_finite=True, lazy=lazy)
+
+
+@pytest.mark.parametrize("value, expected", [(1e19, 8 * 1e38), (np.nan, None), (np.inf, np.inf), (0.0, 0.0),
+                                             (1e-45, 8 * (1.401298464324817e-45) ** 2)])
+def test_one_row_squares_is_float64_without_floating_point_state(value, expected) -> None:
+    import warnings
+
+    from btel.core.rows import one_row_squares
+
+    row = np.full(8, value, dtype=np.float32)
+    with warnings.catch_warnings(), np.errstate(all="raise"):
+        warnings.simplefilter("error")  # float32 would overflow (1e19² · 8) or underflow (1e-45²): not here
+        got = one_row_squares(row)
+    if expected is None:
+        assert np.isnan(got)
+    else:
+        assert got == pytest.approx(expected, rel=1e-6)

@@ -59,9 +59,9 @@ def test_single_queries_run_on_one_faiss_thread_unless_asked() -> None:
         model = BruteForce(n_jobs=n_jobs).fit(X)
         search = model._search_rows
 
-        def spy(Q, k, search=search):
+        def spy(Q, k, scores=True, search=search):
             seen.append(faiss.omp_get_max_threads())
-            return search(Q, k)
+            return search(Q, k, scores)
 
         model._search_rows = spy
         model.predict(X[:rows])

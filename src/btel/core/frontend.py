@@ -42,7 +42,7 @@ import numpy as np
 from .validation import Interval, Options
 from ..exceptions import InvalidParameterError, ModelFileError
 from .rows import (NORMALIZATIONS, TINY_SQUARED_NORM, ScaledRows, delta_descriptors, normalize_rows,
-                   row_norms, traverse_starts)
+                   one_row_squares, row_norms, traverse_starts)
 
 __all__ = ["FrontEnd", "FrontEndStream", "ScaledRows", "delta_descriptors", "normalize_rows", "row_norms",
            "traverse_starts",
@@ -113,6 +113,11 @@ class FrontEnd:
         return self.normalize == "none" and self.whiten is None and self.delta is None
 
     @property
+    def plain_l2(self) -> bool:
+        """True for the L2 normalisation alone (no delta, no whitening): a row is divided by its length."""
+        return self.normalize == "l2" and self.delta is None and self.whiten is None
+
+    @property
     def uses_sequence(self) -> bool:
         """True with delta descriptors: a query's answer depends on the frames before it."""
         return self.delta is not None
@@ -180,14 +185,15 @@ class FrontEnd:
         ``lazy``: the caller only multiplies the rows by matrices, so a plain L2 normalisation
         comes back as :class:`ScaledRows` (no normalised copy of X).
         """
-        plain_l2 = self.normalize == "l2" and self.delta is None and self.whiten is None
+        plain_l2 = self.plain_l2
         if plain_l2 and X.shape[0] == 1 and X.dtype == np.float32:  # one query (µs count here): Python arithmetic
-            with np.errstate(over="ignore", invalid="ignore"):  # an overflow is caught just below
-                squares = float(np.dot(X[0], X[0]))
-            # else the general path: a float64 sum, the finiteness check, tiny rows scaled in float64
-            if math.isfinite(squares) and (squares == 0.0 and not X[0].any() or squares >= TINY_SQUARED_NORM):
-                scale = np.float32(1.0 / math.sqrt(squares) if squares > 0 else 1.0)  # a zero row stays zero
-                return ScaledRows(X, np.array([scale])) if lazy else np.multiply(X, scale, dtype=np.float32)
+            squares = one_row_squares(X)
+            # else the general path: the finiteness check naming the value, tiny rows scaled in float64 (a
+            # zero float64 sum of squares of float32 values is a zero row: none underflows)
+            if math.isfinite(squares) and (squares == 0.0 or squares >= TINY_SQUARED_NORM):
+                scale = 1.0 / math.sqrt(squares) if squares > 0 else 1.0  # a zero row stays zero
+                # A Python float times a float32 array is float32 arithmetic (NEP 50): X * np.float32(scale).
+                return ScaledRows(X, np.array([scale], dtype=np.float32)) if lazy else X * scale
         if self.is_identity:
             return X
         if lazy and plain_l2:

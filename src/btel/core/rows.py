@@ -14,7 +14,8 @@ import numpy as np
 from .validation import check_descriptors, check_positive_int
 from ..exceptions import InvalidParameterError, NotEnoughPlacesError
 
-__all__ = ["ScaledRows", "delta_descriptors", "normalize_rows", "row_norms", "traverse_starts", "NORMALIZATIONS"]
+__all__ = ["ScaledRows", "delta_descriptors", "normalize_rows", "one_row_squares", "row_norms",
+           "traverse_starts", "NORMALIZATIONS"]
 
 NORMALIZATIONS = ("none", "l2", "power")
 
@@ -24,6 +25,20 @@ _CHUNK_ROWS = 65536
 #: float32 their squares underflow (the smallest normal float32 is 1.2e-38) and their inverse overflows,
 #: so a map scaled by 1e-38 would not come out of the L2 front end at unit length.
 TINY_SQUARED_NORM = 1e-30
+
+
+def one_row_squares(row: np.ndarray) -> float:
+    """Sum of squares of one float32 row, (d,) or (1, d), in float64 (NaN or inf when it holds NaN or inf).
+
+    float64 products of float32 values neither overflow nor underflow, so no floating-point error state
+    is set for this sum (``np.errstate`` costs more than the sum of one query); a floating-point error
+    the caller's numpy settings raise (a signalling NaN) comes back as NaN.
+    """
+    wide = row.astype(np.float64)
+    try:
+        return float(np.vdot(wide, wide))
+    except (FloatingPointError, RuntimeWarning):
+        return math.nan
 
 
 def row_norms(X: np.ndarray, *, check_finite: bool = False, name: str = "X") -> np.ndarray:
@@ -36,15 +51,12 @@ def row_norms(X: np.ndarray, *, check_finite: bool = False, name: str = "X") -> 
     :class:`InvalidDescriptorsError` naming its first bad value (the norms double as the input's
     finiteness check, so validated queries are read once for both).
     """
-    if X.shape[0] == 1 and X.dtype == np.float32 and X.ndim == 2:  # one query (streaming): BLAS' sdot
-        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is summed again in float64
-            sq1 = float(np.dot(X[0], X[0]))
-        if not math.isfinite(sq1) or sq1 < TINY_SQUARED_NORM:
-            sq1 = float(np.dot(X[0].astype(np.float64), X[0].astype(np.float64)))
-            if check_finite and not math.isfinite(sq1):
-                from .validation import raise_if_non_finite
+    if X.shape[0] == 1 and X.dtype == np.float32 and X.ndim == 2:  # one query (streaming): one float64 dot
+        sq1 = one_row_squares(X)
+        if check_finite and not math.isfinite(sq1):
+            from .validation import raise_if_non_finite
 
-                raise_if_non_finite(np.asarray(X), name)
+            raise_if_non_finite(np.asarray(X), name)
         return np.array([math.sqrt(sq1)])  # NaN stays NaN, inf stays inf (math.sqrt does not raise on them)
     if X.size <= 1 << 16:  # a few queries: one pass, least fixed overhead
         if X.dtype == np.float32:

@@ -135,14 +135,15 @@ class faiss_threads:  # noqa: N801 (a context used like a function, as before)
     __slots__ = ("wanted", "previous")
 
     def __init__(self, n_jobs: int | None) -> None:
-        check_n_jobs(n_jobs)
+        if not (type(n_jobs) is int and n_jobs >= 1):  # the common case (a single query's 1): nothing more
+            check_n_jobs(n_jobs)
         self.wanted = None if n_jobs is None else (os.cpu_count() or 1) if n_jobs == -1 else n_jobs
         self.previous: int | None = None
 
     def __enter__(self) -> None:
         if self.wanted is None:
             return
-        faiss = _faiss()
+        faiss = _FAISS or _faiss()
         previous = faiss.omp_get_max_threads()
         if previous != self.wanted:
             faiss.omp_set_num_threads(self.wanted)

@@ -10,6 +10,7 @@ extra is stored.
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import re
 import sys
@@ -21,6 +22,7 @@ import numpy as np
 
 from ..base import ArraySpec, PlaceLocalizer
 from ...exceptions import BudgetTooSmallError, InvalidDescriptorsError, ModelFileError
+from ...core.rows import TINY_SQUARED_NORM, one_row_squares
 from ...core.storage import format_bytes
 from ...core.threads import faiss_threads, search_threads
 
@@ -119,10 +121,9 @@ def check_magnitude(X: np.ndarray, name: str, *, error: type[Exception] = Invali
     Squared norms are summed in X's own float32: one that overflows is far beyond the bound anyway.
     Returns the largest squared norm (float32 arithmetic: 0 when every row underflows).
     """
-    if X.shape[0] == 1 and X.dtype == np.float32:  # one query (µs count here): BLAS' sdot
-        with np.errstate(over="ignore", invalid="ignore"):  # an overflow is named by the full check below
-            square = float(np.dot(X[0], X[0]))
-        if square <= MAX_NORM**2:  # False for NaN and overflow: the full check names it
+    if X.shape[0] == 1 and X.dtype == np.float32:  # one query (µs count here): one float64 dot, no FP state
+        square = one_row_squares(X)
+        if square <= MAX_NORM**2:  # False for NaN and inf: the full check names it
             return square
     largest = 0.0
     for start in range(0, X.shape[0], chunk_rows):
@@ -182,7 +183,7 @@ class _RowLocalizer(PlaceLocalizer):
     """Shared plumbing of the baselines that index map rows (see module docstring).
 
     A subclass implements ``_fit_rows(X, budget, reserved)`` (``reserved`` bytes of the budget are
-    taken already: front end and row → place table), ``_search_rows(Q, k) -> (scores, rows)``
+    taken already: front end and row → place table), ``_search_rows(Q, k, scores) -> (scores, rows)``
     (the k best map rows per query, best first, higher score = better), ``_model_arrays``,
     ``_model_state``, ``_model_specs(state, n_rows)`` and ``_restore_model``.
     """
@@ -198,8 +199,13 @@ class _RowLocalizer(PlaceLocalizer):
         """Fit the row index on ``X`` within ``budget − reserved`` bytes (``budget`` may be None)."""
 
     @abstractmethod
-    def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        """(scores, rows): the ``k`` best map rows per query, best first, float64 and int64 (n_queries, k)."""
+    def _search_rows(self, Q: np.ndarray, k: int,
+                     scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
+        """(scores, rows): the ``k`` best map rows per query, best first, float64 and int64 (n_queries, k).
+
+        ``scores=False``: the caller reads the rows only (:meth:`predict` of a map without a row table), so
+        the scores may be None (no conversion of the index's distances).
+        """
 
     @abstractmethod
     def _model_arrays(self) -> dict[str, np.ndarray]:
@@ -230,29 +236,72 @@ class _RowLocalizer(PlaceLocalizer):
         self.row_places_ = row_places
 
     def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        if self.front_end_.normalize == "none":  # a normalising front end hands over finite rows of length ≤ 1
-            check_magnitude(Q, "Q")
-        n_rows = self._n_rows()
         # k places need at most k·(most rows of one place) rows.
         k_rows = k if self.row_places_ is None else \
-            min(n_rows, k * int(np.bincount(self.row_places_.astype(np.int64)).max()))
-        # Single queries on one faiss thread unless n_jobs says otherwise (btel.core.threads).
-        with faiss_threads(search_threads(self.n_jobs, Q.shape[0])):
-            scores, rows = self._search_rows(Q, k_rows)
-        # faiss answers −1 when no distance is finite (overflow, a corrupt index): never a place.
-        if rows.size == 1 and 0 <= rows.item(0) < n_rows:  # one answer: no array passes
-            bad = rows[:0, 0]
-        else:
-            bad = np.flatnonzero(((rows < 0) | (rows >= n_rows)).any(axis=1))
-        if bad.size:
-            raise InvalidDescriptorsError(
-                f"query row {int(bad[0])} has no finite distance to the map ({type(self).__name__}): its values are "
-                "too large for float32 arithmetic, or the model holds invalid values. Check the descriptors."
-            )
+            min(self._n_rows(), k * int(np.bincount(self.row_places_.astype(np.int64)).max()))
+        scores, rows = self._checked_rows(Q, k_rows, True)
         if self.row_places_ is None:
             return scores, rows
         places, place_scores = rank_unique_places(rows, self.row_places_, k, scores)
         return place_scores, places
+
+    def predict(self, Q: Any) -> np.ndarray:
+        """Place index of each query (:meth:`PlaceLocalizer.predict`); one query by :meth:`_one_query`."""
+        one = self._one_query(Q, False)
+        return one[1][0] if one is not None else super().predict(Q)
+
+    def search(self, Q: Any, k: int = 10) -> tuple[np.ndarray, np.ndarray]:
+        """The ``k`` best places per query (:meth:`PlaceLocalizer.search`); one query's best by
+        :meth:`_one_query`."""
+        one = self._one_query(Q, True) if type(k) is int and k == 1 else None
+        return one if one is not None else super().search(Q, k)
+
+    def _one_query(self, Q: Any, scores: bool) -> tuple[np.ndarray | None, np.ndarray] | None:
+        """(scores, rows) (1, 1) of the best row of one query of the common kind, or None: the general path.
+
+        The common kind is a C-contiguous float32 row of the fitted width, the plain L2 front end, row i =
+        place i and faiss' default threads; it takes the shortest path to the index with every check kept:
+        the row's finite length (its float64 sum of squares), one faiss thread, the answer within the map, a
+        finite score. Any other query, or one these checks refuse, takes the general path, which names the
+        problem.
+        """
+        n_places = getattr(self, self._fitted_marker, None)  # None: not fitted (the general path says so)
+        if not (type(Q) is np.ndarray and n_places is not None and self.front_end_.plain_l2
+                and Q.shape == (1, self.n_features_in_) and Q.dtype == np.float32 and Q.flags.c_contiguous
+                and self.row_places_ is None and self.n_jobs is None):
+            return None
+        squares = one_row_squares(Q)
+        if not (math.isfinite(squares) and squares >= TINY_SQUARED_NORM):
+            return None
+        with faiss_threads(1):
+            values, rows = self._search_rows(Q * (1.0 / math.sqrt(squares)), 1, scores)
+        if not 0 <= rows.item(0) < n_places or scores and not math.isfinite(values.item(0)):
+            return None
+        return values, rows
+
+    def _predict(self, Q: np.ndarray) -> np.ndarray:
+        if self.row_places_ is not None:  # a place scores its best row: the ranking of _search
+            return super()._predict(Q)
+        return self._checked_rows(Q, 1, False)[1][:, 0]  # row i is place i: no scores needed
+
+    def _checked_rows(self, Q: np.ndarray, k: int, scores: bool) -> tuple[np.ndarray | None, np.ndarray]:
+        """:meth:`_search_rows` on the right number of faiss threads, every row answered checked."""
+        if self.front_end_.normalize == "none":  # a normalising front end hands over finite rows, length ≤ 1
+            check_magnitude(Q, "Q")
+        # Single queries on one faiss thread unless n_jobs says otherwise (btel.core.threads).
+        with faiss_threads(search_threads(self.n_jobs, Q.shape[0])):
+            values, rows = self._search_rows(Q, k, scores)
+        n_rows = self._n_rows()
+        # faiss answers −1 when no distance is finite (overflow, a corrupt index): never a place.
+        if not (rows.size == 1 and 0 <= rows.item(0) < n_rows):  # one valid answer: no array passes
+            bad = np.flatnonzero(((rows < 0) | (rows >= n_rows)).any(axis=1))
+            if bad.size:
+                raise InvalidDescriptorsError(
+                    f"query row {int(bad[0])} has no finite distance to the map ({type(self).__name__}): its "
+                    "values are too large for float32 arithmetic, or the model holds invalid values. Check "
+                    "the descriptors."
+                )
+        return values, rows
 
     def _stored_arrays(self) -> dict[str, np.ndarray]:
         arrays = dict(self._model_arrays())

@@ -95,10 +95,14 @@ class BruteForceNN(_RowLocalizer):
         index.add(self.descriptors_)
         return index
 
-    def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    def _search_rows(self, Q: np.ndarray, k: int,
+                     scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
         values, rows = self._index.search(Q, k)
-        scores = np.negative(values, dtype=np.float64) if self.metric == "l2" else values.astype(np.float64)
-        return scores, rows.astype(np.int64, copy=False)
+        rows = rows.astype(np.int64, copy=False)
+        if not scores:
+            return None, rows
+        scores_ = np.negative(values, dtype=np.float64) if self.metric == "l2" else values.astype(np.float64)
+        return scores_, rows
 
     def _model_arrays(self) -> dict[str, np.ndarray]:
         return {"descriptors": self.descriptors_}

@@ -150,9 +150,10 @@ class ITQLocalizer(_RowLocalizer):
         index.add(np.ascontiguousarray(self.codes_))
         return index
 
-    def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    def _search_rows(self, Q: np.ndarray, k: int,
+                     scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
         dist, rows = self._index.search(self.encode_centred(Q - self.mean_), k)
-        return np.negative(dist, dtype=np.float64), rows.astype(np.int64, copy=False)
+        return np.negative(dist, dtype=np.float64) if scores else None, rows.astype(np.int64, copy=False)
 
     def _model_arrays(self) -> dict[str, np.ndarray]:
         return {"codes": self.codes_, "projection": self.projection_, "mean": self.mean_}

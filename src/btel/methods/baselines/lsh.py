@@ -373,7 +373,7 @@ class LSHLocalizer(_RowLocalizer):
         """Asymmetric scoring: the lookup-table scanner of the codes (:func:`signscan.byte_tables`)."""
         return None if self.scoring == "hamming" else signscan.byte_tables(self.codes_.shape[1])
 
-    def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    def _search_rows(self, Q: np.ndarray, k: int, scores: bool = True) -> tuple[np.ndarray, np.ndarray]:
         P = self._project(Q)
         if self.scoring == "hamming":  # zero padding bits add nothing to a Hamming distance
             dist, rows = faiss.knn_hamming(np.packbits(P > 0, axis=1), self.codes_, k)

@@ -144,10 +144,11 @@ class OPQLocalizer(_RowLocalizer):
         return self._projected(self._check_queries(Q))
 
     def _projected(self, Q: np.ndarray) -> np.ndarray:
-        return np.ascontiguousarray(Q @ self.projection_, dtype=np.float32)
+        return Q @ self.projection_  # float32 @ float32: C-contiguous float32, what faiss reads as is
 
-    def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        return self.pq_._search_rows(self._projected(Q), k)
+    def _search_rows(self, Q: np.ndarray, k: int,
+                     scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
+        return self.pq_._search_rows(self._projected(Q), k, scores)
 
     # -- storage and files ---------------------------------------------------------------------
     def _model_arrays(self) -> dict[str, np.ndarray]:

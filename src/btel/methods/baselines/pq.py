@@ -316,11 +316,13 @@ class PQLocalizer(_RowLocalizer):
         return self._projected(self._check_queries(Q))
 
     def _projected(self, Q: np.ndarray) -> np.ndarray:
-        return Q if self.projection_ is None else np.ascontiguousarray(Q @ self.projection_, dtype=np.float32)
+        # float32 @ float32 is a C-contiguous float32 array: what faiss reads as is.
+        return Q if self.projection_ is None else Q @ self.projection_
 
-    def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-        dist, rows = self._index.search(self._projected(Q), k)
-        return np.negative(dist, dtype=np.float64), rows.astype(np.int64, copy=False)
+    def _search_rows(self, Q: np.ndarray, k: int,
+                     scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
+        dist, rows = self._index.search(self._projected(Q), k)  # faiss' labels are int64
+        return np.negative(dist, dtype=np.float64) if scores else None, rows
 
     # -- storage and files ---------------------------------------------------------------------
     def _model_arrays(self) -> dict[str, np.ndarray]:

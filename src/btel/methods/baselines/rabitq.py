@@ -231,10 +231,11 @@ class RaBitQLocalizer(_RowLocalizer):
         return index
 
     # -- inference -----------------------------------------------------------------------------
-    def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    def _search_rows(self, Q: np.ndarray, k: int,
+                     scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
         rotated = np.ascontiguousarray(np.asarray(Q, dtype=np.float32) @ self.rotation_)
         dist, rows = self._index.search(rotated, k)
-        return np.negative(dist, dtype=np.float64), rows.astype(np.int64, copy=False)
+        return np.negative(dist, dtype=np.float64) if scores else None, rows.astype(np.int64, copy=False)
 
     def summary(self) -> str:
         """One line: D, B, seed, factor width and the front end."""

@@ -348,7 +348,7 @@ class SeqSLAM(_RowLocalizer):
     def _sequence_context(self) -> int:
         return int(self.ds) - 1
 
-    def _search_rows(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    def _search_rows(self, Q: np.ndarray, k: int, scores: bool = True) -> tuple[np.ndarray, np.ndarray]:
         costs = self._costs(Q)
         if k == 1:
             rows = np.argmin(costs, axis=1)[:, None].astype(np.int64)

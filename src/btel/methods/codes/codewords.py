@@ -105,22 +105,22 @@ class CandidateScan:
 
     The coarse decode refines a few thousand places per query; faiss builds the query's ⌈K/8⌉ × 256 table and
     sums one entry per byte in C++, several times faster than the same look-ups in numpy. The index holds
-    only the candidates of the current call (a runtime buffer, reused).
+    only the candidates of the current call, gathered straight into its code array (a runtime buffer sized
+    once for the most candidates a call may have: ``capacity`` places).
     """
 
-    def __init__(self, groups: int) -> None:
+    def __init__(self, groups: int, capacity: int) -> None:
         self.groups = groups
         self.index = _pattern_index(groups)
+        self.view = _codes_view(self.index, capacity, groups)
 
-    def search(self, m: np.ndarray, parts: list[np.ndarray], k: int) -> tuple[np.ndarray, np.ndarray]:
+    def search(self, m: np.ndarray, packed: np.ndarray, places: np.ndarray,
+               k: int) -> tuple[np.ndarray, np.ndarray]:
         """(scores (k,) float32, rows (k,) int64), best first, for margins (1, 8·groups) float32 over the packed
-        codewords ``parts`` ((n_j, groups) uint8 each), rows counted over the parts in order."""
-        n = sum(part.shape[0] for part in parts)
-        view, at = _codes_view(self.index, n, self.groups), 0
-        for part in parts:
-            view[at : at + part.shape[0]] = part
-            at += part.shape[0]
-        self.index.ntotal = n
+        codewords ``packed[places]`` ((n_places, groups) uint8; at most ``capacity`` places), rows counted in
+        ``places``."""
+        np.take(packed, places, axis=0, out=self.view[: places.size])
+        self.index.ntotal = places.size
         scores, rows = self.index.search(m, k)
         return scores[0], rows[0]
 
@@ -190,15 +190,20 @@ class Codewords:
         The (N, ⌈K/8⌉) array is allocated once and filled :data:`FILL_PLACES` places at a time
         when first read (untouched pages cost no memory).
         """
+        return self.packed[places] if self.fill(places) else None
+
+    def fill(self, places: np.ndarray) -> bool:
+        """Make the packed codewords of ``places`` present in :attr:`packed` (False past the cache's size:
+        :data:`PACKED_CACHE_BYTES`)."""
         n, groups = self.n_places, -(-self.n_codes // 8)
         if n * groups > PACKED_CACHE_BYTES:
-            return None
+            return False
         if self.packed is None:
             self.packed = np.empty((n, groups), dtype=np.uint8)
             self.filled = np.zeros(-(-n // FILL_PLACES), dtype=bool)
         chunk_of = places // FILL_PLACES
         if self.filled[chunk_of].all():
-            return self.packed[places]
+            return True
         chunks = np.unique(chunk_of)
         missing = chunks[~self.filled[chunks]]
         # Runs of consecutive missing chunks, each generated in one call.
@@ -206,16 +211,7 @@ class Codewords:
             a, b = int(run[0]) * FILL_PLACES, min(n, (int(run[-1]) + 1) * FILL_PLACES)
             self.codebook.packed(np.arange(a, b), out=self.packed[a:b])
             self.filled[run] = True
-        return self.packed[places]
-
-    def packed_range(self, start: int, stop: int) -> np.ndarray | None:
-        """A view of the packed codewords of places start … stop − 1 (filled on demand), or None past
-        :data:`PACKED_CACHE_BYTES` (as :meth:`packed_rows`)."""
-        if self.packed is None or not self.filled[start // FILL_PLACES : -(-stop // FILL_PLACES)].all():
-            touched = np.append(np.arange(start, stop, FILL_PLACES), stop - 1)  # a place in every chunk
-            if self.packed_rows(touched) is None:
-                return None
-        return self.packed[start:stop]
+        return True
 
     def packed_of(self, places: np.ndarray) -> np.ndarray:
         """Packed codewords of the given places: from the cache, or generated past its size limit."""
@@ -320,15 +316,14 @@ class Codewords:
                 # Candidates in place order, so that ties go to the lower place as in the exact decode.
                 places = (blocks[:, None] * block + offsets).ravel()
                 places = places[places < n_places]
-                parts = [self.packed_range(j * block, min(n_places, (j + 1) * block)) for j in blocks.tolist()]
-                if parts[0] is None:  # past the packed cache: numpy look-ups of generated codewords
+                if not self.fill(places):  # past the packed cache: numpy look-ups of generated codewords
                     scores = packed_scores(byte_table(m), self.packed_of, places)
                     values, cols = top_k(scores.astype(np.float64)[None], k)
                     out_s[a + q], out_p[a + q] = values[0], places[cols[0]]
                     continue
-                if self.candidates is None:
-                    self.candidates = CandidateScan(parts[0].shape[1])
-                values, rows = self.candidates.search(M[a + q : a + q + 1], parts, k)
+                if self.candidates is None or self.candidates.view.shape[0] < candidates * block:
+                    self.candidates = CandidateScan(self.packed.shape[1], candidates * block)
+                values, rows = self.candidates.search(M[a + q : a + q + 1], self.packed, places, k)
                 # The scan's order; among equal scores the lower place first, as the exact decode.
                 order = np.lexsort((places[rows], -values.astype(np.float64)))
                 out_s[a + q], out_p[a + q] = values[order], places[rows[order]]
