@@ -66,3 +66,21 @@ def test_single_queries_run_on_one_faiss_thread_unless_asked() -> None:
         model._search_rows = spy
         model.predict(X[:rows])
         assert seen[-1] == expected, (n_jobs, rows, seen)
+
+
+def test_limit_threads_limits_every_loaded_library_even_one_loaded_late() -> None:
+    """The "threads" a run reports is the one in force: libraries loaded after the first BLAS limit
+    (scikit-learn's OpenMP, scipy's BLAS) are limited too."""
+    from threadpoolctl import threadpool_info
+
+    from btel.core.threads import blas_threads, limit_threads, max_threads
+
+    with blas_threads(1):  # the BLAS controllers are found here, once per process
+        pass
+    import sklearn.cluster  # noqa: F401 - loads scikit-learn's OpenMP runtime (if not loaded yet)
+    import scipy.linalg  # noqa: F401
+
+    with limit_threads(1):
+        counts = {info["filepath"]: info["num_threads"] for info in threadpool_info()}
+        assert set(counts.values()) == {1}, counts
+        assert max_threads() == 1

@@ -177,8 +177,19 @@ def search_threads(n_jobs: int | None, n_queries: int) -> int | None:
 
 @contextlib.contextmanager
 def limit_threads(n: int | None) -> Iterator[None]:
-    """BLAS and faiss' OpenMP both limited to ``n`` threads inside the block (None: their defaults)."""
-    with faiss_threads(n), blas_threads(n):
+    """Every loaded BLAS and OpenMP library, faiss' included, limited to ``n`` threads inside the block
+    (None: their defaults).
+
+    The libraries are inspected afresh on entry (threadpoolctl, ~ms: this block wraps whole runs, not
+    single queries), so a library loaded after the first query (scikit-learn's OpenMP, scipy's
+    BLAS) is limited too and the reported thread count is the one in force.
+    """
+    if n is None:
+        yield
+        return
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=int(n)), faiss_threads(n), blas_threads(n):
         yield
 
 
