@@ -46,7 +46,8 @@ from ..evaluation.tables import describe_row, rows_csv_text
 
 __all__ = ["SEASONS", "QUICK_FRAMES", "NordlandData", "ExperimentRun", "default_nordland_root", "fit_row",
            "fit_rows", "fit_model", "ModelCache", "full_or_quick", "write_results", "describe_row",
-           "data_fingerprint", "experiment_jobs", "fit_and_predict", "FittedRow"]
+           "data_fingerprint", "does_not_fit_cells", "experiment_jobs", "fit_and_predict",
+           "FittedRow"]
 
 @dataclass
 class ExperimentRun:
@@ -229,6 +230,11 @@ class FittedRow:
     record: EvaluationResult
 
 
+def does_not_fit_cells(exc: BudgetTooSmallError) -> dict[str, Any]:
+    """The cells of a row whose method did not fit its budget: status, no bytes, the minimum it needs."""
+    return {"status": does_not_fit_status(exc.minimum), "nbytes": None, "minimum_bytes": int(exc.minimum or 0)}
+
+
 def fit_and_predict(name: str, params: dict[str, Any], X: np.ndarray, Q: np.ndarray, budget: int | None,
                     label: str, *, progress: bool | None = None, timing_repeats: int = 1
                     ) -> FittedRow | dict[str, Any]:
@@ -246,8 +252,7 @@ def fit_and_predict(name: str, params: dict[str, Any], X: np.ndarray, Q: np.ndar
     try:
         fit_s = timed_fit(model, X)
     except BudgetTooSmallError as exc:
-        return {"status": does_not_fit_status(exc.minimum), "nbytes": None,
-                "minimum_bytes": int(exc.minimum or 0)}
+        return does_not_fit_cells(exc)
     check_within_budget(label, model.nbytes, budget)
     record = measure(model, None, Q, name=label, fit=False, fit_time_s=fit_s, ks=(), budget=budget,
                      timing_repeats=timing_repeats, score_answers=False)

@@ -52,7 +52,7 @@ from ..evaluation.metrics import recall_at_tolerance
 from ..core.storage import check_within_budget, format_bytes, parse_budget
 from ..core.threads import limit_threads
 from ..datasets.sources import gardens_point_path, load_gardens_point_netvlad
-from ._common import SEASONS, ExperimentRun, FittedRow, NordlandData, fit_and_predict
+from ._common import SEASONS, ExperimentRun, FittedRow, NordlandData, does_not_fit_cells, fit_and_predict
 from .frontier_verdicts import SEEDS, auto_vs_oracle, paired_difference, report_lines, row_of_choice
 from ..methods.registry import make_method
 
@@ -146,7 +146,7 @@ def _recalls(pred: np.ndarray, key: str) -> dict[str, float]:
     out = {f"recall@{t}": v for t, v in recall_at_tolerance(pred, np.arange(n), (0, 2, 10, 20)).items()}
     tolerance = int(key.split("@")[1])
     for half, idx in _halves(n).items():
-        out[half] = float(np.mean(np.abs(pred[idx] - idx) <= tolerance))
+        out[half] = float(recall_at_tolerance(pred[idx], idx, (tolerance,))[tolerance])
     return out
 
 
@@ -167,7 +167,6 @@ def _calibrated_row(base: dict[str, Any], X: np.ndarray, Q: np.ndarray, budget: 
     calibration chose, per half and seed.
     """
     from ..evaluation.measure import timed_fit
-    from ..evaluation.records import does_not_fit_status
     from ..exceptions import BudgetTooSmallError
 
     row = {**base, "direction": base["dataset"], "method": "auto calibrated", "registry_name": "auto",
@@ -185,8 +184,7 @@ def _calibrated_row(base: dict[str, Any], X: np.ndarray, Q: np.ndarray, budget: 
             try:
                 fit_s.append(timed_fit(model, X, calibration=(Q[cal], cal)))
             except BudgetTooSmallError as exc:
-                return {**row, "status": does_not_fit_status(exc.minimum), "nbytes": None,
-                        "minimum_bytes": int(exc.minimum or 0)}
+                return {**row, **does_not_fit_cells(exc)}
             pred[halves[evaluated]] = model.predict(Q[halves[evaluated]])
             nbytes.append(int(model.nbytes))
             check_within_budget("auto calibrated", nbytes[-1], budget)
