@@ -8,7 +8,8 @@ map-only auto of an existing run's ``rows.jsonl``. One BLAS thread.
     python benchmarks/studies/frontier_calibrated_cells.py --rows RUN/frontier/rows.jsonl \\
         --maps nordland --budgets 1MB --seeds 0          # ≈ 7 min on 2 cores
 
-Writes ``benchmarks/results/frontier_calibrated_cells.json`` and prints one line per cell.
+Writes ``benchmarks/results/frontier_calibrated_cells.json`` (``--name`` another name) and prints one
+line per cell.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ def main() -> None:
     parser.add_argument("--maps", default="nordland", help="maps whose name starts with this")
     parser.add_argument("--budgets", default="1MB", help="comma-separated")
     parser.add_argument("--seeds", default="0", help="comma-separated random_state values")
+    parser.add_argument("--name", default="frontier_calibrated_cells", help="results file name (no extension)")
     args = parser.parse_args()
     rows = [json.loads(line) for line in args.rows.read_text().splitlines() if line.strip()]
     seeds = tuple(int(s) for s in args.seeds.split(","))
@@ -60,7 +62,7 @@ def main() -> None:
                 print(f"{cell['map']:24s} {text:>6s} calibrated {cell['calibrated']:.3f} ({cell['ratio']:.3f} × "
                       f"{cell['best']} {cell['best_value']:.3f}); map-only auto {cell['map_only_auto_same_seeds']}; "
                       f"chose {cell['choices']}; {cell['seconds']:.0f} s", flush=True)
-    path = write_results("frontier_calibrated_cells", {"rows_file": str(args.rows), "load_before": load_before,
+    path = write_results(args.name, {"rows_file": str(args.rows), "load_before": load_before,
                                                        "load_after": os.getloadavg(), "cells": out})
     print(f"load {load_before} → {os.getloadavg()}; written {path}")
 

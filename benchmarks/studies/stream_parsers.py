@@ -11,7 +11,11 @@ ceiling (``docs/decisions/streaming.md``). This study times, on the same blocks 
   turned into integers four at a time in uint32 words, the value in float64 from the 19-digit
   mantissa and a power of ten, the block refused where any value lies within 8 float64 ulps of a
   float32 rounding midpoint), on the whole block and on sub-blocks of 32 lines (cache-sized);
-- ``float per token``: Python's ``float`` on every token (the parser before issue 22).
+- ``float per token``: Python's ``float`` on every token (the parser before issue 22);
+- compiled CSV readers, each when it is importable (none is a btel dependency; install them beside
+  btel to include them): ``polars.read_csv``, ``pyarrow.csv.read_csv`` and ``pandas.read_csv``
+  (C engine), the block handed over as one bytes buffer with every column typed float64, the
+  result turned into one float32 array (what the stream would need).
 
 Every parser's float32 rows are checked bit for bit against ``float(token)`` → float32 on every
 block first. Ratios are to ``parse_lines`` in the same run (the machine is shared: absolute figures
@@ -19,6 +23,8 @@ move with its load, printed).
 
     python benchmarks/studies/stream_parsers.py            # ≈ 1 min
     python benchmarks/studies/stream_parsers.py --block 256 --repeats 30
+    pip install --target /tmp/csv polars pyarrow pandas   # then, to time the compiled readers too:
+    PYTHONPATH=/tmp/csv python benchmarks/studies/stream_parsers.py
 
 Writes ``benchmarks/results/stream_parsers.json``.
 """
@@ -96,6 +102,41 @@ def float_per_token(lines: list[bytes]) -> np.ndarray:
     return np.array(values).astype(np.float32)
 
 
+def compiled_readers(d: int, delimiter: str) -> dict[str, Callable[[bytes], np.ndarray]]:
+    """The importable compiled CSV readers: name → function of a block's bytes → float32 rows."""
+    readers: dict[str, Callable[[bytes], np.ndarray]] = {}
+    try:
+        import polars as pl
+
+        schema = {f"column_{i + 1}": pl.Float64 for i in range(d)}
+        readers[f"polars {pl.__version__}"] = lambda block: pl.read_csv(
+            block, separator=delimiter, has_header=False, schema=schema).to_numpy().astype(np.float32)
+    except ImportError:
+        pass
+    try:
+        import pyarrow as pa
+        import pyarrow.csv as pcsv
+
+        read = pcsv.ReadOptions(autogenerate_column_names=True)
+        parse = pcsv.ParseOptions(delimiter=delimiter)
+        convert = pcsv.ConvertOptions(column_types={f"f{i}": pa.float64() for i in range(d)})
+        readers[f"pyarrow {pa.__version__}"] = lambda block: np.column_stack([
+            column.to_numpy() for column in pcsv.read_csv(pa.BufferReader(block), read_options=read,
+                                                          parse_options=parse,
+                                                          convert_options=convert).columns]).astype(np.float32)
+    except ImportError:
+        pass
+    try:
+        import pandas as pd
+
+        readers[f"pandas {pd.__version__} (C engine)"] = lambda block: pd.read_csv(
+            io.BytesIO(block), sep=delimiter, header=None, dtype=np.float64,
+            engine="c").to_numpy().astype(np.float32)
+    except ImportError:
+        pass
+    return readers
+
+
 def main() -> None:
     from btel.sequence.lineparse import parse_lines
 
@@ -122,6 +163,11 @@ def main() -> None:
                 lambda: [parse_fixed(lines[i:i + sub], args.d) for i in range(0, len(lines), sub)],
             "float per token": lambda: float_per_token(lines),
         }
+        block = b"".join(lines)
+        for key, read in compiled_readers(args.d, delimiter).items():
+            if not np.array_equal(read(block).view(np.uint32), truth.view(np.uint32)):
+                raise SystemExit(f"{key} disagrees with float() on these lines")
+            candidates[key] = lambda read=read: read(block)
         fixed = parse_fixed(lines, args.d)
         if fixed is None or not np.array_equal(fixed.view(np.uint32), truth.view(np.uint32)):
             raise SystemExit("the fixed-format parser disagrees with float() on these lines")
