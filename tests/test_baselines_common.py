@@ -291,3 +291,6 @@ def test_one_query_fast_path_refuses_what_the_general_path_refuses(name) -> None
     for q in (X[3:4].astype(np.float64), np.asfortranarray(np.vstack([X[3], X[3]]))[:1], X[3:4].tolist()):
         np.testing.assert_array_equal(model.predict(q), best)
     assert model.predict(X[3:4]).shape == (1,) and model.search(X[3:4], 1)[0].dtype == np.float64
+    zero = np.zeros((1, DIM), dtype=np.float32)  # the fast path's scale 1.0: the general path's answer
+    np.testing.assert_array_equal(model.predict(zero), model.predict(zero.astype(np.float64)))
+    np.testing.assert_array_equal(model.search(zero, 1)[1], model.search(zero.astype(np.float64), 1)[1])

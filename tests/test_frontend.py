@@ -340,6 +340,22 @@ def test_one_query_through_the_l2_front_end_equals_a_batch_row(row, scale, lazy)
     assert np.isfinite(one).all() and float(np.linalg.norm(one.astype(np.float64))) <= 1 + 1e-5
 
 
+def test_one_row_scale_normalises_one_row_and_leaves_the_rest_to_the_general_path() -> None:
+    q = np.array([[3.0, 4.0]], dtype=np.float32)
+    assert FrontEnd(normalize="l2").one_row_scale(q) == pytest.approx(0.2)
+    assert FrontEnd(normalize="l2").one_row_scale(np.zeros((1, 2), np.float32)) == 1.0  # a zero row stays zero
+    refused = {
+        "two rows": (FrontEnd(normalize="l2"), np.vstack([q, q])),
+        "float64": (FrontEnd(normalize="l2"), q.astype(np.float64)),
+        "no normalisation": (FrontEnd(normalize="none"), q),
+        "whitened": (FrontEnd(normalize="l2", whiten="shrink"), q),
+        "NaN": (FrontEnd(normalize="l2"), np.array([[np.nan, 1.0]], np.float32)),
+        "inverse length overflows float32": (FrontEnd(normalize="l2"), np.full((1, 2), 1e-20, np.float32)),
+    }
+    for what, (front, row) in refused.items():
+        assert front.one_row_scale(row) is None, what
+
+
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
 def test_one_query_with_nan_or_inf_is_refused_by_the_l2_front_end(bad) -> None:
     q = np.ones((1, 5), dtype=np.float32)

@@ -177,6 +177,28 @@ class FrontEnd:
             out[start : start + _CHUNK_ROWS] = (Z[start : start + _CHUNK_ROWS] - self.mean_) @ self.whitening_
         return normalize_rows(out, "none" if self.normalize == "none" else "l2")
 
+    def one_row_scale(self, X: np.ndarray) -> float | None:
+        """The factor that normalises one float32 query row, by Python arithmetic (µs count for one query).
+
+        Parameters
+        ----------
+        X : ndarray of shape (1, d), float32
+
+        Returns
+        -------
+        float or None
+            1 / ‖x‖ (1.0 for a zero row, which stays zero); None where :meth:`transform`'s general path
+            must run: not the plain L2 front end, not one float32 row, a NaN or inf (named there), or a
+            row so short that its inverse length overflows float32 (scaled there in float64).
+        """
+        if not (self.plain_l2 and X.shape[0] == 1 and X.dtype == np.float32):
+            return None
+        squares = one_row_squares(X)
+        # A zero float64 sum of squares of float32 values is a zero row: none underflows.
+        if not (math.isfinite(squares) and (squares == 0.0 or squares >= TINY_SQUARED_NORM)):
+            return None
+        return 1.0 / math.sqrt(squares) if squares > 0 else 1.0
+
     def transform(self, X: np.ndarray, starts: np.ndarray | None = None, *, check_finite: bool = False,
                   lazy: bool = False) -> np.ndarray | ScaledRows:
         """Apply the fitted front end to validated descriptors (queries: one traverse, in order).
@@ -186,14 +208,10 @@ class FrontEnd:
         comes back as :class:`ScaledRows` (no normalised copy of X).
         """
         plain_l2 = self.plain_l2
-        if plain_l2 and X.shape[0] == 1 and X.dtype == np.float32:  # one query (µs count here): Python arithmetic
-            squares = one_row_squares(X)
-            # else the general path: the finiteness check naming the value, tiny rows scaled in float64 (a
-            # zero float64 sum of squares of float32 values is a zero row: none underflows)
-            if math.isfinite(squares) and (squares == 0.0 or squares >= TINY_SQUARED_NORM):
-                scale = 1.0 / math.sqrt(squares) if squares > 0 else 1.0  # a zero row stays zero
-                # A Python float times a float32 array is float32 arithmetic (NEP 50): X * np.float32(scale).
-                return ScaledRows(X, np.array([scale], dtype=np.float32)) if lazy else X * scale
+        scale = self.one_row_scale(X)
+        if scale is not None:
+            # A Python float times a float32 array is float32 arithmetic (NEP 50): X * np.float32(scale).
+            return ScaledRows(X, np.array([scale], dtype=np.float32)) if lazy else X * scale
         if self.is_identity:
             return X
         if lazy and plain_l2:

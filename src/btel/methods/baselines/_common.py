@@ -22,7 +22,7 @@ import numpy as np
 
 from ..base import ArraySpec, PlaceLocalizer
 from ...exceptions import BudgetTooSmallError, InvalidDescriptorsError, ModelFileError
-from ...core.rows import TINY_SQUARED_NORM, one_row_squares
+from ...core.rows import one_row_squares
 from ...core.storage import format_bytes
 from ...core.threads import faiss_threads, search_threads
 
@@ -266,15 +266,14 @@ class _RowLocalizer(PlaceLocalizer):
         problem.
         """
         n_places = getattr(self, self._fitted_marker, None)  # None: not fitted (the general path says so)
-        if not (type(Q) is np.ndarray and n_places is not None and self.front_end_.plain_l2
-                and Q.shape == (1, self.n_features_in_) and Q.dtype == np.float32 and Q.flags.c_contiguous
-                and self.row_places_ is None and self.n_jobs is None):
+        if not (type(Q) is np.ndarray and n_places is not None and Q.shape == (1, self.n_features_in_)
+                and Q.flags.c_contiguous and self.row_places_ is None and self.n_jobs is None):
             return None
-        squares = one_row_squares(Q)
-        if not (math.isfinite(squares) and squares >= TINY_SQUARED_NORM):
+        scale = self.front_end_.one_row_scale(Q)  # None: not the plain L2 front end, or a row it refuses
+        if scale is None:
             return None
         with faiss_threads(1):
-            values, rows = self._search_rows(Q * (1.0 / math.sqrt(squares)), 1, scores)
+            values, rows = self._search_rows(Q * scale, 1, scores)
         if not 0 <= rows.item(0) < n_places or scores and not math.isfinite(values.item(0)):
             return None
         return values, rows
