@@ -8,8 +8,12 @@ map-only auto of an existing run's ``rows.jsonl``. One BLAS thread.
     python benchmarks/studies/frontier_calibrated_cells.py --rows RUN/frontier/rows.jsonl \\
         --maps nordland --budgets 1MB --seeds 0          # ≈ 7 min on 2 cores
 
-Writes ``benchmarks/results/frontier_calibrated_cells.json`` (``--name`` another name) and prints one
-line per cell.
+``--oracle SEED_CELLS.json`` (from ``frontier_seed_cells.py``) takes each cell's best row and
+map-only auto from that study instead, so a calibrated row at 20 seeds is set against the 20-seed
+oracle.
+
+Writes ``benchmarks/results/frontier_calibrated_cells.json`` (``--name`` another name) after every cell
+and prints one line per cell.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -35,8 +40,13 @@ def main() -> None:
     parser.add_argument("--budgets", default="1MB", help="comma-separated")
     parser.add_argument("--seeds", default="0", help="comma-separated random_state values")
     parser.add_argument("--name", default="frontier_calibrated_cells", help="results file name (no extension)")
+    parser.add_argument("--oracle", type=Path, action="append", default=[],
+                        help="frontier_seed_cells.py results (repeatable): take each cell's best row and map-only "
+                             "auto from there (its seeds) instead of from --rows")
     args = parser.parse_args()
     rows = [json.loads(line) for line in args.rows.read_text().splitlines() if line.strip()]
+    oracle = {(c["map"], parse_budget(c["budget"])): c for path in args.oracle
+              for c in json.loads(path.read_text())["cells"]}
     seeds = tuple(int(s) for s in args.seeds.split(","))
     load_before, out = os.getloadavg(), []
     with limit_threads(1):
@@ -51,19 +61,28 @@ def main() -> None:
                         and r.get("status") == "ok"]
                 best = max((r for r in here if r["registry_name"] != "auto"), key=lambda r: r["value"])
                 auto = next(r for r in here if r["method"] == "auto")
+                map_only = [v for s, v in zip(auto["seeds"], auto["seed_values"]) if s in seeds]
+                seeded = oracle.get((base["dataset"], budget))
+                if seeded is not None:  # the best row and map-only auto over that study's seeds
+                    best = {"method": seeded["best"], "value": seeded["best_value"]}
+                    map_only = [seeded["auto"]]
                 cell = {"map": base["dataset"], "budget": text, "seeds": list(seeds), "calibrated": row["value"],
                         "half_values": row["half_values"],
                         "choices": {h: [c["chose"] for c in cs] for h, cs in row["calibrated_choices"].items()},
                         "best": best["method"], "best_value": best["value"], "ratio": row["value"] / best["value"],
-                        "map_only_auto_same_seeds": [v for s, v in zip(auto["seeds"], auto["seed_values"])
-                                                     if s in seeds],
+                        "oracle": "seed cells" if seeded is not None else "rows",
+                        "oracle_seeds": seeded["seeds"] if seeded is not None else len(auto["seeds"]),
+                        "map_only_auto_same_seeds": map_only,
                         "seconds": time.perf_counter() - start}
                 out.append(cell)
                 print(f"{cell['map']:24s} {text:>6s} calibrated {cell['calibrated']:.3f} ({cell['ratio']:.3f} × "
                       f"{cell['best']} {cell['best_value']:.3f}); map-only auto {cell['map_only_auto_same_seeds']}; "
                       f"chose {cell['choices']}; {cell['seconds']:.0f} s", flush=True)
+                write_results(args.name, {"rows_file": str(args.rows), "load_before": load_before, "cells": out,
+                                          "finished": False})
     path = write_results(args.name, {"rows_file": str(args.rows), "load_before": load_before,
-                                                       "load_after": os.getloadavg(), "cells": out})
+                                     "load_after": os.getloadavg(), "cells": out, "finished": True,
+                                     "command": " ".join(["python", *sys.argv])})
     print(f"load {load_before} → {os.getloadavg()}; written {path}")
 
 
