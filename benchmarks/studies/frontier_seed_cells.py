@@ -29,8 +29,8 @@ from _common import add_data_arguments, frontier_maps, write_results
 
 from btel.core.storage import format_bytes, parse_budget
 from btel.core.threads import limit_threads
-from btel.experiments.frontier import BUDGETS, FAST, SLOW, SLOW_BUDGETS, _row, auto_vs_oracle, paired_difference
-from btel.methods.registry import make_method
+from btel.experiments.frontier import (BUDGETS, FAST, SLOW, _row, auto_vs_oracle, paired_difference, row_seeds,
+                                       slow_budgets)
 
 
 def main() -> None:
@@ -59,9 +59,8 @@ def main() -> None:
                 start = time.perf_counter()
                 rows = []
                 for label, name, params in FAST:
-                    seeded = "random_state" in make_method(name).get_params()
-                    rows.append(_row(base, label, name, params, X, Q, budget, seeds if seeded else None))
-                if text in SLOW_BUDGETS and base["dataset"] != "nordland winter→summer":
+                    rows.append(_row(base, label, name, params, X, Q, budget, row_seeds(name, seeds)))
+                if text in slow_budgets(base["dataset"], quick=False):
                     rows += [_row(base, label, name, params, X, Q, budget) for label, name, params in SLOW]
                 verdict = next(v for v in auto_vs_oracle(rows) if v["budget"] == budget)
                 if "auto" not in verdict:

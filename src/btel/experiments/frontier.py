@@ -95,6 +95,17 @@ DATASETS = ("gardens-point", "gardens-point-permuted", "gardens-point reversed",
             "nordland summer→winter", "nordland winter→summer", "synthetic route", "synthetic independent")
 
 
+def row_seeds(name: str, seeds: tuple[int, ...]) -> tuple[int, ...] | None:
+    """``seeds`` for a method whose fit draws at random (it has ``random_state``); None for one that
+    draws nothing (brute force): it runs once."""
+    return seeds if "random_state" in make_method(name).get_params() else None
+
+
+def slow_budgets(dataset: str, quick: bool) -> tuple[str, ...]:
+    """The budgets the :data:`SLOW` rows run at on ``dataset`` (module docstring: cost control)."""
+    return () if quick or dataset == "nordland winter→summer" else SLOW_BUDGETS
+
+
 def _row(base: dict[str, Any], label: str, name: str, params: dict[str, Any], X: np.ndarray, Q: np.ndarray,
          budget: int | None, seeds: tuple[int, ...] | None = None) -> dict[str, Any]:
     """One method at one budget: its recalls, the mean over ``seeds`` (``random_state``; None: unseeded).
@@ -333,17 +344,15 @@ def _one_map(base: dict[str, Any], X: np.ndarray, Q: np.ndarray, budgets: tuple[
     raw = X.shape[0] * X.shape[1] * 4
     budgets = tuple(b for b in budgets if parse_budget(b) <= raw)
     for label, name, params in FAST[:5] if quick else FAST:
-        seeded = "random_state" in make_method(name).get_params()  # brute force draws nothing at random
-        seeds = (SEEDS[:2] if quick else SEEDS) if seeded else None
+        seeds = row_seeds(name, SEEDS[:2] if quick else SEEDS)
         for budget in budgets:
             rows.append(_row(base, label, name, params, X, Q, parse_budget(budget), seeds))
             keep(rows[-1])
     for budget in budgets:
         rows.append(_calibrated_row(base, X, Q, parse_budget(budget), SEEDS[:1] if quick else SEEDS))
         keep(rows[-1])
-    slow_budgets = () if quick or base["dataset"] == "nordland winter→summer" else SLOW_BUDGETS
     for label, name, params in SLOW:
-        for budget in slow_budgets:
+        for budget in slow_budgets(base["dataset"], quick):
             rows.append(_row(base, label, name, params, X, Q, parse_budget(budget)))
             keep(rows[-1])
     for label, params in (("brute force (cosine)", {}), ("brute force shrink", {"whiten": "shrink"})):
