@@ -25,7 +25,8 @@ the two medians is what the targets are stated in, so the machine's load (printe
     python benchmarks/bench_single_query.py                # N = 10⁴ rows (≈ 2 min)
     python benchmarks/bench_single_query.py --large        # and the N = 10⁶ rows (first run: fits, ≈ 20 min)
 
-Writes ``benchmarks/results/bench_single_query.json``.
+Writes ``benchmarks/results/bench_single_query.json``; without ``--large`` the file's earlier N = 10⁶ rows are
+kept, each with the date it was measured.
 """
 
 from __future__ import annotations
@@ -296,6 +297,20 @@ def block_sweep(model: Any, Q: np.ndarray) -> list[dict[str, Any]]:
     return rows
 
 
+def earlier_large_rows() -> list[dict[str, Any]]:
+    """The N = 10⁶ rows of the results file, kept when this run measures N = 10⁴ only (``--large`` takes
+    ≈ 20 minutes of fits); each keeps the date of the run that measured it under ``measured``."""
+    path = RESULTS_DIR / "bench_single_query.json"
+    if not path.is_file():
+        return []
+    import json
+
+    earlier = json.loads(path.read_text())
+    date = earlier.get("machine", {}).get("date")
+    return [{**row, "measured": row.get("measured", date)} for row in earlier.get("rows", [])
+            if row.get("n_places", 0) >= 1_000_000]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--calls", type=int, default=2000, help="single-query calls timed per row")
@@ -306,11 +321,16 @@ def main() -> None:
     parser.add_argument("--cache", type=Path, default=RESULTS_DIR / "cache", help="where the 10⁶ models are kept")
     args = parser.parse_args()
     load_before = os.getloadavg()
+    today = time.strftime("%Y-%m-%dT%H:%M:%S")
     rows = [] if args.large_only else small_rows(args.calls)
     if args.large or args.large_only:
         rows += large_rows(min(args.calls, 1000), args.cache, args.sweep, not args.no_probe)
-    path = write_results("bench_single_query", {"rows": rows, "load_before": list(load_before),
-                                                "load_after": list(os.getloadavg()), "calls": args.calls})
+    for row in rows:
+        row["measured"] = today
+    kept = [] if args.large or args.large_only else earlier_large_rows()
+    path = write_results("bench_single_query", {"rows": rows + kept, "load_before": list(load_before),
+                                                "load_after": list(os.getloadavg()), "calls": args.calls,
+                                                "rows_kept_from_an_earlier_run": len(kept)})
     print(f"wrote {path}")
 
 

@@ -294,3 +294,34 @@ def test_one_query_fast_path_refuses_what_the_general_path_refuses(name) -> None
     zero = np.zeros((1, DIM), dtype=np.float32)  # the fast path's scale 1.0: the general path's answer
     np.testing.assert_array_equal(model.predict(zero), model.predict(zero.astype(np.float64)))
     np.testing.assert_array_equal(model.search(zero, 1)[1], model.search(zero.astype(np.float64), 1)[1])
+
+
+def test_index_search_answers_as_faiss_search_and_sends_only_matching_rows_to_the_swig_method() -> None:
+    import faiss
+
+    from btel.methods.baselines._common import index_search, negated_distances
+
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(300, 32)).astype(np.float32)
+    flat, pq, binary = faiss.IndexFlatL2(32), faiss.IndexPQ(32, 4, 4), faiss.IndexBinaryFlat(32)
+    flat.add(X)
+    pq.train(X)
+    pq.add(X)
+    codes = np.packbits(X > 0, axis=1)
+    binary.add(codes)
+    for index, rows in ((flat, X), (pq, X), (binary, codes)):
+        for q in (rows[7:8], rows[:5]):  # one row (the SWIG method), a batch (faiss' search)
+            for k in (1, 3):
+                got, want = index_search(index, q, k), index.search(q, k)
+                assert got[0].dtype == want[0].dtype and got[1].dtype == np.int64
+                np.testing.assert_array_equal(got[0], want[0])
+                np.testing.assert_array_equal(got[1], want[1])
+    # A row of another width or dtype never reaches the raw pointer: faiss' own search refuses it.
+    for index, q in ((flat, X[:1, :16]), (flat, X[:1].astype(np.float64)[:, :16]), (binary, X[:1, :4])):
+        with pytest.raises((AssertionError, ValueError, TypeError)):
+            index_search(index, np.ascontiguousarray(q), 1)
+    one = np.array([[2.5]], dtype=np.float32)
+    assert negated_distances(one).dtype == np.float64 and negated_distances(one)[0, 0] == -2.5
+    many = np.array([[1.0, 2.0]], dtype=np.float32)
+    np.testing.assert_array_equal(negated_distances(many), [[-1.0, -2.0]])
+    assert negated_distances(np.array([[3]], dtype=np.int32)).dtype == np.float64

@@ -28,12 +28,17 @@ TINY_SQUARED_NORM = 1e-30
 
 
 def one_row_squares(row: np.ndarray) -> float:
-    """Sum of squares of one float32 row, (d,) or (1, d), in float64 (NaN or inf when it holds NaN or inf).
+    """Sum of squares of one float32 row, (d,) or (1, d), as a float (NaN or inf when it holds NaN or inf).
 
-    float64 products of float32 values neither overflow nor underflow, so no floating-point error state
-    is set for this sum (``np.errstate`` costs more than the sum of one query); a floating-point error
-    the caller's numpy settings raise (a signalling NaN) comes back as NaN.
+    The rule of :func:`row_norms`: summed in float32 (one BLAS dot, which sets no floating-point error
+    state), and again in float64 when that sum is not finite or below :data:`TINY_SQUARED_NORM` — an
+    overflow, an underflow, a NaN or inf. float64 products of float32 values neither overflow nor
+    underflow, so that sum sets no error state either (``np.errstate`` costs more than the sum of one
+    query); a floating-point error the caller's numpy settings raise (a signalling NaN) comes back as NaN.
     """
+    squares = float(np.vdot(row, row))  # one call: a single query's cost is counted in calls
+    if squares >= TINY_SQUARED_NORM and squares != math.inf:  # False for NaN
+        return squares
     wide = row.astype(np.float64)
     try:
         return float(np.vdot(wide, wide))

@@ -19,8 +19,8 @@ from typing import Any, Iterator
 
 from ..exceptions import InvalidParameterError
 
-__all__ = ["SINGLE_QUERY_MAX", "GEMV_ONE_THREAD_BELOW", "blas_threads", "blas_threads_for_vector", "one_blas_thread", "faiss_threads", "search_threads",
-           "limit_threads", "check_n_jobs"]
+__all__ = ["SINGLE_QUERY_MAX", "GEMV_ONE_THREAD_BELOW", "blas_threads", "blas_threads_for_vector", "one_blas_thread", "faiss_threads",
+           "faiss_module", "search_threads", "limit_threads", "check_n_jobs"]
 
 #: Searches of fewer queries than this run faiss on one thread unless ``n_jobs`` says otherwise.
 SINGLE_QUERY_MAX = 20
@@ -143,7 +143,7 @@ class faiss_threads:  # noqa: N801 (a context used like a function, as before)
     def __enter__(self) -> None:
         if self.wanted is None:
             return
-        faiss = _FAISS or _faiss()
+        faiss = _FAISS or faiss_module()
         previous = faiss.omp_get_max_threads()
         if previous != self.wanted:
             faiss.omp_set_num_threads(self.wanted)
@@ -151,14 +151,14 @@ class faiss_threads:  # noqa: N801 (a context used like a function, as before)
 
     def __exit__(self, *exc: Any) -> None:
         if self.previous is not None:
-            _faiss().omp_set_num_threads(self.previous)
+            faiss_module().omp_set_num_threads(self.previous)
             self.previous = None
 
 
 _FAISS: Any = None
 
 
-def _faiss() -> Any:
+def faiss_module() -> Any:
     """The faiss module, imported at first use (it is not needed to load the package)."""
     global _FAISS
     if _FAISS is None:

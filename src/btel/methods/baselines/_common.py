@@ -24,10 +24,11 @@ from ..base import ArraySpec, PlaceLocalizer
 from ...exceptions import BudgetTooSmallError, InvalidDescriptorsError, ModelFileError
 from ...core.rows import one_row_squares
 from ...core.storage import format_bytes
-from ...core.threads import faiss_threads, search_threads
+from ...core.threads import faiss_module, faiss_threads, search_threads
 
 __all__ = ["quiet_faiss", "faiss_threads", "smallest_uint_dtype", "rank_unique_places", "raise_budget_too_small",
-           "check_magnitude", "check_not_tiny", "check_model_values", "MAX_NORM", "MIN_NORM"]
+           "negated_distances", "index_search", "check_magnitude", "check_not_tiny", "check_model_values",
+           "MAX_NORM", "MIN_NORM"]
 
 #: faiss' k-means prints this from C++ whenever it has fewer than 39 points per centroid, which is
 #: the normal case for a map of a few thousand places; it is not actionable for a btel user.
@@ -112,6 +113,48 @@ MAX_NORM = 1e18
 #: (the mirror of MAX_NORM): squared lengths below 1e-36 near float32's smallest normal number
 #: (1.2e-38), below which squared distances keep fewer bits, then none — every place looks alike.
 MIN_NORM = 1e-18
+
+
+def index_search(index: Any, x: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """``index.search(x, k)`` of a faiss index; one query row through the index's own SWIG method.
+
+    Parameters
+    ----------
+    index : faiss.Index or faiss.IndexBinary
+    x : ndarray of shape (n, d), float32 (n, d / 8 uint8 for a binary index)
+    k : int
+
+    Returns
+    -------
+    distances : ndarray of shape (n, k), float32 (int32 for a binary index)
+    labels : ndarray of shape (n, k), int64
+
+    faiss' Python ``search`` converts and checks its input again on every call, a few µs: a share of
+    one query that counts (the single-query decision page). A single C-contiguous row of the index's
+    own dtype and width goes straight to ``search_c``, the SWIG method that ``search`` wraps; anything
+    else goes through ``search``.
+    """
+    faiss = faiss_module()
+    if x.shape[0] == 1 and x.flags.c_contiguous and k >= 1:
+        binary = isinstance(index, faiss.IndexBinary)
+        if (x.dtype == np.uint8 and x.shape[1] * 8 == index.d) if binary else \
+                (x.dtype == np.float32 and x.shape[1] == index.d):
+            distances = np.empty((1, k), dtype=np.int32 if binary else np.float32)
+            labels = np.empty((1, k), dtype=np.int64)
+            index.search_c(1, faiss.swig_ptr(x), k, faiss.swig_ptr(distances), faiss.swig_ptr(labels))
+            return distances, labels
+    return index.search(x, k)
+
+
+def negated_distances(distances: np.ndarray) -> np.ndarray:
+    """Scores from an index's distances: −distances in float64, (n_queries, k) as given.
+
+    One query's one value is negated by Python arithmetic: a ufunc that casts costs microseconds more,
+    a share of a single query that counts.
+    """
+    if distances.size == 1:
+        return np.array(-float(distances.item(0)), ndmin=2)
+    return np.negative(distances, dtype=np.float64)
 
 
 def check_magnitude(X: np.ndarray, name: str, *, error: type[Exception] = InvalidDescriptorsError,
@@ -272,8 +315,11 @@ class _RowLocalizer(PlaceLocalizer):
         scale = self.front_end_.one_row_scale(Q)  # None: not the plain L2 front end, or a row it refuses
         if scale is None:
             return None
-        with faiss_threads(1):
+        if faiss_module().omp_get_max_threads() == 1:  # already one thread: no context to enter
             values, rows = self._search_rows(Q * scale, 1, scores)
+        else:
+            with faiss_threads(1):
+                values, rows = self._search_rows(Q * scale, 1, scores)
         if not 0 <= rows.item(0) < n_places or scores and not math.isfinite(values.item(0)):
             return None
         return values, rows

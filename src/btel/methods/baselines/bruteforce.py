@@ -21,7 +21,7 @@ import numpy as np
 from ...core.validation import N_JOBS
 from ..base import ArraySpec
 from ...exceptions import ModelFileError
-from ._common import _RowLocalizer, check_magnitude, raise_budget_too_small
+from ._common import _RowLocalizer, check_magnitude, index_search, negated_distances, raise_budget_too_small
 
 __all__ = ["BruteForceNN"]
 
@@ -97,11 +97,11 @@ class BruteForceNN(_RowLocalizer):
 
     def _search_rows(self, Q: np.ndarray, k: int,
                      scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
-        values, rows = self._index.search(Q, k)
+        values, rows = index_search(self._index, Q, k)
         rows = rows.astype(np.int64, copy=False)
         if not scores:
             return None, rows
-        scores_ = np.negative(values, dtype=np.float64) if self.metric == "l2" else values.astype(np.float64)
+        scores_ = negated_distances(values) if self.metric == "l2" else values.astype(np.float64)
         return scores_, rows
 
     def _model_arrays(self) -> dict[str, np.ndarray]:

@@ -26,7 +26,7 @@ import numpy as np
 from ...core.validation import N_JOBS, RANDOM_STATE, Interval, check_positive_int, read_state_int
 from ..base import ArraySpec
 from ...exceptions import InvalidParameterError, ModelFileError, NotEnoughPlacesError
-from ._common import _RowLocalizer, quiet_faiss, raise_budget_too_small
+from ._common import _RowLocalizer, index_search, negated_distances, quiet_faiss, raise_budget_too_small
 from .pq import check_finite, pca_projection
 
 __all__ = ["ITQLocalizer"]
@@ -152,8 +152,8 @@ class ITQLocalizer(_RowLocalizer):
 
     def _search_rows(self, Q: np.ndarray, k: int,
                      scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
-        dist, rows = self._index.search(self.encode_centred(Q - self.mean_), k)
-        return np.negative(dist, dtype=np.float64) if scores else None, rows.astype(np.int64, copy=False)
+        dist, rows = index_search(self._index, self.encode_centred(Q - self.mean_), k)
+        return negated_distances(dist) if scores else None, rows.astype(np.int64, copy=False)
 
     def _model_arrays(self) -> dict[str, np.ndarray]:
         return {"codes": self.codes_, "projection": self.projection_, "mean": self.mean_}

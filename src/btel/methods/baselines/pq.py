@@ -42,7 +42,7 @@ import numpy as np
 from ...core.validation import N_JOBS, RANDOM_STATE, Interval, check_positive_int, read_state_int
 from ..base import ArraySpec
 from ...exceptions import InvalidParameterError, ModelFileError, NotEnoughPlacesError
-from ._common import _RowLocalizer, check_model_values, quiet_faiss, raise_budget_too_small
+from ._common import _RowLocalizer, check_model_values, index_search, negated_distances, quiet_faiss, raise_budget_too_small
 
 __all__ = ["PQConfig", "PQLocalizer", "pca_projection"]
 
@@ -321,8 +321,8 @@ class PQLocalizer(_RowLocalizer):
 
     def _search_rows(self, Q: np.ndarray, k: int,
                      scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
-        dist, rows = self._index.search(self._projected(Q), k)  # faiss' labels are int64
-        return np.negative(dist, dtype=np.float64) if scores else None, rows
+        dist, rows = index_search(self._index, self._projected(Q), k)  # faiss' labels are int64
+        return negated_distances(dist) if scores else None, rows
 
     # -- storage and files ---------------------------------------------------------------------
     def _model_arrays(self) -> dict[str, np.ndarray]:

@@ -41,7 +41,8 @@ import numpy as np
 from ...core.validation import N_JOBS, RANDOM_STATE, Interval, read_state_int
 from ..base import ArraySpec
 from ...exceptions import BTELError, InvalidDescriptorsError, InvalidParameterError, ModelFileError
-from ._common import MAX_NORM, _RowLocalizer, check_model_values, raise_budget_too_small
+from ._common import (MAX_NORM, _RowLocalizer, check_model_values, index_search, negated_distances,
+                      raise_budget_too_small)
 
 __all__ = ["RaBitQLocalizer", "rotation_matrix"]
 
@@ -234,8 +235,8 @@ class RaBitQLocalizer(_RowLocalizer):
     def _search_rows(self, Q: np.ndarray, k: int,
                      scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
         rotated = np.ascontiguousarray(np.asarray(Q, dtype=np.float32) @ self.rotation_)
-        dist, rows = self._index.search(rotated, k)
-        return np.negative(dist, dtype=np.float64) if scores else None, rows.astype(np.int64, copy=False)
+        dist, rows = index_search(self._index, rotated, k)
+        return negated_distances(dist) if scores else None, rows.astype(np.int64, copy=False)
 
     def summary(self) -> str:
         """One line: D, B, seed, factor width and the front end."""
