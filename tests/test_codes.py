@@ -425,3 +425,28 @@ def test_coarse_decode_answers_k_distinct_places_when_the_short_last_block_is_re
     scores, places = model.search(Q, 28)
     assert places.shape == (len(Q), 28) and all(len(set(row)) == 28 for row in places.tolist())
     assert np.isfinite(scores).all()
+
+
+@pytest.mark.parametrize("solver", ["ridge", "liblinear"])
+def test_the_l2_map_reaches_the_fit_unscaled_with_the_answers_of_a_normalised_copy(solver, monkeypatch) -> None:
+    from btel.core.rows import ScaledRows
+
+    route = synthetic_route(n_places=600, dim=64, seed=3)
+    seen: list[str] = []
+    fit = CodeLocalizer._fit
+
+    def spy(self, X, *args, **kwargs):
+        seen.append(type(X).__name__)
+        return fit(self, X, *args, **kwargs)
+
+    monkeypatch.setattr(CodeLocalizer, "_fit", spy)
+    lazy = CodeLocalizer(budget="8KB", solver=solver, random_state=0).fit(route.map)
+    assert seen == [ScaledRows.__name__]  # no normalised copy of the map was made before _fit
+    monkeypatch.setattr(CodeLocalizer, "_fit_reads_row_blocks", False)
+    eager = CodeLocalizer(budget="8KB", solver=solver, random_state=0).fit(route.map)
+    assert seen[-1] == "ndarray"
+    assert lazy.code_ == eager.code_ and lazy.n_codes_ == eager.n_codes_
+    if solver == "ridge":
+        assert lazy.alpha_ == pytest.approx(eager.alpha_, rel=1e-5)
+    # The same ridge on rows scaled by float32 factors instead of divided: the same answers up to rounding.
+    assert np.mean(lazy.predict(route.queries) == eager.predict(route.queries)) >= 0.99

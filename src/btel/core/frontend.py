@@ -135,8 +135,16 @@ class FrontEnd:
             Z = normalize_rows(delta_descriptors(Z, self.delta, starts=starts), self.normalize)
         return Z
 
-    def fit_transform(self, X: np.ndarray, starts: np.ndarray | None = None) -> np.ndarray:
-        """Learn the whitening (if any) on the map and return the transformed map, float32 (n, d_out)."""
+    def fit_transform(self, X: np.ndarray, starts: np.ndarray | None = None, *,
+                      lazy: bool = False) -> np.ndarray | ScaledRows:
+        """Learn the whitening (if any) on the map and return the transformed map, float32 (n, d_out).
+
+        ``lazy``: the caller reads the map only by row selections and ``np.asarray`` of row blocks, so
+        a plain L2 normalisation comes back as :class:`ScaledRows` (the map and one scale per row: no
+        normalised copy of a map that may be most of memory).
+        """
+        if lazy and self.plain_l2:
+            return self.transform(X, starts, lazy=True)  # nothing to learn
         Z = self._frames(X, starts)
         if self.whiten == "shrink":
             from .shrink import fit_shrink, shrink_rank

@@ -16,11 +16,10 @@ Everything else is built here on that primitive alone, so it behaves the same fo
 - :meth:`storage_breakdown` / :attr:`nbytes` / :meth:`save` — the storage rule (:mod:`btel.core.storage`) and
   the model file (:mod:`btel.core.modelfile`; ``btel.load`` reads it back).
 
-``fit(X, places=None)`` is a template: it checks the parameters against the declared
-``_parameter_constraints`` and the data, fits the front end (:mod:`btel.core.frontend`) and calls
-``_fit(X, places, n_places, budget, reserved)`` on the transformed map (``reserved``: bytes the front
-end takes). A subclass implements ``_fit``, ``_search`` or ``_place_scores``, ``_stored_arrays``
-(exactly what inference reads), ``_fitted_state``, ``_array_specs(state)`` and ``_restore``.
+``fit(X, places=None)`` is a template: it checks the parameters (``_parameter_constraints``) and the data,
+fits the front end (:mod:`btel.core.frontend`) and calls ``_fit(X, places, n_places, budget, reserved)``
+on the transformed map (``reserved``: the front end's bytes). A subclass implements ``_fit``, ``_search`` or
+``_place_scores``, ``_stored_arrays`` (what inference reads), ``_fitted_state``, ``_array_specs``, ``_restore``.
 """
 
 from __future__ import annotations
@@ -34,8 +33,7 @@ import numpy as np
 
 from ..core.params import ParamsMixin
 from ..core.validation import Budget, check_descriptors, check_is_fitted, check_params, check_positive_int, map_places
-from ..exceptions import (BudgetTooSmallError, InvalidAnswerError, InvalidDescriptorsError,
-                         NotEnoughPlacesError)
+from ..exceptions import BudgetTooSmallError, InvalidAnswerError, InvalidDescriptorsError, NotEnoughPlacesError
 from ..core.frontend import FRONT_END_CONSTRAINTS, FRONT_END_MEANINGS, FrontEnd, traverse_starts, with_front_end_parameters
 from ..core.storage import BUDGET_MEANING, budget_of, format_bytes, storage_breakdown
 from ..core.modelfile import ArraySpec, jsonable, save_arrays
@@ -75,6 +73,8 @@ class PlaceLocalizer(ParamsMixin, ABC):
     #: True when the method reads transformed queries only through products ``Q @ W`` and row selections:
     #: it then takes :class:`btel.core.frontend.ScaledRows` (no normalised copy of a batch).
     _linear_in_queries: ClassVar[bool] = False
+    #: True when ``_fit`` reads the map only by row selections and ``np.asarray`` of row blocks: it takes ScaledRows.
+    _fit_reads_row_blocks: ClassVar[bool] = False
     #: False when ``_predict`` fills runtime caches that threads must not share: no row chunks then.
     _predict_in_threads: ClassVar[bool] = True
 
@@ -184,7 +184,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
         reserved = self._front_end_bytes(X.shape[0], X.shape[1], budget)
         if labels is None:  # one place per row, as the planner counts: refuse the budget before transforming
             self._check_plan(X.shape[0], front.n_features_out(X.shape[1]), budget, reserved)
-        Z = front.fit_transform(X, traverse_starts(labels))
+        Z = front.fit_transform(X, traverse_starts(labels), lazy=self._fit_reads_row_blocks)
         self._fit(Z, labels, n_places, budget, reserved)
         self.front_end_ = front
         self.n_features_in_ = int(X.shape[1])

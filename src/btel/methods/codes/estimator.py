@@ -139,6 +139,7 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
     """
 
     encodes_place_index = True
+    _fit_reads_row_blocks = True  # the ridge reads row blocks: an L2 front end hands it the map unscaled
 
     _parameter_constraints = {
         "code": [Options("auto", *FAMILIES)],
@@ -212,7 +213,7 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
             return self.code, "given"
         from ..auto import index_order
 
-        order = index_order(X, places)
+        order = index_order(getattr(X, "raw", X), places)  # cosines: the rows' L2 scaling changes none
         family = "random" if order.kind == "independent" else "periodic"
         kinds = {"route": "a route", "ordered": "an ordered map", "independent": "independent places"}
         kind = kinds[order.kind]
@@ -257,6 +258,8 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
             raise InvalidParameterError(f"decode='coarse' needs a route code family; {self.code_reason_}. "
                                         "Use decode='auto' or 'exact', or pass code='periodic'.")
         self.code_ = family
+        if self.solver != "ridge":  # liblinear reads the map whole
+            X = np.asarray(X)
         d = X.shape[1]
         plan = self._plan(n_places, d, budget, reserved, family)
         seed = int(self.random_state) if self.random_state is not None else \

@@ -32,6 +32,8 @@ signs in a column; kept as the solver BTE-C uses, for comparison.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
+
 import numpy as np
 
 from .codebook import Codebook
@@ -79,12 +81,17 @@ def _row_codes(codebook: Codebook, places: np.ndarray | None, start: int, stop: 
     return codebook.codewords(where, columns).astype(np.float64)
 
 
+def _kept(rows: Any, cols: np.ndarray) -> np.ndarray:
+    """The kept columns of a block of map rows, float64 (an ndarray, a memory map or lazily scaled rows)."""
+    return np.asarray(rows)[:, cols].astype(np.float64)
+
+
 def _column_sums(X: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(μ, XᵀX) of the kept columns, float64, accumulated over row chunks."""
     d = cols.size
     total, gram = np.zeros(d), np.zeros((d, d))
     for a in range(0, X.shape[0], _CHUNK_ROWS):
-        block = np.asarray(X[a : a + _CHUNK_ROWS][:, cols], dtype=np.float64)
+        block = _kept(X[a : a + _CHUNK_ROWS], cols)
         total += block.sum(axis=0)
         gram += block.T @ block
     return total / X.shape[0], gram
@@ -96,7 +103,7 @@ def _cross_products(X: np.ndarray, cols: np.ndarray, codebook: Codebook, places:
     cross, sums = np.zeros((cols.size, group.size)), np.zeros(group.size)
     for a in range(0, X.shape[0], _CHUNK_ROWS):
         b = min(X.shape[0], a + _CHUNK_ROWS)
-        block = np.asarray(X[a:b][:, cols], dtype=np.float64)
+        block = _kept(X[a:b], cols)
         codes = _row_codes(codebook, places, a, b, group)
         cross += block.T @ codes
         sums += codes.sum(axis=0)
@@ -129,7 +136,8 @@ def fit_ridge_codes(X: np.ndarray, cols: np.ndarray, codebook: Codebook, places:
 
     Parameters
     ----------
-    X : ndarray of shape (n_rows, d), float32 (may be memory-mapped)
+    X : ndarray of shape (n_rows, d), float32 (may be memory-mapped), or ScaledRows
+        Read in row blocks only: lazily L2-normalised rows are scaled block by block.
     cols : ndarray of shape (d',), int
         Kept columns.
     codebook : Codebook
@@ -143,7 +151,7 @@ def fit_ridge_codes(X: np.ndarray, cols: np.ndarray, codebook: Codebook, places:
     """
     n_rows, d_sel, K = X.shape[0], cols.size, codebook.n_codes
     if n_rows <= d_sel:  # dual (kernel) form: the n × n Gram matrix is the smaller one
-        Xs = np.asarray(X[:, cols], dtype=np.float64)
+        Xs = _kept(X, cols)
         center = Xs.mean(axis=0)
         Xs -= center
         lam, U = np.linalg.eigh(Xs @ Xs.T)
