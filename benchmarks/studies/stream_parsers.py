@@ -6,6 +6,9 @@ ceiling (``docs/decisions/streaming.md``). This study times, on the same blocks 
 
 - ``parse_lines``: :func:`btel.sequence.lineparse.parse_lines` (orjson per line, one array per block);
 - ``orjson only``: orjson's parse of the same lines, no array built (the floor of that path);
+- ``orjson + np.array`` / ``orjson + np.fromiter``: the same, then one float64 array built from the
+  nested lists by ``np.array`` (``parse_lines`` before 2026-11-28) or by ``np.fromiter`` over the
+  chained floats (``parse_lines`` now): what the conversion costs;
 - ``fixed numpy``: a vectorised parser of savetxt's fixed format written for this study
   (:func:`parse_fixed`: the ``e`` of every token found in one pass, 32-byte windows gathered, digits
   turned into integers four at a time in uint32 words, the value in float64 from the 19-digit
@@ -33,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import io
+import itertools
 import os
 import sys
 import time
@@ -97,6 +101,18 @@ def orjson_only(lines: list[bytes]) -> list[list[float]]:
     return [loads(b"[" + (line if b"," in line else line.replace(b" ", b",")) + b"]") for line in lines]
 
 
+def orjson_nested_array(lines: list[bytes]) -> np.ndarray:
+    """orjson per line, then one float64 array from the nested lists (``parse_lines`` before 2026-11-28)."""
+    return np.array(orjson_only(lines), dtype=np.float64)
+
+
+def orjson_flat_fromiter(lines: list[bytes], d: int) -> np.ndarray:
+    """orjson per line, then one float64 array by ``np.fromiter`` over the chained floats (``parse_lines``)."""
+    parsed = orjson_only(lines)
+    return np.fromiter(itertools.chain.from_iterable(parsed), dtype=np.float64,
+                       count=len(parsed) * d).reshape(len(parsed), d)
+
+
 def float_per_token(lines: list[bytes]) -> np.ndarray:
     values = [[float(t) for t in line.replace(b",", b" ").split()] for line in lines]
     return np.array(values).astype(np.float32)
@@ -158,6 +174,8 @@ def main() -> None:
         candidates: dict[str, Callable[[], object]] = {
             "parse_lines": lambda: parse_lines(lines, args.d),
             "orjson only": lambda: orjson_only(lines),
+            "orjson + np.array of the nested lists": lambda: orjson_nested_array(lines),
+            "orjson + np.fromiter, flat": lambda: orjson_flat_fromiter(lines, args.d),
             "fixed numpy (block)": lambda: parse_fixed(lines, args.d),
             f"fixed numpy ({sub}-line sub-blocks)":
                 lambda: [parse_fixed(lines[i:i + sub], args.d) for i in range(0, len(lines), sub)],
