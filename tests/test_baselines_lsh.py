@@ -384,3 +384,30 @@ def test_lsh_with_4d_bits_is_within_002_of_brute_force_on_the_same_front_end(dat
     lsh = np.mean([_recall(LSHLocalizer(budget=budget, random_state=seed).fit(X).predict(Q), tolerance)
                    for seed in range(3)])
     assert abs(lsh - exact) <= 0.02, (lsh, exact)
+
+
+@pytest.mark.parametrize("center", [False, True])
+def test_the_l2_map_reaches_the_fit_unscaled_with_the_codes_of_a_normalised_copy(center, monkeypatch) -> None:
+    from btel.core.rows import ScaledRows
+    from btel.datasets import synthetic_route
+    from btel.methods.baselines.lsh import LSHLocalizer
+
+    route = synthetic_route(n_places=800, dim=48, seed=4)
+    seen: list[str] = []
+    fit_rows = LSHLocalizer._fit_rows
+
+    def spy(self, X, *args, **kwargs):
+        seen.append(type(X).__name__)
+        return fit_rows(self, X, *args, **kwargs)
+
+    monkeypatch.setattr(LSHLocalizer, "_fit_rows", spy)
+    lazy = LSHLocalizer(budget="8KB", center=center, random_state=0).fit(route.map)
+    assert seen == [ScaledRows.__name__]  # no normalised copy of the map was made before the fit
+    monkeypatch.setattr(LSHLocalizer, "_fit_reads_row_blocks", False)
+    eager = LSHLocalizer(budget="8KB", center=center, random_state=0).fit(route.map)
+    assert seen[-1] == "ndarray"
+    assert lazy.n_bits_ == eager.n_bits_ and (lazy.mean_ is None) == (eager.mean_ is None)
+    # Sign bits of the same projections of the same rows, scaled by float32 factors instead of divided:
+    # equal but for values that round across zero.
+    assert np.mean(np.unpackbits(lazy.codes_) == np.unpackbits(eager.codes_)) >= 0.999
+    assert np.mean(lazy.predict(route.queries) == eager.predict(route.queries)) >= 0.99

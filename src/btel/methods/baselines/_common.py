@@ -162,15 +162,17 @@ def check_magnitude(X: np.ndarray, name: str, *, error: type[Exception] = Invali
     """``error`` naming the first row of ``X`` that is not finite or whose L2 norm exceeds :data:`MAX_NORM`.
 
     Squared norms are summed in X's own float32: one that overflows is far beyond the bound anyway.
-    Returns the largest squared norm (float32 arithmetic: 0 when every row underflows).
+    Returns the largest squared norm (float32 arithmetic: 0 when every row underflows). ``X`` is read
+    in blocks of rows of at most 2²² values (an ndarray, a memory map or lazily scaled rows).
     """
     if X.shape[0] == 1 and X.dtype == np.float32:  # one query (µs count here): one float64 dot, no FP state
         square = one_row_squares(X)
         if square <= MAX_NORM**2:  # False for NaN and inf: the full check names it
             return square
     largest = 0.0
-    for start in range(0, X.shape[0], chunk_rows):
-        block = X[start : start + chunk_rows]
+    step = max(1, min(chunk_rows, (1 << 22) // max(X.shape[1], 1)))
+    for start in range(0, X.shape[0], step):
+        block = np.asarray(X[start : start + step])
         with np.errstate(over="ignore", invalid="ignore"):
             squares = np.einsum("ij,ij->i", block, block)
         bad = np.flatnonzero(~(squares <= MAX_NORM**2))

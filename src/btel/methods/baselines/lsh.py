@@ -131,14 +131,27 @@ def projection_matrix(n_features: int, n_bits: int, seed: int, kind: str = "gaus
         out[:, start : start + d] = q * (np.sign(np.diag(r)) * np.sqrt(d))
     return out
 
-def cone_ratio(X: np.ndarray, mean: np.ndarray | None = None) -> float:
+def cone_ratio(X: Any) -> float:
     """‖mean row‖ / RMS row length of ``X`` (n_rows, d): 0 for rows spread around the origin, 1 when all are equal.
 
-    For unit rows its square is the mean cosine between rows (self-pairs included).
+    For unit rows its square is the mean cosine between rows (self-pairs included). ``X`` is read in
+    row blocks (an ndarray, a memory map or lazily scaled rows).
     """
-    mean = X.mean(axis=0, dtype=np.float64) if mean is None else mean
-    rms = np.sqrt(np.einsum("ij,ij->", X, X, dtype=np.float64) / max(X.shape[0], 1))
-    return float(np.linalg.norm(mean) / rms) if rms > 0 else 0.0
+    return _mean_and_cone(X)[1]
+
+
+def _mean_and_cone(X: Any) -> tuple[np.ndarray, float]:
+    """(mean row float64 (d,), :func:`cone_ratio`) in one pass over blocks of rows."""
+    n, d = X.shape
+    total, squares = np.zeros(d), 0.0
+    step = max(1, BLOCK_VALUES // max(d, 1))
+    for start in range(0, n, step):
+        block = np.asarray(X[start : start + step], dtype=np.float32)
+        total += block.sum(axis=0, dtype=np.float64)
+        squares += float(np.einsum("ij,ij->", block, block, dtype=np.float64))
+    mean = total / max(n, 1)
+    rms = np.sqrt(squares / max(n, 1))
+    return mean, float(np.linalg.norm(mean) / rms) if rms > 0 else 0.0
 
 
 def sign_bit_entropy(cone: float) -> float:
@@ -249,6 +262,8 @@ class LSHLocalizer(_RowLocalizer):
     [0, 1, 2]
     """
 
+    _fit_reads_row_blocks = True  # _fit_rows reads row blocks: an L2 front end hands it the map unscaled
+
     _parameter_constraints = {
         "n_bits": [None, Interval(int, 8, MAX_BITS)],
         "scoring": [Options("asymmetric", "hamming")],
@@ -343,8 +358,8 @@ class LSHLocalizer(_RowLocalizer):
 
     def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
         n_rows, d = X.shape
-        mean = X.mean(axis=0, dtype=np.float64)
-        cone = cone_ratio(X, mean) >= CENTER_CONE
+        mean, cone_of_map = _mean_and_cone(X)
+        cone = cone_of_map >= CENTER_CONE
         bits = self.choose_bits(n_rows, d, budget, reserved, cone=cone)
         seed = int(self.random_state) if self.random_state is not None else \
             int(np.random.default_rng().integers(0, 2**31 - 1))
