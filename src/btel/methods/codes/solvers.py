@@ -46,8 +46,16 @@ __all__ = ["CodeFit", "RELATIVE_ALPHA", "ridge_alpha", "fit_ridge_codes", "fit_l
 
 #: ρ of the regularisation rule α = ρ · mean non-zero eigenvalue of the centred Gram matrix.
 RELATIVE_ALPHA = 0.1
-#: Rows of the map read at a time (bounds the float64 temporaries on large, memory-mapped maps).
+#: Rows of the map read at a time at most (bounds the float64 temporaries on large, memory-mapped maps) ...
 _CHUNK_ROWS = 32768
+#: ... and at most this many values in one float64 temporary (rows × kept columns, rows × code columns):
+#: 32 MB, so wide maps and large K (a budget of megabytes) stay bounded too.
+_CHUNK_VALUES = 1 << 22
+
+
+def _chunk_rows(width: int) -> int:
+    """Rows per chunk for temporaries of ``width`` float64 columns."""
+    return max(1, min(_CHUNK_ROWS, _CHUNK_VALUES // max(int(width), 1)))
 
 
 @dataclass
@@ -90,8 +98,9 @@ def _column_sums(X: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarra
     """(μ, XᵀX) of the kept columns, float64, accumulated over row chunks."""
     d = cols.size
     total, gram = np.zeros(d), np.zeros((d, d))
-    for a in range(0, X.shape[0], _CHUNK_ROWS):
-        block = _kept(X[a : a + _CHUNK_ROWS], cols)
+    step = _chunk_rows(d)
+    for a in range(0, X.shape[0], step):
+        block = _kept(X[a : a + step], cols)
         total += block.sum(axis=0)
         gram += block.T @ block
     return total / X.shape[0], gram
@@ -101,8 +110,9 @@ def _cross_products(X: np.ndarray, cols: np.ndarray, codebook: Codebook, places:
                     group: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(XᵀC, Σ C) for one group of code columns, (d', g) and (g,) float64, over row chunks."""
     cross, sums = np.zeros((cols.size, group.size)), np.zeros(group.size)
-    for a in range(0, X.shape[0], _CHUNK_ROWS):
-        b = min(X.shape[0], a + _CHUNK_ROWS)
+    step = _chunk_rows(max(cols.size, group.size))
+    for a in range(0, X.shape[0], step):
+        b = min(X.shape[0], a + step)
         block = _kept(X[a:b], cols)
         codes = _row_codes(codebook, places, a, b, group)
         cross += block.T @ codes
