@@ -14,7 +14,7 @@ import numpy as np
 from .validation import check_descriptors, check_positive_int
 from ..exceptions import InvalidParameterError, NotEnoughPlacesError
 
-__all__ = ["ScaledRows", "delta_descriptors", "normalize_rows", "one_row_squares", "row_norms",
+__all__ = ["ScaledRows", "delta_descriptors", "mean_and_rms", "normalize_rows", "one_row_squares", "row_norms",
            "traverse_starts", "NORMALIZATIONS"]
 
 NORMALIZATIONS = ("none", "l2", "power")
@@ -44,6 +44,19 @@ def one_row_squares(row: np.ndarray) -> float:
         return float(np.vdot(wide, wide))
     except (FloatingPointError, RuntimeWarning):
         return math.nan
+
+
+def mean_and_rms(X: Any) -> tuple[np.ndarray, float]:
+    """Mean row, float64 (d,), and RMS row length of ``X`` (n, d), in one pass over row blocks of at most
+    2²² values (an ndarray, a memory map or :class:`ScaledRows`, scaled block by block)."""
+    n, d = X.shape
+    total, squares = np.zeros(d), 0.0
+    step = max(1, (1 << 22) // max(d, 1))
+    for start in range(0, n, step):
+        block = np.asarray(X[start : start + step], dtype=np.float32)
+        total += block.sum(axis=0, dtype=np.float64)
+        squares += float(np.einsum("ij,ij->", block, block, dtype=np.float64))
+    return total / max(n, 1), math.sqrt(squares / max(n, 1))
 
 
 def row_norms(X: np.ndarray, *, check_finite: bool = False, name: str = "X") -> np.ndarray:

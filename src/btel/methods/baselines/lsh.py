@@ -45,6 +45,7 @@ from typing import Any
 import faiss
 import numpy as np
 
+from ...core.rows import mean_and_rms
 from ...core.storage import budget_of
 from ...core.validation import N_JOBS, RANDOM_STATE, Interval, Options, read_state_int
 from ..base import ArraySpec
@@ -131,27 +132,11 @@ def projection_matrix(n_features: int, n_bits: int, seed: int, kind: str = "gaus
         out[:, start : start + d] = q * (np.sign(np.diag(r)) * np.sqrt(d))
     return out
 
-def cone_ratio(X: Any) -> float:
-    """‖mean row‖ / RMS row length of ``X`` (n_rows, d): 0 for rows spread around the origin, 1 when all are equal.
-
-    For unit rows its square is the mean cosine between rows (self-pairs included). ``X`` is read in
-    row blocks (an ndarray, a memory map or lazily scaled rows).
-    """
-    return _mean_and_cone(X)[1]
-
-
-def _mean_and_cone(X: Any) -> tuple[np.ndarray, float]:
-    """(mean row float64 (d,), :func:`cone_ratio`) in one pass over blocks of rows."""
-    n, d = X.shape
-    total, squares = np.zeros(d), 0.0
-    step = max(1, BLOCK_VALUES // max(d, 1))
-    for start in range(0, n, step):
-        block = np.asarray(X[start : start + step], dtype=np.float32)
-        total += block.sum(axis=0, dtype=np.float64)
-        squares += float(np.einsum("ij,ij->", block, block, dtype=np.float64))
-    mean = total / max(n, 1)
-    rms = np.sqrt(squares / max(n, 1))
-    return mean, float(np.linalg.norm(mean) / rms) if rms > 0 else 0.0
+def cone_ratio(X: Any, moments: tuple[np.ndarray, float] | None = None) -> float:
+    """‖mean row‖ / RMS row length of ``X`` (n_rows, d), or of its ``moments`` (:func:`mean_and_rms`): 0 for
+    rows spread around the origin, 1 when all are equal; for unit rows its square is the mean cosine."""
+    mean, rms = mean_and_rms(X) if moments is None else moments
+    return float(np.linalg.norm(mean) / rms) if rms > 0 else 0.0
 
 
 def sign_bit_entropy(cone: float) -> float:
@@ -358,8 +343,8 @@ class LSHLocalizer(_RowLocalizer):
 
     def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
         n_rows, d = X.shape
-        mean, cone_of_map = _mean_and_cone(X)
-        cone = cone_of_map >= CENTER_CONE
+        moments = mean_and_rms(X)  # row blocks: a lazily scaled map is scaled as it is read
+        mean, cone = moments[0], cone_ratio(X, moments) >= CENTER_CONE
         bits = self.choose_bits(n_rows, d, budget, reserved, cone=cone)
         seed = int(self.random_state) if self.random_state is not None else \
             int(np.random.default_rng().integers(0, 2**31 - 1))
