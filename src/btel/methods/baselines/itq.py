@@ -125,9 +125,9 @@ class ITQLocalizer(_RowLocalizer):
         n_rows, n_features = X.shape
         bits = self.choose_code_bits(n_rows, n_features, budget, reserved)
         mean = X.mean(axis=0, dtype=np.float64).astype(np.float32)
-        centred = X - mean
         pca = pca_projection(X, bits, self.random_state)
-        V = np.ascontiguousarray(centred @ pca, dtype=np.float32)
+        # (X − μ)·P without a centred copy of the map: the copy was as large as the map.
+        V = np.ascontiguousarray(X @ pca - mean @ pca, dtype=np.float32)
         itq = faiss.ITQMatrix(bits)
         if self.random_state is not None:
             itq.seed = int(self.random_state)
@@ -138,7 +138,8 @@ class ITQLocalizer(_RowLocalizer):
         self.projection_ = np.ascontiguousarray(pca @ rotation, dtype=np.float32)
         self.mean_ = mean
         self.code_bits_ = bits
-        self.codes_ = self.encode_centred(centred)
+        step = max(1, (1 << 22) // max(n_features, 1))  # codes from centred row blocks, as queries are coded
+        self.codes_ = np.concatenate([self.encode_centred(X[a : a + step] - mean) for a in range(0, n_rows, step)])
         self._index = self._build_index()
 
     def encode_centred(self, centred: np.ndarray) -> np.ndarray:
