@@ -122,3 +122,26 @@ def test_gardens_point_rabitq_is_near_brute_force_from_16kb(gardenspoint_netvlad
     # Measured (benchmarks/studies/rabitq_budget.py): 0.480 against brute force 0.480; the rule chose
     # D = d = 500, B = 1.
     assert rabitq >= 0.9 * brute
+
+
+def test_the_l2_map_reaches_the_fit_unscaled_and_is_rotated_in_blocks(monkeypatch) -> None:
+    from btel.core.rows import ScaledRows
+    from btel.datasets import synthetic_route
+    from btel.methods.baselines.rabitq import RaBitQLocalizer
+
+    route = synthetic_route(n_places=700, dim=40, seed=5)
+    seen: list[str] = []
+    fit_rows = RaBitQLocalizer._fit_rows
+
+    def spy(self, X, *args, **kwargs):
+        seen.append(type(X).__name__)
+        return fit_rows(self, X, *args, **kwargs)
+
+    monkeypatch.setattr(RaBitQLocalizer, "_fit_rows", spy)
+    lazy = RaBitQLocalizer(budget="16KB", random_state=0).fit(route.map)
+    assert seen == [ScaledRows.__name__]  # no normalised copy of the map was made before the fit
+    monkeypatch.setattr(RaBitQLocalizer, "_fit_reads_row_blocks", False)
+    eager = RaBitQLocalizer(budget="16KB", random_state=0).fit(route.map)
+    assert seen[-1] == "ndarray" and (lazy.dim_, lazy.nbits_) == (eager.dim_, eager.nbits_)
+    np.testing.assert_allclose(lazy.centroid_.astype(np.float64), eager.centroid_.astype(np.float64), atol=1e-3)
+    assert np.mean(lazy.predict(route.queries) == eager.predict(route.queries)) >= 0.99

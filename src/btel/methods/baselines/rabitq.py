@@ -106,6 +106,7 @@ class RaBitQLocalizer(_RowLocalizer):
     [0, 1, 2]
     """
 
+    _fit_reads_row_blocks = True  # _fit_rows reads row blocks: an L2 front end hands it the map unscaled
     _float32_distances = True  # a map of tiny rows is refused at fit (_common.MIN_NORM)
     _parameter_constraints = {
         "dim": [None, Interval(int, 1, None)],
@@ -177,11 +178,17 @@ class RaBitQLocalizer(_RowLocalizer):
             int(np.random.default_rng().integers(0, 2**31 - 1))
         self.dim_, self.nbits_, self.seed_ = D, B, seed
         self.rotation_ = rotation_matrix(d, D, seed)
-        Y = np.ascontiguousarray(X @ self.rotation_, dtype=np.float32)
+        # The rotated map in row blocks, twice (its mean, then the codes): never a rotated copy of the map.
+        step = max(1, (1 << 22) // max(d, D, 1))
+        blocks = range(0, n_rows, step)
+        total = np.zeros(D)
+        for a in blocks:
+            total += (np.asarray(X[a : a + step], dtype=np.float32) @ self.rotation_).sum(axis=0, dtype=np.float64)
         dtype = self._value_dtype()
-        self.centroid_ = Y.mean(axis=0, dtype=np.float64).astype(dtype)
+        self.centroid_ = (total / n_rows).astype(dtype)
         index = self._empty_index()
-        index.add(Y)
+        for a in blocks:
+            index.add(np.ascontiguousarray(np.asarray(X[a : a + step], dtype=np.float32) @ self.rotation_))
         codes = faiss.vector_to_array(index.codes).reshape(n_rows, index.code_size)
         s, e = -(-D // 8), -(-D * (B - 1) // 8)
         factors = (codes[:, s : s + 12] if B > 1 else codes[:, s:]).copy().view(np.float32)
