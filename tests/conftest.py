@@ -77,6 +77,24 @@ def nordland_pixels(nordland_dir: Path) -> tuple[np.ndarray, np.ndarray]:
 _skipped_realdata: list[str] = []
 
 
+@pytest.fixture
+def map_types(monkeypatch: pytest.MonkeyPatch):
+    """``map_types(cls, "_fit")``: a list that records the type name of the map each call of that method
+    receives (which form the front end handed a method's fit: an ndarray or lazily scaled rows)."""
+    def record(cls: type, name: str) -> list[str]:
+        seen: list[str] = []
+        original = getattr(cls, name)
+
+        def spy(self, X, *args, **kwargs):
+            seen.append(type(X).__name__)
+            return original(self, X, *args, **kwargs)
+
+        monkeypatch.setattr(cls, name, spy)
+        return seen
+
+    return record
+
+
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
     if report.skipped and "realdata" in report.keywords:
         _skipped_realdata.append(report.nodeid)

@@ -387,20 +387,13 @@ def test_lsh_with_4d_bits_is_within_002_of_brute_force_on_the_same_front_end(dat
 
 
 @pytest.mark.parametrize("center", [False, True])
-def test_the_l2_map_reaches_the_fit_unscaled_with_the_codes_of_a_normalised_copy(center, monkeypatch) -> None:
+def test_the_l2_map_reaches_the_fit_unscaled_with_the_codes_of_a_normalised_copy(center, monkeypatch,
+                                                                                 map_types) -> None:
     from btel.core.rows import ScaledRows
     from btel.datasets import synthetic_route
-    from btel.methods.baselines.lsh import LSHLocalizer
 
     route = synthetic_route(n_places=800, dim=48, seed=4)
-    seen: list[str] = []
-    fit_rows = LSHLocalizer._fit_rows
-
-    def spy(self, X, *args, **kwargs):
-        seen.append(type(X).__name__)
-        return fit_rows(self, X, *args, **kwargs)
-
-    monkeypatch.setattr(LSHLocalizer, "_fit_rows", spy)
+    seen = map_types(LSHLocalizer, "_fit_rows")
     lazy = LSHLocalizer(budget="8KB", center=center, random_state=0).fit(route.map)
     assert seen == [ScaledRows.__name__]  # no normalised copy of the map was made before the fit
     monkeypatch.setattr(LSHLocalizer, "_fit_reads_row_blocks", False)

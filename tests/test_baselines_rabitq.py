@@ -124,20 +124,13 @@ def test_gardens_point_rabitq_is_near_brute_force_from_16kb(gardenspoint_netvlad
     assert rabitq >= 0.9 * brute
 
 
-def test_the_l2_map_reaches_the_fit_unscaled_and_is_rotated_in_blocks(monkeypatch) -> None:
+def test_the_l2_map_reaches_the_fit_unscaled_and_is_rotated_in_blocks(monkeypatch, map_types) -> None:
     from btel.core.rows import ScaledRows
     from btel.datasets import synthetic_route
     from btel.methods.baselines.rabitq import RaBitQLocalizer
 
     route = synthetic_route(n_places=700, dim=40, seed=5)
-    seen: list[str] = []
-    fit_rows = RaBitQLocalizer._fit_rows
-
-    def spy(self, X, *args, **kwargs):
-        seen.append(type(X).__name__)
-        return fit_rows(self, X, *args, **kwargs)
-
-    monkeypatch.setattr(RaBitQLocalizer, "_fit_rows", spy)
+    seen = map_types(RaBitQLocalizer, "_fit_rows")
     lazy = RaBitQLocalizer(budget="16KB", random_state=0).fit(route.map)
     assert seen == [ScaledRows.__name__]  # no normalised copy of the map was made before the fit
     monkeypatch.setattr(RaBitQLocalizer, "_fit_reads_row_blocks", False)

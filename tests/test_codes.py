@@ -428,18 +428,12 @@ def test_coarse_decode_answers_k_distinct_places_when_the_short_last_block_is_re
 
 
 @pytest.mark.parametrize("solver", ["ridge", "liblinear"])
-def test_the_l2_map_reaches_the_fit_unscaled_with_the_answers_of_a_normalised_copy(solver, monkeypatch) -> None:
+def test_the_l2_map_reaches_the_fit_unscaled_with_the_answers_of_a_normalised_copy(solver, monkeypatch,
+                                                                                   map_types) -> None:
     from btel.core.rows import ScaledRows
 
     route = synthetic_route(n_places=600, dim=64, seed=3)
-    seen: list[str] = []
-    fit = CodeLocalizer._fit
-
-    def spy(self, X, *args, **kwargs):
-        seen.append(type(X).__name__)
-        return fit(self, X, *args, **kwargs)
-
-    monkeypatch.setattr(CodeLocalizer, "_fit", spy)
+    seen = map_types(CodeLocalizer, "_fit")
     lazy = CodeLocalizer(budget="8KB", solver=solver, random_state=0).fit(route.map)
     assert seen == [ScaledRows.__name__]  # no normalised copy of the map was made before _fit
     monkeypatch.setattr(CodeLocalizer, "_fit_reads_row_blocks", False)
