@@ -72,6 +72,9 @@ _STREAMS = {"period": 1, "phase": 2, "scale": 3, "offset": 4, "permutation": 5}
 _FAMILY_IDS = {name: i + 1 for i, name in enumerate(FAMILIES)}
 #: Elements (rows × columns) generated at a time by :meth:`Codebook.iter_blocks` (uint64 work arrays of 4 MB).
 _BLOCK_ELEMENTS = 1 << 19
+#: Elements of the r·F table a run of consecutive periodic places is generated from (2 MB of uint64:
+#: bigger tables measured no faster, smaller ones pay numpy's per-call cost).
+_RUN_ELEMENTS = 1 << 18
 #: Shortest block whose periodic sums :meth:`Codebook.block_sums` counts in closed form
 #: (shorter: summing is as fast).
 _CLOSED_FORM_BLOCK = 8
@@ -291,6 +294,8 @@ class Codebook:
         periodic = self.family == "periodic"
         if periodic and i.size and (int(i.min()) < 0 or int(i.max()) >= self.n_places):
             raise InvalidParameterError(f"place indices must lie in [0, {self.n_places}).")
+        if periodic and i.size > 1 and i[-1] - i[0] == i.size - 1 and bool((np.diff(i) == 1).all()):
+            return self._periodic_packed_run(int(i[0]), i.size, out, work)
         for a in range(0, i.size, rows):
             if periodic:  # the signs' bits straight from the phases: no ±1 codewords in between
                 positive = _periodic_positive(i[a : a + rows, None], self._params["frequency"],
@@ -298,6 +303,28 @@ class Codebook:
             else:
                 positive = self.codewords(i[a : a + rows], work=work) > 0
             out[a : a + rows] = np.packbits(positive, axis=1, bitorder="little")
+        return out
+
+    def _periodic_packed_run(self, start: int, n: int, out: np.ndarray, work: dict) -> np.ndarray:
+        """Packed periodic codewords of the consecutive places start … start + n − 1, written to ``out``.
+
+        Row r of a run is (start + r)·F + Φ = (start·F + Φ) + r·F (mod 2⁶⁴): one add per element to a
+        kept table of r·F, where :func:`_periodic_positive` multiplies and adds (the same bits).
+        """
+        frequency, phase = self._params["frequency"], self._params["phase"]
+        rows = max(1, _RUN_ELEMENTS // max(self.n_codes, 1))
+        steps = work.get("steps")
+        if steps is None or steps.shape[0] < min(rows, n):
+            with np.errstate(over="ignore"):
+                steps = work["steps"] = np.arange(min(rows, max(n, 2)), dtype=_U64)[:, None] * frequency
+        rows = steps.shape[0]
+        for a in range(0, n, rows):
+            m = min(rows, n - a)
+            with np.errstate(over="ignore"):
+                base = _U64(start + a) * frequency + phase
+                z = np.add(steps[:m], base, out=buffer(work, "z", (m, self.n_codes), _U64))
+            positive = np.less(z, _U64(1 << 63), out=buffer(work, "bool", (m, self.n_codes), bool))
+            out[a : a + m] = np.packbits(positive, axis=1, bitorder="little")
         return out
 
     @staticmethod

@@ -5,9 +5,9 @@ Nothing here is stored in a model file: :class:`Codewords` regenerates what the 
 
 - ``dense()``: the (N, 8⌈K/8⌉) float32 ±1 codewords, when small
   (:data:`~btel.methods.codes.decoding.DENSE_CACHE_BYTES`): one BLAS product scores every place;
-- ``packed_rows()``: the (N, ⌈K/8⌉) packed codebook up to :data:`PACKED_CACHE_BYTES`, filled
-  :data:`FILL_PLACES` places at a time when first read, so the first query after ``load``
-  generates only the codewords it scores;
+- ``packed_rows()``: the (N, ⌈K/8⌉) packed codebook up to :data:`PACKED_CACHE_BYTES`, each place
+  filled when first read (:meth:`Codewords.fill`), so the first query after ``load`` generates only
+  the codewords it scores;
 - ``adc_index()``: faiss' packed PQ scan, for the 'random' family past the dense cache;
 - ``decoder()``: the bounded search's block bounds (:class:`~btel.methods.codes.decoding.BlockDecoder`);
 - ``block_means()`` and :meth:`Codewords.coarse_search`: the coarse-to-fine decode of long maps.
@@ -22,6 +22,7 @@ sit in a block whose mean is not among the best (``benchmarks/bench_codes.py`` m
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterator
 from typing import Any
 
@@ -41,8 +42,10 @@ PACKED_CACHE_BYTES = 1 << 28
 BLOCK_VALUES = 1 << 22
 #: Look-up table values (queries × ⌈K/8⌉ × 256) of one call to faiss' packed scan (4 MB of float32).
 SCAN_TABLE_VALUES = 1 << 20
-#: Places whose packed codewords are generated together when first read.
-FILL_PLACES = 256
+#: Missing places at most this far apart are generated as one run (the places between included).
+FILL_GAP = 64
+#: Past this many runs of missing places, the places are generated in one call, not run by run.
+FILL_RUNS = 64
 #: Below this many multiply-adds a decode runs its BLAS products on one thread (see blas_for).
 _SMALL_PRODUCT = 1 << 27
 
@@ -152,8 +155,8 @@ class Codewords:
         multiply (padding columns are +1 codewords against zero margins, so they add nothing).
     packed : ndarray of shape (N, ⌈K/8⌉), uint8, or None
         Packed codewords (+1 → bit 1, column j in bit j % 8 of byte j // 8), filled on demand.
-    filled : ndarray of shape (⌈N / FILL_PLACES⌉,), bool, or None
-        Which chunks of ``packed`` are filled.
+    filled : ndarray of shape (N,), bool, or None
+        Which places of ``packed`` are filled.
     """
 
     def __init__(self, codebook: Codebook) -> None:
@@ -168,6 +171,9 @@ class Codewords:
         self._decoder: BlockDecoder | None = None
         self.means: tuple[int, np.ndarray] | None = None
         self.candidates: CandidateScan | None = None
+        # The codebook's work arrays (and the periodic r·F table), kept between fills: one set per thread,
+        # since numpy releases the GIL inside the ufuncs that write them.
+        self._local = threading.local()
 
     def dense(self) -> np.ndarray | None:
         """(N, 8⌈K/8⌉) float32 ±1 codewords when they fit :data:`~btel.methods.codes.decoding.DENSE_CACHE_BYTES`, else None.
@@ -187,31 +193,46 @@ class Codewords:
     def packed_rows(self, places: np.ndarray) -> np.ndarray | None:
         """Packed codewords (len(places), ⌈K/8⌉) uint8 of the given places, or None past :data:`PACKED_CACHE_BYTES`.
 
-        The (N, ⌈K/8⌉) array is allocated once and filled :data:`FILL_PLACES` places at a time
-        when first read (untouched pages cost no memory).
+        The (N, ⌈K/8⌉) array is allocated once and filled place by place when first read
+        (:meth:`fill`; untouched pages cost no memory).
         """
         return self.packed[places] if self.fill(places) else None
 
     def fill(self, places: np.ndarray) -> bool:
         """Make the packed codewords of ``places`` present in :attr:`packed` (False past the cache's size:
-        :data:`PACKED_CACHE_BYTES`)."""
+        :data:`PACKED_CACHE_BYTES`).
+
+        Only places not yet filled are generated: each run of them (gaps of up to :data:`FILL_GAP`
+        places bridged, so a block of places is one call) from its first place to its last; past
+        :data:`FILL_RUNS` runs (places scattered over the map), the places themselves in one call.
+        """
         n, groups = self.n_places, -(-self.n_codes // 8)
         if n * groups > PACKED_CACHE_BYTES:
             return False
         if self.packed is None:
             self.packed = np.empty((n, groups), dtype=np.uint8)
-            self.filled = np.zeros(-(-n // FILL_PLACES), dtype=bool)
-        chunk_of = places // FILL_PLACES
-        if self.filled[chunk_of].all():
+            self.filled = np.zeros(n, dtype=bool)
+        have = self.filled[places]
+        if have.all():
             return True
-        chunks = np.unique(chunk_of)
-        missing = chunks[~self.filled[chunks]]
-        # Runs of consecutive missing chunks, each generated in one call.
-        for run in np.split(missing, np.flatnonzero(np.diff(missing) != 1) + 1):
-            a, b = int(run[0]) * FILL_PLACES, min(n, (int(run[-1]) + 1) * FILL_PLACES)
-            self.codebook.packed(np.arange(a, b), out=self.packed[a:b])
-            self.filled[run] = True
+        missing = np.unique(places[~have])
+        breaks = np.flatnonzero(np.diff(missing) > FILL_GAP) + 1
+        work = self._thread_work()
+        if breaks.size >= FILL_RUNS:
+            self.packed[missing] = self.codebook.packed(missing, work=work)
+            self.filled[missing] = True
+            return True
+        for run in np.split(missing, breaks):
+            a, b = int(run[0]), int(run[-1]) + 1
+            self.codebook.packed(np.arange(a, b), out=self.packed[a:b], work=work)
+            self.filled[a:b] = True  # after the bytes: another thread reads a place only once it is marked
         return True
+
+    def _thread_work(self) -> dict:
+        work = getattr(self._local, "work", None)
+        if work is None:
+            work = self._local.work = {}
+        return work
 
     def packed_of(self, places: np.ndarray) -> np.ndarray:
         """Packed codewords of the given places: from the cache, or generated past its size limit."""
