@@ -51,8 +51,9 @@ import numpy as np
 from ..btel.compressed import compressed_code, compressed_n_classifiers
 from ..btel.encoding import n_bits_for
 from ...exceptions import InvalidParameterError
-from .hashing import (CURRENT_RULE, RULES, buffer, grouped_packed, grouped_positive, hash_keys,
+from .hashing import (CURRENT_RULE, RULES, grouped_packed, grouped_positive, hash_keys,
                       keyed_permutation, per_bit_positive)
+from .periodic import periodic_counts, periodic_packed_run, periodic_positive
 
 __all__ = ["FAMILIES", "ROUTE_FAMILIES", "Codebook", "max_columns", "keyed_permutation", "hash_uniform"]
 
@@ -72,23 +73,9 @@ _STREAMS = {"period": 1, "phase": 2, "scale": 3, "offset": 4, "permutation": 5}
 _FAMILY_IDS = {name: i + 1 for i, name in enumerate(FAMILIES)}
 #: Elements (rows × columns) generated at a time by :meth:`Codebook.iter_blocks` (uint64 work arrays of 4 MB).
 _BLOCK_ELEMENTS = 1 << 19
-#: Elements of the r·F table a run of consecutive periodic places is generated from (2 MB of uint64:
-#: bigger tables measured no faster, smaller ones pay numpy's per-call cost).
-_RUN_ELEMENTS = 1 << 18
 #: Shortest block whose periodic sums :meth:`Codebook.block_sums` counts in closed form
 #: (shorter: summing is as fast).
 _CLOSED_FORM_BLOCK = 8
-
-
-def _periodic_positive(i: np.ndarray, frequency: np.ndarray, phase: np.ndarray,
-                       work: dict | None) -> np.ndarray:
-    """(n, K) bool: place i's periodic column k is +1, i.e. (i·F_k + Φ_k) mod 2⁶⁴ < 2⁶³, for places
-    i (n, 1) int64."""
-    shape = (i.shape[0], frequency.size)
-    with np.errstate(over="ignore"):
-        t = np.multiply(i.astype(_U64), frequency, out=buffer(work, "z", shape, _U64))
-        t += phase
-    return np.less(t, _U64(1 << 63), out=buffer(work, "bool", shape, bool))
 
 
 def hash_uniform(seed: int, family: str, stream: str, index: np.ndarray) -> np.ndarray:
@@ -254,7 +241,7 @@ class Codebook:
         if self.family in ("binary", "offset"):
             positive = ((((i + p["shift"]) % p["modulus"]) >> p["low_bit"]) & 1).astype(bool)
         elif self.family == "periodic":
-            positive = _periodic_positive(i, p["frequency"], p["phase"], work)
+            positive = periodic_positive(i, p["frequency"], p["phase"], work)
         elif self.family == "blocks":
             positive = self._block_colours(i[:, 0], p)
         else:  # random, rule 1: one hash per (place, column)
@@ -295,36 +282,15 @@ class Codebook:
         if periodic and i.size and (int(i.min()) < 0 or int(i.max()) >= self.n_places):
             raise InvalidParameterError(f"place indices must lie in [0, {self.n_places}).")
         if periodic and i.size > 1 and i[-1] - i[0] == i.size - 1 and bool((np.diff(i) == 1).all()):
-            return self._periodic_packed_run(int(i[0]), i.size, out, work)
+            return periodic_packed_run(self._params["frequency"], self._params["phase"], int(i[0]), i.size,
+                                       out, work)
         for a in range(0, i.size, rows):
             if periodic:  # the signs' bits straight from the phases: no ±1 codewords in between
-                positive = _periodic_positive(i[a : a + rows, None], self._params["frequency"],
+                positive = periodic_positive(i[a : a + rows, None], self._params["frequency"],
                                               self._params["phase"], work)
             else:
                 positive = self.codewords(i[a : a + rows], work=work) > 0
             out[a : a + rows] = np.packbits(positive, axis=1, bitorder="little")
-        return out
-
-    def _periodic_packed_run(self, start: int, n: int, out: np.ndarray, work: dict) -> np.ndarray:
-        """Packed periodic codewords of the consecutive places start … start + n − 1, written to ``out``.
-
-        Row r of a run is (start + r)·F + Φ = (start·F + Φ) + r·F (mod 2⁶⁴): one add per element to a
-        kept table of r·F, where :func:`_periodic_positive` multiplies and adds (the same bits).
-        """
-        frequency, phase = self._params["frequency"], self._params["phase"]
-        rows = max(1, _RUN_ELEMENTS // max(self.n_codes, 1))
-        steps = work.get("steps")
-        if steps is None or steps.shape[0] < min(rows, n):
-            with np.errstate(over="ignore"):
-                steps = work["steps"] = np.arange(min(rows, max(n, 2)), dtype=_U64)[:, None] * frequency
-        rows = steps.shape[0]
-        for a in range(0, n, rows):
-            m = min(rows, n - a)
-            with np.errstate(over="ignore"):
-                base = _U64(start + a) * frequency + phase
-                z = np.add(steps[:m], base, out=buffer(work, "z", (m, self.n_codes), _U64))
-            positive = np.less(z, _U64(1 << 63), out=buffer(work, "bool", (m, self.n_codes), bool))
-            out[a : a + m] = np.packbits(positive, axis=1, bitorder="little")
         return out
 
     @staticmethod
@@ -403,7 +369,7 @@ class Codebook:
         """Per block of ``block`` consecutive places: the sum of its ±1 codewords (B × its mean codeword).
 
         The blocks are places [j·B, min(N, (j + 1)·B)). The periodic family is counted in closed form
-        (:meth:`_periodic_counts`); the other families sum their int8 codewords block by block.
+        (:func:`~btel.methods.codes.periodic.periodic_counts`); the other families sum their int8 codewords block by block.
 
         Returns
         -------
@@ -415,7 +381,7 @@ class Codebook:
         n_blocks, whole = -(-n // block), n // block  # whole: the blocks of exactly B places
         out = np.empty((n_blocks, self.n_codes), dtype=np.int32)
         if self.family == "periodic" and block >= _CLOSED_FORM_BLOCK and whole:
-            out[:whole] = 2 * self._periodic_counts(block, whole) - block
+            out[:whole] = 2 * periodic_counts(self._params["frequency"], self._params["phase"], block, whole) - block
             if whole < n_blocks:  # the shorter last block
                 out[whole] = self.codewords(np.arange(whole * block, n)).sum(axis=0, dtype=np.int32)
             return out
@@ -426,35 +392,6 @@ class Codebook:
             out[j : j + full] = whole.sum(axis=1, dtype=np.int32)
             if full * block < b - a:  # the shorter last block
                 out[j + full] = codes[full * block :].sum(axis=0, dtype=np.int32)
-        return out
-
-    def _periodic_counts(self, block: int, n_blocks: int) -> np.ndarray:
-        """Positive places per (block, column) of the periodic family, for the first ``n_blocks``
-        blocks of B places.
-
-        Place a + i of column k is positive iff (T + i·F) mod 2⁶⁴ < 2⁶³, with T = a·F + Φ the block's
-        start phase. As a function of T, place i is positive on the circular half-open interval
-        [s_i, s_i + 2⁶³), s_i = −i·F mod 2⁶⁴: on at s_i, off at e_i = s_i + 2⁶³ mod 2⁶⁴. So count(T) =
-        count(0) + #{i: 0 < s_i ≤ T} − #{i: 0 < e_i ≤ T}, a step function read by one binary search per
-        block over the B sorted switch points: exact, O(B log B + (N/B)·log B) per column, not N·K.
-        Returns an int32 array (n_blocks, K).
-        """
-        p, half = self._params, _U64(1 << 63)
-        i = np.arange(block, dtype=np.int64).astype(_U64)
-        a = np.arange(n_blocks, dtype=np.int64).astype(_U64) * _U64(block)
-        out = np.empty((n_blocks, self.n_codes), dtype=np.int32)
-        with np.errstate(over="ignore"):
-            for k in range(self.n_codes):
-                f, phi = p["frequency"][k], p["phase"][k]
-                step = i * f  # i·F mod 2⁶⁴
-                on = np.sort(_U64(0) - step)
-                off = np.sort(on + half)
-                # count(0) − #{s_i = 0} + #{e_i = 0}: then #{s_i ≤ T} − #{e_i ≤ T} adds the rest.
-                base = int(np.count_nonzero(step < half) - np.count_nonzero(on == 0)
-                           + np.count_nonzero(off == 0))
-                t = a * f + phi
-                out[:, k] = (base + np.searchsorted(on, t, side="right")
-                             - np.searchsorted(off, t, side="right"))
         return out
 
     def to_header(self) -> dict[str, int | str]:
