@@ -228,6 +228,15 @@ class Codewords:
             self.filled[a:b] = True  # after the bytes: another thread reads a place only once it is marked
         return True
 
+    def __getstate__(self) -> dict[str, Any]:
+        state = dict(self.__dict__)
+        state["_local"] = None  # work arrays are per process and thread: not pickled
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._local = threading.local()
+
     def _thread_work(self) -> dict:
         work = getattr(self._local, "work", None)
         if work is None:
