@@ -369,7 +369,8 @@ class Codebook:
         """Per block of ``block`` consecutive places: the sum of its ±1 codewords (B × its mean codeword).
 
         The blocks are places [j·B, min(N, (j + 1)·B)). The periodic family is counted in closed form
-        (:func:`~btel.methods.codes.periodic.periodic_counts`); the other families sum their int8 codewords block by block.
+        (:func:`~btel.methods.codes.periodic.periodic_counts`); the other families sum their int8
+        codewords block by block.
 
         Returns
         -------
@@ -381,7 +382,8 @@ class Codebook:
         n_blocks, whole = -(-n // block), n // block  # whole: the blocks of exactly B places
         out = np.empty((n_blocks, self.n_codes), dtype=np.int32)
         if self.family == "periodic" and block >= _CLOSED_FORM_BLOCK and whole:
-            out[:whole] = 2 * periodic_counts(self._params["frequency"], self._params["phase"], block, whole) - block
+            counts = periodic_counts(self._params["frequency"], self._params["phase"], block, whole)
+            out[:whole] = 2 * counts - block
             if whole < n_blocks:  # the shorter last block
                 out[whole] = self.codewords(np.arange(whole * block, n)).sum(axis=0, dtype=np.int32)
             return out
