@@ -18,7 +18,8 @@ ceiling (``docs/decisions/streaming.md``). This study times, on the same blocks 
 - compiled CSV readers, each when it is importable (none is a btel dependency; install them beside
   btel to include them): ``polars.read_csv``, ``pyarrow.csv.read_csv`` and ``pandas.read_csv``
   (C engine), the block handed over as one bytes buffer with every column typed float64, the
-  result turned into one float32 array (what the stream would need).
+  result turned into one float32 array (what the stream would need); and pysimdjson (simdjson's
+  DOM parser), the block as one JSON document whose doubles come out as one buffer (``as_buffer``).
 
 Every parser's float32 rows are checked bit for bit against ``float(token)`` → float32 on every
 block first. Ratios are to ``parse_lines`` in the same run (the machine is shared: absolute figures
@@ -26,7 +27,7 @@ move with its load, printed).
 
     python benchmarks/studies/stream_parsers.py            # ≈ 1 min
     python benchmarks/studies/stream_parsers.py --block 256 --repeats 30
-    pip install --target /tmp/csv polars pyarrow pandas   # then, to time the compiled readers too:
+    pip install --target /tmp/csv polars pyarrow pandas pysimdjson   # then, to time the compiled readers too:
     PYTHONPATH=/tmp/csv python benchmarks/studies/stream_parsers.py
 
 Writes ``benchmarks/results/stream_parsers.json``.
@@ -140,6 +141,22 @@ def compiled_readers(d: int, delimiter: str) -> dict[str, Callable[[bytes], np.n
             column.to_numpy() for column in pcsv.read_csv(pa.BufferReader(block), read_options=read,
                                                           parse_options=parse,
                                                           convert_options=convert).columns]).astype(np.float32)
+    except ImportError:
+        pass
+    try:
+        import simdjson
+
+        json_parser = simdjson.Parser()
+        comma = delimiter == ","
+
+        def read_simdjson(block: bytes) -> np.ndarray:
+            # One JSON document per block; as_buffer hands the doubles over without Python floats.
+            lines = block.rstrip(b"\n").split(b"\n")
+            text = b"[[" + b"],[".join(lines if comma else [line.replace(b" ", b",") for line in lines]) + b"]]"
+            values = np.frombuffer(json_parser.parse(text).as_buffer(of_type="d"), dtype=np.float64)
+            return values.reshape(len(lines), d).astype(np.float32)
+
+        readers[f"pysimdjson {getattr(simdjson, '__version__', '')}".rstrip()] = read_simdjson
     except ImportError:
         pass
     try:
