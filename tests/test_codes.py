@@ -444,3 +444,36 @@ def test_the_l2_map_reaches_the_fit_unscaled_with_the_answers_of_a_normalised_co
         assert lazy.alpha_ == pytest.approx(eager.alpha_, rel=1e-5)
     # The same ridge on rows scaled by float32 factors instead of divided: the same answers up to rounding.
     assert np.mean(lazy.predict(route.queries) == eager.predict(route.queries)) >= 0.99
+
+
+def test_nordland_answers_from_codewords_filled_on_demand_equal_the_dense_codebooks(nordland_hog,
+                                                                                  monkeypatch) -> None:
+    """Real data: with the float32 codebook refused, the exact decode reads packed codewords filled on
+    demand (runs of consecutive places, one add per element: btel.methods.codes.periodic) and answers
+    Nordland's winter queries as the dense codebook does, the first query having generated only part of
+    the map."""
+    import btel.methods.codes.codebook as codebook
+    import btel.methods.codes.codewords as codewords
+
+    summer, winter = nordland_hog
+    queries = winter[::25]
+    dense = CodeLocalizer(code="periodic", budget="16KB", decode="exact", random_state=0).fit(summer)
+    expected = dense.predict(queries)
+    monkeypatch.setattr(codewords, "DENSE_CACHE_BYTES", 10)
+    runs: list[int] = []  # the length of every run of consecutive places generated
+    periodic_packed_run = codebook.periodic_packed_run
+
+    def counted_run(*args, **kwargs):
+        runs.append(args[3])
+        return periodic_packed_run(*args, **kwargs)
+
+    monkeypatch.setattr(codebook, "periodic_packed_run", counted_run)
+    packed = CodeLocalizer(code="periodic", budget="16KB", decode="exact", random_state=0).fit(summer)
+    assert packed.exact_path(1) == "bounded"
+    first = packed.predict(queries[:1])
+    filled = packed._codewords.filled
+    assert filled is not None and 0 < filled.sum() < filled.size
+    np.testing.assert_array_equal(first, expected[:1])
+    np.testing.assert_array_equal(packed.predict(queries), expected)
+    # Every filled place came from a run; a run bridges gaps of up to FILL_GAP filled places, no more.
+    assert runs and filled.sum() <= sum(runs) <= filled.sum() + codewords.FILL_GAP * len(runs)
