@@ -422,3 +422,11 @@ def test_the_coarse_refine_scores_its_candidates_exactly_with_and_without_the_pa
         lookups = fresh.coarse_search(M, k, block, candidates)
     assert fresh.candidates is None and cw.candidates is not None
     np.testing.assert_allclose(lookups[0], scores, rtol=0, atol=1e-4 * np.abs(reference).max())
+
+
+def test_block_runs_merge_adjacent_blocks_and_end_the_last_at_the_map() -> None:
+    from btel.methods.codes.codewords import block_runs
+
+    assert block_runs(np.array([0, 1, 3, 5, 6]), 10, 62) == [(0, 20), (30, 40), (50, 62)]
+    assert block_runs(np.array([2]), 10, 25) == [(20, 25)]
+    assert block_runs(np.array([0, 2, 4]), 10, 100) == [(0, 10), (20, 30), (40, 50)]

@@ -117,13 +117,16 @@ class CandidateScan:
         self.index = _pattern_index(groups)
         self.view = _codes_view(self.index, capacity, groups)
 
-    def search(self, m: np.ndarray, packed: np.ndarray, places: np.ndarray,
+    def search(self, m: np.ndarray, packed: np.ndarray, runs: list[tuple[int, int]],
                k: int) -> tuple[np.ndarray, np.ndarray]:
         """(scores (k,) float32, rows (k,) int64), best first, for margins (1, 8·groups) float32 over the packed
-        codewords ``packed[places]`` ((n_places, groups) uint8; at most ``capacity`` places), rows counted in
-        ``places``."""
-        np.take(packed, places, axis=0, out=self.view[: places.size])
-        self.index.ntotal = places.size
+        codewords of the places of ``runs`` ((start, stop) ranges, in order; at most ``capacity`` places in all)
+        of ``packed`` ((N, groups) uint8), rows counted along the runs' places."""
+        view, size = self.view, 0
+        for start, stop in runs:  # one copy per run of consecutive places, not one per place
+            view[size : size + stop - start] = packed[start:stop]
+            size += stop - start
+        self.index.ntotal = size
         scores, rows = self.index.search(m, k)
         return scores[0], rows[0]
 
@@ -345,7 +348,8 @@ class Codewords:
                     if candidates < n_blocks else np.arange(n_blocks)
                 # Candidates in place order, so that ties go to the lower place as in the exact decode.
                 places = (blocks[:, None] * block + offsets).ravel()
-                places = places[places < n_places]
+                if blocks[-1] == n_blocks - 1:  # the last block may be shorter
+                    places = places[places < n_places]
                 if not self.fill(places):  # past the packed cache: numpy look-ups of generated codewords
                     scores = packed_scores(byte_table(m), self.packed_of, places)
                     values, cols = top_k(scores.astype(np.float64)[None], k)
@@ -353,11 +357,23 @@ class Codewords:
                     continue
                 if self.candidates is None or self.candidates.view.shape[0] < candidates * block:
                     self.candidates = CandidateScan(self.packed.shape[1], candidates * block)
-                values, rows = self.candidates.search(M[a + q : a + q + 1], self.packed, places, k)
+                values, rows = self.candidates.search(M[a + q : a + q + 1], self.packed, block_runs(blocks, block, n_places), k)
                 # The scan's order; among equal scores the lower place first, as the exact decode.
                 order = np.lexsort((places[rows], -values.astype(np.float64)))
                 out_s[a + q], out_p[a + q] = values[order], places[rows[order]]
         return out_s, out_p
+
+
+def block_runs(blocks: np.ndarray, block: int, n_places: int) -> list[tuple[int, int]]:
+    """The (start, stop) place ranges of sorted block indices, adjacent blocks merged into one range."""
+    runs: list[tuple[int, int]] = []
+    for j in blocks.tolist():
+        start, stop = j * block, min((j + 1) * block, n_places)
+        if runs and runs[-1][1] == start:
+            runs[-1] = (runs[-1][0], stop)
+        else:
+            runs.append((start, stop))
+    return runs
 
 
 class RuntimeCache:

@@ -22,6 +22,8 @@ along the route).
 
 from __future__ import annotations
 
+import math
+
 import sys
 
 import numpy as np
@@ -67,7 +69,7 @@ def splitmix(z: np.ndarray, work: dict | None = None) -> np.ndarray:
 def buffer(work: dict | None, name: str, shape: tuple[int, ...], dtype: type) -> np.ndarray:
     """A view of ``work[name]`` of this shape (grown when too small), or a new array without ``work``: blocks of
     codewords generated in turn reuse their work arrays (fresh megabyte arrays each time cost page faults)."""
-    size = int(np.prod(shape))
+    size = math.prod(shape)
     if work is None:
         return np.empty(shape, dtype=dtype)
     if name not in work or work[name].size < size:
