@@ -306,6 +306,7 @@ def test_a_budget_is_refused_from_the_shapes_before_the_map_is_transformed() -> 
     import tracemalloc
 
     X = np.ones((100_000, 128), dtype=np.float32)   # 51 MB
+    X[:, 0] = np.arange(100_000)                      # rows that differ (a map of one repeated row is refused)
     tracemalloc.start()
     try:
         with pytest.raises(BudgetTooSmallError) as info:

@@ -124,10 +124,13 @@ def test_uint8_storage_and_quantisation_error_bound():
     assert np.abs(model.difference_matrix(Q) - exact).max() <= scale * 1.001
 
 
-def test_constant_map_does_not_divide_by_zero():
+def test_nearly_constant_map_does_not_divide_by_zero():
     X = np.ones((20, 4), dtype=np.float32)
+    X[7] = 2.0  # one row differs (a map of one repeated row is refused: no place can be told apart)
     pred = SeqSLAM(n_jobs=1).fit(X).predict(X)
     assert pred.shape == (20,) and pred.min() >= 0 and pred.max() < 20
+    with pytest.raises(InvalidDescriptorsError, match="all 20 rows of X are the same descriptor"):
+        SeqSLAM(n_jobs=1).fit(np.ones((20, 4), dtype=np.float32))
 
 
 def test_invalid_parameters_and_matrices():

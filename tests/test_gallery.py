@@ -210,7 +210,8 @@ def _image_run(tmp_path: Path, names: list[str]) -> tuple[Path, Path]:
     folder = tmp_path / "images"
     folder.mkdir()
     for i, name in enumerate(names):
-        cv2.imwrite(str(folder / name), np.full((32, 56), 40 * i, np.uint8))
+        # Textured, not flat: patch normalisation makes flat images of any grey the same descriptor.
+        cv2.imwrite(str(folder / name), np.random.default_rng(i).integers(0, 256, (32, 56), dtype=np.uint8))
     db = tmp_path / "db.npy"
     _extract(CliRunner(), folder, db)
     run = tmp_path / "run"

@@ -91,6 +91,16 @@ def test_float64_values_beyond_float32_are_named(tmp_path: Path) -> None:
         load_descriptor_matrix(tmp_path / "x.npy", mmap_mode="r")
 
 
+def test_float64_values_that_all_underflow_are_named(tmp_path: Path) -> None:
+    np.save(tmp_path / "x.npy", np.full((4, 3), 2e-300))
+    with pytest.raises(InvalidDescriptorsError, match=r"only values below float32's smallest .*2e-300.*scale the descriptors up"):
+        load_descriptor_matrix(tmp_path / "x.npy", mmap_mode="r")
+    tiny = np.full((4, 3), 2e-300)
+    tiny[3, 2] = 1e-3  # one value that float32 keeps: the file is read (whatever a fit then makes of it)
+    np.save(tmp_path / "y.npy", tiny)
+    assert load_descriptor_matrix(tmp_path / "y.npy", mmap_mode="r")[3, 2] == np.float32(1e-3)
+
+
 def test_an_npz_without_arrays_is_named(tmp_path: Path) -> None:
     """Found by the readers' fuzz (desc_npy, seed 0, case 450): an empty archive raised IndexError."""
     import zipfile

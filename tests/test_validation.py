@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -9,6 +11,7 @@ from sklearn.exceptions import NotFittedError as SklearnNotFittedError
 
 from btel import BTELocalizer
 from btel.core.validation import check_descriptors, check_is_fitted, check_places, check_positive_int
+from btel.methods.registry import make_method, method_names
 from btel.exceptions import (
     BTELError,
     BudgetTooSmallError,
@@ -318,3 +321,49 @@ def test_opposite_infinities_in_one_row_are_caught() -> None:
     X[2, 0], X[2, 3] = np.inf, -np.inf
     with pytest.raises(InvalidDescriptorsError, match="row 2, column 0"):
         check_descriptors(X)
+
+
+# ----------------------------------------------------------------------------- past float32, all rows alike
+def test_a_float64_value_past_float32s_range_is_named_without_a_warning(X) -> None:
+    data = X.astype(np.float64)
+    data[7, 2] = -3e300
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "overflow encountered in cast" before the error
+        with pytest.raises(InvalidDescriptorsError, match=r"X row 7, column 2 is -3e\+300, outside float32's range"):
+            check_descriptors(data)
+        with pytest.raises(InvalidDescriptorsError, match="scale the descriptors down"):
+            BTELocalizer(progress=False).fit(data)
+
+
+def test_queries_past_float32s_range_are_named(fitted, X) -> None:
+    Q = X[:3].astype(np.float64)
+    Q[1, 4] = 1e39
+    with pytest.raises(InvalidDescriptorsError, match=r"Q row 1, column 4 is 1e\+39, outside float32's range"):
+        fitted.predict(Q)
+    Q[1, 4] = np.inf  # a value that was not finite before the cast keeps its own message
+    with pytest.raises(InvalidDescriptorsError, match=r"Q contains NaN or infinite values \(first at row 1, column 4\)"):
+        fitted.predict(Q)
+
+
+@pytest.mark.parametrize("method", method_names())
+def test_every_method_refuses_a_map_whose_rows_are_all_the_same(method: str) -> None:
+    with pytest.raises(InvalidDescriptorsError, match="all 60 rows of X are the same descriptor"):
+        make_method(method).fit(np.tile(np.arange(8, dtype=np.float32), (60, 1)))
+
+
+def test_a_map_underflowing_to_zero_is_named_and_one_distinct_row_is_enough(X) -> None:
+    with pytest.raises(InvalidDescriptorsError, match=r"every value of X is zero in float32: .*largest \|v\| 3e-300.*scale the descriptors up"):
+        BTELocalizer(progress=False).fit(np.full((30, 6), 3e-300))
+    same = np.zeros((50, 6), dtype=np.float32)
+    same[-1, 0] = 1.0  # only the last row differs: the check reads the whole map before refusing
+    assert make_method("bruteforce").fit(same).n_places_ == 50
+
+
+def test_real_map_scaled_past_float32_is_named(gardenspoint_netvlad) -> None:
+    db, _ = gardenspoint_netvlad
+    with pytest.raises(InvalidDescriptorsError, match="outside float32's range"):
+        make_method("auto", budget="16KB").fit(db.astype(np.float64) * 1e300)
+    with pytest.raises(InvalidDescriptorsError, match="every value of X is zero in float32"):
+        make_method("auto", budget="16KB").fit(db.astype(np.float64) * 1e-300)
+    with pytest.raises(InvalidDescriptorsError, match="every value of Q is zero in float32"):
+        make_method("bruteforce").fit(db).predict(db.astype(np.float64) * 1e-300)

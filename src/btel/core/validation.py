@@ -24,6 +24,7 @@ def check_descriptors(
     min_rows: int = 1,
     dtype: type = np.float32,
     check_finite: bool = True,
+    distinct_rows: bool = False,
 ) -> np.ndarray:
     """Validate a descriptor matrix and return it as a C-contiguous 2-D float array.
 
@@ -42,6 +43,8 @@ def check_descriptors(
     check_finite : bool
         False leaves the NaN/inf check to the caller, who must then do it in a pass it makes
         anyway (queries through a normalising front end: :func:`btel.core.frontend.normalize_rows`).
+    distinct_rows : bool
+        True (a map being fitted): refuse an array whose rows are all the same descriptor.
 
     Returns
     -------
@@ -50,7 +53,8 @@ def check_descriptors(
     Raises
     ------
     InvalidDescriptorsError
-        Not numeric, not 2-D, empty, or with NaN/inf values.
+        Not numeric, not 2-D, empty, with NaN/inf values, with finite values past ``dtype``'s range,
+        or (``distinct_rows``) with every row the same.
     DimensionMismatchError
         ``n_features`` is given and differs from ``X.shape[1]``.
     """
@@ -78,10 +82,48 @@ def check_descriptors(
         )
     # No copy when X already has the right dtype and layout (memory-mapped maps stay mapped).
     if not fast:
-        arr = np.ascontiguousarray(arr, dtype=dtype)
+        source = arr
+        narrowed = source.dtype.kind == "f" and np.dtype(dtype).kind == "f" and source.dtype.itemsize > np.dtype(dtype).itemsize
+        with np.errstate(over="ignore"):  # a finite value past the narrower type's range is named below, not warned of
+            arr = np.ascontiguousarray(arr, dtype=dtype)
+        if narrowed:
+            _raise_if_narrowing_lost(source, arr, name)
     if check_finite:
         raise_if_non_finite(arr, name)
+    if distinct_rows:
+        raise_if_rows_identical(arr, name)
     return arr
+
+
+def _raise_if_narrowing_lost(source: np.ndarray, arr: np.ndarray, name: str) -> None:
+    """Name what casting ``source`` to the narrower float ``arr`` lost: a finite value past the range, or every value."""
+    bad = _first_non_finite(arr)
+    if bad is not None and np.isfinite(source[bad]):
+        raise InvalidDescriptorsError(
+            f"{name} row {bad[0]}, column {bad[1]} is {float(source[bad]):.3g}, outside {arr.dtype.name}'s "
+            f"range (|v| ≤ {float(np.finfo(arr.dtype).max):.3g}); scale the descriptors down.")
+    if bad is None and not arr.any() and source.any():
+        raise InvalidDescriptorsError(
+            f"every value of {name} is zero in {arr.dtype.name}: all are below its smallest number (largest |v| "
+            f"{float(np.abs(source).max()):.3g}); scale the descriptors up.")
+
+
+def raise_if_rows_identical(arr: np.ndarray, name: str) -> None:
+    """Raise :class:`InvalidDescriptorsError` when every row of a map of ≥ 2 rows is the same descriptor.
+
+    No place could be told from another. Read row block by row block, stopping at the first row that
+    differs (on a real map: the second).
+    """
+    if arr.shape[0] < 2 or not np.array_equal(arr[1], arr[0]):
+        return
+    rows = max(1, (1 << 20) // max(arr.shape[1], 1))  # a 1 MB mask at a time
+    for start in range(2, arr.shape[0], rows):
+        if not (arr[start : start + rows] == arr[0]).all():
+            return
+    raise InvalidDescriptorsError(
+        f"all {arr.shape[0]} rows of {name} are the same descriptor, so no place can be told from another. "
+        "Check the map's images (blank or flat frames give one descriptor) and that the rows are their descriptors "
+        "(not a constant placeholder).")
 
 
 def raise_if_non_finite(arr: np.ndarray, name: str, *, row_offset: int = 0) -> None:

@@ -79,17 +79,25 @@ def _mapped_as_float32(mapped: np.memmap, path: Path) -> np.ndarray:
             f"python -c \"from btel.descriptors.npy import to_float32_npy; {rewrite}\" (or raise "
             f"{ENV_MEMORY_LIMIT}).")
     out = np.empty((n, d), dtype=np.float32)
+    wider = mapped.dtype.kind == "f" and mapped.dtype.itemsize > 4
+    largest, kept = 0.0, not wider  # kept: some value is non-zero in float32
     for start, block in _row_blocks(mapped):
         converted = out[start:start + block.shape[0]]
         with np.errstate(over="ignore"):
             converted[...] = block
-        if block.dtype.kind == "f" and block.dtype.itemsize > 4:
+        if wider:
             over = np.isfinite(block) & ~np.isfinite(converted)
             if over.any():
                 row, column = np.argwhere(over)[0]
                 raise InvalidDescriptorsError(
                     f"{str(path)!r} holds {block[row, column]:g} at row {start + row}, column {column}, "
                     "beyond float32's range (±3.4e38); scale the descriptors.")
+            kept = kept or bool(converted.any())
+            largest = max(largest, float(np.abs(block).max(initial=0.0)))
+    if not kept and largest > 0:  # every value underflowed: the matrix would be all zeros
+        raise InvalidDescriptorsError(
+            f"{str(path)!r} holds only values below float32's smallest number (largest |v| {largest:.3g}), "
+            "which all become 0; scale the descriptors up.")
     return out
 
 

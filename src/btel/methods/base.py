@@ -195,7 +195,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
     def _check_fit_input(self, X: Any, places: Any) -> tuple[np.ndarray, np.ndarray | None, int]:
         """Parameters, descriptors and places checked as every ``fit`` does: ``(X, labels, n_places)``."""
         check_params(self)
-        X = check_descriptors(X, name="X")
+        X = check_descriptors(X, name="X", distinct_rows=True)
         labels, n_places = map_places(places, X.shape[0])
         if X.shape[0] < self._min_rows:
             raise NotEnoughPlacesError(
