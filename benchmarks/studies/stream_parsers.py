@@ -15,6 +15,9 @@ ceiling (``docs/decisions/streaming.md``). This study times, on the same blocks 
   mantissa and a power of ten, the block refused where any value lies within 8 float64 ulps of a
   float32 rounding midpoint), on the whole block and on sub-blocks of 32 lines (cache-sized);
 - ``float per token``: Python's ``float`` on every token (the parser before issue 22);
+- ``orjson, one document per block``: the block's lines joined into one JSON document, one orjson
+  call, then ``np.fromiter``: the floor of a stream with no per-line Python step at all;
+- ``numpy.fromstring`` and ``numpy.loadtxt``: numpy's own C text parsers on the whole block;
 - compiled CSV readers, each when it is importable (none is a btel dependency; install them beside
   btel to include them): ``polars.read_csv``, ``pyarrow.csv.read_csv`` and ``pandas.read_csv``
   (C engine), the block handed over as one bytes buffer with every column typed float64, the
@@ -114,6 +117,24 @@ def orjson_flat_fromiter(lines: list[bytes], d: int) -> np.ndarray:
                        count=len(parsed) * d).reshape(len(parsed), d)
 
 
+def orjson_one_document(lines: list[bytes], d: int) -> np.ndarray:
+    """The whole block as one JSON document (no Python loop over its lines), then ``np.fromiter``: what
+    a stream that skipped every per-line step would still pay."""
+    block = b"".join(lines).rstrip(b"\n")
+    if b"," not in block:
+        block = block.replace(b" ", b",")
+    parsed = orjson.loads(b"[[" + block.replace(b"\n", b"],[") + b"]]")
+    return np.fromiter(itertools.chain.from_iterable(parsed), dtype=np.float64,
+                       count=len(parsed) * d).reshape(len(parsed), d)
+
+
+def numpy_fromstring(block: bytes, delimiter: str, d: int) -> np.ndarray:
+    """``np.fromstring`` (numpy's C text parser) on the whole block, newlines read as separators."""
+    if delimiter == ",":
+        block = block.rstrip(b"\n").replace(b"\n", b",")
+    return np.fromstring(block, dtype=np.float64, sep=delimiter).reshape(-1, d).astype(np.float32)
+
+
 def float_per_token(lines: list[bytes]) -> np.ndarray:
     values = [[float(t) for t in line.replace(b",", b" ").split()] for line in lines]
     return np.array(values).astype(np.float32)
@@ -197,8 +218,22 @@ def main() -> None:
             f"fixed numpy ({sub}-line sub-blocks)":
                 lambda: [parse_fixed(lines[i:i + sub], args.d) for i in range(0, len(lines), sub)],
             "float per token": lambda: float_per_token(lines),
+            "orjson, one document per block": lambda: orjson_one_document(lines, args.d),
         }
         block = b"".join(lines)
+        # numpy's own C parsers (correctly rounded decimal conversion), checked like the compiled readers below.
+        numpy_readers = {
+            "numpy.fromstring (block)": lambda: numpy_fromstring(block, delimiter, args.d),
+            "numpy.loadtxt (block)": lambda: np.loadtxt(io.BytesIO(block), delimiter=None if delimiter == " "
+                                                        else delimiter, dtype=np.float64).astype(np.float32),
+        }
+        for key, read in numpy_readers.items():
+            if not np.array_equal(read().view(np.uint32), truth.view(np.uint32)):
+                raise SystemExit(f"{key} disagrees with float() on these lines")
+            candidates[key] = read
+        if not np.array_equal(orjson_one_document(lines, args.d).astype(np.float32).view(np.uint32),
+                              truth.view(np.uint32)):
+            raise SystemExit("orjson on one document disagrees with float() on these lines")
         for key, read in compiled_readers(args.d, delimiter).items():
             if not np.array_equal(read(block).view(np.uint32), truth.view(np.uint32)):
                 raise SystemExit(f"{key} disagrees with float() on these lines")
