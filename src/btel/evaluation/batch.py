@@ -16,7 +16,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from ..core.storage import format_bytes, parse_budget
+from ..core.storage import format_bytes
 from ..core.validation import check_descriptors
 from ..exceptions import BTELError, BudgetTooSmallError, InvalidParameterError
 from .inputs import Job, make_jobs

@@ -9,7 +9,6 @@ by recomputing recall from the predictions it holds.
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import datetime as _dt
 import importlib.metadata

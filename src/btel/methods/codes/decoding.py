@@ -317,7 +317,7 @@ class BlockDecoder:
         (score, place) : the best score as a Python float (it may be NaN or ±inf when the sums
         overflow: the caller checks) and its place, ties to the lower place.
         """
-        n_blocks, B, n = self.constant.shape[0], self.block, self.n_places
+        n_blocks = self.constant.shape[0]
         absolute = np.abs(m)
         u = self.stacked() @ np.concatenate((m, absolute))
         slack = (2.0 * self.width * 2.0**-23) * float(absolute.sum(dtype=np.float64))
