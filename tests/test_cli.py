@@ -367,3 +367,15 @@ def test_info_shows_what_fitting_chose_and_every_stored_array(small_pair, tmp_pa
     assert "n_subquantizers=null (chosen: " in out and "nbits=null (chosen: " in out
     assert "chosen at fit: dim=16" in out
     assert "stored arrays:" in out and "frontend_whitening" in out and "64 × 16  float32         4,096 B" in out
+
+
+def test_train_and_info_say_how_much_of_the_budget_the_model_uses(small_pair, tmp_path: Path) -> None:
+    db, _ = small_pair
+    capped, spent = tmp_path / "itq.npz", tmp_path / "lsh.npz"
+    trained = run("train", db, "-o", capped, "--method", "itq", "--budget", "1MB")
+    assert trained.exit_code == 0 and "the largest model its parameters allow" in trained.output
+    line = next(line for line in run("info", capped).output.splitlines() if line.strip().startswith("budget "))
+    assert "1,000,000 B" in line and "% used: the largest model its parameters allow" in line
+    assert run("train", db, "-o", spent, "--method", "lsh", "--budget", "2KB").exit_code == 0
+    line = next(line for line in run("info", spent).output.splitlines() if line.strip().startswith("budget "))
+    assert line.split()[:3] == ["budget", "2,000", "B"] and line.endswith("% used)")  # no cap reached

@@ -361,3 +361,45 @@ def test_time_queries_runs_with_the_thread_count_it_reports() -> None:
     np.ones((2, 2)) @ np.ones((2, 2))  # BLAS loaded
     _, timing = ev.time_queries(Probe(), np.zeros((4, 2), np.float32), repeats=2, n_single=2)
     assert set(seen) == {1} and timing.n_threads == 1
+
+
+def test_a_model_that_cannot_use_the_rest_of_its_budget_says_so_in_the_run(tmp_path) -> None:
+    """Issue 37: a method that leaves part of its budget unspent because its parameters cap the model says so
+    in the table (‡ and a legend line), in metrics.csv and in metrics.json; the others are not marked."""
+    import btel.evaluation as ev
+    from btel.datasets import synthetic_route
+    from btel.evaluation.records import EvaluationResult
+    from btel.methods import make_method
+
+    r = synthetic_route(300, 32, seed=0)
+    capped = ev.evaluate(make_method("lsh", budget="1MB"), r.map, r.queries, name="lsh 1MB")
+    spent = ev.evaluate(make_method("lsh", budget="600B"), r.map, r.queries, name="lsh 600B")
+    unbudgeted = ev.evaluate(make_method("bruteforce"), r.map, r.queries, name="bruteforce")
+    assert capped.budget_saturated and capped.nbytes < 1_000_000
+    assert not spent.budget_saturated and not unbudgeted.budget_saturated
+    table = ev.format_table([capped, spent, unbudgeted])
+    lines = {line.split()[0] + " " + line.split()[1]: line for line in table.splitlines() if line.startswith(("lsh", "brute"))}
+    assert "KB‡" in lines["lsh 1MB"] and "‡" not in lines["lsh 600B"] and "‡" not in lines["bruteforce ok"]
+    assert "‡ the largest model the method's parameters allow: the rest of its budget stays unused" in table
+    assert "‡" not in ev.format_table([spent, unbudgeted])  # no legend where no row is marked
+    from btel.evaluation.tables import metrics_csv_text
+
+    csv_rows = metrics_csv_text([capped, spent]).splitlines()
+    column = csv_rows[0].split(",").index("budget_saturated")
+    assert [row.split(",")[column] for row in csv_rows[1:]] == ["1", "0"]
+    again = EvaluationResult.from_dict(json.loads(json.dumps(capped.to_dict())))
+    assert again.budget_saturated and not EvaluationResult.from_dict(spent.to_dict()).budget_saturated
+
+
+def test_gardens_point_at_1mb_marks_the_methods_that_leave_bytes_unspent(gardenspoint_netvlad) -> None:
+    import btel.evaluation as ev
+    from btel.methods import make_method
+
+    db, queries = gardenspoint_netvlad
+    rows = [ev.evaluate(make_method(name, budget="1MB"), db, queries, name=name, tolerances=(0, 2))
+            for name in ("lsh", "pq", "btel-c", "btel-codes")]
+    marked = {r.name: r.budget_saturated for r in rows}
+    assert marked == {"lsh": True, "pq": True, "btel-c": True, "btel-codes": False}, marked
+    assert all(r.nbytes < 1_000_000 for r in rows if r.budget_saturated)
+    table = ev.format_table(rows)
+    assert sum("‡" in line for line in table.splitlines() if line.startswith(("lsh", "pq", "btel"))) == 3

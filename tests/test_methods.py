@@ -142,3 +142,27 @@ def test_registry_holds_one_factory_and_description_per_method() -> None:
     for name, (factory, description) in REGISTRY.items():
         assert isinstance(factory(), PlaceLocalizer), name
         assert description and "\n" not in description, name
+
+
+#: Methods whose largest model fits 400 KB on the module's route (N = 200, d = 48).
+SATURATE_ON_THE_ROUTE = {"btel-c", "btel-f", "btel-r", "ryth", "bruteforce", "pq", "opq", "itq", "lsh", "seqslam", "rabitq"}
+
+
+@pytest.mark.parametrize("name", list(METHODS))
+def test_a_saturated_model_is_the_model_of_every_larger_budget(name: str, route) -> None:
+    """``budget_saturated()`` is what the run table's ‡ and the experiments' reuse of fits rely on: where a
+    model says it, a budget 8 times larger gives the same stored bytes and the same answers."""
+    X, Q = route
+    saturated_at = []
+    for budget in (3_000, 40_000, 400_000):
+        try:
+            model = make_method(name, budget=budget).fit(X)
+        except BudgetTooSmallError:
+            continue
+        if model.budget_saturated():
+            larger = make_method(name, budget=8 * budget).fit(X)
+            assert larger.budget_saturated()
+            assert larger.storage_breakdown() == model.storage_breakdown()
+            np.testing.assert_array_equal(larger.predict(Q), model.predict(Q))
+            saturated_at.append(budget)
+    assert bool(saturated_at) == (name in SATURATE_ON_THE_ROUTE), saturated_at

@@ -12,7 +12,7 @@ from ._params import _param_text
 
 def _echo_storage(model: Any) -> None:
     """What the budget planner chose and the bytes of each stored part (``train`` after fitting, ``info``)."""
-    from ..core.storage import format_bytes
+    from ..core.storage import budget_of, format_bytes
 
     breakdown = model.storage_breakdown()
     width = max(len(k) for k in breakdown) if breakdown else 4
@@ -23,6 +23,12 @@ def _echo_storage(model: Any) -> None:
     for name, n in breakdown.items():
         click.echo(f"  {name:<{width}}  {n:>12,d} B")
     click.echo(f"  {'total':<{width}}  {model.nbytes:>12,d} B  ({format_bytes(model.nbytes)})")
+    budget = budget_of(model)
+    if budget is not None:
+        # The method says when its budget did not shape it: the rest is unused, whatever the budget.
+        capped = ": the largest model its parameters allow; a larger budget gives the same model" \
+            if model.budget_saturated() else ""
+        click.echo(f"  {'budget':<{width}}  {budget:>12,d} B  ({model.nbytes / budget:.0%} used{capped})")
 
 
 def _method_names() -> list[str]:

@@ -74,6 +74,10 @@ def parse_budget(budget: int | float | str | None) -> int | None:
 
 
 #: What a method's ``budget`` parameter is, in one sentence (``btel methods --params``).
+#: A budget no model reaches: a planner run with it gives the largest model its parameters allow
+#: (``budget_saturated()`` compares a fitted model's configuration with that one).
+UNLIMITED_BUDGET = 1 << 62
+
 BUDGET_MEANING = "Byte budget of everything stored (500000, '500KB', '2MB', '64KiB'); None: unbudgeted."
 
 

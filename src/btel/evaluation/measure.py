@@ -219,6 +219,8 @@ def measure(
         tolerance_for_k=int(k_tolerance),
         chosen_method=(getattr(method, "choice_", None) or {}).get("method"),  # auto: what it chose
         budget=budget if budget is not None else budget_of(method),
+        # The method says when its budget did not shape it (the largest model its parameters allow).
+        budget_saturated=budget_of(method) is not None and bool(getattr(method, "budget_saturated", bool)()),
         reference=bool(reference),
         uses_query_sequence=bool(getattr(method, "uses_query_sequence", False)),
         choice=_choice_of(method),

@@ -162,6 +162,9 @@ class EvaluationResult:
         single-frame methods, marked in every table.
     minimum_bytes : int or None
         For ``"does not fit"``: the smallest budget the method needs.
+    budget_saturated : bool
+        The budgeted model is the largest its parameters allow (the method's ``budget_saturated()``):
+        it cannot use the rest of its budget, and any larger budget gives the same model.
     series : str or None
         The method this row is one point of (``pq`` for the rows ``pq@100KB`` and ``pq@500KB``);
         plots draw one line per series. None: the row's own name.
@@ -213,6 +216,7 @@ class EvaluationResult:
     reference: bool = False
     uses_query_sequence: bool = False
     minimum_bytes: int | None = None
+    budget_saturated: bool = False
     series: str | None = None
     settings: dict[str, Any] | None = None
     choice: dict[str, Any] | None = None
@@ -271,6 +275,7 @@ class EvaluationResult:
                 tolerance_for_k=int(data.get("tolerance_for_k") or 0), status=str(data["status"]),
                 reason=data.get("reason"), budget=data.get("budget"), reference=bool(data.get("reference")),
                 uses_query_sequence=bool(data.get("uses_query_sequence")), minimum_bytes=data.get("minimum_bytes"),
+                budget_saturated=bool(data.get("budget_saturated")),
                 series=data.get("series"), settings=data.get("settings"), choice=data.get("choice"),
                 truth=(None if data.get("ground_truth_source") is None else
                        {"source": data["ground_truth_source"], "rule": data.get("positive_rule")}))
@@ -291,6 +296,7 @@ class EvaluationResult:
             "uses_query_sequence": self.uses_query_sequence,
             "budget": self.budget,
             "minimum_bytes": self.minimum_bytes,
+            "budget_saturated": self.budget_saturated,
             "params": self.params,
             "n_map": self.n_map,
             "n_queries": self.n_queries,

@@ -17,10 +17,12 @@ from .records import STATUS_DOES_NOT_FIT, EvaluationResult
 from ..core.storage import format_bytes
 
 __all__ = ["format_table", "format_calibration", "calibration_markdown", "describe_row", "metrics_csv_text",
-           "predictions_csv_text", "rows_csv_text", "SEQUENCE_MARK", "REFERENCE_MARK", "PR_TABLE_NAMES"]
+           "predictions_csv_text", "rows_csv_text", "SEQUENCE_MARK", "REFERENCE_MARK", "SATURATED_MARK",
+           "PR_TABLE_NAMES"]
 
 SEQUENCE_MARK = "†"
 REFERENCE_MARK = "*"
+SATURATED_MARK = "‡"
 #: The precision–recall columns of the console table: AUC-PR by VPR-Bench and by VPR_Tutorial, R@100%P.
 PR_TABLE_NAMES = ("AUC-PR:VB", "AUC-PR:VT", "R@100%P")
 
@@ -32,7 +34,8 @@ def format_table(results: Sequence[EvaluationResult]) -> str:
     latency in µs, the thread count, recall@t for every tolerance any
     row has (frame-aligned ground truth only) and R@K for every K. Rows that did not run show
     their status and reason. ``†`` marks methods that use the query sequence (not comparable
-    with single-frame methods), ``*`` the unbudgeted reference; a legend line says so.
+    with single-frame methods), ``*`` the unbudgeted reference, ``‡`` a model that cannot use the rest
+    of its budget; a legend line says so.
     """
     tolerances = sorted({t for r in results for t in r.recall})
     ks = sorted({k for r in results for k in (r.recall_at_k or {})})
@@ -43,6 +46,7 @@ def format_table(results: Sequence[EvaluationResult]) -> str:
     header = (f"{'method':<{width}} {'status':<12} {'bytes':>10} {'fit s':>7} {'batch µs/q':>10} {'1-query µs':>10} "
               f"{'threads':>7} " + " ".join(f"{m:>9}" for m in metric_names))
     lines = [header.rstrip(), "-" * len(header.rstrip())]
+    saturated_rows = any(r.ok and r.budget_saturated for r in results)  # then every size keeps a mark's column
     for r in results:
         label = _row_label(r)
         if not r.ok:
@@ -52,7 +56,8 @@ def format_table(results: Sequence[EvaluationResult]) -> str:
                    if r.status == STATUS_DOES_NOT_FIT and r.minimum_bytes is not None else (r.reason or ""))
             lines.append(f"{label:<{width}} {r.status:<12} {why}")
             continue
-        size = format_bytes(r.nbytes) if r.nbytes is not None else "?"
+        size = (format_bytes(r.nbytes) if r.nbytes is not None else "?") + (
+            (SATURATED_MARK if r.budget_saturated else " ") if saturated_rows else "")
         fit = f"{r.fit_time_s:.1f}" if r.fit_time_s is not None else "-"
         values = [r.recall.get(t) for t in tolerances] + [(r.recall_at_k or {}).get(k) for k in ks]
         if has_pr:
@@ -80,6 +85,9 @@ def format_table(results: Sequence[EvaluationResult]) -> str:
                      "R@100%P as VPR_Tutorial (recall over queries with a true place)")
     if any(r.reference for r in results):
         notes.append(f"{REFERENCE_MARK} reference (unbudgeted)")
+    if saturated_rows:
+        notes.append(f"{SATURATED_MARK} the largest model the method's parameters allow: the rest of its budget "
+                     "stays unused (a larger budget gives the same model)")
     if any(r.uses_query_sequence for r in results):
         notes.append(f"{SEQUENCE_MARK} uses the query sequence: not comparable with single-frame methods")
     lines += [f"  {n}" for n in notes]
@@ -139,7 +147,7 @@ def metrics_csv_text(results: Sequence[EvaluationResult]) -> str:
     tolerances = sorted({t for r in results for t in r.recall})
     ks = sorted({k for r in results for k in (r.recall_at_k or {})})
     header = ["method", "status", "reference", "uses_query_sequence", "budget", "n_map", "n_queries", "nbytes",
-              "fit_time_s", "query_time_s_per_query", "query_latency_s", "n_threads"]
+              "budget_saturated", "fit_time_s", "query_time_s_per_query", "query_latency_s", "n_threads"]
     header += [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks]
     header += ["auc_pr_vpr_bench", "auc_pr_vpr_tutorial", "recall@100%precision", "reason"]
     buffer = io.StringIO()
@@ -147,7 +155,7 @@ def metrics_csv_text(results: Sequence[EvaluationResult]) -> str:
     writer.writerow(header)
     for r in results:
         row = [r.name, r.status, int(r.reference), int(r.uses_query_sequence), _fmt(r.budget), _fmt(r.n_map),
-               r.n_queries, _fmt(r.nbytes), _fmt(r.fit_time_s), _fmt(r.query_time_s_per_query),
+               r.n_queries, _fmt(r.nbytes), int(r.budget_saturated), _fmt(r.fit_time_s), _fmt(r.query_time_s_per_query),
                _fmt(r.query_latency_s), _fmt(r.n_threads)]
         row += [_fmt(r.recall.get(t)) for t in tolerances]
         row += [_fmt((r.recall_at_k or {}).get(k)) for k in ks]

@@ -78,6 +78,10 @@ class BruteForceNN(_RowLocalizer):
                 "brute-force NN", budget, needed, f"all {n_rows} descriptors × {n_features_out} float32 values"
             )
 
+    def budget_saturated(self) -> bool:
+        """True under any budget: the map is stored whole, whatever the budget (it only has to fit)."""
+        return self.budget is not None
+
     def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
         self._check_plan(*X.shape, budget, reserved)
         # A private copy: the index must not change if the caller later edits X.

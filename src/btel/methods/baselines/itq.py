@@ -23,6 +23,7 @@ from typing import Any
 import faiss
 import numpy as np
 
+from ...core.storage import UNLIMITED_BUDGET
 from ...core.validation import N_JOBS, RANDOM_STATE, Interval, check_positive_int, read_state_int
 from ..base import ArraySpec
 from ...exceptions import InvalidParameterError, ModelFileError, NotEnoughPlacesError
@@ -120,6 +121,13 @@ class ITQLocalizer(_RowLocalizer):
 
     def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
         self.choose_code_bits(n_rows, n_features_out, budget, reserved)
+
+    def budget_saturated(self) -> bool:
+        """True when no budget gives longer codes: the planner's choice without a byte limit."""
+        if self.budget is None:
+            return False
+        n_rows, d = self.codes_.shape[0], self.front_end_.n_features_out(int(self.n_features_in_))
+        return self.choose_code_bits(n_rows, d, UNLIMITED_BUDGET) == self.code_bits_
 
     def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
         n_rows, n_features = X.shape

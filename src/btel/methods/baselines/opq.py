@@ -27,6 +27,7 @@ from typing import Any
 import faiss
 import numpy as np
 
+from ...core.storage import UNLIMITED_BUDGET
 from ...core.validation import N_JOBS, Instance, Interval
 from ..base import ArraySpec
 from ...core.frontend import FrontEnd
@@ -105,6 +106,13 @@ class OPQLocalizer(_RowLocalizer):
 
     def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
         self._choose_config(self._quantiser(), n_rows, n_features_out, budget, reserved)
+
+    def budget_saturated(self) -> bool:
+        """True when no budget gives a larger configuration: the planner's choice without a byte limit."""
+        if self.budget is None:
+            return False
+        n_rows, d = self.pq_.codes_.shape[0], self.front_end_.n_features_out(int(self.n_features_in_))
+        return self._choose_config(self._quantiser(), n_rows, d, UNLIMITED_BUDGET, 0) == self.config_
 
     def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
         pq = self._quantiser()

@@ -39,6 +39,7 @@ from typing import Any, Iterator
 import faiss
 import numpy as np
 
+from ...core.storage import UNLIMITED_BUDGET
 from ...core.validation import N_JOBS, RANDOM_STATE, Interval, check_positive_int, read_state_int
 from ..base import ArraySpec
 from ...exceptions import InvalidParameterError, ModelFileError, NotEnoughPlacesError
@@ -276,6 +277,13 @@ class PQLocalizer(_RowLocalizer):
 
     def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
         self.choose_config(n_rows, n_features_out, budget, reserved)
+
+    def budget_saturated(self) -> bool:
+        """True when no budget gives a larger configuration: the planner's choice without a byte limit."""
+        if self.budget is None:
+            return False
+        n_rows, d = self.codes_.shape[0], self.front_end_.n_features_out(int(self.n_features_in_))
+        return self.choose_config(n_rows, d, UNLIMITED_BUDGET) == self.config_
 
     # -- fitting -------------------------------------------------------------------------------
     def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:

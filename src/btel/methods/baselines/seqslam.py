@@ -307,6 +307,10 @@ class SeqSLAM(_RowLocalizer):
         if budget is not None and needed > budget:
             raise_budget_too_small("SeqSLAM", budget, needed, f"{n_rows} × {n_features_out} bytes of map + 8")
 
+    def budget_saturated(self) -> bool:
+        """True under any budget: the map is stored whole at one byte a value, whatever the budget."""
+        return self.budget is not None
+
     def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
         self._check_params()
         self._check_plan(*X.shape, budget, reserved)

@@ -44,7 +44,7 @@ from ...learning.distributed import BACKENDS
 from ...learning.feature_selection import column_index_dtype
 from ...learning.hyperplanes import check_fitted_weights
 from ...learning.linear import ColumnStats
-from ...core.storage import format_bytes
+from ...core.storage import UNLIMITED_BUDGET, format_bytes
 from .codebook import FAMILIES, MAX_COLUMNS, ROUTE_FAMILIES, Codebook
 from .codewords import RuntimeCache
 from .model_file import CodeModelFile
@@ -301,6 +301,14 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
 
     def _reset_caches(self) -> None:
         self._cache = RuntimeCache(self.codebook_)
+
+    def budget_saturated(self) -> bool:
+        """True when no budget gives more codes, columns or weight bits: the planner's choice without a byte limit."""
+        if self.budget is None:
+            return False
+        d = self.front_end_.n_features_out(int(self.n_features_in_))
+        cap = self._plan(int(self.n_places_), d, UNLIMITED_BUDGET, 0, self.code_)
+        return (cap.n_codes, cap.n_selected, cap.bits) == (self.n_codes_, self.n_selected_, self.weight_bits_)
 
     def summary(self) -> str:
         """One line on what was fitted: family, K, d', width, the planner's rule, α."""
