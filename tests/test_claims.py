@@ -310,6 +310,20 @@ def test_a_full_disk_during_extract_leaves_no_partial_file(tmp_path: Path) -> No
     assert np.load(out / "x.npy").shape[0] == 6
 
 
+@pytest.mark.skipif(sys.platform == "win32", reason="POSIX process limits")
+def test_a_full_disk_while_saving_a_model_exits_1_and_leaves_nothing(tmp_path: Path) -> None:
+    """Found by the writers' fuzz (fault/train, seed 45): a save that failed with EFBIG exited 2, the
+    status of a usage error, though nothing was wrong with the command."""
+    db, _ = _route_files(tmp_path)
+    failed = _cli("train", db, "-o", "m.npz", "--method", "btel-c", cwd=tmp_path, fsize=300)
+    assert failed.returncode == 1, (failed.returncode, failed.stderr)
+    assert failed.stderr.strip().splitlines() == [failed.stderr.strip().splitlines()[-1]]
+    assert "cannot save the model" in failed.stderr and "nothing was left behind" in failed.stderr
+    assert not (tmp_path / "m.npz").exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+    taken = _cli("train", db, "-o", "db.npy", "--method", "btel-c", cwd=tmp_path)
+    assert taken.returncode == 2, taken.stderr  # an output that exists is still the user's to fix
+
+
 def _check_run_folder_is_whole(run: Path) -> list[str]:
     """Every file in a run folder parses completely; no temporary or claim is left. Returns the names."""
     import csv as _csv

@@ -54,6 +54,9 @@ def exit_status(exc: BaseException) -> int:
         return EXIT_FAILURE  # a method's bug, a damaged answer, a missing package, the machine
     if isinstance(exc, OSError) and not isinstance(exc, (BTELError, *_PATH_ERRORS)):
         return EXIT_FAILURE  # a full disk, an I/O error
+    cause = exc.__cause__
+    if isinstance(exc, BTELError) and isinstance(cause, OSError) and not isinstance(cause, (BTELError, *_PATH_ERRORS)):
+        return EXIT_FAILURE  # btel's message around a full disk or an I/O error (a model that could not be saved)
     return EXIT_USAGE
 
 #: (library phrase, command-line phrase): regular expressions, applied in order.
