@@ -143,9 +143,11 @@ def fit_linear_group(
     for width in widths:
         part = slice(first, first + width)
         first += width
-        w = (solution.coef[part] / sigma).astype(dtype)
-        # Bias from the stored weights: c' = c − Σ w_stored·μ.
-        bias = (solution.intercept[part] - w.astype(np.float64) @ mu).astype(np.float32)
+        # Bias from the stored weights: c' = c − Σ w_stored·μ. Weights past the stored type's range (a map
+        # of tiny values without normalisation) become inf or NaN here; check_fitted_weights names that after.
+        with np.errstate(over="ignore", invalid="ignore"):
+            w = (solution.coef[part] / sigma).astype(dtype)
+            bias = (solution.intercept[part] - w.astype(np.float64) @ mu).astype(np.float32)
         out.append((w, np.atleast_1d(bias), int((~solution.converged[part]).sum()),
                     int(solution.n_iter[part].max()), float(solution.objective[part].sum())))
     return out

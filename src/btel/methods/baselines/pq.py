@@ -90,7 +90,10 @@ def pca_projection(X: np.ndarray, dim: int, random_state: int | None) -> np.ndar
     """
     from sklearn.decomposition import PCA  # fit-only: a loaded model never imports scikit-learn
 
-    pca = PCA(n_components=dim, random_state=random_state).fit(X)
+    # A map of (almost) no variance in float32 (tiny values, no normalisation): scikit-learn divides by its
+    # zero total variance for explained_variance_ratio_, which is not read here.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        pca = PCA(n_components=dim, random_state=random_state).fit(X)
     return np.ascontiguousarray(pca.components_.T, dtype=np.float32)
 
 

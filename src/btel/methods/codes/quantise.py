@@ -122,7 +122,8 @@ class QuantisedWeights:
         """The weights as used at inference, (K, d') float32 (``q·s``)."""
         if self.bits == 32:
             return self.values.astype(np.float32, copy=True)
-        return self.integers().astype(np.float32) * self.scales[:, None]
+        with np.errstate(over="ignore", invalid="ignore"):  # an infinite scale: check_fitted_weights names it
+            return self.integers().astype(np.float32) * self.scales[:, None]
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The stored arrays (``weights``, and ``scales`` below 32 bits)."""
@@ -171,7 +172,8 @@ def quantise(W: np.ndarray, bits: int, scales: np.ndarray | None = None) -> Quan
         # A row below float32's smallest normal number times q_max has no representable scale: it is
         # stored as zeros (scale 1), an error of at most that peak.
         peak = np.where(peak >= np.finfo(np.float32).tiny * qmax, peak, 0.0)
-        scales = np.where(peak > 0, peak / qmax, 1.0).astype(np.float32)
+        with np.errstate(over="ignore"):  # a peak past float32's range: inf here, refused by check_fitted_weights
+            scales = np.where(peak > 0, peak / qmax, 1.0).astype(np.float32)
         # A float32 scale rounded down could push the peak to q_max + 1: round it up instead.
         scales = np.where(peak / scales.astype(np.float64) > qmax + 0.5, np.nextafter(scales, np.inf), scales)
     scales = np.asarray(scales, dtype=np.float32)
