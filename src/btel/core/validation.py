@@ -82,8 +82,8 @@ def check_descriptors(
         )
     # No copy when X already has the right dtype and layout (memory-mapped maps stay mapped).
     if not fast:
-        source = arr
-        narrowed = source.dtype.kind == "f" and np.dtype(dtype).kind == "f" and source.dtype.itemsize > np.dtype(dtype).itemsize
+        source, target = arr, np.dtype(dtype)
+        narrowed = source.dtype.kind == "f" and target.kind == "f" and source.dtype.itemsize > target.itemsize
         with np.errstate(over="ignore"):  # a finite value past the narrower type's range is named below, not warned of
             arr = np.ascontiguousarray(arr, dtype=dtype)
         if narrowed:
@@ -96,7 +96,7 @@ def check_descriptors(
 
 
 def _raise_if_narrowing_lost(source: np.ndarray, arr: np.ndarray, name: str) -> None:
-    """Name what casting ``source`` to the narrower float ``arr`` lost: a finite value past the range, or every value."""
+    """Name what casting ``source`` to the narrower float ``arr`` lost: a finite value past its range, or all."""
     bad = _first_non_finite(arr)
     if bad is not None and np.isfinite(source[bad]):
         raise InvalidDescriptorsError(

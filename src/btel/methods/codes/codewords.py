@@ -357,7 +357,8 @@ class Codewords:
                     continue
                 if self.candidates is None or self.candidates.view.shape[0] < candidates * block:
                     self.candidates = CandidateScan(self.packed.shape[1], candidates * block)
-                values, rows = self.candidates.search(M[a + q : a + q + 1], self.packed, block_runs(blocks, block, n_places), k)
+                runs = block_runs(blocks, block, n_places)
+                values, rows = self.candidates.search(M[a + q : a + q + 1], self.packed, runs, k)
                 # The scan's order; among equal scores the lower place first, as the exact decode.
                 order = np.lexsort((places[rows], -values.astype(np.float64)))
                 out_s[a + q], out_p[a + q] = values[order], places[rows[order]]
