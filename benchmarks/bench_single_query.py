@@ -110,7 +110,7 @@ def faiss_peer(model: Any, name: str) -> Callable[[np.ndarray], Any]:
         return lambda q: index.search(np.packbits((normalized(q) - mean) @ projection > 0, axis=1), 1)
     if name == "rabitq":
         rotation = model.rotation_
-        return lambda q: index.search(np.ascontiguousarray(normalized(q) @ rotation), 1)
+        return lambda q: index.search(np.ascontiguousarray(rotation.apply(normalized(q))), 1)
     return lambda q: index.search(normalized(q), 1)
 
 

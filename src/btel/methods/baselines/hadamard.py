@@ -25,7 +25,7 @@ import functools
 
 import numpy as np
 
-__all__ = ["SignedHadamard", "fwht", "ROUNDS", "MAX_FACTOR", "DENSE_VALUES"]
+__all__ = ["SignedHadamard", "HadamardRotation", "fwht", "ROUNDS", "MAX_FACTOR", "DENSE_VALUES"]
 
 #: Sign-flip + Hadamard rounds per block.
 ROUNDS = 3
@@ -167,3 +167,105 @@ class SignedHadamard:
                 work = fwht(work.reshape(-1, D)).reshape(rows.shape[0], n_blocks, D)
             out[start : start + rows.shape[0]] = work.reshape(rows.shape[0], -1)[:, : self.n_outputs]
         return out
+
+
+class HadamardRotation:
+    """A seeded orthogonal rotation of R^d (any d, no padding), keeping its first D coordinates.
+
+    With k the largest power of two ≤ d, each of :data:`ROUNDS` rounds flips the signs of all d
+    coordinates and applies the orthonormal Walsh–Hadamard transform to the first k; when k < d it
+    then flips the signs again, transforms the last k, and mixes the two halves with a butterfly
+    ((x_i, x_{i+h}) ↦ ((x_i + x_{i+h}) / √2, (x_i − x_{i+h}) / √2), h = ⌊d/2⌋), so that the
+    coordinates the two blocks do not share still mix. Every step is an orthogonal map of R^d, so
+    the product R is exactly orthogonal: no padding, no d × d matrix, no factorisation, and
+    O(d log d) work per row — the fast-Hadamard-and-butterfly rotator of the RaBitQ authors' library
+    in place of a QR of a Gaussian matrix (measured against it: ``docs/decisions/rabitq.md``). The
+    first D rows of R are orthonormal, so ``apply`` projects on a random D-dimensional subspace.
+
+    Parameters
+    ----------
+    n_features : int
+        d.
+    n_outputs : int
+        D ≤ d, the coordinates kept.
+    seed : int
+        Seed of the signs (numpy's PCG64, ``integers``).
+
+    Attributes
+    ----------
+    signs : ndarray of shape (ROUNDS, 2, d), float32
+        ±1: before the first and before the last transform of each round.
+    """
+
+    kind = "hadamard"
+
+    def __init__(self, n_features: int, n_outputs: int, seed: int) -> None:
+        self.n_features, self.n_outputs = int(n_features), int(n_outputs)
+        if not 1 <= self.n_outputs <= self.n_features:
+            raise ValueError(f"a rotation keeps 1 … d = {self.n_features} coordinates; got {self.n_outputs}.")
+        self.width = 1 << (self.n_features.bit_length() - 1)
+        rng = np.random.default_rng(int(seed))
+        self.signs = (rng.integers(0, 2, size=(ROUNDS, 2, self.n_features), dtype=np.int8) * 2 - 1
+                      ).astype(np.float32)
+        self._dense: np.ndarray | None = None
+        if self.n_features * self.n_outputs <= DENSE_VALUES:
+            self._dense = self.matrix()
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held at run time (signs and the small dense matrix); none of it is stored."""
+        return int(self.signs.nbytes + (0 if self._dense is None else self._dense.nbytes))
+
+    def apply(self, X: np.ndarray) -> np.ndarray:
+        """The first D coordinates of every rotated row.
+
+        Parameters
+        ----------
+        X : ndarray of shape (n, d), float32
+
+        Returns
+        -------
+        ndarray of shape (n, D), float32
+        """
+        X = np.asarray(X, dtype=np.float32)
+        if self._dense is not None:
+            return X @ self._dense
+        n, d = X.shape
+        out = np.empty((n, self.n_outputs), dtype=np.float32)
+        step = max(1, _WORK_VALUES // d)
+        for start in range(0, n, step):
+            out[start : start + step] = self._steps(X[start : start + step], forward=True)[:, : self.n_outputs]
+        return out
+
+    def matrix(self) -> np.ndarray:
+        """The d × D float32 matrix M with ``apply(X) == X @ M`` (up to rounding); Mᵀ M = I.
+
+        Built from D unit vectors through the transposed steps in reverse order (each step is
+        symmetric), so the work is D · d log d, never d × d.
+        """
+        if self._dense is not None:
+            return self._dense.copy()
+        return np.ascontiguousarray(self._steps(np.eye(self.n_outputs, self.n_features, dtype=np.float32),
+                                                forward=False).T)
+
+    def _steps(self, rows: np.ndarray, forward: bool) -> np.ndarray:
+        """R applied to each row (forward: x ↦ R x) or Rᵀ: every step is symmetric, so Rᵀ is the same
+        steps in reverse order."""
+        d, k, h = self.n_features, self.width, self.n_features // 2
+        work = np.array(rows, dtype=np.float32, copy=True)
+        steps = [(r, step) for r in range(ROUNDS) for step in (("first",) if k == d else ("first", "last", "mix"))]
+        for r, step in (steps if forward else reversed(steps)):
+            if step == "mix":
+                a, b = work[:, :h].copy(), work[:, h : 2 * h]
+                work[:, :h] += b
+                work[:, h : 2 * h] = a - b
+                work[:, : 2 * h] *= np.float32(np.sqrt(0.5))
+                continue
+            signs = self.signs[r, 0 if step == "first" else 1]
+            part = slice(0, k) if step == "first" else slice(d - k, d)
+            if forward:
+                work *= signs
+            work[:, part] = fwht(work[:, part])
+            if not forward:
+                work *= signs
+        return work

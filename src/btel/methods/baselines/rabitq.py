@@ -1,12 +1,18 @@
 """RaBitQ (Gao & Long, SIGMOD 2024; extended to B bits per dimension, Gao et al. 2025) under a byte budget.
 
-Fit: rotate the (front-end transformed) map by a random d×D matrix with orthonormal columns drawn
-from the recorded seed, subtract the mean of the rotated map (the centroid c) and quantise each
+Fit: rotate the (front-end transformed) map by a seeded random orthogonal transform and keep D of
+its coordinates (a d×D map with orthonormal columns), subtract the mean of the rotated map (the centroid c) and quantise each
 residual r = x − c: one sign bit per dimension, plus B − 1 magnitude bits when B > 1, plus the
 per-row correction factors that make RaBitQ's distance estimate unbiased (‖r‖², ‖r‖ / ⟨x̄, r/‖r‖⟩,
 and for B > 1 an error bound and two factors of the extra bits). The query is rotated the same way
 and kept in float (faiss ``IndexRaBitQ`` with ``qb = 0``): an exact linear scan of the estimated L2
 distances, score = −estimate.
+
+Rotation (``rotation``): ``'hadamard'`` (default) — random sign flips and fast Walsh–Hadamard
+transforms (:class:`~btel.methods.baselines.hadamard.HadamardRotation`, as the RaBitQ authors' own
+library rotates): exactly orthogonal, O(d log d) per row, nothing d × d; ``'qr'`` — the Q of a QR
+factorisation of a d×D Gaussian matrix, O(d·D²) at every fit and load (model files that record no
+rotation used it). Evidence: ``docs/decisions/rabitq.md``.
 
 Storage (the one rule, SPEC §7): the rotation is regenerated from the seed (0 bytes, as LSH's
 projection and btel-codes' codewords); everything learned is counted at its stored width:
@@ -38,16 +44,19 @@ from typing import Any
 import faiss
 import numpy as np
 
-from ...core.validation import N_JOBS, RANDOM_STATE, Interval, read_state_int
+from ...core.validation import N_JOBS, RANDOM_STATE, Interval, Options, read_state_int
 from ..base import ArraySpec
 from ...exceptions import BTELError, InvalidDescriptorsError, InvalidParameterError, ModelFileError
 from ._common import (MAX_NORM, _RowLocalizer, check_model_values, index_search, negated_distances,
                       raise_budget_too_small)
+from .hadamard import HadamardRotation
 
-__all__ = ["RaBitQLocalizer", "rotation_matrix"]
+__all__ = ["RaBitQLocalizer", "rotation_matrix", "make_rotation", "ROTATIONS"]
 
 #: Most bits per dimension faiss' RaBitQ quantiser takes.
 MAX_NBITS = 9
+#: The rotations ``rotation`` takes (module docstring); files without one used the last.
+ROTATIONS = ("hadamard", "qr")
 
 
 def rotation_matrix(n_features: int, dim: int, seed: int) -> np.ndarray:
@@ -60,6 +69,36 @@ def rotation_matrix(n_features: int, dim: int, seed: int) -> np.ndarray:
     q, r = np.linalg.qr(rng.standard_normal((int(n_features), int(dim))))
     signs = np.where(np.diag(r) < 0, -1.0, 1.0)
     return np.ascontiguousarray(q * signs, dtype=np.float32)
+
+
+class _QRRotation:
+    """The d × D matrix of :func:`rotation_matrix` held whole (``rotation='qr'``)."""
+
+    kind = "qr"
+
+    def __init__(self, n_features: int, dim: int, seed: int) -> None:
+        self.n_features, self.n_outputs = int(n_features), int(dim)
+        self._matrix = rotation_matrix(n_features, dim, seed)
+
+    @property
+    def nbytes(self) -> int:
+        return int(self._matrix.nbytes)
+
+    def apply(self, X: np.ndarray) -> np.ndarray:
+        return np.asarray(X, dtype=np.float32) @ self._matrix
+
+    def matrix(self) -> np.ndarray:
+        return self._matrix
+
+
+def make_rotation(n_features: int, dim: int, seed: int, kind: str = "hadamard") -> Any:
+    """The rotation of a seed, d features to D coordinates: an object with ``apply(X)`` ((n, d) → (n, D)
+    float32) and ``matrix()`` (the d × D float32 matrix with orthonormal columns)."""
+    if kind == "hadamard":
+        return HadamardRotation(n_features, dim, seed)
+    if kind == "qr":
+        return _QRRotation(n_features, dim, seed)
+    raise InvalidParameterError(f"rotation must be one of {ROTATIONS}; got {kind!r}.")
 
 
 def _dims(n_features: int) -> list[int]:
@@ -78,6 +117,9 @@ class RaBitQLocalizer(_RowLocalizer):
         Pin D, the rotated dimensions (at most d after the front end).
     nbits : int, optional
         Pin B, bits per dimension (1 … 9).
+    rotation : {'hadamard', 'qr'}
+        The seeded rotation: sign flips and fast Walsh–Hadamard transforms, O(d log d) per row
+        (default), or the QR of a Gaussian d × D matrix, O(d·D²) at every fit and load.
     random_state : int or None
         Seed of the rotation; None draws one. The seed used is recorded (``seed_``) and saved.
     normalize, whiten, delta
@@ -92,8 +134,9 @@ class RaBitQLocalizer(_RowLocalizer):
     ex_codes_ : ndarray of shape (n_rows, ceil(dim_ * (nbits_ - 1) / 8)), uint8, or None (B = 1)
     factors_ : ndarray of shape (n_rows, 2 or 5), float16 or float32
     centroid_ : ndarray of shape (dim_,), float16 or float32
-    rotation_ : ndarray of shape (n_features, dim_), float32
-        Regenerated from ``seed_`` (not stored).
+    rotation_ : object
+        :func:`make_rotation`'s, regenerated from ``seed_`` (not stored): ``rotation_.apply(X)`` is
+        X M, ``rotation_.matrix()`` the (n_features, dim_) float32 matrix M.
     n_places_, n_features_in_ : int
     row_places_ : ndarray of shape (n_rows,) or None
     fit_time_ : float
@@ -111,15 +154,17 @@ class RaBitQLocalizer(_RowLocalizer):
     _parameter_constraints = {
         "dim": [None, Interval(int, 1, None)],
         "nbits": [None, Interval(int, 1, MAX_NBITS)],
+        "rotation": [Options(*ROTATIONS)],
         "random_state": RANDOM_STATE,
         "n_jobs": N_JOBS,
     }
 
     def __init__(self, *, budget: int | str | None = None, dim: int | None = None, nbits: int | None = None,
-                 random_state: int | None = 0, n_jobs: int | None = None) -> None:
+                 rotation: str = "hadamard", random_state: int | None = 0, n_jobs: int | None = None) -> None:
         self.budget = budget
         self.dim = dim
         self.nbits = nbits
+        self.rotation = rotation
         self.random_state = random_state
         self.n_jobs = n_jobs
 
@@ -167,8 +212,7 @@ class RaBitQLocalizer(_RowLocalizer):
 
     def budget_saturated(self) -> bool:
         """True when D and B are the largest the parameters allow (a larger budget gives the same model)."""
-        d = self.rotation_.shape[0]
-        return self.dim_ == (self.dim or d) and self.nbits_ == (self.nbits or MAX_NBITS)
+        return self.dim_ == (self.dim or self.rotation_.n_features) and self.nbits_ == (self.nbits or MAX_NBITS)
 
     # -- fitting -------------------------------------------------------------------------------
     def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
@@ -177,18 +221,18 @@ class RaBitQLocalizer(_RowLocalizer):
         seed = int(self.random_state) if self.random_state is not None else \
             int(np.random.default_rng().integers(0, 2**31 - 1))
         self.dim_, self.nbits_, self.seed_ = D, B, seed
-        self.rotation_ = rotation_matrix(d, D, seed)
+        self.rotation_ = make_rotation(d, D, seed, self.rotation)
         # The rotated map in row blocks, twice (its mean, then the codes): never a rotated copy of the map.
         step = max(1, (1 << 22) // max(d, D, 1))
         blocks = range(0, n_rows, step)
         total = np.zeros(D)
         for a in blocks:
-            total += (np.asarray(X[a : a + step], dtype=np.float32) @ self.rotation_).sum(axis=0, dtype=np.float64)
+            total += self.rotation_.apply(X[a : a + step]).sum(axis=0, dtype=np.float64)
         dtype = self._value_dtype()
         self.centroid_ = (total / n_rows).astype(dtype)
         index = self._empty_index()
         for a in blocks:
-            index.add(np.ascontiguousarray(np.asarray(X[a : a + step], dtype=np.float32) @ self.rotation_))
+            index.add(np.ascontiguousarray(self.rotation_.apply(X[a : a + step])))
         codes = faiss.vector_to_array(index.codes).reshape(n_rows, index.code_size)
         s, e = -(-D // 8), -(-D * (B - 1) // 8)
         factors = (codes[:, s : s + 12] if B > 1 else codes[:, s:]).copy().view(np.float32)
@@ -241,14 +285,14 @@ class RaBitQLocalizer(_RowLocalizer):
     # -- inference -----------------------------------------------------------------------------
     def _search_rows(self, Q: np.ndarray, k: int,
                      scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
-        rotated = np.ascontiguousarray(np.asarray(Q, dtype=np.float32) @ self.rotation_)
+        rotated = np.ascontiguousarray(self.rotation_.apply(Q))
         dist, rows = index_search(self._index, rotated, k)
         return negated_distances(dist) if scores else None, rows.astype(np.int64, copy=False)
 
     def summary(self) -> str:
         """One line: D, B, seed, factor width and the front end."""
-        return (f"rabitq: {self.dim_} rotated dimensions × {self.nbits_} bit(s), rotation from seed "
-                f"{self.seed_} (0 B), {self.factors_.dtype.name} factors; "
+        return (f"rabitq: {self.dim_} rotated dimensions × {self.nbits_} bit(s), {self.rotation} rotation from "
+                f"seed {self.seed_} (0 B), {self.factors_.dtype.name} factors; "
                 f"front end {self.front_end_.describe()}")
 
     # -- storage and files ---------------------------------------------------------------------
@@ -259,12 +303,15 @@ class RaBitQLocalizer(_RowLocalizer):
         return arrays
 
     def _model_state(self) -> dict[str, Any]:
-        return {"dim": int(self.dim_), "nbits": int(self.nbits_), "seed": int(self.seed_)}
+        return {"dim": int(self.dim_), "nbits": int(self.nbits_), "seed": int(self.seed_), "rotation": self.rotation}
 
     def _model_specs(self, state: dict[str, Any], d: int) -> dict[str, ArraySpec]:
         D = read_state_int(state, "dim", 1, d)
         B = read_state_int(state, "nbits", 1, MAX_NBITS)
         read_state_int(state, "seed", 0, 2**63 - 1)
+        kind = state.get("rotation", ROTATIONS[-1])
+        if kind not in ROTATIONS:
+            raise ModelFileError(f"the RaBitQ model file's rotation {str(kind)[:40]!r} is not one of {ROTATIONS}.")
         dtype = self._value_dtype()
         return {"signs": ArraySpec((None, -(-D // 8)), np.uint8),
                 "factors": ArraySpec((None, self._n_factors(B)), dtype),
@@ -287,6 +334,11 @@ class RaBitQLocalizer(_RowLocalizer):
         self.ex_codes_ = np.ascontiguousarray(arrays["ex_codes"]) if B > 1 else None
         self.factors_ = np.ascontiguousarray(arrays["factors"])
         self.centroid_ = np.ascontiguousarray(arrays["centroid"])
-        self.rotation_ = rotation_matrix(self.front_end_.n_features_out(int(state["n_features_in"])),
-                                         self.dim_, self.seed_)
+        # The rotation the codes were made with: files that record none used the QR one.
+        if "rotation" in state and state["rotation"] != self.rotation:
+            raise ModelFileError(f"the RaBitQ model file's rotation {state['rotation']!r} contradicts its "
+                                 f"parameters ({self.rotation!r}).")
+        self.rotation = state.get("rotation", ROTATIONS[-1])
+        self.rotation_ = make_rotation(self.front_end_.n_features_out(int(state["n_features_in"])),
+                                       self.dim_, self.seed_, self.rotation)
         self._index = self._build_index()
