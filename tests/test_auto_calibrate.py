@@ -301,3 +301,13 @@ def test_cli_train_refuses_calibration_options_without_auto_or_queries(args, mes
     np.save(tmp_path / "db.npy", np.ones((4, 3), dtype=np.float32))
     done = CliRunner().invoke(main, ["train", str(tmp_path / "db.npy"), "-o", str(tmp_path / "m.npz"), *args])
     assert done.exit_code == 2 and message in done.output
+
+
+@pytest.mark.parametrize("d", [64, 1024, 1025, 16_384])
+def test_opq_is_a_candidate_up_to_its_width_bound_and_rabitq_at_every_width(d) -> None:
+    """OPQ learns a d × d rotation (O(d³)); RaBitQ's seeded rotation is O(d log d), so it stays."""
+    from btel.methods.auto.calibrate import MAX_ROTATION_FEATURES, calibration_candidates
+
+    methods = {c["method"] for c in calibration_candidates(n_features=d)}
+    assert "rabitq" in methods
+    assert ("opq" in methods) == (d <= MAX_ROTATION_FEATURES)

@@ -24,8 +24,9 @@ on a subsample (up to half of it the calibration queries' true places, the rest 
 index order) at the same bytes per row — a candidate's fixed cost (PQ's codebooks and projection, a
 whitening basis) then weighs more than on the whole map, which handicaps those candidates; the
 winner is refitted on the whole map at the whole budget.
-OPQ and RaBitQ (an O(d³) d × d rotation per fit) are candidates up to :data:`MAX_ROTATION_FEATURES`
-dimensions. Not candidates: the sequence methods (``seqslam`` reads the query order) and the slow
+OPQ (a learned d × d rotation, O(d³) per iteration of its fit) is a candidate up to
+:data:`MAX_ROTATION_FEATURES` dimensions; RaBitQ's seeded rotation is O(d log d) per row, so it is one
+at every width. Not candidates: the sequence methods (``seqslam`` reads the query order) and the slow
 paper variants (``btel-c``, ``btel-f``, ``btel-r``, ``btel-auto``, ``ryth``: minutes of fit on a
 few thousand rows). Calibration queries are read, scored and dropped: the model stores no query and no
 query-derived array, only the table of scalars (``choice_['calibration']``).
@@ -75,8 +76,8 @@ TEST = (
 #: The difference in calibration recall the "queries needed" column is stated for.
 REFERENCE_DIFFERENCE = 0.05
 
-#: Candidates whose fit costs O(d³) (a learned or random d × d rotation: OPQ, RaBitQ) are compared only
-#: on descriptors of at most this many dimensions.
+#: OPQ, whose fit learns a d × d rotation (O(d³) per iteration), is compared only on descriptors of at
+#: most this many dimensions.
 MAX_ROTATION_FEATURES = 1024
 #: (label, method, params, seeded): the calibrated candidates (module docstring).
 CANDIDATES: tuple[tuple[str, str, dict[str, Any], bool], ...] = (
@@ -99,12 +100,12 @@ CANDIDATES: tuple[tuple[str, str, dict[str, Any], bool], ...] = (
 
 def calibration_candidates(whiten: Any = None, n_features: int | None = None) -> list[dict[str, Any]]:
     """The candidates as ``{"label", "method", "params", "seeded"}``; a user's ``whiten`` pins the front end,
-    and OPQ and RaBitQ are left out above :data:`MAX_ROTATION_FEATURES` dimensions."""
+    and OPQ is left out above :data:`MAX_ROTATION_FEATURES` dimensions."""
     out = []
     for label, method, params, seeded in CANDIDATES:
         if whiten is not None and params.get("whiten", None) not in (None, whiten):
             continue
-        if method in ("opq", "rabitq") and n_features is not None and n_features > MAX_ROTATION_FEATURES:
+        if method == "opq" and n_features is not None and n_features > MAX_ROTATION_FEATURES:
             continue
         out.append(
             {
