@@ -13,7 +13,8 @@ Three parts (``--parts``), one BLAS and one faiss thread:
   0 on the synthetic map. Each cell: the mean over seeds of both, and of their difference with its
   standard error.
 - **The rotation alone** (``projection``): on Nordland HOG summer→winter (L2-normalised rows), the
-  first D coordinates of each rotation for D ∈ {104, 536, 2336} (RaBitQ's D at 64 KB, 256 KB, 1 MB),
+  first D coordinates of each rotation for D ∈ {104, 536, 2336} (RaBitQ's D at 64 KB and 256 KB is 104
+  and 536; at 1 MB it is 2192),
   centred on the map's mean, and the cosine nearest neighbour there, no quantisation: recall@10 over
   every query at ``--projection-seeds`` seeds, paired by seed. This isolates the subspace each
   rotation keeps from RaBitQ's codes, at many more seeds than RaBitQ's slow scan allows.
