@@ -62,7 +62,8 @@ def maps(shared: Path, cache: Path, quick: bool) -> list[tuple[str, int, np.ndar
     with np.load(shared / "gardenspoint_netvlad" / "hiddenRepr-GardensPoint.npz", allow_pickle=False) as z:
         day, night = z["hlrTrain"].astype(np.float32), z["hlrTest"].astype(np.float32)
     every = np.arange(len(day))
-    out = [("gardens-point day→night", 2, day, night, every), ("gardens-point night→day", 2, night, day, every)]
+    out = [("gardens-point day→night", 2, day, night, every),
+           ("gardens-point night→day", 2, night, day, every)]
     if quick:
         return out
     from btel.experiments._common import NordlandData
@@ -192,7 +193,8 @@ def main() -> None:
     parser.add_argument("--cache", type=Path, default=HERE / "results" / "cache")
     parser.add_argument("--nordland-seeds", type=int, default=3)
     parser.add_argument("--projection-seeds", type=int, default=20)
-    parser.add_argument("--parts", default="recall,projection,cost", help="comma-separated: recall, projection, cost")
+    parser.add_argument("--parts", default="recall,projection,cost",
+                        help="comma-separated: recall, projection, cost")
     parser.add_argument("--name", default="rabitq_rotation", help="results file name (no extension)")
     parser.add_argument("--max-qr-flops", type=float, default=2e12)
     args = parser.parse_args()

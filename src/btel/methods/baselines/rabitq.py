@@ -1,10 +1,10 @@
 """RaBitQ (Gao & Long, SIGMOD 2024; extended to B bits per dimension, Gao et al. 2025) under a byte budget.
 
 Fit: rotate the (front-end transformed) map by a seeded random orthogonal transform and keep D of
-its coordinates (a d×D map with orthonormal columns), subtract the mean of the rotated map (the centroid c) and quantise each
-residual r = x − c: one sign bit per dimension, plus B − 1 magnitude bits when B > 1, plus the
-per-row correction factors that make RaBitQ's distance estimate unbiased (‖r‖², ‖r‖ / ⟨x̄, r/‖r‖⟩,
-and for B > 1 an error bound and two factors of the extra bits). The query is rotated the same way
+its coordinates (a d×D map with orthonormal columns), subtract the mean of the rotated map (the
+centroid c) and quantise each residual r = x − c: one sign bit per dimension, plus B − 1 magnitude
+bits when B > 1, plus the per-row correction factors that make RaBitQ's distance estimate unbiased
+(‖r‖², ‖r‖ / ⟨x̄, r/‖r‖⟩, and for B > 1 an error bound and two factors of the extra bits). The query is rotated the same way
 and kept in float (faiss ``IndexRaBitQ`` with ``qb = 0``): an exact linear scan of the estimated L2
 distances, score = −estimate.
 
@@ -212,7 +212,8 @@ class RaBitQLocalizer(_RowLocalizer):
 
     def budget_saturated(self) -> bool:
         """True when D and B are the largest the parameters allow (a larger budget gives the same model)."""
-        return self.dim_ == (self.dim or self.rotation_.n_features) and self.nbits_ == (self.nbits or MAX_NBITS)
+        d = self.rotation_.n_features
+        return self.dim_ == (self.dim or d) and self.nbits_ == (self.nbits or MAX_NBITS)
 
     # -- fitting -------------------------------------------------------------------------------
     def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
@@ -303,7 +304,8 @@ class RaBitQLocalizer(_RowLocalizer):
         return arrays
 
     def _model_state(self) -> dict[str, Any]:
-        return {"dim": int(self.dim_), "nbits": int(self.nbits_), "seed": int(self.seed_), "rotation": self.rotation}
+        return {"dim": int(self.dim_), "nbits": int(self.nbits_), "seed": int(self.seed_),
+                "rotation": self.rotation}
 
     def _model_specs(self, state: dict[str, Any], d: int) -> dict[str, ArraySpec]:
         D = read_state_int(state, "dim", 1, d)
@@ -311,7 +313,8 @@ class RaBitQLocalizer(_RowLocalizer):
         read_state_int(state, "seed", 0, 2**63 - 1)
         kind = state.get("rotation", ROTATIONS[-1])
         if kind not in ROTATIONS:
-            raise ModelFileError(f"the RaBitQ model file's rotation {str(kind)[:40]!r} is not one of {ROTATIONS}.")
+            raise ModelFileError(f"the RaBitQ model file's rotation {str(kind)[:40]!r} is not one of "
+                                 f"{ROTATIONS}.")
         dtype = self._value_dtype()
         return {"signs": ArraySpec((None, -(-D // 8)), np.uint8),
                 "factors": ArraySpec((None, self._n_factors(B)), dtype),
