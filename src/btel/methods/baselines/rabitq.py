@@ -4,9 +4,9 @@ Fit: rotate the (front-end transformed) map by a seeded random orthogonal transf
 its coordinates (a d×D map with orthonormal columns), subtract the mean of the rotated map (the
 centroid c) and quantise each residual r = x − c: one sign bit per dimension, plus B − 1 magnitude
 bits when B > 1, plus the per-row correction factors that make RaBitQ's distance estimate unbiased
-(‖r‖², ‖r‖ / ⟨x̄, r/‖r‖⟩, and for B > 1 an error bound and two factors of the extra bits). The query is rotated the same way
-and kept in float (faiss ``IndexRaBitQ`` with ``qb = 0``): an exact linear scan of the estimated L2
-distances, score = −estimate.
+(‖r‖², ‖r‖ / ⟨x̄, r/‖r‖⟩, and for B > 1 an error bound and two factors of the extra bits). The query
+is rotated the same way and kept in float (faiss ``IndexRaBitQ`` with ``qb = 0``): an exact linear
+scan of the estimated L2 distances, score = −estimate.
 
 Rotation (``rotation``): ``'hadamard'`` (default) — random sign flips and fast Walsh–Hadamard
 transforms (:class:`~btel.methods.baselines.hadamard.HadamardRotation`, as the RaBitQ authors' own
