@@ -25,7 +25,8 @@ import functools
 
 import numpy as np
 
-__all__ = ["SignedHadamard", "HadamardRotation", "fwht", "ROUNDS", "MAX_FACTOR", "DENSE_VALUES"]
+__all__ = ["SignedHadamard", "HadamardRotation", "DenseTransform", "fwht", "ROUNDS", "MAX_FACTOR",
+           "DENSE_VALUES"]
 
 #: Sign-flip + Hadamard rounds per block.
 ROUNDS = 3
@@ -79,7 +80,80 @@ def fwht(X: np.ndarray) -> np.ndarray:
     return Y.reshape(n, D)
 
 
-class SignedHadamard:
+def _random_signs(seed: int, shape: tuple[int, ...]) -> np.ndarray:
+    """±1 float32 signs of a seed (numpy's PCG64 ``integers``): the only thing a transform draws."""
+    rng = np.random.default_rng(int(seed))
+    return (rng.integers(0, 2, size=shape, dtype=np.int8) * 2 - 1).astype(np.float32)
+
+
+class _SeededTransform:
+    """What the two seeded transforms share: ``apply`` (X M, by a small cached M or the transform
+    itself), ``matrix()`` and the run-time ``nbytes``. A subclass sets ``n_features``, ``n_outputs``
+    and ``signs``, and defines ``_transform(X)`` and ``_matrix()``."""
+
+    kind = "hadamard"
+    n_features: int
+    n_outputs: int
+    signs: np.ndarray
+    _dense: np.ndarray | None = None
+
+    def _cache_small_matrix(self) -> None:
+        # A small product beats the transform's fixed cost for one query.
+        if self.n_features * self.n_outputs <= DENSE_VALUES:
+            self._dense = self._matrix()
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held at run time (signs and the small dense matrix); none of it is stored."""
+        return int(self.signs.nbytes + (0 if self._dense is None else self._dense.nbytes))
+
+    def apply(self, X: np.ndarray) -> np.ndarray:
+        """The transform of every row.
+
+        Parameters
+        ----------
+        X : ndarray of shape (n, n_features), float32
+
+        Returns
+        -------
+        ndarray of shape (n, n_outputs), float32
+        """
+        X = np.asarray(X, dtype=np.float32)
+        if self._dense is not None:
+            return X @ self._dense
+        return self._transform(X)
+
+    def matrix(self) -> np.ndarray:
+        """The transform as an (n_features, n_outputs) float32 matrix M: :meth:`apply` is ``X @ M``."""
+        return self._matrix() if self._dense is None else self._dense.copy()
+
+    def _transform(self, X: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def _matrix(self) -> np.ndarray:
+        raise NotImplementedError
+
+
+class DenseTransform:
+    """A d × P matrix held whole, with the seeded transforms' interface (``apply``, ``matrix()``,
+    ``nbytes``): ``lsh``'s ``'orthogonal'`` and ``'gaussian'`` projections, ``rabitq``'s ``'qr'`` rotation."""
+
+    def __init__(self, matrix: np.ndarray, kind: str) -> None:
+        self._matrix, self.kind = matrix, kind
+        self.n_features, self.n_outputs = (int(v) for v in matrix.shape)
+
+    @property
+    def nbytes(self) -> int:
+        return int(self._matrix.nbytes)
+
+    def apply(self, X: np.ndarray) -> np.ndarray:
+        return np.asarray(X, dtype=np.float32) @ self._matrix
+
+    def matrix(self) -> np.ndarray:
+        return self._matrix
+
+
+class SignedHadamard(_SeededTransform):
     """The seeded projection of the module docstring, d features to P outputs.
 
     Parameters
@@ -99,43 +173,12 @@ class SignedHadamard:
         ±1.
     """
 
-    kind = "hadamard"
-
     def __init__(self, n_features: int, n_outputs: int, seed: int) -> None:
         self.n_features, self.n_outputs = int(n_features), int(n_outputs)
         self.width = 1 << max(int(n_features) - 1, 1).bit_length()
         n_blocks = -(-self.n_outputs // self.width)
-        rng = np.random.default_rng(int(seed))
-        self.signs = (rng.integers(0, 2, size=(n_blocks, ROUNDS, self.width), dtype=np.int8) * 2 - 1
-                      ).astype(np.float32)
-        self._dense: np.ndarray | None = None
-        if self.n_features * self.n_outputs <= DENSE_VALUES:
-            self._dense = self._matrix()
-
-    @property
-    def nbytes(self) -> int:
-        """Bytes held at run time (signs and the small dense matrix); none of it is stored."""
-        return int(self.signs.nbytes + (0 if self._dense is None else self._dense.nbytes))
-
-    def apply(self, X: np.ndarray) -> np.ndarray:
-        """The projection of every row.
-
-        Parameters
-        ----------
-        X : ndarray of shape (n, d), float32
-
-        Returns
-        -------
-        ndarray of shape (n, P), float32
-        """
-        X = np.asarray(X, dtype=np.float32)
-        if self._dense is not None:
-            return X @ self._dense
-        return self._transform(X)
-
-    def matrix(self) -> np.ndarray:
-        """The projection as a d × P float32 matrix: :meth:`apply` is ``X @ matrix()``."""
-        return self._matrix() if self._dense is None else self._dense.copy()
+        self.signs = _random_signs(seed, (n_blocks, ROUNDS, self.width))
+        self._cache_small_matrix()
 
     def _matrix(self) -> np.ndarray:
         """R from min(d, P) transforms: the rows of the identity forward, or P unit vectors through the
@@ -169,7 +212,7 @@ class SignedHadamard:
         return out
 
 
-class HadamardRotation:
+class HadamardRotation(_SeededTransform):
     """A seeded orthogonal rotation of R^d (any d, no padding), keeping its first D coordinates.
 
     With k the largest power of two ≤ d, each of :data:`ROUNDS` rounds flips the signs of all d
@@ -197,39 +240,16 @@ class HadamardRotation:
         ±1: before the first and before the last transform of each round.
     """
 
-    kind = "hadamard"
-
     def __init__(self, n_features: int, n_outputs: int, seed: int) -> None:
         self.n_features, self.n_outputs = int(n_features), int(n_outputs)
         if not 1 <= self.n_outputs <= self.n_features:
             raise ValueError(f"a rotation keeps 1 … d = {self.n_features} coordinates; got {self.n_outputs}.")
         self.width = 1 << (self.n_features.bit_length() - 1)
-        rng = np.random.default_rng(int(seed))
-        self.signs = (rng.integers(0, 2, size=(ROUNDS, 2, self.n_features), dtype=np.int8) * 2 - 1
-                      ).astype(np.float32)
-        self._dense: np.ndarray | None = None
-        if self.n_features * self.n_outputs <= DENSE_VALUES:
-            self._dense = self.matrix()
+        self.signs = _random_signs(seed, (ROUNDS, 2, self.n_features))
+        self._cache_small_matrix()
 
-    @property
-    def nbytes(self) -> int:
-        """Bytes held at run time (signs and the small dense matrix); none of it is stored."""
-        return int(self.signs.nbytes + (0 if self._dense is None else self._dense.nbytes))
-
-    def apply(self, X: np.ndarray) -> np.ndarray:
-        """The first D coordinates of every rotated row.
-
-        Parameters
-        ----------
-        X : ndarray of shape (n, d), float32
-
-        Returns
-        -------
-        ndarray of shape (n, D), float32
-        """
-        X = np.asarray(X, dtype=np.float32)
-        if self._dense is not None:
-            return X @ self._dense
+    def _transform(self, X: np.ndarray) -> np.ndarray:
+        """The first D coordinates of every rotated row, in blocks of rows."""
         n, d = X.shape
         out = np.empty((n, self.n_outputs), dtype=np.float32)
         step = max(1, _WORK_VALUES // d)
@@ -237,14 +257,9 @@ class HadamardRotation:
             out[start : start + step] = self._steps(X[start : start + step], forward=True)[:, : self.n_outputs]
         return out
 
-    def matrix(self) -> np.ndarray:
-        """The d × D float32 matrix M with ``apply(X) == X @ M`` (up to rounding); Mᵀ M = I.
-
-        Built from D unit vectors through the transposed steps in reverse order (each step is
-        symmetric), so the work is D · d log d, never d × d.
-        """
-        if self._dense is not None:
-            return self._dense.copy()
+    def _matrix(self) -> np.ndarray:
+        """The d × D matrix M (Mᵀ M = I), from D unit vectors through the transposed steps in reverse
+        order (each step is symmetric): D · d log d work, never d × d."""
         return np.ascontiguousarray(self._steps(np.eye(self.n_outputs, self.n_features, dtype=np.float32),
                                                 forward=False).T)
 

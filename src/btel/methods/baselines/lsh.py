@@ -52,7 +52,7 @@ from ..base import ArraySpec
 from ...exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError
 from . import signscan
 from ._common import _RowLocalizer, check_magnitude, check_model_values, raise_budget_too_small
-from .hadamard import SignedHadamard
+from .hadamard import DenseTransform, SignedHadamard
 
 __all__ = ["LSHLocalizer", "projection_matrix", "make_projection", "PROJECTIONS", "code_bytes", "dense_codes",
            "row_codes", "cone_ratio", "sign_bit_entropy"]
@@ -76,23 +76,6 @@ _BLOCK_ROWS = 4096
 PROJECTIONS = ("hadamard", "orthogonal", "gaussian")
 
 
-class _DenseProjection:
-    """A d × P projection matrix held whole (``'orthogonal'`` and ``'gaussian'``)."""
-
-    def __init__(self, matrix: np.ndarray, kind: str) -> None:
-        self._matrix, self.kind = matrix, kind
-
-    @property
-    def nbytes(self) -> int:
-        return int(self._matrix.nbytes)
-
-    def apply(self, X: np.ndarray) -> np.ndarray:
-        return np.asarray(X, dtype=np.float32) @ self._matrix
-
-    def matrix(self) -> np.ndarray:
-        return self._matrix
-
-
 def make_projection(n_features: int, n_bits: int, seed: int, kind: str = "hadamard") -> Any:
     """The projection of a seed: an object with ``apply(X) -> X R`` ((n, d) → (n, P) float32) and
     ``matrix()`` (R, (d, P) float32).
@@ -102,7 +85,7 @@ def make_projection(n_features: int, n_bits: int, seed: int, kind: str = "hadama
     """
     if kind == "hadamard":
         return SignedHadamard(n_features, n_bits, seed)
-    return _DenseProjection(projection_matrix(n_features, n_bits, seed, kind), kind)
+    return DenseTransform(projection_matrix(n_features, n_bits, seed, kind), kind)
 
 
 def projection_matrix(n_features: int, n_bits: int, seed: int, kind: str = "gaussian") -> np.ndarray:

@@ -49,7 +49,7 @@ from ..base import ArraySpec
 from ...exceptions import BTELError, InvalidDescriptorsError, InvalidParameterError, ModelFileError
 from ._common import (MAX_NORM, _RowLocalizer, check_model_values, index_search, negated_distances,
                       raise_budget_too_small)
-from .hadamard import HadamardRotation
+from .hadamard import DenseTransform, HadamardRotation
 
 __all__ = ["RaBitQLocalizer", "rotation_matrix", "make_rotation", "ROTATIONS"]
 
@@ -71,33 +71,13 @@ def rotation_matrix(n_features: int, dim: int, seed: int) -> np.ndarray:
     return np.ascontiguousarray(q * signs, dtype=np.float32)
 
 
-class _QRRotation:
-    """The d × D matrix of :func:`rotation_matrix` held whole (``rotation='qr'``)."""
-
-    kind = "qr"
-
-    def __init__(self, n_features: int, dim: int, seed: int) -> None:
-        self.n_features, self.n_outputs = int(n_features), int(dim)
-        self._matrix = rotation_matrix(n_features, dim, seed)
-
-    @property
-    def nbytes(self) -> int:
-        return int(self._matrix.nbytes)
-
-    def apply(self, X: np.ndarray) -> np.ndarray:
-        return np.asarray(X, dtype=np.float32) @ self._matrix
-
-    def matrix(self) -> np.ndarray:
-        return self._matrix
-
-
 def make_rotation(n_features: int, dim: int, seed: int, kind: str = "hadamard") -> Any:
     """The rotation of a seed, d features to D coordinates: an object with ``apply(X)`` ((n, d) → (n, D)
     float32) and ``matrix()`` (the d × D float32 matrix with orthonormal columns)."""
     if kind == "hadamard":
         return HadamardRotation(n_features, dim, seed)
     if kind == "qr":
-        return _QRRotation(n_features, dim, seed)
+        return DenseTransform(rotation_matrix(n_features, dim, seed), "qr")
     raise InvalidParameterError(f"rotation must be one of {ROTATIONS}; got {kind!r}.")
 
 
