@@ -99,8 +99,12 @@ def fit_and_save(name: str, budget: str, X: np.ndarray, path: str) -> dict[str, 
     start = time.perf_counter()
     model.save(path)
     chosen = getattr(model, "choice_", None)
+    # What the planner chose, as `btel info` prints it: the fitted state's scalars.
+    state = model._fitted_state() if callable(getattr(model, "_fitted_state", None)) else {}
+    choices = ", ".join(f"{k}={v}" for k, v in state.items()
+                        if isinstance(v, (bool, int, str)) and k not in ("n_features_in", "n_places"))
     return {"status": "ok", "fit_s": fit, "save_s": time.perf_counter() - start, "stored": int(model.nbytes),
-            "file": os.path.getsize(path), "summary": model.summary()[:160],
+            "file": os.path.getsize(path), "summary": model.summary()[:160], "chosen_at_fit": choices[:160],
             "chose": None if chosen is None else f"{chosen['method']} {chosen['params'] or ''}".strip()}
 
 
@@ -232,6 +236,19 @@ def write_doc(rows: list[dict[str, Any]], meta: dict[str, Any]) -> None:
                 "below 20 ms are left out.", "", "| method | N | budget | widths | fit, load |",
                 "| --- | ---: | --- | --- | --- |", *lines, "",
                 f"Exponent 1.8 or more (about d² or worse): {'; '.join(steep) if steep else 'none'}.", ""]
+        # A budget planner may choose another configuration at the wider d (PQ buying a PCA projection, say):
+        # the two models' own summaries say whether the ratio compares like with like.
+        for t in trends:
+            if max(t["exponents"].values()) < 1.8:
+                continue
+            out.append(f"{t['method']} at N = {t['n_rows']:,}, {t['budget']}, as each model describes itself:")
+            out.append("")
+            for d in t["dims"]:
+                row = next(r for r in rows if (r["method"], r["n_rows"], r["budget"], r["d"])
+                           == (t["method"], t["n_rows"], t["budget"], d))
+                described = row.get("summary") or f"chosen at fit: {row.get('chosen_at_fit') or '–'}"
+                out.append(f"- d = {d:,}: fit {row['fit_s']:.2f} s — {described}")
+            out.append("")
     DOC.parent.mkdir(parents=True, exist_ok=True)
     DOC.write_text("\n".join(out))
 
