@@ -221,8 +221,9 @@ class HadamardRotation(_SeededTransform):
     ((x_i, x_{i+h}) ↦ ((x_i + x_{i+h}) / √2, (x_i − x_{i+h}) / √2), h = ⌊d/2⌋), so that the
     coordinates the two blocks do not share still mix. Every step is an orthogonal map of R^d, so
     the product R is exactly orthogonal: no padding, no d × d matrix, no factorisation, and
-    O(d log d) work per row — the fast-Hadamard-and-butterfly rotator of the RaBitQ authors' library
-    in place of a QR of a Gaussian matrix (measured against it: ``docs/decisions/rabitq.md``). The
+    O(d log d) work per row — the family of the RaBitQ authors' library's default rotator (which
+    pads d and runs four rounds), in place of a QR of a Gaussian matrix (measured against it:
+    ``docs/decisions/rabitq.md``). The
     first D rows of R are orthonormal, so ``apply`` projects on a random D-dimensional subspace.
 
     Parameters

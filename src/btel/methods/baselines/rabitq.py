@@ -9,8 +9,8 @@ is rotated the same way and kept in float (faiss ``IndexRaBitQ`` with ``qb = 0``
 scan of the estimated L2 distances, score = −estimate.
 
 Rotation (``rotation``): ``'hadamard'`` (default) — random sign flips and fast Walsh–Hadamard
-transforms (:class:`~btel.methods.baselines.hadamard.HadamardRotation`, as the RaBitQ authors' own
-library rotates): exactly orthogonal, O(d log d) per row, nothing d × d; ``'qr'`` — the Q of a QR
+transforms (:class:`~btel.methods.baselines.hadamard.HadamardRotation`, the family of the RaBitQ
+authors' library's default rotator): exactly orthogonal, O(d log d) per row, nothing d × d; ``'qr'`` — the Q of a QR
 factorisation of a d×D Gaussian matrix, O(d·D²) at every fit and load (model files that record no
 rotation used it). Evidence: ``docs/decisions/rabitq.md``.
 
