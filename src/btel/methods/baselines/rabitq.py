@@ -10,9 +10,9 @@ scan of the estimated L2 distances, score = −estimate.
 
 Rotation (``rotation``): ``'hadamard'`` (default) — random sign flips and fast Walsh–Hadamard
 transforms (:class:`~btel.methods.baselines.hadamard.HadamardRotation`, the family of the RaBitQ
-authors' library's default rotator): exactly orthogonal, O(d log d) per row, nothing d × d; ``'qr'`` — the Q of a QR
-factorisation of a d×D Gaussian matrix, O(d·D²) at every fit and load (model files that record no
-rotation used it). Evidence: ``docs/decisions/rabitq.md``.
+authors' library's default rotator): exactly orthogonal, O(d log d) per row, nothing d × d; ``'qr'``
+— the Q of a QR factorisation of a d×D Gaussian matrix, O(d·D²) at every fit and load (model files
+that record no rotation used it). Evidence: ``docs/decisions/rabitq.md``.
 
 Storage (the one rule, SPEC §7): the rotation is regenerated from the seed (0 bytes, as LSH's
 projection and btel-codes' codewords); everything learned is counted at its stored width:
