@@ -213,6 +213,22 @@ def check_model_values(arrays: dict[str, np.ndarray], names: tuple[str, ...], me
             raise ModelFileError(f"the {method} model file's {name} contain NaN, infinite or out-of-range values.")
 
 
+def recorded_kind(state: dict[str, Any], key: str, kinds: tuple[str, ...], method: str,
+                  current: str | None = None) -> str:
+    """The seeded transform a model file records under ``key`` (lsh's projection, RaBitQ's rotation).
+
+    Files written before the key existed used ``kinds[-1]``. A name not in ``kinds``, or one that
+    contradicts the parameters (``current``, when given), is a :class:`ModelFileError`.
+    """
+    kind = state.get(key, kinds[-1])
+    if kind not in kinds:
+        raise ModelFileError(f"the {method} model file's {key} {str(kind)[:40]!r} is not one of {kinds}.")
+    if current is not None and key in state and kind != current:
+        raise ModelFileError(f"the {method} model file's {key} {kind!r} contradicts its parameters "
+                             f"({current!r}).")
+    return kind
+
+
 def raise_budget_too_small(method: str, budget: int, minimum: int, detail: str) -> None:
     """Raise :class:`BudgetTooSmallError` naming the minimum bytes and the smallest configuration."""
     raise BudgetTooSmallError(

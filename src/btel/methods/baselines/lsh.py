@@ -51,7 +51,7 @@ from ...core.validation import N_JOBS, RANDOM_STATE, Interval, Options, read_sta
 from ..base import ArraySpec
 from ...exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError
 from . import signscan
-from ._common import _RowLocalizer, check_magnitude, check_model_values, raise_budget_too_small
+from ._common import _RowLocalizer, check_magnitude, check_model_values, raise_budget_too_small, recorded_kind
 from .hadamard import DenseTransform, SignedHadamard
 
 __all__ = ["LSHLocalizer", "projection_matrix", "make_projection", "PROJECTIONS", "code_bytes", "dense_codes",
@@ -393,9 +393,7 @@ class LSHLocalizer(_RowLocalizer):
     def _model_specs(self, state: dict[str, Any], d: int) -> dict[str, ArraySpec]:
         bits = read_state_int(state, "n_bits", 8, MAX_BITS)
         read_state_int(state, "seed", 0, 2**63 - 1)
-        kind = state.get("projection", PROJECTIONS[-1])
-        if kind not in PROJECTIONS:
-            raise ModelFileError(f"the LSH model file's projection {str(kind)[:40]!r} is not one of {PROJECTIONS}.")
+        recorded_kind(state, "projection", PROJECTIONS, "LSH")
         # Files before the dense stream record no n_rows (their P is a multiple of 8).
         n_rows = read_state_int(state, "n_rows", 1, 2**40) if "n_rows" in state or bits % 8 else None
         if bits % 8 == 0:  # the byte matrix, as every file before the dense stream
@@ -418,10 +416,7 @@ class LSHLocalizer(_RowLocalizer):
         self._stored_codes = stored if stored.ndim == 2 else None
         self.mean_ = arrays.get("mean")
         # The projection the codes were made with: files that record none used the Gaussian one.
-        if "projection" in state and state["projection"] != self.projection:
-            raise ModelFileError(f"the LSH model file's projection {state['projection']!r} contradicts its "
-                                 f"parameters ({self.projection!r}).")
-        self.projection = state.get("projection", PROJECTIONS[-1])
+        self.projection = recorded_kind(state, "projection", PROJECTIONS, "LSH", self.projection)
         self.projection_ = make_projection(self.front_end_.n_features_out(int(state["n_features_in"])),
                                            self.n_bits_, self.seed_, self.projection)
         self._prepare()

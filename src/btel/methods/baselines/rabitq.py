@@ -48,7 +48,7 @@ from ...core.validation import N_JOBS, RANDOM_STATE, Interval, Options, read_sta
 from ..base import ArraySpec
 from ...exceptions import BTELError, InvalidDescriptorsError, InvalidParameterError, ModelFileError
 from ._common import (MAX_NORM, _RowLocalizer, check_model_values, index_search, negated_distances,
-                      raise_budget_too_small)
+                      raise_budget_too_small, recorded_kind)
 from .hadamard import DenseTransform, HadamardRotation
 
 __all__ = ["RaBitQLocalizer", "rotation_matrix", "make_rotation", "ROTATIONS"]
@@ -291,10 +291,7 @@ class RaBitQLocalizer(_RowLocalizer):
         D = read_state_int(state, "dim", 1, d)
         B = read_state_int(state, "nbits", 1, MAX_NBITS)
         read_state_int(state, "seed", 0, 2**63 - 1)
-        kind = state.get("rotation", ROTATIONS[-1])
-        if kind not in ROTATIONS:
-            raise ModelFileError(f"the RaBitQ model file's rotation {str(kind)[:40]!r} is not one of "
-                                 f"{ROTATIONS}.")
+        recorded_kind(state, "rotation", ROTATIONS, "RaBitQ")
         dtype = self._value_dtype()
         return {"signs": ArraySpec((None, -(-D // 8)), np.uint8),
                 "factors": ArraySpec((None, self._n_factors(B)), dtype),
@@ -318,10 +315,7 @@ class RaBitQLocalizer(_RowLocalizer):
         self.factors_ = np.ascontiguousarray(arrays["factors"])
         self.centroid_ = np.ascontiguousarray(arrays["centroid"])
         # The rotation the codes were made with: files that record none used the QR one.
-        if "rotation" in state and state["rotation"] != self.rotation:
-            raise ModelFileError(f"the RaBitQ model file's rotation {state['rotation']!r} contradicts its "
-                                 f"parameters ({self.rotation!r}).")
-        self.rotation = state.get("rotation", ROTATIONS[-1])
+        self.rotation = recorded_kind(state, "rotation", ROTATIONS, "RaBitQ", self.rotation)
         self.rotation_ = make_rotation(self.front_end_.n_features_out(int(state["n_features_in"])),
                                        self.dim_, self.seed_, self.rotation)
         self._index = self._build_index()
