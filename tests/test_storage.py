@@ -63,9 +63,22 @@ def test_parse_budget(budget, expected) -> None:
     assert parse_budget(budget) == expected
 
 
-@pytest.mark.parametrize("budget", ["", "abc", "10 XB", "KB", "-5KB", "1.2.3MB", "5 K B", "0x10", "1,000"])
+@pytest.mark.parametrize("budget", ["", "abc", "10 XB", "KB", "1.2.3MB", "5 K B", "0x10", "1,000"])
 def test_parse_budget_rejects_malformed_strings(budget: str) -> None:
     with pytest.raises(InvalidParameterError, match="is not understood; write bytes or a size such as '500KB'"):
+        parse_budget(budget)
+
+
+@pytest.mark.parametrize("budget", ["-5KB", "0", "0KB", "-1e3"])
+def test_parse_budget_names_a_budget_that_is_not_positive(budget: str) -> None:
+    with pytest.raises(InvalidParameterError, match="must be a positive number of bytes"):
+        parse_budget(budget)
+
+
+@pytest.mark.parametrize(("budget", "bytes_spelling"), [("10Kb", "'10KB'"), ("2Mb", "'2MB'"), ("64Kib", "'64KiB'")])
+def test_parse_budget_refuses_the_spelling_of_bits(budget: str, bytes_spelling: str) -> None:
+    # A capital prefix with a small b is how bits are written: read as bytes it would be 8x too large.
+    with pytest.raises(InvalidParameterError, match=f"reads as bits.*{bytes_spelling} for bytes"):
         parse_budget(budget)
 
 

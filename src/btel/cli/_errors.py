@@ -81,14 +81,15 @@ def cli_message(message: str) -> str:
     return message
 
 
-_BARE_NUMBER = re.compile(r"\s*(\d+(?:\.\d+)?)\s*")
+_BARE_NUMBER = re.compile(r"\s*(\d*\.?\d+(?:[eE][+-]?\d+)?)\s*")
 
 
 def unitless_budget_hint(text: str) -> str | None:
-    """For a budget written without a unit and under 1000 (``32``), the budget it most likely means
-    (``32KB``); else None. Such a number of bytes holds no useful map, so it is taken for a missing
-    unit; ``32B`` says bytes explicitly, and a unitless number from 1000 up is read as bytes."""
+    """For a positive budget written without a unit and under 1000 (``32``, ``1e2``), the budget it
+    most likely means (``32KB``); else None. Such a number of bytes holds no useful map, so it is
+    taken for a missing unit; ``32B`` says bytes explicitly, and a unitless number from 1000 up is
+    read as bytes. Zero gets no hint: no unit makes it a budget."""
     match = _BARE_NUMBER.fullmatch(text)
-    if match is None or float(match.group(1)) >= 1000:
+    if match is None or not 0 < float(match.group(1)) < 1000:
         return None
     return f"{match.group(1)}KB"

@@ -84,6 +84,10 @@ def _check_budget(text: str) -> None:
     from ..core.storage import parse_budget
     from ._errors import unitless_budget_hint
 
+    if "," in text:  # lists are split before this check, so a comma means a one-budget command
+        raise click.UsageError(f"--budget {text.strip()}: this command fits one model, so it takes one budget; "
+                               "run it once per budget, or use `btel evaluate --budget 64KB,128KB` for one row "
+                               "per budget.")
     hint = unitless_budget_hint(text)
     if hint is not None:
         raise click.UsageError(f"--budget {text.strip()} has no unit, so it would mean {text.strip()} bytes; did you "

@@ -42,7 +42,8 @@ def parse_budget(budget: int | float | str | None) -> int | None:
 
     Decimal units as in the paper (``KB`` = 1000 B, ``MB`` = 10^6 B); binary units are
     spelled ``KiB``/``MiB``. Case-insensitive, spaces allowed: ``"500KB"``, ``"2 MB"``,
-    ``"64KiB"``, ``1_000_000``.
+    ``"64KiB"``, ``"500kb"``, ``1_000_000`` — except ``Kb``/``Mb``/``Gb`` (a capital prefix and a
+    small b), the usual spelling of bits, which is refused. A budget must be positive.
 
     Returns
     -------
@@ -58,8 +59,15 @@ def parse_budget(budget: int | float | str | None) -> int | None:
     elif isinstance(budget, (float, np.floating)):
         value = float(budget)
     elif isinstance(budget, str):
-        match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][+-]?[0-9]+)?)\s*([A-Za-z]*)\s*", budget)
+        match = re.fullmatch(r"\s*([+-]?[0-9]*\.?[0-9]+(?:[eE][+-]?[0-9]+)?)\s*([A-Za-z]*)\s*", budget)
         unit = match.group(2).upper() if match else None
+        if match is not None and re.fullmatch(r"[KMG]i?b", match.group(2)):
+            # Kb, Mb, Gb are the usual spelling of kilo-, mega- and gigabits: refused rather than read
+            # as bytes, 8 times the meant size.
+            raise InvalidParameterError(
+                f"budget {budget!r}: '{match.group(2)}' reads as bits, and budgets are bytes; write "
+                f"'{match.group(1)}{match.group(2)[:-1]}B' for bytes."
+            )
         if match is None or unit not in _UNITS:
             raise InvalidParameterError(
                 f"budget {budget!r} is not understood; write bytes or a size such as '500KB', "
