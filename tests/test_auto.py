@@ -182,6 +182,19 @@ def test_auto_fits_within_budget_round_trips_and_says_what_it_chose(smooth_route
     assert again.nbytes == model.nbytes
 
 
+def test_the_summary_defines_every_figure_its_reason_uses(smooth_route) -> None:
+    from btel.methods.auto.rule import reason_terms
+
+    X, _ = smooth_route
+    model = make_method("auto", budget=2_000).fit(X)
+    reason, legend = model.choice_["reason"], model.summary().splitlines()[1]
+    for figure in ("route share", "continuity", "P = ", "cone ratio"):
+        assert (figure in reason) == (f"{figure.rstrip(' =')} = " in legend), figure
+    assert legend.endswith("(the rule: docs/decisions/auto-rule.md).")
+    assert reason_terms("route (route share 0.9 ≥ 0.5)").count("=") == 1
+    assert reason_terms("fallback: plain LSH") == ""
+
+
 def test_a_budget_no_candidate_fits_names_the_minimum(smooth_route) -> None:
     with pytest.raises(BudgetTooSmallError, match="auto") as info:
         make_method("auto", budget=10).fit(smooth_route[0])

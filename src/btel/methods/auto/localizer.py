@@ -12,7 +12,7 @@ from ...core.validation import N_JOBS, RANDOM_STATE, Interval, check_is_fitted, 
 from ..base import ArraySpec, PlaceLocalizer
 from ...exceptions import BudgetTooSmallError, ModelFileError, NotEnoughPlacesError
 from ...core.storage import budget_of, format_bytes
-from .rule import choose_method
+from .rule import choose_method, reason_terms
 
 __all__ = ["AutoLocalizer", "calibration_table"]
 
@@ -206,14 +206,15 @@ class AutoLocalizer(PlaceLocalizer):
                 for k, v in self.choice_.items()}
 
     def summary(self) -> str:
-        """What the rule chose and why (one line), and the calibration table when there is one."""
+        """What the rule chose and why (one line), a line defining the reason's figures, and the
+        calibration table when there is one."""
         c = self.choice_
         params = ", ".join(f"{k}={v}" for k, v in c["params"].items())
         inner = self.model_.summary()
         line = (f"auto chose {c['method']}{f' ({params})' if params else ''}: {c['reason']}"
                 + (f" — {inner}" if inner else "") + (f" [refused: {'; '.join(c['refused'])}]" if c["refused"] else ""))
-        table = calibration_table(c.get("calibration"))
-        return line if not table else line + "\n" + table
+        return "\n".join(part for part in (line, reason_terms(c["reason"]), calibration_table(c.get("calibration")))
+                         if part)
 
     # -- the one primitive, from the chosen method ------------------------------------------------
     @property

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from ...core.storage import format_bytes
-from .statistics import collision_bits, index_order, map_cone_ratio
+from .statistics import CONTINUITY_GAPS, ROUTE_WINDOW, collision_bits, index_order, map_cone_ratio
 
 __all__ = ["ORDER_BITS_FACTOR", "choose_method", "front_end_variant"]
 
@@ -126,3 +126,22 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
     out += [c for c in (lsh_plain, codes) if all(c["method"] != o["method"] or c["params"] != o["params"]
                                                   for o in out)]
     return [{**c, **stats} for c in out]
+
+
+#: What each figure in a reason means, for a reader who has not read the rule (auto's ``summary()``).
+_TERMS = (
+    ("route share", f"route share = share of map rows whose most similar other row lies within {ROUTE_WINDOW} places"),
+    ("continuity", f"continuity = how much more alike rows {CONTINUITY_GAPS[0]}–{CONTINUITY_GAPS[1]} places apart "
+                   "are than other rows (0.5: the order says nothing, 1: a smooth route)"),
+    ("P = ", "P = bits per map row the budget holds (8 · budget / N)"),
+    ("d = ", "d = descriptor width"),
+    ("cone ratio", "cone ratio = length of the mean unit row (near 1: the rows point one way)"),
+    ("effective bits", "effective bits = what LSH's P sign bits are worth on these rows"),
+)
+
+
+def reason_terms(reason: str) -> str:
+    """One line defining the figures that ``reason`` (a candidate's ``"reason"``) uses; '' if none."""
+    used = [text for word, text in _TERMS if word in reason]
+    return "" if not used else "where " + "; ".join(used) + " (the rule: docs/decisions/auto-rule.md)."
+

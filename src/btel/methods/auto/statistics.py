@@ -244,7 +244,10 @@ def index_order(X: np.ndarray, places: np.ndarray | None = None) -> IndexOrder:
                                                       f"{continuity:.2f} ≥ {ROUTE_CONTINUITY}")
     figures = f"route share {share:.2f}, continuity {continuity:.2f}"
     if continuity >= ORDER_CONTINUITY:
-        short = f"share < {ROUTE_SHARE}" if share < ROUTE_SHARE else f"continuity < {ROUTE_CONTINUITY}"
-        return IndexOrder("ordered", share, continuity, f"{figures} ≥ {ORDER_CONTINUITY}; not a route: {short}")
+        # "Route" is the rule's word for frames dense enough that a row's nearest row is its neighbour;
+        # a user's route sampled more sparsely is an ordered map, and the reason says which test failed.
+        short = (f"most rows' nearest row is not an adjacent frame: share < {ROUTE_SHARE}" if share < ROUTE_SHARE
+                 else f"the order fades within a few places: continuity < {ROUTE_CONTINUITY}")
+        return IndexOrder("ordered", share, continuity, f"{figures} ≥ {ORDER_CONTINUITY}; {short}")
     return IndexOrder("independent", share, continuity,
                       f"{figures} < {ORDER_CONTINUITY}: no order beyond the nearest frames")
