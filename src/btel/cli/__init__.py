@@ -5,7 +5,7 @@ line's words, and exit with the same status in every command: 2 for a usage or i
 unknown option or parameter, a value its method refuses, an unreadable input file, an output that
 exists without ``--overwrite``): nothing ran; 1 for a failure while running (a fit that raised, a
 full disk; ``evaluate``/``demo`` also when the run finished but some row did not fit or failed: its
-row says why); 130 after Ctrl-C. No traceback unless ``BTEL_DEBUG=1``. Warnings (a distorting
+row says why); 130 after Ctrl-C; 141, silently, when the reader of stdout went away (``| head``). No traceback unless ``BTEL_DEBUG=1``. Warnings (a distorting
 resize, a capped PCA) print one line ``Warning: …`` on stderr.
 
 Any parameter of any method is set with ``--param NAME=VALUE`` (``train``, ``evaluate``, ``demo``),
@@ -21,12 +21,14 @@ from __future__ import annotations
 
 import importlib
 import os
+import sys
 import warnings
 from typing import TYPE_CHECKING, Any
 
 import click
 
 from .. import __version__
+from ._errors import EXIT_BROKEN_PIPE
 from ._options import EXIT_FAILURE, EXIT_INTERRUPTED, EXIT_SOME_ROWS_FAILED, EXIT_USAGE
 
 if TYPE_CHECKING:  # pragma: no cover - each command's module is imported when that command runs
@@ -80,6 +82,14 @@ class _Group(click.Group):
         except KeyboardInterrupt:
             click.echo("Interrupted.", err=True)
             raise click.exceptions.Exit(EXIT_INTERRUPTED) from None
+        except BrokenPipeError:
+            # The reader of stdout went away (`btel ... | head`): stop quietly, as a Unix tool killed by
+            # SIGPIPE does, and point stdout at /dev/null so the interpreter's last flush cannot fail too.
+            try:
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            except (AttributeError, ValueError, OSError):  # a stdout with no descriptor (a test runner's)
+                pass
+            raise click.exceptions.Exit(EXIT_BROKEN_PIPE) from None
         except Exception as exc:
             from ..exceptions import BTELError
             from ._errors import LIBRARY_ERRORS, InputError, cli_message, exit_status

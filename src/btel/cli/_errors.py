@@ -26,6 +26,9 @@ EXIT_FAILURE = 1
 EXIT_USAGE = 2
 #: … after Ctrl-C (128 + SIGINT, what a shell reports for an interrupted program).
 EXIT_INTERRUPTED = 130
+#: … when the reader of stdout went away (a closed pipe: ``btel … | head``): 128 + SIGPIPE, what a shell
+#: reports for a Unix tool that stopped the same way; nothing is printed.
+EXIT_BROKEN_PIPE = 141
 #: A finished evaluate/demo run in which some row did not fit or failed: the run folder is written and each
 #: such row says why, but not every row was measured (docs/decisions/cli-exit-codes.md).
 EXIT_SOME_ROWS_FAILED = EXIT_FAILURE

@@ -1,0 +1,30 @@
+"""A closed stdout (``btel … | head``) ends a command quietly with 141, as SIGPIPE ends a Unix tool."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from btel.cli._errors import EXIT_BROKEN_PIPE
+
+
+def test_a_reader_that_goes_away_ends_the_command_quietly(tmp_path: Path) -> None:
+    np.save(tmp_path / "db.npy", np.random.default_rng(0).standard_normal((300, 32)).astype(np.float32))
+    command = [sys.executable, "-m", "btel.cli", "train", str(tmp_path / "db.npy"), "-o", str(tmp_path / "m.npz"),
+               "--budget", "4KB", "--no-progress"]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    process.stdout.close()  # the reader leaves before btel prints its first line
+    _, stderr = process.communicate(timeout=120)
+    assert process.returncode == EXIT_BROKEN_PIPE, stderr.decode()
+    assert stderr.decode().strip() == ""
+
+
+def test_the_same_command_with_its_reader_exits_0(tmp_path: Path) -> None:
+    np.save(tmp_path / "db.npy", np.random.default_rng(0).standard_normal((300, 32)).astype(np.float32))
+    done = subprocess.run([sys.executable, "-m", "btel.cli", "train", str(tmp_path / "db.npy"), "-o",
+                           str(tmp_path / "m.npz"), "--budget", "4KB", "--no-progress"],
+                          capture_output=True, timeout=120)
+    assert done.returncode == 0 and b"model written to" in done.stdout
