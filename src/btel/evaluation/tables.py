@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import csv
 import io
+import shutil
+import textwrap
 from collections.abc import Sequence
 from typing import Any
 
@@ -16,7 +18,7 @@ import numpy as np
 from .records import STATUS_DOES_NOT_FIT, EvaluationResult
 from ..core.storage import format_bytes
 
-__all__ = ["format_table", "format_calibration", "calibration_markdown", "describe_row", "metrics_csv_text",
+__all__ = ["format_table", "terminal_width", "format_calibration", "calibration_markdown", "describe_row", "metrics_csv_text",
            "predictions_csv_text", "rows_csv_text", "SEQUENCE_MARK", "REFERENCE_MARK", "SATURATED_MARK",
            "PR_TABLE_NAMES"]
 
@@ -27,7 +29,7 @@ SATURATED_MARK = "‡"
 PR_TABLE_NAMES = ("AUC-PR:VB", "AUC-PR:VT", "R@100%P")
 
 
-def format_table(results: Sequence[EvaluationResult]) -> str:
+def format_table(results: Sequence[EvaluationResult], width: int = 0) -> str:
     """The results as a plain-text table, with the metrics the ground truth supports.
 
     Columns: method, status, bytes, fit seconds, batch µs per query (median throughput), single-query
@@ -36,17 +38,22 @@ def format_table(results: Sequence[EvaluationResult]) -> str:
     their status and reason. ``†`` marks methods that use the query sequence (not comparable
     with single-frame methods), ``*`` the unbudgeted reference, ``‡`` a model that cannot use the rest
     of its budget; a legend line says so.
+
+    ``width`` (characters, e.g. :func:`terminal_width`): a table wider than it is printed in blocks
+    of columns that fit, each led by the method column, and the legend wrapped; 0: one block however
+    wide (a log or a file keeps one line per row).
     """
     tolerances = sorted({t for r in results for t in r.recall})
     ks = sorted({k for r in results for k in (r.recall_at_k or {})})
     has_pr = any(r.recall_at_100_precision is not None for r in results)
     metric_names = [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks]
     metric_names += list(PR_TABLE_NAMES) if has_pr else []
-    width = max([len("method")] + [len(_row_label(r)) for r in results]) + 1
-    header = (f"{'method':<{width}} {'status':<12} {'bytes':>10} {'fit s':>7} {'batch µs/q':>10} {'1-query µs':>10} "
-              f"{'threads':>7} " + " ".join(f"{m:>9}" for m in metric_names))
-    lines = [header.rstrip(), "-" * len(header.rstrip())]
+    label_width = max([len("method")] + [len(_row_label(r)) for r in results]) + 1
+    # (name, width) of every column after the method's; a row's cells follow the same order.
+    columns = [("status", -12), ("bytes", 10), ("fit s", 7), ("batch µs/q", 10), ("1-query µs", 10),
+               ("threads", 7)] + [(m, 9) for m in metric_names]
     saturated_rows = any(r.ok and r.budget_saturated for r in results)  # then every size keeps a mark's column
+    rows: list[tuple[str, list[str] | str]] = []
     for r in results:
         label = _row_label(r)
         if not r.ok:
@@ -54,7 +61,7 @@ def format_table(results: Sequence[EvaluationResult]) -> str:
             why = (f"needs ≥ {format_bytes(r.minimum_bytes)}"
                    + (f" (budget {format_bytes(r.budget)})" if r.budget is not None else "")
                    if r.status == STATUS_DOES_NOT_FIT and r.minimum_bytes is not None else (r.reason or ""))
-            lines.append(f"{label:<{width}} {r.status:<12} {why}")
+            rows.append((label, f"{r.status:<12} {why}"))
             continue
         size = (format_bytes(r.nbytes) if r.nbytes is not None else "?") + (
             (SATURATED_MARK if r.budget_saturated else " ") if saturated_rows else "")
@@ -62,12 +69,21 @@ def format_table(results: Sequence[EvaluationResult]) -> str:
         values = [r.recall.get(t) for t in tolerances] + [(r.recall_at_k or {}).get(k) for k in ks]
         if has_pr:
             values += [r.auc_pr_vpr_bench, r.auc_pr_vpr_tutorial, r.recall_at_100_precision]
-        cells = " ".join(f"{v:>9.3f}" if v is not None else f"{'-':>9}" for v in values)
         query = f"{r.query_time_s_per_query * 1e6:.1f}" if r.query_time_s_per_query is not None else "-"
         latency = f"{r.query_latency_s * 1e6:.1f}" if r.query_latency_s is not None else "-"
         threads = str(r.n_threads) if r.n_threads is not None else "-"
-        lines.append(f"{label:<{width}} {r.status:<12} {size:>10} {fit:>7} {query:>10} {latency:>10} {threads:>7} "
-                     f"{cells}".rstrip())
+        rows.append((label, [r.status, size, fit, query, latency, threads]
+                     + [f"{v:.3f}" if v is not None else "-" for v in values]))
+    lines: list[str] = []
+    for block in _column_blocks(columns, label_width, width):
+        header = f"{'method':<{label_width}} " + " ".join(_cell(name, w) for name, w in (columns[i] for i in block))
+        lines += ([""] if lines else []) + [header.rstrip(), "-" * len(header.rstrip())]
+        for label, cells in rows:
+            if isinstance(cells, str):  # a row that did not run: its status and why, in the first block only
+                if block[0] == 0:
+                    lines.append(f"{label:<{label_width}} {cells}")
+                continue
+            lines.append((f"{label:<{label_width}} " + " ".join(_cell(cells[i], columns[i][1]) for i in block)).rstrip())
     notes = []
     repeats = {r.timing_repeats for r in results if r.ok and r.timing_repeats}
     if repeats:
@@ -90,8 +106,34 @@ def format_table(results: Sequence[EvaluationResult]) -> str:
                      "stays unused (a larger budget gives the same model)")
     if any(r.uses_query_sequence for r in results):
         notes.append(f"{SEQUENCE_MARK} uses the query sequence: not comparable with single-frame methods")
-    lines += [f"  {n}" for n in notes]
+    wrap = textwrap.TextWrapper(width, initial_indent="  ", subsequent_indent="    ", break_on_hyphens=False)
+    lines += [wrap.fill(n) if width else f"  {n}" for n in notes]
     return "\n".join(lines)
+
+
+def terminal_width() -> int:
+    """The width of the terminal the output goes to (``$COLUMNS`` first), or 0 when there is none
+    (a pipe, a file, a log): :func:`format_table`'s ``width``."""
+    return shutil.get_terminal_size(fallback=(0, 0)).columns
+
+
+def _cell(text: str, width: int) -> str:
+    """``text`` right-aligned in ``width`` characters (left-aligned for a negative width)."""
+    return f"{text:<{-width}}" if width < 0 else f"{text:>{width}}"
+
+
+def _column_blocks(columns: list[tuple[str, int]], label_width: int, width: int) -> list[list[int]]:
+    """Indices of ``columns`` grouped into blocks that fit ``width`` after the method column (one block
+    when ``width`` is 0 or every column fits); a block holds at least one column."""
+    blocks: list[list[int]] = [[]]
+    used = label_width
+    for i, (_, w) in enumerate(columns):
+        if width and blocks[-1] and used + 1 + abs(w) > width:
+            blocks.append([])
+            used = label_width
+        blocks[-1].append(i)
+        used += 1 + abs(w)
+    return blocks
 
 
 #: What the calibration table's columns say (calibration.md).

@@ -1,0 +1,42 @@
+"""The console table: one line per row in a log, blocks of columns that fit on a narrow terminal."""
+
+from __future__ import annotations
+
+import pytest
+
+import btel.evaluation as ev
+from btel.datasets import synthetic_route
+from btel.evaluation.tables import format_table, terminal_width
+from btel.methods import make_method
+
+
+@pytest.fixture(scope="module")
+def rows() -> list:
+    r = synthetic_route(300, 32, seed=0)
+    return [ev.evaluate(make_method(name, budget=budget), r.map, r.queries, name=name, tolerances=(0, 2, 10))
+            for name, budget in (("lsh", "2KB"), ("pq", "4KB"))]
+
+
+def test_a_table_without_a_width_keeps_one_line_per_row(rows) -> None:
+    table = format_table(rows)
+    lsh = [line for line in table.splitlines() if line.startswith("lsh")]
+    assert len(lsh) == 1 and "recall@10" in table.splitlines()[0] and "R@100%P" in table.splitlines()[0]
+
+
+@pytest.mark.parametrize("width", [60, 80, 120])
+def test_a_narrow_terminal_gets_blocks_that_fit_each_led_by_the_method(rows, width: int) -> None:
+    table = format_table(rows, width=width)
+    assert max(len(line) for line in table.splitlines()) <= width
+    one_block = format_table(rows)
+    # Every cell of the one-block table is somewhere in the blocks, each block's rows led by the method.
+    for name in ("lsh", "pq"):
+        cells = [line.split()[1:] for line in one_block.splitlines() if line.startswith(name)][0]
+        blocks = [line.split()[1:] for line in table.splitlines() if line.startswith(name)]
+        assert len(blocks) > 1 and sum(blocks, []) == cells
+    headers = [line for line in table.splitlines() if line.startswith("method")]
+    assert len(headers) == sum(line.startswith("lsh") for line in table.splitlines())
+
+
+def test_the_terminal_width_comes_from_columns(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("COLUMNS", "77")
+    assert terminal_width() == 77
