@@ -59,7 +59,7 @@ def test_train_localize_info(small_pair, tmp_path: Path) -> None:
         (["localize", "missing.npz", "q.npy", "-o", "p.csv"], "does not exist"),
         (["train", "DB", "-o", "m.npz", "--budget", "10B"], "too small"),
         (["train", "DB", "-o", "m.npz", "--budget", "lots"], "not understood"),
-        (["localize", "DB", "Q", "-o", "p.csv"], "not an .npz"),
+        (["localize", "DB", "Q", "-o", "p.csv"], "looks like a descriptor matrix"),  # arguments swapped
         (["extract", "no-such-folder", "-o", "x.npy"], "no-such-folder"),
         (["evaluate", "--queries", "Q", "--out", "run"], "--db"),
     ],

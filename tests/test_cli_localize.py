@@ -43,7 +43,7 @@ def test_localize_on_an_hloc_file_writes_query_and_place_names(gardenspoint_netv
     assert _invoke("train", f"{feats}:db/", "-o", model, "--method", "bruteforce").exit_code == 0
     result = _invoke("localize", model, f"{feats}:query/", "--db", f"{feats}:db/", "-o", out, "--top-k", "3")
     assert result.exit_code == 0, result.output
-    assert "with image names" in result.output
+    assert "with query and map image names" in result.output
     rows = _rows(out)
     assert list(rows[0]) == ["query", "prediction", "query_name", "prediction_name", "rank_1", "rank_2", "rank_3"]
     predictions = load(model).predict(Q)
@@ -87,3 +87,67 @@ def test_localize_names_from_btel_extract(gardenspoint_sample_dir: Path, tmp_pat
     assert {r["query_name"] for r in rows} == {p.name for p in (gardenspoint_sample_dir / "query").iterdir()}
     assert all(r["prediction_name"] == sorted(ref, key=lambda n: int(n.split(".")[0]))[int(r["prediction"])]
                for r in rows)
+
+
+# -- what a newcomer gets wrong, refused in the command line's words ------------------------------------------
+@pytest.fixture()
+def small_model(tmp_path: Path) -> tuple[Path, Path, Path]:
+    """A 60-place bruteforce model of 16-value descriptors, its map and a noisy copy as queries."""
+    rng = np.random.default_rng(0)
+    X = rng.standard_normal((60, 16)).astype(np.float32)
+    db, q, model = tmp_path / "db.npy", tmp_path / "q.npy", tmp_path / "m.npz"
+    np.save(db, X)
+    np.save(q, X + 0.01 * rng.standard_normal(X.shape).astype(np.float32))
+    assert _invoke("train", db, "-o", model, "--method", "bruteforce").exit_code == 0
+    return db, q, model
+
+
+@pytest.mark.parametrize("name", ["p.npy", "p.tsv", "p"])
+def test_an_output_name_of_another_format_is_refused(small_model, tmp_path: Path, name: str) -> None:
+    _, q, model = small_model
+    result = _invoke("localize", model, q, "-o", tmp_path / name)
+    assert result.exit_code == 2 and "writes a predictions CSV (.csv or .txt)" in result.output
+    assert f"name it e.g. {tmp_path / 'p.csv'}" in result.output and not (tmp_path / name).exists()
+    assert _invoke("localize", model, q, "-o", tmp_path / "p.txt").exit_code == 0  # CSV text, as before
+    assert (tmp_path / "p.txt").read_text().startswith("query,prediction")
+
+
+def test_a_descriptor_matrix_given_as_model_is_named(small_model, tmp_path: Path) -> None:
+    db, q, _ = small_model
+    np.savez(tmp_path / "db.npz", X=np.load(db))
+    for as_model in (db, tmp_path / "db.npz"):  # a .npy, and an .npz of numpy's, not btel's
+        for args in ([q, "-o", tmp_path / "p.csv"], ["--stream"]):
+            result = _invoke("localize", as_model, *args)
+            assert result.exit_code == 2, result.output
+            assert f"MODEL {as_model} looks like a descriptor matrix (60 × 16 float32)" in result.output
+            assert "the .npz written by `btel train` (usage: btel localize MODEL QUERIES" in result.output
+    (tmp_path / "junk.npz").write_bytes(b"not a model at all")  # not descriptors either: the load error stands
+    result = _invoke("localize", tmp_path / "junk.npz", q, "-o", tmp_path / "p.csv")
+    assert result.exit_code == 2 and "not a btel model file" in result.output
+
+
+def test_sequence_filter_and_query_width_are_named_in_cli_words(small_model, tmp_path: Path) -> None:
+    _, q, model = small_model
+    for window in ("0", "-3"):
+        result = _invoke("localize", model, q, "-o", tmp_path / "p.csv", "--sequence-filter", window)
+        assert result.exit_code == 2
+        assert f"--sequence-filter must be an integer ≥ 1 (the window in places); got {window}." in result.output
+    np.save(tmp_path / "wide.npy", np.ones((5, 20), np.float32))
+    result = _invoke("localize", model, tmp_path / "wide.npy", "-o", tmp_path / "p.csv")
+    assert result.exit_code == 2 and "Q has" not in result.output
+    assert (f"queries {tmp_path / 'wide.npy'} have 20 values per row, but MODEL was fitted on 16-value "
+            "descriptors; extract the queries with the same descriptor") in result.output
+    assert not (tmp_path / "p.csv").exists()
+
+
+def test_the_message_says_which_names_were_written(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    X = rng.standard_normal((20, 8)).astype(np.float32)
+    feats = tmp_path / "feats.h5"
+    _hloc_file(feats, X, X[:5] + 0.01)
+    model = tmp_path / "m.npz"
+    assert _invoke("train", f"{feats}:db/", "-o", model, "--method", "bruteforce").exit_code == 0
+    result = _invoke("localize", model, f"{feats}:query/", "-o", tmp_path / "a.csv")
+    assert "5 predictions with query image names written" in result.output and "give --db MAP" in result.output
+    result = _invoke("localize", model, f"{feats}:query/", "--db", f"{feats}:db/", "-o", tmp_path / "b.csv")
+    assert "with query and map image names written" in result.output and "give --db" not in result.output

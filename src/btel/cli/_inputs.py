@@ -47,6 +47,8 @@ def _load_map(path: str) -> np.ndarray:
     if Path(path).is_dir():
         from ..datasets.shards import load_shards
 
+        _refuse_image_folder(path)
+
         return load_shards(path)
     if _is_whole_h5(path):
         return _load_whole_h5(path, "map descriptors")
@@ -54,6 +56,76 @@ def _load_map(path: str) -> np.ndarray:
 
     # A .npy map is memory-mapped: pages are read as the fit needs them, never copied whole.
     return load_descriptor_matrix(path, mmap_mode="r" if Path(path).suffix.lower() == ".npy" else None)
+
+
+def _refuse_image_folder(path: str) -> None:
+    """A folder of images (no .npy shards) given as DB: name the step that turns them into descriptors
+    (the shard reader alone would only say that no .npy shard is there)."""
+    from ..descriptors.images import IMAGE_EXTENSIONS
+
+    files = [p for p in Path(path).iterdir() if p.is_file() and not p.name.startswith(".")]
+    images = [p for p in files if p.suffix.lower() in IMAGE_EXTENSIONS]
+    if images and not any(p.suffix.lower() == ".npy" for p in files):
+        example = min(p.name for p in images)
+        raise click.UsageError(f"DB {path} holds images ({len(images)}, e.g. {example}), not descriptors; "
+                               f"describe them first with `btel extract {path} -o descriptors.npy`, then train "
+                               "on descriptors.npy.")
+
+
+def load_model(path: str) -> Any:
+    """:func:`btel.load`, with a descriptor matrix given as MODEL (the map or the queries instead of the
+    model: arguments swapped) named as such instead of as a corrupt model file."""
+    from .. import load
+    from ..exceptions import ModelFileError
+
+    try:
+        return load(path)
+    except ModelFileError:
+        found = _matrix_in(path)
+        if found is None:
+            raise
+    shape, dtype = found
+    raise click.UsageError(
+        f"MODEL {path} looks like a descriptor matrix ({shape[0]} × {shape[1]} {dtype}), not a model. MODEL is "
+        f"the .npz written by `btel train` (usage: btel localize MODEL QUERIES -o predictions.csv); to make "
+        f"one from these map descriptors: btel train {path} -o model.npz.")
+
+
+def _matrix_in(path: str) -> tuple[tuple[int, int], str] | None:
+    """Shape and dtype of the 2-D numeric array in a .npy file, or in an .npz without btel's model header;
+    None for anything else. Only headers are read (the file may be a large map)."""
+    import zipfile
+
+    import numpy as np
+
+    from ..core.modelfile import HEADER_KEY
+
+    readers = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
+
+    def matrix(fh: Any) -> tuple[tuple[int, int], str] | None:
+        reader = readers.get(np.lib.format.read_magic(fh))
+        shape, _, dtype = reader(fh) if reader else ((), False, np.dtype(object))
+        return (shape, str(dtype)) if len(shape) == 2 and dtype.kind in "fiu" else None
+
+    if not Path(path).is_file():  # a FIFO or a device would block the read below
+        return None
+    try:
+        with open(path, "rb") as fh:
+            if fh.read(6) == b"\x93NUMPY":
+                fh.seek(0)
+                return matrix(fh)
+        with zipfile.ZipFile(path) as archive:
+            names = [n for n in archive.namelist() if n.endswith(".npy")]
+            if HEADER_KEY + ".npy" in names:  # a btel model, damaged: the load error says so
+                return None
+            for name in names[:16]:
+                with archive.open(name) as member:
+                    found = matrix(member)
+                if found is not None:
+                    return found
+    except Exception:  # noqa: BLE001 - a diagnosis is best effort; the load error stands otherwise
+        return None
+    return None
 
 
 def read_ground_truth(spec: str | None, option: str, *, n_queries: int, n_map: int, db: str | None,

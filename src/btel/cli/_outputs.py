@@ -64,3 +64,36 @@ def refuse_existing(path: str | Path, option: str, overwrite: bool) -> None:
         raise click.UsageError(f"{option} {path} is a folder; give a file name.")
     raise click.UsageError(f"{option} {path} already exists ({describe_file(path)}); give --overwrite to replace it, "
                            "or another file name.")
+
+
+#: Suffixes that name a format other than a btel model: a model written under one would be misread by
+#: whoever trusts the name (np.load of a ".npy", a spreadsheet of a ".csv", `btel localize` taking it for
+#: descriptors).
+OTHER_FORMATS = (".npy", ".csv", ".tsv", ".txt", ".json", ".h5", ".hdf5", ".png", ".jpg", ".jpeg", ".pdf")
+
+
+def check_output_suffix(path: str | Path, option: str, writes: str, suffixes: tuple[str, ...], *,
+                        refused: tuple[str, ...] | None = None) -> None:
+    """Raise a usage error when ``path``'s suffix names another format than the one the command writes.
+
+    Parameters
+    ----------
+    path : path
+        The file the command is about to write.
+    option : str
+        The option that named it (``-o``), for the message.
+    writes : str
+        What the command writes, e.g. ``"a predictions CSV"``.
+    suffixes : tuple of str
+        The suffixes it writes (lower case, with the dot); the first is the one suggested.
+    refused : tuple of str, optional
+        Refuse only these suffixes (any other name is accepted); default: refuse every suffix not in
+        ``suffixes``, no suffix included.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in suffixes or (refused is not None and suffix not in refused):
+        return
+    named = f"names a {suffix} file" if suffix else "has no suffix"
+    raise click.UsageError(f"{option} {path} {named}, but this command writes {writes} "
+                           f"({' or '.join(suffixes)}); name it e.g. {path.with_suffix(suffixes[0])}.")

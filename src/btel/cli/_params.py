@@ -112,3 +112,20 @@ def _naming(method: str) -> Iterator[None]:
 
     with method_named(method):
         yield
+
+
+class ParamCommand(click.Command):
+    """A command with ``--param NAME=VALUE``: ``--param n_regions 5`` (a space for the '=') leaves 5 as an
+    extra argument, which click reports without naming the cause; the error then says how to write it."""
+
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        given = list(args)  # click consumes the list it parses
+        try:
+            return super().parse_args(ctx, args)
+        except click.UsageError as exc:
+            bare = [i for i, a in enumerate(given[:-1]) if a == "--param" and "=" not in given[i + 1]]
+            if bare and "unexpected extra argument" in exc.message:
+                name = given[bare[0] + 1]
+                value = given[bare[0] + 2] if bare[0] + 2 < len(given) else "VALUE"
+                exc.message += f"; --param takes KEY=VALUE (e.g. --param {name}={value})."
+            raise

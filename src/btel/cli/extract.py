@@ -8,12 +8,18 @@ from typing import Any
 
 import click
 
-from ._options import _VALUE_HELP
-from ._outputs import refuse_existing
-from ._params import _param_value
+from ._outputs import check_output_suffix, refuse_existing
+from ._params import ParamCommand, _param_value
+
+#: What --param can set, per descriptor (tests/test_cli_extract.py checks it against get_params()); the
+#: methods' list (`btel methods --params`) does not hold descriptors, and --help must not import them.
+_DESCRIPTOR_PARAMS_HELP = ("hog: orientations, pixels_per_cell, cells_per_block, block_norm; patchnorm: patch_size; "
+                           "densevlad: n_clusters, n_components, step, sizes, max_side, max_descriptors, kmeans_iter, "
+                           "random_state (size: use --size). VALUE is read as JSON when it is a JSON literal (3, "
+                           "[4, 4], true), else kept as text (L2-Hys). A bad name lists the descriptor's parameters.")
 
 
-@click.command()
+@click.command(cls=ParamCommand)
 @click.argument("images_dir", type=click.Path(file_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Descriptor matrix to write (.npy).")
 @click.option("--descriptor", default="hog", show_default=True,
@@ -24,7 +30,7 @@ from ._params import _param_value
 @click.option("--param", "param_texts", multiple=True, metavar="NAME=VALUE",
               help="A parameter of the descriptor, e.g. --param n_components=256 or --param n_clusters=64 "
                    "(densevlad: PCA to n_components, capped at the number of map images − 1, with a Warning). "
-                   + _VALUE_HELP)
+                   "Parameters: " + _DESCRIPTOR_PARAMS_HELP)
 @click.option("--fit-on", type=click.Path(file_okay=False), default=None,
               help="Map image folder to learn from (DenseVLAD vocabulary + PCA). Never the queries.")
 @click.option("--save-descriptor", type=click.Path(dir_okay=False), default=None,
@@ -66,6 +72,7 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
             f"`btel extract {root / 'database'} -o db.npy --save-descriptor d.npz` then `btel extract "
             f"{root / 'queries'} -o q.npy --descriptor d.npz`, and evaluate with --ground-truth utm.")
 
+    check_output_suffix(output, "-o", "a descriptor matrix", (".npy",))
     params: dict[str, Any] = {}
     for text in param_texts:
         name, eq, raw = text.partition("=")

@@ -8,15 +8,16 @@ from typing import Any
 import click
 
 from ._errors import InputError
-from ._inputs import _load_matrix
+from ._inputs import _load_matrix, load_model
 from ._names import input_names, write_predictions
-from ._outputs import refuse_existing
+from ._outputs import check_output_suffix, refuse_existing
 
 
 @click.command()
 @click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
 @click.argument("queries", required=False, type=click.Path(dir_okay=False))
-@click.option("-o", "--output", type=click.Path(dir_okay=False), help="Predictions CSV to write (not with --stream).")
+@click.option("-o", "--output", type=click.Path(dir_okay=False),
+              help="Predictions CSV to write (.csv or .txt; not with --stream).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing OUTPUT predictions file.")
 @click.option("--db", type=click.Path(dir_okay=False), default=None,
               help="The map descriptors MODEL was trained on (hloc .h5[:PREFIX], or btel extract's .npy): "
@@ -54,8 +55,6 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
     next well-formed input line. A malformed line (wrong count, not a number, NaN) gets a one-line
     error naming its line number on stderr, produces no output line, and the stream goes on.
     """
-    from .. import load
-
     batch = (queries, output, db, top_k) != (None,) * 4
     streaming = (input_path, idle_timeout) != (None, None) or follow or binary
     for broken, message in (
@@ -68,11 +67,17 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
             (idle_timeout is not None and not follow, "--idle-timeout only applies with --follow.")):
         if broken:
             raise click.UsageError(message)
+    _check_window(window)
     if stream:
-        return _localize_stream(load(model_path), input_path, follow, idle_timeout, window, hmm, binary)
+        return _localize_stream(load_model(model_path), input_path, follow, idle_timeout, window, hmm, binary)
+    check_output_suffix(output, "-o", "a predictions CSV", (".csv", ".txt"))
     refuse_existing(output, "-o", overwrite)
-    model = load(model_path)
+    model = load_model(model_path)
     Q = _load_matrix(queries, "query descriptors")
+    if Q.shape[1] != model.n_features_in_:  # the library would name its variable (Q), not the file
+        raise InputError(f"queries {queries} have {Q.shape[1]} values per row, but MODEL was fitted on "
+                         f"{model.n_features_in_}-value descriptors; extract the queries with the same "
+                         "descriptor (and settings) as the map.")
     q_names, db_names = input_names(db, queries, model.n_places_, Q.shape[0])
     if db is not None and db_names is None:
         raise InputError(f"--db {db} does not name one image per place of MODEL ({model.n_places_}); give "
@@ -84,8 +89,22 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
         predictions = filter_sequence(predictions, window, n_places=model.n_places_)
     ranked = model.rank(Q, top_k) if top_k is not None else None
     write_predictions(output, predictions, ranked, q_names, db_names, overwrite=overwrite)
-    named = " with image names" if q_names or db_names else ""
-    click.echo(f"{len(predictions)} predictions{named} written to {output}")
+    named = {(True, True): " with query and map image names", (True, False): " with query image names",
+             (False, True): " with map image names", (False, False): ""}[bool(q_names), bool(db_names)]
+    hint = " (give --db MAP to name the predicted places too)" if q_names and db is None else ""
+    click.echo(f"{len(predictions)} predictions{named} written to {output}{hint}")
+
+
+def _check_window(window: int | None) -> None:
+    """``--sequence-filter``, refused in the flag's words (the library names its parameter, window)."""
+    if window is None:
+        return
+    from ..sequence.filter import MAX_WINDOW
+
+    if window < 1:
+        raise click.UsageError(f"--sequence-filter must be an integer ≥ 1 (the window in places); got {window}.")
+    if window > MAX_WINDOW:
+        raise click.UsageError(f"--sequence-filter must be at most {MAX_WINDOW} places; got {window}.")
 
 
 def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_timeout: float | None,

@@ -10,8 +10,8 @@ import click
 from ..methods.roles import DEFAULT_METHOD
 from ._inputs import _load_map, calibration_input, check_calibration_options
 from ._options import _N_JOBS_HELP, _NO_PROGRESS_HELP, _PARAM_HELP, _check_budget, calibration_options
-from ._outputs import refuse_existing
-from ._params import _naming, _param_value, _params_by_method
+from ._outputs import OTHER_FORMATS, check_output_suffix, refuse_existing
+from ._params import ParamCommand, _naming, _param_value, _params_by_method
 from .info import _echo_storage
 
 #: Flags of earlier versions, kept working but hidden from --help: each sets one parameter, read as
@@ -33,7 +33,7 @@ def _aliases(command: Callable[..., Any]) -> Callable[..., Any]:
     return command
 
 
-@click.command()
+@click.command(cls=ParamCommand)
 @click.argument("db", type=click.Path())
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Model file to write (.npz).")
@@ -73,6 +73,8 @@ def train(db: str, output: str, overwrite: bool, method: str, budget: str | None
         shortcuts["calibration_tolerance"] = ("--calibrate-tolerance", calibrate_tolerance)
     check_calibration_options(method, calibrate, calibrate_truth, calibrate_tolerance)
     params = _params_by_method([method], param_texts, shortcuts=shortcuts)[method]
+    # A model is read by its content, so any name works (map.btel is in use) but one of another format's.
+    check_output_suffix(output, "-o", "a model file", (".npz",), refused=OTHER_FORMATS)
     refuse_existing(output, "-o", overwrite)
     X = _load_map(db)
     fit_params = ({"calibration": calibration_input(db, calibrate, calibrate_truth, X.shape[0])[:2]}

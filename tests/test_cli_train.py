@@ -1,0 +1,58 @@
+"""``btel train``: what a newcomer gets wrong is refused with the step that fixes it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from btel.cli import main
+
+
+def _invoke(*args) -> "click.testing.Result":  # noqa: F821
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+@pytest.fixture()
+def db(tmp_path: Path) -> Path:
+    np.save(tmp_path / "db.npy", np.random.default_rng(0).standard_normal((40, 8)).astype(np.float32))
+    return tmp_path / "db.npy"
+
+
+@pytest.mark.parametrize("name", ["m.npy", "m.csv", "m.h5"])
+def test_a_model_name_of_another_format_is_refused(db: Path, tmp_path: Path, name: str) -> None:
+    result = _invoke("train", db, "-o", tmp_path / name, "--method", "bruteforce")
+    assert result.exit_code == 2, result.output
+    assert "writes a model file (.npz)" in result.output and f"name it e.g. {tmp_path / 'm.npz'}" in result.output
+    assert not (tmp_path / name).exists()
+
+
+@pytest.mark.parametrize("name", ["m.npz", "m.btel"])  # a model is read by its content: other names still work
+def test_a_model_name_of_no_other_format_is_written(db: Path, tmp_path: Path, name: str) -> None:
+    assert _invoke("train", db, "-o", tmp_path / name, "--method", "bruteforce").exit_code == 0
+    assert (tmp_path / name).is_file()
+
+
+def test_a_folder_of_images_names_btel_extract(tmp_path: Path) -> None:
+    images = tmp_path / "summer"
+    images.mkdir()
+    for name in ("images-00020.png", "images-00010.png"):
+        (images / name).write_bytes(b"\x89PNG")  # not read: the names are enough
+    result = _invoke("train", images, "-o", tmp_path / "m.npz")
+    assert result.exit_code == 2, result.output
+    assert f"DB {images} holds images (2, e.g. images-00010.png), not descriptors" in result.output
+    assert f"`btel extract {images} -o descriptors.npy`" in result.output
+    (images / "shard_0.npy").write_bytes(b"")  # shards beside images: read as shards (and refused as such)
+    assert "holds images" not in _invoke("train", images, "-o", tmp_path / "m.npz").output
+
+
+@pytest.mark.parametrize("command", ["train", "extract"])
+def test_a_param_without_equals_sign_says_how_to_write_it(db: Path, tmp_path: Path, command: str) -> None:
+    source = db if command == "train" else tmp_path
+    result = _invoke(command, source, "-o", tmp_path / "x.npz", "--param", "n_regions", "5")
+    assert result.exit_code == 2
+    assert "--param takes KEY=VALUE (e.g. --param n_regions=5)." in result.output
+    other = _invoke(command, source, "-o", tmp_path / "x.npz", "extra")  # no --param: click's words alone
+    assert other.exit_code == 2 and "unexpected extra argument" in other.output and "KEY=VALUE" not in other.output
