@@ -56,3 +56,8 @@ def test_a_param_without_equals_sign_says_how_to_write_it(db: Path, tmp_path: Pa
     assert "--param takes KEY=VALUE (e.g. --param n_regions=5)." in result.output
     other = _invoke(command, source, "-o", tmp_path / "x.npz", "extra")  # no --param: click's words alone
     assert other.exit_code == 2 and "unexpected extra argument" in other.output and "KEY=VALUE" not in other.output
+
+
+def test_demo_says_how_to_write_a_param_too() -> None:
+    result = _invoke("demo", "--param", "n_regions", "5")
+    assert result.exit_code == 2 and "--param takes KEY=VALUE (e.g. --param n_regions=5)." in result.output

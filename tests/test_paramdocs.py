@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from btel.core.paramdocs import parameter_meanings, parameter_table
-from btel.core.validation import Interval
+from btel.core.paramdocs import describe_constraints, parameter_meanings, parameter_table
+from btel.core.validation import Interval, Options
 from btel.methods import METHODS, make_method
 from test_answers import _Fixed
 
@@ -83,3 +83,28 @@ def test_every_planner_takes_rows_then_features() -> None:
         params = [p for p in inspect.signature(planner).parameters.values() if p.name != "self"]
         assert [p.name for p in params[:2]] == ["n_rows", "n_features"], planner.__qualname__
         assert all(p.kind is p.KEYWORD_ONLY for p in params[2:]), planner.__qualname__
+
+
+@pytest.mark.parametrize("constraints, words", [
+    ([None, Interval(int, -1, -1), Interval(int, 1, 4096)], "None or -1 or an integer ≥ 1 and ≤ 4096"),
+    ([None, Interval(int, 0, 2**31 - 1)], "None or an integer ≥ 0 and ≤ 2147483647"),
+    ([Options("auto"), Interval(int, 1, None)], "'auto' or an integer ≥ 1"),
+    ([Options(True, False)], "True or False"),
+    ([Options("a", "b", "c")], "one of 'a', 'b', 'c'"),
+    ([Interval(float, 0, 1, closed="right")], "a number > 0 and ≤ 1"),
+])
+def test_constraints_read_as_words(constraints, words: str) -> None:
+    assert describe_constraints(constraints) == words
+
+
+def test_a_long_meaning_ends_at_a_clause_or_a_word_never_inside_one() -> None:
+    from btel.core.paramdocs import _plain
+
+    sentence = ("B ≥ 1, tolerance-aware codes: the trees index blocks of B consecutive places (place // B) and "
+                "predict a block's centre place, which is within B // 2 of every place of the block, so recall "
+                "at that tolerance is kept.")
+    short = _plain(sentence, limit=140)
+    assert short.endswith(" …") and len(short) <= 140
+    assert sentence.startswith(short[:-2]) and sentence[len(short) - 2] in ",;: "
+    words = _plain("word " * 60, limit=50)
+    assert words.endswith("word …") and len(words) <= 50

@@ -9,11 +9,12 @@ import click
 
 from ..methods.roles import DEMO_METHODS
 from ._jobs import _fit_jobs, _run_jobs
+from ._params import ParamCommand
 from ._options import (EXIT_SOME_ROWS_FAILED, _BUDGET_HELP, _N_JOBS_HELP, _NO_PROGRESS_HELP, _PARAMS_HELP,
                        _REFERENCE_HELP, _TIMING_THREADS_HELP, _budget_text, _budgets, _runtime_shortcuts, _split)
 
 
-@click.command()
+@click.command(cls=ParamCommand)
 @click.option("--places", "n_places", default=2000, show_default=True, help="Places on the synthetic route.")
 @click.option("--dim", default=512, show_default=True, help="Descriptor dimension.")
 @click.option("--budget", default="64KB", show_default=True, help=_BUDGET_HELP)

@@ -53,10 +53,17 @@ def parameter_meanings(cls: type) -> dict[str, str]:
     return {**shared, **getattr(cls, "_parameter_meanings", {}), **meanings}
 
 
-def _plain(text: str, limit: int = 140) -> str:
-    """reST markup off (``x`` → x, :mod:`y` → y), and at most ``limit`` characters."""
+def _plain(text: str, limit: int = 160) -> str:
+    """reST markup off (``x`` → x, :mod:`y` → y), and at most ``limit`` characters: a longer sentence
+    ends at its last clause break (``,`` ``;`` ``:`` ``—``) within the limit, else its last whole word,
+    marked ``…`` (the class docstring has the rest)."""
     text = re.sub(r":\w+:`~?([^`]+)`", r"\1", text).replace("``", "")
-    return text if len(text) <= limit else text[: limit - 1].rstrip() + "…"
+    if len(text) <= limit:
+        return text
+    head = text[: limit - 2]
+    breaks = [m.start() for m in re.finditer(r"[,;:](?=\s)|\s—\s", head)]
+    cut = breaks[-1] if breaks and breaks[-1] > limit // 2 else head.rfind(" ")
+    return head[: cut if cut > 0 else len(head)].rstrip(" ,;:—") + " …"
 
 
 def describe_constraints(constraints: list[Any]) -> str:

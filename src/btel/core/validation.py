@@ -285,9 +285,13 @@ class Interval:
         return True
 
     def describe(self) -> str:
+        # Integers in full (2147483647, not 2.14748e+09); a range of one value is that value.
+        number = (lambda x: f"{int(x)}") if self.kind is int else (lambda x: f"{x:g}")
+        if self.low is not None and self.low == self.high and self.closed == "both":
+            return number(self.low)
         what = "an integer" if self.kind is int else "a number"
-        lo = "" if self.low is None else f"{'≥' if self.closed in ('both', 'left') else '>'} {self.low:g}"
-        hi = "" if self.high is None else f"{'≤' if self.closed in ('both', 'right') else '<'} {self.high:g}"
+        lo = "" if self.low is None else f"{'≥' if self.closed in ('both', 'left') else '>'} {number(self.low)}"
+        hi = "" if self.high is None else f"{'≤' if self.closed in ('both', 'right') else '<'} {number(self.high)}"
         bounds = " and ".join(b for b in (lo, hi) if b)
         return f"{what} {bounds}".strip()
 
@@ -305,7 +309,7 @@ class Options:
             return False
 
     def describe(self) -> str:
-        return f"one of {self.values!r}"
+        return _one_of(self.values)
 
 
 class String:
@@ -333,7 +337,16 @@ class DType:
             return False
 
     def describe(self) -> str:
-        return f"one of {self.names!r}"
+        return _one_of(self.names)
+
+
+def _one_of(values: tuple[Any, ...]) -> str:
+    """``'auto'``, ``True or False``, ``one of 'svm', 'logistic'``: a set of allowed values in words."""
+    if len(values) == 1:
+        return repr(values[0])
+    if len(values) == 2:
+        return f"{values[0]!r} or {values[1]!r}"
+    return "one of " + ", ".join(map(repr, values))
 
 
 class Budget:
