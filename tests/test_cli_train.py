@@ -61,3 +61,10 @@ def test_a_param_without_equals_sign_says_how_to_write_it(db: Path, tmp_path: Pa
 def test_demo_says_how_to_write_a_param_too() -> None:
     result = _invoke("demo", "--param", "n_regions", "5")
     assert result.exit_code == 2 and "--param takes KEY=VALUE (e.g. --param n_regions=5)." in result.output
+
+
+def test_a_model_trained_without_a_budget_says_so(db: Path, tmp_path: Path) -> None:
+    unbudgeted = _invoke("train", db, "-o", tmp_path / "a.npz", "--no-progress")
+    assert unbudgeted.exit_code == 0 and "no --budget: the model is as large as the method needs" in unbudgeted.output
+    budgeted = _invoke("train", db, "-o", tmp_path / "b.npz", "--budget", "2KB", "--no-progress")
+    assert budgeted.exit_code == 0 and "no --budget" not in budgeted.output

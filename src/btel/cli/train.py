@@ -90,6 +90,9 @@ def train(db: str, output: str, overwrite: bool, method: str, budget: str | None
     _echo_storage(model)
     path = model.save(output, overwrite=overwrite)  # no --overwrite: a racing train's file is never replaced
     click.echo(f"model written to {path} ({path.stat().st_size:,d} B on disk)")
+    if model.get_params().get("budget") is None:  # btel is about budgets: an unbudgeted model is said to be one
+        click.echo("no --budget: the model is as large as the method needs; give --budget (e.g. --budget 64KB) "
+                   "to fit a byte budget.")
 
 
 def _shortcuts(budget: str | None, random_state: int | None, n_jobs: int | None, no_progress: bool,
