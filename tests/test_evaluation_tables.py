@@ -37,6 +37,12 @@ def test_a_narrow_terminal_gets_blocks_that_fit_each_led_by_the_method(rows, wid
     assert len(headers) == sum(line.startswith("lsh") for line in table.splitlines())
 
 
-def test_the_terminal_width_comes_from_columns(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_the_terminal_width_comes_from_columns_on_a_terminal_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    import io
+    import sys
+
     monkeypatch.setenv("COLUMNS", "77")
+    monkeypatch.setattr(sys, "stdout", io.StringIO())  # a pipe or a file: one line per row, whatever COLUMNS says
+    assert terminal_width() == 0
+    monkeypatch.setattr(sys.stdout, "isatty", lambda: True)
     assert terminal_width() == 77

@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import io
 import shutil
+import sys
 import textwrap
 from collections.abc import Sequence
 from typing import Any
@@ -112,9 +113,10 @@ def format_table(results: Sequence[EvaluationResult], width: int = 0) -> str:
 
 
 def terminal_width() -> int:
-    """The width of the terminal the output goes to (``$COLUMNS`` first), or 0 when there is none
-    (a pipe, a file, a log): :func:`format_table`'s ``width``."""
-    return shutil.get_terminal_size(fallback=(0, 0)).columns
+    """The width of the terminal standard output goes to (``$COLUMNS`` first), or 0 when it goes
+    elsewhere (a pipe, a file, a log: one line per row there): :func:`format_table`'s ``width``."""
+    isatty = getattr(sys.stdout, "isatty", None)
+    return shutil.get_terminal_size(fallback=(0, 0)).columns if isatty is not None and isatty() else 0
 
 
 def _cell(text: str, width: int) -> str:
