@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import click
+from click.core import ParameterSource
 
 from ..methods.roles import DEFAULT_METHOD
 from ._inputs import (_load_matrix, calibrate_evaluation, check_evaluate_calibration, check_utm_options,
@@ -23,12 +25,93 @@ _PAIRS_HELP = ("Also write an hloc retrieval pairs file (query_name db_name per 
 FILE, FOLDER = dict(type=click.Path(dir_okay=False), default=None), dict(type=click.Path(file_okay=False))
 
 
+#: The options that shape a run's rows (parameter → flag): recorded in metrics.json (``"options"``, by flag) so that
+#: ``--resume RUN`` alone goes on with them. Runtime flags (--n-jobs, --no-progress) and --pairs (a file
+#: written after the run) change no row, so a resume may give them anew.
+_RECORDED = {"db": "--db", "model_paths": "--model", "queries": "--queries", "methods": "--methods",
+             "budget": "--budget", "no_reference": "--no-reference", "param_texts": "--param",
+             "ground_truth": "--ground-truth", "positive_dist_threshold": "--positive-dist-threshold",
+             "tolerances": "--tolerances", "ks_text": "--k", "query_order": "--query-order", "delta": "--delta",
+             "timing_threads": "--timing-threads", "calibrate": "--calibrate",
+             "calibrate_truth": "--calibrate-truth", "calibrate_tolerance": "--calibrate-tolerance"}
+
+
+def _path(text: str | None) -> str | None:
+    """An input path as recorded: absolute, so that a resume from another folder names the same file
+    (``utm``, a ground-truth keyword, stays as it is)."""
+    return text if text in (None, "utm") else str(Path(text).resolve())
+
+
+def _canonical(o: dict[str, Any]) -> dict[str, Any]:
+    """The row-shaping options ``o`` as JSON values: paths absolute, lists parsed and checked (usage errors)."""
+    return {**o, "db": _path(o["db"]), "model_paths": [_path(m) for m in o["model_paths"]],
+            "queries": _path(o["queries"]), "methods": _split(",".join(o["methods"])),
+            "budget": _budgets(",".join(o["budget"])) if o["budget"] else [None],
+            "param_texts": list(o["param_texts"]), "ground_truth": _path(o["ground_truth"]),
+            "tolerances": None if o["tolerances"] is None else _int_list(o["tolerances"], "--tolerances", minimum=0),
+            "ks_text": _int_list(o["ks_text"], "--k", minimum=1), "calibrate": _path(o["calibrate"]),
+            "calibrate_truth": _path(o["calibrate_truth"])}
+
+
+def _shown(value: Any) -> str:
+    """An option's value as the command line writes it (``8KB,32KB``; ``none`` when not given)."""
+    return "none" if value in (None, [None]) else ",".join(map(str, value)) if isinstance(value, list) else str(value)
+
+
+def _resumed_options(ctx: click.Context, given: dict[str, Any], extra: dict[str, Any], run: str) -> dict[str, Any]:
+    """The options of the run being resumed: those its metadata ``extra`` recorded, checked against those
+    given beside --resume (a differing one is a usage error naming each).
+
+    A run folder written before btel recorded its options keeps only its inputs, budgets and query order:
+    those are used, and --methods (not recorded there) must be given again.
+    """
+    explicit = {name for name in _RECORDED if _given(ctx, name)}
+    if "options" in extra:
+        recorded = {name: extra["options"][flag] for name, flag in _RECORDED.items() if flag in extra["options"]}
+    elif "methods" not in explicit:
+        raise click.UsageError(f"--resume: {run} was written by an older btel that did not record its options; "
+                               "give --methods again (and every other option of the interrupted run).")
+    else:
+        recorded = {name: extra[name] for name in ("db", "queries", "budget", "query_order") if name in extra}
+    differ = [name for name in _RECORDED if name in explicit and name in recorded and recorded[name] != given[name]]
+    if differ:
+        flags = [_RECORDED[name] for name in differ]
+        was = ", ".join(f"{flag} {_shown(recorded[name])}" for flag, name in zip(flags, differ))
+        got = ", ".join((f"{flag} " if len(differ) > 1 else "") + _shown(given[name])
+                        for flag, name in zip(flags, differ))
+        drop = " and ".join(filter(None, [", ".join(flags[:-1]), flags[-1]]))
+        raise click.UsageError(f"--resume: this run was started with {was}; got {got}. Start a new run with --out, "
+                               f"or drop {drop} to go on with the recorded {'one' if len(differ) == 1 else 'ones'}.")
+    return {**given, **recorded}
+
+
+def _given(ctx: click.Context, name: str) -> bool:
+    """The option ``name`` was given (on the command line), not left at its default."""
+    return ctx.get_parameter_source(name) not in (None, ParameterSource.DEFAULT, ParameterSource.DEFAULT_MAP)
+
+
+def _read_resumed(ctx: click.Context, given: dict[str, Any], run: str) -> tuple[dict[str, Any], list[Any]] | None:
+    """The options and rows of the run folder ``run`` to go on with; None when that run is complete."""
+    from ..evaluation.runs import read_unfinished_run
+    from ..exceptions import DataNotFoundError, InvalidParameterError
+
+    try:
+        meta, rows = read_unfinished_run(run)
+    except (DataNotFoundError, InvalidParameterError) as exc:
+        raise click.UsageError(f"--resume: {exc}") from None
+    if meta.get("complete"):
+        return None
+    return _resumed_options(ctx, given, meta.get("extra") or {}, run), rows
+
+
 @click.command(name="evaluate")
 @click.option("--db", **FILE, help="Map descriptors to fit --methods on: .npy, .npz[:KEY], .h5[:PREFIX].")
 @click.option("--model", "model_paths", multiple=True, **FILE, help="A saved model to evaluate (repeatable).")
-@click.option("--queries", required=True, **FILE, help="Query descriptors (as --db).")
-@click.option("--methods", default=DEFAULT_METHOD, show_default=True, help="Method names, comma-separated.")
-@click.option("--budget", default=None, help=_BUDGET_HELP)
+@click.option("--queries", **FILE, help="Query descriptors (as --db); required unless --resume.")
+@click.option("--methods", multiple=True, default=(DEFAULT_METHOD,), show_default=True,
+              help="Method names, comma-separated; repeatable, the lists are joined (--methods a,b --methods c "
+                   "is a,b,c).")
+@click.option("--budget", multiple=True, help=_BUDGET_HELP + " Repeatable, the lists are joined.")
 @click.option("--no-reference", is_flag=True, help=_REFERENCE_HELP)
 @click.option("--param", "param_texts", multiple=True, metavar="[METHOD:]NAME=VALUE", help=_PARAMS_HELP)
 @click.option("--ground-truth", **FILE, help=_GT_HELP)
@@ -38,13 +121,15 @@ FILE, FOLDER = dict(type=click.Path(dir_okay=False), default=None), dict(type=cl
 @click.option("--tolerances", default=None, metavar="T,T,…",
               help="recall@t tolerances in frames (default 0,1,2,5,10,20 up to a tenth of the map).")
 @click.option("--k", "ks_text", default="1,5,10,20", show_default=True, metavar="K,K,…",
-              help="R@K: a correct place among the top K candidates (the metric of explicit positives).")
+              help="R@K: a correct place among the top K candidates (the metric of explicit positives); each K "
+                   "at most the map's number of places (a default K above it is left out, with a note).")
 @click.option("--query-order", type=click.Choice(["route", "independent"]), default="route",
               show_default=True, help=_ORDER_HELP)
 @click.option("--out", "out_dir", **FOLDER, default=None, help="Run folder (unless --resume).")
 @click.option("--overwrite", is_flag=True, help="Replace the run files in an existing run folder.")
 @click.option("--resume", "resume_dir", **FOLDER, default=None, metavar="RUN",
-              help="Go on with the interrupted run RUN: its rows done are kept, the others run.")
+              help="Go on with the interrupted run RUN with the inputs and options it recorded (give none, or "
+                   "the same): its rows done are kept, the others run. A complete RUN is left as it is (exit 0).")
 @click.option("--delta", type=int, default=None, metavar="W", help=_DELTA_HELP)
 @click.option("--no-progress", is_flag=True, help=_NO_PROGRESS_HELP)
 @click.option("--n-jobs", type=int, default=None, help=_N_JOBS_HELP)
@@ -52,51 +137,70 @@ FILE, FOLDER = dict(type=click.Path(dir_okay=False), default=None), dict(type=cl
               help=_TIMING_THREADS_HELP)
 @calibration_options
 @click.pass_context
-def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...], queries: str,
-                 methods: str, budget: str | None, no_reference: bool, param_texts: tuple[str, ...],
-                 ground_truth: str | None, positive_dist_threshold: float | None, pairs_path: str | None,
-                 tolerances: str | None, ks_text: str, query_order: str, out_dir: str | None, overwrite: bool,
-                 resume_dir: str | None, delta: int | None, no_progress: bool, n_jobs: int | None,
-                 timing_threads: int, calibrate: str | None, calibrate_truth: str | None,
-                 calibrate_tolerance: int | None) -> None:
+def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tuple[str, ...],
+                 budget: tuple[str, ...], param_texts: tuple[str, ...], pairs_path: str | None,
+                 out_dir: str | None, overwrite: bool, resume_dir: str | None, no_progress: bool,
+                 n_jobs: int | None, **options: Any) -> None:
     """Localize QUERIES with each method; write metrics.json, metrics.csv, predictions and plots to --out.
 
     Methods are fitted on --db (--methods, --budget, --param) or loaded from --model files; all is checked
     before any fit, and a method that does not fit (or fails) becomes a row with its reason. Exit: 0 all
     ran; 1 some did not, or a failure; 2 usage or input; 130 Ctrl-C. With --calibrate, the methods whose
     fit takes labelled queries (auto) choose on them; metrics.json and calibration.md hold their table.
+
+    --resume RUN needs no other option: the run folder records its inputs and every option that shapes
+    its rows; an option given beside it that differs from the recorded one is refused (a run never mixes
+    rows of two settings). Resuming a complete run says so and exits 0 without fitting anything.
     """
     from ..evaluation.inputs import common_map_size, run_title, saved_jobs
-    from ..evaluation.runs import check_run_folder, read_finished_rows
-    from ..exceptions import InvalidParameterError
+    from ..evaluation.runs import check_finished_rows, check_run_folder
 
-    front = {"delta": ("--delta", delta)} if delta is not None else {}
-    if db is None and (not model_paths or param_texts or front):
-        raise click.UsageError("give --db (to fit --methods, --param, --delta); --model files keep theirs.")
     if resume_dir is not None and (overwrite or out_dir not in (None, resume_dir)):
         raise click.UsageError("--resume RUN writes on into RUN: drop --out and --overwrite.")
     if out_dir is None and resume_dir is None:
         raise click.UsageError("give --out RUN_FOLDER (or --resume RUN to go on with an interrupted run).")
-    out = Path(out_dir or resume_dir)
-    budgets, ks = _budgets(budget) if budget else [None], _int_list(ks_text, "--k", minimum=1)
-    tolerance_list = _int_list(tolerances, "--tolerances", minimum=0) if tolerances is not None else None
-    jobs = [] if db is None else _fit_jobs(_split(methods), budgets, param_texts, reference=not no_reference,
+    if options["queries"] is None and resume_dir is None:
+        raise click.UsageError("give --queries QUERIES (the query descriptors to localize).")
+    o = _canonical({**options, "model_paths": model_paths, "methods": methods, "budget": budget,
+                    "param_texts": param_texts})
+    rows: list[Any] = []
+    if resume_dir is not None:
+        resumed = _read_resumed(ctx, o, resume_dir)
+        if resumed is None:
+            click.echo(f"{resume_dir} is a complete run: nothing to resume (no method is fitted). Start a new run "
+                       "with --out, or --out RUN --overwrite to run it again.")
+            return
+        o, rows = resumed
+    db, queries, budgets, ks = o["db"], o["queries"], o["budget"], o["ks_text"]
+    front = {"delta": ("--delta", o["delta"])} if o["delta"] is not None else {}
+    if db is None and not o["model_paths"]:
+        raise click.UsageError("give --db (the map to fit --methods on) or --model files (saved models).")
+    jobs = [] if db is None else _fit_jobs(o["methods"], budgets, tuple(o["param_texts"]),
+                                           reference=not o["no_reference"],
                                            shortcuts={**front, **_runtime_shortcuts(no_progress, n_jobs)})
+    calibrate, calibrate_truth, calibrate_tolerance = o["calibrate"], o["calibrate_truth"], o["calibrate_tolerance"]
     check_evaluate_calibration(jobs, db, calibrate, calibrate_truth, calibrate_tolerance)
-    try:
-        finished = None if resume_dir is None else read_finished_rows(resume_dir, queries, echo=click.echo)
-    except InvalidParameterError as exc:
-        raise click.UsageError(f"--resume: {exc}") from None
-    if finished is None:
-        check_run_folder(out, overwrite)
+    # Without --db nothing is fitted: these options would be silently ignored, so they are refused.
+    unused = [flag for flag, on in (("--methods", _given(ctx, "methods")), ("--budget", _given(ctx, "budget")),
+                                    ("--param", o["param_texts"]), ("--delta", front)) if on]
+    if db is None and unused:
+        raise click.UsageError(f"{' and '.join(unused)} without --db: nothing is fitted, and --model files keep "
+                               "theirs (method, size and front end are fixed when a model is trained). Drop "
+                               f"{' and '.join(unused)}, give --db to fit --methods on, or `btel train` the model "
+                               "again with them.")
+    if resume_dir is None:
+        check_run_folder(Path(out_dir), overwrite)
+    out = Path(out_dir or resume_dir)
     Q = _load_matrix(queries, "query descriptors")
     X = _load_matrix(db, "map descriptors") if db is not None else None
-    saved = saved_jobs(model_paths, Q.shape[1])
+    saved = saved_jobs(o["model_paths"], Q.shape[1])
     n_map = common_map_size(X, Q, saved)
-    check_utm_options(ground_truth, calibrate_truth, db, positive_dist_threshold)
-    gt, truth = read_ground_truth(ground_truth, "--ground-truth", n_queries=Q.shape[0], n_map=n_map, db=db,
-                                  queries=queries, threshold=positive_dist_threshold)
-    if tolerance_list is not None and not gt.uses_tolerance:
+    ks = _ks_for_map(ks, n_map, _given(ctx, "ks_text"))
+    threshold = o["positive_dist_threshold"]
+    check_utm_options(o["ground_truth"], calibrate_truth, db, threshold)
+    gt, truth = read_ground_truth(o["ground_truth"], "--ground-truth", n_queries=Q.shape[0], n_map=n_map, db=db,
+                                  queries=queries, threshold=threshold)
+    if o["tolerances"] is not None and not gt.uses_tolerance:
         raise click.UsageError("--tolerances needs one true place per query; --ground-truth lists explicit "
                                "positives, which have no tolerance. Use --k (R@K) instead.")
     title = run_title(Path(db or queries).name.split(".")[0], n_map, Q.shape[0], budgets, truth,
@@ -107,13 +211,34 @@ def evaluate_cmd(ctx: click.Context, db: str | None, model_paths: tuple[str, ...
     names = input_names(db, queries, n_map, Q.shape[0])
     pairs = plan_pairs(pairs_path, [j.name for j in saved + jobs], names, (Q.shape[0], n_map), queries, db,
                        overwrite)
-    extra = {"db": str(Path(db).resolve()) if db else None, "models": list(model_paths), "budget": budgets,
-             "queries": str(Path(queries).resolve()), "query_order": query_order}
+    extra = {"db": db, "models": o["model_paths"], "budget": budgets, "queries": queries,
+             "query_order": o["query_order"], "options": {flag: o[name] for name, flag in _RECORDED.items()}}
     if calibrate:
         extra["calibration"] = calibrate_evaluation(saved + jobs, Q, db, calibrate, calibrate_truth,
-                                                    calibrate_tolerance, n_map, positive_dist_threshold)
+                                                    calibrate_tolerance, n_map, threshold)
+    finished = None
+    if resume_dir is not None:
+        from ..exceptions import InvalidParameterError
+
+        try:  # a safety net under the options' check: no done row is dropped or kept for another setting
+            finished = check_finished_rows(resume_dir, rows, saved + jobs, echo=click.echo)
+        except InvalidParameterError as exc:
+            raise click.UsageError(f"--resume: {exc}") from None
     if _run_jobs(saved + jobs, X, Q, out=out, progress=not no_progress, extra=extra, pairs=pairs,
-                 ground_truth=gt, truth=truth, title=title, names=names, tolerances=tolerance_list, ks=ks,
-                 overwrite=overwrite, queries_are_route=query_order == "route", finished=finished,
-                 timing_threads=timing_threads or None):
+                 ground_truth=gt, truth=truth, title=title, names=names, tolerances=o["tolerances"], ks=ks,
+                 overwrite=overwrite, queries_are_route=o["query_order"] == "route", finished=finished,
+                 timing_threads=o["timing_threads"] or None):
         ctx.exit(EXIT_SOME_ROWS_FAILED)
+
+
+def _ks_for_map(ks: list[int], n_map: int, given: bool) -> list[int]:
+    """The K of R@K that a map of ``n_map`` places has: a K given above it is refused (its column would
+    vanish without a word); the default's are left out with a note."""
+    above = [k for k in ks if k > n_map]
+    if above and given:
+        raise click.UsageError(f"--k {_shown(above)}: R@K needs K ≤ the map's N = {n_map} places; give --k values "
+                               f"up to {n_map}.")
+    if above:
+        click.echo(f"note: K = {_shown(above)} of the default --k left out: R@K needs K ≤ the map's N = {n_map} "
+                   "places.")
+    return [k for k in ks if k <= n_map]

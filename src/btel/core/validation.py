@@ -341,12 +341,9 @@ class DType:
 
 
 def _one_of(values: tuple[Any, ...]) -> str:
-    """``'auto'``, ``True or False``, ``one of 'svm', 'logistic'``: a set of allowed values in words."""
-    if len(values) == 1:
-        return repr(values[0])
-    if len(values) == 2:
-        return f"{values[0]!r} or {values[1]!r}"
-    return "one of " + ", ".join(map(repr, values))
+    """``'auto'``, ``True or False``, ``one of 'a', 'b', 'c'``: a set of allowed values in words."""
+    words = [repr(v) for v in values]
+    return " or ".join(words) if len(words) <= 2 else "one of " + ", ".join(words)
 
 
 class Budget:

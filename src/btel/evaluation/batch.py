@@ -23,7 +23,7 @@ from .inputs import Job, make_jobs
 from .measure import _tolerances_for, measure
 from .metrics import DEFAULT_KS, TruthLike, check_ground_truth
 from .records import STATUS_FAILED, STATUS_NOT_RUN, STATUS_REFUSED, EvaluationResult
-from .tables import format_calibration, format_table
+from .tables import format_calibration, format_table, terminal_width
 
 __all__ = ["preflight", "evaluate_all", "run_methods"]
 
@@ -288,20 +288,27 @@ def run_methods(methods: Sequence[str | Job], X_map: Any, Q: Any, *, out: str | 
     bar = tqdm(total=len(jobs), unit="method", disable=None if progress else True, leave=False,
                file=sys.stderr)
 
+    # The "[n/total]" lines count the rows that run: a row refused before fitting, or done before a
+    # resume, is not one, so the count has no gap.
+    count = {"started": 0, "total": len(jobs)}
+
     def on_preflight(skipped: dict[str, EvaluationResult]) -> None:
         if skipped:
             say(f"{len(skipped)} of {len(jobs)} rows cannot run "
                 "(found before fitting; every other row runs):")
             for name, r in skipped.items():
                 say(f"  {name}: {r.status}: {r.reason}")
-            bar.update(len(skipped))
+        kept = set(skipped) | {r.name for r in finished or () if r.ok}
+        count["total"] = sum(job.name not in kept for job in jobs)
+        bar.update(len(jobs) - count["total"])
 
     def on_start(index: int, job: Job) -> None:
         budget = ("reference, unbudgeted" if job.reference else
                   format_bytes(job.budget) if job.budget else "no budget")
+        count["started"] += 1
         if bar.disable:
             doing = "fitting" if job.fit else "evaluating"
-            say(f"[{index + 1}/{len(jobs)}] {doing} {job.name} ({budget}) …")
+            say(f"[{count['started']}/{count['total']}] {doing} {job.name} ({budget}) …")
         else:
             bar.set_description_str(f"{job.name} ({budget})")
 
@@ -332,7 +339,7 @@ def run_methods(methods: Sequence[str | Job], X_map: Any, Q: Any, *, out: str | 
     bar.close()
     for row in results:
         row.truth = truth
-    say(format_table(results))
+    say(format_table(results, width=terminal_width()))
     calibration = format_calibration(results)
     if calibration:
         say(calibration)

@@ -99,8 +99,6 @@ def safe_file_name(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "-", name).strip("._-") or "method"
 
 
-
-
 #: Files a run folder may hold; with ``overwrite=True`` these (and only these) are removed first.
 _RUN_FILE_PATTERNS = ("metrics.json", "metrics.csv", "predictions_*.csv", "gallery_*.png", "recall_vs_*.png", "recall_at_k.png",
                       "precision_recall.png", ".metrics.*.tmp", "calibration.md")
@@ -313,25 +311,31 @@ def read_unfinished_run(out_dir: str | os.PathLike) -> tuple[dict[str, Any], lis
         raise InvalidParameterError(f"{str(path)!r} is not a btel run's metrics ({exc}).") from exc
 
 
-def read_finished_rows(run: str | os.PathLike, queries: str | os.PathLike,
-                       echo: Any = None) -> list[EvaluationResult]:
-    """The rows of the interrupted run folder ``run`` to keep (status ok), after checking that it ran on
-    the query file ``queries``; ``echo(text)`` hears which rows are done.
+def check_finished_rows(run: str | os.PathLike, rows: Sequence[EvaluationResult], jobs: Sequence[Any],
+                        echo: Any = None) -> list[EvaluationResult]:
+    """The rows of the interrupted run ``run`` to keep (status ok), after checking that the ``jobs`` of
+    the resumed run are its jobs; ``echo(text)`` hears which rows are done.
 
     Raises
     ------
     InvalidParameterError
-        The run localized another query file.
+        A row of the run is no job (it would be dropped), or a row done has another budget or
+        ``--param`` settings than its job (it would be mixed with rows of other settings).
     """
-    meta, rows = read_unfinished_run(run)
-    before = (meta.get("extra") or {}).get("queries")
-    if before is not None and before != str(Path(queries).resolve()):
-        raise InvalidParameterError(f"the run {str(run)!r} localized {before}, not {queries}; give the same "
-                                    "queries (and map, models, options) as the interrupted run.")
+    by_name = {job.name: job for job in jobs}
+    settings = {n: (jsonable(j.settings) if j.settings else None) for n, j in by_name.items()}
+    lost = [r.name for r in rows if r.name not in by_name]
+    other = [r.name for r in rows if r.ok and r.name in by_name and by_name[r.name].fit
+             and (r.budget != by_name[r.name].budget or r.settings != settings[r.name])]
+    if lost or other:
+        raise InvalidParameterError(
+            f"the run {str(run)!r} has rows {lost or other} that these methods and options "
+            f"{'do not make' if lost else 'make with another budget or --param'}; give the interrupted run's "
+            "options (or none beside --resume), or start a new run with --out.")
     done = [r for r in rows if r.ok]
     if echo is not None:
-        names = ", ".join(r.name for r in done) or "none"
-        echo(f"resuming {run}: {len(done)} of {len(rows)} rows done ({names}); the others run now")
+        echo(f"resuming {run}: {len(done)} of {len(jobs)} rows done ({', '.join(r.name for r in done) or 'none'}); "
+             "the others run now")
     return done
 
 
