@@ -462,3 +462,15 @@ def test_plots_of_independent_queries_do_not_speak_of_frames(order: str, gardens
     else:
         assert "frames" not in words
         assert "tolerance t (map places)" in words and "within 10 map places" in words
+
+
+def test_a_descriptor_matrix_given_as_model_is_named_as_one(route_files, tmp_path: Path) -> None:
+    db, q = route_files
+    result = CliRunner().invoke(main, ["evaluate", "--model", str(db), "--queries", str(q), "--out", str(tmp_path / "r")])
+    assert result.exit_code == 2
+    assert "looks like a descriptor matrix (200 × 32 float32), not a model" in result.output
+    assert "give this matrix as --db" in result.output and not (tmp_path / "r").exists()
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")  # not a matrix either: the model file's own error stands
+    result = CliRunner().invoke(main, ["evaluate", "--model", str(tmp_path / "junk.npz"), "--queries", str(q),
+                                       "--out", str(tmp_path / "r")])
+    assert result.exit_code == 2 and "descriptor matrix" not in result.output

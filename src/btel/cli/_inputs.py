@@ -81,14 +81,21 @@ def load_model(path: str) -> Any:
     try:
         return load(path)
     except ModelFileError:
-        found = _matrix_in(path)
-        if found is None:
-            raise
-    shape, dtype = found
+        refuse_matrix_as_model(path, "MODEL", "usage: btel localize MODEL QUERIES -o predictions.csv")
+        raise
+
+
+def refuse_matrix_as_model(path: str, option: str, usage: str) -> None:
+    """A usage error when ``path``, given as ``option`` where a model file goes, holds a descriptor matrix
+    (``usage`` says where the model goes); nothing when it does not (its load error stands)."""
+    found = _matrix_in(path)
+    if found is None:
+        return
+    (rows, columns), dtype = found
     raise click.UsageError(
-        f"MODEL {path} looks like a descriptor matrix ({shape[0]} × {shape[1]} {dtype}), not a model. MODEL is "
-        f"the .npz written by `btel train` (usage: btel localize MODEL QUERIES -o predictions.csv); to make "
-        f"one from these map descriptors: btel train {path} -o model.npz.")
+        f"{option} {path} looks like a descriptor matrix ({rows} × {columns} {dtype}), not a model. {option} is "
+        f"the .npz written by `btel train` ({usage}); to make one from these map descriptors: "
+        f"btel train {path} -o model.npz.")
 
 
 def _matrix_in(path: str) -> tuple[tuple[int, int], str] | None:

@@ -10,7 +10,7 @@ from click.core import ParameterSource
 
 from ..methods.roles import DEFAULT_METHOD
 from ._inputs import (_load_matrix, calibrate_evaluation, check_evaluate_calibration, check_utm_options,
-                      read_ground_truth)
+                      read_ground_truth, refuse_matrix_as_model)
 from ._jobs import _fit_jobs, _run_jobs
 from ._options import (EXIT_SOME_ROWS_FAILED, _BUDGET_HELP, _DELTA_HELP, _N_JOBS_HELP, _NO_PROGRESS_HELP,
                        _ORDER_HELP, _PARAMS_HELP, _REFERENCE_HELP, _TIMING_THREADS_HELP, _budgets, _int_list,
@@ -154,6 +154,7 @@ def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tupl
     """
     from ..evaluation.inputs import common_map_size, run_title, saved_jobs
     from ..evaluation.runs import check_finished_rows, check_run_folder
+    from ..exceptions import ModelFileError
 
     if resume_dir is not None and (overwrite or out_dir not in (None, resume_dir)):
         raise click.UsageError("--resume RUN writes on into RUN: drop --out and --overwrite.")
@@ -193,7 +194,12 @@ def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tupl
     out = Path(out_dir or resume_dir)
     Q = _load_matrix(queries, "query descriptors")
     X = _load_matrix(db, "map descriptors") if db is not None else None
-    saved = saved_jobs(o["model_paths"], Q.shape[1])
+    try:
+        saved = saved_jobs(o["model_paths"], Q.shape[1])
+    except ModelFileError:
+        for path in o["model_paths"]:  # a descriptor matrix given as --model: say so, not "corrupt"
+            refuse_matrix_as_model(path, "--model", "or give this matrix as --db to fit --methods on it")
+        raise
     n_map = common_map_size(X, Q, saved)
     ks = _ks_for_map(ks, n_map, _given(ctx, "ks_text"))
     threshold = o["positive_dist_threshold"]
