@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..exceptions import DataNotFoundError, DimensionMismatchError, InvalidDescriptorsError
-from .traverses import natural_key
+from .traverses import IMAGE_EXTENSIONS, natural_key
 
 __all__ = ["list_shards", "load_shards"]
 
@@ -46,6 +46,12 @@ def list_shards(folder: str | os.PathLike) -> list[Path]:
         key=lambda p: natural_key(p.name),
     )
     if not shards:
+        images = sum(1 for p in root.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS)
+        if images:  # the image folder itself, given where its descriptors go
+            raise DataNotFoundError(
+                f"{str(root)!r} holds {images} images and no .npy shards: describe the images first "
+                "(btel.descriptors.extract_descriptors(folder, descriptor), or `btel extract FOLDER -o db.npy`)."
+            )
         raise DataNotFoundError(
             f"{str(root)!r} holds no .npy shards; write the map as shard_0.npy, shard_1.npy, … (rows in route order)."
         )
