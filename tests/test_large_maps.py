@@ -112,7 +112,7 @@ def test_shard_errors(tmp_path: Path, route) -> None:
     with pytest.raises(DataNotFoundError, match="no .npy shards"):
         load_shards(tmp_path / "empty")
     (tmp_path / "empty" / "000.png").write_bytes(b"")  # an image folder given where descriptors go
-    with pytest.raises(DataNotFoundError, match="holds 1 images and no .npy shards: describe the images first"):
+    with pytest.raises(DataNotFoundError, match="holds 1 image and no .npy shards: describe them first"):
         load_shards(tmp_path / "empty")
     write_shards(tmp_path / "dims", route.map, [], ["0.npy"])
     np.save(tmp_path / "dims" / "1.npy", np.zeros((5, 7), dtype=np.float32))

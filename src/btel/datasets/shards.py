@@ -49,7 +49,7 @@ def list_shards(folder: str | os.PathLike) -> list[Path]:
         images = sum(1 for p in root.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS)
         if images:  # the image folder itself, given where its descriptors go
             raise DataNotFoundError(
-                f"{str(root)!r} holds {images} images and no .npy shards: describe the images first "
+                f"{str(root)!r} holds {images} image{'s' * (images != 1)} and no .npy shards: describe them first "
                 "(btel.descriptors.extract_descriptors(folder, descriptor), or `btel extract FOLDER -o db.npy`)."
             )
         raise DataNotFoundError(
