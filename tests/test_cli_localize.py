@@ -151,3 +151,30 @@ def test_the_message_says_which_names_were_written(tmp_path: Path) -> None:
     assert "5 predictions with query image names written" in result.output and "give --db MAP" in result.output
     result = _invoke("localize", model, f"{feats}:query/", "--db", f"{feats}:db/", "-o", tmp_path / "b.csv")
     assert "with query and map image names written" in result.output and "give --db" not in result.output
+
+
+def test_hmm_speed_reaches_the_decoder_in_batch_and_stream(gardenspoint_netvlad, tmp_path: Path) -> None:
+    import btel
+
+    db, queries = gardenspoint_netvlad
+    Q = queries[::2]  # queries at every 2nd map frame: 0 … 4 places a frame, beyond the default speed
+    np.save(tmp_path / "db.npy", db)
+    np.save(tmp_path / "q.npy", Q)
+    np.savetxt(tmp_path / "q.txt", Q)
+    assert _invoke("train", tmp_path / "db.npy", "-o", tmp_path / "m.npz", "--method", "bruteforce",
+                   "--no-progress").exit_code == 0
+    model = btel.load(tmp_path / "m.npz")
+    expected = model.predict_sequence(Q, "hmm", vmax=4)
+    result = _invoke("localize", tmp_path / "m.npz", tmp_path / "q.npy", "-o", tmp_path / "p.csv", "--hmm",
+                     "--hmm-speed", "4")
+    assert result.exit_code == 0, result.output
+    np.testing.assert_array_equal([int(r["prediction"]) for r in _rows(tmp_path / "p.csv")], expected)
+    streamed = _invoke("localize", tmp_path / "m.npz", "--stream", "--input", tmp_path / "q.txt", "--hmm",
+                       "--hmm-speed", "4")
+    np.testing.assert_array_equal([int(x) for x in streamed.stdout.split()], expected)
+    # The speed matters on these queries: the default (2) loses most of what speed 4 finds.
+    truth = np.arange(0, len(db), 2)
+    within = {speed: np.mean(np.abs(model.predict_sequence(Q, "hmm", vmax=speed) - truth) <= 2) for speed in (2, 4)}
+    assert within[4] > within[2] + 0.3, within
+    refused = _invoke("localize", tmp_path / "m.npz", tmp_path / "q.npy", "-o", tmp_path / "x.csv", "--hmm-speed", "4")
+    assert refused.exit_code == 2 and "give --hmm too" in refused.output

@@ -34,7 +34,11 @@ from ._outputs import check_output_suffix, refuse_existing
               help="With --stream: read this text file instead of stdin.")
 @click.option("--hmm", is_flag=True,
               help="Decode the queries as one ordered traverse with the HMM over places (forward motion; no extra "
-                   "stored bytes) instead of frame by frame; online (one update per frame) with --stream.")
+                   "stored bytes) instead of frame by frame; online (one update per frame) with --stream. It "
+                   "assumes the queries advance 0 … --hmm-speed map places a frame, and hurts when they do not.")
+@click.option("--hmm-speed", type=click.IntRange(min=1), default=None, metavar="V",
+              help="With --hmm: the most map places the queries advance per frame (default 2: queries at the "
+                   "map's frame rate; e.g. 4 for queries taken every 2nd map frame).")
 @click.option("--top-k", type=int, default=None,
               help="Batch: also write the K most likely places per query (ranked output) as columns rank_1…rank_K.")
 @click.option("--follow", is_flag=True, help="With --stream --input: keep reading as the file grows (like tail -f).")
@@ -42,7 +46,7 @@ from ._outputs import check_output_suffix, refuse_existing
               help="With --follow: stop after this many seconds without a new line (default: run until Ctrl-C).")
 def localize(model_path: str, queries: str | None, output: str | None, overwrite: bool, db: str | None,
              window: int | None, stream: bool, binary: bool, input_path: str | None, hmm: bool,
-             top_k: int | None, follow: bool, idle_timeout: float | None) -> None:
+             hmm_speed: int | None, top_k: int | None, follow: bool, idle_timeout: float | None) -> None:
     """Predict the place of every query with a saved MODEL.
 
     \b
@@ -59,6 +63,7 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
     streaming = (input_path, idle_timeout) != (None, None) or follow or binary
     for broken, message in (
             (hmm and window is not None, "choose --hmm or --sequence-filter, not both."),
+            (hmm_speed is not None and not hmm, "--hmm-speed sets the speed of --hmm: give --hmm too."),
             (stream and batch, "--stream reads stdin (or --input) and writes stdout; QUERIES, -o, --db and "
                                "--top-k are for batch localization."),
             (not stream and streaming, "--input, --follow, --idle-timeout and --binary need --stream."),
@@ -68,8 +73,10 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
         if broken:
             raise click.UsageError(message)
     _check_window(window)
+    hmm_options = {} if hmm_speed is None else {"vmax": hmm_speed}
     if stream:
-        return _localize_stream(load_model(model_path), input_path, follow, idle_timeout, window, hmm, binary)
+        return _localize_stream(load_model(model_path), input_path, follow, idle_timeout, window, hmm, binary,
+                                hmm_options)
     check_output_suffix(output, "-o", "a predictions CSV", (".csv", ".txt"))
     refuse_existing(output, "-o", overwrite)
     model = load_model(model_path)
@@ -82,7 +89,7 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
     if db is not None and db_names is None:
         raise InputError(f"--db {db} does not name one image per place of MODEL ({model.n_places_}); give "
                          "the map MODEL was trained on (an hloc .h5, or btel extract's .npy with its .json).")
-    predictions = model.predict_sequence(Q, "hmm") if hmm else model.predict(Q)
+    predictions = model.predict_sequence(Q, "hmm", **hmm_options) if hmm else model.predict(Q)
     if window is not None:
         from ..sequence.filter import filter_sequence
 
@@ -108,7 +115,8 @@ def _check_window(window: int | None) -> None:
 
 
 def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_timeout: float | None,
-                     window: int | None, hmm: bool = False, binary: bool = False) -> None:
+                     window: int | None, hmm: bool = False, binary: bool = False,
+                     hmm_options: dict[str, Any] | None = None) -> None:
     """The --stream loop: one output line per well-formed input line, flushed before more input is awaited."""
     from ..sequence.streaming import localize_stream
 
@@ -126,7 +134,8 @@ def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_time
     out = sys.stdout
     try:
         for _, place in localize_stream(model, source, window=window, on_error=report, follow=follow, hmm=hmm,
-                                        idle_timeout=idle_timeout, binary=binary, on_flush=out.flush):
+                                        hmm_options=hmm_options, idle_timeout=idle_timeout, binary=binary,
+                                        on_flush=out.flush):
             out.write(f"{place}\n")  # flushed by on_flush: a reader of the pipe sees each answer at once
             n_out += 1
     finally:  # Ctrl-C, the usual end of a --follow stream, still says what was skipped (then exits 130)

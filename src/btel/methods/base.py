@@ -391,13 +391,13 @@ class PlaceLocalizer(ParamsMixin, ABC):
         Q : array-like of shape (n_queries, n_features)
             Consecutive frames of one traverse, in order.
         decoder : {'hmm', 'median'}
-            'hmm': online forward filtering over places with the per-place scores (z-scored per
-            frame) as emissions and forward motion as transitions
-            (:class:`btel.sequence.hmm.HMMDecoder`; options ``temperature``, ``vmin``,
-            ``vmax``, ``backward``, ``teleport``, ``mode``). Scores are computed in blocks of
-            queries, so memory is O(block × N) however long the traverse. 'median': the paper's
-            filter on single-frame predictions (:func:`btel.sequence.filter_sequence`; option
-            ``window``, default 5).
+            'hmm': forward filtering over places, per-place scores (z-scored per frame) as emissions,
+            forward motion as transitions (:class:`btel.sequence.hmm.HMMDecoder`; options
+            ``temperature``, ``vmin``, ``vmax``, ``backward``, ``teleport``, ``mode``), in blocks of
+            queries (O(block × N) memory). It assumes the queries advance 0 … ``vmax`` = 2 places a
+            frame and hurts when they do not: set ``vmax`` to about twice their pace. 'median': the
+            paper's filter on single-frame predictions (:func:`btel.sequence.filter_sequence`;
+            option ``window``, default 5).
 
         Returns
         -------

@@ -61,6 +61,7 @@ def localize_stream(
     hmm: bool = False,
     binary: bool = False,
     on_flush: Callable[[], Any] | None = None,
+    hmm_options: dict[str, Any] | None = None,
 ) -> Iterator[tuple[int, int]]:
     """Localize each descriptor line as it arrives.
 
@@ -82,6 +83,9 @@ def localize_stream(
         Decode with the online HMM over places (:class:`btel.sequence.hmm.HMMDecoder`, default
         options) on each frame's per-place scores instead of frame by frame; costs O(N·b) per frame
         for BTEL. Not combined with ``window``.
+    hmm_options : dict, optional
+        Options of that decoder (e.g. ``{"vmax": 4}``: queries advance up to 4 map places a frame;
+        the default, 2, suits queries taken at the map's frame rate).
     binary : bool
         ``lines`` is a binary stream of float32 frames (:func:`btel.sequence.streamread.read_frames`), not text.
     on_flush : callable, optional
@@ -113,7 +117,7 @@ def localize_stream(
     if hmm:
         from .hmm import HMMDecoder
 
-        decoder = HMMDecoder(int(model.n_places_))
+        decoder = HMMDecoder(int(model.n_places_), **(hmm_options or {}))
     # Lines that are already waiting (a whole file, a pipe's backlog) go through in blocks when a frame's
     # answer depends on that frame alone; otherwise one at a time.
     frame_by_frame = (not hmm and hasattr(model, "front_end_") and not model.front_end_.uses_sequence
