@@ -20,7 +20,7 @@ import pytest
 from conftest import SHARED_DATA
 
 ROOT = Path(__file__).resolve().parents[1]
-PAGES = [ROOT / "README.md", *sorted((ROOT / "docs" / "guide").glob("*.md"))]
+PAGES = [ROOT / "README.md", ROOT / "docs" / "index.md", *sorted((ROOT / "docs" / "guide").glob("*.md"))]
 FENCE = re.compile(r"^```python\n(.*?)^```$", re.MULTILINE | re.DOTALL)
 DOCSTRING_LINES = 40
 HISTORY = re.compile(r"^\s*History\b|Added after|Before this rule", re.MULTILINE)
@@ -42,6 +42,11 @@ def test_the_pages_have_python_blocks() -> None:
     found = {page.name: len(python_blocks(page)) for page in PAGES}
     assert len(PAGES) >= 9, f"README and eight guide pages expected, found {[p.name for p in PAGES]}"
     assert found["README.md"] >= 1, found
+
+
+def test_the_site_home_shows_the_readmes_python() -> None:
+    # A Python user lands on the site's home page: it carries the README's ten lines, kept equal.
+    assert python_blocks(ROOT / "docs" / "index.md") == python_blocks(ROOT / "README.md")[:1]
 
 
 def test_block_extraction_ignores_other_fences(tmp_path: Path) -> None:
