@@ -140,6 +140,20 @@ def method_names() -> list[str]:
 def make_method(name: str, **params: Any) -> PlaceLocalizer:
     """An unfitted method by registry name, with ``params`` overriding its defaults.
 
+    Parameters
+    ----------
+    name : str
+        A registered name: ``btel.methods.METHODS`` lists them (``btel methods`` on the command line), e.g.
+        ``"auto"``, ``"btel-codes"``, ``"lsh"``, ``"pq"``, ``"bruteforce"``, ``"btel-c"``.
+    **params
+        Any of the method's parameters (``btel methods --params`` lists each one's range and
+        meaning); ``budget`` (bytes, or a string such as ``"64KB"``) is the one most calls set.
+
+    Returns
+    -------
+    PlaceLocalizer
+        Unfitted; ``fit(X)`` with X of shape (N, d) makes it answer queries.
+
     Unknown parameter names and values outside a parameter's declared range raise
     :class:`~btel.exceptions.InvalidParameterError` at once (naming the method and parameter).
     """
