@@ -371,3 +371,18 @@ def test_route_share_of_a_large_map_searches_spans_of_consecutive_places() -> No
     assert route_share(walk[rng.permutation(3000)], search_rows=1600) < 0.05
     both = np.concatenate([walk, walk + 0.01 * rng.normal(size=walk.shape).astype(np.float32)])
     assert route_share(both, np.concatenate([np.arange(3000)] * 2), search_rows=1600) > 0.9
+
+
+def test_a_second_traverse_of_the_same_places_does_not_make_a_map_a_route() -> None:
+    # With several traverses, a row's nearest row is its own place seen again: the route statistics
+    # compare it with other places only, so the rule reads the same map with one traverse or two.
+    from btel.datasets import synthetic_route
+    from btel.methods.auto.statistics import route_share
+
+    r = synthetic_route(n_places=600, dim=64, seed=0, n_traverses=2)
+    places = np.r_[np.arange(600), np.arange(600)]
+    both = np.vstack(r.traverses)
+    assert abs(route_share(both, places) - route_share(r.map)) < 0.05
+    one = make_method("auto", budget="16KB").fit(r.map).choice_
+    two = make_method("auto", budget="16KB").fit(both, places).choice_
+    assert (two["method"], two["params"]) == (one["method"], one["params"])

@@ -130,7 +130,8 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
 
 #: What each figure in a reason means, for a reader who has not read the rule (auto's ``summary()``).
 _TERMS = (
-    ("route share", f"route share = share of map rows whose most similar other row lies within {ROUTE_WINDOW} places"),
+    ("route share", f"route share = share of map rows whose most similar row of another place lies within "
+                    f"{ROUTE_WINDOW} places"),
     ("continuity", f"continuity = how much more alike rows {CONTINUITY_GAPS[0]}–{CONTINUITY_GAPS[1]} places apart "
                    "are than other rows (0.5: the order says nothing, 1: a smooth route)"),
     ("P = ", "P = bits per map row the budget holds (8 · budget / N)"),

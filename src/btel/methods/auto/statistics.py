@@ -74,7 +74,7 @@ def collision_bits(n_rows: int) -> float:
 
 def route_share(X: np.ndarray, places: np.ndarray | None = None, *, window: int = ROUTE_WINDOW,
                 max_rows: int = STAT_ROWS, search_rows: int = SHARE_SEARCH_ROWS) -> float:
-    """Share of map rows whose nearest other map row (cosine) lies within ``window`` places.
+    """Share of map rows whose nearest map row of another place (cosine) lies within ``window`` places.
 
     Raises :class:`~btel.exceptions.InvalidDescriptorsError` (not 2-D numbers, NaN/inf) or
     :class:`~btel.exceptions.InvalidParameterError` (bad place labels) as a fit does.
@@ -114,17 +114,20 @@ def _route_share(X: np.ndarray, places: np.ndarray | None, *, window: int = ROUT
     for rows in spans:
         picks = np.unique(np.linspace(0, rows.size - 1, min(rows.size, max_rows // len(spans))).round()
                           .astype(np.int64))
-        probes, other = rows[picks], _nearest_other(X, rows, picks)
+        probes, other = rows[picks], _nearest_other(X, rows, picks, labels)
         valid = other >= 0
         near.append(np.abs(labels[other[valid]] - labels[probes[valid]]) <= window)
     hits = np.concatenate(near)
     return float(hits.mean()) if hits.size else 0.0
 
 
-def _nearest_other(X: np.ndarray, rows: np.ndarray, picks: np.ndarray) -> np.ndarray:
-    """For each probe ``rows[picks]``, its nearest (cosine) row among ``rows`` other than itself; −1 if none.
+def _nearest_other(X: np.ndarray, rows: np.ndarray, picks: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """For each probe ``rows[picks]``, its nearest (cosine) row among ``rows`` of another place (``labels``);
+    −1 if none.
 
-    Read in blocks of rows (a memory-mapped map is never copied whole).
+    Rows of the probe's own place are left out: with several traverses the nearest row would be the same
+    place seen again, which says nothing about how alike neighbouring places are. Read in blocks of rows
+    (a memory-mapped map is never copied whole).
     """
     P = _unit_rows(X, rows[picks])
     best = np.full(picks.size, -np.inf, dtype=np.float32)
@@ -133,8 +136,8 @@ def _nearest_other(X: np.ndarray, rows: np.ndarray, picks: np.ndarray) -> np.nda
     for start in range(0, rows.size, step):
         block = _unit_rows(X, rows[start : start + step])
         scores = P @ block.T
-        own = (picks >= start) & (picks < start + block.shape[0])
-        scores[np.flatnonzero(own), picks[own] - start] = -np.inf  # the probe itself is not its neighbour
+        same = labels[rows[picks]][:, None] == labels[rows[start : start + step]][None, :]
+        scores[same] = -np.inf  # the probe itself, and its place in other traverses, are not its neighbours
         top = np.argmax(scores, axis=1)
         value = scores[np.arange(picks.size), top]
         better = value > best
