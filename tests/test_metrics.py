@@ -129,3 +129,15 @@ def test_auc_pr_on_gardens_point_netvlad_as_each_source(gardenspoint_netvlad) ->
     assert pr["auc_pr_vpr_tutorial"] == pytest.approx(expected, abs=1e-12)
     r_at_1 = correct.mean()
     assert 0 < r_at_1 < 1 and pr["auc_pr_vpr_tutorial"] <= r_at_1 < pr["auc_pr_vpr_bench"]
+
+
+def test_a_list_of_lists_is_explicit_positives_as_from_positives_makes_them() -> None:
+    from btel.datasets import GroundTruth
+    from btel.evaluation.metrics import check_ground_truth
+
+    positives = [[0, 1], [1], [], np.array([2, 3])]
+    gt = check_ground_truth(positives, 4, 5)
+    expected = GroundTruth.from_positives(positives, n_map=5)
+    assert gt.kind == "positives" and np.array_equal(gt.indptr, expected.indptr)
+    assert np.array_equal(gt.indices, expected.indices)
+    assert check_ground_truth([0, 1, 2, 3], 4, 5).kind == "places"  # a flat list stays one place per query

@@ -87,8 +87,9 @@ def measure(
         number of places (``n_places_``).
     Q : array-like of shape (n_queries, n_features)
         Query descriptors, one query per row.
-    ground_truth : GroundTruth, array-like of int of shape (n_queries,), or None
-        None means frame-aligned: the true place of query j is j.
+    ground_truth : GroundTruth, array-like of int of shape (n_queries,), list of lists, or None
+        None means frame-aligned: the true place of query j is j. One list of map places per query
+        gives explicit positives (R@K; no tolerance).
     tolerances : iterable of int, optional
         Tolerances (frames) for recall@t; default :func:`default_tolerances` (none with explicit
         positives, which have no tolerance; giving some then is an error).

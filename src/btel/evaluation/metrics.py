@@ -74,8 +74,9 @@ def check_ground_truth(true_places: TruthLike, n_queries: int, n_map: int | None
 
     Parameters
     ----------
-    true_places : GroundTruth, array-like of int of shape (n_queries,), or None
-        None means frame-aligned (query j ↔ place j).
+    true_places : GroundTruth, array-like of int of shape (n_queries,), list of lists, or None
+        None means frame-aligned (query j ↔ place j); a list holding one list (or array) of map
+        places per query gives explicit positives (:meth:`GroundTruth.from_positives`).
     n_queries : int
     n_map : int, optional
 
@@ -97,6 +98,9 @@ def check_ground_truth(true_places: TruthLike, n_queries: int, n_map: int | None
                 f"ground truth (query j ↔ place j) cannot hold. Give the true places with {option}."
             )
         gt = GroundTruth.frame_aligned(n_queries, n_map=n_map)
+    elif isinstance(true_places, (list, tuple)) and true_places and all(
+            isinstance(p, (list, tuple, range, np.ndarray)) for p in true_places):
+        gt = GroundTruth.from_positives(true_places, n_map=n_map)  # one list of map places per query
     else:
         gt = GroundTruth.from_places(true_places, n_map=n_map)
     if gt.n_queries != n_queries:
