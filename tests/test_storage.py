@@ -354,3 +354,11 @@ def test_corrupt_header_bytes(model_file: Path, tmp_path: Path) -> None:
     np.savez(path, **{HEADER_KEY: np.frombuffer(b"\xff{not json", dtype=np.uint8)}, **arrays)
     with pytest.raises(ModelFileError, match="corrupt header"):
         btel.load(path)
+
+
+@pytest.mark.parametrize("n, text", [(100, "100 B"), (999, "999 B"), (1000, "1.0 KB (1000 B)"),
+                                     (492240, "492.2 KB (492240 B)")])
+def test_exact_bytes_adds_the_bytes_only_when_the_rounded_size_is_not_exact(n: int, text: str) -> None:
+    from btel.core.storage import exact_bytes
+
+    assert exact_bytes(n) == text

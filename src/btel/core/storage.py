@@ -23,7 +23,7 @@ import numpy as np
 
 from ..exceptions import BudgetExceededError, InvalidParameterError
 
-__all__ = ["check_within_budget", "parse_budget", "budget_of", "format_bytes", "storage_breakdown"]
+__all__ = ["check_within_budget", "parse_budget", "budget_of", "format_bytes", "exact_bytes", "storage_breakdown"]
 
 _UNITS = {
     "": 1,
@@ -93,6 +93,12 @@ def budget_of(estimator: Any) -> int | None:
     """The byte budget of ``estimator`` (its ``budget`` parameter, declared on
     :class:`btel.methods.base.PlaceLocalizer`), parsed: bytes, or None when it has none."""
     return parse_budget(getattr(estimator, "budget", None))
+
+
+def exact_bytes(n_bytes: int) -> str:
+    """A size for a message: ``'492.2 KB (492240 B)'``, or ``'100 B'`` when the rounded form is exact."""
+    rounded = format_bytes(n_bytes)
+    return rounded if rounded == f"{int(n_bytes)} B" else f"{rounded} ({int(n_bytes)} B)"
 
 
 def format_bytes(n_bytes: float) -> str:

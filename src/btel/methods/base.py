@@ -35,7 +35,7 @@ from ..core.params import ParamsMixin
 from ..core.validation import Budget, check_descriptors, check_is_fitted, check_params, check_positive_int, map_places
 from ..exceptions import BudgetTooSmallError, InvalidAnswerError, InvalidDescriptorsError, NotEnoughPlacesError
 from ..core.frontend import FRONT_END_CONSTRAINTS, FRONT_END_MEANINGS, FrontEnd, traverse_starts, with_front_end_parameters
-from ..core.storage import BUDGET_MEANING, budget_of, format_bytes, storage_breakdown
+from ..core.storage import BUDGET_MEANING, budget_of, exact_bytes, storage_breakdown
 from ..core.modelfile import ArraySpec, jsonable, save_arrays
 from ..sequence.querystream import QueryStream
 from ..core.topk import put_first, top_k
@@ -242,7 +242,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
         reserved = front.planned_bytes(n_rows, n_features)
         if budget is not None and reserved >= budget:
             raise BudgetTooSmallError(
-                f"budget {format_bytes(budget)} ({budget} B) is too small for {type(self).__name__} with "
+                f"budget {exact_bytes(budget)} is too small for {type(self).__name__} with "
                 f"whiten = {front.whiten}: the whitening matrix alone needs {reserved} B. Raise the budget or "
                 "whiten to fewer dimensions.", budget=budget, minimum=reserved + 1,
             )

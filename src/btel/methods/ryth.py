@@ -25,7 +25,7 @@ from ..learning.feature_selection import column_index_dtype
 from ..learning.hyperplanes import Hyperplanes
 from ..learning.linear import ColumnStats, default_C
 from ..learning.solvers import CLASSIFIERS, SOLVERS
-from ..core.storage import budget_of, format_bytes
+from ..core.storage import budget_of, exact_bytes
 from ..learning.training import convergence_warning, fit_tasks, one_vs_rest_tasks
 
 __all__ = ["RYTHLocalizer", "coprime_periods", "crt"]
@@ -195,7 +195,7 @@ class RYTHLocalizer(PlaceLocalizer):
         if n_selected == 0:
             minimum = planned(1)
             raise BudgetTooSmallError(
-                f"budget {format_bytes(budget)} ({budget} B) is too small for RYTH with periods {periods}: "
+                f"budget {exact_bytes(budget)} is too small for RYTH with periods {periods}: "
                 f"the smallest model (d' = 1) needs {minimum} B. Raise the budget or use fewer periods.",
                 budget=budget, minimum=minimum,
             )

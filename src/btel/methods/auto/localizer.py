@@ -11,7 +11,7 @@ import numpy as np
 from ...core.validation import N_JOBS, RANDOM_STATE, Interval, check_is_fitted, check_params
 from ..base import ArraySpec, PlaceLocalizer
 from ...exceptions import BudgetTooSmallError, ModelFileError, NotEnoughPlacesError
-from ...core.storage import budget_of, format_bytes
+from ...core.storage import budget_of, exact_bytes
 from .rule import choose_method, reason_terms
 
 __all__ = ["AutoLocalizer", "calibration_table"]
@@ -147,7 +147,7 @@ class AutoLocalizer(PlaceLocalizer):
             break
         else:  # every candidate raised BudgetTooSmallError
             raise BudgetTooSmallError(
-                f"budget {format_bytes(budget or 0)} ({budget} B) is too small for auto: no candidate fits "
+                f"budget {exact_bytes(budget or 0)} is too small for auto: no candidate fits "
                 f"({'; '.join(refused)}). Raise the budget to at least {getattr(error, 'minimum', '?')} B.",
                 budget=budget, minimum=getattr(error, "minimum", None))
         self.front_end_ = self.model_.front_end_
@@ -195,7 +195,7 @@ class AutoLocalizer(PlaceLocalizer):
             except BudgetTooSmallError as exc:
                 errors.append(exc)
         smallest = min(errors, key=lambda e: e.minimum or 0)
-        raise BudgetTooSmallError(f"budget {format_bytes(budget or 0)} ({budget} B) is too small for auto: neither "
+        raise BudgetTooSmallError(f"budget {exact_bytes(budget or 0)} is too small for auto: neither "
                                   f"lsh nor btel-codes fits ({'; '.join(str(e) for e in errors)}).",
                                   budget=budget, minimum=smallest.minimum)
 

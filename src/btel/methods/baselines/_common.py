@@ -23,7 +23,7 @@ import numpy as np
 from ..base import ArraySpec, PlaceLocalizer
 from ...exceptions import BudgetTooSmallError, InvalidDescriptorsError, ModelFileError
 from ...core.rows import one_row_squares
-from ...core.storage import format_bytes
+from ...core.storage import exact_bytes
 from ...core.threads import faiss_module, faiss_threads, search_threads
 
 __all__ = ["quiet_faiss", "faiss_threads", "smallest_uint_dtype", "rank_unique_places", "raise_budget_too_small",
@@ -232,8 +232,8 @@ def recorded_kind(state: dict[str, Any], key: str, kinds: tuple[str, ...], metho
 def raise_budget_too_small(method: str, budget: int, minimum: int, detail: str) -> None:
     """Raise :class:`BudgetTooSmallError` naming the minimum bytes and the smallest configuration."""
     raise BudgetTooSmallError(
-        f"budget {format_bytes(budget)} ({budget} B) is too small for {method}: its smallest configuration "
-        f"({detail}) needs {minimum} B ({format_bytes(minimum)}). Raise the budget to at least {minimum} B "
+        f"budget {exact_bytes(budget)} is too small for {method}: its smallest configuration "
+        f"({detail}) needs {exact_bytes(minimum)}. Raise the budget to at least {minimum} B "
         "or choose a method whose storage grows more slowly with the map.",
         budget=budget,
         minimum=minimum,

@@ -22,7 +22,7 @@ from .compressed import compressed_n_classifiers
 from ...exceptions import BudgetTooSmallError
 from ...learning.feature_selection import column_index_dtype
 from .full import full_n_classifiers
-from ...core.storage import format_bytes
+from ...core.storage import exact_bytes
 
 __all__ = ["array_specs", "planned_bytes", "largest_fitting", "tree_sizes", "starts_dtype", "n_tree_classifiers",
            "raise_budget_too_small", "SCHEMES", "WEIGHT_DTYPES"]
@@ -131,7 +131,7 @@ def largest_fitting(sizes: Sequence[int], d: int, cap: int, budget: int, scheme:
 def raise_budget_too_small(what: str, budget: int, minimum: int, advice: str) -> None:
     """Raise :class:`BudgetTooSmallError` naming the smallest model's bytes."""
     raise BudgetTooSmallError(
-        f"budget {format_bytes(budget)} ({budget} B) is too small for {what}: the smallest model (d' = 1) "
+        f"budget {exact_bytes(budget)} is too small for {what}: the smallest model (d' = 1) "
         f"needs {minimum} B. {advice}",
         budget=budget,
         minimum=minimum,

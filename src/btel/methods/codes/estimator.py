@@ -44,7 +44,7 @@ from ...learning.distributed import BACKENDS
 from ...learning.feature_selection import column_index_dtype
 from ...learning.hyperplanes import check_fitted_weights
 from ...learning.linear import ColumnStats
-from ...core.storage import UNLIMITED_BUDGET, format_bytes
+from ...core.storage import UNLIMITED_BUDGET, exact_bytes
 from .codebook import FAMILIES, MAX_COLUMNS, ROUTE_FAMILIES, Codebook
 from .codewords import RuntimeCache
 from .model_file import CodeModelFile
@@ -230,8 +230,8 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
         except BudgetTooSmallError as exc:
             minimum = int(exc.minimum or 0) + reserved
             raise BudgetTooSmallError(
-                f"budget {format_bytes(budget)} ({budget} B) is too small for output codes ({family}, "
-                f"N = {n_places}): the smallest model needs {minimum} B ({format_bytes(minimum)}), front end "
+                f"budget {exact_bytes(budget)} is too small for output codes ({family}, "
+                f"N = {n_places}): the smallest model needs {exact_bytes(minimum)}, front end "
                 f"included. Raise the budget or fix fewer codes (n_codes).", budget=budget, minimum=minimum,
             ) from None
 
