@@ -166,3 +166,12 @@ def test_a_saturated_model_is_the_model_of_every_larger_budget(name: str, route)
             np.testing.assert_array_equal(larger.predict(Q), model.predict(Q))
             saturated_at.append(budget)
     assert bool(saturated_at) == (name in SATURATE_ON_THE_ROUTE), saturated_at
+
+
+@pytest.mark.parametrize("name", ["pq", "auto", "btel-codes"])
+def test_check_budget_takes_a_budget_as_the_budget_parameter_does(name: str) -> None:
+    from btel.exceptions import BudgetTooSmallError
+
+    with pytest.raises(BudgetTooSmallError, match="budget 10 B is too small"):
+        make_method(name).check_budget(300, 64, "10B")
+    make_method(name).check_budget(300, 64, "64KB")  # fits: nothing raised

@@ -35,7 +35,7 @@ from ..core.params import ParamsMixin
 from ..core.validation import Budget, check_descriptors, check_is_fitted, check_params, check_positive_int, map_places
 from ..exceptions import BudgetTooSmallError, InvalidAnswerError, InvalidDescriptorsError, NotEnoughPlacesError
 from ..core.frontend import FRONT_END_CONSTRAINTS, FRONT_END_MEANINGS, FrontEnd, traverse_starts, with_front_end_parameters
-from ..core.storage import BUDGET_MEANING, budget_of, exact_bytes, storage_breakdown
+from ..core.storage import BUDGET_MEANING, budget_of, exact_bytes, parse_budget, storage_breakdown
 from ..core.modelfile import ArraySpec, jsonable, save_arrays
 from ..sequence.querystream import QueryStream
 from ..core.topk import put_first, top_k
@@ -217,8 +217,8 @@ class PlaceLocalizer(ParamsMixin, ABC):
             Map rows (one place each).
         n_features : int
             Raw descriptor dimension d, before the front end.
-        budget : int or None
-            Bytes (None: unbudgeted).
+        budget : int, str or None
+            Bytes, or a size such as ``"64KB"`` (None: unbudgeted).
         reserved : int, optional
             Bytes the front end takes; None: computed here, raising its own too-small error.
 
@@ -229,8 +229,8 @@ class PlaceLocalizer(ParamsMixin, ABC):
         NotEnoughPlacesError
             Too few places for the method's parameters (regions, periods).
         """
-        if reserved is None:
-            reserved = self._front_end_bytes(n_rows, n_features, budget)
+        budget = parse_budget(budget)  # a size as the budget parameter takes it ("64KB"), or bytes
+        reserved = self._front_end_bytes(n_rows, n_features, budget) if reserved is None else reserved
         self._check_plan(n_rows, FrontEnd.of(self).n_features_out(n_features), budget, reserved)
 
     def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
@@ -254,7 +254,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
         return False
 
     def summary(self) -> str:
-        """One line on what fitting chose (planner values, the rule); empty when there is nothing to add."""
+        """What fitting chose (planner values, the rule), in a line or a few; '' when nothing to add."""
         return ""
 
     # -- inference --------------------------------------------------------------------------------

@@ -11,7 +11,7 @@ import numpy as np
 from ...core.validation import N_JOBS, RANDOM_STATE, Interval, check_is_fitted, check_params
 from ..base import ArraySpec, PlaceLocalizer
 from ...exceptions import BudgetTooSmallError, ModelFileError, NotEnoughPlacesError
-from ...core.storage import budget_of, exact_bytes
+from ...core.storage import budget_of, exact_bytes, parse_budget
 from .rule import choose_method, reason_terms
 
 __all__ = ["AutoLocalizer", "calibration_table"]
@@ -186,6 +186,7 @@ class AutoLocalizer(PlaceLocalizer):
         Every candidate list of the rule ends with plain ``lsh`` and ``btel-codes`` (the others need
         more bytes), so auto fits exactly when one of those two does; the minimum is the smaller one.
         """
+        budget = parse_budget(budget)
         errors: list[BudgetTooSmallError] = []
         for method, params in (("lsh", {"whiten": self.whiten, "center": False}),
                                ("btel-codes", {"code": "periodic", "whiten": self.whiten})):
