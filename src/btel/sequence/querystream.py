@@ -48,6 +48,10 @@ class QueryStream:
         self.model._check_answers(places[-1:], scores[-1:])
         return scores[-1], places[-1]
 
+    def predict(self, x: Any) -> int:
+        """The place of the next frame (the best of :meth:`search`), as ``model.predict`` gives it row by row."""
+        return int(self.search(x, 1)[1][0])
+
     def place_scores(self, x: Any) -> np.ndarray:
         """Scores of every place for the next frame, shape (N,), float64."""
         scores = self.model._place_scores(self._rows(x))[-1]
