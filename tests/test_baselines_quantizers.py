@@ -219,3 +219,14 @@ def test_faiss_threads_restores_the_setting():
     with faiss_threads(1):
         assert faiss.omp_get_max_threads() == 1
     assert faiss.omp_get_max_threads() == before
+
+
+def test_pq_summary_says_what_the_planner_chose_and_what_the_budget_left(data) -> None:
+    X, _ = data
+    model = PQLocalizer(budget="16KB").fit(X)
+    c = model.config_
+    line = model.summary()
+    assert line.startswith(f"pq: {c.n_subquantizers} sub-quantisers × {c.nbits} bits ({c.code_size} B a row) on ")
+    assert f"{model.nbytes:,d} B of a 16,000 B budget" in line and "\n" not in line
+    assert ("PCA projection" in line) == (model.projection_ is not None)
+    assert "budget" not in PQLocalizer().fit(X).summary()  # unbudgeted: nothing to compare with
