@@ -8,6 +8,7 @@ from typing import Any
 
 import click
 
+from ._errors import InputError
 from ._outputs import check_output_suffix, refuse_existing
 from ._params import ParamCommand, _param_value
 
@@ -63,7 +64,8 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
     from ..descriptors import get_descriptor
     from ..descriptors.base import load_descriptor
     from ..core.storage import format_bytes
-    from ..descriptors.extract import extract_cached, extract_delta_cached, is_extraction_of
+    from ..descriptors.extract import extract_cached, extract_delta_cached, extraction_difference, is_extraction_of
+    from ..descriptors.images import IMAGE_EXTENSIONS, not_images
 
     if split_dataset_folder(images_dir) is not None:
         root = Path(images_dir)
@@ -73,6 +75,12 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
             f"{root / 'queries'} -o q.npy --descriptor d.npz`, and evaluate with --ground-truth utm.")
 
     check_output_suffix(output, "-o", "a descriptor matrix", (".npy",))
+    skipped = not_images(images_dir) if Path(images_dir).is_dir() else []
+    if skipped:  # only the images directly inside are read: say what else is there rather than pass it over
+        many = len(skipped) != 1
+        click.echo(f"Warning: {len(skipped)} entr{'ies' if many else 'y'} of {images_dir} "
+                   f"{'are not images' if many else 'is not an image'} btel reads ({', '.join(skipped[:5])}"
+                   f"{', …' if len(skipped) > 5 else ''}); images end in {', '.join(IMAGE_EXTENSIONS)}.", err=True)
     params: dict[str, Any] = {}
     for text in param_texts:
         name, eq, raw = text.partition("=")
@@ -103,6 +111,10 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
         return
     cache = Path(output).exists() and is_extraction_of(output, images_dir, model, fit_on)
     if Path(output).exists() and not overwrite and not cache:
+        changed = extraction_difference(output, images_dir, model, fit_on)
+        if changed:  # btel's own earlier extraction of this folder: say what moved since, not just "exists"
+            raise InputError(f"-o {output} holds an earlier extraction of these images that no longer matches "
+                             f"({changed}); give --overwrite to extract again and replace it, or another -o.")
         refuse_existing(output, "-o", overwrite)
     # A new OUTPUT is published only if still absent (a racing extract's is kept); a cache of the same
     # extraction, or any file with --overwrite, is replaced.

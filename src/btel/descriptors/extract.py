@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from pathlib import Path
@@ -95,20 +96,40 @@ def extract_descriptors(
 
 def extraction_key(paths: list[Path], model: ImageDescriptor, fit_on: Any = None) -> dict[str, Any]:
     """What determines an extraction's output: the images (name, size, mtime), the descriptor and
-    its parameters, and where it was fitted. Two extractions with equal keys give equal matrices."""
+    its parameters, and what it was fitted on — the fit-on images (name, size, mtime), or the
+    fitted arrays of a descriptor loaded from its file (a SHA-1). Two extractions with equal keys
+    give equal matrices."""
+    from .images import list_images
+
     params = {k: (list(v) if isinstance(v, tuple) else v) for k, v in model.get_params().items()}
-    files = [[p.name, p.stat().st_size, int(p.stat().st_mtime_ns)] for p in paths]
     prefitted = bool(getattr(model, "dim_", None)) and bool(getattr(model, "requires_fit", False))
     parents = {p.parent for p in paths}
-    return {
+    key = {
         "descriptor": type(model).__name__,
         "params": json.loads(json.dumps(params, default=str)),
         "fit_on": str(Path(fit_on).resolve()) if isinstance(fit_on, (str, os.PathLike)) else None,
         "prefitted": prefitted,
-        "images": files,
+        "images": _file_stamps(paths),
         # Where the images are, so that a run can show them (btel evaluate's match gallery).
         "folder": str(parents.pop().resolve()) if len(parents) == 1 else None,
     }
+    # The path alone would vouch for a fit-on folder whose images changed, or a descriptor file
+    # fitted again on another map: the images and the fitted arrays themselves are recorded.
+    if isinstance(fit_on, (str, os.PathLike)) and Path(fit_on).is_dir():
+        key["fit_on_images"] = _file_stamps(list_images(fit_on))
+    elif isinstance(fit_on, (list, tuple)):
+        key["fit_on_images"] = _file_stamps([Path(p) for p in fit_on])
+    if prefitted:
+        digest = hashlib.sha1()
+        for name, array in sorted(model._stored_arrays().items()):
+            digest.update(name.encode() + np.ascontiguousarray(array).tobytes())
+        key["fitted_sha1"] = digest.hexdigest()
+    return key
+
+
+def _file_stamps(paths: list[Path]) -> list[list[Any]]:
+    """``[name, size, mtime in ns]`` of each file: what says a file is the one an extraction read."""
+    return [[p.name, p.stat().st_size, int(p.stat().st_mtime_ns)] for p in paths]
 
 
 def same_extraction(cached: Any, key: dict[str, Any]) -> bool:
@@ -187,6 +208,39 @@ def is_extraction_of(output: str | os.PathLike, images: str | os.PathLike, model
         return same_extraction(cached, extraction_key(list_images(images), model, fit_on))
     except (OSError, ValueError):
         return False
+
+
+def extraction_difference(output: str | os.PathLike, images: str | os.PathLike, model: ImageDescriptor,
+                          fit_on: Any = None) -> str | None:
+    """What differs between the extraction ``output``'s JSON sidecar records and this one, in words;
+    None when there is no sidecar or it names another image folder (``output`` is then no cache of
+    these images) or nothing differs."""
+    from .images import list_images
+
+    try:
+        cached = json.loads(Path(str(output) + ".json").read_text())
+    except (OSError, ValueError):
+        return None
+    key = extraction_key(list_images(images), model, fit_on)
+    if not isinstance(cached, dict) or cached.get("folder") not in (None, key["folder"]):
+        return None
+    old = {entry[0]: entry[1:] for entry in cached.get("images", []) if isinstance(entry, list) and entry}
+    new = {entry[0]: entry[1:] for entry in key["images"]}
+    parts = []
+    for what, names in (("changed", sorted(n for n in new.keys() & old.keys() if new[n] != old[n])),
+                        ("added", sorted(new.keys() - old.keys())), ("removed", sorted(old.keys() - new.keys()))):
+        if names:
+            parts.append(f"{len(names)} image{'s' * (len(names) != 1)} {what} (e.g. {names[0]})")
+    if cached.get("descriptor") != key["descriptor"]:
+        parts.append(f"the descriptor ({cached.get('descriptor')} → {key['descriptor']})")
+    elif cached.get("params") != key["params"] and isinstance(cached.get("params"), dict):
+        parts += [f"{k}: {cached['params'].get(k)} → {v}" for k, v in key["params"].items()
+                  if cached["params"].get(k) != v][:3]
+    if (cached.get("fit_on"), cached.get("fit_on_images")) != (key["fit_on"], key.get("fit_on_images")):
+        parts.append("the images it was fitted on")
+    if cached.get("fitted_sha1") != key.get("fitted_sha1"):
+        parts.append("the descriptor file's fitted arrays")
+    return "; ".join(parts) or None
 
 
 def extract_delta_cached(images: str | os.PathLike, output: str | os.PathLike, model: ImageDescriptor,

@@ -57,6 +57,7 @@ __all__ = [
     "image_header",
     "ImageInput",
     "list_images",
+    "not_images",
     "read_image",
     "to_grey",
     "as_image_list",
@@ -123,6 +124,13 @@ def list_images(folder: str | os.PathLike) -> list[Path]:
             f"{', '.join(IMAGE_EXTENSIONS)}."
         )
     return sorted(files, key=_natural_key)
+
+
+def not_images(folder: str | os.PathLike) -> list[str]:
+    """Names of what :func:`list_images` leaves out of ``folder`` (other files, sub-folders; hidden
+    entries aside), sorted: what a user may have expected to be read."""
+    return sorted(p.name + ("/" if p.is_dir() else "") for p in Path(folder).iterdir()
+                  if not p.name.startswith(".") and not (p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS))
 
 
 def decode_bytes(width: int, height: int, channels: int, *, grey: bool, sample_bytes: int = 1,

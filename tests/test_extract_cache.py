@@ -1,0 +1,82 @@
+"""``btel extract``'s cache vouches only for what it read: images, fit-on images, fitted arrays.
+
+The cache (``OUTPUT.json`` beside the matrix, :func:`btel.descriptors.extract.extraction_key`) is
+reused when nothing changed; these tests change each input it depends on and check that the
+output is not taken for up to date, and that the command says what changed.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+from click.testing import CliRunner
+
+from btel.cli import main
+from btel.descriptors import DenseVLADDescriptor
+from btel.descriptors.extract import extraction_difference, extraction_key
+from btel.descriptors.images import list_images
+
+_FAST = {"n_clusters": 4, "n_components": None, "sizes": (4,), "step": 6, "max_descriptors": 2000, "kmeans_iter": 5}
+
+
+def _folder(path: Path, seed: int, n: int = 6) -> Path:
+    path.mkdir()
+    rng = np.random.default_rng(seed)
+    for i in range(n):
+        cv2.imwrite(str(path / f"img{i}.png"), rng.integers(0, 255, size=(32, 48), dtype=np.uint8))
+    return path
+
+
+def _invoke(*args: object) -> "click.testing.Result":  # noqa: F821
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def test_a_changed_fit_on_folder_changes_the_key(tmp_path: Path) -> None:
+    images, fit_on = _folder(tmp_path / "q", 0), _folder(tmp_path / "map", 1)
+    model = DenseVLADDescriptor(**_FAST)
+    before = extraction_key(list_images(images), model, fit_on)
+    first = sorted(fit_on.iterdir())[0]
+    cv2.imwrite(str(first), np.zeros((32, 48), dtype=np.uint8))
+    os.utime(first, ns=(1, 1))  # a new mtime whatever the clock's resolution
+    assert extraction_key(list_images(images), model, fit_on) != before
+
+
+def test_a_descriptor_file_fitted_again_changes_the_key(tmp_path: Path) -> None:
+    images = _folder(tmp_path / "q", 0)
+    one = DenseVLADDescriptor(**_FAST).fit(list_images(_folder(tmp_path / "a", 1)), progress=False)
+    two = DenseVLADDescriptor(**_FAST).fit(list_images(_folder(tmp_path / "b", 2)), progress=False)
+    assert one.get_params() == two.get_params()  # the same parameters: only the fitted arrays differ
+    key_one, key_two = (extraction_key(list_images(images), m) for m in (one, two))
+    assert key_one["fitted_sha1"] != key_two["fitted_sha1"] and key_one != key_two
+    assert extraction_key(list_images(images), one) == key_one  # and the key is stable
+
+
+def test_extract_names_what_changed_since_its_earlier_extraction(tmp_path: Path) -> None:
+    images = _folder(tmp_path / "imgs", 0)
+    out = tmp_path / "d.npy"
+    assert _invoke("extract", images, "-o", out, "--no-progress").exit_code == 0
+    assert "up to date" in _invoke("extract", images, "-o", out, "--no-progress").output
+    before = out.read_bytes()
+    cv2.imwrite(str(images / "img9.png"), np.zeros((32, 48), dtype=np.uint8))
+    result = _invoke("extract", images, "-o", out, "--no-progress", "--size", "40x20")
+    assert result.exit_code == 2 and "Usage:" not in result.output
+    assert "holds an earlier extraction of these images that no longer matches" in result.output
+    assert "1 image added (e.g. img9.png)" in result.output and "size: [64, 32] → [40, 20]" in result.output
+    assert out.read_bytes() == before
+    again = _invoke("extract", images, "-o", out, "--no-progress", "--size", "40x20", "--overwrite")
+    assert again.exit_code == 0 and np.load(out).shape[0] == 7
+    assert extraction_difference(out, images, DenseVLADDescriptor(**_FAST)) is not None  # another descriptor
+
+
+def test_extract_says_what_in_the_folder_it_does_not_read(tmp_path: Path) -> None:
+    images = _folder(tmp_path / "imgs", 0, n=3)
+    (images / "notes.txt").write_text("route notes")
+    (images / "nested").mkdir()
+    (images / ".DS_Store").write_bytes(b"")  # hidden: not worth a word
+    result = CliRunner().invoke(main, ["extract", str(images), "-o", str(tmp_path / "d.npy"), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    assert "2 entries of" in result.output and "are not images btel reads (nested/, notes.txt)" in result.output
+    assert np.load(tmp_path / "d.npy").shape[0] == 3
