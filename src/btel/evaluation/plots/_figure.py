@@ -37,7 +37,7 @@ def _save(fig: Figure, path: str | os.PathLike) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
     with atomic_output(path, suffix=".tmp") as fh:
-        fig.savefig(fh, format="png")
+        fig.savefig(fh, format="png", bbox_inches="tight")  # a legend outside the axes is kept whole
 
 
 def _finish_recall_plot(fig: Figure, ax: Any, path: str | os.PathLike, *, xlabel: str, ylabel: str = "recall",
