@@ -53,6 +53,8 @@ def test_report_has_every_section_and_keeps_marked_blocks(quick_runs: Path, tmp_
     for name in EXPERIMENTS:
         assert f"btel experiment {name} --quick" in md
     assert "SCALE TABLE" in md and "old" not in md.splitlines()[0]
+    # Quick runs are said to be quick under every heading, and no verdict is read from them.
+    assert md.count("> **Quick mode**") == len(EXPERIMENTS) and "Reading (computed from the table)" not in md
     summary = json.loads((docs / "results.json").read_text())
     assert set(summary) == set(EXPERIMENTS)
     row = summary["vs-budget"]["rows"][0]

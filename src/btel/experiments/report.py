@@ -221,6 +221,9 @@ def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path
                   f"Command: `{run.get('command') or 'btel experiment ' + name}`"
                   f"{' (quick mode)' if run.get('quick') else ''} — {run.get('date_utc', '')}, "
                   f"{run.get('seconds', 0):.0f} s, btel {run.get('versions', {}).get('btel', '?')}.", ""]
+        if run.get("quick"):  # the heading names the full run's sizes; say that these rows are not them
+            lines += ["> **Quick mode**: a smoke run on smaller maps and budgets than the heading names (the rows "
+                      "give them). Its differences are too small to read a verdict from, so none is drawn.", ""]
         if name == "beyond":
             lines += _beyond_lines(payload)
         elif name == "front-ends":
@@ -240,7 +243,7 @@ def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path
             target = figures / f"{name}-{png.name}"
             shutil.copyfile(png, target)
             lines += [f"![{name} {png.stem}](figures/{target.name})", ""]
-        reading = [] if name in ("beyond", "front-ends", "codes", "frontier") else _reading(name, rows)
+        reading = [] if name in ("beyond", "front-ends", "codes", "frontier") or run.get("quick") else _reading(name, rows)
         if reading:
             lines += ["Reading (computed from the table):", ""] + [f"- {s}" for s in reading] + [""]
     missing = [name for name in EXPERIMENTS if name not in found]
