@@ -137,8 +137,8 @@ def plot_match_gallery(
         raise
     n_ok = int(correct[chosen].sum())
     fig.suptitle((f"{title}\n" if title else "")
-                 + f"top-1 over all {n} queries: {correct.mean():.0%}. Shown: {len(chosen)} of them, picked to show "
-                 f"both kinds: {n_ok} correct (green), {len(chosen) - n_ok} wrong (red)", fontsize=9, parse_math=False)
+                 + f"top-1 over all {n} queries: {correct.mean():.0%}. Shown: {len(chosen)} of them, half right and half "
+                 f"wrong where there are enough of each: {n_ok} correct (green), {len(chosen) - n_ok} wrong (red)", fontsize=9, parse_math=False)
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
