@@ -80,3 +80,9 @@ def test_extract_says_what_in_the_folder_it_does_not_read(tmp_path: Path) -> Non
     assert result.exit_code == 0, result.output
     assert "2 entries of" in result.output and "are not images btel reads (nested/, notes.txt)" in result.output
     assert np.load(tmp_path / "d.npy").shape[0] == 3
+
+
+def test_a_descriptor_file_that_is_not_there_is_named_as_a_missing_file(tmp_path: Path) -> None:
+    images = _folder(tmp_path / "imgs", 0, n=2)
+    result = _invoke("extract", images, "-o", tmp_path / "d.npy", "--descriptor", tmp_path / "dv.npz")
+    assert result.exit_code == 2 and "no such file" in result.output and "unknown descriptor" not in result.output

@@ -92,6 +92,9 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
         if not match:
             raise click.UsageError(f"--size {size!r} is not WIDTHxHEIGHT, e.g. 64x32.")
         params["size"] = (int(match.group(1)), int(match.group(2)))
+    if not Path(descriptor).is_file() and (Path(descriptor).suffix.lower() == ".npz" or "/" in descriptor):
+        raise click.UsageError(f"--descriptor {descriptor}: no such file. Give a saved descriptor file (written by "
+                               "--save-descriptor) or a descriptor name (hog, patchnorm, densevlad).")
     if Path(descriptor).is_file():
         if params:
             raise click.UsageError("--size and --param set a new descriptor; a saved descriptor file keeps its own.")
