@@ -42,7 +42,7 @@ import numpy as np
 from .validation import Interval, Options
 from ..exceptions import InvalidParameterError, ModelFileError
 from .rows import (NORMALIZATIONS, TINY_SQUARED_NORM, ScaledRows, delta_descriptors, normalize_rows,
-                   one_row_squares, row_norms, traverse_starts)
+                   one_row_squares, row_norms, traverse_starts, warn_blank_rows)
 
 __all__ = ["FrontEnd", "FrontEndStream", "ScaledRows", "delta_descriptors", "normalize_rows", "row_norms",
            "traverse_starts",
@@ -215,6 +215,8 @@ class FrontEnd:
         ``lazy``: the caller only multiplies the rows by matrices, so a plain L2 normalisation
         comes back as :class:`ScaledRows` (no normalised copy of X).
         """
+        if check_finite:  # queries (a map's rows come through fit_transform): a blank one gets a warning
+            warn_blank_rows(X)
         plain_l2 = self.plain_l2
         scale = self.one_row_scale(X)
         if scale is not None:

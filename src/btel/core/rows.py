@@ -14,7 +14,7 @@ import numpy as np
 from .validation import check_descriptors, check_positive_int
 from ..exceptions import InvalidParameterError, NotEnoughPlacesError
 
-__all__ = ["ScaledRows", "delta_descriptors", "mean_and_rms", "normalize_rows", "one_row_squares", "row_norms",
+__all__ = ["BlankQueryWarning", "ScaledRows", "warn_blank_rows", "delta_descriptors", "mean_and_rms", "normalize_rows", "one_row_squares", "row_norms",
            "traverse_starts", "NORMALIZATIONS"]
 
 NORMALIZATIONS = ("none", "l2", "power")
@@ -25,6 +25,24 @@ _CHUNK_ROWS = 65536
 #: float32 their squares underflow (the smallest normal float32 is 1.2e-38) and their inverse overflows,
 #: so a map scaled by 1e-38 would not come out of the L2 front end at unit length.
 TINY_SQUARED_NORM = 1e-30
+
+
+class BlankQueryWarning(UserWarning):
+    """A query row of zeros (a blank or covered frame): it carries no appearance to localize by."""
+
+
+def warn_blank_rows(Q: np.ndarray) -> None:
+    """Warn when rows of the validated queries ``Q`` (n, d) are all zeros: a method still answers them
+    (a tie's first place, or what its biases favour), but that answer is not a localization. One pass
+    over Q; nothing is changed."""
+    blank = np.flatnonzero(~Q.any(axis=1)) if Q.shape[0] > 1 else ([0] if not Q.any() else [])
+    if len(blank):
+        import warnings
+
+        rows = ", ".join(map(str, blank[:5])) + (", …" if len(blank) > 5 else "")
+        warnings.warn(f"{len(blank)} query row{'s' * (len(blank) != 1)} ({rows}) {'are' if len(blank) != 1 else 'is'} "
+                      "all zeros (a blank frame?): a descriptor with no content gets an answer, but not a "
+                      "localization.", BlankQueryWarning, stacklevel=4)
 
 
 def one_row_squares(row: np.ndarray) -> float:

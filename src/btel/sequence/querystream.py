@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core.rows import warn_blank_rows
 from ..core.validation import check_descriptors
 from ..exceptions import InvalidParameterError
 
@@ -36,6 +37,7 @@ class QueryStream:
                               n_features=self.model.n_features_in_)
         if q.shape[0] != 1:
             raise InvalidParameterError(f"a stream takes one descriptor at a time; got {q.shape[0]} rows.")
+        warn_blank_rows(q)
         z = self._front.update(q)
         if not self._context:
             return z
