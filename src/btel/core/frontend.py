@@ -215,10 +215,12 @@ class FrontEnd:
         ``lazy``: the caller only multiplies the rows by matrices, so a plain L2 normalisation
         comes back as :class:`ScaledRows` (no normalised copy of X).
         """
-        if check_finite:  # queries (a map's rows come through fit_transform): a blank one gets a warning
-            warn_blank_rows(X)
         plain_l2 = self.plain_l2
         scale = self.one_row_scale(X)
+        # Queries (a map's rows come through fit_transform): a blank one gets a warning. One query's
+        # scale is 1.0 when it is blank, so the common single query pays no extra pass for the check.
+        if check_finite and (scale is None or scale == 1.0):
+            warn_blank_rows(X)
         if scale is not None:
             # A Python float times a float32 array is float32 arithmetic (NEP 50): X * np.float32(scale).
             return ScaledRows(X, np.array([scale], dtype=np.float32)) if lazy else X * scale
