@@ -18,10 +18,11 @@ from typing import Any
 
 import numpy as np
 
-from ..exceptions import BTELError, DataNotFoundError, InvalidParameterError
+from ..exceptions import BTELError, DataNotFoundError, InvalidDescriptorsError, InvalidParameterError
 from ..core.limits import check_bytes, check_count, check_numpy_file, open_regular
+from .npy_header import check_npy_header
 
-__all__ = ["read_object_npy", "read_ground_truth"]
+__all__ = ["read_object_npy", "read_ground_truth", "check_some_positive"]
 
 _UTM_KEYS = ("utmDb", "utmQ", "posDistThr")
 _CSR_KEYS = ("indptr", "indices")
@@ -64,6 +65,10 @@ def read_object_npy(path: str | os.PathLike) -> np.ndarray:
                            else np.lib.format.read_array_header_2_0)
             shape, _fortran, dtype = read_header(fh)
         except Exception as exc:  # numpy's header parser raises ValueError, SyntaxError, TokenError…
+            fh.seek(0)
+            if fh.read(1) == b"\x80":  # a bare pickle named .npy
+                raise DataNotFoundError(f"{str(path)!r} is a pickle, not an .npy file; btel never unpickles files. "
+                                        "Save the ground truth with np.save or np.savez.") from None
             raise DataNotFoundError(f"{str(path)!r} is not an .npy file ({str(exc)[:200]}).") from None
         if not dtype.hasobject:
             raise DataNotFoundError(f"{str(path)!r} holds a plain {dtype} array, not an object array.")
@@ -122,7 +127,18 @@ def read_ground_truth(cls: Any, path: str | os.PathLike, *, n_queries: int | Non
         raise DataNotFoundError(
             f"ground-truth file {str(path)!r} could not be read ({type(exc).__name__}: {str(exc)[:200]}).") from None
     _check_counts(repr(str(path)), expected, queries=("it", gt.n_queries), map_places=("it", gt.n_map))
+    check_some_positive(gt, f"ground-truth file {str(path)!r}")
     return gt
+
+
+def check_some_positive(gt: Any, source: str) -> None:
+    """Refuse explicit positives in which no query has any: every query would count as wrong, and
+    no metric would say anything about the method."""
+    if gt.kind == "positives" and gt.n_queries and gt.n_without_positives == gt.n_queries:
+        raise InvalidParameterError(
+            f"{source} gives none of its {gt.n_queries} queries a positive map place, so every query would "
+            "count as wrong whatever the method; check that it is the ground truth of these descriptors "
+            "(places numbered from 0) and, for positions, the radius.")
 
 
 def _read(cls: Any, path: Path, expected: dict[str, int | None]) -> Any:
@@ -135,6 +151,10 @@ def _read(cls: Any, path: Path, expected: dict[str, int | None]) -> Any:
         return _from_csv(cls, path)
     with open_regular(path):
         pass
+    try:  # a file cut short is named as such, not as an allocation of many GiB or as "not numpy data"
+        check_npy_header(path, "ground-truth file", objects=True)
+    except InvalidDescriptorsError as exc:
+        raise DataNotFoundError(str(exc)) from None
     check_numpy_file(path, f"ground-truth file {str(path)!r}")
     try:
         loaded = np.load(path, allow_pickle=False)
@@ -142,11 +162,16 @@ def _read(cls: Any, path: Path, expected: dict[str, int | None]) -> Any:
         if suffix == ".npy" and "pickle" in str(exc).lower():
             # VPR-Bench's ground_truth_new.npy: an object array, parsed without unpickling.
             return cls.from_positives(_positives_from_object_array(read_object_npy(path), repr(str(path))))
+        if "allow_pickle" in str(exc):  # numpy's advice (load it unsafely) is not btel's
+            raise DataNotFoundError(
+                f"ground-truth file {str(path)!r} is neither an .npy nor an .npz file (a pickle, or another "
+                "format); btel never unpickles files. Give the ground truth as .npy, .npz, .mat or .csv "
+                "(`btel evaluate --help`, --ground-truth).") from None
         raise DataNotFoundError(
-            f"ground-truth file {str(path)!r} holds pickled objects or is not numpy data ({str(exc)[:200]}); "
-            "btel never loads pickles. Save plain arrays with np.savez.") from None
+            f"ground-truth file {str(path)!r} is not valid numpy data ({str(exc)[:200]}); write it again "
+            "with np.save or np.savez.") from None
     if isinstance(loaded, np.ndarray):
-        if loaded.ndim == 1 and loaded.dtype.kind in "iu":
+        if loaded.ndim == 1 and loaded.dtype.kind in "iuf":  # floats must be whole numbers (checked there)
             return cls(query_places=loaded)
         raise DataNotFoundError(
             f"{str(path)!r} holds an array of shape {loaded.shape} and dtype {loaded.dtype}; a ground-truth "
@@ -194,6 +219,12 @@ def _from_arrays(cls: Any, arrays: dict[str, np.ndarray], source: str,
         if not (value == int(value) if np.isfinite(value) else False) or not 1 <= value < 2**62:
             raise DataNotFoundError(f"{source}: n_map must be a positive whole number; got {value}.")
         n_map = int(value)
+    layouts = [name for name, keys in (("indptr+indices", _CSR_KEYS), ("utmDb+utmQ+posDistThr", _UTM_KEYS),
+                                       ("query_places", ("query_places",))) if all(k in arrays for k in keys)]
+    if len(layouts) > 1:
+        raise DataNotFoundError(
+            f"{source} holds arrays of {len(layouts)} ground-truth layouts ({', '.join(layouts)}), which may not "
+            "agree; keep the arrays of one (np.savez with only those).")
     if all(k in arrays for k in _CSR_KEYS):
         rows = _rows(arrays["indptr"])
         queries = None if rows is None else rows - 1

@@ -113,6 +113,7 @@ def resolve_ground_truth(spec: str | None, *, n_queries: int, n_map: int, db: st
         file whose counts do not match.
     """
     from .groundtruth import GroundTruth
+    from .groundtruth_files import check_some_positive
     from .vpr_names import DEFAULT_POSITIVE_DIST_THRESHOLD, utm_of_names
 
     if threshold is not None and spec != "utm":
@@ -140,4 +141,5 @@ def resolve_ground_truth(spec: str | None, *, n_queries: int, n_map: int, db: st
                                         "and its .json no longer match (re-run btel extract).")
         utm[what] = utm_of_names(found, f"{what} {path}")
     gt = GroundTruth.from_utm(utm["map"], utm["queries"], threshold)
+    check_some_positive(gt, f"the UTM ground truth (positives within {threshold:g} m of the image names' positions)")
     return gt, truth_description(gt, "UTM in image names", f"positives within {threshold:g} m")

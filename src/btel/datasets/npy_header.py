@@ -1,0 +1,79 @@
+"""What an ``.npy`` file's header announces, checked against the file before numpy maps or reads it.
+
+numpy trusts the header: a file cut short (a copy or a download that did not finish) or one whose
+header lies is reported by numpy as "mmap length is greater than file size", or by btel's memory
+check as an allocation of many GiB, which sends the user after the wrong problem. An object dtype
+(a pickle inside the ``.npy``) is reported by numpy's memory map as "Array can't be memory-mapped".
+:func:`check_npy_header` names these before any read: only the header is parsed (numpy's own
+parser, which evaluates no code), nothing is unpickled.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..core.limits import format_size
+from ..exceptions import InvalidDescriptorsError
+
+__all__ = ["npy_header", "check_npy_header"]
+
+_MAGIC = b"\x93NUMPY"
+
+
+def npy_header(path: str | os.PathLike) -> tuple[tuple[int, ...], np.dtype, int, int] | None:
+    """(shape, dtype, bytes of data the header announces, bytes the file holds after its header) of
+    the ``.npy`` file ``path``; None when it is not a regular file starting as an ``.npy`` or its
+    header cannot be parsed (numpy's reader then names the problem)."""
+    path = Path(path)
+    if not path.is_file():  # a folder, a FIFO or a device: the readers refuse those themselves
+        return None
+    readers = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
+    try:
+        with open(path, "rb") as fh:
+            if fh.read(len(_MAGIC)) != _MAGIC:
+                return None
+            fh.seek(0)
+            reader: Any = readers.get(np.lib.format.read_magic(fh))
+            if reader is None:
+                return None
+            shape, _fortran, dtype = reader(fh)
+            offset = fh.tell()
+            size = os.fstat(fh.fileno()).st_size
+    except Exception:  # noqa: BLE001 - a damaged header: numpy's reader reports it when loading
+        return None
+    declared = math.prod(int(n) for n in shape) * dtype.itemsize  # Python ints: no overflow
+    return tuple(int(n) for n in shape), dtype, declared, size - offset
+
+
+def check_npy_header(path: str | os.PathLike, what: str, *, objects: bool = False) -> None:
+    """Refuse an ``.npy`` whose header announces more data than the file holds (cut short, or not
+    written by numpy) and, unless ``objects``, one holding Python objects (a pickle), each with the
+    fix. Anything else (not an ``.npy``, a damaged header) is left to the reader.
+
+    Raises
+    ------
+    InvalidDescriptorsError
+        The file is truncated, or holds an object array (``objects=False``).
+    """
+    found = npy_header(path)
+    if found is None:
+        return
+    shape, dtype, declared, held = found
+    if dtype.hasobject:
+        if objects:
+            return  # a pickled payload has no size the header announces
+        raise InvalidDescriptorsError(
+            f"{what} {str(path)!r} holds Python objects (an object array, stored as a pickle); btel never "
+            "unpickles files because that can run code. Save the descriptors as a numeric array: "
+            "np.save(path, X.astype('float32')).")
+    if declared > held:
+        raise InvalidDescriptorsError(
+            f"{what} {str(path)!r} is cut short: its header announces an array of shape {shape} and dtype {dtype} "
+            f"({format_size(declared)} of data) but the file holds {format_size(max(held, 0))} after the header "
+            "(a copy or a write that did not finish, or a header that does not match the data). Copy or "
+            "write the file again (np.save(path, X)).")
