@@ -277,7 +277,7 @@ def test_cli_train_calibrate_on_the_gardens_point_sample_writes_the_table_and_no
     )
     assert done.exit_code == 0, done.output
     info = run.invoke(main, ["info", str(model)])
-    assert info.exit_code == 0 and "calibration: 10 queries (tolerance 1)" in info.output
+    assert info.exit_code == 0 and "calibration: 10 labelled queries, correct when within 1 place of the true place" in info.output
     assert "btel-codes periodic" in info.output and "map-only pick" in info.output
     Q = np.load(tmp_path / "query.npy")
     with np.load(model, allow_pickle=False) as z:

@@ -47,11 +47,13 @@ def _aliases(command: Callable[..., Any]) -> Callable[..., Any]:
 @click.option("--n-jobs", type=int, default=None, help=_N_JOBS_HELP)
 @click.option("--no-progress", is_flag=True, help=_NO_PROGRESS_HELP)
 @calibration_options
+@click.option("--positive-dist-threshold", type=float, default=None, metavar="METRES",
+              help="With --calibrate-truth utm: the positives' radius (default 25).")
 @_aliases
 def train(db: str, output: str, overwrite: bool, method: str, budget: str | None,
           param_texts: tuple[str, ...], random_state: int | None, n_jobs: int | None, no_progress: bool,
           calibrate: str | None, calibrate_truth: str | None, calibrate_tolerance: int | None,
-          **aliases: str | None) -> None:
+          positive_dist_threshold: float | None, **aliases: str | None) -> None:
     """Fit a model on map descriptors DB and save it; prints the storage breakdown.
 
     DB is a .npy matrix (row i = place i; memory-mapped, so maps larger than RAM work), an .npz,
@@ -72,13 +74,20 @@ def train(db: str, output: str, overwrite: bool, method: str, budget: str | None
     if calibrate_tolerance is not None:
         shortcuts["calibration_tolerance"] = ("--calibrate-tolerance", calibrate_tolerance)
     check_calibration_options(method, calibrate, calibrate_truth, calibrate_tolerance)
+    if positive_dist_threshold is not None and calibrate_truth != "utm":
+        raise click.UsageError("--positive-dist-threshold is the radius of --calibrate-truth utm (positives from the "
+                               "UTM in the image names); a ground-truth file says its own positives.")
     params = _params_by_method([method], param_texts, shortcuts=shortcuts)[method]
     # A model is read by its content, so any name works (map.btel is in use) but one of another format's.
     check_output_suffix(output, "-o", "a model file", (".npz",), refused=OTHER_FORMATS)
     refuse_existing(output, "-o", overwrite)
     X = _load_map(db)
-    fit_params = ({"calibration": calibration_input(db, calibrate, calibrate_truth, X.shape[0])[:2]}
-                  if calibrate else {})
+    fit_params: dict[str, Any] = {}
+    if calibrate:
+        Q, truth, said = calibration_input(db, calibrate, calibrate_truth, X.shape[0], positive_dist_threshold)
+        fit_params["calibration"] = (Q, truth)
+        click.echo(f"calibrating {method} on {Q.shape[0]} labelled queries ({calibrate}); ground truth: "
+                   f"{said.get('source')}" + (f", {said['rule']}" if said.get("rule") else ""), err=True)
     from ..evaluation.measure import timed_fit
 
     with _naming(method):

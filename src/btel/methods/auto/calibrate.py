@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from typing import Any, Callable
 
 import numpy as np
@@ -73,6 +74,9 @@ TEST = (
     "paired per-query differences against the map-only pick; one-sided max-T paired sign-flip "
     "permutation over all candidates (Westfall–Young); exact McNemar p per candidate for reference"
 )
+#: Fewest calibration queries with which a switch is possible: all of them won still leaves an
+#: exact (and max-T) p of 2^-n, which must fall below :data:`ALPHA`.
+MIN_SWITCH_QUERIES = int(math.ceil(math.log2(1 / ALPHA)))
 #: The difference in calibration recall the "queries needed" column is stated for.
 REFERENCE_DIFFERENCE = 0.05
 
@@ -133,13 +137,14 @@ def queries_needed(
     """Calibration queries McNemar's test needs to detect ``difference`` at this discordance rate
     (Connor 1987).
 
-    n = (z_α·√ψ + z_β·√(ψ − δ²))² / δ², ψ the share of discordant queries, one-sided. None when ψ ≤ δ²
-    (the observed discordance cannot hold such a difference).
+    n = (z_α·√ψ + z_β·√(ψ − δ²))² / δ², ψ the share of discordant queries, one-sided. None when ψ < δ:
+    a difference is at most the share of queries on which the two disagree, so the observed discordance
+    cannot hold such a difference (the formula's small n there would read as "few queries suffice").
     """
     from scipy.stats import norm
 
     psi, delta = float(discordance), float(difference)
-    if psi <= delta * delta:
+    if delta <= 0 or psi < delta - 1e-12:
         return None
     z_a, z_b = norm.ppf(1 - alpha), norm.ppf(power)
     return int(math.ceil((z_a * math.sqrt(psi) + z_b * math.sqrt(psi - delta * delta)) ** 2 / delta**2))
@@ -192,8 +197,6 @@ def check_calibration(
 ) -> tuple[np.ndarray, Any]:
     """``(Q, truth)`` checked: Q (n_queries, n_features) finite numbers, truth an int array of true places
     in [0, n_places) or a :class:`~btel.datasets.GroundTruth` over n_queries queries."""
-    from ...datasets.groundtruth import GroundTruth
-
     if not isinstance(calibration, (tuple, list)) or len(calibration) != 2:
         raise InvalidParameterError(
             "calibration must be a pair (Q, truth): the calibration queries (n_queries, "
@@ -206,32 +209,58 @@ def check_calibration(
             "Describe the queries with the map's descriptor."
         )
     if Q.shape[0] < 2:
-        raise InvalidParameterError(f"calibration needs at least 2 queries; got {Q.shape[0]}.")
-    truth = calibration[1]
+        raise InvalidParameterError(
+            f"calibration needs at least 2 labelled queries; got {Q.shape[0]}. Give more (at least "
+            f"{MIN_SWITCH_QUERIES} for a switch to be possible; a few hundred certify a difference of "
+            "0.10–0.15), or fit without calibration."
+        )
+    if int(tolerance) < 0:
+        raise InvalidParameterError(f"calibration_tolerance must be ≥ 0; got {tolerance}.")
+    truth = _checked_truth(calibration[1], Q.shape[0], n_places)
+    if Q.shape[0] < MIN_SWITCH_QUERIES:
+        warnings.warn(
+            f"{Q.shape[0]} calibration queries cannot show any candidate better than the map-only pick "
+            f"at α = {ALPHA} (that needs at least {MIN_SWITCH_QUERIES}): the map-only pick stays; give "
+            "more labelled queries.", UserWarning, stacklevel=3)
+    if truth.kind == "places" and int(tolerance) >= n_places - 1:
+        warnings.warn(f"calibration_tolerance={tolerance} spans the whole map of {n_places} places: every prediction "
+                      "counts as correct and no candidate can differ; give a few places.", UserWarning, stacklevel=3)
+    if truth.kind != "places" and int(tolerance) > 0:
+        warnings.warn(
+            f"calibration_tolerance={tolerance} is not used: the calibration ground truth lists each "
+            "query's positives, and a prediction is correct when it is one of them.", UserWarning, stacklevel=3)
+    return Q, truth
+
+
+def _checked_truth(truth: Any, n_queries: int, n_places: int) -> Any:
+    """The calibration truth as a :class:`~btel.datasets.GroundTruth` over ``n_queries`` queries."""
+    from ...datasets.groundtruth import GroundTruth
+
     if isinstance(truth, GroundTruth):
-        if truth.n_queries != Q.shape[0]:
+        if truth.n_queries != n_queries:
             raise InvalidParameterError(
                 f"the calibration ground truth covers {truth.n_queries} queries; "
-                f"there are {Q.shape[0]} calibration queries."
+                f"there are {n_queries} calibration queries."
             )
         if truth.n_map is not None and truth.n_map > n_places:
             raise InvalidParameterError(
                 f"the calibration ground truth names {truth.n_map} map places; the map has " f"{n_places}."
             )
-        return Q, truth
+        return truth
     arr = np.asarray(truth)
-    if arr.ndim != 1 or arr.shape[0] != Q.shape[0] or not np.issubdtype(arr.dtype, np.integer):
+    if arr.ndim != 1 or arr.shape[0] != n_queries or not np.issubdtype(arr.dtype, np.integer):
         raise InvalidParameterError(
-            f"the calibration truth must be an int array of shape ({Q.shape[0]},), one true "
+            f"the calibration truth must be an int array of shape ({n_queries},), one true "
             f"place per query, or a GroundTruth; got {arr.dtype} of shape {arr.shape}."
         )
-    if arr.size and (arr.min() < 0 or arr.max() >= n_places):
+    bad = np.flatnonzero((arr < 0) | (arr >= n_places))
+    if bad.size:
         raise InvalidParameterError(
-            f"calibration true places must lie in [0, {n_places}); got " f"[{arr.min()}, {arr.max()}]."
+            f"calibration true places must be map places 0 … {n_places - 1}; query {bad[0]} has "
+            f"{arr[bad[0]]} ({bad.size} quer{'ies' if bad.size > 1 else 'y'} outside). Give the truth "
+            "as indices into the map's rows (or its places)."
         )
-    if int(tolerance) < 0:
-        raise InvalidParameterError(f"calibration_tolerance must be ≥ 0; got {tolerance}.")
-    return Q, GroundTruth.from_places(arr.astype(np.int64), n_map=n_places)
+    return GroundTruth.from_places(arr.astype(np.int64), n_map=n_places)
 
 
 def compared_rows(n_features: int) -> int:
@@ -282,8 +311,9 @@ def decide(table: list[dict[str, Any]], correct: dict[str, np.ndarray], pick: st
                 "p_adjusted": round(float(p_adj), 4),
                 "confidence": round(1.0 - float(p_adj), 4),
                 "queries_needed": queries_needed(psi, alpha=alpha),
+                # the queries that would certify this candidate's lead (none for a candidate behind)
                 "queries_needed_observed": (
-                    queries_needed(psi, abs(float(diff.mean())), alpha) if diff.mean() != 0 else None
+                    queries_needed(psi, float(diff.mean()), alpha) if diff.mean() > 0 else None
                 ),
             }
         )
@@ -306,6 +336,7 @@ def choose_calibrated(
     map_only: dict[str, Any],
     make: Callable[[str, dict[str, Any], int | None], Any],
     whiten: Any = None,
+    progress: bool = False,
 ) -> dict[str, Any]:
     """Score every candidate on the calibration queries; the table and the chosen candidate.
 
@@ -323,6 +354,8 @@ def choose_calibrated(
     make : callable
         ``make(method, params, budget)`` → an unfitted localizer with the auto's seed and front end.
     whiten : None or the user's ``whiten``
+    progress : bool
+        A progress bar over the candidates' fits (on a terminal only).
 
     Returns
     -------
@@ -352,15 +385,22 @@ def choose_calibrated(
         )
     table: list[dict[str, Any]] = []
     correct: dict[str, np.ndarray] = {}
+    from tqdm.auto import tqdm  # fit-only
+
+    bar = tqdm(total=sum(len(SEEDS) if c["seeded"] else 1 for c in candidates), desc="calibrating auto",
+               unit="fit", disable=None if progress else True, leave=False)
     for cand in candidates:
         entry = {"candidate": cand["label"], "method": cand["method"], "params": cand["params"]}
         start = time.perf_counter()
         runs = []
+        seeds = SEEDS if cand["seeded"] else (None,)
+        bar.set_postfix_str(cand["label"])
         try:
-            for seed in SEEDS if cand["seeded"] else (None,):
+            for seed in seeds:
                 params = cand["params"] if seed is None else {**cand["params"], "random_state": seed}
                 pred = make(cand["method"], params, sub_budget).fit(Xc, pc).predict(Q)
                 runs.append(truth.is_correct(pred if back is None else back[pred], tolerance))
+                bar.update(1)
         except BudgetTooSmallError as exc:
             # the candidate's own bytes at this budget: a calibration-table cell, not a run's row status
             table.append({**entry, "status": "over budget", "needs": format_bytes(exc.minimum or 0)})
@@ -368,6 +408,8 @@ def choose_calibrated(
         except BTELError as exc:  # a candidate that cannot index this map (too few rows to train, …)
             table.append({**entry, "status": f"cannot fit: {str(exc)[:160]}"})
             continue
+        finally:
+            bar.update(len(seeds) - len(runs))  # a refused candidate's fits count as done
         correct[cand["label"]] = np.mean(runs, axis=0)
         table.append(
             {
@@ -377,6 +419,7 @@ def choose_calibrated(
                 "fit_s": round(time.perf_counter() - start, 2),
             }
         )
+    bar.close()
     pick = next(c["label"] for c in candidates if (c["method"], sorted(c["params"].items())) == key)
     chosen = decide(table, correct, pick)
     spec = next(c for c in candidates if c["label"] == chosen)
@@ -387,6 +430,11 @@ def choose_calibrated(
         "calibration": {
             "n_queries": int(Q.shape[0]),
             "tolerance": int(tolerance),
+            "correct_when": (
+                f"within {int(tolerance)} place{'s' if int(tolerance) != 1 else ''} of the true place"
+                if truth.kind == "places"
+                else "among the query's positives"
+            ),
             "seeds": list(SEEDS),
             "alpha": ALPHA,
             "test": TEST,

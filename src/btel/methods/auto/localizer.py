@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from ...core.validation import N_JOBS, RANDOM_STATE, Interval, check_is_fitted, check_params
+from ...core.validation import BOOLEAN, N_JOBS, RANDOM_STATE, Interval, check_is_fitted, check_params
 from ..base import ArraySpec, PlaceLocalizer
 from ...exceptions import BudgetTooSmallError, ModelFileError, NotEnoughPlacesError
 from ...core.storage import budget_of, exact_bytes, parse_budget
@@ -17,33 +17,74 @@ from .rule import choose_method, reason_terms
 __all__ = ["AutoLocalizer", "calibration_table"]
 
 
+#: What the calibration table's columns say (printed under it by ``summary()``, ``btel info``, ``btel train``).
+CALIBRATION_COLUMNS = (
+    "  score: share of the calibration queries each candidate gets right (mean over its seeds); "
+    "diff: its score minus the map-only pick's,\n"
+    "  paired on the same queries; W/L: queries it gets right and the pick wrong / the reverse; "
+    "p (adj.): one-sided p-value of 'beats the pick',\n"
+    "  adjusted over every candidate (max-T); conf.: 1 − p (a switch needs {need:g}); n for {ref:g} / n for diff: "
+    "calibration queries\n"
+    "  that would certify a lead of {ref:g} / of the observed diff (power 0.8); fit s: its fits' seconds.")
+
+
+def _verdict(c: dict[str, Any], rows: list[dict[str, Any]]) -> str:
+    """Why the chosen row was chosen, in one sentence."""
+    alpha = c.get("alpha", 0.05)
+    chosen = next((e for e in rows if e.get("candidate") == c.get("chosen")), {})
+    if c.get("switched"):
+        return (f"chosen: {c.get('chosen')}, ahead of the map-only pick {c.get('map_only')} by "
+                f"{chosen.get('difference', 0):+.3f} beyond noise (adjusted p {chosen.get('p_adjusted', 0):.3f} "
+                f"< α = {alpha:g}, confidence {chosen.get('confidence', 0):.2f}).")
+    ahead = [e for e in rows if e.get("status") == "ok" and (e.get("difference") or 0) > 0]
+    if not ahead:
+        return f"chosen: the map-only pick {c.get('map_only')}; no candidate scored higher."
+    best = max(ahead, key=lambda e: e.get("confidence", 0))
+    n = best.get("queries_needed_observed")
+    return (f"chosen: the map-only pick {c.get('map_only')}; the most likely better candidate, {best['candidate']} "
+            f"({best['difference']:+.3f}), reaches confidence {best.get('confidence', 0):.2f}, short of "
+            f"{1 - alpha:g}" + (f" (about {n} queries would certify a lead that size)." if n else "."))
+
+
 def calibration_table(calibration: dict[str, Any] | None) -> str:
-    """The calibration table as aligned text lines ('' without one)."""
+    """The calibration table as aligned text lines, the verdict and what each column means ('' without one)."""
     if not isinstance(calibration, dict) or not isinstance(calibration.get("table"), list):
         return ""
     c = calibration
-    head = (f"calibration: {c.get('n_queries')} queries (tolerance {c.get('tolerance')}), "
-            f"seeds {c.get('seeds')}, {c.get('rows_compared')} map rows compared; "
-            f"map-only pick {c.get('map_only')}, "
-            f"chosen {c.get('chosen')}")
-    reference = "n for " + format(c.get("reference_difference", 0.05), "g")
-    lines = [head, f"  {'candidate':<28} {'score':>6} {'diff':>7} {'p (adj.)':>9} {'conf.':>6} "
-                   f"{reference:>9} {'n for diff':>9}  note"]
-    for e in c["table"]:
-        if not isinstance(e, dict):
-            continue
+    rows = [e for e in c["table"] if isinstance(e, dict)]
+    correct = c.get("correct_when") or f"within {c.get('tolerance')} places of the true place"
+    head = (f"calibration: {c.get('n_queries')} labelled queries, correct when {correct}; seeds {c.get('seeds')}; "
+            f"{c.get('rows_compared')} map rows compared; map-only pick {c.get('map_only')}, chosen {c.get('chosen')}")
+    ref = c.get("reference_difference", 0.05)
+    reference = "n for " + format(ref, "g")
+    lines = [head, f"  {'candidate':<28} {'score':>6} {'diff':>7} {'W/L':>7} {'p (adj.)':>8} {'conf.':>6} "
+                   f"{reference:>10} {'n for diff':>10} {'fit s':>6}  note"]
+    for e in rows:
         if e.get("status") != "ok":
-            lines.append(f"  {str(e.get('candidate')):<28} {'':>6} {'':>7} {'':>9} {'':>6} {'':>9} {'':>9}  "
-                         f"{e.get('status')}" + (f", needs ≥ {e['needs']}" if e.get("needs") else ""))
+            lines.append(f"  {str(e.get('candidate')):<28} {'—':>6} {'':>7} {'':>7} {'':>8} {'':>6} {'':>10} {'':>10} "
+                         f"{'':>6}  {e.get('status')}" + (f", needs ≥ {e['needs']}" if e.get("needs") else ""))
             continue
         diff = "" if "difference" not in e else f"{e['difference']:+.3f}"
+        wl = "" if "wins" not in e else f"{e['wins']}/{e.get('losses')}"
         p = "" if "p_adjusted" not in e else f"{e['p_adjusted']:.3f}"
         conf = "" if "confidence" not in e else f"{e['confidence']:.2f}"
         need = "" if e.get("queries_needed") is None else str(e["queries_needed"])
-        need_obs = "" if e.get("queries_needed_observed") is None else str(e["queries_needed_observed"])
-        lines.append(f"  {str(e.get('candidate')):<28} {e.get('score', float('nan')):>6.3f} {diff:>7} {p:>9} "
-                     f"{conf:>6} {need:>9} {need_obs:>9}  {e.get('role', '')}")
+        need_obs = ("" if e.get("queries_needed_observed") is None or (e.get("difference") or 0) <= 0
+                    else str(e["queries_needed_observed"]))
+        fit_s = "" if e.get("fit_s") is None else f"{e['fit_s']:.1f}"
+        role = e.get("role", "")
+        role = "map-only pick, kept" if role == "chosen" and e.get("candidate") == c.get("map_only") else role
+        lines.append(f"  {str(e.get('candidate')):<28} {e.get('score', float('nan')):>6.3f} {diff:>7} {wl:>7} {p:>8} "
+                     f"{conf:>6} {need:>10} {need_obs:>10} {fit_s:>6}  {role}".rstrip())
+    lines.append("  " + _verdict(c, rows))
+    lines.append(CALIBRATION_COLUMNS.format(need=1 - c.get("alpha", 0.05), ref=ref))
     return "\n".join(lines)
+
+
+def _params_text(params: dict[str, Any]) -> str:
+    """``(code=periodic, whiten=shrink)`` ('' without parameters)."""
+    shown = ", ".join(f"{k}={v}" for k, v in params.items() if v is not None)
+    return f"({shown})" if shown else ""
 
 
 class AutoLocalizer(PlaceLocalizer):
@@ -64,6 +105,8 @@ class AutoLocalizer(PlaceLocalizer):
         Seed of the chosen method.
     n_jobs : int, optional
         Threads of the chosen method, where it takes them (not saved).
+    progress : bool
+        A progress bar over the candidates' fits during a calibrated fit (on a terminal only; not saved).
 
     Attributes
     ----------
@@ -80,18 +123,19 @@ class AutoLocalizer(PlaceLocalizer):
     """
 
     _parameter_constraints = {"calibration_tolerance": [Interval(int, 0, None)],
-                              "random_state": RANDOM_STATE, "n_jobs": N_JOBS}
-    _runtime_params = ("n_jobs",)
+                              "random_state": RANDOM_STATE, "n_jobs": N_JOBS, "progress": BOOLEAN}
+    _runtime_params = ("n_jobs", "progress")
     #: The method registry (:mod:`btel.methods` sets it when it registers this class; this module
     #: does not import the registry, which imports it).
     _registry: Any = None
 
     def __init__(self, *, budget: int | str | None = None, calibration_tolerance: int = 0,
-                 random_state: int | None = 0, n_jobs: int | None = None) -> None:
+                 random_state: int | None = 0, n_jobs: int | None = None, progress: bool = True) -> None:
         self.budget = budget
         self.calibration_tolerance = calibration_tolerance
         self.random_state = random_state
         self.n_jobs = n_jobs
+        self.progress = progress
 
     def _inner(self, method: str, params: dict[str, Any], budget: Any = "same") -> PlaceLocalizer:
         model = self._registry.make_method(method)
@@ -125,6 +169,7 @@ class AutoLocalizer(PlaceLocalizer):
             from .calibrate import check_calibration
 
             calibration = check_calibration(calibration, X.shape[1], n_places, self.calibration_tolerance)
+            self.check_budget(X.shape[0], X.shape[1], budget)  # no candidate scored when none can be kept
         candidates = choose_method(X, labels, n_places, budget, self.whiten)
         if calibration is not None:
             candidates = self._calibrated(X, labels, budget, *calibration, candidates)
@@ -135,11 +180,12 @@ class AutoLocalizer(PlaceLocalizer):
             try:
                 model.fit(X, places)
             except BudgetTooSmallError as exc:
-                refused.append(f"{choice['method']} {choice['params']} needs ≥ {exc.minimum} B")
+                said = f"{choice['method']} {_params_text(choice['params'])} needs ≥ {exc.minimum} B"
+                refused += [] if said in refused else [said]
                 error = exc if error is None or (exc.minimum or 0) < (error.minimum or 0) else error
                 continue
             except NotEnoughPlacesError as exc:  # e.g. PQ's codebooks on a map of a few rows
-                refused.append(f"{choice['method']} {choice['params']}: {exc}")
+                refused.append(f"{choice['method']} {_params_text(choice['params'])}: {exc}")
                 continue
             self.model_ = model
             self.choice_ = {**choice, "params": {k: v for k, v in choice["params"].items() if v is not None},
@@ -170,7 +216,7 @@ class AutoLocalizer(PlaceLocalizer):
             except (BudgetTooSmallError, NotEnoughPlacesError):
                 continue
         picked = choose_calibrated(X, labels, budget, Q, truth, int(self.calibration_tolerance), first,
-                                   lambda m, p, b: self._inner(m, p, b), self.whiten)
+                                   lambda m, p, b: self._inner(m, p, b), self.whiten, bool(self.progress))
         c = picked["calibration"]
         why = (f"calibrated on {c['n_queries']} labelled queries: {picked['label']} "
                + (f"beats the map-only pick {c['map_only']} beyond noise" if c["switched"]
@@ -197,7 +243,8 @@ class AutoLocalizer(PlaceLocalizer):
                 errors.append(exc)
         smallest = min(errors, key=lambda e: e.minimum or 0)
         raise BudgetTooSmallError(f"budget {exact_bytes(budget or 0)} is too small for auto: neither "
-                                  f"lsh nor btel-codes fits ({'; '.join(str(e) for e in errors)}).",
+                                  f"lsh nor btel-codes fits ({'; '.join(str(e).rstrip('.') for e in errors)}). "
+                                  f"Raise the budget to at least {smallest.minimum} B.",
                                   budget=budget, minimum=smallest.minimum)
 
     def choice(self) -> dict[str, Any]:
