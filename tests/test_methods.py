@@ -175,3 +175,20 @@ def test_check_budget_takes_a_budget_as_the_budget_parameter_does(name: str) -> 
     with pytest.raises(BudgetTooSmallError, match="budget 10 B is too small"):
         make_method(name).check_budget(300, 64, "10B")
     make_method(name).check_budget(300, 64, "64KB")  # fits: nothing raised
+
+
+@pytest.mark.parametrize("name", list(METHODS))
+def test_messages_name_the_method_as_a_user_types_it(name: str) -> None:
+    """A message says 'pq', not 'PQLocalizer': the name given to make_method and --methods (BTEL: its family)."""
+    model = make_method(name)
+    assert model.label == ("BTEL" if name.startswith("btel-") and name != "btel-codes" else name)
+    too_few = np.random.default_rng(0).normal(size=(model._min_rows - 1 or 1, 8)).astype(np.float32)
+    with pytest.raises(Exception) as err:
+        model.fit(too_few)
+    assert type(model).__name__ not in str(err.value)
+
+
+def test_calibration_given_to_a_method_other_than_auto_says_which_method_takes_it(route) -> None:
+    X, Q = route
+    with pytest.raises(InvalidParameterError, match=r"lsh's fit takes X and places only, not calibration; .*'auto'"):
+        make_method("lsh", budget="4KB").fit(X, calibration=(Q[:5], np.arange(5)))

@@ -174,7 +174,7 @@ def load_arrays(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[st
     except (OSError, ValueError) as exc:  # a name too long, an embedded NUL byte…
         raise ModelFileError(f"{where[:200]} cannot be read as a model file ({exc}).") from exc
     if not exists:
-        raise ModelFileError(f"model file {where} does not exist. Train one with BTELocalizer.fit(...).save(path) or `btel train`.")
+        raise ModelFileError(f"model file {where} does not exist. Train one with `btel train` or, in Python, model.fit(X).save(path).")
     if is_dir:
         raise ModelFileError(f"{where} is a folder, not a model file.")
     try:

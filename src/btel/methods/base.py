@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import inspect
 import time
+from contextlib import nullcontext
 from abc import ABC, abstractmethod
 from typing import Any, ClassVar
 
@@ -33,7 +34,7 @@ import numpy as np
 
 from ..core.params import ParamsMixin
 from ..core.validation import Budget, check_descriptors, check_is_fitted, check_params, check_positive_int, map_places
-from ..exceptions import BudgetTooSmallError, InvalidAnswerError, InvalidDescriptorsError, NotEnoughPlacesError
+from ..exceptions import BudgetTooSmallError, InvalidAnswerError, InvalidDescriptorsError, InvalidParameterError, NotEnoughPlacesError
 from ..core.frontend import FRONT_END_CONSTRAINTS, FRONT_END_MEANINGS, FrontEnd, traverse_starts, with_front_end_parameters
 from ..core.storage import BUDGET_MEANING, budget_of, exact_bytes, parse_budget, storage_breakdown
 from ..core.modelfile import ArraySpec, jsonable, save_arrays
@@ -59,6 +60,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
     uses_sequence: ClassVar[bool] = False
     #: True where classifiers predict a place's index code (BTEL, output codes): the results page asks.
     encodes_place_index: ClassVar[bool] = False
+    label: ClassVar[str] = "this method"  #: as messages name it: what a user types (``--methods``), not the class
     #: Parameters' constraints (core.validation) and meanings (core.paramdocs); budget and front end here.
     _parameter_constraints: ClassVar[dict[str, list[Any]]] = {}
     _parameter_meanings: ClassVar[dict[str, str]] = {"budget": BUDGET_MEANING, **FRONT_END_MEANINGS}
@@ -107,10 +109,9 @@ class PlaceLocalizer(ParamsMixin, ABC):
             Place of each row; None means row i is place i.
         n_places : int
             N ≥ 2.
-        budget : int or None
-            The whole byte budget (None: none).
-        reserved : int
-            Bytes of the budget already taken (front end); the method must fit in ``budget − reserved``.
+        budget, reserved : int or None, int
+            The whole byte budget (None: none) and the bytes of it already taken (front end): the method
+            must fit in ``budget − reserved``.
         """
 
     def _search(self, Q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -128,8 +129,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
     def _score_blocks(self, Q: np.ndarray):
         """Yield (start, stop, place scores of rows start:stop) over blocks of about 32 MB.
 
-        A sequence method gets the :meth:`_sequence_context` rows before each block too, so a
-        block's scores equal those of the whole sequence.
+        A sequence method gets the :meth:`_sequence_context` rows before each block (its whole-sequence scores).
         """
         rows = max(1, _SCORE_BLOCK_VALUES // max(int(self.n_places_), 1))
         context = self._sequence_context()
@@ -163,7 +163,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
         """Set the fitted attributes from checked arrays and state (see :mod:`btel.methods`)."""
 
     # -- fit ------------------------------------------------------------------------------------
-    def fit(self, X: Any, places: Any = None) -> "PlaceLocalizer":
+    def fit(self, X: Any, places: Any = None, **unknown: Any) -> "PlaceLocalizer":
         """Learn the map.
 
         Parameters
@@ -178,6 +178,9 @@ class PlaceLocalizer(ParamsMixin, ABC):
         -------
         self
         """
+        if unknown:  # e.g. calibration=(Q, truth) given to a method that cannot use it: say which one can
+            raise InvalidParameterError(f"{self.label}'s fit takes X and places only, not {', '.join(unknown)}; "
+                                        "labelled queries (calibration=…) are for make_method('auto', …).fit.")
         start = time.perf_counter()
         X, labels, n_places = self._check_fit_input(X, places)
         budget, front = budget_of(self), FrontEnd.of(self)
@@ -199,12 +202,11 @@ class PlaceLocalizer(ParamsMixin, ABC):
         labels, n_places = map_places(places, X.shape[0])
         if X.shape[0] < self._min_rows:
             raise NotEnoughPlacesError(
-                f"{type(self).__name__} needs at least {self._min_rows} map descriptors; got {X.shape[0]}."
+                f"{self.label} needs at least {self._min_rows} map descriptors; got {X.shape[0]}."
             )
         return X, labels, n_places
 
-    def check_budget(self, n_rows: int, n_features: int, budget: int | None,
-                     reserved: int | None = None) -> None:
+    def check_budget(self, n_rows: int, n_features: int, budget: int | None, reserved: int | None = None) -> None:
         """Raise now what :meth:`fit` would raise for a map of this shape under ``budget``, without fitting.
 
         The same planner ``fit`` uses, applied to the shapes alone: the evaluation's pre-check and the
@@ -242,7 +244,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
         reserved = front.planned_bytes(n_rows, n_features)
         if budget is not None and reserved >= budget:
             raise BudgetTooSmallError(
-                f"budget {exact_bytes(budget)} is too small for {type(self).__name__} with "
+                f"budget {exact_bytes(budget)} is too small for {self.label} with "
                 f"whiten = {front.whiten}: the whitening matrix alone needs {reserved} B. Raise the budget or "
                 "whiten to fewer dimensions.", budget=budget, minimum=reserved + 1,
             )
@@ -310,9 +312,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
                 and Q.shape[0] >= _PARALLEL_PREDICT_FROM and predict_threads() > 1 and not self.front_end_.uses_sequence):
             return self._predict_in_chunks(Q, predict_threads())
         Q = self._check_queries(Q)
-        if Q.shape[0] < _ONE_BLAS_THREAD_FROM:
-            return self._check_answers(self._predict(Q))
-        with one_blas_thread():
+        with one_blas_thread() if Q.shape[0] >= _ONE_BLAS_THREAD_FROM else nullcontext():
             return self._check_answers(self._predict(Q))
 
     def _predict_in_chunks(self, Q: Any, n_threads: int) -> np.ndarray:
@@ -365,14 +365,14 @@ class PlaceLocalizer(ParamsMixin, ABC):
         if scores is not None and scores.size and not np.isfinite(scores).all():
             bad = int(np.argwhere(~np.isfinite(scores))[0][0])
             raise InvalidAnswerError(
-                f"{type(self).__name__} produced non-finite scores (first at query row {bad}): its stored weights "
+                f"{self.label} produced non-finite scores (first at query row {bad}): its stored weights "
                 "overflow float arithmetic, which a damaged or hostile model file causes. Refit the model or "
                 "check where the file came from.")
         if places is not None and places.size and not (places.size == 1 and 0 <= places.item(0) < n) \
                 and (places.min() < 0 or places.max() >= n):  # one valid answer: no reductions
             wrong = places[(places < 0) | (places >= n)][0]
             raise InvalidAnswerError(
-                f"{type(self).__name__} answered place {int(wrong)}, outside the map's 0..{n - 1}: its stored "
+                f"{self.label} answered place {int(wrong)}, outside the map's 0..{n - 1}: its stored "
                 "weights overflow (a damaged or hostile model file?). Refit the model or check the file.")
         return places
 

@@ -114,6 +114,7 @@ class RYTHLocalizer(PlaceLocalizer):
     front_end_ : FrontEnd
     """
 
+    label = "ryth"
     _linear_in_queries = True  # queries are only multiplied by hyperplanes (see btel.core.frontend.ScaledRows)
     _parameter_constraints = {
         "n_periods": [Interval(int, 1, 16)],

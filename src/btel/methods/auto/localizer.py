@@ -122,6 +122,7 @@ class AutoLocalizer(PlaceLocalizer):
     fit_time_ : float
     """
 
+    label = "auto"
     _parameter_constraints = {"calibration_tolerance": [Interval(int, 0, None)],
                               "random_state": RANDOM_STATE, "n_jobs": N_JOBS, "progress": BOOLEAN}
     _runtime_params = ("n_jobs", "progress")

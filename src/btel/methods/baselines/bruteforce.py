@@ -59,6 +59,7 @@ class BruteForceNN(_RowLocalizer):
     [0, 1, 2]
     """
 
+    label = "bruteforce"
     _float32_distances = True  # a map of tiny rows is refused at fit (_common.MIN_NORM)
     _parameter_constraints = {"n_jobs": N_JOBS}
 

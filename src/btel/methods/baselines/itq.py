@@ -64,6 +64,7 @@ class ITQLocalizer(_RowLocalizer):
     fit_time_ : float
     """
 
+    label = "itq"
     _min_rows = 8
     _parameter_constraints = {
         "code_bits": [None, Interval(int, 8, None)],
@@ -95,7 +96,7 @@ class ITQLocalizer(_RowLocalizer):
         if largest < 8:
             raise NotEnoughPlacesError(
                 f"ITQ needs descriptors of at least 8 dimensions and at least 8 map rows for 8-bit codes; "
-                f"got d = {n_features}, {n_rows} rows. Use BruteForceNN for such small inputs."
+                f"got d = {n_features}, {n_rows} rows. Use the bruteforce method for such small inputs."
             )
         if self.code_bits is not None:
             bits = check_positive_int(self.code_bits, "code_bits", minimum=8)

@@ -230,6 +230,7 @@ class LSHLocalizer(_RowLocalizer):
     [0, 1, 2]
     """
 
+    label = "lsh"
     _fit_reads_row_blocks = True  # _fit_rows reads row blocks: an L2 front end hands it the map unscaled
 
     _parameter_constraints = {

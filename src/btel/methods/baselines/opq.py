@@ -69,6 +69,7 @@ class OPQLocalizer(_RowLocalizer):
     fit_time_ : float
     """
 
+    label = "opq"
     _float32_distances = True  # a map of tiny rows is refused at fit (_common.MIN_NORM)
     _parameter_constraints = {
         "pq": [None, Instance(PQLocalizer)],

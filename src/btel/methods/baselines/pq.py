@@ -153,6 +153,7 @@ class PQLocalizer(_RowLocalizer):
     True
     """
 
+    label = "pq"
     _float32_distances = True  # a map of tiny rows is refused at fit (_common.MIN_NORM)
     _parameter_constraints = {
         "n_subquantizers": [None, Interval(int, 1, 1 << 16)],
@@ -256,7 +257,8 @@ class PQLocalizer(_RowLocalizer):
         if self.nbits is None and n_rows < (1 << min(AUTO_NBITS)):
             raise NotEnoughPlacesError(
                 f"{method_name} needs at least {1 << min(AUTO_NBITS)} map descriptors to train "
-                f"{min(AUTO_NBITS)}-bit sub-quantisers; got {n_rows}. Pass a smaller nbits or use BruteForceNN."
+                f"{min(AUTO_NBITS)}-bit sub-quantisers; got {n_rows}. Pass a smaller nbits (nbits=2; on the "
+                "command line --param nbits=2) or use the bruteforce method."
             )
         if budget is None:
             return self._default_config(n_rows, n_features)

@@ -129,6 +129,7 @@ class RaBitQLocalizer(_RowLocalizer):
     [0, 1, 2]
     """
 
+    label = "rabitq"
     _fit_reads_row_blocks = True  # _fit_rows reads row blocks: an L2 front end hands it the map unscaled
     _float32_distances = True  # a map of tiny rows is refused at fit (_common.MIN_NORM)
     _parameter_constraints = {

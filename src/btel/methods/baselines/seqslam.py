@@ -259,6 +259,7 @@ class SeqSLAM(_RowLocalizer):
     fit_time_ : float
     """
 
+    label = "seqslam"
     uses_sequence = True
     #: The image descriptor SeqSLAM was built on (patch-normalised thumbnails): experiments read it.
     native_descriptor = "patchnorm"

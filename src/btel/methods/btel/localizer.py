@@ -180,7 +180,7 @@ class BTELocalizer(TreeDecoding, TreeModelFile, PlaceLocalizer):
     (500,)
     """
 
-    encodes_place_index = True
+    label, encodes_place_index = "BTEL", True
     _linear_in_queries = True  # queries are only multiplied by hyperplanes (see btel.core.frontend.ScaledRows)
     _parameter_constraints = {
         "scheme": [Options(*SCHEMES)],

@@ -138,6 +138,7 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
     (True, (500,))
     """
 
+    label = "btel-codes"
     encodes_place_index = True
     _fit_reads_row_blocks = True  # the ridge reads row blocks: an L2 front end hands it the map unscaled
 
