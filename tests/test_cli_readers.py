@@ -216,4 +216,4 @@ def test_a_cached_extraction_replaced_by_a_declared_bomb_is_refused(tmp_path: Pa
         np.lib.format.write_array_header_1_0(fh, header)
         fh.write(b"\0" * 64)
     result = CliRunner().invoke(main, ["extract", str(images), "-o", str(out), "--no-progress"])
-    assert "BTEL_MEMORY_LIMIT" in _one_line_error(result)
+    assert "cut short" in _one_line_error(result)  # its 400 GB never allocated: the header is checked against the file

@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from btel.cli import main
 from btel.datasets import GroundTruth
-from btel.datasets.npy_header import check_npy_header, npy_header
+from btel.descriptors.npy_header import check_npy_header, npy_header
 from btel.exceptions import DataNotFoundError, InvalidDescriptorsError, InvalidParameterError
 
 N, D = 40, 16
@@ -250,3 +250,20 @@ def test_binary_files_under_a_npy_name_keep_their_message(tmp_path: Path, files:
     png.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)))
     message = _refused(["train", str(png), "-o", str(tmp_path / "m.npz")], "not a .npy file")
     assert "is a text matrix" not in message
+
+
+def test_the_python_loader_names_a_cut_short_file_a_pickle_and_a_text_matrix(tmp_path: Path,
+                                                                             files: dict[str, Path]) -> None:
+    """``load_descriptor_matrix`` (memory-mapped or not) says what the command line says, not numpy's words."""
+    from btel.descriptors import load_descriptor_matrix
+
+    for mmap_mode in (None, "r"):
+        for key, words in (("cut", "cut short"), ("lie", "cut short"), ("obj", "Python objects")):
+            with pytest.raises(InvalidDescriptorsError, match=words) as err:
+                load_descriptor_matrix(files[key], mmap_mode=mmap_mode)
+            assert "mmap length" not in str(err.value) and "BTEL_MEMORY_LIMIT" not in str(err.value)
+    text = tmp_path / "x.csv"
+    np.savetxt(text, np.load(files["db"]), delimiter=",")
+    with pytest.raises(InvalidDescriptorsError, match="text matrix.*delimiter=','"):
+        load_descriptor_matrix(text)
+    assert not files["marker"].exists()

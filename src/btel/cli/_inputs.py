@@ -14,50 +14,7 @@ if TYPE_CHECKING:  # numpy is imported by the commands that need it: `btel --hel
 def _load_matrix(path: str, what: str) -> np.ndarray:
     from ..descriptors.npy import load_descriptor_matrix
 
-    _check_header(path, what)
     return _load_whole_h5(path, what) if _is_whole_h5(path) else load_descriptor_matrix(path)
-
-
-def _check_header(path: str, what: str) -> None:
-    """A .npy cut short (its header announces more data than the file holds) or holding Python objects,
-    named as such before numpy maps or reads it (numpy would say "mmap length is greater than file size",
-    the memory check "would need 15 GiB", the memory map "can't be memory-mapped")."""
-    from ..datasets.npy_header import check_npy_header
-
-    if Path(path).suffix.lower() != ".npz":  # an .npz member is checked by its reader
-        check_npy_header(path, what)
-    _refuse_text_matrix(path, what)
-
-
-def _refuse_text_matrix(path: str, what: str) -> None:
-    """A text matrix (numpy.savetxt, a CSV export, whatever its suffix) refused with the one command that
-    converts it, its delimiter and header line read from the file's first lines."""
-    import re
-
-    from ..exceptions import InvalidDescriptorsError
-
-    file = Path(path)
-    if not file.is_file():
-        return
-    try:
-        with open(file, "rb") as fh:
-            head = fh.read(1 << 16)
-        text = head.decode("utf-8-sig")
-    except (OSError, UnicodeDecodeError):
-        return
-    lines = [line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")][:2]
-    if not lines or any(ch not in "\t\r\n" and not ch.isprintable() for ch in text):
-        return
-    delimiter = "','" if "," in lines[-1] else "'\\t'" if "\t" in lines[-1] else None
-    number = re.compile(r"\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\s*|\s*[-+]?(nan|inf)\s*", re.IGNORECASE)
-    cells = [c for c in re.split(r"[,\t ]+", lines[0].strip()) if c]
-    skip = 0 if all(number.fullmatch(c) for c in cells) else 1
-    target = file.with_name(file.stem + (".float32.npy" if file.suffix.lower() == ".npy" else ".npy"))
-    options = (f", delimiter={delimiter}" if delimiter else "") + (f", skiprows={skip}" if skip else "")
-    raise InvalidDescriptorsError(
-        f"{what} {str(file)!r} is a text matrix, not a .npy file; btel reads .npy, .npz, hloc .h5 and folders of "
-        f".npy shards. Convert it once: python -c \"import numpy as np; np.save({str(target)!r}, "
-        f"np.loadtxt({str(file)!r}{options}, dtype=np.float32, ndmin=2))\"")
 
 
 def _is_whole_h5(path: str) -> bool:
@@ -97,7 +54,6 @@ def _load_map(path: str) -> np.ndarray:
         return _load_whole_h5(path, "map descriptors")
     from ..descriptors.npy import load_descriptor_matrix
 
-    _check_header(path, "map descriptors")
     # A .npy map is memory-mapped: pages are read as the fit needs them, never copied whole.
     return load_descriptor_matrix(path, mmap_mode="r" if Path(path).suffix.lower() == ".npy" else None)
 

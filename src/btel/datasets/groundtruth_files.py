@@ -20,7 +20,7 @@ import numpy as np
 
 from ..exceptions import BTELError, DataNotFoundError, InvalidDescriptorsError, InvalidParameterError
 from ..core.limits import check_bytes, check_count, check_numpy_file, open_regular
-from .npy_header import check_npy_header
+from ..descriptors.npy_header import check_npy_header
 
 __all__ = ["read_object_npy", "read_ground_truth", "check_some_positive"]
 

@@ -96,7 +96,7 @@ def load_shards(
     """
     # Imported here: btel.descriptors pulls in OpenCV, which btel.datasets does not otherwise need.
     from ..descriptors.npy import load_descriptor_matrix
-    from .npy_header import check_npy_header
+    from ..descriptors.npy_header import check_npy_header
 
     shards = list_shards(folder)
     for path in shards:  # cut-short files and pickles named as such, before numpy maps them

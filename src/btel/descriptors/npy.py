@@ -32,6 +32,7 @@ from ..core.validation import check_descriptors
 from ..exceptions import DataNotFoundError, InvalidDescriptorsError, InvalidParameterError, ResourceLimitError
 from ..core.limits import ENV_MEMORY_LIMIT, check_numpy_file, format_size, memory_limit, open_regular
 from .hdf5 import load_hloc_global
+from .npy_header import check_npy_header, refuse_text_matrix
 
 __all__ = ["load_descriptor_matrix", "load_hloc_global", "to_float32_npy", "HDF5_SUFFIXES"]
 
@@ -210,6 +211,8 @@ def load_descriptor_matrix(
         raise DataNotFoundError(f"{str(path)!r} is a folder; pass the .npy file inside it.")
     with open_regular(path):
         pass
+    if path.suffix.lower() != ".npz":  # cut short, or a pickle inside: named before numpy maps or reads it
+        check_npy_header(path, "descriptor file")
     if mmap_mode is None:
         check_numpy_file(path, f"descriptor file {str(path)!r}")
     loaded = _open_mapped(path, mmap_mode)
@@ -274,10 +277,10 @@ def _open_mapped(path: Path, mmap_mode: str | None) -> Any:
         return np.load(path, mmap_mode=mmap_mode, allow_pickle=False)
     except ValueError as exc:
         if "pickle" in str(exc).lower() and not _starts_as_pickle(path):  # numpy says "pickle" for any non-.npy
+            refuse_text_matrix(path, "descriptor file")  # a text matrix: the command that converts it
             raise InvalidDescriptorsError(
                 f"{str(path)!r} is not a .npy file (it does not start with NumPy's header); btel reads .npy, .npz, "
-                "hloc .h5 and folders of .npy shards. A text matrix converts with "
-                "np.save('X.npy', np.loadtxt(path, dtype=np.float32))."
+                "hloc .h5 and folders of .npy shards."
             ) from exc
         if "pickle" in str(exc).lower():
             raise InvalidDescriptorsError(

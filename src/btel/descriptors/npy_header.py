@@ -20,7 +20,7 @@ import numpy as np
 from ..core.limits import format_size
 from ..exceptions import InvalidDescriptorsError
 
-__all__ = ["npy_header", "check_npy_header"]
+__all__ = ["npy_header", "check_npy_header", "refuse_text_matrix"]
 
 _MAGIC = b"\x93NUMPY"
 
@@ -77,3 +77,32 @@ def check_npy_header(path: str | os.PathLike, what: str, *, objects: bool = Fals
             f"({format_size(declared)} of data) but the file holds {format_size(max(held, 0))} after the header "
             "(a copy or a write that did not finish, or a header that does not match the data). Copy or "
             "write the file again (np.save(path, X)).")
+
+
+def refuse_text_matrix(path: str | os.PathLike, what: str) -> None:
+    """A text matrix (numpy.savetxt, a CSV export, whatever its suffix) refused with the one command that
+    converts it, its delimiter and header line read from the file's first lines."""
+    import re
+
+    file = Path(path)
+    if not file.is_file():
+        return
+    try:
+        with open(file, "rb") as fh:
+            head = fh.read(1 << 16)
+        text = head.decode("utf-8-sig")
+    except (OSError, UnicodeDecodeError):
+        return
+    lines = [line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")][:2]
+    if not lines or any(ch not in "\t\r\n" and not ch.isprintable() for ch in text):
+        return
+    delimiter = "','" if "," in lines[-1] else "'\\t'" if "\t" in lines[-1] else None
+    number = re.compile(r"\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\s*|\s*[-+]?(nan|inf)\s*", re.IGNORECASE)
+    cells = [c for c in re.split(r"[,\t ]+", lines[0].strip()) if c]
+    skip = 0 if all(number.fullmatch(c) for c in cells) else 1
+    target = file.with_name(file.stem + (".float32.npy" if file.suffix.lower() == ".npy" else ".npy"))
+    options = (f", delimiter={delimiter}" if delimiter else "") + (f", skiprows={skip}" if skip else "")
+    raise InvalidDescriptorsError(
+        f"{what} {str(file)!r} is a text matrix, not a .npy file; btel reads .npy, .npz, hloc .h5 and folders of "
+        f".npy shards. Convert it once: python -c \"import numpy as np; np.save({str(target)!r}, "
+        f"np.loadtxt({str(file)!r}{options}, dtype=np.float32, ndmin=2))\"")
