@@ -89,7 +89,7 @@ def test_evaluate_reports_it_in_one_line(tmp_path: Path) -> None:
 
 
 # -- every registered method at extreme scales: refused at fit by name, or answering every entry point -----
-SCALES = (1e-44, 1e-38, 1e-15, 1e15, 1e30)  # the three, and the edges of the float32 ranges
+SCALES = (1e-44, 1e-38, 1e-15, 1e15, 1e30, 3e37)  # the three, and the edges of the float32 ranges
 F32_MAX = float(np.finfo(np.float32).max)
 
 

@@ -41,7 +41,7 @@ import numpy as np
 
 from .validation import Interval, Options
 from ..exceptions import InvalidParameterError, ModelFileError
-from .rows import (NORMALIZATIONS, TINY_SQUARED_NORM, ScaledRows, delta_descriptors, normalize_rows,
+from .rows import (HUGE_NORM, NORMALIZATIONS, TINY_SQUARED_NORM, ScaledRows, delta_descriptors, normalize_rows,
                    one_row_squares, row_norms, traverse_starts, warn_blank_rows)
 
 __all__ = ["FrontEnd", "FrontEndStream", "ScaledRows", "delta_descriptors", "normalize_rows", "row_norms",
@@ -221,7 +221,7 @@ class FrontEnd:
         # scale is 1.0 when it is blank, so the common single query pays no extra pass for the check.
         if check_finite and (scale is None or scale == 1.0):
             warn_blank_rows(X)
-        if scale is not None:
+        if scale is not None and not (lazy and scale * HUGE_NORM < 1.0):  # huge rows: normalised first
             # A Python float times a float32 array is float32 arithmetic (NEP 50): X * np.float32(scale).
             return ScaledRows(X, np.array([scale], dtype=np.float32)) if lazy else X * scale
         if self.is_identity:
@@ -229,13 +229,14 @@ class FrontEnd:
         if lazy and plain_l2:
             norms = row_norms(X, check_finite=check_finite, name="Q")
             if norms.shape[0] == 1:  # one query: Python arithmetic beats three tiny numpy calls
-                if not 0 < norms[0] * norms[0] < TINY_SQUARED_NORM:
+                if not 0 < norms[0] * norms[0] < TINY_SQUARED_NORM and norms[0] <= HUGE_NORM:
                     inverse = 1.0 / norms[0] if norms[0] > 0 else 1.0
                     return ScaledRows(X, np.array([inverse], dtype=np.float32))
-            elif not ((norms > 0) & (norms * norms < TINY_SQUARED_NORM)).any():
+            elif not (((norms > 0) & (norms * norms < TINY_SQUARED_NORM)) | (norms > HUGE_NORM)).any():
                 norms[norms == 0] = 1.0  # a zero row stays zero
                 return ScaledRows(X, (1.0 / norms).astype(np.float32))
-            # Rows so short that their inverse length overflows float32: normalised in float64 instead.
+            # Rows so short that their inverse length overflows float32, or so long that their raw products
+            # overflow it: normalised in float64 instead.
         return self._whitened(self._frames(X, starts, check_finite))
 
     def stream(self) -> "FrontEndStream":

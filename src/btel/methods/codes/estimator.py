@@ -42,6 +42,7 @@ from ..base import PlaceLocalizer
 from ...exceptions import BudgetTooSmallError, InvalidParameterError
 from ...learning.distributed import BACKENDS
 from ...learning.feature_selection import column_index_dtype
+from ...core.rows import check_magnitude
 from ...learning.hyperplanes import check_fitted_weights
 from ...learning.linear import ColumnStats
 from ...core.storage import UNLIMITED_BUDGET, exact_bytes
@@ -259,6 +260,8 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
             raise InvalidParameterError(f"decode='coarse' needs a route code family; {self.code_reason_}. "
                                         "Use decode='auto' or 'exact', or pass code='periodic'.")
         self.code_ = family
+        if self.normalize == "none":  # raw rows: squares past float32's range would corrupt the fit silently
+            check_magnitude(X, "X")
         if self.solver != "ridge":  # liblinear reads the map whole
             X = np.asarray(X)
         d = X.shape[1]
