@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 import btel.evaluation as ev
@@ -46,3 +47,16 @@ def test_the_terminal_width_comes_from_columns_on_a_terminal_only(monkeypatch: p
     assert terminal_width() == 0
     monkeypatch.setattr(sys.stdout, "isatty", lambda: True)
     assert terminal_width() == 77
+
+
+def test_the_predictions_csv_of_a_ground_truth_without_any_positive_marks_every_query() -> None:
+    """Positives that are all empty (the readers refuse such files; Python may build one): -1, no IndexError."""
+    from btel.datasets import GroundTruth
+    from btel.evaluation.records import EvaluationResult
+    from btel.evaluation.tables import predictions_csv_text
+
+    result = EvaluationResult(name="m", n_queries=3, predictions=np.array([0, 1, 2]),
+                              ground_truth=GroundTruth.from_positives([[], [], []], n_map=3))
+    lines = predictions_csv_text(result).splitlines()
+    assert lines[0].startswith("query,prediction,positive,correct")
+    assert [line.split(",")[2:4] for line in lines[1:]] == [["-1", "0"]] * 3

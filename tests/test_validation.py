@@ -71,6 +71,7 @@ def test_check_descriptors_does_not_copy_float32() -> None:
         ([["a", "b"], ["c", "d"]], InvalidDescriptorsError, "descriptors must be numbers"),
         (np.array([[1, "x"]], dtype=object), InvalidDescriptorsError, "has dtype object"),
         (np.ones((2, 2), dtype=complex), InvalidDescriptorsError, "is complex"),
+        (np.ones((2, 2), dtype="m8[s]"), InvalidDescriptorsError, "must be numbers"),  # numpy: a number
         ([[1.0, 2.0], [3.0]], InvalidDescriptorsError, "could not be read as a numeric array"),
         (sp.csr_matrix(np.eye(3)), InvalidDescriptorsError, r"sparse matrix.*toarray\(\)"),
         (None, InvalidDescriptorsError, "descriptors must be numbers"),

@@ -146,7 +146,7 @@ def _as_numeric_array(X: Any, name: str) -> np.ndarray:
         arr = np.asarray(X)
     except Exception as exc:  # ragged lists and the like
         raise InvalidDescriptorsError(f"{name} could not be read as a numeric array: {exc}") from exc
-    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool):
+    if arr.dtype.kind not in "biufc":  # not object, text, dates or durations (numpy counts timedelta as a number)
         raise InvalidDescriptorsError(
             f"{name} has dtype {arr.dtype}; descriptors must be numbers (float32 preferred)."
         )

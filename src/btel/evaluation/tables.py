@@ -138,13 +138,6 @@ def _column_blocks(columns: list[tuple[str, int]], label_width: int, width: int)
     return blocks
 
 
-#: What the calibration table's columns say (calibration.md).
-CALIBRATION_LEGEND = ("score: calibration recall (a query's prediction correct within the tolerance); diff: its "
-                      "paired difference with the map-only pick on the same queries; p (adj.): one-sided, adjusted "
-                      "over every candidate; conf.: 1 − p; n for …: the calibration queries that difference "
-                      "would need (power 0.8).")
-
-
 def _calibration_tables(results: Sequence[EvaluationResult]) -> list[tuple[str, str, dict[str, Any]]]:
     """(row name, its calibration table as text, the table) of every row that chose on labelled queries."""
     from ..methods.registry import calibration_table  # the text auto's summary() and `btel info` show
@@ -166,7 +159,7 @@ def calibration_markdown(results: Sequence[EvaluationResult], title: str | None 
     tables = _calibration_tables(results)
     if not tables:
         return ""
-    lines = ["# Calibration", ""] + ([title, ""] if title else []) + [CALIBRATION_LEGEND, ""]
+    lines = ["# Calibration", ""] + ([title, ""] if title else [])  # each table carries its own legend
     for name, table, c in tables:
         switched = (f"switched from the map-only pick {c.get('map_only')} to {c.get('chosen')}"
                     if c.get("switched") else f"kept the map-only pick {c.get('map_only')}")
@@ -226,7 +219,8 @@ def predictions_csv_text(r: EvaluationResult, query_names: Sequence[str] | None 
     if gt is not None and gt.kind == "places":
         reference = ("true", np.asarray(gt.query_places))
     elif gt is not None:
-        first = np.where(np.diff(gt.indptr) > 0, gt.indices[np.minimum(gt.indptr[:-1], max(gt.indices.size - 1, 0))], -1)
+        first = np.full(n, -1, dtype=np.int64) if gt.indices.size == 0 else \
+            np.where(np.diff(gt.indptr) > 0, gt.indices[np.minimum(gt.indptr[:-1], gt.indices.size - 1)], -1)
         reference = ("positive", first)
     if reference is not None:
         columns.append(reference)
