@@ -35,6 +35,7 @@ def files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     places = np.arange(N)
     arrays = {"db": r.map, "q_even": r.queries[::2], "q_odd": r.queries[1::2], "t_even": places[::2],
               "t_odd": places[1::2], "t_short": places[:7], "narrow": r.queries[::2, :8],
+              "q_one": r.queries[:1], "t_one": places[:1],
               "nan": np.where(places[::2, None] == 4, np.nan, r.queries[::2])}
     for name, a in arrays.items():
         np.save(d / f"{name}.npy", a)
@@ -128,6 +129,7 @@ def test_calibration_ground_truth_utm_from_the_image_names(files, tmp_path: Path
      "--calibrate-truth:"),
     (["--db", "{db}", "--calibrate", "{narrow}", "--calibrate-truth", "{t_even}"], "have 8 dims but the map"),
     (["--db", "{db}", "--calibrate", "{nan}", "--calibrate-truth", "{t_even}"], "NaN or infinite values"),
+    (["--db", "{db}", "--calibrate", "{q_one}", "--calibrate-truth", "{t_one}"], "at least 2 labelled queries"),
     (["--db", "{db}", "--calibrate", "{q_even}", "--calibrate-truth", "{t_even}", "--positive-dist-threshold",
       "10"], "--positive-dist-threshold applies to it (and --calibrate-truth utm) only"),
 ])

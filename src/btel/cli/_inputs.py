@@ -221,6 +221,9 @@ def calibrate_evaluation(jobs: list[Any], Q: np.ndarray, db: str, queries: str, 
     if Qc.shape[1] != Q.shape[1]:
         raise InputError(f"--calibrate: the calibration queries have {Qc.shape[1]} dims but the map and queries "
                          f"{Q.shape[1]}; describe them with the same descriptor.")
+    if Qc.shape[0] < 2:  # refused before any fit, as `btel train --calibrate` does
+        raise InputError(f"--calibrate: calibration needs at least 2 labelled queries; {queries} holds "
+                         f"{Qc.shape[0]}. Give more (a few hundred certify a difference of 0.10–0.15).")
     try:
         ignored = calibrate_jobs(jobs, (Qc, given), tolerance)
     except InvalidParameterError as exc:
