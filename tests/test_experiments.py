@@ -76,9 +76,18 @@ def test_bad_names_and_folders(tmp_path: Path) -> None:
     with pytest.raises(InvalidParameterError, match="accuracy"):
         run_experiment("nope", data_root=tmp_path)
     with pytest.raises(DataNotFoundError, match="summer"):
+        run_experiment("regions", data_root=tmp_path)  # a folder without the seasons
+    with pytest.raises(DataNotFoundError, match="missing' does not exist .*BTEL_SHARED_DATA"):
         run_experiment("regions", data_root=tmp_path / "missing")
     result = CliRunner().invoke(main, ["report", "--runs", str(tmp_path / "none"), "--docs", str(tmp_path)])
     assert result.exit_code != 0 and "btel experiment all" in result.output
+
+
+def test_the_default_data_folder_follows_btel_shared_data(tmp_path: Path, monkeypatch) -> None:
+    """The variable the tests and the own-data guide use: `btel experiment` reads it too."""
+    monkeypatch.setenv("BTEL_SHARED_DATA", str(tmp_path / "elsewhere"))
+    result = CliRunner().invoke(main, ["experiment", "regions", "--quick", "--out", str(tmp_path / "runs")])
+    assert result.exit_code == 2 and f"{tmp_path / 'elsewhere' / 'nordland64'}' does not exist" in result.output
 
 
 @pytest.mark.realdata

@@ -10,7 +10,8 @@ from ._options import _command_line
 @click.command()
 @click.argument("name", metavar="NAME")
 @click.option("--data", "data_root", type=click.Path(file_okay=False), default=None,
-              help="Folder with summer/ and winter/ (default ../shared/data/nordland64).")
+              help="Folder with summer/ and winter/ (default $BTEL_SHARED_DATA/nordland64, else "
+                   "../shared/data/nordland64).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default="runs/experiments", show_default=True,
               help="Runs folder; results go to OUT/NAME/.")
 @click.option("--cache", "cache_dir", type=click.Path(file_okay=False), default=None,

@@ -7,6 +7,7 @@ into a cache folder (``nordland64-<season>-<descriptor>[-firstN].npy``).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,9 +23,15 @@ SEASONS = ("summer", "winter")
 QUICK_FRAMES = 300
 
 
+#: Environment variable naming the shared data folder (the one holding ``nordland64/``), as the tests read it.
+ENV_SHARED_DATA = "BTEL_SHARED_DATA"
+
+
 def default_nordland_root() -> Path:
-    """``../shared/data/nordland64`` from the working directory (the layout CI and developers use)."""
-    return Path("..") / "shared" / "data" / "nordland64"
+    """``$BTEL_SHARED_DATA/nordland64``, else ``../shared/data/nordland64`` from the working directory (the
+    layout CI and developers use)."""
+    shared = os.environ.get(ENV_SHARED_DATA)
+    return (Path(shared) if shared else Path("..") / "shared" / "data") / "nordland64"
 
 
 @dataclass
@@ -51,6 +58,11 @@ class NordlandData:
     def __post_init__(self) -> None:
         self.root = Path(self.root)
         self.cache_dir = Path(self.cache_dir)
+        if not self.root.is_dir():
+            raise DataNotFoundError(
+                f"Nordland folder {str(self.root)!r} does not exist (relative paths start at {str(Path.cwd())!r}). "
+                f"Run from the project's root (beside ../shared), set {ENV_SHARED_DATA} to the folder holding "
+                "nordland64/, or pass --data pointing at a folder with summer/ and winter/ images.")
         missing = [s for s in SEASONS if not (self.root / s).is_dir()]
         if missing:
             raise DataNotFoundError(
