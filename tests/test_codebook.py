@@ -202,3 +202,18 @@ def test_periodic_block_sums_are_exact_for_any_fixed_point_frequency_and_phase(n
 def test_block_sums_refuse_an_empty_block() -> None:
     with pytest.raises(InvalidParameterError, match="block must be ≥ 1"):
         Codebook("periodic", 50, 16).block_sums(0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.integers(0, 4999), min_size=1, max_size=300), st.sampled_from(["periodic", "random"]))
+def test_the_packed_cache_filled_in_any_order_holds_each_places_codeword(places: list[int], family: str) -> None:
+    """Places asked for in any order, with repeats, partly filled already: the cache equals the codebook."""
+    from btel.methods.codes.codewords import Codewords
+
+    book = Codebook(family, 5000, 37, 3)
+    cache = Codewords(book)
+    first = np.asarray(places[: len(places) // 2], dtype=np.intp)
+    everything = np.asarray(places, dtype=np.intp)
+    assert cache.fill(first) and cache.fill(everything)
+    np.testing.assert_array_equal(cache.packed[everything], book.packed(everything))
+    assert cache.filled.sum() >= np.unique(everything).size

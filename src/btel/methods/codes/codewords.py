@@ -218,7 +218,10 @@ class Codewords:
         have = self.filled[places]
         if have.all():
             return True
-        missing = np.unique(places[~have])
+        missing = places[~have]
+        if missing.size > 1 and not (missing[1:] > missing[:-1]).all():  # the coarse decode's come sorted
+            missing = np.sort(missing)  # sort and mask: np.unique (numpy 2.4) took 0.5 ms on 3,000 places
+            missing = missing[np.concatenate(([True], missing[1:] != missing[:-1]))]
         breaks = np.flatnonzero(np.diff(missing) > FILL_GAP) + 1
         work = self._thread_work()
         if breaks.size >= FILL_RUNS:
