@@ -1,11 +1,12 @@
-"""Every registered method on maps scaled by 1e-44 … 1e30: refused at fit by name, or as good as unscaled.
+"""Every registered method on maps scaled by 1e-44 … 3e37: refused at fit by name, or as good as unscaled.
 
 The evidence behind btel's numeric range rules (``docs/decisions/numeric-range.md``). For each
 method, front end (its default, and ``normalize='none'``) and scale s, the map and the queries of
 a synthetic route (or Gardens Point NetVLAD with ``--real``) are multiplied by s in float64 and
 stored as float32; the model is fitted, saved, loaded and asked ``predict``. A cell is the
 recall within 2 places on the scaled data, with the unscaled recall in the first column, or the
-btel error that refused it (``refused (…)``), or in bold any other exception. Writes
+btel error that refused it (``refused`` for InvalidDescriptorsError, ``refused (…)`` naming any other),
+or in bold any other exception. Writes
 ``benchmarks/results/study_scales.json`` and prints a markdown table::
 
     python benchmarks/studies/numeric_range_scales.py            # synthetic route, N = 200, d = 32
@@ -24,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-SCALES = (1e-44, 1e-38, 1e-20, 1e-15, 1e15, 1e30)
+SCALES = (1e-44, 1e-38, 1e-20, 1e-15, 1e15, 1e30, 3e37)
 RESULTS = Path(__file__).resolve().parents[1] / "results" / "study_scales.json"
 
 
@@ -54,7 +55,7 @@ def cell(method: str, params: dict, X: np.ndarray, Q: np.ndarray, scale: float, 
         loaded = btel.load(model.save(folder / "m.btel.npz"))
         return f"{_recall(loaded.predict(Qs)):.2f}"
     except BTELError as exc:
-        return f"refused ({type(exc).__name__})"
+        return "refused" if type(exc).__name__ == "InvalidDescriptorsError" else f"refused ({type(exc).__name__})"
     except Exception as exc:  # noqa: BLE001 - not a named refusal: shown as such
         return f"**{type(exc).__name__}**"
 

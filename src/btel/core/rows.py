@@ -12,9 +12,9 @@ from typing import Any
 import numpy as np
 
 from .validation import check_descriptors, check_positive_int
-from ..exceptions import InvalidDescriptorsError, InvalidParameterError, NotEnoughPlacesError
+from ..exceptions import InvalidParameterError, NotEnoughPlacesError
 
-__all__ = ["BlankQueryWarning", "MAX_NORM", "ScaledRows", "check_magnitude", "warn_blank_rows", "delta_descriptors", "mean_and_rms", "normalize_rows", "one_row_squares", "row_norms",
+__all__ = ["BlankQueryWarning", "ScaledRows", "warn_blank_rows", "delta_descriptors", "mean_and_rms", "normalize_rows", "one_row_squares", "row_norms",
            "traverse_starts", "NORMALIZATIONS"]
 
 NORMALIZATIONS = ("none", "l2", "power")
@@ -28,9 +28,6 @@ TINY_SQUARED_NORM = 1e-30
 #: Rows longer than this are not handed out as :class:`ScaledRows`: their raw product with a method's
 #: weights (``raw @ W``, scaled after) overflows float32 near 1e38, while the normalised rows do not.
 HUGE_NORM = 2.0**64
-#: Largest L2 norm of a descriptor (after the front end) a row index searches: squared distances
-#: of such vectors stay far below float32's maximum (3.4e38), where faiss' distances overflow.
-MAX_NORM = 1e18
 
 
 class BlankQueryWarning(UserWarning):
@@ -270,36 +267,3 @@ def _delta_one(X: np.ndarray, w: int) -> np.ndarray:
         before = csum[end - w] - csum[end - 2 * w]
         out[:, c0 : c0 + step] = (last - before) / w
     return out
-
-
-def check_magnitude(X: np.ndarray, name: str, *, error: type[Exception] = InvalidDescriptorsError,
-                    chunk_rows: int = 65536) -> float:
-    """``error`` naming the first row of ``X`` that is not finite or whose L2 norm exceeds :data:`MAX_NORM`.
-
-    Squared norms are summed in X's own float32: one that overflows is far beyond the bound anyway.
-    Returns the largest squared norm (float32 arithmetic: 0 when every row underflows). ``X`` is read
-    in blocks of rows of at most 2²² values (an ndarray, a memory map or lazily scaled rows).
-    """
-    if X.shape[0] == 1 and X.dtype == np.float32:  # one query (µs count here): one float64 dot, no FP state
-        square = one_row_squares(X)
-        if square <= MAX_NORM**2:  # False for NaN and inf: the full check names it
-            return square
-    largest = 0.0
-    step = max(1, min(chunk_rows, (1 << 22) // max(X.shape[1], 1)))
-    for start in range(0, X.shape[0], step):
-        block = np.asarray(X[start : start + step])
-        with np.errstate(over="ignore", invalid="ignore"):
-            squares = np.einsum("ij,ij->i", block, block)
-        bad = np.flatnonzero(~(squares <= MAX_NORM**2))
-        if bad.size:
-            row = start + int(bad[0])
-            values = np.asarray(block[bad[0]], dtype=np.float64)
-            length = float(np.sqrt(values @ values)) if np.isfinite(values).all() else float("nan")
-            raise error(
-                f"{name} row {row} has length {length:.3g} (after the front end); squared distances of "
-                f"descriptors longer than {MAX_NORM:.0e} overflow float32. Scale the descriptors down (or "
-                "use normalize='l2')."
-            )
-        if squares.size:
-            largest = max(largest, float(squares.max()))
-    return largest

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..base import ArraySpec, PlaceLocalizer
 from ...exceptions import BudgetTooSmallError, InvalidDescriptorsError, ModelFileError
-from ...core.rows import MAX_NORM, check_magnitude
+from ...core.rows import one_row_squares
 from ...core.storage import exact_bytes
 from ...core.threads import faiss_module, faiss_threads, search_threads
 
@@ -106,6 +106,9 @@ def rank_unique_places(row_ranking: np.ndarray, row_places: np.ndarray, k: int,
     return places, scores
 
 
+#: Largest L2 norm of a descriptor (after the front end) a row index searches: squared distances
+#: of such vectors stay far below float32's maximum (3.4e38), where faiss' distances overflow.
+MAX_NORM = 1e18
 #: Shortest the longest row of a map may be (after the front end) for an index of float32 distances
 #: (the mirror of MAX_NORM): squared lengths below 1e-36 near float32's smallest normal number
 #: (1.2e-38), below which squared distances keep fewer bits, then none — every place looks alike.
@@ -152,6 +155,39 @@ def negated_distances(distances: np.ndarray) -> np.ndarray:
     if distances.size == 1:
         return np.array(-float(distances.item(0)), ndmin=2)
     return np.negative(distances, dtype=np.float64)
+
+
+def check_magnitude(X: np.ndarray, name: str, *, error: type[Exception] = InvalidDescriptorsError,
+                    chunk_rows: int = 65536) -> float:
+    """``error`` naming the first row of ``X`` that is not finite or whose L2 norm exceeds :data:`MAX_NORM`.
+
+    Squared norms are summed in X's own float32: one that overflows is far beyond the bound anyway.
+    Returns the largest squared norm (float32 arithmetic: 0 when every row underflows). ``X`` is read
+    in blocks of rows of at most 2²² values (an ndarray, a memory map or lazily scaled rows).
+    """
+    if X.shape[0] == 1 and X.dtype == np.float32:  # one query (µs count here): one float64 dot, no FP state
+        square = one_row_squares(X)
+        if square <= MAX_NORM**2:  # False for NaN and inf: the full check names it
+            return square
+    largest = 0.0
+    step = max(1, min(chunk_rows, (1 << 22) // max(X.shape[1], 1)))
+    for start in range(0, X.shape[0], step):
+        block = np.asarray(X[start : start + step])
+        with np.errstate(over="ignore", invalid="ignore"):
+            squares = np.einsum("ij,ij->i", block, block)
+        bad = np.flatnonzero(~(squares <= MAX_NORM**2))
+        if bad.size:
+            row = start + int(bad[0])
+            values = np.asarray(block[bad[0]], dtype=np.float64)
+            length = float(np.sqrt(values @ values)) if np.isfinite(values).all() else float("nan")
+            raise error(
+                f"{name} row {row} has length {length:.3g} (after the front end); squared distances of "
+                f"descriptors longer than {MAX_NORM:.0e} overflow float32. Scale the descriptors down (or "
+                "use normalize='l2')."
+            )
+        if squares.size:
+            largest = max(largest, float(squares.max()))
+    return largest
 
 
 def check_not_tiny(X: np.ndarray, largest_square: float, name: str) -> None:

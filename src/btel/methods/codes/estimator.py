@@ -39,10 +39,9 @@ import numpy as np
 
 from ...core.validation import N_JOBS, RANDOM_STATE, Interval, Options, String
 from ..base import PlaceLocalizer
-from ...exceptions import BudgetTooSmallError, InvalidParameterError
+from ...exceptions import BudgetTooSmallError, InvalidDescriptorsError, InvalidParameterError
 from ...learning.distributed import BACKENDS
 from ...learning.feature_selection import column_index_dtype
-from ...core.rows import check_magnitude
 from ...learning.hyperplanes import check_fitted_weights
 from ...learning.linear import ColumnStats
 from ...core.storage import UNLIMITED_BUDGET, exact_bytes
@@ -260,8 +259,8 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
             raise InvalidParameterError(f"decode='coarse' needs a route code family; {self.code_reason_}. "
                                         "Use decode='auto' or 'exact', or pass code='periodic'.")
         self.code_ = family
-        if self.normalize == "none":  # raw rows: squares past float32's range would corrupt the fit silently
-            check_magnitude(X, "X")
+        if self.normalize == "none":  # raw rows: the fitted weights (≈ 1/‖x‖) must stay normal float32 numbers
+            _check_raw_values(X)
         if self.solver != "ridge":  # liblinear reads the map whole
             X = np.asarray(X)
         d = X.shape[1]
@@ -325,3 +324,22 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
         if "_cache" in state:  # runtime caches are rebuilt on demand, not shipped to workers
             state["_cache"] = RuntimeCache(self.codebook_)
         return state
+
+
+#: Largest raw value (``normalize='none'``) whose map the ridge fit answers: the weights scale as the
+#: inverse of the rows' length, and past about 1e37 they fall below float32's smallest normal number
+#: (1.2e-38), quantise to nothing and every query gets the same answer.
+MAX_RAW_VALUE = 1e35
+
+
+def _check_raw_values(X: Any, chunk_values: int = 1 << 22) -> None:
+    """InvalidDescriptorsError when a value of the (raw) map exceeds :data:`MAX_RAW_VALUE` in magnitude."""
+    step = max(1, chunk_values // max(X.shape[1], 1))
+    for start in range(0, X.shape[0], step):
+        largest = float(np.abs(np.asarray(X[start : start + step])).max(initial=0.0))
+        if largest > MAX_RAW_VALUE:
+            raise InvalidDescriptorsError(
+                f"X holds values up to {largest:.3g} (rows {start}–{min(X.shape[0], start + step) - 1}); with "
+                f"normalize='none' btel-codes fits maps whose values stay within ±{MAX_RAW_VALUE:.0e} (its "
+                "weights shrink as the values grow, below float32's range past that). Scale the descriptors "
+                "down (or use normalize='l2').")
