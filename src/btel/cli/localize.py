@@ -30,7 +30,7 @@ from ._outputs import check_output_suffix, refuse_existing
 @click.option("--binary", is_flag=True,
               help="With --stream: the input is binary float32 frames, not text: each a little-endian uint32 "
                    "count n then n little-endian float32 values (n = 0: a new traverse).")
-@click.option("--input", "input_path", type=click.Path(dir_okay=False), default=None,
+@click.option("--input", "input_path", type=click.Path(dir_okay=False, exists=True), default=None,
               help="With --stream: read this text file instead of stdin.")
 @click.option("--hmm", is_flag=True,
               help="Decode the queries as one ordered traverse with the HMM over places (forward motion; no extra "
@@ -57,7 +57,8 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
             camera | btel localize MODEL --stream --binary   (float32 frames, see --binary)
     In stream mode each line of input is one descriptor; each output line is the place index of the
     next well-formed input line. A malformed line (wrong count, not a number, NaN) gets a one-line
-    error naming its line number on stderr, produces no output line, and the stream goes on.
+    error naming its line number on stderr, produces no output line, and the stream goes on. Blank
+    lines and # comments are skipped; a last line without its newline is reported, not answered.
     """
     batch = (queries, output, db, top_k) != (None,) * 4
     streaming = (input_path, idle_timeout) != (None, None) or follow or binary
@@ -128,15 +129,33 @@ def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_time
         n_bad += 1
         click.echo(f"error: {unit} {line_number}: {message} (skipped)", err=True)
 
+    def warn(line_number: int, message: str) -> None:
+        click.echo(f"warning: {unit} {line_number}: {message}", err=True)
+
+    if input_path is None and sys.stdin is None:
+        raise InputError("standard input is closed: pipe the descriptors in, or give --input FILE.")
+    if sys.stdout is None:
+        raise InputError("standard output is closed: the answers need somewhere to go (a file or a pipe).")
+    out = sys.stdout
+
+    def write(text: str | None) -> None:
+        try:
+            out.write(text) if text is not None else out.flush()
+        except BrokenPipeError:
+            raise  # the reader went away: the command ends quietly (btel.cli)
+        except OSError as exc:
+            raise click.ClickException(
+                f"cannot write the answers to standard output: {exc.strerror or exc}; free the space or send "
+                "the output elsewhere.") from exc
+
     # Bytes, decoded line by line in localize_stream: a byte that is not UTF-8 is one malformed line,
     # not the end of the stream (a text stream's decoder would raise and stop it).
     source = open(input_path, "rb") if input_path is not None else getattr(sys.stdin, "buffer", sys.stdin)
-    out = sys.stdout
     try:
         for _, place in localize_stream(model, source, window=window, on_error=report, follow=follow, hmm=hmm,
                                         hmm_options=hmm_options, idle_timeout=idle_timeout, binary=binary,
-                                        on_flush=out.flush):
-            out.write(f"{place}\n")  # flushed by on_flush: a reader of the pipe sees each answer at once
+                                        on_flush=lambda: write(None), on_warning=warn):
+            write(f"{place}\n")  # flushed by on_flush: a reader of the pipe sees each answer at once
             n_out += 1
     finally:  # Ctrl-C, the usual end of a --follow stream, still says what was skipped (then exits 130)
         if input_path is not None:

@@ -144,6 +144,19 @@ def parse_lines(lines: Sequence[bytes], n_features: int | None) -> tuple[np.ndar
     return values64.astype(np.float32), fast
 
 
+def _count_hint(line: str, tokens: list[str]) -> str:
+    """Why a line may hold the wrong number of values: a token that is not a number (another
+    separator such as ``;``, a NUL byte), or carriage returns ending lines instead of newlines."""
+    if "\r" in line.strip():
+        return (" (the line holds carriage returns inside it: lines must end with a newline, \\n or \\r\\n, "
+                "not a bare \\r)")
+    bad = next((t for t in tokens if not _DECIMAL.match(t)), None)
+    if bad is None:
+        return ""
+    return (f"; {bad[:40]!r} is not a number (values are ASCII decimals separated by commas or "
+            "whitespace)")
+
+
 def parse_strict(line: str | bytes, n_features: int | None) -> np.ndarray:
     """One line through the strict parser: its (1, d) float32 row, or the error naming what is wrong."""
     if isinstance(line, (bytes, bytearray)):
@@ -152,7 +165,7 @@ def parse_strict(line: str | bytes, n_features: int | None) -> np.ndarray:
     if not tokens:
         raise InvalidDescriptorsError("empty line (expected one descriptor).")
     if n_features is not None and len(tokens) != n_features:
-        raise InvalidDescriptorsError(f"expected {n_features} values, got {len(tokens)}.")
+        raise InvalidDescriptorsError(f"expected {n_features} values, got {len(tokens)}{_count_hint(line, tokens)}.")
     for column, token in enumerate(tokens):
         if not _DECIMAL.match(token):
             if _NOT_FINITE.match(token):

@@ -8,7 +8,9 @@ filter (SPEC §6) applied across the stream. The model's front end runs online t
 answers from the first frame on. A line ``reset`` starts a new traverse: the filter, the HMM and
 the delta history forget the past. A malformed line — a wrong number of values, something that is
 not a number, NaN or infinity — is reported with its line number and skipped; it does not stop the
-stream and does not enter the filter's history. Lines are parsed by :mod:`btel.sequence.lineparse`; binary
+stream and does not enter the filter's history. So is a last line without its newline (the producer
+may have stopped in the middle of it). Blank lines and ``#`` comments are skipped, a UTF-8 byte-order
+mark is dropped, and an all-zero line (a blank frame) is answered with a warning naming its line. Lines are parsed by :mod:`btel.sequence.lineparse`; binary
 float32 frames (``binary=True``) are read by :func:`btel.sequence.streamread.read_frames`, whose docstring
 states the frame format.
 
@@ -28,7 +30,9 @@ command-line front end.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import warnings
 from typing import Any, Callable, Iterator, TextIO
 
 import numpy as np
@@ -37,7 +41,8 @@ from ..exceptions import DimensionMismatchError, InvalidDescriptorsError, Invali
 from .lineparse import (DEFAULT_MAX_LINE_BYTES, MAX_LINE_ENV, LineTooLong, max_line_bytes,
                         parse_descriptor_line, parse_lines, parse_strict)
 from .filter import SequenceFilter
-from .streamread import IDLE, BadFrame, chunk_lines, is_pipe, read_frames, read_lines
+from .streamread import IDLE, BadFrame, CutLine, chunk_lines, is_pipe, read_frames, read_lines
+from ..core.rows import BlankQueryWarning
 from ..core.threads import one_blas_thread
 
 __all__ = ["parse_descriptor_line", "read_lines", "localize_stream", "RESET_LINE", "max_line_bytes",
@@ -46,6 +51,9 @@ __all__ = ["parse_descriptor_line", "read_lines", "localize_stream", "RESET_LINE
 #: An input line that starts a new traverse: the sequence filter, the HMM and the front end's
 #: delta history forget the past (e.g. the robot was carried to another place).
 RESET_LINE = "reset"
+#: What the first bytes of a line may hold besides its values: a UTF-8 byte-order mark (a file
+#: saved by a Windows tool); it is dropped.
+_BOM = b"\xef\xbb\xbf"
 #: Lines parsed and predicted together at most (:func:`localize_stream`).
 _BLOCK_LINES = 256
 
@@ -62,6 +70,7 @@ def localize_stream(
     binary: bool = False,
     on_flush: Callable[[], Any] | None = None,
     hmm_options: dict[str, Any] | None = None,
+    on_warning: Callable[[int, str], Any] | None = None,
 ) -> Iterator[tuple[int, int]]:
     """Localize each descriptor line as it arrives.
 
@@ -70,8 +79,12 @@ def localize_stream(
     model : fitted PlaceLocalizer
         Anything with ``predict`` (and ``n_features_in_``, ``n_places_``).
     lines : text or binary file, or iterable of str or bytes
-        One descriptor per line; blank lines are ignored. Bytes are decoded as UTF-8 line by line:
-        a line that is not UTF-8 is a malformed line like any other.
+        One descriptor per line; blank lines and comment lines (starting with ``#``, as
+        ``numpy.savetxt(header=...)`` writes them) are ignored, and a UTF-8 byte-order mark at the
+        start of a line is dropped. Bytes are decoded as UTF-8 line by line: a line that is not
+        UTF-8 is a malformed line like any other. From a file or stream only whole lines are
+        answered: a last line without its newline (the producer may have stopped in the middle of
+        it) is reported through ``on_error``, not answered.
     window : int, optional
         Sequence-filter window a (SPEC §6); None: raw predictions.
     on_error : callable, optional
@@ -88,6 +101,10 @@ def localize_stream(
         the default, 2, suits queries taken at the map's frame rate).
     binary : bool
         ``lines`` is a binary stream of float32 frames (:func:`btel.sequence.streamread.read_frames`), not text.
+    on_warning : callable, optional
+        Called as ``on_warning(number, message)`` for each line or frame that is answered but
+        carries nothing to localize by (all zeros: a blank or covered frame). Default: one
+        :class:`~btel.core.rows.BlankQueryWarning` for the first such line of the stream.
     on_flush : callable, optional
         Called after the last answer of each block (and after each answer given alone): where a
         writer flushes its output, so that a reader of a pipe sees every answer before the next
@@ -124,11 +141,12 @@ def localize_stream(
                       and not model._sequence_context())
     blocks = frame_by_frame and not follow and (binary or _is_regular_file(source) or is_pipe(source))
     flush = on_flush or (lambda: None)
+    blank = on_warning or _WarnOnce()
     pending: list[tuple[int, Any]] = []
 
     def answer_pending() -> Iterator[tuple[int, int]]:
         if pending:
-            yield from _answer_block(model, stream, filt, _rows(pending, n_features, on_error), on_error)
+            yield from _answer_block(model, stream, filt, _rows(pending, n_features, on_error), on_error, blank)
             pending.clear()
             flush()
 
@@ -145,7 +163,7 @@ def localize_stream(
                     yield from answer_pending()
                 continue
             for row in _rows([(number, item)], n_features, on_error):
-                answer = _answer_one(stream, filt, decoder, row, on_error)
+                answer = _answer_one(stream, filt, decoder, row, on_error, blank)
                 if answer is not None:
                     yield answer
                     flush()
@@ -155,8 +173,38 @@ def localize_stream(
     yield from answer_pending()
 
 
+class _WarnOnce:
+    """The default ``on_warning``: one BlankQueryWarning, naming the first blank line of the stream
+    (one per line would fill the warnings registry of a long stream from a covered camera)."""
+
+    def __init__(self) -> None:
+        self.warned = False
+
+    def __call__(self, number: int, message: str) -> None:
+        if not self.warned:
+            self.warned = True
+            warnings.warn(f"line {number}: {message} (later blank lines of this stream are not warned about; "
+                          "pass on_warning to hear of each)", BlankQueryWarning, stacklevel=4)
+
+
+_BLANK = "all zeros (a blank frame?): answered, but a descriptor with no content gives no localization."
+
+
+@contextlib.contextmanager
+def _quiet_blanks(any_blank: bool) -> Iterator[None]:
+    """Silence the model's own warning about blank rows (it numbers rows within a block, not lines
+    of the stream: the stream reports them itself, by line number, once answered)."""
+    if not any_blank:
+        yield
+        return
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BlankQueryWarning)
+        yield
+
+
 def _answer_one(stream: Any, filt: SequenceFilter | None, decoder: Any, row: tuple[int, Any],
-                on_error: Callable[[int, str], Any] | None) -> tuple[int, int] | None:
+                on_error: Callable[[int, str], Any] | None,
+                on_warning: Callable[[int, str], Any]) -> tuple[int, int] | None:
     """The (number, place) of one parsed row through the query stream (None for a reset or a refused row)."""
     number, q = row
     if isinstance(q, str):  # RESET_LINE: a new traverse, forget the sequence state
@@ -165,35 +213,44 @@ def _answer_one(stream: Any, filt: SequenceFilter | None, decoder: Any, row: tup
             if state is not None:
                 state.reset()
         return None
+    blank = isinstance(q, np.ndarray) and not q.any()
     try:
-        if decoder is not None:
-            from .hmm import zscore_rows
+        with _quiet_blanks(blank):
+            if decoder is not None:
+                from .hmm import zscore_rows
 
-            place = decoder.update(zscore_rows(stream.place_scores(q)[None, :])[0])
-        else:
-            place = int(stream.search(q, 1)[1][0])
+                place = decoder.update(zscore_rows(stream.place_scores(q)[None, :])[0])
+            else:
+                place = int(stream.search(q, 1)[1][0])
     except (InvalidDescriptorsError, DimensionMismatchError) as exc:  # a model without n_features_in_
         if on_error is not None:
             on_error(number, str(exc))
         return None
+    if blank:
+        on_warning(number, _BLANK)
     return number, (filt.update(place) if filt is not None else place)
 
 
 def _answer_block(model: Any, stream: Any, filt: SequenceFilter | None, rows: list[tuple[int, Any]],
-                  on_error: Callable[[int, str], Any] | None) -> Iterator[tuple[int, int]]:
+                  on_error: Callable[[int, str], Any] | None,
+                  on_warning: Callable[[int, str], Any]) -> Iterator[tuple[int, int]]:
     """Answers of a block of parsed rows of a frame-by-frame model: one prediction for all, in input order."""
-    queries = [q for _, q in rows if not isinstance(q, str)]
+    numbered = [(number, q) for number, q in rows if not isinstance(q, str)]
     places = None
-    if queries:
+    if numbered:
+        Q = np.concatenate([q for _, q in numbered])
+        blanks = [numbered[i][0] for i in np.flatnonzero(~Q.any(axis=1))]
         try:
-            with one_blas_thread():  # a thin product: BLAS threads spinning cost more than they give
-                places = model.search(np.concatenate(queries), 1)[1][:, 0].tolist()
+            with one_blas_thread(), _quiet_blanks(bool(blanks)):
+                places = model.search(Q, 1)[1][:, 0].tolist()  # one BLAS thread: a thin product
         except (InvalidDescriptorsError, DimensionMismatchError):
             places = None  # find the row at fault one by one below
+        for number in blanks if places is not None else ():
+            on_warning(number, _BLANK)
     j = 0
     for number, q in rows:
         if isinstance(q, str) or places is None:
-            answer = _answer_one(stream, filt, None, (number, q), on_error)
+            answer = _answer_one(stream, filt, None, (number, q), on_error, on_warning)
             if answer is not None:
                 yield answer
             continue
@@ -225,12 +282,20 @@ def _rows(block: list[tuple[int, Any]], n_features: int | None,
     for k, (number, item) in enumerate(block):
         if isinstance(item, np.ndarray) or item == RESET_LINE:  # a binary frame, or a frame count of 0
             out[k] = (number, item)
-        elif isinstance(item, (LineTooLong, BadFrame)):
+        elif isinstance(item, (LineTooLong, BadFrame, CutLine)):
             _report(on_error, number, item)
         elif len(item) > limit + 1:
             _report(on_error, number, LineTooLong(limit))
         else:
-            raws.append(item.encode("utf-8", "surrogatepass") if isinstance(item, str) else bytes(item))
+            raw = item.encode("utf-8", "surrogatepass") if isinstance(item, str) else bytes(item)
+            if raw.startswith(_BOM):
+                raw = raw[len(_BOM):]
+            if b"\0" in raw:  # a float32 frame holds NUL bytes in its count; text never does
+                column = raw.index(b"\0") + 1
+                _report(on_error, number, f"binary data, not a line of text (a NUL byte at column {column}); "
+                                          "float32 frames are read with --binary.")
+                continue
+            raws.append(raw)
             where.append(k)
     parsed, fast = parse_lines(raws, n_features)
     first = 0
@@ -242,13 +307,13 @@ def _rows(block: list[tuple[int, Any]], n_features: int | None,
             continue
         if isinstance(item, (bytes, bytearray)):
             try:  # only lines the fast path refused need decoding
-                item = bytes(item).decode("utf-8")
+                item = raw.decode("utf-8")
             except UnicodeDecodeError as exc:
                 _report(on_error, number,
-                        f"not UTF-8 text (byte 0x{item[exc.start]:02x} at column {exc.start + 1}).")
+                        f"not UTF-8 text (byte 0x{raw[exc.start]:02x} at column {exc.start + 1}).")
                 continue
-        text = item.strip()
-        if not text:
+        text = item.strip().removeprefix("\ufeff").strip()
+        if not text or text.startswith("#"):  # blank, or a comment (numpy.savetxt's header= and footer=)
             continue
         if text.lower() == RESET_LINE:
             out[k] = (number, RESET_LINE)

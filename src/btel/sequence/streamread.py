@@ -4,6 +4,9 @@
 pipe). :func:`chunk_lines` reads a binary file or pipe in chunks and, on a pipe, also says when no
 further line is waiting (:data:`IDLE`): the caller answers what it holds before the read that would
 block, so a fast producer's lines are answered in blocks and a camera's frame as soon as it arrives.
+Only whole lines are answered: a last line without its newline (a producer that stopped in the middle
+of a line) is a :class:`CutLine`, reported, never parsed, since ``…e-0`` cut from ``…e-01`` still reads
+as a number.
 
 **Binary frames** (``btel localize --stream --binary``; :func:`read_frames`): each frame is a
 little-endian ``uint32`` count n, then n little-endian ``float32`` values — in numpy
@@ -27,7 +30,7 @@ import numpy as np
 from ..exceptions import InvalidDescriptorsError
 from .lineparse import LineTooLong, max_line_bytes
 
-__all__ = ["read_lines", "chunk_lines", "read_frames", "is_pipe", "IDLE", "RESET", "BadFrame"]
+__all__ = ["read_lines", "chunk_lines", "read_frames", "is_pipe", "IDLE", "RESET", "BadFrame", "CutLine"]
 
 #: Yielded by :func:`chunk_lines` and :func:`read_frames` when no further input is waiting.
 IDLE = object()
@@ -44,6 +47,16 @@ class BadFrame:
 
     def message(self) -> str:
         return self.text
+
+
+class CutLine:
+    """Stands for the last line of an input that ended without its newline (reported, not answered):
+    a producer that stopped mid-line leaves a line that may still hold the right number of values
+    (``…e-0`` of ``…e-01``), so it cannot be told from a whole one."""
+
+    def message(self) -> str:
+        return ("the input ended inside this line (no newline after it): a line cut short can look whole, so "
+                "it is not answered; end every line with a newline (numpy.savetxt does).")
 
 
 def is_pipe(stream: Any) -> bool:
@@ -73,6 +86,8 @@ def read_lines(stream: Any, *, follow: bool = False, poll_interval: float = 0.1,
     follow : bool
         Keep reading a file as it grows (``tail -f``): at EOF, wait ``poll_interval`` seconds and
         try again. A line without its newline yet is held back until it is complete.
+        At the end of the input (or of ``idle_timeout``) a last line without its newline comes out
+        as a :class:`CutLine`: the producer may have stopped in the middle of it.
     idle_timeout : float, optional
         With ``follow``, stop after this many seconds without new data (default: never).
     max_line : int, optional
@@ -110,8 +125,8 @@ def read_lines(stream: Any, *, follow: bool = False, poll_interval: float = 0.1,
         time.sleep(poll_interval)
     if skipping:
         yield LineTooLong(limit)
-    elif pending:
-        yield pending  # the last line of a finished file may lack its newline
+    elif pending and pending.strip():
+        yield CutLine()  # the last line lacks its newline: cut short, or not, cannot be told
 
 
 def chunk_lines(stream: BinaryIO, *, max_line: int | None = None) -> Iterator[Any]:
@@ -121,7 +136,7 @@ def chunk_lines(stream: BinaryIO, *, max_line: int | None = None) -> Iterator[An
     Reads whatever has arrived (``read1``: up to 64 KiB from a pipe, 1 MiB from a file) and splits
     it into lines itself — no call per line — so on a pipe it knows when its buffer holds no whole
     line and the pipe has nothing more (``select``): then it yields :data:`IDLE`. Line limits as
-    :func:`read_lines`; ends at the end of the input.
+    :func:`read_lines`; ends at the end of the input (a last line without its newline: :class:`CutLine`).
     """
     limit = max_line_bytes() if max_line is None else int(max_line)
     fd = stream.fileno() if is_pipe(stream) else None
@@ -153,8 +168,17 @@ def chunk_lines(stream: BinaryIO, *, max_line: int | None = None) -> Iterator[An
         buf += chunk
     if skipping:
         yield LineTooLong(limit)
-    elif buf:
-        yield buf
+    elif buf.strip():
+        yield CutLine()
+
+
+def _count_hint(head: bytes, n_features: int) -> str:
+    """What a frame count that makes no sense most likely is: text, or a big-endian count."""
+    if int.from_bytes(head, "big") == n_features:
+        return f" (a big-endian count of {n_features}? frames are little-endian: write them as '<u4' and '<f4')"
+    if all(32 <= b < 127 or b in b"\t\r\n" for b in head):
+        return f" (its bytes {head!r} are text: text lines are read without --binary)"
+    return ""
 
 
 def read_frames(stream: BinaryIO, n_features: int, *, follow: bool = False, poll_interval: float = 0.1,
@@ -197,7 +221,7 @@ def read_frames(stream: BinaryIO, n_features: int, *, follow: bool = False, poll
         if len(head) < 4 or count * 4 > limit:
             what = (f"the input ends inside its 4-byte count ({len(head)} bytes)" if len(head) < 4 else
                     f"its count {count} values ({count * 4} bytes) exceeds the {limit}-byte limit "
-                    "($BTEL_MAX_LINE_BYTES)")
+                    f"($BTEL_MAX_LINE_BYTES){_count_hint(head, n_features)}")
             raise InvalidDescriptorsError(
                 f"frame {number}: {what}; binary frames are a little-endian uint32 count then that many "
                 "float32 values: the input is not btel frames, or lost its framing.")
