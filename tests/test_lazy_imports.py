@@ -52,6 +52,16 @@ def test_public_names_are_unchanged_and_listed() -> None:
     from btel import load, make_method  # noqa: F401  (from-imports resolve through __getattr__)
 
 
+def test_subpackages_are_attributes_after_import_btel_and_cost_nothing_before() -> None:
+    """``import btel; btel.datasets.synthetic_route(...)`` works, as a newcomer writes it; importing btel
+    alone still imports no subpackage."""
+    loaded = modules_after("import btel")
+    assert not {m for m in loaded if m.split(".")[:2] == ["btel", "datasets"]}
+    loaded = modules_after("import btel\nprint(btel.datasets.synthetic_route(20, 4, seed=0).map.shape)")
+    assert "btel.datasets" in loaded and not {m for m in loaded if m.split(".")[0] in ("sklearn", "scipy")}
+    assert {"datasets", "descriptors", "evaluation", "experiments", "methods", "sequence"} <= set(dir(btel))
+
+
 def test_an_unknown_name_is_an_attribute_error() -> None:
     try:
         btel.NoSuchThing  # noqa: B018

@@ -9,6 +9,7 @@ do not pay for scikit-learn and SciPy until a method is actually needed.
 
 from __future__ import annotations
 
+import importlib
 from typing import TYPE_CHECKING
 
 from ._lazy import lazy_names
@@ -39,4 +40,8 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers and IDEs only
     from .core.storage import parse_budget
 
 
-__getattr__, __dir__ = lazy_names(__name__, _LAZY)
+#: Subpackages reachable as attributes once ``import btel`` ran (``btel.datasets.synthetic_route``), imported then.
+_SUBPACKAGES = ("datasets", "descriptors", "evaluation", "experiments", "methods", "sequence")
+
+__getattr__, __dir__ = lazy_names(__name__, _LAZY, {
+    name: (lambda name=name: importlib.import_module(f".{name}", __name__)) for name in _SUBPACKAGES})
