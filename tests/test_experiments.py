@@ -227,3 +227,11 @@ def test_frontier_verdicts_name_autos_pick_and_never_count_auto_as_its_own_oracl
     assert "calibrated in 1 of 1" in " ".join(frontier_verdicts._counts([v])).replace("Calibrated auto (every query "
                                                                             "answered by a model calibrated on "
                                                                             "the other half) in", "calibrated in")
+
+
+def test_protocols_quoted_from_docstrings_read_as_markdown() -> None:
+    """The results page quotes protocols from docstrings: no `:mod:` left for a reader to see."""
+    from btel.experiments._common import docstring_markdown
+
+    text = "ridge α by the rule of :mod:`btel.methods.codes.solvers`,\n   the :func:`~btel.x.plan` and ``btel-codes``"
+    assert docstring_markdown(text) == "ridge α by the rule of `btel.methods.codes.solvers`, the `plan` and `btel-codes`"

@@ -388,3 +388,12 @@ def _json_default(value: Any) -> Any:
     if isinstance(value, (np.floating,)):
         return float(value)
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def docstring_markdown(text: str) -> str:
+    """A docstring's text as Markdown on one line: ``:func:`~a.b.c``` becomes `` `c` ``, ``:mod:`a.b``` `` `a.b` ``,
+    ````x```` `` `x` `` (the results page quotes the experiments' protocols from their docstrings)."""
+    import re
+
+    text = re.sub(r":[a-z]+:`(~?)([^`]+)`", lambda m: f"`{m.group(2).rsplit('.', 1)[-1] if m.group(1) else m.group(2)}`", text)
+    return " ".join(text.replace("``", "`").split())

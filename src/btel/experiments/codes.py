@@ -41,7 +41,7 @@ import numpy as np
 from ..evaluation.metrics import DEFAULT_TOLERANCES, recall_at_tolerance
 from ..core.storage import format_bytes, parse_budget
 from ..datasets.sources import gardens_point_path, load_gardens_point_netvlad
-from ._common import SEASONS, ExperimentRun, FittedRow, NordlandData, fit_and_predict
+from ._common import SEASONS, ExperimentRun, FittedRow, NordlandData, docstring_markdown, fit_and_predict
 
 __all__ = ["exp_codes", "TARGETS", "check_targets"]
 
@@ -369,7 +369,7 @@ def _verdicts(rows: list[dict[str, Any]], key: str = "recall@10") -> list[str]:
 def report_lines(payload: dict[str, Any], docs_dir: Path) -> list[str]:
     """The "codes" section of docs/results.md: targets, tables per data set, timing, seeds, reading."""
     rows = payload["rows"]
-    lines = [f"Validation protocol: {payload.get('protocol', '')}", ""]
+    lines = [f"Validation protocol: {docstring_markdown(payload.get('protocol', ''))}", ""]
     targets = payload.get("targets", [])
     if targets:
         lines += ["### Targets (Gardens Point day → night, btel-codes fixed in advance; protocol above)", "",

@@ -18,6 +18,7 @@ from typing import Any
 from ..exceptions import DataNotFoundError
 from . import EXPERIMENTS
 from ..core.storage import format_bytes
+from ._common import docstring_markdown
 
 __all__ = ["write_report"]
 
@@ -102,7 +103,7 @@ def _beyond_lines(payload: dict[str, Any]) -> list[str]:
     """The "beyond" experiment: ladder, then one table per part (Nordland, Gardens Point, synthetic)."""
     budget = payload.get("budget")
     n = next((r["n_places"] for r in payload["rows"] if r.get("part") == "nordland"), "?")
-    lines = [f"Validation protocol {' '.join(payload.get('protocol', {}).get('text', '').split())}", "",
+    lines = [f"Validation protocol {docstring_markdown(payload.get('protocol', {}).get('text', ''))}", "",
              f"### Ladder (Nordland, N = {n}, HOG, ≤ {format_bytes(budget) if budget else '?'})", "",
              "| direction | measure | best BTEL variant (by validation) | its value | best of PQ / OPQ / ITQ | its value "
              "| BTEL ≥ quantiser | chance |", "|---|---|---|---|---|---|---|---|"]

@@ -154,8 +154,11 @@ def make_method(name: str, **params: Any) -> PlaceLocalizer:
     PlaceLocalizer
         Unfitted; ``fit(X)`` with X of shape (N, d) makes it answer queries.
 
-    Unknown parameter names and values outside a parameter's declared range raise
-    :class:`~btel.exceptions.InvalidParameterError` at once (naming the method and parameter).
+    Raises
+    ------
+    InvalidParameterError
+        An unknown method name, an unknown parameter name or a value outside a parameter's declared
+        range, at once (naming the method and the parameter).
     """
     if name not in _ENTRIES:
         raise InvalidParameterError(f"unknown method {name!r}; choose from {', '.join(_ENTRIES)}.")
