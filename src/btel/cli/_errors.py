@@ -64,7 +64,7 @@ def exit_status(exc: BaseException) -> int:
 
 #: (library phrase, command-line phrase): regular expressions, applied in order.
 CLI_WORDS: tuple[tuple[str, str], ...] = (
-    (r"Train one with BTELocalizer\.fit\(\.\.\.\)\.save\(path\) or `btel train`",
+    (r"Train one with `btel train` or, in Python, model\.fit\(X\)\.save\(path\)",
      "Train one with `btel train DB -o MODEL`"),
     (r"pass fit_on=<map images>", "pass --fit-on MAP_IMAGES_DIR"),
     (r"\bfit_on=", "--fit-on "),
