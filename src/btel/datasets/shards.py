@@ -95,12 +95,9 @@ def load_shards(
         A shard that is not a valid descriptor matrix (names the shard).
     """
     # Imported here: btel.descriptors pulls in OpenCV, which btel.datasets does not otherwise need.
-    from ..descriptors.npy import load_descriptor_matrix
-    from ..descriptors.npy_header import check_npy_header
+    from ..descriptors.npy import load_descriptor_matrix  # names a cut-short shard or a pickle before mapping it
 
     shards = list_shards(folder)
-    for path in shards:  # cut-short files and pickles named as such, before numpy maps them
-        check_npy_header(path, "shard")
     if len(shards) == 1:
         return load_descriptor_matrix(shards[0], mmap_mode="r")
     # Shapes first, one shard mapped at a time: every open memory map holds a file descriptor, so
