@@ -27,7 +27,7 @@ quiet one). The target: ≥ 20,000 lines/s at d = 500 for both savetxt formats t
     python benchmarks/bench_stream.py --lines 5000 --dims 500
     python benchmarks/bench_stream.py --before ../main/src   # also another btel tree's CLI, same run
 
-``--before SRC`` also times ``btel localize --stream --input FILE`` with the btel package under SRC
+``--before SRC`` also times ``btel localize --stream`` (file and pipe) with the btel package under SRC
 (the text formats it reads), start-up subtracted alike: the ratio to it is what a change gained.
 
 Writes ``benchmarks/results/bench_stream.json``.
@@ -150,10 +150,12 @@ def run(d: int, n_lines: int, folder: Path, before: Path | None = None) -> list[
             row[f"cli_{how}_lines_per_s"] = n_lines / max(total - startup, 1e-9)
         if before is not None and fmt != "binary":
             old_env = {**env, "PYTHONPATH": str(before)}
-            startup = min(cli_seconds(empty, False, old_env) for _ in range(3))
-            total = min(cli_seconds(data, False, old_env) for _ in range(2))
-            row["before_cli_file_lines_per_s"] = n_lines / max(total - startup, 1e-9)
-            row["cli_file_ratio_vs_before"] = row["cli_file_lines_per_s"] / row["before_cli_file_lines_per_s"]
+            for how, pipe in (("file", False), ("pipe", True)):
+                startup = min(cli_seconds(empty, pipe, old_env) for _ in range(3))
+                total = min(cli_seconds(data, pipe, old_env) for _ in range(2))
+                row[f"before_cli_{how}_lines_per_s"] = n_lines / max(total - startup, 1e-9)
+                row[f"cli_{how}_ratio_vs_before"] = (row[f"cli_{how}_lines_per_s"]
+                                                     / row[f"before_cli_{how}_lines_per_s"])
         row["load_after"] = list(os.getloadavg())
         rows.append(row)
         parse = (f"parse {row['parse_lines_per_s']:>8,.0f}/s ({row['parse_ratio_vs_old']:4.1f}× old)"
@@ -163,7 +165,8 @@ def run(d: int, n_lines: int, folder: Path, before: Path | None = None) -> list[
               f"{cli_file:>8,.0f}/s  pipe {cli_pipe:>8,.0f}/s  (start-up {row['cli_file_startup_s']:.2f} s; "
               f"load {load[0]:.2f} → {row['load_after'][0]:.2f})"
               + (f"; before: CLI file {row['before_cli_file_lines_per_s']:,.0f}/s "
-                 f"({row['cli_file_ratio_vs_before']:.1f}×)" if "cli_file_ratio_vs_before" in row else ""),
+                 f"({row['cli_file_ratio_vs_before']:.2f}×), pipe {row['before_cli_pipe_lines_per_s']:,.0f}/s "
+                 f"({row['cli_pipe_ratio_vs_before']:.2f}×)" if "cli_file_ratio_vs_before" in row else ""),
               flush=True)
     return rows
 

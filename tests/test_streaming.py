@@ -402,6 +402,25 @@ def test_the_chunk_reader_says_when_a_pipe_is_idle() -> None:
         assert list(lines) == [b"5,6\n"]  # at the end the pipe reads as ready (EOF): no wait, no IDLE
 
 
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="F_SETPIPE_SZ is Linux's")
+def test_the_chunk_reader_widens_a_pipe_so_a_backlog_comes_in_large_reads() -> None:
+    """A fast producer may run up to 1 MiB ahead (80 savetxt lines at d = 500), not the default 64 KiB."""
+    import fcntl
+
+    from btel.sequence.streamread import chunk_lines
+
+    get_size = getattr(fcntl, "F_GETPIPE_SZ", 1032)
+    read_end, write_end = os.pipe()
+    with os.fdopen(read_end, "rb") as source, os.fdopen(write_end, "wb") as sink:
+        before = fcntl.fcntl(read_end, get_size)
+        sink.write(b"1,2\n")
+        sink.close()
+        assert list(chunk_lines(source)) == [b"1,2\n"]
+        with open("/proc/sys/fs/pipe-max-size") as fh:
+            allowed = int(fh.read())
+        assert fcntl.fcntl(read_end, get_size) >= max(before, min(1 << 20, allowed))
+
+
 # ----------------------------------------------------------------------------- binary float32 frames
 def frames(Q: np.ndarray) -> bytes:
     return b"".join(np.uint32(row.size).tobytes() + row.astype("<f4").tobytes() for row in Q)
