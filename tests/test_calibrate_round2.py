@@ -167,3 +167,18 @@ def test_a_tolerance_spanning_the_whole_map_warns(route, few_candidates) -> None
     with pytest.warns(UserWarning, match="spans the whole map"):
         model = make_method("auto", budget=800, calibration_tolerance=200).fit(X, calibration=(Q[:20], np.arange(20)))
     assert all(e.get("score") in (None, 1.0) for e in model.choice_["calibration"]["table"])
+
+
+@pytest.mark.parametrize("command", ["train", "evaluate"])
+def test_cli_an_empty_calibration_file_is_named_by_its_role(tmp_path, command) -> None:
+    r = synthetic_route(40, 8, seed=2)
+    np.save(tmp_path / "db.npy", r.map)
+    np.save(tmp_path / "q.npy", r.queries)
+    np.save(tmp_path / "none.npy", r.queries[:0])
+    args = (["train", str(tmp_path / "db.npy"), "-o", str(tmp_path / "m.npz")] if command == "train" else
+            ["evaluate", "--db", str(tmp_path / "db.npy"), "--queries", str(tmp_path / "q.npy"), "--methods", "auto",
+             "--out", str(tmp_path / "run")])
+    done = CliRunner().invoke(main, [*args, "--budget", "400B", "--calibrate", str(tmp_path / "none.npy")])
+    assert done.exit_code == 2, done.output
+    assert "calibration queries: descriptors in none.npy has shape (0, 8)" in done.output
+    assert "Traceback" not in done.output

@@ -12,9 +12,14 @@ if TYPE_CHECKING:  # numpy is imported by the commands that need it: `btel --hel
 
 
 def _load_matrix(path: str, what: str) -> np.ndarray:
+    """The descriptor matrix at ``path``; a refusal says which input it was (``what``: its role)."""
     from ..descriptors.npy import load_descriptor_matrix
+    from ..exceptions import InvalidDescriptorsError
 
-    return _load_whole_h5(path, what) if _is_whole_h5(path) else load_descriptor_matrix(path)
+    try:
+        return _load_whole_h5(path, what) if _is_whole_h5(path) else load_descriptor_matrix(path)
+    except InvalidDescriptorsError as exc:
+        raise InvalidDescriptorsError(f"{what}: {exc}") from None
 
 
 def _is_whole_h5(path: str) -> bool:
