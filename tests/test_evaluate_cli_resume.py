@@ -162,3 +162,34 @@ def test_the_progress_count_has_no_gap_for_a_row_that_cannot_run(tmp_path: Path)
                  "pq,seqslam,btel-c", "--budget", "1.2KB", "--no-reference", "--no-progress", "--out", tmp_path / "r")
     steps = [line.split()[0] for line in result.output.splitlines() if line.startswith("[")]
     assert steps == ["[1/2]", "[2/2]"], result.output
+
+
+def test_sigterm_ends_a_run_as_ctrl_c_does_and_resume_goes_on(files, tmp_path: Path, monkeypatch) -> None:
+    """``timeout``, SLURM and ``docker stop`` send SIGTERM: exit 143, the finished rows on disk, the folder
+    released, and the caller's own SIGTERM handler given back."""
+    import os
+    import signal
+
+    import btel.evaluation.batch as ev
+
+    real = ev.measure
+
+    def measure(method, *args, **kwargs):
+        if kwargs["name"] == "itq":
+            os.kill(os.getpid(), signal.SIGTERM)  # arrives at the next bytecode, as from outside
+        return real(method, *args, **kwargs)
+
+    before = signal.getsignal(signal.SIGTERM)
+    monkeypatch.setattr(ev, "measure", measure)
+    db, q = files
+    out = tmp_path / "run"
+    result = run("evaluate", "--db", db, "--queries", q, "--methods", "pq,itq", "--budget", "4KB",
+                 "--no-reference", "--no-progress", "--out", out)
+    assert result.exit_code == 143, result.output
+    assert _rows(out) == [("pq", "ok", 4000), ("itq", "not run", 4000)]
+    assert not (out / ".btel-run.lock").exists()
+    assert signal.getsignal(signal.SIGTERM) is before
+    monkeypatch.setattr(ev, "measure", real)
+    resumed = run("evaluate", "--resume", out, "--no-progress")
+    assert resumed.exit_code == 0, resumed.output
+    assert _rows(out) == [("pq", "ok", 4000), ("itq", "ok", 4000)]

@@ -5,7 +5,7 @@ line's words, and exit with the same status in every command: 2 for a usage or i
 unknown option or parameter, a value its method refuses, an unreadable input file, an output that
 exists without ``--overwrite``): nothing ran; 1 for a failure while running (a fit that raised, a
 full disk; ``evaluate``/``demo`` also when the run finished but some row did not fit or failed: its
-row says why); 130 after Ctrl-C; 141, silently, when the reader of stdout went away (``| head``). No traceback unless ``BTEL_DEBUG=1``. Warnings (a distorting
+row says why); 130 after Ctrl-C; 143 after SIGTERM (handled as Ctrl-C is); 141, silently, when the reader of stdout went away (``| head``). No traceback unless ``BTEL_DEBUG=1``. Warnings (a distorting
 resize, a capped PCA) print one line ``Warning: …`` on stderr.
 
 Any parameter of any method is set with ``--param NAME=VALUE`` (``train``, ``evaluate``, ``demo``),
@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import signal
 import sys
 import warnings
 from typing import TYPE_CHECKING, Any
@@ -73,15 +74,23 @@ class _Group(click.Group):
         return self.commands.get(cmd_name)
 
     def invoke(self, ctx: click.Context) -> Any:
+        from ._errors import exit_for_interrupt, raise_terminated
+
         if not os.environ.get("BTEL_DEBUG"):
             warnings.showwarning = _show_warning
+        previous = None
+        try:  # SIGTERM (timeout, SLURM, docker stop) ends a command as Ctrl-C does; only the main thread may
+            previous = signal.signal(signal.SIGTERM, raise_terminated)
+        except ValueError:
+            pass
         try:
             return super().invoke(ctx)
         except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort):
             raise
-        except KeyboardInterrupt:
-            click.echo("Interrupted.", err=True)
-            raise click.exceptions.Exit(EXIT_INTERRUPTED) from None
+        except KeyboardInterrupt as exc:
+            status = exit_for_interrupt(exc)
+            click.echo("Interrupted." if status == EXIT_INTERRUPTED else "Terminated (SIGTERM).", err=True)
+            raise click.exceptions.Exit(status) from None
         except BrokenPipeError:
             # The reader of stdout went away (`btel ... | head`): stop quietly, as a Unix tool killed by
             # SIGPIPE does, and point stdout at /dev/null so the interpreter's last flush cannot fail too.
@@ -103,6 +112,9 @@ class _Group(click.Group):
             error = (InputError if exit_status(exc) == EXIT_USAGE else click.ClickException)(
                 message.splitlines()[0] if len(message) > 2000 else message)
             raise error from exc
+        finally:
+            if previous is not None:  # a caller's own handler (btel called in-process) is given back
+                signal.signal(signal.SIGTERM, previous)
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})

@@ -26,6 +26,9 @@ EXIT_FAILURE = 1
 EXIT_USAGE = 2
 #: … after Ctrl-C (128 + SIGINT, what a shell reports for an interrupted program).
 EXIT_INTERRUPTED = 130
+#: … after SIGTERM (128 + 15: ``timeout``, SLURM's time limit, ``docker stop``), handled as Ctrl-C is:
+#: finished rows stay on disk and ``--resume`` goes on.
+EXIT_TERMINATED = 143
 #: … when the reader of stdout went away (a closed pipe: ``btel … | head``): 128 + SIGPIPE, what a shell
 #: reports for a Unix tool that stopped the same way; nothing is printed.
 EXIT_BROKEN_PIPE = 141
@@ -96,3 +99,18 @@ def unitless_budget_hint(text: str) -> str | None:
     if match is None or not 0 < float(match.group(1)) < 1000:
         return None
     return f"{match.group(1)}KB"
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the signal arrives (as Python raises KeyboardInterrupt for SIGINT), so that
+    every clean-up written for Ctrl-C runs: a run's finished rows are written, its folder released."""
+
+
+def exit_for_interrupt(exc: KeyboardInterrupt) -> int:
+    """130 for Ctrl-C, 143 for SIGTERM."""
+    return EXIT_TERMINATED if isinstance(exc, Terminated) else EXIT_INTERRUPTED
+
+
+def raise_terminated(signum: int, frame: object) -> None:
+    """The command line's SIGTERM handler (installed by :mod:`btel.cli` in the main thread)."""
+    raise Terminated()

@@ -12,7 +12,7 @@ from typing import Any
 
 import click
 
-from ._options import EXIT_INTERRUPTED, _command_line
+from ._options import _command_line
 from ._params import _params_by_method
 
 
@@ -37,8 +37,10 @@ def _run_jobs(jobs: list[Any], X: Any, Q: Any, *, out: Path, extra: dict[str, An
     try:
         results = run_methods(jobs, X, Q, out=out, extra=extra, progress=progress, command=_command_line(),
                               echo=click.echo, **options)
-    except KeyboardInterrupt:
-        raise click.exceptions.Exit(EXIT_INTERRUPTED) from None
+    except KeyboardInterrupt as exc:
+        from ._errors import exit_for_interrupt
+
+        raise click.exceptions.Exit(exit_for_interrupt(exc)) from None
     galleries_after_run(out, extra)
     if pairs is not None:
         from ._names import write_pairs
