@@ -70,6 +70,23 @@ def test_chunked_statistics_equal_the_whole_array_formulas(route) -> None:
     )
 
 
+def test_column_stats_of_a_wide_map_hold_a_bounded_block_not_the_map_in_float64() -> None:
+    """At today's widths a fixed row count would be the whole map in float64 (and again its squares)."""
+    import tracemalloc
+
+    X = np.random.default_rng(0).normal(size=(2000, 8192)).astype(np.float32)  # 65.5 MB
+    tracemalloc.start()
+    try:
+        stats = ColumnStats.of(X)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 0.6 * X.nbytes  # one float64 block of ≤ 4M values (33.6 MB), not 2 × 131 MB
+    X64 = X.astype(np.float64)
+    np.testing.assert_allclose(stats.mean, X64.mean(axis=0), atol=1e-12)
+    np.testing.assert_allclose(stats.scale, X64.std(axis=0), rtol=1e-10)
+
+
 # ----------------------------------------------------------------------------- shards
 def test_load_shards_concatenates_in_natural_order(tmp_path: Path, route) -> None:
     X = route.map

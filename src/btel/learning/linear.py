@@ -40,10 +40,15 @@ class ColumnStats:
         n, d = X.shape
         total = np.zeros(d)
         total_sq = np.zeros(d)
-        for start in range(0, n, chunk_rows):
-            block = np.asarray(X[start : start + chunk_rows], dtype=np.float64)
+        # Row chunks of at most ~4M values (as standardised_columns): at d = 16,384 a chunk of 65,536 rows
+        # would be the whole map in float64 and again its squares, 4 times a float32 map of 10⁴ rows.
+        step = max(1, min(int(chunk_rows), (1 << 22) // max(d, 1)))
+        for start in range(0, n, step):
+            block = np.asarray(X[start : start + step], dtype=np.float64)
             total += block.sum(axis=0)
-            total_sq += (block**2).sum(axis=0)
+            block *= block
+            total_sq += block.sum(axis=0)
+            del block  # before the next chunk is read, not after: one chunk alive at a time
         mean = total / n
         var = np.maximum(total_sq / n - mean**2, 0.0)
         scale = np.sqrt(var)
