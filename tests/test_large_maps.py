@@ -152,3 +152,23 @@ def test_cli_train_accepts_a_shard_folder(tmp_path: Path, route) -> None:
         assert "600 places × 48 dims" in result.output
     a, b = load(tmp_path / "a.npz"), load(tmp_path / "b.npz")
     np.testing.assert_array_equal(a.predict(route.queries), b.predict(route.queries))
+
+
+@pytest.mark.parametrize("entry", ["broken link", "folder", "device", "npz beside", "h5 beside"])
+def test_a_shard_that_cannot_be_read_is_refused_not_skipped(tmp_path: Path, route, entry: str) -> None:
+    """Skipping shard_1 would give shard_2's rows the place indices of shard_1's: refused, named."""
+    folder = tmp_path / "shards"
+    write_shards(folder, route.map, [100, 200], ["shard_0.npy", "shard_1.npy", "shard_2.npy"])
+    (folder / "shard_1.npy").unlink()
+    name = "shard_1.npy"
+    if entry == "broken link":
+        (folder / name).symlink_to(tmp_path / "missing" / name)
+    elif entry == "folder":
+        (folder / name).mkdir()
+    elif entry == "device":
+        (folder / name).symlink_to("/dev/zero")
+    else:
+        name = "shard_1.npz" if entry == "npz beside" else "shard_1.h5"
+        (folder / name).write_bytes(b"not read")
+    with pytest.raises(DataNotFoundError, match=name.replace(".", r"\.")):
+        list_shards(folder)

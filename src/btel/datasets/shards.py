@@ -30,21 +30,37 @@ __all__ = ["list_shards", "load_shards"]
 _CHUNK_ROWS = 65536
 
 
+#: Array files a shard folder must not hold beside its .npy shards (they would be skipped silently).
+_OTHER_ARRAY_FILES = (".npz", ".h5", ".hdf5", ".mat", ".pt", ".pth")
+
+
 def list_shards(folder: str | os.PathLike) -> list[Path]:
     """The ``.npy`` shards in ``folder``, in natural file-name order (hidden files skipped).
 
     Raises
     ------
     DataNotFoundError
-        ``folder`` is not a folder or holds no ``.npy`` file.
+        ``folder`` is not a folder or holds no ``.npy`` file; or one of its ``.npy`` entries is not a
+        readable file (a folder, a broken link, a device), or it holds another array file (``.npz``,
+        ``.h5``, …): skipped, it would shift the place index of every later row.
     """
     root = Path(folder)
     if not root.is_dir():
         raise DataNotFoundError(f"shard folder {str(root)!r} does not exist or is not a folder.")
-    shards = sorted(
-        (p for p in root.iterdir() if p.is_file() and p.suffix.lower() == ".npy" and not p.name.startswith(".")),
-        key=lambda p: natural_key(p.name),
-    )
+    entries = [p for p in root.iterdir() if not p.name.startswith(".")]
+    # A shard that cannot be read, skipped, would shift the place index of every row after it: refused.
+    for p in entries:
+        suffix = p.suffix.lower()
+        if suffix == ".npy" and not p.is_file():
+            what = ("a folder" if p.is_dir() else "a broken link" if p.is_symlink() and not p.exists()
+                    else "not a regular file")
+            raise DataNotFoundError(f"shard {p.name!r} in {str(root)!r} is {what}; every .npy entry of a shard "
+                                    "folder must be a shard (its rows are places): replace or remove it.")
+        if suffix in _OTHER_ARRAY_FILES:
+            raise DataNotFoundError(f"{p.name!r} in the shard folder {str(root)!r} is not a .npy shard; a shard "
+                                    "folder holds .npy files only (skipping it would shift every later place "
+                                    "index): save it with numpy.save, or move it out.")
+    shards = sorted((p for p in entries if p.suffix.lower() == ".npy"), key=lambda p: natural_key(p.name))
     if not shards:
         images = sum(1 for p in root.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS)
         if images:  # the image folder itself, given where its descriptors go
