@@ -42,6 +42,20 @@ def test_csv_field_too_large_and_binary_are_data_errors(tmp_path: Path) -> None:
         GroundTruth.from_file(tmp_path / "bin.csv")
 
 
+@pytest.mark.parametrize("text, where", [
+    ("query,positive\n0,7,0\n1,8\n", "line 2"),          # a place after a comma: a third column
+    ("query,positive,distance\n0,7,1.5\n", "header"),    # an extra column of the header
+    ("query,positives\n0,7;9,3\n", "line 2"),
+])
+def test_csv_with_more_than_two_columns_is_refused_not_truncated(tmp_path: Path, text: str, where: str) -> None:
+    """The third column was dropped without a word (its places lost: recall 0 for a true match)."""
+    (tmp_path / "extra.csv").write_text(text)
+    with pytest.raises(DataNotFoundError, match=f"{where}.*two"):
+        GroundTruth.from_file(tmp_path / "extra.csv")
+    (tmp_path / "trailing.csv").write_text("query,positive,\n0,7,\n")  # an empty third field: no place lost
+    assert GroundTruth.from_file(tmp_path / "trailing.csv").positives(0).tolist() == [7]
+
+
 def test_csv_pairs_still_read_in_any_order(tmp_path: Path) -> None:
     (tmp_path / "pairs.csv").write_text("query,positive\n2,7\n0,6\n0,5\n3,\n")
     gt = GroundTruth.from_file(tmp_path / "pairs.csv")

@@ -256,9 +256,18 @@ def _from_csv(cls: Any, path: Path) -> Any:
             raise DataNotFoundError(
                 f"{str(path)!r} has header {header[:4]}; a ground-truth CSV starts with 'query,positive' (one "
                 "pair per line) or 'query,positives' (places separated by spaces or ';').")
+        if any(h for h in header[2:]):
+            raise DataNotFoundError(
+                f"{str(path)!r} has header {header[:4]}: a ground-truth CSV has two columns, 'query,positive' "
+                "(one pair per line) or 'query,positives' (places separated by spaces or ';'); drop the "
+                f"column{'s' * (len(header) > 3)} after the second (ignored, it would lose places).")
         for row in reader:
             if not row or not any(cell.strip() for cell in row):
                 continue
+            if any(cell.strip() for cell in row[2:]):  # a place after a comma is a third column: never dropped
+                raise DataNotFoundError(
+                    f"{str(path)!r} line {reader.line_num}: {row[:4]} has {len(row)} fields; a ground-truth CSV "
+                    "has two (query, then its places separated by spaces or ';', not commas).")
             cells = [row[0].strip(), *(row[1].replace(";", " ").split() if len(row) > 1 else [])]
             if not all(_INDEX.fullmatch(c) for c in cells):
                 raise DataNotFoundError(
