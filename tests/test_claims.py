@@ -394,3 +394,48 @@ def test_outputs_follow_the_umask_in_force_when_written(tmp_path: Path) -> None:
         os.umask(previous)
     modes = {p.name: p.stat().st_mode & 0o777 for p in tmp_path.iterdir()}
     assert modes == {"m.btel.npz": 0o600, "a.csv": 0o600, "plain.txt": 0o600}, modes
+
+
+@pytest.mark.parametrize("kind", ["fifo", "device", "link to a device"])
+def test_a_device_or_fifo_is_never_replaced_overwrite_or_not(tmp_path: Path, kind: str) -> None:
+    """Publishing is a rename: over /dev/null or a named pipe it would leave a regular file there."""
+    import os
+    import stat
+
+    from btel.core.claims import atomic_output
+    from btel.exceptions import OutputExistsError
+
+    target = tmp_path / "out.csv"
+    if kind == "fifo":
+        os.mkfifo(target)
+    else:
+        target.symlink_to("/dev/null") if kind == "link to a device" else None
+        if kind == "device":
+            if os.geteuid() != 0:
+                pytest.skip("creating a device node needs root; the link case covers the rule")
+            os.mknod(target, 0o666 | stat.S_IFCHR, os.makedev(1, 3))
+    with pytest.raises(OutputExistsError, match="never replaces"):
+        with atomic_output(target, overwrite=True, text=True) as fh:
+            fh.write("x\n")
+    assert not stat.S_ISREG(os.stat(target).st_mode)
+    assert [p.name for p in tmp_path.iterdir()] == ["out.csv"]  # no temporary left behind
+
+
+@pytest.mark.parametrize("command", ["train", "localize"])
+def test_cli_refuses_a_fifo_output_before_any_work(tmp_path: Path, command: str) -> None:
+    import os
+
+    from click.testing import CliRunner
+
+    import btel
+    from btel.cli import main
+
+    X = np.random.default_rng(0).normal(size=(40, 8)).astype(np.float32)
+    np.save(tmp_path / "db.npy", X)
+    model = btel.make_method("bruteforce").fit(X).save(tmp_path / "m.npz")
+    out = tmp_path / ("out.npz" if command == "train" else "out.csv")
+    os.mkfifo(out)
+    args = (["train", str(tmp_path / "db.npy"), "-o", str(out), "--method", "bruteforce"]
+            if command == "train" else ["localize", str(model), str(tmp_path / "db.npy"), "-o", str(out)])
+    done = CliRunner().invoke(main, [*args, "--overwrite"])
+    assert done.exit_code == 2 and "is a FIFO (named pipe), not a file" in done.output

@@ -57,7 +57,14 @@ def refuse_existing(path: str | Path, option: str, overwrite: bool) -> None:
     overwrite : bool
         ``--overwrite`` given: replacing is intended.
     """
+    from ..core.claims import refuse_special_target
+    from ..exceptions import OutputExistsError
+
     path = Path(path)
+    try:  # before anything is fitted or read: a device or FIFO is never replaced, --overwrite or not
+        refuse_special_target(path)
+    except OutputExistsError as exc:
+        raise click.UsageError(f"{option} {exc}") from None
     if overwrite or not path.exists():
         return
     if path.is_dir():

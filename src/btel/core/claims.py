@@ -190,6 +190,30 @@ def _create_temporary(folder: Path, prefix: str, suffix: str) -> tuple[int, Path
     raise FileExistsError(errno.EEXIST, f"no free temporary name for {prefix!r} in {str(folder)!r}")
 
 
+def refuse_special_target(path: Path) -> None:
+    """Refuse to publish over a device, FIFO or socket (or a link to one): the rename would replace
+    ``/dev/null`` or a named pipe with a regular file, whatever ``overwrite`` says.
+
+    Raises
+    ------
+    OutputExistsError
+        ``path`` exists and is neither a regular file nor a link to one.
+    """
+    import stat
+
+    from ..exceptions import OutputExistsError
+
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:  # nothing there (or a broken link, replaced as a file would be)
+        return
+    if not stat.S_ISREG(mode) and not stat.S_ISDIR(mode):
+        kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode)
+                else "a device")
+        raise OutputExistsError(f"{str(path)!r} is {kind}, not a file; btel writes its outputs as regular "
+                                "files and never replaces anything else (--overwrite included): give a file name.")
+
+
 @contextlib.contextmanager
 def atomic_output(path: str | os.PathLike, *, overwrite: bool = True, text: bool = False,
                   suffix: str = ".part") -> Iterator[IO[Any]]:
@@ -211,6 +235,7 @@ def atomic_output(path: str | os.PathLike, *, overwrite: bool = True, text: bool
 
     path = Path(path)
     folder = path.parent
+    refuse_special_target(path)
     remove_stale_temporaries(folder, path.name, suffix)  # killed writers' leftovers
     fd, tmp = _create_temporary(folder, temp_prefix(path.name), suffix)
     try:
