@@ -54,14 +54,15 @@ def test_pinned_parameters_and_the_unbudgeted_default(pair) -> None:
 
 @pytest.mark.parametrize("rotation", ["hadamard", "qr"])
 def test_search_equals_faiss_own_index_with_float32_factors(pair, rotation) -> None:
-    """The re-assembled codes are faiss' own: the split into arrays and back loses nothing (float32)."""
+    """The re-assembled codes are faiss' own: the split into arrays and back loses nothing (float32),
+    with the query in float or quantised."""
     X, Q = pair
-    for B in (1, 3):
-        model = RaBitQLocalizer(nbits=B, normalize="none", rotation=rotation).fit(X)
+    for B, qb in ((1, 8), (3, 8), (1, 0), (3, 0), (3, 4)):
+        model = RaBitQLocalizer(nbits=B, normalize="none", rotation=rotation, query_bits=qb).fit(X)
         assert model.factors_.dtype == np.float32
         Y = model.rotation_.apply(X)
         index = faiss.IndexRaBitQ(64, faiss.METRIC_L2, B)
-        index.qb = 0
+        index.qb = qb
         index.train(Y)
         index.add(Y)
         dist, rows = index.search(model.rotation_.apply(Q), 5)
@@ -69,7 +70,10 @@ def test_search_equals_faiss_own_index_with_float32_factors(pair, rotation) -> N
         np.testing.assert_array_equal(places, rows)
         # An L2 distance is a difference of squared norms in float32: its rounding is relative to the
         # operands' size (the largest distances here), not to a small distance itself.
-        np.testing.assert_allclose(-scores, dist, rtol=1e-4, atol=1e-5 * float(np.abs(dist).max()))
+        # A quantised query (qb > 0) moves one quantisation step where a coordinate lies on a boundary
+        # and the two rotations' last bits differ: its estimates agree to that step, the places exactly.
+        np.testing.assert_allclose(-scores, dist, rtol=1e-4 if qb == 0 else 1e-2,
+                                   atol=1e-5 * float(np.abs(dist).max()))
 
 
 @pytest.mark.parametrize("d, D", [(64, 24), (64, 64), (100, 100), (100, 8), (1, 1), (2268, 300)])
@@ -219,3 +223,23 @@ def test_gardens_point_hadamard_rotation_recalls_as_the_qr_one(gardenspoint_netv
                                                     - truth) <= 2) for seed in range(4)])
                   for rotation in ("hadamard", "qr")}
         assert abs(recall["hadamard"] - recall["qr"]) <= 0.03, recall
+
+
+def test_a_file_that_records_no_query_bits_keeps_the_query_in_float(pair, tmp_path) -> None:
+    """Files written before ``query_bits`` existed scanned with the query in float: they still do."""
+    import copy
+
+    X, Q = pair
+    path = RaBitQLocalizer(budget=20_000).fit(X).save(tmp_path / "m.npz")
+    assert btel.load(path).query_bits == 8
+    arrays, header = load_arrays(path)
+    old = copy.deepcopy(header)
+    old["params"].pop("query_bits")
+    old["state"].pop("query_bits")
+    loaded = btel.load(save_arrays(tmp_path / "old.npz", arrays, old))
+    assert loaded.query_bits == 0 and loaded._index.qb == 0
+    np.testing.assert_array_equal(loaded.predict(Q), RaBitQLocalizer(budget=20_000, query_bits=0).fit(X).predict(Q))
+    bad = copy.deepcopy(header)
+    bad["state"]["query_bits"] = 9
+    with pytest.raises(ModelFileError, match="query_bits"):
+        btel.load(save_arrays(tmp_path / "bad.npz", arrays, bad))
