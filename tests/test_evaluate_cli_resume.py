@@ -193,3 +193,40 @@ def test_sigterm_ends_a_run_as_ctrl_c_does_and_resume_goes_on(files, tmp_path: P
     resumed = run("evaluate", "--resume", out, "--no-progress")
     assert resumed.exit_code == 0, resumed.output
     assert _rows(out) == [("pq", "ok", 4000), ("itq", "ok", 4000)]
+
+
+def test_resume_refuses_inputs_changed_since_the_run_started_and_keeps_the_first_command(
+        interrupted, files, monkeypatch) -> None:
+    """Rows done on the old map must not be mixed with rows on a new one; the run says how it began."""
+    out, calls = interrupted
+    db, q = files
+    first = json.loads((out / "metrics.json").read_text())["run"]
+    assert first["extra"]["inputs"]["--db"]["bytes"] == db.stat().st_size
+    assert first["extra"]["shapes"] == {"queries": [120, 16], "db": [120, 16]}
+    original = db.read_bytes()
+    np.save(db, np.load(db)[::-1])  # the same shape, other rows: nothing else would notice
+    refused = run("evaluate", "--resume", out, "--no-progress")
+    assert refused.exit_code == 2 and "--db changed since" in refused.output
+    assert calls == []  # refused before anything was fitted
+    db.write_bytes(original)
+    resumed = run("evaluate", "--resume", out, "--no-progress")
+    assert resumed.exit_code == 0, resumed.output
+    meta = json.loads((out / "metrics.json").read_text())["run"]
+    assert (meta["command"], meta["date_utc"]) == (first["command"], first["date_utc"])
+    assert len(meta["resumed"]) == 1 and meta["resumed"][0]["date_utc"] >= first["date_utc"]  # this resume
+    assert meta["complete"] is True
+
+
+def test_changed_inputs_compares_bytes_of_every_file(tmp_path: Path) -> None:
+    from btel.evaluation.resume import changed_inputs, input_fingerprints
+
+    (tmp_path / "shards").mkdir()
+    np.save(tmp_path / "shards" / "shard_0.npy", np.zeros((3, 2)))
+    (tmp_path / "gt.csv").write_text("query,positive\n0,1\n")
+    given = {"--db": str(tmp_path / "shards"), "--ground-truth": str(tmp_path / "gt.csv"), "--calibrate": None}
+    before = input_fingerprints(given)
+    assert set(before) == {"--db", "--ground-truth"}
+    assert changed_inputs(before, input_fingerprints(given)) == []
+    np.save(tmp_path / "shards" / "shard_1.npy", np.zeros((1, 2)))  # a shard added to the folder
+    (tmp_path / "gt.csv").write_text("query,positive\n0,2\n")
+    assert changed_inputs(before, input_fingerprints(given)) == ["--db", "--ground-truth"]

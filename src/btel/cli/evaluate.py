@@ -90,9 +90,11 @@ def _given(ctx: click.Context, name: str) -> bool:
     return ctx.get_parameter_source(name) not in (None, ParameterSource.DEFAULT, ParameterSource.DEFAULT_MAP)
 
 
-def _read_resumed(ctx: click.Context, given: dict[str, Any], run: str) -> tuple[dict[str, Any], list[Any]] | None:
-    """The options and rows of the run folder ``run`` to go on with; None when that run is complete."""
-    from ..evaluation.runs import read_unfinished_run
+def _read_resumed(ctx: click.Context, given: dict[str, Any],
+                  run: str) -> tuple[dict[str, Any], list[Any], dict[str, Any] | None] | None:
+    """The options, rows and input fingerprints (None: not recorded) of the run folder ``run`` to go on
+    with; None when that run is complete."""
+    from ..evaluation.resume import read_unfinished_run
     from ..exceptions import DataNotFoundError, InvalidParameterError
 
     try:
@@ -101,7 +103,25 @@ def _read_resumed(ctx: click.Context, given: dict[str, Any], run: str) -> tuple[
         raise click.UsageError(f"--resume: {exc}") from None
     if meta.get("complete"):
         return None
-    return _resumed_options(ctx, given, meta.get("extra") or {}, run), rows
+    extra = meta.get("extra") if isinstance(meta.get("extra"), dict) else {}
+    recorded = extra.get("inputs")
+    return _resumed_options(ctx, given, extra, run), rows, recorded if isinstance(recorded, dict) else None
+
+
+def _check_inputs_unchanged(run: str, recorded: dict[str, Any] | None, current: dict[str, Any]) -> None:
+    """Refuse to resume on inputs whose bytes changed since the run started: the new rows would be
+    measured on other data than the rows done (``btel.evaluation.resume``)."""
+    from ..evaluation.resume import changed_inputs
+
+    if recorded is None:
+        click.echo(f"note: {run} was started by a btel that did not fingerprint its inputs; that they are "
+                   "unchanged is not checked.", err=True)
+        return
+    changed = changed_inputs(recorded, current)
+    if changed:
+        raise click.UsageError(
+            f"--resume: {', '.join(changed)} changed since {run} was started (other bytes, or the file is gone): "
+            "the rows done were measured on the old data. Restore the inputs, or start a new run with --out.")
 
 
 @click.command(name="evaluate")
@@ -153,7 +173,8 @@ def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tupl
     rows of two settings). Resuming a complete run says so and exits 0 without fitting anything.
     """
     from ..evaluation.inputs import common_map_size, run_title, saved_jobs
-    from ..evaluation.runs import check_finished_rows, check_run_folder
+    from ..evaluation.resume import check_finished_rows, input_fingerprints
+    from ..evaluation.runs import check_run_folder
     from ..exceptions import ModelFileError
 
     if resume_dir is not None and (overwrite or out_dir not in (None, resume_dir)):
@@ -165,13 +186,14 @@ def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tupl
     o = _canonical({**options, "model_paths": model_paths, "methods": methods, "budget": budget,
                     "param_texts": param_texts})
     rows: list[Any] = []
+    recorded_inputs = None
     if resume_dir is not None:
         resumed = _read_resumed(ctx, o, resume_dir)
         if resumed is None:
             click.echo(f"{resume_dir} is a complete run: nothing to resume (no method is fitted). Start a new run "
                        "with --out, or --out RUN --overwrite to run it again.")
             return
-        o, rows = resumed
+        o, rows, recorded_inputs = resumed
     db, queries, budgets, ks = o["db"], o["queries"], o["budget"], o["ks_text"]
     front = {"delta": ("--delta", o["delta"])} if o["delta"] is not None else {}
     if db is None and not o["model_paths"]:
@@ -192,6 +214,11 @@ def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tupl
     if resume_dir is None:
         check_run_folder(Path(out_dir), overwrite)
     out = Path(out_dir or resume_dir)
+    inputs = input_fingerprints({"--db": db, "--queries": queries, "--model": list(o["model_paths"]),
+                                 "--ground-truth": o["ground_truth"], "--calibrate": calibrate,
+                                 "--calibrate-truth": calibrate_truth})
+    if resume_dir is not None:
+        _check_inputs_unchanged(resume_dir, recorded_inputs, inputs)
     Q = _load_matrix(queries, "query descriptors")
     X = _load_matrix(db, "map descriptors") if db is not None else None
     try:
@@ -218,7 +245,8 @@ def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tupl
     pairs = plan_pairs(pairs_path, [j.name for j in saved + jobs], names, (Q.shape[0], n_map), queries, db,
                        overwrite)
     extra = {"db": db, "models": o["model_paths"], "budget": budgets, "queries": queries,
-             "query_order": o["query_order"], "options": {flag: o[name] for name, flag in _RECORDED.items()}}
+             "query_order": o["query_order"], "options": {flag: o[name] for name, flag in _RECORDED.items()},
+             "inputs": inputs, "shapes": {"queries": list(Q.shape), "db": None if X is None else list(X.shape)}}
     if calibrate:
         extra["calibration"] = calibrate_evaluation(saved + jobs, Q, db, calibrate, calibrate_truth,
                                                     calibrate_tolerance, n_map, threshold)

@@ -264,7 +264,8 @@ def run_methods(methods: Sequence[str | Job], X_map: Any, Q: Any, *, out: str | 
     """
     from tqdm import tqdm
 
-    from .runs import RunWriter, resume_writer
+    from .resume import resume_writer
+    from .runs import RunWriter
 
     from ..datasets.sources import truth_description
 
