@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["top_k", "put_first"]
+__all__ = ["top_k", "put_first", "ties_by_place"]
 
 
 def top_k(scores: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -55,3 +55,23 @@ def put_first(scores: np.ndarray, places: np.ndarray, first_scores: np.ndarray,
     out_places = np.concatenate([first_places[:, None], np.take_along_axis(places, keep, axis=1)], axis=1)
     out_scores = np.concatenate([first_scores[:, None], np.take_along_axis(scores, keep, axis=1)], axis=1)
     return out_scores, out_places
+
+
+def ties_by_place(scores: np.ndarray, places: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Candidates with equal scores put in increasing place order within each row, as :func:`top_k` and
+    ``argmax`` order them: faiss' heaps return tied candidates in no set order, so without this a map
+    with two identical rows would answer one place from ``predict`` and put the other first in ``search``.
+
+    Parameters
+    ----------
+    scores : ndarray of shape (n, k), best first
+    places : ndarray of shape (n, k), int64
+
+    Returns
+    -------
+    scores, places : the same arrays where no row holds a tie, else reordered copies
+    """
+    if scores.ndim != 2 or scores.shape[1] < 2 or not (scores[:, 1:] == scores[:, :-1]).any():
+        return scores, places
+    order = np.lexsort((places, -scores), axis=1)
+    return np.take_along_axis(scores, order, axis=1), np.take_along_axis(places, order, axis=1)

@@ -39,7 +39,7 @@ from ..core.frontend import FRONT_END_CONSTRAINTS, FRONT_END_MEANINGS, FrontEnd,
 from ..core.storage import BUDGET_MEANING, budget_of, exact_bytes, parse_budget, storage_breakdown
 from ..core.modelfile import ArraySpec, jsonable, save_arrays
 from ..sequence.querystream import QueryStream
-from ..core.topk import put_first, top_k
+from ..core.topk import put_first, ties_by_place, top_k
 from ..core.threads import one_blas_thread, predict_pool, predict_threads
 
 __all__ = ["PlaceLocalizer", "ArraySpec", "QueryStream", "top_k", "put_first"]
@@ -293,7 +293,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
             Distinct places in [0, N), best first. ``places[:, 0]`` is :meth:`predict`.
         """
         Q = self._check_queries(Q)
-        scores, places = self._search(Q, self._check_k(k))
+        scores, places = ties_by_place(*self._search(Q, self._check_k(k)))  # places[:, 0] is predict's
         self._check_answers(places, scores)
         return scores, places
 
