@@ -104,6 +104,25 @@ def test_write_run_refuses_to_overwrite(tmp_path: Path) -> None:
     write_run(results[:1], tmp_path / "empty", plots=False)
 
 
+def test_overwrite_removes_only_what_the_previous_run_wrote(tmp_path: Path) -> None:
+    """A file named like a run's that the run did not write, and a folder holding no btel run, are kept."""
+    from btel.exceptions import OutputExistsError
+
+    results = _results()
+    out = tmp_path / "run"
+    write_run(results, out, plots=False)
+    (out / "predictions_mine.csv").write_text("my own\n")
+    write_run(results[:1], out, overwrite=True, plots=False)
+    assert (out / "predictions_mine.csv").read_text() == "my own\n"
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "metrics.json").write_text('{"mine": 1}')
+    (foreign / "predictions_x.csv").write_text("kept\n")
+    with pytest.raises(OutputExistsError, match="no btel run"):
+        write_run(results, foreign, overwrite=True, plots=False)
+    assert (foreign / "metrics.json").read_text() == '{"mine": 1}' and (foreign / "predictions_x.csv").exists()
+
+
 def test_write_run_rejects_clashing_names_and_no_results(tmp_path: Path) -> None:
     results = _results()
     results[1].name = "NN/euclid"  # same file name as "NN euclid" once made file-safe

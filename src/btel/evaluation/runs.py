@@ -146,11 +146,34 @@ def check_run_folder(out_dir: str | os.PathLike, overwrite: bool = False) -> Non
     if out_dir.exists() and not out_dir.is_dir():
         raise OutputExistsError(f"run folder {str(out_dir)!r} exists and is a file; choose another --out "
                                 "folder.")
-    if out_dir.is_dir() and _occupants(out_dir) and not overwrite:
+    occupants = _occupants(out_dir) if out_dir.is_dir() else []
+    if occupants and not overwrite:
         raise OutputExistsError(
             f"run folder {str(out_dir)!r} already exists and is not empty; choose a new folder "
             "or pass overwrite=True (CLI: --overwrite) to replace its results."
         )
+    if occupants and _previous_run_files(out_dir) is None:
+        named = sorted(p.name for pattern in _RUN_FILE_PATTERNS for p in out_dir.glob(pattern))
+        if named:  # a user's files that merely look like a run's: never removed
+            raise OutputExistsError(
+                f"{str(out_dir)!r} holds {', '.join(named[:3])}{' …' * (len(named) > 3)} but no btel run (its "
+                "metrics.json is missing or not a btel run's); --overwrite replaces a btel run's files only. "
+                "Choose another --out folder.")
+
+
+def _previous_run_files(out_dir: Path) -> list[Path] | None:
+    """The files the btel run recorded in ``out_dir/metrics.json`` wrote (None: no btel run there)."""
+    try:
+        payload = json.loads((out_dir / "metrics.json").read_text(encoding="utf-8"))
+        names = [safe_file_name(str(r["name"])) for r in payload["results"]]
+        if not isinstance(payload["run"], dict):
+            return None
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    fixed = [p for pattern in _RUN_FILE_PATTERNS if "*" not in pattern or pattern.startswith(("recall_vs_", "."))
+             for p in out_dir.glob(pattern)]
+    return fixed + [out_dir / f"{kind}_{name}.{ext}" for name in names
+                    for kind, ext in (("predictions", "csv"), ("gallery", "png"))]
 
 
 def _prepare_out_dir(out_dir: Path, overwrite: bool) -> Path:
@@ -173,10 +196,9 @@ def _prepare_out_dir(out_dir: Path, overwrite: bool) -> Path:
                 "or pass overwrite=True (CLI: --overwrite).")
         if occupants:
             # Remove the previous run's files so no stale predictions_<old method>.csv is left behind;
-            # anything else the user put there is kept.
-            for pattern in _RUN_FILE_PATTERNS:
-                for old in out_dir.glob(pattern):
-                    old.unlink()
+            # anything else the user put there is kept (a predictions_mine.csv the run did not write too).
+            for old in _previous_run_files(out_dir) or []:
+                old.unlink(missing_ok=True)
     except BaseException:
         release(lock)
         raise
