@@ -28,3 +28,24 @@ def test_the_same_command_with_its_reader_exits_0(tmp_path: Path) -> None:
                            str(tmp_path / "m.npz"), "--budget", "4KB", "--no-progress"],
                           capture_output=True, timeout=120)
     assert done.returncode == 0 and b"model written to" in done.stdout
+
+
+def test_an_evaluation_whose_reader_goes_away_still_writes_its_run_folder(tmp_path: Path) -> None:
+    """`btel evaluate … | head -1`: the run folder is what the command makes; it is finished, not lost."""
+    import json
+
+    from btel.datasets import synthetic_route
+
+    route = synthetic_route(300, 32, seed=0)
+    np.save(tmp_path / "db.npy", route.map)
+    np.save(tmp_path / "q.npy", route.queries)
+    command = [sys.executable, "-m", "btel.cli", "evaluate", "--db", str(tmp_path / "db.npy"), "--queries",
+               str(tmp_path / "q.npy"), "--methods", "pq,lsh", "--budget", "4KB", "--no-progress", "--out",
+               str(tmp_path / "run")]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert process.stdout.readline().startswith(b"map: N = 300 places")
+    process.stdout.close()  # as `| head -1` does
+    _, stderr = process.communicate(timeout=180)
+    assert process.returncode == 0, stderr.decode()
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert metrics["run"]["complete"] is True and [r["status"] for r in metrics["results"]] == ["ok"] * 4

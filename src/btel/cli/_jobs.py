@@ -7,6 +7,8 @@ this module calls with the command line's echo, exit status and files (galleries
 
 from __future__ import annotations
 
+import os
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -36,7 +38,7 @@ def _run_jobs(jobs: list[Any], X: Any, Q: Any, *, out: Path, extra: dict[str, An
 
     try:
         results = run_methods(jobs, X, Q, out=out, extra=extra, progress=progress, command=_command_line(),
-                              echo=click.echo, **options)
+                              echo=_echo_while_running, **options)
     except KeyboardInterrupt as exc:
         from ._errors import exit_for_interrupt
 
@@ -51,3 +53,18 @@ def _run_jobs(jobs: list[Any], X: Any, Q: Any, *, out: Path, extra: dict[str, An
                 n = write_pairs(targets[r.name], r.ranked, q_names, db_names, overwrite=options["overwrite"])
                 click.echo(f"pairs ({r.name}, top {r.ranked.shape[1]}): {n} lines in {targets[r.name]}")
     return any(not r.ok for r in results)
+
+
+def _echo_while_running(message: Any = None, err: bool = False, **kwargs: Any) -> None:
+    """``click.echo`` that lets a run go on when the reader of stdout went away (``btel evaluate … | head``):
+    the run folder is what the command makes, so stdout is pointed at /dev/null and the run finishes."""
+    try:
+        click.echo(message, err=err, **kwargs)
+    except BrokenPipeError:
+        if err:
+            raise
+        try:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        except (AttributeError, ValueError, OSError):  # a stdout without a descriptor (a test runner's)
+            return
+        click.echo("note: standard output was closed; the run goes on and writes its folder.", err=True)
