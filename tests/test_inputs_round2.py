@@ -267,3 +267,22 @@ def test_the_python_loader_names_a_cut_short_file_a_pickle_and_a_text_matrix(tmp
     with pytest.raises(InvalidDescriptorsError, match="text matrix.*delimiter=','"):
         load_descriptor_matrix(text)
     assert not files["marker"].exists()
+
+
+def test_a_fifo_is_named_a_fifo_and_a_loop_of_links_a_link(tmp_path) -> None:
+    """A FIFO was called a folder, and a loop of links a file that does not exist."""
+    import os
+
+    from btel.core.modelfile import load_arrays
+    from btel.descriptors import load_descriptor_matrix
+    from btel.exceptions import DataNotFoundError, ModelFileError
+
+    os.mkfifo(tmp_path / "f.npy")
+    with pytest.raises(DataNotFoundError, match="not a regular file"):
+        load_descriptor_matrix(tmp_path / "f.npy")
+    (tmp_path / "a.npz").symlink_to(tmp_path / "b.npz")
+    (tmp_path / "b.npz").symlink_to(tmp_path / "a.npz")
+    with pytest.raises(DataNotFoundError, match="link that leads nowhere"):
+        load_descriptor_matrix(tmp_path / "a.npz")
+    with pytest.raises(ModelFileError, match="link that leads nowhere"):
+        load_arrays(tmp_path / "a.npz")

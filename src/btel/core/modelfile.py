@@ -173,6 +173,9 @@ def load_arrays(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[st
         exists, is_dir = path.exists(), path.is_dir()
     except (OSError, ValueError) as exc:  # a name too long, an embedded NUL byte…
         raise ModelFileError(f"{where[:200]} cannot be read as a model file ({exc}).") from exc
+    if not exists and path.is_symlink():
+        raise ModelFileError(f"model file {where} is a link that leads nowhere (a missing target, or a loop of "
+                             "links). Check the link.")
     if not exists:
         raise ModelFileError(f"model file {where} does not exist. Train one with `btel train` or, in Python, model.fit(X).save(path).")
     if is_dir:

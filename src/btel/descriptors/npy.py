@@ -206,10 +206,13 @@ def load_descriptor_matrix(
             f"mmap_mode must be None, 'r' or 'c'; got {mmap_mode!r} (writable maps could change the file)."
         )
     if not path.exists():
+        if path.is_symlink():
+            raise DataNotFoundError(f"descriptor file {str(path)!r} is a link that leads nowhere (a missing "
+                                    "target, or a loop of links). Check the link.")
         raise DataNotFoundError(f"descriptor file {str(path)!r} does not exist. Check the path.")
-    if not path.is_file():
+    if path.is_dir():
         raise DataNotFoundError(f"{str(path)!r} is a folder; pass the .npy file inside it.")
-    with open_regular(path):
+    with open_regular(path):  # a FIFO, device or socket: named as such
         pass
     if path.suffix.lower() != ".npz":  # cut short, or a pickle inside: named before numpy maps or reads it
         check_npy_header(path, "descriptor file")
