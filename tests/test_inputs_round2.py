@@ -286,3 +286,16 @@ def test_a_fifo_is_named_a_fifo_and_a_loop_of_links_a_link(tmp_path) -> None:
         load_descriptor_matrix(tmp_path / "a.npz")
     with pytest.raises(ModelFileError, match="link that leads nowhere"):
         load_arrays(tmp_path / "a.npz")
+
+
+def test_a_header_announcing_less_than_the_file_holds_is_named(tmp_path: Path) -> None:
+    """numpy reads what the header says: 100 of 200 rows were used and the rest ignored, unsaid."""
+    from btel.descriptors import load_descriptor_matrix
+    from btel.exceptions import InvalidDescriptorsError
+
+    X = np.random.default_rng(0).normal(size=(200, 64)).astype(np.float32)
+    np.save(tmp_path / "half.npy", X[:100])
+    with open(tmp_path / "half.npy", "ab") as fh:
+        fh.write(X[100:].tobytes())
+    with pytest.raises(InvalidDescriptorsError, match=r"more than the .* its shape \(100, 64\)"):
+        load_descriptor_matrix(tmp_path / "half.npy")

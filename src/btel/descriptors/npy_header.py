@@ -52,13 +52,14 @@ def npy_header(path: str | os.PathLike) -> tuple[tuple[int, ...], np.dtype, int,
 
 def check_npy_header(path: str | os.PathLike, what: str, *, objects: bool = False) -> None:
     """Refuse an ``.npy`` whose header announces more data than the file holds (cut short, or not
-    written by numpy) and, unless ``objects``, one holding Python objects (a pickle), each with the
+    written by numpy) or less (data appended, a header edited: numpy would ignore the rest) and, unless ``objects``, one holding Python objects (a pickle), each with the
     fix. Anything else (not an ``.npy``, a damaged header) is left to the reader.
 
     Raises
     ------
     InvalidDescriptorsError
-        The file is truncated, or holds an object array (``objects=False``).
+        The file is truncated or holds more than its header announces, or holds an object array
+        (``objects=False``).
     """
     found = npy_header(path)
     if found is None:
@@ -77,6 +78,11 @@ def check_npy_header(path: str | os.PathLike, what: str, *, objects: bool = Fals
             f"({format_size(declared)} of data) but the file holds {format_size(max(held, 0))} after the header "
             "(a copy or a write that did not finish, or a header that does not match the data). Copy or "
             "write the file again (np.save(path, X)).")
+    if held > declared:  # numpy reads what the header says and ignores the rest: rows would vanish unsaid
+        raise InvalidDescriptorsError(
+            f"{what} {str(path)!r} holds {format_size(held)} after its header, more than the "
+            f"{format_size(declared)} its shape {shape} and dtype {dtype} announce (a header edited, or data "
+            "appended to the file): the rest would be ignored. Write the file again (np.save(path, X)).")
 
 
 def refuse_text_matrix(path: str | os.PathLike, what: str) -> None:
