@@ -140,3 +140,17 @@ def test_command_help_shows_the_defaults_without_loading_the_methods(command: st
     out = subprocess.run([sys.executable, "-c", code], env=env, check=True, capture_output=True, text=True).stdout
     assert f"[default:{default}]" in "".join(out.split())  # the help wraps lines, even inside a word
     assert out.rstrip().splitlines()[-1] == "LOADED", out.splitlines()[-1]
+
+
+def test_every_command_that_writes_takes_dash_o() -> None:
+    """-o names what a command writes, a file (train, localize, extract) or a folder (evaluate, demo,
+    experiment): one flag to remember."""
+    import click
+
+    from btel.cli import main
+
+    ctx = click.Context(main)
+    for name in ("train", "localize", "extract", "evaluate", "demo", "experiment"):
+        command = main.get_command(ctx, name)
+        flags = {opt for p in command.params for opt in getattr(p, "opts", [])}
+        assert "-o" in flags, name
