@@ -40,7 +40,9 @@ from ._outputs import check_output_suffix, refuse_existing
               help="With --hmm: the most map places the queries advance per frame (default 2: queries at the "
                    "map's frame rate; e.g. 4 for queries taken every 2nd map frame).")
 @click.option("--top-k", type=int, default=None,
-              help="Batch: also write the K most likely places per query (ranked output) as columns rank_1…rank_K.")
+              help="Batch: also write the K most likely places per query (ranked output) as columns rank_1…rank_K. "
+                   "They rank each query on its own: with --hmm or --sequence-filter the prediction column is the "
+                   "sequence's answer and may differ from rank_1.")
 @click.option("--follow", is_flag=True, help="With --stream --input: keep reading as the file grows (like tail -f).")
 @click.option("--idle-timeout", type=float, default=None,
               help="With --follow: stop after this many seconds without a new line (default: run until Ctrl-C).")
