@@ -107,6 +107,20 @@ def _write_hloc(path: Path, names: list[str], X: np.ndarray) -> None:
             fh.create_group(name).create_dataset("global_descriptor", data=x)
 
 
+def test_cli_reads_an_h5_of_top_level_images_as_one_set_and_keeps_its_refusal_short(tmp_path: Path) -> None:
+    """Every top-level image was its own prefix: a flat file was refused with a message as long as it."""
+    X = np.random.default_rng(0).normal(size=(40, 8)).astype(np.float32)
+    _write_hloc(tmp_path / "flat.h5", [f"img{i:04d}.png" for i in range(40)], X)
+    result = CliRunner().invoke(main, ["train", str(tmp_path / "flat.h5"), "-o", str(tmp_path / "m.npz"),
+                                       "--method", "pq", "--budget", "2KB"])
+    assert result.exit_code == 0, result.output
+    _write_hloc(tmp_path / "many.h5", [f"p{i}/x.png" for i in range(40)], X)
+    result = CliRunner().invoke(main, ["train", str(tmp_path / "many.h5"), "-o", str(tmp_path / "m2.npz"),
+                                       "--method", "pq", "--budget", "2KB"])
+    assert result.exit_code == 2 and "under 40 prefixes (p0/ 1 images" in result.output
+    assert len(result.output) < 800
+
+
 def test_cli_refuses_an_h5_holding_map_and_queries_without_a_prefix(tmp_path: Path) -> None:
     rng = np.random.default_rng(0)
     X = rng.normal(size=(40, 8)).astype(np.float32)

@@ -38,10 +38,12 @@ def _load_whole_h5(path: str, what: str) -> np.ndarray:
     counts: dict[str, int] = {}
     for name in names:
         head, slash, _ = name.partition("/")
-        counts[head + slash] = counts.get(head + slash, 0) + 1
+        key = head + slash if slash else ""  # images at the top level are one set, not one prefix each
+        counts[key] = counts.get(key, 0) + 1
     if len(counts) > 1:
-        found = ", ".join(f"{p or '(top level)'} {n} images" for p, n in counts.items())
-        choices = " or ".join(f"{path}:{p}" for p in counts if p)
+        shown = list(counts.items())[:4]  # a few prefixes name the problem; thousands would flood the line
+        found = ", ".join(f"{p or '(top level)'} {n} images" for p, n in shown) + (" …" if len(counts) > 4 else "")
+        choices = " or ".join(f"{path}:{p}" for p, _ in shown if p)
         raise click.UsageError(f"{path} ({what}) holds images under {len(counts)} prefixes ({found}); name the "
                                f"ones you mean, e.g. {choices}.")
     return X
