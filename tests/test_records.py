@@ -58,3 +58,50 @@ def test_an_evaluation_and_its_row_are_one_record() -> None:
     np.testing.assert_array_equal(labelled.predictions, result.predictions)
     assert labelled.to_dict()["recall"] == result.to_dict()["recall"]
     assert describe_row(labelled).startswith("nn [day→night]") and "recall@0=" in describe_row(labelled)
+
+
+# -- a damaged metrics.json row (an edited run folder given to `btel evaluate --resume`) ---------------------
+
+def _measured_row() -> dict:
+    route = synthetic_route(80, 16, seed=0)
+    result = evaluate(make_method("bruteforce"), route.map, route.queries, name="nn", curve_max=5)
+    return json.loads(json.dumps(result.to_dict()))
+
+
+@pytest.mark.parametrize("field, value", [
+    ("nbytes", "5KB"), ("nbytes", -1), ("nbytes", True), ("pr_curve", "x"), ("pr_curve", {"precision": [1, "a"]}),
+    ("auc_pr_vpr_bench", []), ("fit_time_s", {}), ("timing_repeats", "x"), ("timing_repeats", 1.5),
+    ("query_time_s_per_query", {}), ("recall_curve", -1), ("recall_curve", [0.1, None]), ("choice", 1e308),
+    ("recall", {"x": 0.1}), ("recall", {"1": "a"}), ("recall_at_k", []), ("storage_breakdown", {"codes": "x"}),
+    ("params", [1]), ("reason", 5), ("reference", "no"), ("n_queries", "7"), ("name", None), ("status", 1),
+])
+def test_a_damaged_field_of_a_metrics_row_is_named(field: str, value: object) -> None:
+    row = _measured_row()
+    back = json.loads(json.dumps(EvaluationResult.from_dict(row).to_dict()))
+    assert back == {**row, "ground_truth": None}  # the intact row reads back
+    with pytest.raises(InvalidParameterError, match=f"'{field}'"):
+        EvaluationResult.from_dict({**row, field: value})
+
+
+@pytest.mark.parametrize("field, value", [("nbytes", "5KB"), ("pr_curve", "x"), ("choice", 1e308)])
+def test_resume_of_an_edited_run_ends_with_one_error_line(tmp_path, field: str, value: object) -> None:
+    from click.testing import CliRunner
+
+    from btel.cli import main
+
+    route = synthetic_route(120, 16, seed=1)
+    np.save(tmp_path / "db.npy", route.map)
+    np.save(tmp_path / "q.npy", route.queries)
+    run = tmp_path / "run"
+    done = CliRunner().invoke(main, ["evaluate", "--db", str(tmp_path / "db.npy"), "--queries", str(tmp_path / "q.npy"),
+                                     "--methods", "lsh,pq", "--budget", "5KB", "--out", str(run), "--no-progress"])
+    assert done.exit_code == 0, done.output
+    metrics = json.loads((run / "metrics.json").read_text())
+    metrics["run"]["complete"] = False
+    metrics["results"][1][field] = value
+    (run / "metrics.json").write_text(json.dumps(metrics))
+    result = CliRunner().invoke(main, ["evaluate", "--resume", str(run)], catch_exceptions=False)
+    assert result.exit_code == 2
+    errors = [line for line in result.output.splitlines() if line.startswith("Error:")]
+    assert len(errors) == 1 and f"'{field}'" in errors[0] and "row 'pq'" in errors[0]
+    assert "Traceback" not in result.output

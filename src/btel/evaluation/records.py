@@ -90,6 +90,64 @@ def _storage_of(method: Any) -> tuple[int | None, dict[str, int] | None]:
     return (None if nbytes is None else int(nbytes)), breakdown
 
 
+#: Fields of a ``metrics.json`` row by kind, checked by :func:`_check_row` (a resumed run's file may be edited).
+_INTS = ("n_map", "nbytes", "budget", "minimum_bytes", "n_threads", "timing_repeats", "tolerance_for_k")
+_FLOATS = ("fit_time_s", "query_time_s_per_query", "rank_time_s_per_query", "query_latency_s",
+           "auc_pr_vpr_bench", "auc_pr_vpr_tutorial", "recall_at_100_precision")
+_TEXTS = ("reason", "chosen_method", "series", "ground_truth_source", "positive_rule")
+_FLAGS = ("reference", "uses_query_sequence", "budget_saturated")
+_OBJECTS = ("params", "storage_breakdown", "settings", "choice")
+
+
+def _number(value: Any, integer: bool = False) -> bool:
+    """A finite JSON number (an int64-sized int when ``integer``); booleans are not numbers here."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        return abs(value) < 2 ** 63
+    return not integer and isinstance(value, float) and bool(np.isfinite(value))
+
+
+def _numbers(value: Any) -> bool:
+    return isinstance(value, list) and all(_number(v) for v in value)
+
+
+def _check_row(data: Mapping[str, Any]) -> None:
+    """Raise ValueError naming the first field of a ``metrics.json`` row whose type or shape is wrong.
+
+    Ints are non-negative ints, floats finite numbers, texts strings, flags booleans and objects dicts
+    (each also null); ``recall``/``recall_at_k`` map integer keys to finite numbers, ``recall_curve``
+    is a list of finite numbers and ``pr_curve`` null or ``{"precision": [...], "recall": [...]}``.
+    """
+    def bad(name: str, what: str) -> ValueError:
+        return ValueError(f"field {name!r} must be {what}, not {data.get(name)!r:.60}")
+
+    if not isinstance(data, Mapping):
+        raise ValueError(f"a row must be an object, not {type(data).__name__}")
+    if not isinstance(data.get("name"), str) or not isinstance(data.get("status"), str):
+        raise bad("name" if not isinstance(data.get("name"), str) else "status", "a string")
+    if not (_number(data.get("n_queries"), True) and data["n_queries"] >= 0):
+        raise bad("n_queries", "a non-negative integer")
+    for name in _INTS:
+        if data.get(name) is not None and not (_number(data[name], True) and data[name] >= 0):
+            raise bad(name, "a non-negative integer or null")
+    for name, ok, what in [*((n, lambda v: _number(v), "a finite number or null") for n in _FLOATS),
+                           *((n, lambda v: isinstance(v, str), "a string or null") for n in _TEXTS),
+                           *((n, lambda v: isinstance(v, bool), "true, false or null") for n in _FLAGS),
+                           *((n, lambda v: isinstance(v, dict), "an object or null") for n in _OBJECTS),
+                           ("recall_curve", _numbers, "a list of finite numbers or null")]:
+        if data.get(name) is not None and not ok(data[name]):
+            raise bad(name, what)
+    for name in ("recall", "recall_at_k"):
+        value = data.get(name)
+        if value is not None and not (isinstance(value, dict) and all(
+                isinstance(k, (str, int)) and str(k).isdigit() and _number(v) for k, v in value.items())):
+            raise bad(name, "an object of integer keys to finite numbers, or null")
+    curve = data.get("pr_curve")
+    if curve is not None and not (isinstance(curve, dict) and all(_numbers(curve.get(k)) for k in ("precision", "recall"))):
+        raise bad("pr_curve", 'null or {"precision": [numbers], "recall": [numbers]}')
+    if not all(_number(v, True) for v in (data.get("storage_breakdown") or {}).values()):
+        raise bad("storage_breakdown", "an object of part names to integers")
+
+
 @dataclass
 class EvaluationResult:
     """Everything measured for one method on one map/query pair — or why it was not measured.
@@ -253,12 +311,17 @@ class EvaluationResult:
     def from_dict(cls, data: Mapping[str, Any]) -> "EvaluationResult":
         """A row back from :meth:`to_dict` (``metrics.json``): every number, no predictions or ranking.
 
+        Every field is checked before use (a resumed run's ``metrics.json`` may have been edited):
+        see :func:`_check_row` for the type each field must have.
+
         Raises
         ------
         InvalidParameterError
-            ``data`` lacks a field :meth:`to_dict` writes.
+            ``data`` lacks a field :meth:`to_dict` writes, or a field has the wrong type or shape
+            (the message names it, and the row's ``name`` when it has one).
         """
         try:
+            _check_row(data)
             result = cls(
                 name=str(data["name"]), params=dict(data.get("params") or {}), n_map=data.get("n_map"),
                 n_queries=int(data["n_queries"]), recall={int(t): float(v) for t, v in (data.get("recall") or {}).items()},
@@ -280,7 +343,8 @@ class EvaluationResult:
                 truth=(None if data.get("ground_truth_source") is None else
                        {"source": data["ground_truth_source"], "rule": data.get("positive_rule")}))
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
-            raise InvalidParameterError(f"not a row of metrics.json ({type(exc).__name__}: {exc}).") from exc
+            row = f" {data.get('name')!r:.60}" if isinstance(data, Mapping) else ""
+            raise InvalidParameterError(f"not a row{row} of metrics.json ({type(exc).__name__}: {exc}).") from exc
         return result
 
     def to_dict(self) -> dict[str, Any]:

@@ -5,17 +5,26 @@ copies each experiment's PNGs to ``docs/figures/`` and writes the tables, the co
 produced them, and a reading computed from the numbers (who wins at which budget, by how much).
 Sections other tools maintain in ``docs/results.md`` between ``<!-- name:start -->`` and
 ``<!-- name:end -->`` markers (e.g. the scale benchmark's) are carried over unchanged.
+
+**Hostile inputs.** Run folders and ``docs/`` may hold anything: only regular files are read or
+copied (a symlink to one is followed; one to a device, FIFO, socket or folder is refused before any
+byte is read), each at most :data:`MAX_TEXT_BYTES` (``results.json``, ``results.md``,
+``reading.md``) or :data:`MAX_FIGURE_BYTES` (a PNG). An existing ``docs/`` output that is not a
+regular file is refused, not opened for writing. A ``results.json`` whose fields do not have the
+types the report reads is refused with its path, the field and the command that writes it again.
 """
 
 from __future__ import annotations
 
 import json
+import math
+import os
 import re
-import shutil
+import stat
 from pathlib import Path
 from typing import Any
 
-from ..exceptions import DataNotFoundError
+from ..exceptions import BTELError, DataNotFoundError, InvalidParameterError
 from . import EXPERIMENTS
 from ..core.storage import format_bytes
 from ._common import docstring_markdown
@@ -36,6 +45,121 @@ _TITLES = {
 }
 _TOLERANCES = (0, 1, 2, 5, 10, 20)
 _MARKER = re.compile(r"<!-- (?P<name>[\w-]+):start -->.*?<!-- (?P=name):end -->", re.S)
+#: Largest results.json / results.md / reading.md read (16 MiB; the full runs' files are well under 1 MiB).
+MAX_TEXT_BYTES = 16 << 20
+#: Largest figure copied (64 MiB; the experiments' PNGs are well under 1 MiB).
+MAX_FIGURE_BYTES = 64 << 20
+#: Row cells that must be numbers (or null) where present: the tables format them as numbers.
+_NUMERIC_CELL = re.compile(r"(val_)?(recall@\d+|R@\d+)$|n_places$|budget$|nbytes$|minimum_bytes$|fit_s$|query_us$|window$")
+
+
+def _read_bytes(path: Path, limit: int) -> bytes:
+    """The bytes of the regular file ``path`` (a symlink to one is followed), at most ``limit`` of them.
+
+    Raises
+    ------
+    DataNotFoundError
+        ``path`` cannot be opened.
+    InvalidParameterError
+        ``path`` is not a regular file (a device, FIFO, socket or folder), or holds more than ``limit`` bytes.
+    """
+    try:  # O_NONBLOCK: opening a FIFO must not wait for a writer; fstat then refuses it
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except OSError as exc:
+        raise DataNotFoundError(f"{str(path)!r} could not be opened: {exc.strerror}.") from exc
+    if not stat.S_ISREG(os.fstat(fd).st_mode):  # checked before fdopen, which refuses a folder on its own terms
+        os.close(fd)
+        raise InvalidParameterError(f"{str(path)!r} is not a regular file (a device, FIFO, socket or folder); "
+                                    "btel report reads and copies files only: remove it or replace it by a file.")
+    with os.fdopen(fd, "rb") as fh:
+        data = fh.read(limit + 1)  # one byte more than allowed: a file larger than its stat (or growing) is caught
+    if len(data) > limit:
+        raise InvalidParameterError(f"{str(path)!r} holds more than {limit} bytes, more than btel report reads "
+                                    "from one file; it is not an experiment's output.")
+    return data
+
+
+def _read_text(path: Path) -> str:
+    """UTF-8 text of a regular file of at most :data:`MAX_TEXT_BYTES` bytes (see :func:`_read_bytes`)."""
+    try:
+        return _read_bytes(path, MAX_TEXT_BYTES).decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InvalidParameterError(f"{str(path)!r} is not UTF-8 text ({exc.reason} at byte {exc.start}).") from exc
+
+
+def _check_target(path: Path, force: bool = False) -> None:
+    """Refuse an output path that exists and is not a regular file (always, with ``force``)."""
+    if force or (os.path.lexists(path) and not path.is_file()):
+        raise InvalidParameterError(f"{str(path)!r} exists and is not a regular file (a device, FIFO, socket, "
+                                    "folder or dangling link); btel report writes files only: remove it.")
+
+
+def _write_bytes(path: Path, data: bytes) -> None:
+    """Replace the content of ``path``: a new file, or an existing regular file (a symlink to one is followed).
+
+    Raises
+    ------
+    InvalidParameterError
+        ``path`` exists and is not a regular file (a device, FIFO, socket, folder or dangling symlink):
+        refused before it is opened.
+    """
+    _check_target(path)
+    # No O_TRUNC at open: a FIFO or device swapped in since the check is refused by fstat before any change.
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | getattr(os, "O_NONBLOCK", 0), 0o666)
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        _check_target(path, force=True)
+    with os.fdopen(fd, "wb") as fh:
+        os.ftruncate(fd, 0)
+        fh.write(data)
+
+
+def _damaged(path: Path, name: str, what: str) -> InvalidParameterError:
+    return InvalidParameterError(f"{str(path)!r} is not a results file btel report can read: {what}. "
+                                 f"Re-run `btel experiment {name}` to write it again.")
+
+
+def _load_results(path: Path, name: str) -> dict[str, Any]:
+    """The payload of ``<runs>/<name>/results.json``, its fields checked for the types the report reads.
+
+    An object with ``rows`` (a list of objects; the cells in :data:`_NUMERIC_CELL` finite numbers or
+    null, ``status`` a string) and ``run`` (an object; ``command``, ``date_utc`` strings, ``seconds`` a
+    finite number, ``quick`` a boolean, ``versions`` an object, each optional or null).
+
+    Raises
+    ------
+    InvalidParameterError
+        Not JSON, or a field of the wrong type: the message names the file, the field and the fix.
+    """
+    def number(v: Any) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+    try:
+        payload = json.loads(_read_text(path))
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError is a ValueError; deep nesting recurses
+        if isinstance(exc, BTELError):
+            raise
+        raise _damaged(path, name, f"not JSON ({exc})") from exc
+    if not isinstance(payload, dict):
+        raise _damaged(path, name, f"it holds a JSON {type(payload).__name__}, not an object with 'rows' and 'run'")
+    rows, run = payload.get("rows"), payload.get("run")
+    if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
+        raise _damaged(path, name, "'rows' must be a list of objects")
+    if not isinstance(run, dict):
+        raise _damaged(path, name, "'run' must be an object")
+    for key, ok, what in (("command", lambda v: isinstance(v, str), "a string"),
+                          ("date_utc", lambda v: isinstance(v, str), "a string"), ("seconds", number, "a finite number"),
+                          ("quick", lambda v: isinstance(v, bool), "true or false"),
+                          ("versions", lambda v: isinstance(v, dict), "an object")):
+        if run.get(key) is not None and not ok(run[key]):
+            raise _damaged(path, name, f"'run.{key}' must be {what}, not {run[key]!r:.40}")
+    for i, row in enumerate(rows):
+        for cell, value in row.items():
+            if (_NUMERIC_CELL.match(cell) and value is not None and not number(value)) or \
+                    (cell == "status" and not isinstance(value, str)):
+                raise _damaged(path, name, f"'rows[{i}].{cell}' must be {'a string' if cell == 'status' else 'a number or null'}"
+                                           f", not {value!r:.40}")
+    return payload
 
 
 def _table(rows: list[dict[str, Any]], extra: list[str]) -> list[str]:
@@ -176,6 +300,35 @@ def _front_ends_lines(payload: dict[str, Any]) -> list[str]:
     return lines
 
 
+def _section(name: str, payload: dict[str, Any], docs_dir: Path) -> list[str]:
+    """One experiment's section of results.md: heading, command, then its tables (``payload`` checked
+    by :func:`_load_results`; a cell it does not check raises KeyError/TypeError/ValueError here)."""
+    rows, run = payload["rows"], payload["run"]
+    lines = [f"## {_TITLES[name]}", "",
+             f"Command: `{run.get('command') or 'btel experiment ' + name}`"
+             f"{' (quick mode)' if run.get('quick') else ''} — {run.get('date_utc') or ''}, "
+             f"{run.get('seconds') or 0:.0f} s, btel {(run.get('versions') or {}).get('btel', '?')}.", ""]
+    if run.get("quick"):  # the heading names the full run's sizes; say that these rows are not them
+        lines += ["> **Quick mode**: a smoke run on smaller maps and budgets than the heading names (the rows "
+                  "give them). Its differences are too small to read a verdict from, so none is drawn.", ""]
+    if name == "beyond":
+        lines += _beyond_lines(payload)
+    elif name == "front-ends":
+        lines += _front_ends_lines(payload)
+    elif name == "codes":
+        from .codes import report_lines
+
+        lines += report_lines(payload, docs_dir)
+    elif name == "frontier":
+        from .frontier import report_lines as frontier_lines
+
+        lines += frontier_lines(payload, docs_dir)
+    else:
+        extra = {"accuracy": ["direction"], "sequence-filter": ["window"]}.get(name, [])
+        lines += _table(rows, extra) + [""]
+    return lines
+
+
 def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path = "docs",
                  reading_file: str | Path | None = None) -> Path:
     """Write ``docs/results.md`` and ``docs/results.json`` from every experiment found in ``runs_dir``.
@@ -197,7 +350,9 @@ def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path
     figures = docs_dir / "figures"
     figures.mkdir(parents=True, exist_ok=True)
     md_path, json_path = docs_dir / "results.md", docs_dir / "results.json"
-    kept = {m.group("name"): m.group(0) for m in _MARKER.finditer(md_path.read_text())} if md_path.exists() else {}
+    for target in (md_path, json_path):  # refused before any work (and before results.md is read)
+        _check_target(target)
+    kept = {m.group("name"): m.group(0) for m in _MARKER.finditer(_read_text(md_path))} if md_path.exists() else {}
 
     # Front matter: the site's navigation column hidden (its table of contents stays), so the wide tables fit.
     lines = ["---", "hide:", "  - navigation", "---", "", "# Results", "",
@@ -215,37 +370,22 @@ def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path
              "† marks methods that use the query sequence (SeqSLAM): not comparable with single-frame methods.", ""]
     summary: dict[str, Any] = {}
     for name, path in found.items():
-        payload = json.loads(path.read_text())
-        rows, run = payload["rows"], payload["run"]
-        summary[name] = {"run": run, "rows": rows, **{k: v for k, v in payload.items()
-                                                     if k not in ("run", "rows", "curves")}}
-        lines += [f"## {_TITLES[name]}", "",
-                  f"Command: `{run.get('command') or 'btel experiment ' + name}`"
-                  f"{' (quick mode)' if run.get('quick') else ''} — {run.get('date_utc', '')}, "
-                  f"{run.get('seconds', 0):.0f} s, btel {run.get('versions', {}).get('btel', '?')}.", ""]
-        if run.get("quick"):  # the heading names the full run's sizes; say that these rows are not them
-            lines += ["> **Quick mode**: a smoke run on smaller maps and budgets than the heading names (the rows "
-                      "give them). Its differences are too small to read a verdict from, so none is drawn.", ""]
-        if name == "beyond":
-            lines += _beyond_lines(payload)
-        elif name == "front-ends":
-            lines += _front_ends_lines(payload)
-        elif name == "codes":
-            from .codes import report_lines
-
-            lines += report_lines(payload, docs_dir)
-        elif name == "frontier":
-            from .frontier import report_lines as frontier_lines
-
-            lines += frontier_lines(payload, docs_dir)
-        else:
-            extra = {"accuracy": ["direction"], "sequence-filter": ["window"]}.get(name, [])
-            lines += _table(rows, extra) + [""]
+        payload = _load_results(path, name)
+        summary[name] = {"run": payload["run"], "rows": payload["rows"],
+                         **{k: v for k, v in payload.items() if k not in ("run", "rows", "curves")}}
+        try:
+            lines += _section(name, payload, docs_dir)
+            reading = ([] if name in ("beyond", "front-ends", "codes", "frontier") or payload["run"].get("quick")
+                       else _reading(name, payload["rows"]))
+        except BTELError:
+            raise
+        except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
+            # The sections read many experiment-specific cells; a damaged one is named with its file.
+            raise _damaged(path, name, f"a field is missing or has the wrong type ({type(exc).__name__}: {exc})") from exc
         for png in sorted((path.parent).glob("*.png")):
             target = figures / f"{name}-{png.name}"
-            shutil.copyfile(png, target)
+            _write_bytes(target, _read_bytes(png, MAX_FIGURE_BYTES))
             lines += [f"![{name} {png.stem}](figures/{target.name})", ""]
-        reading = [] if name in ("beyond", "front-ends", "codes", "frontier") or run.get("quick") else _reading(name, rows)
         if reading:
             lines += ["Reading (computed from the table):", ""] + [f"- {s}" for s in reading] + [""]
     missing = [name for name in EXPERIMENTS if name not in found]
@@ -255,9 +395,9 @@ def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path
                   + ". Run them and `btel report` again.", ""]
     reading_path = Path(reading_file) if reading_file else docs_dir / "reading.md"
     if reading_path.is_file():
-        lines += ["## Reading", "", reading_path.read_text().strip(), ""]
+        lines += ["## Reading", "", _read_text(reading_path).strip(), ""]
     for block in kept.values():
         lines += [block, ""]
-    md_path.write_text("\n".join(lines))
-    json_path.write_text(json.dumps(summary, indent=1) + "\n")
+    _write_bytes(md_path, "\n".join(lines).encode("utf-8"))
+    _write_bytes(json_path, (json.dumps(summary, indent=1) + "\n").encode("utf-8"))
     return md_path

@@ -81,6 +81,52 @@ def calibration_table(calibration: dict[str, Any] | None) -> str:
     return "\n".join(lines)
 
 
+def _finite(value: Any) -> bool:
+    """A finite JSON number (booleans excluded)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and bool(np.isfinite(value))
+
+
+def check_saved_choice(choice: dict[str, Any]) -> None:
+    """Check the fields of a saved ``state.choice`` that ``summary()`` and the calibration table read.
+
+    ``params`` must be an object, ``reason`` a string, ``refused`` a list of strings (each may be
+    absent); ``calibration`` absent, null or an object whose ``alpha`` (in (0, 1)) and
+    ``reference_difference`` are finite numbers where present, and whose ``table`` is a list of
+    objects with finite ``score``, ``difference``, ``p_adjusted``, ``confidence`` (and ``fit_s`` or
+    null) where present.
+
+    Raises
+    ------
+    ModelFileError
+        A field has the wrong type; the message names it (a damaged or hand-edited model file).
+    """
+    def bad(name: str, what: str) -> ModelFileError:
+        return ModelFileError(f"the auto model file's state.choice.{name} must be {what}; the file is damaged "
+                              "(train the model again with `btel train`).")
+
+    for name, kind, what in (("params", dict, "an object"), ("reason", str, "a string"), ("refused", list, "a list")):
+        if name in choice and not isinstance(choice[name], kind):
+            raise bad(name, what)
+    if not all(isinstance(r, str) for r in choice.get("refused", [])):
+        raise bad("refused", "a list of strings")
+    c = choice.get("calibration")
+    if c is None:
+        return
+    if not isinstance(c, dict):
+        raise bad("calibration", "an object or null")
+    if "alpha" in c and not (_finite(c["alpha"]) and 0 < c["alpha"] < 1):
+        raise bad("calibration.alpha", "a number in (0, 1)")
+    if "reference_difference" in c and not _finite(c["reference_difference"]):
+        raise bad("calibration.reference_difference", "a finite number")
+    table = c.get("table", [])
+    if not isinstance(table, list) or not all(isinstance(e, dict) for e in table):
+        raise bad("calibration.table", "a list of objects")
+    for i, e in enumerate(table):
+        for key in ("score", "difference", "p_adjusted", "confidence", "fit_s"):
+            if key in e and not (_finite(e[key]) or (key == "fit_s" and e[key] is None)):
+                raise bad(f"calibration.table[{i}].{key}", "a finite number")
+
+
 def _params_text(params: dict[str, Any]) -> str:
     """``(code=periodic, whiten=shrink)`` ('' without parameters)."""
     shown = ", ".join(f"{k}={v}" for k, v in params.items() if v is not None)
@@ -303,6 +349,7 @@ class AutoLocalizer(PlaceLocalizer):
         if not isinstance(choice, dict) or choice.get("method") not in registry.method_names() \
                 or choice.get("method") == "auto":
             raise ModelFileError("the auto model file does not name a registered method it chose.")
+        check_saved_choice(choice)  # summary(), `btel info` and the tables read these fields later
         params, inner_state = state.get("inner_params"), state.get("inner_state")
         if not isinstance(params, dict) or not isinstance(inner_state, dict):
             raise ModelFileError("the auto model file's inner parameters or state are not objects.")
