@@ -172,3 +172,17 @@ def test_real_frames_read_as_before(nordland_dir: Path, gardenspoint_sample_dir:
         np.testing.assert_array_equal(read_image(path, grey=True), direct)
         colour = cv2.cvtColor(cv2.imdecode(np.fromfile(path, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
         np.testing.assert_array_equal(read_image(path), colour)
+
+
+def test_webp_and_pgm_files_in_a_folder_are_read(tmp_path) -> None:
+    """read_image decodes WEBP and PGM, but list_images skipped them ('not images btel reads')."""
+    import cv2
+
+    from btel.descriptors import list_images, read_image
+
+    rng = np.random.default_rng(0)
+    cv2.imwrite(str(tmp_path / "0.webp"), (rng.random((32, 48, 3)) * 255).astype(np.uint8))
+    cv2.imwrite(str(tmp_path / "1.pgm"), (rng.random((32, 48)) * 255).astype(np.uint8))
+    found = list_images(tmp_path)
+    assert [p.name for p in found] == ["0.webp", "1.pgm"]
+    assert all(read_image(p).shape[:2] == (32, 48) for p in found)

@@ -66,7 +66,7 @@ __all__ = [
 ]
 
 #: File name endings :func:`list_images` picks up (compared case-insensitively).
-IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm")
+IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm", ".webp")
 
 #: What descriptors accept as "images": a folder, or a sequence of paths / ndarrays.
 ImageInput = Any
