@@ -178,3 +178,26 @@ def test_hmm_speed_reaches_the_decoder_in_batch_and_stream(gardenspoint_netvlad,
     assert within[4] > within[2] + 0.3, within
     refused = _invoke("localize", tmp_path / "m.npz", tmp_path / "q.npy", "-o", tmp_path / "x.csv", "--hmm-speed", "4")
     assert refused.exit_code == 2 and "give --hmm too" in refused.output
+
+
+def test_a_query_file_over_the_memory_limit_is_answered_in_row_blocks(tmp_path: Path, monkeypatch) -> None:
+    """A float32 query file is memory-mapped and answered block by block: the limit applies to what is
+    held, not to the file (it refused a 625 MiB file while fitting a map that size went through)."""
+    import btel
+    import btel.cli.localize as cli_localize
+    from btel.datasets import synthetic_route
+
+    route = synthetic_route(300, 64, seed=0)
+    btel.make_method("lsh", budget="8KB").fit(route.map).save(tmp_path / "m.npz")
+    Q = np.concatenate([route.queries] * 20)  # 6,000 × 64 float32: 1.5 MiB
+    np.save(tmp_path / "q.npy", Q)
+    monkeypatch.setenv("BTEL_MEMORY_LIMIT", "1M")
+    monkeypatch.setattr(cli_localize, "_QUERY_BLOCK_BYTES", 100_000)  # 390 rows a block
+    done = CliRunner().invoke(main, ["localize", str(tmp_path / "m.npz"), str(tmp_path / "q.npy"), "-o",
+                                     str(tmp_path / "p.csv"), "--top-k", "3"])
+    assert done.exit_code == 0, done.output
+    with open(tmp_path / "p.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    model = load(tmp_path / "m.npz")
+    np.testing.assert_array_equal([int(r["prediction"]) for r in rows], model.predict(Q))
+    np.testing.assert_array_equal([[int(r[f"rank_{k}"]) for k in (1, 2, 3)] for r in rows], model.rank(Q, 3))

@@ -11,13 +11,16 @@ if TYPE_CHECKING:  # numpy is imported by the commands that need it: `btel --hel
     import numpy as np
 
 
-def _load_matrix(path: str, what: str) -> np.ndarray:
-    """The descriptor matrix at ``path``; a refusal says which input it was (``what``: its role)."""
+def _load_matrix(path: str, what: str, *, mmap: bool = False) -> np.ndarray:
+    """The descriptor matrix at ``path``; a refusal says which input it was (``what``: its role). With
+    ``mmap``, a ``.npy`` is memory-mapped (a view of the file when it is float32 and C-ordered)."""
     from ..descriptors.npy import load_descriptor_matrix
     from ..exceptions import InvalidDescriptorsError
 
+    mapped = mmap and Path(path).suffix.lower() == ".npy" and Path(path).is_file()
     try:
-        return _load_whole_h5(path, what) if _is_whole_h5(path) else load_descriptor_matrix(path)
+        return (_load_whole_h5(path, what) if _is_whole_h5(path) else
+                load_descriptor_matrix(path, mmap_mode="r" if mapped else None))
     except InvalidDescriptorsError as exc:
         raise InvalidDescriptorsError(f"{what}: {exc}") from None
 

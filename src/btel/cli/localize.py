@@ -83,7 +83,7 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
     check_output_suffix(output, "-o", "a predictions CSV", (".csv", ".txt"))
     refuse_existing(output, "-o", overwrite)
     model = load_model(model_path)
-    Q = _load_matrix(queries, "query descriptors")
+    Q = _load_matrix(queries, "query descriptors", mmap=True)  # a float32 .npy is read as it is used
     if Q.shape[1] != model.n_features_in_:  # the library would name its variable (Q), not the file
         raise InputError(f"queries {queries} have {Q.shape[1]} values per row, but MODEL was fitted on "
                          f"{model.n_features_in_}-value descriptors; extract the queries with the same "
@@ -92,17 +92,36 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
     if db is not None and db_names is None:
         raise InputError(f"--db {db} does not name one image per place of MODEL ({model.n_places_}); give "
                          "the map MODEL was trained on (an hloc .h5, or btel extract's .npy with its .json).")
-    predictions = model.predict_sequence(Q, "hmm", **hmm_options) if hmm else model.predict(Q)
+    # A frame-by-frame model answers row blocks of the queries as it answers them all: the memory of a
+    # query file larger than RAM's share is a block's, not the file's.
+    by_frame = not hmm and not model.front_end_.uses_sequence and not model._sequence_context()
+    predictions = (model.predict_sequence(Q, "hmm", **hmm_options) if hmm else
+                   _in_row_blocks(model.predict, Q) if by_frame else model.predict(Q))
     if window is not None:
         from ..sequence.filter import filter_sequence
 
         predictions = filter_sequence(predictions, window, n_places=model.n_places_)
-    ranked = model.rank(Q, top_k) if top_k is not None else None
+    ranked = (None if top_k is None else _in_row_blocks(lambda B: model.rank(B, top_k), Q) if by_frame
+              else model.rank(Q, top_k))
     write_predictions(output, predictions, ranked, q_names, db_names, overwrite=overwrite)
     named = {(True, True): " with query and map image names", (True, False): " with query image names",
              (False, True): " with map image names", (False, False): ""}[bool(q_names), bool(db_names)]
     hint = " (give --db MAP to name the predicted places too)" if q_names and db is None else ""
     click.echo(f"{len(predictions)} predictions{named} written to {output}{hint}")
+
+
+#: Bytes of queries answered at once in batch mode (a memory-mapped query file is read block by block).
+_QUERY_BLOCK_BYTES = 64 << 20
+
+
+def _in_row_blocks(answer: Any, Q: Any) -> Any:
+    """``answer(Q)`` computed on row blocks of ``Q`` of at most :data:`_QUERY_BLOCK_BYTES` and stacked."""
+    import numpy as np
+
+    rows = max(1, _QUERY_BLOCK_BYTES // max(1, 4 * Q.shape[1]))
+    if Q.shape[0] <= rows:
+        return answer(Q)
+    return np.concatenate([answer(np.ascontiguousarray(Q[a:a + rows])) for a in range(0, Q.shape[0], rows)])
 
 
 def _check_window(window: int | None) -> None:
