@@ -239,3 +239,21 @@ def test_a_gallery_opens_only_images_inside_the_recorded_folder(tmp_path: Path) 
     assert result.exit_code == 2 and isinstance(result.exception, SystemExit), result.output
     assert result.output.count("\n") == 1
     assert "'../secret.png' (row 1) is not a plain file name" in result.output
+
+
+def test_the_gallery_title_is_wrapped_inside_the_figure(gardenspoint_sample_dir: Path, tmp_path: Path,
+                                                        monkeypatch) -> None:
+    """Its one long line ran past both edges of the 9-inch figure."""
+    import matplotlib.pyplot as plt
+
+    kept = []
+    monkeypatch.setattr(plt, "close", kept.append)  # look at the figure the function drew
+    images = sorted((gardenspoint_sample_dir / "ref").glob("*.jpg"))
+    n = len(images)
+    plot_match_gallery(images, images, np.arange(n), np.arange(n), np.arange(n) % 2 == 0, tmp_path / "g.png",
+                       title="lsh — a run folder with a long name")
+    fig = kept[0]
+    fig.canvas.draw()
+    box = fig._suptitle.get_window_extent()
+    assert 0 <= box.x0 and box.x1 <= fig.bbox.width
+    assert all(ax.get_position().y1 <= box.y0 / fig.bbox.height for ax in fig.axes)  # no row under it

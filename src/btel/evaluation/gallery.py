@@ -136,10 +136,17 @@ def plot_match_gallery(
         plt.close(fig)
         raise
     n_ok = int(correct[chosen].sum())
-    fig.suptitle((f"{title}\n" if title else "")
-                 + f"top-1 over all {n} queries: {correct.mean():.0%}. Shown: {len(chosen)} of them, half right and half "
-                 f"wrong where there are enough of each: {n_ok} correct (green), {len(chosen) - n_ok} wrong (red)", fontsize=9, parse_math=False)
-    fig.tight_layout()
+    import textwrap
+
+    # Wrapped to the figure's width (about 110 characters of 9-point text on 9 inches): one long line
+    # was cut at both edges; the rows are laid out below the title's lines, not under them.
+    text = "\n".join(textwrap.fill(line, 110) for line in [*([title] if title else []),
+                      f"top-1 over all {n} queries: {correct.mean():.0%}. Shown: {len(chosen)} of them, half right "
+                      f"and half wrong where there are enough of each: {n_ok} correct (green), "
+                      f"{len(chosen) - n_ok} wrong (red)"])
+    fig.suptitle(text, fontsize=9, parse_math=False)
+    height = fig.get_figheight()
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 1.0 - (0.14 * (text.count("\n") + 1) + 0.02) / height))
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     from ..core.claims import atomic_output
