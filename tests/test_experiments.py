@@ -235,3 +235,27 @@ def test_protocols_quoted_from_docstrings_read_as_markdown() -> None:
 
     text = "ridge α by the rule of :mod:`btel.methods.codes.solvers`,\n   the :func:`~btel.x.plan` and ``btel-codes``"
     assert docstring_markdown(text) == "ridge α by the rule of `btel.methods.codes.solvers`, the `plan` and `btel-codes`"
+
+
+def test_frontier_panels_label_no_minor_ticks_so_labels_never_run_together(tmp_path, monkeypatch) -> None:
+    """Over less than a decade matplotlib labelled minor ticks: '3×10¹4×10¹' on the bytes-per-place axis.
+    The rows are a `btel experiment frontier --quick` run's (tests/data/frontier_quick_rows.jsonl)."""
+    from matplotlib.figure import Figure
+
+    from btel.experiments import frontier
+
+    rows = [json.loads(line) for line in (Path(__file__).parent / "data" / "frontier_quick_rows.jsonl").open()]
+    drawn = []
+    real = Figure.savefig
+    monkeypatch.setattr(Figure, "savefig", lambda fig, *a, **k: (drawn.append(fig), real(fig, *a, **k))[1])
+    frontier._plots(rows, tmp_path)
+    assert len(drawn) == 2
+    for fig in drawn:
+        fig.canvas.draw()
+        for ax in fig.axes:
+            if not ax.has_data():
+                continue
+            assert not [t.get_text() for t in ax.xaxis.get_minorticklabels() if t.get_text()]
+            labels = [t for t in ax.xaxis.get_majorticklabels() if t.get_text() and t.get_visible()]
+            boxes = sorted((t.get_window_extent() for t in labels), key=lambda b: b.x0)
+            assert all(a.x1 <= b.x0 for a, b in zip(boxes, boxes[1:]))  # no two labels overlap

@@ -257,7 +257,7 @@ def _plots(rows: list[dict[str, Any]], out: Path) -> list[Path]:
     import matplotlib
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
-    from matplotlib.ticker import FuncFormatter, NullFormatter
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
     written: list[Path] = []
 
@@ -294,9 +294,17 @@ def _plots(rows: list[dict[str, Any]], out: Path) -> list[Path]:
                     ax.plot([r[xkey]], [r["value"]], linestyle="none", marker="o", markersize=11,
                             markerfacecolor="none", markeredgewidth=2, markeredgecolor=styles[picked]["color"])
             ax.set_xscale("log")
+            # No minor labels on either axis: over less than a decade matplotlib labels its minor ticks
+            # (2×10¹, 3×10¹, 4×10¹ …), which run into each other.
+            ax.xaxis.set_minor_formatter(NullFormatter())
             if xkey == "nbytes":
                 ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _p: format_bytes(v)))
-                ax.xaxis.set_minor_formatter(NullFormatter())  # 2×10⁴-style minor labels clash with "10.0 KB"
+            else:  # 1-2-5 steps over a narrow range, powers of ten over a wide one (as the bytes axes)
+                lo, hi = ax.get_xlim()
+                decades = np.log10(hi / lo) if lo > 0 else 9.0
+                subs = (1.0, 2.0, 5.0) if decades <= 1.5 else (1.0, 3.0) if decades <= 2.5 else (1.0,)
+                ax.xaxis.set_major_locator(LogLocator(base=10, subs=subs))
+                ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _p: f"{v:g}"))
             ax.set_title(f"{dataset} ({sub[0]['key'] if sub else ''})", fontsize="medium")
             ax.set_xlabel(xlabel)
             ax.set_ylim(0, 1.02)
