@@ -146,6 +146,13 @@ def test_run_plots_include_precision_recall_with_auc_in_the_legend(tmp_path: Pat
     lines = ax.get_lines()
     assert len({line.get_marker() for line in lines}) == 3  # identical curves stay distinguishable
     assert ax.get_xlabel().startswith("recall") and ax.get_ylabel() == "precision"
+    # The axes span the legend's width (they were a third of it, squeezed above the long legend lines).
+    rows[1].name = "bruteforce shrink whiten=shrink, a reference row with a long name"
+    fig = plot_precision_recall(rows, tmp_path / "long.png")
+    ax = fig.axes[0]
+    fig.canvas.draw()
+    legend_box, axes_box = ax.get_legend().get_window_extent(), ax.get_window_extent()
+    assert legend_box.width <= fig.bbox.width and axes_box.width >= 0.75 * legend_box.width
 
 
 def test_run_figure_identical_curves_integer_ticks_and_param_labels(tmp_path: Path) -> None:

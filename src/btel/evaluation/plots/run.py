@@ -322,12 +322,17 @@ def plot_precision_recall(results: Sequence[EvaluationResult], path: str | os.Pa
     ax.grid(True, alpha=0.3)
     ax.set_xlabel("recall (correct accepted top-1 matches / queries with a true place)")
     ax.set_ylabel("precision")
-    # The legend below the axes: never on a curve.
-    ax.legend(fontsize="x-small", loc="upper center", bbox_to_anchor=(0.5, -0.14), frameon=False)
+    # The legend below the axes: never on a curve. Its lines (with both AUC-PRs) are wider than the
+    # default figure: the figure is widened to them, so the axes span the legend's width, not a third.
+    legend = ax.legend(fontsize="x-small", loc="upper center", bbox_to_anchor=(0.5, -0.14), frameon=False)
+    fig.canvas.draw()
+    needed = legend.get_window_extent().width / fig.dpi + 0.8
+    if needed > fig.get_figwidth():
+        fig.set_figwidth(min(needed, 16.0))
     if title:
         import textwrap
 
-        ax.set_title(textwrap.fill(title, width=70), fontsize="small")
+        ax.set_title(textwrap.fill(title, width=int(14 * fig.get_figwidth())), fontsize="small")
     _save(fig, path)
     return fig
 
