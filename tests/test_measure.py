@@ -127,3 +127,17 @@ def test_measure_on_gardens_point_equals_its_parts(gardenspoint_netvlad) -> None
     np.testing.assert_array_equal(result.predictions, make_method("bruteforce").fit(X).predict(Q))
     assert result.fit_time_s > 0 and result.n_map == 200
     assert 0 < result.recall_at_k[1] <= result.recall_at_k[5]
+
+
+def test_a_record_gives_the_parameters_the_fit_chose() -> None:
+    """metrics.json said n_subquantizers=null for pq: what ran is what the budget planner chose."""
+    from btel.datasets import synthetic_route
+    from btel.evaluation import measure as measure_record
+    from btel.methods import make_method
+
+    route = synthetic_route(200, 32, seed=0)
+    for name, key in (("pq", "n_subquantizers"), ("lsh", "n_bits")):
+        method = make_method(name, budget="8KB")
+        record = measure_record(method, route.map, route.queries, name=name)
+        assert isinstance(record.params[key], int) and record.params[key] == method._fitted_state()[key]
+        assert record.to_dict()["params"][key] == record.params[key]

@@ -7,10 +7,9 @@ has two written forms:
 - :meth:`~EvaluationResult.to_dict` / :meth:`~EvaluationResult.from_dict` — the nested record of a
   run folder's ``metrics.json``;
 - :meth:`~EvaluationResult.to_row` / :meth:`~EvaluationResult.from_row` — the flat row of an
-  experiment's ``results.json`` and ``results.csv`` (``method``, ``n_places``, ``nbytes``,
-  ``recall@t``, ``R@K``, …, plus the experiment's own cells such as ``direction`` or ``decoder``,
-  kept in :attr:`~EvaluationResult.labels`). A row read back writes out the same cells in the same
-  order, so a results file is reproduced exactly.
+  experiment's ``results.json`` / ``results.csv`` (``method``, ``n_places``, ``nbytes``, ``recall@t``,
+  ``R@K``, …, and its own cells, e.g. ``direction``, in :attr:`~EvaluationResult.labels`), read back
+  into the same cells in the same order, so a results file is reproduced exactly.
 """
 
 from __future__ import annotations
@@ -39,30 +38,31 @@ STATUS_NOT_RUN = "not run"
 
 
 def does_not_fit_status(minimum: int | None) -> str:
-    """The status cell of an experiment's row whose method needs more bytes than its budget:
-    ``"does not fit (needs ≥ 1234 B)"`` (every experiment writes it from here)."""
+    """``"does not fit (needs ≥ 1234 B)"``: an experiment row's status when its budget is too small."""
     return f"{STATUS_DOES_NOT_FIT} (needs ≥ {minimum} B)"
 
-#: Cells of a flat row (:meth:`EvaluationResult.to_row`) → the record's field. ``recall@t`` and
-#: ``R@K`` cells map to :attr:`~EvaluationResult.recall` and :attr:`~EvaluationResult.recall_at_k`;
-#: ``query_us`` is ``query_time_s_per_query`` in µs; any other cell is a label.
+#: Flat row cells (:meth:`EvaluationResult.to_row`) → fields (recall@t, R@K, query_us: see to_row; others: labels).
 ROW_CELLS: dict[str, str] = {"method": "name", "n_places": "n_map", "budget": "budget", "status": "status",
                              "nbytes": "nbytes", "minimum_bytes": "minimum_bytes", "fit_s": "fit_time_s",
                              "uses_query_sequence": "uses_query_sequence", "reason": "reason"}
-_RECALL_CELL = re.compile(r"recall@(\d+)$")
-_RANKED_CELL = re.compile(r"R@(\d+)$")
+_RECALL_CELL, _RANKED_CELL = re.compile(r"recall@(\d+)$"), re.compile(r"R@(\d+)$")
 
 
 def _params_of(method: Any) -> dict[str, Any]:
-    get_params = getattr(method, "get_params", None)
-    if get_params is None:
+    """The parameters the fitted model runs with: one left to the budget planner (None) is given the
+    value the fit chose (pq's ``n_subquantizers``, lsh's ``n_bits``), as ``btel info`` shows them."""
+    if getattr(method, "get_params", None) is None:
         return {}
-    return {str(k): jsonable(v) for k, v in get_params(deep=False).items()}
+    try:  # a method that did not fit (a row that did not run) has chosen nothing
+        state = method._fitted_state() if callable(getattr(method, "_fitted_state", None)) else {}
+    except (AttributeError, NotImplementedError):
+        state = {}
+    return {str(k): jsonable(state[k] if v is None and isinstance(state.get(k), (bool, int, float, str)) else v)
+            for k, v in method.get_params(deep=False).items()}
 
 
 def _choice_of(method: Any) -> dict[str, Any] | None:
-    """What a fitted method really runs when it chose at fit time (``auto``): its public
-    ``choice()`` made JSON-safe; None for a method that is what it was named."""
+    """A fitted ``auto``'s public ``choice()`` made JSON-safe; None for a method that is what it was named."""
     choice = getattr(method, "choice", None)
     if not callable(choice):
         return None
