@@ -367,6 +367,11 @@ def test_info_shows_what_fitting_chose_and_every_stored_array(small_pair, tmp_pa
     assert "n_subquantizers=null (chosen: " in out and "nbits=null (chosen: " in out
     assert "chosen at fit: dim=16" in out
     assert "stored arrays:" in out and "frontend_whitening" in out and "64 × 16  float32         4,096 B" in out
+    from btel import __version__
+
+    assert f"saved by: btel {__version__} on 20" in out  # which btel wrote the file, and when
+    old = Path(__file__).parent / "data" / "btel-c-blocks-saved-before-n_blocks.btel"
+    assert "saved by: not recorded" in run("info", old).output
 
 
 def test_train_and_info_say_how_much_of_the_budget_the_model_uses(small_pair, tmp_path: Path) -> None:

@@ -82,8 +82,21 @@ def info(model_path: str) -> None:
         click.echo("chosen at fit: " + ", ".join(f"{k}={_param_text(v)}" for k, v in chosen.items()))
     _echo_storage(model)
     _echo_arrays(model)
+    click.echo(f"saved by: {_saved_by(model_path)}")
     size = Path(model_path).stat().st_size
     click.echo(f"file size {size:,d} B (container overhead {size - model.nbytes:,d} B)")
+
+
+def _saved_by(path: str) -> str:
+    """``btel 0.1.0 on 2026-11-28T15:04:28+00:00``, from the file's header (checked text only: a header
+    is untrusted input), or why it is not known."""
+    from ..core.modelfile import load_arrays
+
+    saved = load_arrays(path)[1].get("saved_by")
+    version, date = (saved.get("btel"), saved.get("date_utc")) if isinstance(saved, dict) else (None, None)
+    if not (isinstance(version, str) and isinstance(date, str)) or len(version) + len(date) > 80:
+        return "not recorded (a file written before btel recorded it)"
+    return f"btel {version} on {date}"
 
 
 def _chosen_at_fit(model: Any) -> dict[str, Any]:
