@@ -232,3 +232,10 @@ def test_a_mat_inflation_is_walked_in_pieces(tmp_path: Path, monkeypatch: pytest
     monkeypatch.setenv("BTEL_MEMORY_LIMIT", "60M")
     with pytest.raises(ResourceLimitError, match=r"MATLAB file 'big.mat' \(inflated\)"):
         _check_mat5(data, "'big.mat'")
+
+
+@pytest.mark.parametrize("value, dtype", [(2**64 - 1, np.uint64), (1e30, np.float64)])
+def test_a_place_index_beyond_int64_is_named_not_wrapped(value, dtype) -> None:
+    """uint64 2⁶⁴ − 1 was cast to −1 and reported as 'found -1'."""
+    with pytest.raises(InvalidParameterError, match="not a place index of any map"):
+        GroundTruth.from_places(np.array([value, 1, 2], dtype=dtype), n_map=10)

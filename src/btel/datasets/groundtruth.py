@@ -63,6 +63,11 @@ def _as_int(arr: np.ndarray, name: str) -> np.ndarray:
             raise InvalidParameterError(f"{name} must hold whole numbers (place indices).")
     elif arr.size and arr.dtype.kind not in "iu":
         raise InvalidParameterError(f"{name} must hold integer place indices; got dtype {arr.dtype}.")
+    # Beyond int64 a cast wraps (2⁶⁴ − 1 read as −1): named as it is, a place no map holds.
+    if arr.size and arr.dtype.kind in "uf" and float(arr.max()) >= 2.0 ** 62:
+        top = arr.max()
+        raise InvalidParameterError(f"{name} holds {int(top) if arr.dtype.kind == 'u' else f'{top:g}'}, not a "
+                                    "place index of any map.")
     return arr.astype(np.int64)
 
 
