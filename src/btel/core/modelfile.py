@@ -95,10 +95,14 @@ def save_arrays(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], heade
         if dtype.kind not in _ARRAY_KINDS or dtype.hasobject:
             raise InvalidParameterError(
                 f"array {name!r} has dtype {dtype}; model files hold plain numeric arrays only.")
-    from .. import __version__
+    import importlib.metadata
 
+    try:
+        version = importlib.metadata.version("btel")
+    except importlib.metadata.PackageNotFoundError:  # a source tree on the path, not installed
+        version = "unknown"
     # Which btel wrote the file, and when (``btel info`` shows it; nothing reads it back into the model).
-    saved_by = {"btel": __version__, "date_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")}
+    saved_by = {"btel": version, "date_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")}
     full_header = {"format": FORMAT_NAME, "format_version": FORMAT_VERSION, "saved_by": saved_by, **header}
     header_bytes = np.frombuffer(json.dumps(full_header, sort_keys=True, allow_nan=False).encode("utf-8"),
                                  dtype=np.uint8)

@@ -45,10 +45,7 @@ logger = logging.getLogger(__name__)
 
 
 def check_predictions(predictions: Any, n_queries: int, *, name: str = "predictions") -> np.ndarray:
-    """Validate predicted place indices: a 1-D integer array with one entry per query row.
-
-    Returns ``predictions`` : ndarray of shape (n_queries,), dtype int64.
-    """
+    """Predicted place indices checked: ndarray of shape (n_queries,), int64 (one entry per query row)."""
     arr = np.asarray(predictions)
     if arr.ndim != 1 or arr.shape[0] != n_queries:
         raise InvalidParameterError(
@@ -63,9 +60,7 @@ def _as_int(arr: np.ndarray, name: str) -> np.ndarray:
             raise InvalidParameterError(f"{name} must hold whole numbers (place indices).")
     elif arr.size and arr.dtype.kind not in "iu":
         raise InvalidParameterError(f"{name} must hold integer place indices; got dtype {arr.dtype}.")
-    # Beyond int64 a cast wraps (2⁶⁴ − 1 read as −1): named as it is, a place no map holds.
-    if arr.size and arr.dtype.kind in "uf" and float(arr.max()) >= 2.0 ** 62:
-        top = arr.max()
+    if arr.size and arr.dtype.kind in "uf" and (top := arr.max()) >= 2.0 ** 62:  # a cast wraps: 2⁶⁴−1 → −1
         raise InvalidParameterError(f"{name} holds {int(top) if arr.dtype.kind == 'u' else f'{top:g}'}, not a "
                                     "place index of any map.")
     return arr.astype(np.int64)
