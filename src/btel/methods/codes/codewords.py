@@ -177,6 +177,7 @@ class Codewords:
         # The codebook's work arrays (and the periodic r·F table), kept between fills: one set per thread,
         # since numpy releases the GIL inside the ufuncs that write them.
         self._local = threading.local()
+        self._allocating = threading.Lock()
 
     def dense(self) -> np.ndarray | None:
         """(N, 8⌈K/8⌉) float32 ±1 codewords when they fit :data:`~btel.methods.codes.decoding.DENSE_CACHE_BYTES`, else None.
@@ -212,9 +213,11 @@ class Codewords:
         n, groups = self.n_places, -(-self.n_codes // 8)
         if n * groups > PACKED_CACHE_BYTES:
             return False
-        if self.packed is None:
-            self.packed = np.empty((n, groups), dtype=np.uint8)
-            self.filled = np.zeros(n, dtype=bool)
+        if self.filled is None:
+            with self._allocating:  # two threads filling a fresh cache must share one pair of arrays
+                if self.filled is None:
+                    self.packed = np.empty((n, groups), dtype=np.uint8)
+                    self.filled = np.zeros(n, dtype=bool)  # last: a thread that sees it sees packed too
         have = self.filled[places]
         if have.all():
             return True
@@ -236,12 +239,13 @@ class Codewords:
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
-        state["_local"] = None  # work arrays are per process and thread: not pickled
+        state["_local"] = state["_allocating"] = None  # per process and thread: not pickled
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
         self._local = threading.local()
+        self._allocating = threading.Lock()
 
     def _thread_work(self) -> dict:
         work = getattr(self._local, "work", None)
