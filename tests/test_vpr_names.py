@@ -208,3 +208,14 @@ def test_real_descriptors_in_an_hloc_file_give_one_pair_per_line(gardenspoint_ne
     lines = pairs.read_text(encoding="utf-8").splitlines()
     assert len(lines) == 5 * q.shape[0] and all(len(line.split()) == 2 for line in lines)
     assert lines[0].split()[0] == "query/@0@0@gp_0000.jpg"
+
+
+def test_a_pairs_file_named_like_another_format_is_refused_before_any_fit(tmp_path: Path) -> None:
+    """`--pairs pr/q.npy` wrote text files named q-lsh.npy."""
+    X = np.random.default_rng(0).normal(size=(30, 8)).astype(np.float32)
+    np.save(tmp_path / "db.npy", X)
+    result = CliRunner().invoke(main, ["evaluate", "--db", str(tmp_path / "db.npy"), "--queries", str(tmp_path / "db.npy"),
+                                       "--methods", "bruteforce", "--pairs", str(tmp_path / "q.npy"), "--no-progress",
+                                       "--out", str(tmp_path / "run")])
+    assert result.exit_code == 2 and "--pairs" in result.output and "q.txt" in result.output
+    assert not (tmp_path / "run").exists()

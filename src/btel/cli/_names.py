@@ -49,10 +49,12 @@ def plan_pairs(path: str | None, job_names: Sequence[str], names: tuple[list[str
     """``--pairs``: (file per row name, query names, map names) — row numbers where the inputs have no
     names, ``shape`` = (queries, map places) — every file refused now when it exists without
     ``--overwrite``; None without ``--pairs``."""
-    from ._outputs import refuse_existing
+    from ._outputs import OTHER_FORMATS, check_output_suffix, refuse_existing
 
     if path is None:
         return None
+    # A pairs file is text: a name of another format (pr/q.npy) would give text files named .npy.
+    check_output_suffix(path, "--pairs", "an hloc pairs file (text)", (".txt",), refused=OTHER_FORMATS)
     targets = pairs_paths(path, job_names)
     for target in targets.values():
         refuse_existing(target, "--pairs", overwrite)
