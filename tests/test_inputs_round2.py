@@ -229,6 +229,12 @@ def test_a_cut_short_ground_truth_is_named(tmp_path: Path, files: dict[str, Path
     ("x.csv", lambda p, X: np.savetxt(p, X, delimiter=","), "delimiter=','"),
     ("x.csv", lambda p, X: np.savetxt(p, X, delimiter=",", header="a,b", comments=""), "skiprows=1"),
     ("x.npy", lambda p, X: np.savetxt(p, X, delimiter=","), "delimiter=','"),  # a CSV under a .npy name
+    # A European spreadsheet export: ';' between values, ',' as the decimal mark.
+    ("x.csv", lambda p, X: p.write_text("\n".join(";".join(f"{v:.9g}".replace(".", ",") for v in row) for row in X)
+                                        + "\n"), "delimiter=';'"),
+    # A Unicode minus (U+2212), with a byte-order mark and a header line.
+    ("x.csv", lambda p, X: p.write_text("\ufeffa,b\n" + "\n".join(",".join(f"{v:.9g}".replace("-", "\u2212")
+                                        for v in row) for row in X) + "\n", encoding="utf-8"), "skiprows=1"),
 ])
 def test_a_text_matrix_is_refused_with_the_command_that_converts_it(tmp_path: Path, files: dict[str, Path],
                                                                     name: str, write, options: str) -> None:

@@ -102,12 +102,19 @@ def refuse_text_matrix(path: str | os.PathLike, what: str) -> None:
     lines = [line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")][:2]
     if not lines or any(ch not in "\t\r\n" and not ch.isprintable() for ch in text):
         return
-    delimiter = "','" if "," in lines[-1] else "'\\t'" if "\t" in lines[-1] else None
+    # A European export: ';' between values and ',' as the decimal mark; a Unicode minus (U+2212) from a
+    # spreadsheet. Both need a converter, or the suggested command fails on the first value.
+    semicolon = ";" in lines[-1]
+    fixes = ([".replace(',', '.')"] if semicolon and "," in lines[-1] else []) + (
+        [".replace('\\u2212', '-')"] if "\u2212" in text else [])
+    delimiter = ("';'" if semicolon else "','" if "," in lines[-1] else "'\\t'" if "\t" in lines[-1] else None)
     number = re.compile(r"\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\s*|\s*[-+]?(nan|inf)\s*", re.IGNORECASE)
-    cells = [c for c in re.split(r"[,\t ]+", lines[0].strip()) if c]
+    cells = [c.replace(",", ".").replace("\u2212", "-") if fixes else c
+             for c in re.split(r"[;\t ]+" if semicolon else r"[,\t ]+", lines[0].strip()) if c]
     skip = 0 if all(number.fullmatch(c) for c in cells) else 1
     target = file.with_name(file.stem + (".float32.npy" if file.suffix.lower() == ".npy" else ".npy"))
-    options = (f", delimiter={delimiter}" if delimiter else "") + (f", skiprows={skip}" if skip else "")
+    options = ((f", delimiter={delimiter}" if delimiter else "") + (f", skiprows={skip}" if skip else "")
+               + (f", converters=lambda s: float(s{''.join(fixes)})" if fixes else ""))
     raise InvalidDescriptorsError(
         f"{what} {str(file)!r} is a text matrix, not a .npy file; btel reads .npy, .npz, hloc .h5 and folders of "
         f".npy shards. Convert it once: python -c \"import numpy as np; np.save({str(target)!r}, "
