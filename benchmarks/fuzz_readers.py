@@ -406,11 +406,23 @@ def worker_main() -> None:
             outcome, error = "refused", f"{type(exc).__name__}: {str(exc)[:160]}"
         except BaseException as exc:  # noqa: BLE001 - the harness records it as a failure
             outcome, error = "generic", f"{type(exc).__name__}: {str(exc)[:300]}"
-        rss = 1024 * max(resource.getrusage(who).ru_maxrss
-                         for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN))
+        rss = max(_own_peak_rss(), 1024 * resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
         sys.stdout.write(json.dumps({"outcome": outcome, "error": error, "rss": rss,
                                      "seconds": time.perf_counter() - start}) + "\n")
         sys.stdout.flush()
+
+
+def _own_peak_rss() -> int:
+    """Peak resident bytes of this worker's own image: VmHWM on Linux. ``ru_maxrss`` survives exec, so a
+    worker started by a large process (a test run's pytest worker past 1 GiB) began above the limit and
+    every case it read counted as a memory failure."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) * 1024
+    except OSError:  # not Linux
+        pass
+    return 1024 * resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 
 
 class Worker:

@@ -57,3 +57,17 @@ def test_issue_34_families_make_cases(harness, tmp_path) -> None:
         again = [harness.make_case(reader, 0, i, seeds) for i in range(len(seeds), len(seeds) + 5)]
         assert cases[:5] == again
     assert all(n > 0 for marks in kinds.values() for n in marks.values()), kinds
+
+
+def test_a_worker_started_by_a_large_process_is_measured_by_its_own_peak(harness, monkeypatch) -> None:
+    """ru_maxrss survives exec: a worker spawned by a pytest process that had once held more than the
+    limit counted every case as a memory failure (a CI run: gt_pickle 25 of 25)."""
+    import numpy as np
+
+    big = np.ones(50_000_000)  # 400 MB touched: this process' peak is now above the limit set below
+    del big
+    monkeypatch.setattr(harness, "MAX_RSS_BYTES", 300 << 20)
+    summary = harness.run_cases(3, seed=11, readers=("gt_pickle",), timeout=20.0)
+    outcomes = summary["readers"]["gt_pickle"]["outcomes"]
+    assert "memory" not in outcomes, outcomes
+    assert summary["readers"]["gt_pickle"]["peak_worker_rss_mib"] < 300
