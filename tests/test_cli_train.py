@@ -68,3 +68,22 @@ def test_a_model_trained_without_a_budget_says_so(db: Path, tmp_path: Path) -> N
     assert unbudgeted.exit_code == 0 and "no --budget: the model is as large as the method needs" in unbudgeted.output
     budgeted = _invoke("train", db, "-o", tmp_path / "b.npz", "--budget", "2KB", "--no-progress")
     assert budgeted.exit_code == 0 and "no --budget" not in budgeted.output
+
+
+def test_a_fit_without_bars_of_its_own_shows_the_time_elapsed_on_a_terminal() -> None:
+    """auto fitted a 10⁴ × 16,384 map for a minute without a word: the elapsed time is shown, then
+    cleared; off a terminal (or with --no-progress) nothing is written."""
+    import io
+    import time
+
+    from btel.cli._outputs import elapsed_ticker
+
+    shown = io.StringIO()
+    with elapsed_ticker("fitting auto on 10000 × 16384", True, file=shown):
+        time.sleep(1.2)
+    frames = shown.getvalue().split("\r")
+    assert "fitting auto on 10000 × 16384 … 00:01" in frames and frames[-2].strip() == ""
+    silent = io.StringIO()
+    with elapsed_ticker("fitting", False, file=silent):
+        pass
+    assert silent.getvalue() == ""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable
 from typing import Any
 
@@ -10,7 +11,7 @@ import click
 from ..methods.roles import DEFAULT_METHOD
 from ._inputs import _load_map, calibration_input, check_calibration_options
 from ._options import _N_JOBS_HELP, _NO_PROGRESS_HELP, _PARAM_HELP, _check_budget, calibration_options
-from ._outputs import OTHER_FORMATS, check_output_suffix, refuse_existing
+from ._outputs import OTHER_FORMATS, check_output_suffix, elapsed_ticker, refuse_existing
 from ._params import ParamCommand, _naming, _param_value, _params_by_method
 from .info import _echo_storage
 
@@ -92,7 +93,12 @@ def train(db: str, output: str, overwrite: bool, method: str, budget: str | None
 
     with _naming(method):
         model = make_method(method, **params)
-        seconds = timed_fit(model, X, **fit_params)
+        # A method with bars of its own (BTEL's fits, auto's calibration) shows them; any other fit shows
+        # the time elapsed on a terminal, so a minute-long fit of a wide map is not silent.
+        own_bars = model.get_params().get("progress") is not None and (method != "auto" or bool(calibrate))
+        with elapsed_ticker(f"fitting {method} on {X.shape[0]} × {X.shape[1]}",
+                            enabled=not no_progress and not own_bars and sys.stderr.isatty()):
+            seconds = timed_fit(model, X, **fit_params)
     regions = f", r = {model.n_regions_} regions" if getattr(model, "n_regions_", 1) > 1 else ""
     click.echo(f"fitted {method}{regions} on {X.shape[0]} places × {X.shape[1]} dims "
                f"in {seconds:.1f} s")
