@@ -95,7 +95,8 @@ def train(db: str, output: str, overwrite: bool, method: str, budget: str | None
         model = make_method(method, **params)
         # A method with bars of its own (BTEL's fits, auto's calibration) shows them; any other fit shows
         # the time elapsed on a terminal, so a minute-long fit of a wide map is not silent.
-        own_bars = model.get_params().get("progress") is not None and (method != "auto" or bool(calibrate))
+        own_bars = bool(model.get_params().get("progress")) and (
+            bool(calibrate) or not getattr(model, "_bars_only_when_calibrating", False))
         with elapsed_ticker(f"fitting {method} on {X.shape[0]} × {X.shape[1]}",
                             enabled=not no_progress and not own_bars and sys.stderr.isatty()):
             seconds = timed_fit(model, X, **fit_params)

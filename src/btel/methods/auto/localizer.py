@@ -169,6 +169,8 @@ class AutoLocalizer(PlaceLocalizer):
     """
 
     label = "auto"
+    #: ``progress`` draws bars only for a calibrated fit (a command line shows the time elapsed otherwise).
+    _bars_only_when_calibrating = True
     _parameter_constraints = {"calibration_tolerance": [Interval(int, 0, None)],
                               "random_state": RANDOM_STATE, "n_jobs": N_JOBS, "progress": BOOLEAN}
     _runtime_params = ("n_jobs", "progress")
