@@ -106,3 +106,19 @@ def signed(row: dict[str, Any]) -> str:
     """"+0.012 ± 0.008" from a row holding ``difference_mean`` and ``difference_se``."""
     se = row["difference_se"]
     return f"{row['difference_mean']:+.3f}" + ("" if se is None else f" ± {se:.3f}")
+
+
+def peak_rss() -> int:
+    """Peak resident bytes of this process image: VmHWM on Linux. ``ru_maxrss`` survives exec, so in a
+    child process it includes the parent's peak (a worker started by a pytest process that once held
+    over 1 GiB began above a 1 GiB limit); elsewhere ru_maxrss."""
+    import resource
+
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) * 1024
+    except OSError:  # not Linux
+        pass
+    scale = 1 if sys.platform == "darwin" else 1024
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * scale

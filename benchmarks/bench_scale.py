@@ -35,7 +35,6 @@ import os
 import argparse
 import csv
 import json
-import resource
 import subprocess
 import sys
 import tempfile
@@ -48,7 +47,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from _common import RESULTS_DIR, machine, write_results  # noqa: E402
+from _common import RESULTS_DIR, machine, peak_rss, write_results  # noqa: E402
 from btel.core.storage import format_bytes  # noqa: E402
 
 DIM = 256
@@ -89,19 +88,6 @@ def recall_at(pred: np.ndarray, truth: np.ndarray, t: int = 10) -> float:
 
 
 # ----------------------------------------------------------------------------- one fit (child process)
-def peak_rss() -> int:
-    """Peak resident bytes of this process image: VmHWM on Linux (ru_maxrss survives exec, so in a
-    child it would include the parent's peak), else ru_maxrss."""
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) * 1024
-    except OSError:  # pragma: no cover - not Linux
-        pass
-    scale = 1 if sys.platform == "darwin" else 1024
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * scale
-
-
 def fit_one(args: argparse.Namespace) -> None:
     """Fit one model in this fresh process and print a JSON line (peak memory is this process')."""
     from btel import BTELocalizer

@@ -394,6 +394,8 @@ def worker_main() -> None:
     import btel  # noqa: F401 - imports once
     from btel.exceptions import BTELError
 
+    from _common import peak_rss  # the worker runs as a script: this folder is on its path
+
     warnings.simplefilter("ignore")
     logging.disable(logging.WARNING)  # "n of n queries have no positive" on every ring case
     resource.setrlimit(resource.RLIMIT_AS, (4 << 30, 4 << 30))
@@ -406,23 +408,10 @@ def worker_main() -> None:
             outcome, error = "refused", f"{type(exc).__name__}: {str(exc)[:160]}"
         except BaseException as exc:  # noqa: BLE001 - the harness records it as a failure
             outcome, error = "generic", f"{type(exc).__name__}: {str(exc)[:300]}"
-        rss = max(_own_peak_rss(), 1024 * resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
+        rss = max(peak_rss(), 1024 * resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
         sys.stdout.write(json.dumps({"outcome": outcome, "error": error, "rss": rss,
                                      "seconds": time.perf_counter() - start}) + "\n")
         sys.stdout.flush()
-
-
-def _own_peak_rss() -> int:
-    """Peak resident bytes of this worker's own image: VmHWM on Linux. ``ru_maxrss`` survives exec, so a
-    worker started by a large process (a test run's pytest worker past 1 GiB) began above the limit and
-    every case it read counted as a memory failure."""
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) * 1024
-    except OSError:  # not Linux
-        pass
-    return 1024 * resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 
 
 class Worker:
