@@ -102,6 +102,34 @@ def test_cli_experiment_quick(nordland_dir: Path, quick_runs: Path, tmp_path: Pa
     assert np.all(np.diff([r["nbytes"] for r in rows]) > 0)  # more columns, more bytes
 
 
+@pytest.mark.realdata
+def test_frontier_in_two_processes_writes_the_rows_of_one(nordland_dir: Path, quick_runs: Path, tmp_path: Path) -> None:
+    """`--jobs 2` runs the maps in two processes: the same rows, in map order, each journalled once."""
+    result = CliRunner().invoke(main, ["experiment", "frontier", "--quick", "--jobs", "2", "--data", str(nordland_dir),
+                                       "--out", str(tmp_path), "--cache", str(quick_runs / "cache")])
+    assert result.exit_code == 0, result.output
+
+    def cells(rows: list[dict]) -> list[tuple]:
+        return [(r["dataset"], r["method"], r.get("budget"), r["status"], r.get("value"), r.get("chose"))
+                for r in rows]
+
+    one = json.loads((quick_runs / "frontier" / "results.json").read_text())
+    two = json.loads((tmp_path / "frontier" / "results.json").read_text())
+    assert cells(two["rows"]) == cells(one["rows"]) and len(one["rows"]) > 20
+    assert two["jobs"] == 2 and two["run"]["jobs"] == 2 and one["jobs"] == 1
+    journal = [json.loads(line) for line in (tmp_path / "frontier" / "rows.jsonl").read_text().splitlines()]
+    assert sorted(cells(journal), key=repr) == sorted(cells(one["rows"]), key=repr)
+
+
+def test_jobs_is_refused_where_an_experiment_runs_in_one_process(tmp_path: Path) -> None:
+    with pytest.raises(InvalidParameterError, match="--jobs applies to frontier only"):
+        run_experiment("regions", data_root=tmp_path, jobs=2)
+    with pytest.raises(InvalidParameterError, match="whole number"):
+        run_experiment("frontier", data_root=tmp_path, jobs=0)
+    result = CliRunner().invoke(main, ["experiment", "regions", "--jobs", "0", "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "--jobs" in result.output
+
+
 def test_stretch_split_keeps_validation_and_reported_queries_apart() -> None:
     from btel.experiments.beyond import stretch_split
 

@@ -20,8 +20,11 @@ from ._options import _command_line
 @click.option("--delta", type=int, default=None, metavar="W",
               help="Run every method with delta descriptors over W frames (front end; results go to "
                    "OUT/NAME-delta-W/ so they sit beside the default runs).")
+@click.option("-j", "--jobs", type=click.IntRange(min=1), default=1, show_default=True, metavar="N",
+              help="frontier: run N of its maps at once, one process and one thread each (same rows, "
+                   "about 1/N of the wall time on N free cores).")
 def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | None, quick: bool,
-               delta: int | None) -> None:
+               delta: int | None, jobs: int) -> None:
     """Run one of the paper's experiments on Nordland (or 'all').
 
     \b
@@ -31,13 +34,14 @@ def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | 
     Each writes results.csv, results.json and PNG plots into OUT/NAME/; `btel report` turns the
     latest runs into docs/results.md.
     """
-    from ..experiments import EXPERIMENTS, describe_row, run_experiment
+    from ..experiments import EXPERIMENTS, PARALLEL, describe_row, run_experiment
 
     names = list(EXPERIMENTS) if name == "all" else [name]
     for n in names:
         click.echo(f"experiment {n}{' (quick)' if quick else ''} …")
         run = run_experiment(n, data_root=data_root, out_dir=out_dir, cache_dir=cache_dir, quick=quick,
-                             command=_command_line(), front_end={"delta": delta} if delta else None)
+                             command=_command_line(), front_end={"delta": delta} if delta else None,
+                             jobs=jobs if n in PARALLEL else 1)
         for row in run.rows:
             click.echo("  " + describe_row(row))
         click.echo(f"  written to {run.out_dir}")

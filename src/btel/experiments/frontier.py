@@ -319,54 +319,69 @@ def _plots(rows: list[dict[str, Any]], out: Path) -> list[Path]:
     return written
 
 
-def exp_frontier(data: NordlandData, out: Path, quick: bool) -> ExperimentRun:
-    """Every method × budgets on eight maps (four in ``--quick``), auto against the oracle (module docstring)."""
+def exp_frontier(data: NordlandData, out: Path, quick: bool, jobs: int = 1) -> ExperimentRun:
+    """Every method × budgets on eight maps (four in ``--quick``), auto against the oracle (module docstring).
+
+    ``jobs`` > 1 runs that many maps at once, each in its own process on one thread (joblib): the
+    rows are the same as one after the other (every row is seeded), the wall time about the longest
+    map's share (two processes: the two Nordland directions side by side).
+    """
     out.mkdir(parents=True, exist_ok=True)
     log = (lambda msg: print(f"  {msg}", flush=True)) if data.progress else (lambda msg: None)
     budgets = ("4KB", "64KB") if quick else BUDGETS
-    rows: list[dict[str, Any]] = []
-    seconds: dict[str, float] = {}
     journal = out / "rows.jsonl"
     journal.write_text("")
-
-    def keep(row: dict[str, Any]) -> None:
-        import json
-
-        with open(journal, "a") as fh:
-            fh.write(json.dumps(row, default=str) + "\n")
-
+    maps = _maps(data, quick)
+    parts: list[tuple[list[dict[str, Any]], float]] = []
     with limit_threads(1):
-        for base, X, Q in _maps(data, quick):
-            _one_map(base, X, Q, budgets, quick, rows, seconds, keep, log)
+        if jobs <= 1:
+            pending: Any = (_one_map(base, X, Q, budgets, quick, journal) for base, X, Q in maps)
+        else:
+            from joblib import Parallel, delayed
+
+            # in map order, each as soon as it and the maps before it are done
+            pending = Parallel(n_jobs=min(jobs, len(maps)), return_as="generator")(
+                delayed(_one_map)(base, X, Q, budgets, quick, journal) for base, X, Q in maps)
+        for (base, _, _), (map_rows, map_seconds) in zip(maps, pending):
+            parts.append((map_rows, map_seconds))
+            log(f"{base['dataset']}: {map_seconds:.0f} s; auto " + ", ".join(
+                f"{format_bytes(r['budget'])} {r['chose']} {r['value']:.3f}"
+                for r in map_rows if r["method"] == "auto" and r["status"] == "ok"))
+    rows = [row for map_rows, _ in parts for row in map_rows]
+    seconds = {base["dataset"]: s for (base, _, _), (_, s) in zip(maps, parts)}
     run = ExperimentRun.from_rows("frontier", rows, out, plot=plot)
     run.extra = {"auto_vs_oracle": auto_vs_oracle(rows), "part_seconds": seconds,
-                 "total_seconds": sum(seconds.values())}
+                 "total_seconds": sum(seconds.values()), "jobs": max(1, jobs)}
     return run
 
 
 def _one_map(base: dict[str, Any], X: np.ndarray, Q: np.ndarray, budgets: tuple[str, ...], quick: bool,
-             rows: list[dict[str, Any]], seconds: dict[str, float], keep: Any, log: Any) -> None:
-    """Every method and budget on one map (appended to ``rows`` and the journal)."""
-    start = time.perf_counter()
-    base = {**base, "n_places": int(X.shape[0])}
-    raw = X.shape[0] * X.shape[1] * 4
-    budgets = tuple(b for b in budgets if parse_budget(b) <= raw)
-    for label, name, params in FAST[:5] if quick else FAST:
-        seeds = row_seeds(name, SEEDS[:2] if quick else SEEDS)
+             journal: Path) -> tuple[list[dict[str, Any]], float]:
+    """Every method and budget on one map: its rows (each appended to ``journal`` as it finishes,
+    one write per line, so that processes running other maps can share the file) and its seconds."""
+    import json
+
+    with limit_threads(1):  # again: a worker process of ``jobs`` > 1 does not inherit the limit
+        start = time.perf_counter()
+        rows: list[dict[str, Any]] = []
+
+        def keep(row: dict[str, Any]) -> None:
+            rows.append(row)
+            with open(journal, "a") as fh:
+                fh.write(json.dumps(row, default=str) + "\n")
+
+        base = {**base, "n_places": int(X.shape[0])}
+        raw = X.shape[0] * X.shape[1] * 4
+        budgets = tuple(b for b in budgets if parse_budget(b) <= raw)
+        for label, name, params in FAST[:5] if quick else FAST:
+            seeds = row_seeds(name, SEEDS[:2] if quick else SEEDS)
+            for budget in budgets:
+                keep(_row(base, label, name, params, X, Q, parse_budget(budget), seeds))
         for budget in budgets:
-            rows.append(_row(base, label, name, params, X, Q, parse_budget(budget), seeds))
-            keep(rows[-1])
-    for budget in budgets:
-        rows.append(_calibrated_row(base, X, Q, parse_budget(budget), SEEDS[:1] if quick else SEEDS))
-        keep(rows[-1])
-    for label, name, params in SLOW:
-        for budget in slow_budgets(base["dataset"], quick):
-            rows.append(_row(base, label, name, params, X, Q, parse_budget(budget)))
-            keep(rows[-1])
-    for label, params in (("brute force (cosine)", {}), ("brute force shrink", {"whiten": "shrink"})):
-        rows.append(_row(base, label, "bruteforce", params, X, Q, None))
-        keep(rows[-1])
-    seconds[base["dataset"]] = time.perf_counter() - start
-    auto = [r for r in rows if r["dataset"] == base["dataset"] and r["method"] == "auto" and r["status"] == "ok"]
-    log(f"{base['dataset']}: {seconds[base['dataset']]:.0f} s; auto " +
-        ", ".join(f"{format_bytes(r['budget'])} {r['chose']} {r['value']:.3f}" for r in auto))
+            keep(_calibrated_row(base, X, Q, parse_budget(budget), SEEDS[:1] if quick else SEEDS))
+        for label, name, params in SLOW:
+            for budget in slow_budgets(base["dataset"], quick):
+                keep(_row(base, label, name, params, X, Q, parse_budget(budget)))
+        for label, params in (("brute force (cosine)", {}), ("brute force shrink", {"whiten": "shrink"})):
+            keep(_row(base, label, "bruteforce", params, X, Q, None))
+        return rows, time.perf_counter() - start
