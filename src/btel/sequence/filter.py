@@ -103,6 +103,15 @@ def filter_sequence(
 ) -> np.ndarray:
     """Apply :class:`SequenceFilter` to a whole sequence of predictions (in query order).
 
+    Parameters
+    ----------
+    predictions : array-like of shape (n_queries,), int
+        Place indices in query order (whole numbers, ≥ 0 and < ``n_places`` when given).
+    window, mode, history, n_places
+        As :class:`SequenceFilter`: the window a (queries), ``'forward'`` or ``'symmetric'``, the
+        history the window reads (``'raw'`` predictions or the ``'filtered'`` ones), and N, which
+        clips the output to [0, N).
+
     Returns
     -------
     ndarray of shape (n_queries,), int64

@@ -13,8 +13,9 @@ The front end of steps 3–4: **whitened** (``whiten='shrink'``) on independent 
 < 0.6) when P ≥ d — with bits to spare the metric, not the sketch, limits, and whitening sharpens
 the exact-place match, which is all independent places ask; along an ordered map it flattens the
 slow variation that a tolerance of a few places relies on, so there it is never chosen from the map.
-**Centred** (``lsh`` ``center=True``) when P < d and the rows lie in a cone (cone ratio ≥ 0.5):
-uncentred sign bits then carry far less than a bit each. **Plain cosine** otherwise. Whether a
+**Centred** (``lsh`` ``center=True``) when P < d, the rows lie in a cone (cone ratio ≥ 0.5) and
+the mean (d float16 values) takes at most an eighth of the budget: uncentred sign bits then carry
+far less than a bit each. **Plain cosine** otherwise. Whether a
 transform carries over from the map's condition to the queries' cannot be read from the map: with
 labelled queries, calibrate (:mod:`btel.methods.auto.calibrate`) — every front-end variant is among
 the calibrated candidates.
