@@ -8,6 +8,7 @@ exits 1 when a non-timing cell differs.
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -62,5 +63,16 @@ def compare(before: Path, after: Path) -> int:
     return 1 if differing else 0
 
 
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0],
+        epilog="Exits 1 when a non-timing cell differs, 0 otherwise.")
+    parser.add_argument("before", type=Path, metavar="BEFORE",
+                        help="run folder (metrics.json), experiment folder (results.json), or a folder of them")
+    parser.add_argument("after", type=Path, metavar="AFTER", help="the same, for the run compared against BEFORE")
+    args = parser.parse_args(argv)
+    return compare(args.before, args.after)
+
+
 if __name__ == "__main__":
-    sys.exit(compare(Path(sys.argv[1]), Path(sys.argv[2])))
+    sys.exit(main())

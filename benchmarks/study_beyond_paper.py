@@ -54,9 +54,10 @@ from btel.methods.btel.diagnostics import localizer_bit_accuracy, plot_bit_accur
 from btel.evaluation import recall_at_k  # noqa: E402
 from btel.exceptions import BudgetTooSmallError  # noqa: E402
 from btel.methods import make_method  # noqa: E402
-from btel.methods.btel.ranking import rank_places  # noqa: E402
+from btel.methods.btel.decoding import block_centres  # noqa: E402
+from btel.methods.btel.ranking import code_costs, deficits_from_scores, merge_region_kbest  # noqa: E402
 from btel.sequence.filter import filter_sequence  # noqa: E402
-from btel.sequence.hmm import decode_sequence, emission_scores  # noqa: E402
+from btel.sequence.hmm import decode_sequence, emission_scores, zscore_rows  # noqa: E402
 from btel.core.storage import format_bytes, parse_budget  # noqa: E402
 
 SEASONS = ("summer", "winter")
@@ -156,9 +157,43 @@ def load(cache: Path, season: str, descriptor: str, quick: int | None) -> np.nda
     return np.ascontiguousarray(X[:quick] if quick else X, dtype=np.float32)
 
 
+def _margins_and_deficits(model: BTELocalizer, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Every tree's column margins and each region's score deficit ``s_max − s_k`` (fitted BTEL, r regions)."""
+    margins = model.column_margins(Q).astype(np.float64)
+    region_scores = None if model.n_regions_ == 1 else model.region_hyperplanes_.margins(
+        model.front_end_.transform(Q, check_finite=True, lazy=True))  # the queries as column_margins sees them
+    return margins, deficits_from_scores(region_scores, model.n_regions_, Q.shape[0])
+
+
+def ranked_places(model: Any, Q: np.ndarray, k: int, region_weight: float = 1.0) -> np.ndarray:
+    """The k best places per query, best first.
+
+    ``model.rank`` (every method; for BTEL the best-first search over bit flips of the predicted
+    region's tree, regions merged by cost = flip cost + 1·region deficit). Another region weight α
+    (BTEL, compressed, plain bits) merges the per-region k-best lists with α·deficit instead.
+    """
+    if region_weight == 1.0:
+        return model.rank(Q, k)
+    margins, deficits = _margins_and_deficits(model, Q)
+    codes, _ = merge_region_kbest(margins, deficits, model.region_starts_, model.region_sizes_, model.tree_offsets_,
+                                  min(k, int(model.n_blocks_)), region_weight=region_weight)
+    return block_centres(codes, model.block_size_, model.n_places_)
+
+
+def sequence_emissions(model: Any, Q: np.ndarray, region_weight: float = 1.0) -> np.ndarray:
+    """HMM emissions: the per-place scores z-scored per row (BTEL: −(flip cost + α·region deficit))."""
+    if region_weight == 1.0:
+        return emission_scores(model, Q)  # zscore_rows(model.place_scores(Q))
+    margins, deficits = _margins_and_deficits(model, Q)
+    costs = code_costs(margins, deficits, model.region_starts_, model.region_sizes_, model.tree_offsets_,
+                       code_copies=model.code_copies_, region_weight=region_weight)
+    if model.block_size_ > 1:  # every place costs what its block costs
+        costs = costs[:, np.arange(int(model.n_places_)) // model.block_size_]
+    return zscore_rows(-costs)
+
+
 def evaluate_method(label: str, model: Any, X: np.ndarray, Q: np.ndarray, val: np.ndarray, rep: np.ndarray,
-                    base: dict, *, ranker: Callable | None = None, scores: bool = True,
-                    region_weight: float = 1.0) -> dict[str, Any]:
+                    base: dict, *, scores: bool = True, region_weight: float = 1.0) -> dict[str, Any]:
     """Fit (if needed), then single-frame recall and R@K on validation and reported queries."""
     t0 = time.perf_counter()
     if not hasattr(model, "n_places_"):
@@ -167,14 +202,11 @@ def evaluate_method(label: str, model: Any, X: np.ndarray, Q: np.ndarray, val: n
     pred_val, pred_rep = model.predict(Q[val]), model.predict(Q[rep])
     row = {**base, "method": label, "nbytes": int(model.nbytes), "fit_s": fit_s, "decoder": "single",
            "val_recall@10": float(np.mean(np.abs(pred_val - val) <= 10)), **recall(pred_rep, rep)}
-    ranked = ranker(Q[rep]) if ranker else (model.rank(Q[rep], max(KS)) if getattr(model, "supports_ranking", False)
-                                            else None)
-    if ranked is not None:
-        row.update(r_at_k(ranked, rep))
+    row.update(r_at_k(ranked_places(model, Q[rep], max(KS), region_weight), rep))
     extra = {"model": model, "pred_val": pred_val, "pred_rep": pred_rep}
     if scores:
-        extra["S_val"] = emission_scores(model, Q[val], region_weight=region_weight).astype(np.float32)
-        extra["S_rep"] = emission_scores(model, Q[rep], region_weight=region_weight).astype(np.float32)
+        extra["S_val"] = sequence_emissions(model, Q[val], region_weight).astype(np.float32)
+        extra["S_rep"] = sequence_emissions(model, Q[rep], region_weight).astype(np.float32)
     return {"row": row, **extra}
 
 
@@ -221,13 +253,10 @@ def run_direction(map_season: str, budget: int, args: argparse.Namespace) -> dic
         if B == 1:
             model = btel(C=C, decode="soft")
             label = f"BTE-C soft+ranked C={C:g}"
-            ranker = lambda q, m=model: rank_places(m, q, max(KS))[0]  # noqa: E731
         else:
             model = btel(C=C, block_size=B)
             label = f"BTE-C tolerant B={B} C={C:g}"
-            ranker = None
-        res = evaluate_method(label, model, X, Q, val, rep, {**base, "family": "btel", "C": C, "block_size": B},
-                              ranker=ranker)
+        res = evaluate_method(label, model, X, Q, val, rep, {**base, "family": "btel", "C": C, "block_size": B})
         variants.append(res)
         log(label, f"val {res['row']['val_recall@10']:.3f} rep {res['row']['recall@10']:.3f}",
             f"{res['row']['fit_s']:.0f}s")
@@ -235,10 +264,9 @@ def run_direction(map_season: str, budget: int, args: argparse.Namespace) -> dic
     for alpha in REGION_WEIGHTS:
         model = btel(C=best_C, n_regions=20, decode="soft")
         label = f"BTEL r=20 C={best_C:g} α={alpha:g}"
-        ranker = lambda q, m=model, a=alpha: rank_places(m, q, max(KS), region_weight=a)[0]  # noqa: E731
         res = evaluate_method(label, model, X, Q, val, rep, {**base, "family": "btel", "C": best_C, "block_size": 1,
                                                               "n_regions": 20, "region_weight": alpha},
-                              ranker=ranker, region_weight=alpha)
+                              region_weight=alpha)
         variants.append(res)
         log(label, f"val {res['row']['val_recall@10']:.3f} rep {res['row']['recall@10']:.3f}")
     for res in variants:

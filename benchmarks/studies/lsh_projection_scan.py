@@ -20,6 +20,7 @@ Writes ``benchmarks/results/bench_lsh_scan.json``.
 
 from __future__ import annotations
 
+import argparse
 import os
 import time
 
@@ -43,7 +44,11 @@ def best_ms(fn, rounds: int = 5) -> float:
     return min(times) * 1e3
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0],
+        epilog="Writes benchmarks/results/bench_lsh_scan.json.")
+    parser.parse_args(argv)
     rng = np.random.default_rng(0)
     rows, load = [], os.getloadavg()
     start = time.time()

@@ -9,6 +9,7 @@ queries permuted alike, recall@0 at 32 … 512 bytes per row (P = 256 … 4096 b
 
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 from pathlib import Path
@@ -19,7 +20,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from _common import write_results  # noqa: E402
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0],
+        epilog="Writes benchmarks/results/study_pq_vs_lsh.json.")
+    parser.parse_args(argv)
     from btel import make_method
     from btel.core.threads import limit_threads
     from btel.datasets import synthetic_route
