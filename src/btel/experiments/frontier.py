@@ -322,9 +322,11 @@ def _plots(rows: list[dict[str, Any]], out: Path) -> list[Path]:
 def exp_frontier(data: NordlandData, out: Path, quick: bool, jobs: int = 1) -> ExperimentRun:
     """Every method × budgets on eight maps (four in ``--quick``), auto against the oracle (module docstring).
 
-    ``jobs`` > 1 runs that many maps at once, each in its own process on one thread (joblib): the
-    rows are the same as one after the other (every row is seeded), the wall time about the longest
-    map's share (two processes: the two Nordland directions side by side).
+    ``jobs`` > 1 runs that many maps at once, each in its own process on one thread (joblib), in
+    about the longest process's share of the wall time (two: the two Nordland directions side by
+    side). Every row is seeded, so the rows are those of one process, but for ITQ's last digits:
+    joblib starts its workers with ``OMP_NUM_THREADS`` set, and ITQ's iterated rotation rounds
+    differently under BLAS started single-threaded (``docs/decisions/frontier.md``).
     """
     out.mkdir(parents=True, exist_ok=True)
     log = (lambda msg: print(f"  {msg}", flush=True)) if data.progress else (lambda msg: None)
