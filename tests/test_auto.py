@@ -386,3 +386,21 @@ def test_a_second_traverse_of_the_same_places_does_not_make_a_map_a_route() -> N
     one = make_method("auto", budget="16KB").fit(r.map).choice_
     two = make_method("auto", budget="16KB").fit(both, places).choice_
     assert (two["method"], two["params"]) == (one["method"], one["params"])
+
+
+def test_a_wide_or_long_map_is_probed_by_fewer_rows_and_reads_the_same() -> None:
+    """`probe_rows` keeps probes × rows searched × d within STAT_PRODUCTS (never below 500 probes, never
+    above 2,000); a route, its permutation and a sparse route read the same kind with 500 probes as with
+    2,000 (the statistics are means over probes)."""
+    from btel.methods.auto.statistics import MIN_STAT_ROWS, STAT_PRODUCTS, STAT_ROWS, index_order, probe_rows
+
+    assert probe_rows(200, 500) == STAT_ROWS and probe_rows(3576, 3780) == STAT_PRODUCTS // (3576 * 3780)
+    assert probe_rows(10_000, 16_384) == MIN_STAT_ROWS == probe_rows(10**6, 49_152)
+    sizes = [probe_rows(n, d) for n, d in ((2000, 256), (2000, 8192), (10_000, 8192), (10_000, 16_384))]
+    assert sizes == sorted(sizes, reverse=True)
+    rng = np.random.default_rng(2)
+    walk = np.cumsum(rng.normal(size=(3000, 16)), axis=0).astype(np.float32)
+    for X in (walk, walk[rng.permutation(3000)], synthetic_route(3000, 64, seed=3).map):
+        full, few = index_order(X, probes=STAT_ROWS), index_order(X, probes=MIN_STAT_ROWS)
+        assert few.kind == full.kind
+        assert abs(few.share - full.share) < 0.05 and abs(few.continuity - full.continuity) < 0.05

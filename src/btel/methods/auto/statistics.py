@@ -12,16 +12,23 @@ import numpy as np
 from ...core.validation import check_descriptors, map_places
 from ...core.frontend import normalize_rows
 
-__all__ = ["CONTINUITY_GAPS", "CONTINUITY_REFERENCE", "IndexOrder", "ORDER_CONTINUITY", "ROUTE_CONTINUITY",
-           "ROUTE_SHARE", "ROUTE_WINDOW", "SHARE_SEARCH_ROWS", "SHARE_SPANS", "STAT_ROWS", "collision_bits", "index_order",
-           "map_cone_ratio", "route_continuity", "route_share"]
+__all__ = ["CONTINUITY_GAPS", "CONTINUITY_REFERENCE", "IndexOrder", "MIN_STAT_ROWS", "ORDER_CONTINUITY",
+           "ROUTE_CONTINUITY", "ROUTE_SHARE", "ROUTE_WINDOW", "SHARE_SEARCH_ROWS", "SHARE_SPANS", "STAT_PRODUCTS",
+           "STAT_ROWS", "collision_bits", "index_order", "map_cone_ratio", "probe_rows", "route_continuity",
+           "route_share"]
 
 #: Places within which the nearest other map row must lie for a row to count as "route-like".
 ROUTE_WINDOW = 2
 #: Route when at least this share of map rows is route-like.
 ROUTE_SHARE = 0.5
-#: Map rows the statistic samples (evenly spaced) at most.
+#: Map rows the statistic samples (evenly spaced) at most ...
 STAT_ROWS = 2000
+#: ... and at least, where fewer would keep :func:`index_order` within :data:`STAT_PRODUCTS`.
+MIN_STAT_ROWS = 500
+#: Multiply-adds (probes × rows searched × d) :func:`index_order`'s route share is held to: a wide or
+#: long map is probed by fewer rows (not fewer than :data:`MIN_STAT_ROWS`), so that auto's fit at
+#: d = 16,384 is not spent on its statistics (``docs/decisions/auto-rule.md``, "What the statistics cost").
+STAT_PRODUCTS = 1 << 34
 #: The route share searches maps of up to this many rows whole, larger ones in spans (:func:`route_share`).
 SHARE_SEARCH_ROWS = 65536
 #: Spans of consecutive places the route share searches in a larger map.
@@ -30,7 +37,7 @@ SHARE_SPANS = 8
 CONTINUITY_GAPS = (3, 8)
 #: Route only when the continuity is at least this (0.5: no order; 1: a perfectly smooth route).
 ROUTE_CONTINUITY = 0.75
-#: A map is ordered (rule, step 3) when its continuity is at least this: the order holds beyond the
+#: A map is ordered (rule, step 2) when its continuity is at least this: the order holds beyond the
 #: nearest frames (0.5 when it does not; pairs and triples of alike rows in random order stay at ≈ 0.5;
 #: Nordland HOG 0.68).
 ORDER_CONTINUITY = 0.6
@@ -60,6 +67,16 @@ def map_cone_ratio(X: np.ndarray) -> float:
         total += Z.sum(axis=0, dtype=np.float64)
         squares += float(np.einsum("ij,ij->", Z, Z, dtype=np.float64))
     return float(np.linalg.norm(total / n) / np.sqrt(squares / n)) if squares > 0 else 0.0
+
+
+def probe_rows(n_rows: int, n_features: int) -> int:
+    """The probes :func:`index_order` samples: :data:`STAT_ROWS`, fewer (down to :data:`MIN_STAT_ROWS`)
+    where probes × rows searched (at most :data:`SHARE_SEARCH_ROWS`) × d would pass :data:`STAT_PRODUCTS`.
+
+    The statistics are means over the probes: 500 probes put a share's standard error at ≤ 0.022.
+    """
+    searched = max(1, min(int(n_rows), SHARE_SEARCH_ROWS)) * max(1, int(n_features))
+    return int(min(STAT_ROWS, max(MIN_STAT_ROWS, STAT_PRODUCTS // searched)))
 
 
 def collision_bits(n_rows: int) -> float:
@@ -206,7 +223,7 @@ def _route_continuity(X: np.ndarray, places: np.ndarray | None, *, gaps: tuple[i
 
 @dataclass(frozen=True)
 class IndexOrder:
-    """What the map's index order says about its places (steps 1 and 3 of the rule).
+    """What the map's index order says about its places (steps 1 and 2 of the rule).
 
     Attributes
     ----------
@@ -228,20 +245,23 @@ class IndexOrder:
     why: str
 
 
-def index_order(X: np.ndarray, places: np.ndarray | None = None) -> IndexOrder:
+def index_order(X: np.ndarray, places: np.ndarray | None = None, *, probes: int | None = None) -> IndexOrder:
     """Route, ordered map or independent places, from the map rows (and place labels) alone.
 
     Parameters
     ----------
     X : ndarray of shape (n_rows, n_features)
     places : ndarray of shape (n_rows,), int, or None (row i = place i)
+    probes : int or None
+        Rows both statistics sample; None: :func:`probe_rows` (2,000 but on wide or long maps).
 
     Returns
     -------
     IndexOrder
     """
     X, places = _checked(X, places)
-    share, continuity = _route_share(X, places), _route_continuity(X, places)
+    probes = probe_rows(*X.shape) if probes is None else probes
+    share, continuity = _route_share(X, places, max_rows=probes), _route_continuity(X, places, max_rows=probes)
     if share >= ROUTE_SHARE and continuity >= ROUTE_CONTINUITY:
         return IndexOrder("route", share, continuity, f"route share {share:.2f} ≥ {ROUTE_SHARE}, continuity "
                                                       f"{continuity:.2f} ≥ {ROUTE_CONTINUITY}")
