@@ -121,6 +121,43 @@ def test_frontier_in_two_processes_writes_the_rows_of_one(nordland_dir: Path, qu
     assert sorted(cells(journal), key=repr) == sorted(cells(one["rows"]), key=repr)
 
 
+def test_the_frontier_runs_its_plan_and_its_bar_counts_the_journal(tmp_path: Path, monkeypatch) -> None:
+    """`_map_plan` is what `_one_map` runs, row for row (so the bar's total is right); the bar counts the
+    journal's lines, which every process appends to."""
+    import io
+    import time
+
+    from btel.experiments import frontier
+
+    X = np.random.default_rng(0).normal(size=(300, 64)).astype(np.float32)
+    monkeypatch.setattr(frontier, "_row", lambda base, label, name, params, X, Q, budget, seeds=None: {
+        "dataset": base["dataset"], "method": label, "budget": budget, "seeds": seeds})
+    monkeypatch.setattr(frontier, "_calibrated_row", lambda base, X, Q, budget, seeds: {
+        "dataset": base["dataset"], "method": "auto calibrated", "budget": budget, "seeds": seeds})
+    for quick, dataset in ((True, "gardens-point"), (False, "nordland summer→winter"), (False, "synthetic route")):
+        budgets = ("4KB", "64KB") if quick else frontier.BUDGETS
+        plan = frontier._map_plan(dataset, X, budgets, quick)
+        rows, _ = frontier._one_map({"dataset": dataset}, X, X, budgets, quick, tmp_path / "rows.jsonl")
+        assert [(r["method"], r["budget"]) for r in rows] == [(p[0], p[3]) for p in plan]
+        assert all(r["budget"] is None or r["budget"] <= 300 * 64 * 4 for r in rows)  # no budget over the map
+    assert {r["method"] for r in rows} >= {"auto", "auto calibrated", "rabitq", "brute force shrink"}
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    journal = tmp_path / "journal.jsonl"
+    journal.write_text("")
+    with frontier._journal_bar(journal, 5, True, interval=0.01, file=Terminal()) as bar:
+        journal.write_text("{}\n{}\n{}\n")
+        deadline = time.monotonic() + 5
+        while bar.n != 3 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert bar.n == 3 and bar.total == 5
+    with frontier._journal_bar(journal, 5, False) as off:
+        assert off.disable
+
+
 def test_jobs_is_refused_where_an_experiment_runs_in_one_process(tmp_path: Path) -> None:
     with pytest.raises(InvalidParameterError, match="--jobs applies to frontier only"):
         run_experiment("regions", data_root=tmp_path, jobs=2)

@@ -42,9 +42,11 @@ Why each of these: ``docs/decisions/frontier.md``.
 
 from __future__ import annotations
 
+import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -329,13 +331,18 @@ def exp_frontier(data: NordlandData, out: Path, quick: bool, jobs: int = 1) -> E
     differently under BLAS started single-threaded (``docs/decisions/frontier.md``).
     """
     out.mkdir(parents=True, exist_ok=True)
-    log = (lambda msg: print(f"  {msg}", flush=True)) if data.progress else (lambda msg: None)
     budgets = ("4KB", "64KB") if quick else BUDGETS
     journal = out / "rows.jsonl"
     journal.write_text("")
     maps = _maps(data, quick)
     parts: list[tuple[list[dict[str, Any]], float]] = []
-    with limit_threads(1):
+    total = sum(len(_map_plan(base["dataset"], X, budgets, quick)) for base, X, _ in maps)
+    with limit_threads(1), _journal_bar(journal, total, data.progress) as bar:
+        def log(msg: str) -> None:
+            if data.progress:  # above the bar, and flushed: the line of a map that took minutes
+                bar.write(f"  {msg}")
+                sys.stdout.flush()
+
         if jobs <= 1:
             pending: Any = (_one_map(base, X, Q, budgets, quick, journal) for base, X, Q in maps)
         else:
@@ -357,33 +364,67 @@ def exp_frontier(data: NordlandData, out: Path, quick: bool, jobs: int = 1) -> E
     return run
 
 
+def _map_plan(dataset: str, X: np.ndarray, budgets: tuple[str, ...], quick: bool) -> list[tuple[Any, ...]]:
+    """The rows of one map in the order they run: ``(label, registry name, params, budget, seeds)``
+    (budget None: unbudgeted; the label ``'auto calibrated'`` is :func:`_calibrated_row`'s)."""
+    raw = X.shape[0] * X.shape[1] * 4
+    sizes = [parse_budget(b) for b in budgets if parse_budget(b) <= raw]
+    plan: list[tuple[Any, ...]] = []
+    for label, name, params in FAST[:5] if quick else FAST:
+        seeds = row_seeds(name, SEEDS[:2] if quick else SEEDS)
+        plan += [(label, name, params, budget, seeds) for budget in sizes]
+    plan += [("auto calibrated", "auto", {}, budget, SEEDS[:1] if quick else SEEDS) for budget in sizes]
+    plan += [(label, name, params, parse_budget(budget), None)
+             for label, name, params in SLOW for budget in slow_budgets(dataset, quick)]
+    plan += [(label, "bruteforce", params, None, None)
+             for label, params in (("brute force (cosine)", {}), ("brute force shrink", {"whiten": "shrink"}))]
+    return plan
+
+
 def _one_map(base: dict[str, Any], X: np.ndarray, Q: np.ndarray, budgets: tuple[str, ...], quick: bool,
              journal: Path) -> tuple[list[dict[str, Any]], float]:
-    """Every method and budget on one map: its rows (each appended to ``journal`` as it finishes,
+    """Every row of :func:`_map_plan` on one map: its rows (each appended to ``journal`` as it finishes,
     one write per line, so that processes running other maps can share the file) and its seconds."""
     import json
 
     with limit_threads(1):  # again: a worker process of ``jobs`` > 1 does not inherit the limit
         start = time.perf_counter()
         rows: list[dict[str, Any]] = []
-
-        def keep(row: dict[str, Any]) -> None:
-            rows.append(row)
-            with open(journal, "a") as fh:
-                fh.write(json.dumps(row, default=str) + "\n")
-
         base = {**base, "n_places": int(X.shape[0])}
-        raw = X.shape[0] * X.shape[1] * 4
-        budgets = tuple(b for b in budgets if parse_budget(b) <= raw)
-        for label, name, params in FAST[:5] if quick else FAST:
-            seeds = row_seeds(name, SEEDS[:2] if quick else SEEDS)
-            for budget in budgets:
-                keep(_row(base, label, name, params, X, Q, parse_budget(budget), seeds))
-        for budget in budgets:
-            keep(_calibrated_row(base, X, Q, parse_budget(budget), SEEDS[:1] if quick else SEEDS))
-        for label, name, params in SLOW:
-            for budget in slow_budgets(base["dataset"], quick):
-                keep(_row(base, label, name, params, X, Q, parse_budget(budget)))
-        for label, params in (("brute force (cosine)", {}), ("brute force shrink", {"whiten": "shrink"})):
-            keep(_row(base, label, "bruteforce", params, X, Q, None))
+        for label, name, params, budget, seeds in _map_plan(base["dataset"], X, budgets, quick):
+            rows.append(_calibrated_row(base, X, Q, budget, seeds) if label == "auto calibrated"
+                        else _row(base, label, name, params, X, Q, budget, seeds))
+            with open(journal, "a") as fh:
+                fh.write(json.dumps(rows[-1], default=str) + "\n")
         return rows, time.perf_counter() - start
+
+
+@contextmanager
+def _journal_bar(journal: Path, total: int, enabled: bool, *, interval: float = 2.0,
+                 file: Any = None) -> Iterator[Any]:
+    """A progress bar of the rows in ``journal`` (read every ``interval`` s: it counts the rows of every
+    process); off when not ``enabled`` or when ``file`` (stderr) is not a terminal. Yields the bar
+    (``bar.write`` prints above it)."""
+    import threading
+
+    from tqdm.auto import tqdm
+
+    with tqdm(total=total, desc="frontier", unit="row", disable=None if enabled else True, leave=False,
+              file=file) as bar:
+        stop = threading.Event()
+
+        def watch() -> None:
+            while not stop.wait(interval):
+                with open(journal, "rb") as fh:
+                    done = sum(1 for _ in fh)
+                bar.update(done - bar.n)
+
+        watcher = threading.Thread(target=watch, daemon=True)
+        if not bar.disable:
+            watcher.start()
+        try:
+            yield bar
+        finally:
+            stop.set()
+            if watcher.is_alive():
+                watcher.join()
