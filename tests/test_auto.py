@@ -404,3 +404,6 @@ def test_a_wide_or_long_map_is_probed_by_fewer_rows_and_reads_the_same() -> None
         full, few = index_order(X, probes=STAT_ROWS), index_order(X, probes=MIN_STAT_ROWS)
         assert few.kind == full.kind
         assert abs(few.share - full.share) < 0.05 and abs(few.continuity - full.continuity) < 0.05
+    for bad in (0, -3, 2.5, True):
+        with pytest.raises(InvalidParameterError, match="probes must be a whole number"):
+            index_order(walk, probes=bad)

@@ -21,8 +21,8 @@ from ._options import _command_line
               help="Run every method with delta descriptors over W frames (front end; results go to "
                    "OUT/NAME-delta-W/ so they sit beside the default runs).")
 @click.option("-j", "--jobs", type=click.IntRange(min=1), default=1, show_default=True, metavar="N",
-              help="frontier: run N of its maps at once, one process and one thread each (same rows, "
-                   "about 1/N of the wall time on N free cores).")
+              help="frontier: run N of its maps at once, one process and one thread each (about 1/N "
+                   "of the wall time on N free cores).")
 def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | None, quick: bool,
                delta: int | None, jobs: int) -> None:
     """Run one of the paper's experiments on Nordland (or 'all').

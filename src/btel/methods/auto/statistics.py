@@ -11,6 +11,7 @@ import numpy as np
 
 from ...core.validation import check_descriptors, map_places
 from ...core.frontend import normalize_rows
+from ...exceptions import InvalidParameterError
 
 __all__ = ["CONTINUITY_GAPS", "CONTINUITY_REFERENCE", "IndexOrder", "MIN_STAT_ROWS", "ORDER_CONTINUITY",
            "ROUTE_CONTINUITY", "ROUTE_SHARE", "ROUTE_WINDOW", "SHARE_SEARCH_ROWS", "SHARE_SPANS", "STAT_PRODUCTS",
@@ -260,7 +261,10 @@ def index_order(X: np.ndarray, places: np.ndarray | None = None, *, probes: int 
     IndexOrder
     """
     X, places = _checked(X, places)
-    probes = probe_rows(*X.shape) if probes is None else probes
+    if probes is None:
+        probes = probe_rows(*X.shape)
+    elif isinstance(probes, bool) or not isinstance(probes, (int, np.integer)) or probes < 1:
+        raise InvalidParameterError(f"probes must be a whole number ≥ 1 (or None: probe_rows), got {probes!r}.")
     share, continuity = _route_share(X, places, max_rows=probes), _route_continuity(X, places, max_rows=probes)
     if share >= ROUTE_SHARE and continuity >= ROUTE_CONTINUITY:
         return IndexOrder("route", share, continuity, f"route share {share:.2f} ≥ {ROUTE_SHARE}, continuity "
