@@ -165,6 +165,8 @@ def test_jobs_is_refused_where_an_experiment_runs_in_one_process(tmp_path: Path)
         run_experiment("frontier", data_root=tmp_path, jobs=0)
     result = CliRunner().invoke(main, ["experiment", "regions", "--jobs", "0", "--out", str(tmp_path)])
     assert result.exit_code == 2 and "--jobs" in result.output
+    result = CliRunner().invoke(main, ["experiment", "regions", "--jobs", "2", "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "--jobs applies to frontier only" in result.output
 
 
 def test_stretch_split_keeps_validation_and_reported_queries_apart() -> None:

@@ -41,7 +41,7 @@ def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | 
         click.echo(f"experiment {n}{' (quick)' if quick else ''} …")
         run = run_experiment(n, data_root=data_root, out_dir=out_dir, cache_dir=cache_dir, quick=quick,
                              command=_command_line(), front_end={"delta": delta} if delta else None,
-                             jobs=jobs if n in PARALLEL else 1)
+                             jobs=jobs if n in PARALLEL or name != "all" else 1)  # one named: refused there
         for row in run.rows:
             click.echo("  " + describe_row(row))
         click.echo(f"  written to {run.out_dir}")
