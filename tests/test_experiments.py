@@ -158,6 +158,36 @@ def test_the_frontier_runs_its_plan_and_its_bar_counts_the_journal(tmp_path: Pat
         assert off.disable
 
 
+def test_an_experiment_interrupted_while_writing_leaves_no_results_json(tmp_path: Path) -> None:
+    """results.json, the file `btel report` reads a run by, is written last and whole: an interruption
+    while the figures are drawn leaves the previous run's results.json (or none), never a new one
+    beside missing figures."""
+    from btel.experiments._common import ExperimentRun, write_results
+
+    rows = [{"dataset": "d", "method": "lsh", "budget": 1000, "status": "ok", "nbytes": 900, "value": 0.5}]
+
+    def interrupted(run, out):
+        (out / "figure.png").write_bytes(b"half")
+        raise KeyboardInterrupt
+
+    for before in (None, '{"run": {"experiment": "earlier"}}\n'):
+        out = tmp_path / ("fresh" if before is None else "again")
+        out.mkdir()
+        if before is not None:
+            (out / "results.json").write_text(before)
+        run = ExperimentRun.from_rows("frontier", rows, out, plot=interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            write_results(run, out, {"experiment": "frontier"})
+        if before is None:
+            assert not (out / "results.json").exists()
+        else:
+            assert (out / "results.json").read_text() == before
+        assert not [p.name for p in out.iterdir() if p.name.startswith(".")]  # no temporaries left
+    run = ExperimentRun.from_rows("frontier", rows, tmp_path / "fresh", plot=None)
+    write_results(run, tmp_path / "fresh", {"experiment": "frontier"})
+    assert json.loads((tmp_path / "fresh" / "results.json").read_text())["rows"][0]["method"] == "lsh"
+
+
 def test_jobs_is_refused_where_an_experiment_runs_in_one_process(tmp_path: Path) -> None:
     with pytest.raises(InvalidParameterError, match="--jobs applies to frontier only"):
         run_experiment("regions", data_root=tmp_path, jobs=2)

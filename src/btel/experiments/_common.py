@@ -371,15 +371,22 @@ def full_or_quick(quick: bool, full: list[Any], small: list[Any]) -> list[Any]:
 
 
 def write_results(run: ExperimentRun, out: Path, meta: dict[str, Any]) -> None:
-    """Write ``out/results.json`` (``{"run": meta, "rows", "curves", **run.extra}``), ``out/results.csv``
-    (one column per cell any row has, in order of first appearance) and the experiment's figure(s)."""
+    """Write ``out/results.csv`` (one column per cell any row has, in order of first appearance), the
+    experiment's figure(s) and, last, ``out/results.json`` (``{"run": meta, "rows", "curves",
+    **run.extra}``) in one rename: ``btel report`` reads a run only through its results.json, so an
+    experiment interrupted while writing leaves the previous run's (or none), never a half-written one."""
+    from ..core.claims import atomic_output
+
     out.mkdir(parents=True, exist_ok=True)
     rows = [r.to_row() for r in run.rows]
-    (out / "results.json").write_text(json.dumps({"run": meta, "rows": rows, "curves": run.curves, **run.extra},
-                                                 indent=1, default=_json_default) + "\n")
-    (out / "results.csv").write_text(rows_csv_text(run.rows), newline="")
+    text = json.dumps({"run": meta, "rows": rows, "curves": run.curves, **run.extra}, indent=1,
+                      default=_json_default) + "\n"
+    with atomic_output(out / "results.csv", text=True) as fh:
+        fh.write(rows_csv_text(run.rows))
     if run.plot is not None:
         run.plot(run, out)
+    with atomic_output(out / "results.json", text=True) as fh:
+        fh.write(text)
 
 
 def _json_default(value: Any) -> Any:
