@@ -370,14 +370,14 @@ def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path
     found = {name: runs_dir / name / "results.json" for name in EXPERIMENTS if (runs_dir / name / "results.json").is_file()}
     if not found:
         raise DataNotFoundError(f"no experiment results under {str(runs_dir)!r}; run `btel experiment all` first.")
-    figures = docs_dir / "figures"
-    figures.mkdir(parents=True, exist_ok=True)
     md_path, json_path = docs_dir / "results.md", docs_dir / "results.json"
     for target in (md_path, json_path):  # refused before any work (and before results.md is read)
         _check_target(target)
         if target.exists() and not overwrite and not _written_by_report(target):
             raise OutputExistsError(f"{str(target)!r} exists and was not written by btel report; it was kept. "
                                     "Give --overwrite (overwrite=True) to replace it, or another --docs folder.")
+    figures = docs_dir / "figures"
+    figures.mkdir(parents=True, exist_ok=True)
     kept = {m.group("name"): m.group(0) for m in _MARKER.finditer(_read_text(md_path))} if md_path.exists() else {}
 
     # Front matter: the site's navigation column hidden (its table of contents stays), so the wide tables fit.
