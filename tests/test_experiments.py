@@ -55,6 +55,9 @@ def test_report_has_every_section_and_keeps_marked_blocks(quick_runs: Path, tmp_
     assert "SCALE TABLE" in md and "old" not in md.splitlines()[0]
     # Quick runs are said to be quick under every heading, and no verdict is read from them.
     assert md.count("> **Quick mode**") == len(EXPERIMENTS) and "Reading (computed from the table)" not in md
+    # ... nor a count of cells from the frontier's few rows, whose protocol is the quick run's own.
+    assert "Quick mode: 4 maps" in md and "seeds 0, 1 (" in md and "Map-only auto ≥ 0.95" not in md
+    assert "mean over seeds 0, 1, 2" not in md
     summary = json.loads((docs / "results.json").read_text())
     assert set(summary) == set(EXPERIMENTS)
     row = summary["vs-budget"]["rows"][0]

@@ -361,6 +361,13 @@ def exp_frontier(data: NordlandData, out: Path, quick: bool, jobs: int = 1) -> E
     run = ExperimentRun.from_rows("frontier", rows, out, plot=plot)
     run.extra = {"auto_vs_oracle": auto_vs_oracle(rows), "part_seconds": seconds,
                  "total_seconds": sum(seconds.values()), "jobs": max(1, jobs)}
+    if quick:
+        run.extra["quick_protocol"] = (
+            f"Quick mode: {len(maps)} maps ({', '.join(b['dataset'] for b, _, _ in maps)}), budgets "
+            f"{' and '.join(budgets)}, the rows {', '.join(label for label, _, _ in FAST[:5])}, calibrated auto and "
+            f"brute force; seeded rows at seeds {', '.join(map(str, SEEDS[:2]))} (calibrated auto: {SEEDS[0]}). "
+            "The oracle is the best of these rows only, so auto's choice may be a method that is not among "
+            "them and its ratio may pass 1; no count of cells is drawn.")
     return run
 
 

@@ -134,8 +134,10 @@ def report_lines(payload: dict[str, Any], docs_dir: Path) -> list[str]:
     rows = payload["rows"]
     verdicts = payload.get("auto_vs_oracle", [])
     parts = payload.get("part_seconds") or {}
+    quick = bool((payload.get("run") or {}).get("quick"))
     lines = [("Wall time per map (one faiss and one BLAS thread): "
               + ", ".join(f"{k} {v:.0f} s" for k, v in parts.items()) + ".") if parts else "", "",
+             payload.get("quick_protocol", "") if quick else
              "Key recall per map (route maps: recall within 2 frames, Nordland within 10; independent places: "
              "exact place, recall@0). Oracle = the best row of the table at that budget (every method and variant "
              "that fits); auto chooses from the map and budget alone; calibrated auto also from half of the queries with "
@@ -154,7 +156,7 @@ def report_lines(payload: dict[str, Any], docs_dir: Path) -> list[str]:
              "auto / best | ≥ 0.95 × best | ≥ LSH | auto − LSH | calibrated auto (switched / fits) | calibrated | "
              "calibrated / best | ≥ 0.95 × best | calibrated − auto |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    lines[1:1] = _counts(verdicts)
+    lines[1:1] = [] if quick else _counts(verdicts)
     for v in verdicts:
         reg = "" if v["best_registered"] is None else f"{v['best_registered']} {v['best_registered_value']:.3f}"
         lsh = "" if v["lsh"] is None else f"{v['lsh']:.3f}"
