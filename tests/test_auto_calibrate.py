@@ -59,6 +59,15 @@ def test_the_table_holds_every_candidate_scored_on_the_same_queries(calibrated) 
     unfit = [e for e in c["table"] if e["status"] != "ok"]
     assert all(e["status"] == "over budget" and e["needs"].endswith("B") for e in unfit)
     assert c["chosen"] in calibrated.summary() and "n for 0.05" in calibrated.summary()
+    # The power column speaks of leads: a candidate behind the pick gets none (it read "3007 queries
+    # would certify a lead of 0.05" beside a candidate 0.46 behind).
+    header = next(line for line in calibrated.summary().splitlines() if "n for 0.05" in line and "candidate" in line)
+    column = slice(header.index("n for 0.05"), header.index("n for 0.05") + len("n for 0.05"))
+    behind = [e for e in scored if e is not pick and e["difference"] < 0 and e.get("queries_needed")]
+    assert behind, "the fixture should have a candidate behind the pick with a power figure"
+    for e in behind:
+        row = next(line for line in calibrated.summary().splitlines() if line.startswith(f"  {e['candidate']:<28} "))
+        assert row[column].strip() == "", row
 
 
 def test_the_model_file_holds_no_calibration_query(calibrated, route, tmp_path) -> None:

@@ -202,7 +202,7 @@ def check_calibration(
             "calibration must be a pair (Q, truth): the calibration queries (n_queries, "
             "n_features) and each one's true place (int array) or a GroundTruth."
         )
-    Q = check_descriptors(calibration[0], name="calibration queries")
+    Q = check_descriptors(calibration[0], name="the calibration query matrix")
     if Q.shape[1] != n_features:
         raise DimensionMismatchError(
             f"calibration queries have {Q.shape[1]} features; the map has {n_features}. "

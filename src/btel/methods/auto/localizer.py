@@ -25,7 +25,9 @@ CALIBRATION_COLUMNS = (
     "p (adj.): one-sided p-value of 'beats the pick',\n"
     "  adjusted over every candidate (max-T); conf.: 1 − p (a switch needs {need:g}); n for {ref:g} / n for diff: "
     "calibration queries\n"
-    "  that would certify a lead of {ref:g} / of the observed diff (power 0.8); fit s: its fits' seconds.")
+    "  that would certify a lead of {ref:g} / of the observed diff (power 0.8; blank for a candidate behind the pick, "
+    "or one that\n"
+    "  disagrees with it on too few queries to hold such a lead); fit s: its fits' seconds.")
 
 
 def _verdict(c: dict[str, Any], rows: list[dict[str, Any]]) -> str:
@@ -68,7 +70,7 @@ def calibration_table(calibration: dict[str, Any] | None) -> str:
         wl = "" if "wins" not in e else f"{e['wins']}/{e.get('losses')}"
         p = "" if "p_adjusted" not in e else f"{e['p_adjusted']:.3f}"
         conf = "" if "confidence" not in e else f"{e['confidence']:.2f}"
-        need = "" if e.get("queries_needed") is None else str(e["queries_needed"])
+        need = "" if e.get("queries_needed") is None or (e.get("difference") or 0) < 0 else str(e["queries_needed"])
         need_obs = ("" if e.get("queries_needed_observed") is None or (e.get("difference") or 0) <= 0
                     else str(e["queries_needed_observed"]))
         fit_s = "" if e.get("fit_s") is None else f"{e['fit_s']:.1f}"
