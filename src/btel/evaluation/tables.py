@@ -282,5 +282,9 @@ def describe_row(record: EvaluationResult) -> str:
                 f"recall@10={row['recall@10']:.3f}{ranked}")
     size = format_bytes(row["nbytes"]) if row.get("nbytes") is not None else "-"
     ranked = "".join(f" R@{k}={row[f'R@{k}']:.3f}" for k in (1, 10) if row.get(f"R@{k}") is not None)
-    return (f"{name:<30} N={row['n_places']:<5} {size:>10}  recall@0={row['recall@0']:.3f} "
-            f"recall@10={row['recall@10']:.3f} recall@20={row['recall@20']:.3f}{ranked}")
+    shown = ["recall@0", "recall@10", "recall@20"]
+    key = row.get("key")  # the frontier's key recall of the map (recall@2 on a route) first when it is another
+    if isinstance(key, str) and key not in shown and row.get(key) is not None:
+        shown.insert(1, key)
+    return f"{name:<30} N={row['n_places']:<5} {size:>10}  " + " ".join(
+        f"{m}={row[m]:.3f}" for m in shown) + ranked
