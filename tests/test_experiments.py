@@ -130,7 +130,7 @@ def test_the_frontier_runs_its_plan_and_its_bar_counts_the_journal(tmp_path: Pat
     import io
     import time
 
-    from btel.experiments import frontier
+    from btel.experiments import frontier, frontier_journal
 
     X = np.random.default_rng(0).normal(size=(300, 64)).astype(np.float32)
     monkeypatch.setattr(frontier, "_row", lambda base, label, name, params, X, Q, budget, seeds=None: {
@@ -151,13 +151,13 @@ def test_the_frontier_runs_its_plan_and_its_bar_counts_the_journal(tmp_path: Pat
 
     journal = tmp_path / "journal.jsonl"
     journal.write_text("")
-    with frontier._journal_bar(journal, 5, True, interval=0.01, file=Terminal()) as bar:
+    with frontier_journal.journal_bar(journal, 5, True, interval=0.01, file=Terminal()) as bar:
         journal.write_text("{}\n{}\n{}\n")
         deadline = time.monotonic() + 5
         while bar.n != 3 and time.monotonic() < deadline:
             time.sleep(0.01)
         assert bar.n == 3 and bar.total == 5
-    with frontier._journal_bar(journal, 5, False) as off:
+    with frontier_journal.journal_bar(journal, 5, False) as off:
         assert off.disable
 
 
@@ -189,6 +189,38 @@ def test_an_experiment_interrupted_while_writing_leaves_no_results_json(tmp_path
     run = ExperimentRun.from_rows("frontier", rows, tmp_path / "fresh", plot=None)
     write_results(run, tmp_path / "fresh", {"experiment": "frontier"})
     assert json.loads((tmp_path / "fresh" / "results.json").read_text())["rows"][0]["method"] == "lsh"
+
+
+@pytest.mark.realdata
+def test_frontier_resume_keeps_the_journalled_rows_and_runs_the_rest(nordland_dir: Path, quick_runs: Path,
+                                                                     tmp_path: Path, monkeypatch) -> None:
+    """An interrupted run (its journal cut after 20 rows, the last line cut short, a line of noise) taken
+    up with resume: the 20 rows are kept, the rest run, and the rows are the uninterrupted run's."""
+    from btel.experiments import frontier
+    from btel.experiments.frontier_journal import inputs_digest
+
+    full = json.loads((quick_runs / "frontier" / "results.json").read_text())
+    lines = (quick_runs / "frontier" / "rows.jsonl").read_text().splitlines()
+    (tmp_path / "frontier").mkdir()
+    (tmp_path / "frontier" / "rows.jsonl").write_text("\n".join(lines[:20]) + "\nnot json\n" + lines[20][:50])
+    ran = []
+    real = frontier._row
+    monkeypatch.setattr(frontier, "_row", lambda *a, **k: ran.append(a[1]) or real(*a, **k))
+    run_experiment("frontier", data_root=nordland_dir, out_dir=tmp_path, cache_dir=quick_runs / "cache", quick=True,
+                   progress=False, resume=True)
+    resumed = json.loads((tmp_path / "frontier" / "results.json").read_text())
+
+    def cells(rows: list[dict]) -> list[tuple]:
+        return [(r["dataset"], r["method"], r.get("budget"), r["status"], r.get("value")) for r in rows]
+
+    assert cells(resumed["rows"]) == cells(full["rows"]) and resumed["resumed_rows"] == 20
+    calibrated = sum(r["method"] == "auto calibrated" for r in full["rows"][20:])
+    assert len(ran) == len(full["rows"]) - 20 - calibrated  # every row not journalled, and only those
+    assert len((tmp_path / "frontier" / "rows.jsonl").read_text().splitlines()) == len(full["rows"])
+    X = np.zeros((4, 3), dtype=np.float32)
+    assert len({inputs_digest(X, X, True), inputs_digest(X, X, False), inputs_digest(X + 1, X, True)}) == 3
+    with pytest.raises(InvalidParameterError, match="--resume applies to frontier only"):
+        run_experiment("regions", data_root=nordland_dir, resume=True)
 
 
 def test_jobs_is_refused_where_an_experiment_runs_in_one_process(tmp_path: Path) -> None:

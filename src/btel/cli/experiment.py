@@ -23,8 +23,11 @@ from ._options import _command_line
 @click.option("-j", "--jobs", type=click.IntRange(min=1), default=1, show_default=True, metavar="N",
               help="frontier: run N of its maps at once, one process and one thread each (about 1/N "
                    "of the wall time on N free cores).")
+@click.option("--resume", is_flag=True,
+              help="frontier: take up an interrupted run in OUT/frontier/ — the rows of its rows.jsonl measured "
+                   "by the same btel on the same data are kept, the others run.")
 def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | None, quick: bool,
-               delta: int | None, jobs: int) -> None:
+               delta: int | None, jobs: int, resume: bool) -> None:
     """Run one of the paper's experiments on Nordland (or 'all').
 
     \b
@@ -34,14 +37,15 @@ def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | 
     Each writes results.csv, results.json and PNG plots into OUT/NAME/; `btel report` turns the
     latest runs into docs/results.md.
     """
-    from ..experiments import EXPERIMENTS, PARALLEL, describe_row, run_experiment
+    from ..experiments import EXPERIMENTS, PARALLEL, RESUMABLE, describe_row, run_experiment
 
     names = list(EXPERIMENTS) if name == "all" else [name]
     for n in names:
         click.echo(f"experiment {n}{' (quick)' if quick else ''} …")
         run = run_experiment(n, data_root=data_root, out_dir=out_dir, cache_dir=cache_dir, quick=quick,
                              command=_command_line(), front_end={"delta": delta} if delta else None,
-                             jobs=jobs if n in PARALLEL or name != "all" else 1)  # one named: refused there
+                             jobs=jobs if n in PARALLEL or name != "all" else 1,  # one named: refused there
+                             resume=resume if n in RESUMABLE or name != "all" else False)
         for row in run.rows:
             click.echo("  " + describe_row(row))
         click.echo(f"  written to {run.out_dir}")

@@ -52,7 +52,7 @@ from .sequence_filter import exp_sequence_filter
 from .vs_budget import exp_vs_budget
 from .vs_n import exp_vs_n
 
-__all__ = ["EXPERIMENTS", "PARALLEL", "NordlandData", "ExperimentRun", "run_experiment", "default_nordland_root", "describe_row"]
+__all__ = ["EXPERIMENTS", "PARALLEL", "RESUMABLE", "NordlandData", "ExperimentRun", "run_experiment", "default_nordland_root", "describe_row"]
 
 EXPERIMENTS: dict[str, Callable[[NordlandData, Path, bool], ExperimentRun]] = {
     "accuracy": exp_accuracy,
@@ -72,18 +72,21 @@ EXPERIMENTS: dict[str, Callable[[NordlandData, Path, bool], ExperimentRun]] = {
 SELF_CONTAINED = ("beyond", "front-ends", "codes", "frontier")
 #: Experiments whose independent parts can run in several processes (their function takes ``jobs``).
 PARALLEL = ("frontier",)
+#: Experiments that journal their rows as they finish and can take up an interrupted run (``resume``).
+RESUMABLE = ("frontier",)
 
 
 def run_experiment(name: str, *, data_root: str | Path | None = None, out_dir: str | Path = "runs/experiments",
                    cache_dir: str | Path | None = None, quick: bool = False, progress: bool = True,
                    command: str | None = None, front_end: dict[str, Any] | None = None,
-                   jobs: int = 1) -> ExperimentRun:
+                   jobs: int = 1, resume: bool = False) -> ExperimentRun:
     """Run one experiment and write ``<out_dir>/<name>/results.{csv,json}`` and its plot(s).
 
     ``front_end`` (e.g. ``{"delta": 10}``) is given to every method of the paper's experiments (a)–(f)
     and the results go to ``<out_dir>/<name>-delta-10/``; the experiments that compare front ends
     or variants themselves (beyond, front-ends, codes) refuse it. ``jobs`` > 1 runs the independent
-    parts of an experiment of :data:`PARALLEL` in that many processes (the others refuse it).
+    parts of an experiment of :data:`PARALLEL` in that many processes (the others refuse it);
+    ``resume`` takes up an interrupted run of an experiment of :data:`RESUMABLE` from its journal.
 
     Raises
     ------
@@ -105,15 +108,19 @@ def run_experiment(name: str, *, data_root: str | Path | None = None, out_dir: s
     if jobs > 1 and name not in PARALLEL:
         raise InvalidParameterError(f"experiment {name!r} runs in one process; --jobs applies to "
                                     f"{', '.join(PARALLEL)} only: run it without --jobs.")
+    if resume and name not in RESUMABLE:
+        raise InvalidParameterError(f"experiment {name!r} keeps no journal to resume from; --resume applies to "
+                                    f"{', '.join(RESUMABLE)} only: run it without --resume.")
     root = Path(data_root) if data_root else default_nordland_root()
     suffix = "".join(f"-{k}-{v}" for k, v in sorted((front_end or {}).items()))
     out = Path(out_dir) / f"{name}{suffix}"
     data = NordlandData(root, Path(cache_dir) if cache_dir else Path(out_dir) / "cache", progress=progress,
                         max_frames=QUICK_FRAMES if quick else None, front_end=front_end)
     start = time.perf_counter()
-    run = EXPERIMENTS[name](data, out, quick, jobs=jobs) if name in PARALLEL else EXPERIMENTS[name](data, out, quick)
+    options = {**({"jobs": jobs} if name in PARALLEL else {}), **({"resume": resume} if name in RESUMABLE else {})}
+    run = EXPERIMENTS[name](data, out, quick, **options)
     meta = {**run_metadata(command or f"btel experiment {name}{' --quick' if quick else ''}"), "experiment": name,
-            "quick": quick, "jobs": jobs, "data": str(root.resolve()),
+            "quick": quick, "jobs": jobs, "resume": resume, "data": str(root.resolve()),
             "descriptor": "HOG 3780-D (SeqSLAM: 64×32 patch-normalised, 2048-D)",
             "front_end": front_end or "each method's default (rows L2-normalised; SeqSLAM none)",
             "seconds": time.perf_counter() - start}

@@ -42,11 +42,11 @@ Why each of these: ``docs/decisions/frontier.md``.
 
 from __future__ import annotations
 
+import json
 import sys
 import time
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -54,7 +54,9 @@ from ..evaluation.metrics import recall_at_tolerance
 from ..core.storage import check_within_budget, format_bytes, parse_budget
 from ..core.threads import limit_threads
 from ..datasets.sources import gardens_point_path, load_gardens_point_netvlad
+from ..core.claims import atomic_output
 from ._common import SEASONS, ExperimentRun, FittedRow, NordlandData, does_not_fit_cells, fit_and_predict
+from .frontier_journal import inputs_digest, journal_bar, journalled_rows
 from .frontier_verdicts import SEEDS, auto_vs_oracle, paired_difference, report_lines, row_of_choice
 from ..methods.registry import make_method
 
@@ -321,7 +323,7 @@ def _plots(rows: list[dict[str, Any]], out: Path) -> list[Path]:
     return written
 
 
-def exp_frontier(data: NordlandData, out: Path, quick: bool, jobs: int = 1) -> ExperimentRun:
+def exp_frontier(data: NordlandData, out: Path, quick: bool, jobs: int = 1, resume: bool = False) -> ExperimentRun:
     """Every method × budgets on eight maps (four in ``--quick``), auto against the oracle (module docstring).
 
     ``jobs`` > 1 runs that many maps at once, each in its own process on one thread (joblib), in
@@ -329,28 +331,40 @@ def exp_frontier(data: NordlandData, out: Path, quick: bool, jobs: int = 1) -> E
     side). Every row is seeded, so the rows are those of one process, but for ITQ's last digits:
     joblib starts its workers with ``OMP_NUM_THREADS`` set, and ITQ's iterated rotation rounds
     differently under BLAS started single-threaded (``docs/decisions/frontier.md``).
+
+    ``resume`` keeps the rows of ``out/rows.jsonl`` (an interrupted run's) that were measured by the
+    same btel source on the same map bytes in the same mode (each row's ``inputs``:
+    :func:`~btel.experiments.frontier_journal.inputs_digest`) and runs only the others.
     """
     out.mkdir(parents=True, exist_ok=True)
     budgets = ("4KB", "64KB") if quick else BUDGETS
     journal = out / "rows.jsonl"
-    journal.write_text("")
     maps = _maps(data, quick)
+    found = journalled_rows(journal) if resume else {}
+    done = {}  # per map's inputs, the rows of its plan found in the journal
+    for base, X, Q in maps:
+        digest = inputs_digest(X, Q, quick)
+        plan = {(label, budget) for label, _n, _p, budget, _s in _map_plan(base["dataset"], X, budgets, quick)}
+        done[digest] = {key: row for key, row in found.get(digest, {}).items() if key in plan}
+    kept = [row for rows in done.values() for row in rows.values()]
+    with atomic_output(journal, text=True) as fh:  # the rows that will be reused, and nothing else
+        fh.writelines(json.dumps(row, default=str) + "\n" for row in kept)
     parts: list[tuple[list[dict[str, Any]], float]] = []
     total = sum(len(_map_plan(base["dataset"], X, budgets, quick)) for base, X, _ in maps)
-    with limit_threads(1), _journal_bar(journal, total, data.progress) as bar:
+    with limit_threads(1), journal_bar(journal, total, data.progress) as bar:
         def log(msg: str) -> None:
             if data.progress:  # above the bar, and flushed: the line of a map that took minutes
                 bar.write(f"  {msg}")
                 sys.stdout.flush()
 
         if jobs <= 1:
-            pending: Any = (_one_map(base, X, Q, budgets, quick, journal) for base, X, Q in maps)
+            pending: Any = (_one_map(base, X, Q, budgets, quick, journal, done) for base, X, Q in maps)
         else:
             from joblib import Parallel, delayed
 
             # in map order, each as soon as it and the maps before it are done
             pending = Parallel(n_jobs=min(jobs, len(maps)), return_as="generator")(
-                delayed(_one_map)(base, X, Q, budgets, quick, journal) for base, X, Q in maps)
+                delayed(_one_map)(base, X, Q, budgets, quick, journal, done) for base, X, Q in maps)
         for (base, _, _), (map_rows, map_seconds) in zip(maps, pending):
             parts.append((map_rows, map_seconds))
             log(f"{base['dataset']}: {map_seconds:.0f} s; auto " + ", ".join(
@@ -360,7 +374,7 @@ def exp_frontier(data: NordlandData, out: Path, quick: bool, jobs: int = 1) -> E
     seconds = {base["dataset"]: s for (base, _, _), (_, s) in zip(maps, parts)}
     run = ExperimentRun.from_rows("frontier", rows, out, plot=plot)
     run.extra = {"auto_vs_oracle": auto_vs_oracle(rows), "part_seconds": seconds,
-                 "total_seconds": sum(seconds.values()), "jobs": max(1, jobs)}
+                 "total_seconds": sum(seconds.values()), "jobs": max(1, jobs), "resumed_rows": len(kept)}
     if quick:
         run.extra["quick_protocol"] = (
             f"Quick mode: {len(maps)} maps ({', '.join(b['dataset'] for b, _, _ in maps)}), budgets "
@@ -389,49 +403,24 @@ def _map_plan(dataset: str, X: np.ndarray, budgets: tuple[str, ...], quick: bool
 
 
 def _one_map(base: dict[str, Any], X: np.ndarray, Q: np.ndarray, budgets: tuple[str, ...], quick: bool,
-             journal: Path) -> tuple[list[dict[str, Any]], float]:
-    """Every row of :func:`_map_plan` on one map: its rows (each appended to ``journal`` as it finishes,
-    one write per line, so that processes running other maps can share the file) and its seconds."""
-    import json
-
+             journal: Path, done: dict[str, dict[tuple[Any, ...], dict[str, Any]]] | None = None,
+             ) -> tuple[list[dict[str, Any]], float]:
+    """Every row of :func:`_map_plan` on one map: its rows (each new one appended to ``journal`` as it
+    finishes, one write per line, so that processes running other maps can share the file) and its
+    seconds. A row of ``done`` (rows of an earlier run by inputs digest, then method label and
+    budget) measured on these inputs is reused."""
     with limit_threads(1):  # again: a worker process of ``jobs`` > 1 does not inherit the limit
         start = time.perf_counter()
         rows: list[dict[str, Any]] = []
-        base = {**base, "n_places": int(X.shape[0])}
+        inputs = inputs_digest(X, Q, quick)
+        reusable = (done or {}).get(inputs, {})
+        base = {**base, "n_places": int(X.shape[0]), "inputs": inputs}
         for label, name, params, budget, seeds in _map_plan(base["dataset"], X, budgets, quick):
+            if (label, budget) in reusable:
+                rows.append(reusable[label, budget])
+                continue
             rows.append(_calibrated_row(base, X, Q, budget, seeds) if label == "auto calibrated"
                         else _row(base, label, name, params, X, Q, budget, seeds))
             with open(journal, "a") as fh:
                 fh.write(json.dumps(rows[-1], default=str) + "\n")
         return rows, time.perf_counter() - start
-
-
-@contextmanager
-def _journal_bar(journal: Path, total: int, enabled: bool, *, interval: float = 2.0,
-                 file: Any = None) -> Iterator[Any]:
-    """A progress bar of the rows in ``journal`` (read every ``interval`` s: it counts the rows of every
-    process); off when not ``enabled`` or when ``file`` (stderr) is not a terminal. Yields the bar
-    (``bar.write`` prints above it)."""
-    import threading
-
-    from tqdm.auto import tqdm
-
-    with tqdm(total=total, desc="frontier", unit="row", disable=None if enabled else True, leave=False,
-              file=file) as bar:
-        stop = threading.Event()
-
-        def watch() -> None:
-            while not stop.wait(interval):
-                with open(journal, "rb") as fh:
-                    done = sum(1 for _ in fh)
-                bar.update(done - bar.n)
-
-        watcher = threading.Thread(target=watch, daemon=True)
-        if not bar.disable:
-            watcher.start()
-        try:
-            yield bar
-        finally:
-            stop.set()
-            if watcher.is_alive():
-                watcher.join()
