@@ -121,8 +121,15 @@ def run_experiment(name: str, *, data_root: str | Path | None = None, out_dir: s
     run = EXPERIMENTS[name](data, out, quick, **options)
     meta = {**run_metadata(command or f"btel experiment {name}{' --quick' if quick else ''}"), "experiment": name,
             "quick": quick, "jobs": jobs, "resume": resume, "data": str(root.resolve()),
-            "descriptor": "HOG 3780-D (SeqSLAM: 64×32 patch-normalised, 2048-D)",
+            "descriptor": _descriptors(run),
             "front_end": front_end or "each method's default (rows L2-normalised; SeqSLAM none)",
             "seconds": time.perf_counter() - start}
     write_results(run, out, meta)
     return run
+
+
+def _descriptors(run: ExperimentRun) -> str:
+    """What the run's rows describe places by: the rows' own ``descriptor`` cells where they have them
+    (the experiments on several data sets), else the paper's Nordland descriptors."""
+    named = list(dict.fromkeys(str(d) for d in (r.to_row().get("descriptor") for r in run.rows) if d))
+    return "per row: " + ", ".join(named) if named else "HOG 3780-D (SeqSLAM: 64×32 patch-normalised, 2048-D)"
