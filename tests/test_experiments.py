@@ -227,6 +227,33 @@ def test_frontier_resume_keeps_the_journalled_rows_and_runs_the_rest(nordland_di
         run_experiment("regions", data_root=nordland_dir, resume=True)
 
 
+def test_the_journal_reader_keeps_only_rows_and_refuses_what_is_no_journal(tmp_path: Path) -> None:
+    """--resume reads rows.jsonl: lines that are not rows are left out (so run again); a file far larger
+    than any journal, or a FIFO, is refused at once."""
+    import os
+
+    from btel.exceptions import DataNotFoundError
+    from btel.experiments.frontier_journal import MAX_JOURNAL_BYTES, journalled_rows
+
+    journal = tmp_path / "rows.jsonl"
+    row = {"dataset": "d", "method": "lsh", "budget": 4000, "inputs": "abc", "value": 0.5}
+    journal.write_text("\n".join([json.dumps(row), "[1, 2]", '{"method": 3}', json.dumps({**row, "budget": "4KB"}),
+                                  json.dumps({**row, "method": "pq"})[:30]]) + "\n")
+    assert journalled_rows(journal) == {"abc": {("lsh", 4000): row}}
+    assert journalled_rows(tmp_path / "none.jsonl") == {}
+    elsewhere = tmp_path / "notes.txt"
+    elsewhere.write_text("my notes\n")
+    (tmp_path / "link.jsonl").symlink_to(elsewhere)
+    assert journalled_rows(tmp_path / "link.jsonl") == {}
+    with open(tmp_path / "huge.jsonl", "wb") as fh:
+        fh.truncate(MAX_JOURNAL_BYTES + 1)
+    with pytest.raises(InvalidParameterError, match="not one; run without --resume"):
+        journalled_rows(tmp_path / "huge.jsonl")
+    os.mkfifo(tmp_path / "fifo.jsonl")
+    with pytest.raises(DataNotFoundError, match="not a regular file"):
+        journalled_rows(tmp_path / "fifo.jsonl")
+
+
 def test_jobs_is_refused_where_an_experiment_runs_in_one_process(tmp_path: Path) -> None:
     with pytest.raises(InvalidParameterError, match="--jobs applies to frontier only"):
         run_experiment("regions", data_root=tmp_path, jobs=2)
