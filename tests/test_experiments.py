@@ -218,6 +218,10 @@ def test_frontier_resume_keeps_the_journalled_rows_and_runs_the_rest(nordland_di
         return [(r["dataset"], r["method"], r.get("budget"), r["status"], r.get("value")) for r in rows]
 
     assert cells(resumed["rows"]) == cells(full["rows"]) and resumed["resumed_rows"] == 20
+    from btel.experiments.frontier_verdicts import report_lines
+
+    assert "The run was resumed: 20 rows came from" in " ".join(report_lines(resumed, tmp_path))
+    assert "resumed" not in " ".join(report_lines(full, tmp_path))
     calibrated = sum(r["method"] == "auto calibrated" for r in full["rows"][20:])
     assert len(ran) == len(full["rows"]) - 20 - calibrated  # every row not journalled, and only those
     assert len((tmp_path / "frontier" / "rows.jsonl").read_text().splitlines()) == len(full["rows"])

@@ -135,8 +135,12 @@ def report_lines(payload: dict[str, Any], docs_dir: Path) -> list[str]:
     verdicts = payload.get("auto_vs_oracle", [])
     parts = payload.get("part_seconds") or {}
     quick = bool((payload.get("run") or {}).get("quick"))
+    resumed = payload.get("resumed_rows") or 0
     lines = [("Wall time per map (one faiss and one BLAS thread): "
-              + ", ".join(f"{k} {v:.0f} s" for k, v in parts.items()) + ".") if parts else "", "",
+              + ", ".join(f"{k} {v:.0f} s" for k, v in parts.items()) + "."
+              + (f" The run was resumed: {resumed} rows came from the interrupted run's journal (same btel source, "
+                 "same maps), and these times count only the rows measured after it." if resumed else ""))
+             if parts else "", "",
              payload.get("quick_protocol", "") if quick else
              "Key recall per map (route maps: recall within 2 frames, Nordland within 10; independent places: "
              "exact place, recall@0). Oracle = the best row of the table at that budget (every method and variant "
