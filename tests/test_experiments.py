@@ -161,6 +161,16 @@ def test_the_frontier_runs_its_plan_and_its_bar_counts_the_journal(tmp_path: Pat
         while bar.n != 3 and time.monotonic() < deadline:
             time.sleep(0.01)
         assert bar.n == 3 and bar.total == 5
+        journal.unlink()  # removed under the run: the watcher waits, and the bar never moves back
+        time.sleep(0.1)
+        journal.write_text("{}\n")
+        time.sleep(0.1)
+        assert bar.n == 3
+        journal.write_text("{}\n" * 4)
+        deadline = time.monotonic() + 5
+        while bar.n != 4 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert bar.n == 4
     with frontier_journal.journal_bar(journal, 5, False) as off:
         assert off.disable
 
@@ -229,6 +239,12 @@ def test_frontier_resume_keeps_the_journalled_rows_and_runs_the_rest(nordland_di
     assert len({inputs_digest(X, X, True), inputs_digest(X, X, False), inputs_digest(X + 1, X, True)}) == 3
     with pytest.raises(InvalidParameterError, match="--resume applies to frontier only"):
         run_experiment("regions", data_root=nordland_dir, resume=True)
+    from btel.exceptions import OutputExistsError
+
+    (tmp_path / "folder" / "frontier" / "rows.jsonl").mkdir(parents=True)
+    with pytest.raises(OutputExistsError, match="is a folder"):
+        run_experiment("frontier", data_root=nordland_dir, out_dir=tmp_path / "folder", quick=True, progress=False,
+                       resume=True)
 
 
 def test_the_journal_reader_keeps_only_rows_and_refuses_what_is_no_journal(tmp_path: Path) -> None:
@@ -237,12 +253,16 @@ def test_the_journal_reader_keeps_only_rows_and_refuses_what_is_no_journal(tmp_p
     import os
 
     from btel.exceptions import DataNotFoundError
-    from btel.experiments.frontier_journal import MAX_JOURNAL_BYTES, journalled_rows
+    from btel.experiments.frontier_journal import MAX_JOURNAL_BYTES, journal_line, journalled_rows
 
     journal = tmp_path / "rows.jsonl"
     row = {"dataset": "d", "method": "lsh", "budget": 4000, "inputs": "abc", "value": 0.5}
-    journal.write_text("\n".join([json.dumps(row), "[1, 2]", '{"method": 3}', json.dumps({**row, "budget": "4KB"}),
-                                  json.dumps({**row, "method": "pq"})[:30]]) + "\n")
+    edited = journal_line({**row, "method": "pq"}).replace('"value": 0.5', '"value": "abc"')
+    journal.write_text("".join([journal_line(row), "[1, 2]\n", '{"method": 3}\n', json.dumps(row) + "\n",
+                                journal_line({**row, "budget": "4KB"}), journal_line({**row, "budget": True}),
+                                edited, "[" * 5000 + "\n", journal_line({**row, "method": "itq"})[:30]]))
+    # Only the row as written: not the one without a checksum, nor the edited one, nor those whose budget is no
+    # byte count, nor the nested or cut lines.
     assert journalled_rows(journal) == {"abc": {("lsh", 4000): row}}
     assert journalled_rows(tmp_path / "none.jsonl") == {}
     elsewhere = tmp_path / "notes.txt"

@@ -42,7 +42,6 @@ Why each of these: ``docs/decisions/frontier.md``.
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -55,8 +54,9 @@ from ..core.storage import check_within_budget, format_bytes, parse_budget
 from ..core.threads import limit_threads
 from ..datasets.sources import gardens_point_path, load_gardens_point_netvlad
 from ..core.claims import atomic_output
+from ..exceptions import OutputExistsError
 from ._common import SEASONS, ExperimentRun, FittedRow, NordlandData, does_not_fit_cells, fit_and_predict
-from .frontier_journal import inputs_digest, journal_bar, journalled_rows
+from .frontier_journal import inputs_digest, journal_bar, journal_line, journalled_rows
 from .frontier_verdicts import SEEDS, auto_vs_oracle, paired_difference, report_lines, row_of_choice
 from ..methods.registry import make_method
 
@@ -339,6 +339,9 @@ def exp_frontier(data: NordlandData, out: Path, quick: bool, jobs: int = 1, resu
     out.mkdir(parents=True, exist_ok=True)
     budgets = ("4KB", "64KB") if quick else BUDGETS
     journal = out / "rows.jsonl"
+    if journal.is_dir():
+        raise OutputExistsError(f"{str(journal)!r} is a folder; the frontier journals its rows in a file of that "
+                                "name: remove or rename the folder, or give another --out.")
     maps = _maps(data, quick)
     found = journalled_rows(journal) if resume else {}
     done = {}  # per map's inputs, the rows of its plan found in the journal
@@ -348,7 +351,7 @@ def exp_frontier(data: NordlandData, out: Path, quick: bool, jobs: int = 1, resu
         done[digest] = {key: row for key, row in found.get(digest, {}).items() if key in plan}
     kept = [row for rows in done.values() for row in rows.values()]
     with atomic_output(journal, text=True) as fh:  # the rows that will be reused, and nothing else
-        fh.writelines(json.dumps(row, default=str) + "\n" for row in kept)
+        fh.writelines(journal_line(row) for row in kept)
     parts: list[tuple[list[dict[str, Any]], float]] = []
     total = sum(len(_map_plan(base["dataset"], X, budgets, quick)) for base, X, _ in maps)
     with limit_threads(1), journal_bar(journal, total, data.progress) as bar:
@@ -374,7 +377,7 @@ def exp_frontier(data: NordlandData, out: Path, quick: bool, jobs: int = 1, resu
     seconds = {base["dataset"]: s for (base, _, _), (_, s) in zip(maps, parts)}
     run = ExperimentRun.from_rows("frontier", rows, out, plot=plot)
     run.extra = {"auto_vs_oracle": auto_vs_oracle(rows), "part_seconds": seconds,
-                 "total_seconds": sum(seconds.values()), "jobs": max(1, jobs), "resumed_rows": len(kept)}
+                 "total_seconds": sum(seconds.values()), "jobs": max(1, min(jobs, len(maps))), "resumed_rows": len(kept)}
     if quick:
         run.extra["quick_protocol"] = (
             f"Quick mode: {len(maps)} maps ({', '.join(b['dataset'] for b, _, _ in maps)}), budgets "
@@ -422,5 +425,5 @@ def _one_map(base: dict[str, Any], X: np.ndarray, Q: np.ndarray, budgets: tuple[
             rows.append(_calibrated_row(base, X, Q, budget, seeds) if label == "auto calibrated"
                         else _row(base, label, name, params, X, Q, budget, seeds))
             with open(journal, "a") as fh:
-                fh.write(json.dumps(rows[-1], default=str) + "\n")
+                fh.write(journal_line(rows[-1]))
         return rows, time.perf_counter() - start

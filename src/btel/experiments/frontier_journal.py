@@ -21,10 +21,12 @@ from ..core.limits import open_regular
 from ..exceptions import InvalidParameterError
 from ._common import _source_digest, data_fingerprint
 
-__all__ = ["MAX_JOURNAL_BYTES", "inputs_digest", "journal_bar", "journalled_rows"]
+__all__ = ["CHECKSUM", "MAX_JOURNAL_BYTES", "inputs_digest", "journal_bar", "journal_line", "journalled_rows"]
 
 #: Largest journal ``--resume`` reads (a whole run's is about 0.6 MB, its longest line 2 KB).
 MAX_JOURNAL_BYTES = 64 << 20
+#: The cell of a journal line that holds its row's SHA-1 (:func:`journal_line`).
+CHECKSUM = "row_sha1"
 
 
 def inputs_digest(X: np.ndarray, Q: np.ndarray, quick: bool) -> str:
@@ -48,12 +50,29 @@ def journalled_rows(journal: Path) -> dict[str, dict[tuple[Any, ...], dict[str, 
         for line in fh:
             try:
                 row = json.loads(line)
-            except ValueError:
+            except (ValueError, RecursionError):  # not JSON, or nested past the parser's depth
                 continue
-            if (isinstance(row, dict) and isinstance(row.get("inputs"), str) and isinstance(row.get("method"), str)
-                    and isinstance(row.get("budget"), (int, type(None))) and isinstance(row.get("dataset"), str)):
+            if not isinstance(row, dict) or row.pop(CHECKSUM, None) != _checksum(row):
+                continue  # not a row this module wrote, or one edited since
+            if (isinstance(row.get("inputs"), str) and isinstance(row.get("method"), str)
+                    and type(row.get("budget")) in (int, type(None)) and isinstance(row.get("dataset"), str)):
                 found.setdefault(row["inputs"], {})[row["method"], row["budget"]] = row
     return found
+
+
+def journal_line(row: dict[str, Any]) -> str:
+    """One journal line: the row as JSON with its checksum (:data:`CHECKSUM`), so that a row edited or
+    damaged since is left out by :func:`journalled_rows` and run again, never published."""
+    plain = json.loads(json.dumps(row, default=str))  # what a reader will load (numpy numbers as JSON ones)
+    return json.dumps({**plain, CHECKSUM: _checksum(plain)}) + "\n"
+
+
+def _checksum(row: dict[str, Any]) -> str:
+    try:
+        text = json.dumps(row, sort_keys=True)
+    except (TypeError, ValueError, RecursionError):
+        return ""
+    return hashlib.sha1(text.encode()).hexdigest()
 
 
 @contextmanager
@@ -72,9 +91,12 @@ def journal_bar(journal: Path, total: int, enabled: bool, *, interval: float = 2
 
         def watch() -> None:
             while not stop.wait(interval):
-                with open(journal, "rb") as fh:
-                    done = sum(1 for _ in fh)
-                bar.update(done - bar.n)
+                try:
+                    with open(journal, "rb") as fh:
+                        done = sum(1 for _ in fh)
+                except OSError:  # removed or replaced under the run: the bar waits for it
+                    continue
+                bar.update(max(0, done - bar.n))  # a journal cut short never moves the bar back
 
         watcher = threading.Thread(target=watch, daemon=True)
         if not bar.disable:
