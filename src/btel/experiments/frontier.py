@@ -344,16 +344,17 @@ def exp_frontier(data: NordlandData, out: Path, quick: bool, jobs: int = 1, resu
                                 "name: remove or rename the folder, or give another --out.")
     maps = _maps(data, quick)
     found = journalled_rows(journal) if resume else {}
+    plans = [_map_plan(base["dataset"], X, budgets, quick) for base, X, _ in maps]
     done = {}  # per map's inputs, the rows of its plan found in the journal
-    for base, X, Q in maps:
+    for (_, X, Q), plan in zip(maps, plans):
         digest = inputs_digest(X, Q, quick)
-        plan = {(label, budget) for label, _n, _p, budget, _s in _map_plan(base["dataset"], X, budgets, quick)}
-        done[digest] = {key: row for key, row in found.get(digest, {}).items() if key in plan}
+        keys = {(label, budget) for label, _n, _p, budget, _s in plan}
+        done[digest] = {key: row for key, row in found.get(digest, {}).items() if key in keys}
     kept = [row for rows in done.values() for row in rows.values()]
     with atomic_output(journal, text=True) as fh:  # the rows that will be reused, and nothing else
         fh.writelines(journal_line(row) for row in kept)
     parts: list[tuple[list[dict[str, Any]], float]] = []
-    total = sum(len(_map_plan(base["dataset"], X, budgets, quick)) for base, X, _ in maps)
+    total = sum(len(plan) for plan in plans)
     with limit_threads(1), journal_bar(journal, total, data.progress) as bar:
         def log(msg: str) -> None:
             if data.progress:  # above the bar, and flushed: the line of a map that took minutes
