@@ -289,6 +289,18 @@ def test_jobs_is_refused_where_an_experiment_runs_in_one_process(tmp_path: Path)
     assert result.exit_code == 2 and "--jobs applies to frontier only" in result.output
 
 
+@pytest.mark.parametrize("args, message", [
+    (["bogus"], "unknown experiment 'bogus'"),
+    (["all", "--delta", "10"], "experiment 'beyond' sets each method's front end itself"),
+    (["accuracy", "--resume"], "--resume applies to frontier only"),
+])
+def test_experiment_refusals_come_before_any_line_or_run(tmp_path: Path, args: list[str], message: str) -> None:
+    """A refused request prints only its error: no "experiment … …" start line, no run folder, no
+    experiment of an `all` run before the one that refuses."""
+    result = CliRunner().invoke(main, ["experiment", *args, "--quick", "--out", str(tmp_path / "runs")])
+    assert result.exit_code == 2 and message in result.output
+    assert "…" not in result.output and not (tmp_path / "runs").exists()
+
 def test_stretch_split_keeps_validation_and_reported_queries_apart() -> None:
     from btel.experiments.beyond import stretch_split
 

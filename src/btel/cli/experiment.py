@@ -37,15 +37,19 @@ def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | 
     Each writes results.csv, results.json and PNG plots into OUT/NAME/; `btel report` turns the
     latest runs into docs/results.md.
     """
-    from ..experiments import EXPERIMENTS, PARALLEL, RESUMABLE, describe_row, run_experiment
+    from ..experiments import EXPERIMENTS, PARALLEL, RESUMABLE, check_request, describe_row, run_experiment
 
     names = list(EXPERIMENTS) if name == "all" else [name]
+    # 'all' applies --jobs and --resume where they apply; one experiment named is refused them otherwise.
+    options = {n: {"front_end": {"delta": delta} if delta else None,
+                   "jobs": jobs if n in PARALLEL or name != "all" else 1,
+                   "resume": resume if n in RESUMABLE or name != "all" else False} for n in names}
+    for n in names:  # every refusal before the first line is printed or the first experiment runs
+        check_request(n, **options[n])
     for n in names:
         click.echo(f"experiment {n}{' (quick)' if quick else ''} …")
         run = run_experiment(n, data_root=data_root, out_dir=out_dir, cache_dir=cache_dir, quick=quick,
-                             command=_command_line(), front_end={"delta": delta} if delta else None,
-                             jobs=jobs if n in PARALLEL or name != "all" else 1,  # one named: refused there
-                             resume=resume if n in RESUMABLE or name != "all" else False)
+                             command=_command_line(), **options[n])
         for row in run.rows:
             click.echo("  " + describe_row(row))
         click.echo(f"  written to {run.out_dir}")

@@ -52,7 +52,7 @@ from .sequence_filter import exp_sequence_filter
 from .vs_budget import exp_vs_budget
 from .vs_n import exp_vs_n
 
-__all__ = ["EXPERIMENTS", "PARALLEL", "RESUMABLE", "NordlandData", "ExperimentRun", "run_experiment", "default_nordland_root", "describe_row"]
+__all__ = ["EXPERIMENTS", "PARALLEL", "RESUMABLE", "NordlandData", "ExperimentRun", "run_experiment", "check_request", "default_nordland_root", "describe_row"]
 
 EXPERIMENTS: dict[str, Callable[[NordlandData, Path, bool], ExperimentRun]] = {
     "accuracy": exp_accuracy,
@@ -91,26 +91,14 @@ def run_experiment(name: str, *, data_root: str | Path | None = None, out_dir: s
     Raises
     ------
     InvalidParameterError
-        Unknown experiment name.
+        Unknown experiment name, or an option it does not take (:func:`check_request`).
     DataNotFoundError
         Missing Nordland folders.
     BudgetExceededError
         A method stored more bytes than its budget.
     """
-    if name not in EXPERIMENTS:
-        raise InvalidParameterError(f"unknown experiment {name!r}; choose from {', '.join(EXPERIMENTS)} or 'all'.")
     front_end = {k: v for k, v in (front_end or {}).items() if v is not None} or None
-    if front_end and name in SELF_CONTAINED:
-        raise InvalidParameterError(f"experiment {name!r} sets each method's front end itself; run it without "
-                                    "--delta (the paper's experiments (a)–(f) take it).")
-    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
-        raise InvalidParameterError(f"jobs must be a whole number ≥ 1, got {jobs!r}.")
-    if jobs > 1 and name not in PARALLEL:
-        raise InvalidParameterError(f"experiment {name!r} runs in one process; --jobs applies to "
-                                    f"{', '.join(PARALLEL)} only: run it without --jobs.")
-    if resume and name not in RESUMABLE:
-        raise InvalidParameterError(f"experiment {name!r} keeps no journal to resume from; --resume applies to "
-                                    f"{', '.join(RESUMABLE)} only: run it without --resume.")
+    check_request(name, front_end=front_end, jobs=jobs, resume=resume)
     root = Path(data_root) if data_root else default_nordland_root()
     suffix = "".join(f"-{k}-{v}" for k, v in sorted((front_end or {}).items()))
     out = Path(out_dir) / f"{name}{suffix}"
@@ -133,3 +121,27 @@ def _descriptors(run: ExperimentRun) -> str:
     (the experiments on several data sets), else the paper's Nordland descriptors."""
     named = list(dict.fromkeys(str(d) for d in (r.to_row().get("descriptor") for r in run.rows) if d))
     return "per row: " + ", ".join(named) if named else "HOG 3780-D (SeqSLAM: 64×32 patch-normalised, 2048-D)"
+
+
+def check_request(name: str, *, front_end: dict[str, Any] | None = None, jobs: int = 1, resume: bool = False) -> None:
+    """Refuse an unknown experiment, or an option it does not take, before anything runs or prints.
+
+    Raises
+    ------
+    InvalidParameterError
+        Unknown name; ``front_end`` for an experiment that sets front ends itself; ``jobs`` that is
+        not a whole number ≥ 1, or > 1 or ``resume`` for an experiment that cannot use it.
+    """
+    if name not in EXPERIMENTS:
+        raise InvalidParameterError(f"unknown experiment {name!r}; choose from {', '.join(EXPERIMENTS)} or 'all'.")
+    if front_end and name in SELF_CONTAINED:
+        raise InvalidParameterError(f"experiment {name!r} sets each method's front end itself; run it without "
+                                    "--delta (the paper's experiments (a)–(f) take it).")
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+        raise InvalidParameterError(f"jobs must be a whole number ≥ 1, got {jobs!r}.")
+    if jobs > 1 and name not in PARALLEL:
+        raise InvalidParameterError(f"experiment {name!r} runs in one process; --jobs applies to "
+                                    f"{', '.join(PARALLEL)} only: run it without --jobs.")
+    if resume and name not in RESUMABLE:
+        raise InvalidParameterError(f"experiment {name!r} keeps no journal to resume from; --resume applies to "
+                                    f"{', '.join(RESUMABLE)} only: run it without --resume.")
