@@ -458,3 +458,25 @@ def test_frontier_panels_label_no_minor_ticks_so_labels_never_run_together(tmp_p
             labels = [t for t in ax.xaxis.get_majorticklabels() if t.get_text() and t.get_visible()]
             boxes = sorted((t.get_window_extent() for t in labels), key=lambda b: b.x0)
             assert all(a.x1 <= b.x0 for a, b in zip(boxes, boxes[1:]))  # no two labels overlap
+
+
+def test_frontier_legend_has_a_panel_of_its_own_with_auto_first(tmp_path, monkeypatch) -> None:
+    """~30 rows of legend in the first map's panel hid its curves and could not be read at page width:
+    the key goes to a panel without data, auto's two rows first, and no map panel carries one."""
+    from matplotlib.figure import Figure
+
+    from btel.experiments import frontier
+
+    rows = [json.loads(line) for line in (Path(__file__).parent / "data" / "frontier_quick_rows.jsonl").open()]
+    drawn = []
+    real = Figure.savefig
+    monkeypatch.setattr(Figure, "savefig", lambda fig, *a, **k: (drawn.append(fig), real(fig, *a, **k))[1])
+    frontier._plots(rows, tmp_path)
+    methods = {r["method"] for r in rows if r.get("status") == "ok"}
+    for fig in drawn:
+        maps = [ax for ax in fig.axes if ax.has_data()]
+        keys = [ax for ax in fig.axes if ax.get_legend() is not None]
+        assert len(maps) == len({r["dataset"] for r in rows}) and all(ax.get_legend() is None for ax in maps)
+        assert len(keys) == 1 and not keys[0].has_data() and not keys[0].axison
+        labels = [t.get_text() for t in keys[0].get_legend().get_texts()]
+        assert labels[0] == "auto" and set(labels[:-1]) == methods and labels[-1].startswith("ring")

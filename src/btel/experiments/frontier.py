@@ -261,6 +261,7 @@ def _plots(rows: list[dict[str, Any]], out: Path) -> list[Path]:
     import matplotlib
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
     from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
     written: list[Path] = []
@@ -280,10 +281,12 @@ def _plots(rows: list[dict[str, Any]], out: Path) -> list[Path]:
     for xkey, fname, xlabel in (("nbytes", "frontier_recall_vs_bytes.png", "stored bytes"),
                                 ("bytes_per_place", "frontier_recall_vs_bytes_per_place.png", "stored bytes per place")):
         cols = 3
-        fig = Figure(figsize=(15, 4.2 * ((len(datasets) + cols - 1) // cols)), dpi=100)
+        # The legend (~30 rows) gets a panel of its own: the grid's free cell, or one more row.
+        grid_rows = (len(datasets) + cols) // cols
+        fig = Figure(figsize=(15, 4.2 * grid_rows), dpi=100)
         FigureCanvasAgg(fig)
         for i, dataset in enumerate(datasets):
-            ax = fig.add_subplot((len(datasets) + cols - 1) // cols, cols, i + 1)
+            ax = fig.add_subplot(grid_rows, cols, i + 1)
             sub = [r for r in rows if r["dataset"] == dataset and r.get("status") == "ok"]
             for label in dict.fromkeys(r["method"] for r in sub):
                 pts = sorted((r[xkey], r["value"]) for r in sub if r["method"] == label)
@@ -313,10 +316,17 @@ def _plots(rows: list[dict[str, Any]], out: Path) -> list[Path]:
             ax.set_xlabel(xlabel)
             ax.set_ylim(0, 1.02)
             ax.grid(True, which="both", alpha=0.3)
-            if i == 0:
-                ax.plot([], [], linestyle="none", marker="o", markersize=9, markerfacecolor="none",
-                        markeredgecolor="grey", markeredgewidth=2, label="ring: auto's pick (its colour)")
-                ax.legend(fontsize="xx-small", ncol=2)
+        entries: dict[str, Any] = {}
+        for ax in fig.axes:
+            for handle, label in zip(*ax.get_legend_handles_labels()):
+                entries.setdefault(label, handle)
+        entries = {**{a: entries[a] for a in autos if a in entries}, **entries}  # auto's two rows first
+        ring = Line2D([], [], linestyle="none", marker="o", markersize=9, markerfacecolor="none",
+                      markeredgecolor="grey", markeredgewidth=2)
+        key = fig.add_subplot(grid_rows, cols, len(datasets) + 1)
+        key.axis("off")
+        key.legend([*entries.values(), ring], [*entries, "ring: auto's pick (its colour)"], loc="center",
+                   ncol=2, fontsize="small", frameon=False, title="method (row)")
         fig.tight_layout()
         fig.savefig(out / fname)
         written.append(out / fname)
