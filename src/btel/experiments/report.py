@@ -380,7 +380,8 @@ def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path
     figures.mkdir(parents=True, exist_ok=True)
     kept = {m.group("name"): m.group(0) for m in _MARKER.finditer(_read_text(md_path))} if md_path.exists() else {}
 
-    # Front matter: the site's navigation column hidden (its table of contents stays), so the wide tables fit.
+    # Front matter: the site's navigation column hidden (its table of contents and the section tabs stay),
+    # so the wide tables have the room.
     lines = ["---", "hide:", "  - navigation", "---", "", "# Results", "",
              f"{_GENERATED} from the latest `btel experiment` runs; do not edit by hand "
              "(except between marker comments, which other benchmark scripts maintain).", "",
@@ -390,7 +391,7 @@ def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path
              "thumbnails). Front end: every method's default, rows L2-normalised (SeqSLAM: none); brute force "
              "searches by cosine on them, its strongest honest form; the front-ends section compares the others. "
              "Budgets are decimal (1 MB = 10⁶ B); every method's bytes follow the one storage rule "
-             "(README). Brute force is the unbudgeted reference.", "",
+             "([concepts](guide/concepts.md#the-storage-rule)). Brute force is the unbudgeted reference.", "",
              "Metrics: recall@t = share of queries whose point prediction is within t frames of the true place; "
              "R@K = share with a correct place among the top K ranked candidates (R@1 = recall@0). "
              "† marks methods that use the query sequence (SeqSLAM): not comparable with single-frame methods.", ""]
