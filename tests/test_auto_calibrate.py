@@ -120,6 +120,22 @@ def test_a_clear_winner_is_taken_and_a_difference_within_noise_is_not() -> None:
     assert entry["role"] == "" and next(e for e in table if e["candidate"] == "pick")["role"] == "chosen"
 
 
+def test_wins_and_losses_count_queries_by_seed_averaged_correctness_as_the_legend_says() -> None:
+    """With two seeds a query's correctness is 0, 0.5 or 1: W/L count the queries a candidate gets right
+    more often / less often than the pick, so 14/14 can go with a negative diff (a user read it as a
+    contradiction of a legend that spoke of right and wrong)."""
+    from btel.methods.auto.localizer import CALIBRATION_COLUMNS
+
+    pick = np.array([1.0, 1.0, 0.5, 0.0, 0.5])
+    candidate = np.array([0.5, 0.0, 1.0, 0.5, 0.5])
+    table = _table({"pick": pick, "candidate": candidate})
+    decide(table, {"pick": pick, "candidate": candidate}, "pick")
+    entry = next(e for e in table if e["candidate"] == "candidate")
+    assert (entry["wins"], entry["losses"]) == (2, 2) and entry["difference"] == pytest.approx(-0.1)
+    legend = " ".join(CALIBRATION_COLUMNS.split())
+    assert "W/L: queries it gets right more often than the pick / less often (over the seeds)" in legend
+
+
 @settings(max_examples=5, deadline=None)
 @given(st.integers(0, 2**31 - 1))
 def test_under_the_null_the_family_wise_switch_rate_is_near_alpha(seed: int) -> None:

@@ -19,14 +19,11 @@ __all__ = ["AutoLocalizer", "calibration_table"]
 
 #: What the calibration table's columns say (printed under it by ``summary()``, ``btel info``, ``btel train``).
 CALIBRATION_COLUMNS = (
-    "  score: share of the calibration queries each candidate gets right (mean over its seeds); "
-    "diff: its score minus the map-only pick's,\n"
-    "  paired on the same queries; W/L: queries it gets right and the pick wrong / the reverse; "
-    "p (adj.): one-sided p-value of 'beats the pick',\n"
-    "  adjusted over every candidate (max-T); conf.: 1 − p (a switch needs {need:g}); n for {ref:g} / n for diff: "
-    "calibration queries\n"
-    "  that would certify a lead of {ref:g} / of the observed diff (power 0.8; blank for a candidate behind the pick, "
-    "or one that\n"
+    "  score: share of the calibration queries each candidate gets right (mean over its seeds); diff: its score\n"
+    "  minus the map-only pick's, paired on the same queries; W/L: queries it gets right more often than the pick /\n"
+    "  less often (over the seeds); p (adj.): one-sided p-value of 'beats the pick', adjusted over every candidate\n"
+    "  (max-T); conf.: 1 − p (a switch needs {need:g}); n for {ref:g} / n for diff: calibration queries that would\n"
+    "  certify a lead of {ref:g} / of the observed diff (power 0.8; blank for a candidate behind the pick, or one that\n"
     "  disagrees with it on too few queries to hold such a lead); fit s: its fits' seconds.")
 
 
