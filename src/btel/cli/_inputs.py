@@ -82,16 +82,16 @@ def _refuse_image_folder(path: str) -> None:
                                "on descriptors.npy.")
 
 
-def load_model(path: str) -> Any:
+def load_model(path: str, usage: str = "usage: btel localize MODEL QUERIES -o predictions.csv") -> Any:
     """:func:`btel.load`, with a descriptor matrix given as MODEL (the map or the queries instead of the
-    model: arguments swapped) named as such instead of as a corrupt model file."""
+    model: arguments swapped) named as such instead of as a corrupt model file (``usage``: the command's)."""
     from .. import load
     from ..exceptions import ModelFileError
 
     try:
         return load(path)
     except ModelFileError:
-        refuse_matrix_as_model(path, "MODEL", "usage: btel localize MODEL QUERIES -o predictions.csv")
+        refuse_matrix_as_model(path, "MODEL", usage)
         raise
 
 

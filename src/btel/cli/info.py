@@ -62,9 +62,9 @@ def _registry_name(model: Any) -> str:
 @click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
 def info(model_path: str) -> None:
     """Show what a saved MODEL is: method, parameters, front end, and the bytes of every stored array."""
-    from .. import load
+    from ._inputs import load_model
 
-    model = load(model_path)
+    model = load_model(model_path, "usage: btel info MODEL")
     name = _registry_name(model)
     click.echo(f"method: {name}" + (f" — {type(model).__name__}" if name in _method_names() else ""))
     click.echo(f"map: N = {model.n_places_} places, d = {model.n_features_in_}")

@@ -31,6 +31,7 @@ import numpy as np
 from ..core.validation import check_descriptors
 from ..exceptions import DataNotFoundError, InvalidDescriptorsError, InvalidParameterError, ResourceLimitError
 from ..core.limits import ENV_MEMORY_LIMIT, check_numpy_file, format_size, memory_limit, open_regular
+from ..core.modelfile import HEADER_KEY
 from .hdf5 import load_hloc_global
 from .npy_header import check_npy_header, refuse_text_matrix
 
@@ -224,6 +225,11 @@ def load_descriptor_matrix(
             if mmap_mode is not None:
                 raise InvalidParameterError(f"{str(path)!r} is an .npz archive; memory-mapping needs a .npy file.")
             names = list(loaded.files)
+            if HEADER_KEY in names:  # a saved model given where descriptors go (arguments swapped)
+                raise InvalidDescriptorsError(
+                    f"{str(path)!r} is a btel model file (written by `btel train` or model.save), not descriptors. "
+                    "Give the descriptor matrix (.npy, .npz, hloc .h5) here; the model goes where a command "
+                    f"takes MODEL: btel localize {path} QUERIES -o predictions.csv, or btel evaluate --model {path}.")
             if not names:
                 raise InvalidDescriptorsError(f"{str(path)!r} is an .npz archive without arrays; save the "
                                               "descriptors with np.savez(path, X=X).")

@@ -99,6 +99,14 @@ def refuse_text_matrix(path: str | os.PathLike, what: str) -> None:
         text = head.decode("utf-8-sig")
     except (OSError, UnicodeDecodeError):
         return
+    if text.lstrip().startswith("{") and file.suffix.lower() == ".json":
+        # The record `btel extract` writes beside its matrix (X.npy.json), or any other JSON document.
+        matrix = file.with_suffix("")
+        beside = (f"; it describes {str(matrix)!r}, the matrix to give here" if matrix.suffix.lower() == ".npy"
+                  and matrix.is_file() else "")
+        raise InvalidDescriptorsError(
+            f"{what} {str(file)!r} is a JSON document (such as the record `btel extract` writes beside its .npy), not "
+            f"descriptors{beside}. btel reads .npy, .npz, hloc .h5 and folders of .npy shards.")
     lines = [line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("#")][:2]
     if not lines or any(ch not in "\t\r\n" and not ch.isprintable() for ch in text):
         return

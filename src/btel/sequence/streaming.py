@@ -157,6 +157,8 @@ def localize_stream(
                 yield from answer_pending()
                 continue
             number += 1
+            if number == 1 and not binary:
+                _refuse_a_file_format(item)
             if blocks:
                 pending.append((number, item))
                 if len(pending) >= _BLOCK_LINES:
@@ -171,6 +173,25 @@ def localize_stream(
         yield from answer_pending()
         raise
     yield from answer_pending()
+
+
+#: The first bytes of files a user may pipe in by mistake, and what each is.
+_FILE_MAGIC = {b"\x93NUMPY": "a .npy file", b"PK\x03\x04": "a zip archive (.npz: descriptors or a btel model)",
+               b"\x89HDF\r\n": "an HDF5 file (.h5)"}
+
+
+def _refuse_a_file_format(first: Any) -> None:
+    """Stop a text stream whose first line is the start of a binary file (a .npy piped in): every "line"
+    would be reported as malformed, thousands of them, and nothing answered."""
+    head = first.encode("latin-1", "replace") if isinstance(first, str) else first
+    if not isinstance(head, (bytes, bytearray)):
+        return
+    what = next((name for magic, name in _FILE_MAGIC.items() if head.startswith(magic)), None)
+    if what is not None:
+        raise InvalidDescriptorsError(
+            f"the input is {what}, not lines of text: localize a file of descriptors with "
+            "`btel localize MODEL QUERIES -o predictions.csv`; a stream takes one descriptor per text line, "
+            "or float32 frames with --binary.")
 
 
 class _WarnOnce:
