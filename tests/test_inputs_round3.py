@@ -91,3 +91,15 @@ def test_a_text_stream_is_not_mistaken_for_a_file_format(small) -> None:
     result = CliRunner().invoke(main, ["localize", str(model), "--stream"], input=lines)
     assert result.exit_code == 0, result.output
     assert result.output.split() == ["0", "1", "2", "3", "4"]
+
+
+def test_btel_report_on_an_evaluate_run_says_its_tables_are_already_there(small, tmp_path: Path) -> None:
+    """It said "no experiment results …; run `btel experiment all` first" to a user with a finished run."""
+    db, q, _ = small
+    run = tmp_path / "runs" / "mine"
+    assert _invoke("evaluate", "--db", db, "--queries", q, "--methods", "bruteforce", "--out", run).exit_code == 0
+    result = _invoke("report", "--runs", run, "--docs", tmp_path / "docs")
+    assert result.exit_code == 2, result.output
+    assert f"is a `btel evaluate` run: its tables (metrics.json, the CSV files) and plots are already in that folder" \
+        in " ".join(result.output.split())
+    assert not (tmp_path / "docs").exists()

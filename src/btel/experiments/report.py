@@ -368,6 +368,12 @@ def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path
     """
     runs_dir, docs_dir = Path(runs_dir), Path(docs_dir)
     found = {name: runs_dir / name / "results.json" for name in EXPERIMENTS if (runs_dir / name / "results.json").is_file()}
+    if not found and (runs_dir / "metrics.json").is_file():  # a `btel evaluate` run folder
+        raise DataNotFoundError(
+            f"{str(runs_dir)!r} is a `btel evaluate` run: its tables (metrics.json, the CSV files) and plots are "
+            f"already in that folder (`btel show {runs_dir}` draws its match galleries when its descriptors came "
+            "from images). `btel report` gathers the runs of `btel experiment` (default runs/experiments) into "
+            "docs/results.md.")
     if not found:
         raise DataNotFoundError(f"no experiment results under {str(runs_dir)!r}; run `btel experiment all` first.")
     md_path, json_path = docs_dir / "results.md", docs_dir / "results.json"
