@@ -180,7 +180,8 @@ def test_every_layout_is_checked_against_the_descriptor_counts(tmp_path: Path, l
     else:
         path.write_text("query,positive\n0,1\n4,2\n")
     assert GroundTruth.from_file(path, n_queries=5).n_queries == 5
-    with pytest.raises(InvalidParameterError, match="is for 5 queries but there are 6"):
+    counted = "has no line for queries 1, 2, 3, 5 " if layout == "csv" else "is for 5 queries but there are 6"
+    with pytest.raises(InvalidParameterError, match=counted):
         GroundTruth.from_file(path, n_queries=6)
     if layout != "csv":
         with pytest.raises(InvalidParameterError, match="n_map is for 9 map places but there are 10"):
@@ -239,3 +240,27 @@ def test_a_place_index_beyond_int64_is_named_not_wrapped(value, dtype) -> None:
     """uint64 2⁶⁴ − 1 was cast to −1 and reported as 'found -1'."""
     with pytest.raises(InvalidParameterError, match="not a place index of any map"):
         GroundTruth.from_places(np.array([value, 1, 2], dtype=dtype), n_map=10)
+
+
+# -- a CSV that omits queries: the message names them, where the count comes from, and the fix -------------
+def test_a_csv_omitting_queries_names_them_and_how_to_list_a_query_without_positive(tmp_path: Path) -> None:
+    """A CSV of 3 lines (queries 0, 1, 5) for 200 query rows said "it is for 6 queries"; one without
+    query 199 said "it is for 199 queries". Both are refused, naming the missing query rows, that the
+    count is the highest query index + 1, and the line that lists a query without a positive."""
+    (tmp_path / "three.csv").write_text("query,positive\n0,0\n1,1\n5,5\n")
+    with pytest.raises(InvalidParameterError) as caught:
+        GroundTruth.from_file(tmp_path / "three.csv", n_queries=200)
+    message = str(caught.value)
+    assert "no line for queries 2, 3, 4, 6, 7 … (197 of the 200 query rows)" in message
+    assert "ground truth of 6 queries (its highest query index + 1)" in message and "'199,'" in message
+    lines = "".join(f"{q},{q}\n" for q in range(199))
+    for header in ("query,positive", "query,positives"):
+        (tmp_path / "gt.csv").write_text(f"{header}\n{lines}")
+        with pytest.raises(InvalidParameterError, match=r"no line for query 199 \(1 of the 200 query rows\)"):
+            GroundTruth.from_file(tmp_path / "gt.csv", n_queries=200)
+        (tmp_path / "gt.csv").write_text(f"{header}\n{lines}199,\n")  # the fix the message gives
+        gt = GroundTruth.from_file(tmp_path / "gt.csv", n_queries=200)
+        assert gt.n_queries == 200 and gt.positives(199).size == 0 and gt.positives(198).tolist() == [198]
+    (tmp_path / "past.csv").write_text("query,positive\n0,0\n250,5\n")
+    with pytest.raises(InvalidParameterError, match="lists query 250, but there are only 200 query rows"):
+        GroundTruth.from_file(tmp_path / "past.csv", n_queries=200)

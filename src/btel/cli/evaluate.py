@@ -201,6 +201,7 @@ def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tupl
     jobs = [] if db is None else _fit_jobs(o["methods"], budgets, tuple(o["param_texts"]),
                                            reference=not o["no_reference"],
                                            shortcuts={**front, **_runtime_shortcuts(no_progress, n_jobs)})
+    _check_option_pairs(o)  # after the parameters' values are checked, before anything is read or made
     calibrate, calibrate_truth, calibrate_tolerance = o["calibrate"], o["calibrate_truth"], o["calibrate_tolerance"]
     check_evaluate_calibration(jobs, db, calibrate, calibrate_truth, calibrate_tolerance)
     # Without --db nothing is fitted: these options would be silently ignored, so they are refused.
@@ -229,6 +230,7 @@ def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tupl
         raise
     n_map = common_map_size(X, Q, saved)
     ks = _ks_for_map(ks, n_map, _given(ctx, "ks_text"))
+    _check_tolerances(o["tolerances"], n_map)
     threshold = o["positive_dist_threshold"]
     check_utm_options(o["ground_truth"], calibrate_truth, db, threshold)
     gt, truth = read_ground_truth(o["ground_truth"], "--ground-truth", n_queries=Q.shape[0], n_map=n_map, db=db,
@@ -244,6 +246,8 @@ def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tupl
     names = input_names(db, queries, n_map, Q.shape[0])
     pairs = plan_pairs(pairs_path, [j.name for j in saved + jobs], names, (Q.shape[0], n_map), queries, db,
                        overwrite)
+    if pairs is not None:
+        _warn_unnamed_pairs(pairs[0], names, queries, db)
     extra = {"db": db, "models": o["model_paths"], "budget": budgets, "queries": queries,
              "query_order": o["query_order"], "options": {flag: o[name] for name, flag in _RECORDED.items()},
              "inputs": inputs, "shapes": {"queries": list(Q.shape), "db": None if X is None else list(X.shape)}}
@@ -276,3 +280,62 @@ def _ks_for_map(ks: list[int], n_map: int, given: bool) -> list[int]:
         click.echo(f"note: K = {_shown(above)} of the default --k left out: R@K needs K ≤ the map's N = {n_map} "
                    "places.")
     return [k for k in ks if k <= n_map]
+
+
+def _check_option_pairs(o: dict[str, Any]) -> None:
+    """Usage errors, before anything is read or any folder made, for options that only apply beside another:
+    ``--positive-dist-threshold`` without a ``utm`` ground truth, ``--delta`` with independent queries."""
+    threshold, gt = o["positive_dist_threshold"], o["ground_truth"]
+    if threshold is not None and "utm" not in (gt, o["calibrate_truth"]):
+        given = ("the default ground truth is frame-aligned (query j is place j)" if gt is None else
+                 "a ground-truth file gives its own positives (a positions file its radius, posDistThr)")
+        raise click.UsageError(
+            f"--positive-dist-threshold {threshold:g} is the radius of --ground-truth utm (the positives within "
+            "that many metres of the UTM positions in the image names): --positive-dist-threshold applies to it "
+            f"(and --calibrate-truth utm) only, and {given}. Drop --positive-dist-threshold, or give "
+            "--ground-truth utm.")
+    delta = o["delta"] if o["delta"] is not None else _every_method_param(o["param_texts"], "delta")
+    if delta is not None and o["query_order"] == "independent":
+        flag, given = ("--delta", f"--delta {delta}") if o["delta"] is not None else ("--param delta",
+                                                                                       f"--param delta={delta}")
+        raise click.UsageError(
+            f"{given} with --query-order independent: delta descriptors are computed over the query "
+            "sequence (the mean of the last W frames minus the W before), which independent queries do not "
+            f"have, so every row would be refused. Drop {flag}, or give --query-order route if the query rows "
+            "are consecutive frames of one traverse.")
+
+
+def _every_method_param(param_texts: list[str], name: str) -> Any:
+    """The value ``--param NAME=VALUE`` (no METHOD: prefix, so for every method) gives ``name``; None if none."""
+    from ._params import _param_value
+
+    for text in param_texts:
+        key, eq, raw = text.partition("=")
+        if eq and key.strip() == name:
+            return _param_value(raw)
+    return None
+
+
+def _check_tolerances(tolerances: list[int] | None, n_map: int) -> None:
+    """Refuse tolerances of N frames or more on a map of N places, as --k values above N are: no prediction
+    is that far off, so recall@t would be 1 whatever the method."""
+    above = [t for t in tolerances or [] if t >= n_map]
+    if above:
+        raise click.UsageError(f"--tolerances {_shown(above)}: recall@t needs t < the map's N = {n_map} places "
+                               f"(a prediction is never more than {n_map - 1} places off); give --tolerances "
+                               f"values up to {n_map - 1}.")
+
+
+def _warn_unnamed_pairs(files: dict[str, Path], names: tuple[list[str] | None, list[str] | None],
+                        queries: str, db: str | None) -> None:
+    """Say on stderr when a --pairs file will hold row indices, not the image names hloc matches by."""
+    unnamed = [what for what, found in ((f"--queries {queries}", names[0]),
+                                        (f"--db {db}" if db else "the map (no --db)", names[1])) if found is None]
+    if not unnamed:
+        return
+    shown = ", ".join(str(p) for p in list(files.values())[:3]) + (" …" if len(files) > 3 else "")
+    click.echo(f"Warning: --pairs: {' and '.join(unnamed)} record no image name per row, so {shown} will name "
+               "those images by row index (from 0), not by the image names hloc matches pairs by. Image names "
+               "come with descriptors written by `btel extract` (listed in FILE.npy.json beside FILE.npy) or hloc "
+               "global-feature .h5 files (FILE.h5[:PREFIX]); give those, or map the indices to your images.",
+               err=True)

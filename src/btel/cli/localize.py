@@ -88,6 +88,7 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
         raise InputError(f"queries {queries} have {Q.shape[1]} values per row, but MODEL was fitted on "
                          f"{model.n_features_in_}-value descriptors; extract the queries with the same "
                          "descriptor (and settings) as the map.")
+    _check_top_k(top_k, model.n_places_, model_path)
     q_names, db_names = input_names(db, queries, model.n_places_, Q.shape[0])
     if db is not None and db_names is None:
         raise InputError(f"--db {db} does not name one image per place of MODEL ({model.n_places_}); give "
@@ -122,6 +123,14 @@ def _in_row_blocks(answer: Any, Q: Any) -> Any:
     if Q.shape[0] <= rows:
         return answer(Q)
     return np.concatenate([answer(np.ascontiguousarray(Q[a:a + rows])) for a in range(0, Q.shape[0], rows)])
+
+
+def _check_top_k(top_k: int | None, n_places: int, model_path: str) -> None:
+    """``--top-k``, refused in the flag's words when it is not 1 … the map's N places (a ranking of more
+    places than the map has would be cut to N columns without a word, as ``btel evaluate --k`` refuses)."""
+    if top_k is not None and not 1 <= top_k <= n_places:
+        raise click.UsageError(f"--top-k {top_k}: a ranking holds 1 to the map's N = {n_places} places (MODEL "
+                               f"{model_path}); give --top-k between 1 and {n_places}.")
 
 
 def _check_window(window: int | None) -> None:

@@ -37,33 +37,12 @@ from ..core.claims import atomic_output
 from ..core.validation import check_descriptors, check_positive_int
 from ..exceptions import DataNotFoundError, DimensionMismatchError, InvalidParameterError
 from .groundtruth_files import read_object_npy
+from .placeindex import _as_int, check_predictions
 from .positions import positives_within
 
 __all__ = ["GroundTruth", "save_positives", "load_positives", "check_predictions", "read_object_npy"]
 
 logger = logging.getLogger(__name__)
-
-
-def check_predictions(predictions: Any, n_queries: int, *, name: str = "predictions") -> np.ndarray:
-    """Predicted place indices checked: ndarray of shape (n_queries,), int64 (one entry per query row)."""
-    arr = np.asarray(predictions)
-    if arr.ndim != 1 or arr.shape[0] != n_queries:
-        raise InvalidParameterError(
-            f"{name} must be 1-D with one place index per query ({n_queries}); got shape {arr.shape}."
-        )
-    return _as_int(arr, name)
-
-
-def _as_int(arr: np.ndarray, name: str) -> np.ndarray:
-    if arr.size and arr.dtype.kind == "f":
-        if not np.all(np.isfinite(arr)) or not np.all(arr == np.round(arr)):
-            raise InvalidParameterError(f"{name} must hold whole numbers (place indices).")
-    elif arr.size and arr.dtype.kind not in "iu":
-        raise InvalidParameterError(f"{name} must hold integer place indices; got dtype {arr.dtype}.")
-    if arr.size and arr.dtype.kind in "uf" and (top := arr.max()) >= 2.0 ** 62:  # a cast wraps: 2⁶⁴−1 → −1
-        raise InvalidParameterError(f"{name} holds {int(top) if arr.dtype.kind == 'u' else f'{top:g}'}, not a "
-                                    "place index of any map.")
-    return arr.astype(np.int64)
 
 
 def _check_tolerance(tolerance: Any) -> int:
@@ -96,6 +75,8 @@ class GroundTruth:
     indptr : ndarray of shape (n_queries + 1,), dtype int64, or None
     indices : ndarray of shape (n_positives,), dtype int64, or None
         Sorted and without duplicates within each query.
+    radius : float or None
+        The distance the positives were found within (:meth:`from_utm`, the files' ``posDistThr``), else None.
     """
 
     def __init__(
@@ -118,6 +99,7 @@ class GroundTruth:
         self.indptr: np.ndarray | None = None
         self.indices: np.ndarray | None = None
         self._csr: sp.csr_array | None = None
+        self.radius: float | None = None
         if has_places:
             self.kind = "places"
             places = np.asarray(query_places)
@@ -241,7 +223,9 @@ class GroundTruth:
         if not np.isfinite(thr) or thr < 0:
             raise InvalidParameterError(f"posDistThr must be a finite distance ≥ 0; got {thr!r}.")
         indptr, indices = positives_within(db, q, thr)
-        return cls(indptr=indptr, indices=indices, n_map=db.shape[0])
+        gt = cls(indptr=indptr, indices=indices, n_map=db.shape[0])
+        gt.radius = thr  # the positive rule a run records: "positives within 25 m"
+        return gt
 
     @classmethod
     def from_file(cls, path: str | os.PathLike, *, n_queries: int | None = None,
@@ -269,7 +253,8 @@ class GroundTruth:
           pair per line (a query may take several lines; a query without any line has no
           positive), or a header ``query,positives`` with the places of each query separated by
           spaces or semicolons in one cell. Queries are numbered from 0; the number of queries is
-          the largest query index + 1.
+          the largest query index + 1 (with ``n_queries`` given, another count is refused, naming
+          the queries without a line). A line ``j,`` (either header) lists query j without positive.
 
         Raises
         ------

@@ -148,7 +148,7 @@ def _read(cls: Any, path: Path, expected: dict[str, int | None]) -> Any:
 
         return _from_arrays(cls, read_mat_arrays(path), repr(str(path)), expected)
     if suffix in (".csv", ".txt"):
-        return _from_csv(cls, path)
+        return _from_csv(cls, path, expected.get("queries"))
     with open_regular(path):
         pass
     try:  # a file cut short is named as such, not as an allocation of many GiB or as "not numpy data"
@@ -245,7 +245,7 @@ def _from_arrays(cls: Any, arrays: dict[str, np.ndarray], source: str,
         "'query_places' (one true place per query).")
 
 
-def _from_csv(cls: Any, path: Path) -> Any:
+def _from_csv(cls: Any, path: Path, n_expected: int | None = None) -> Any:
     with open_regular(path) as raw:
         check_bytes(os.fstat(raw.fileno()).st_size * _CSV_EXPANSION, f"ground-truth CSV {str(path)!r}")
     queries, places, spans = _IntBuffer("q"), _IntBuffer("q"), _IntBuffer("q")
@@ -282,8 +282,36 @@ def _from_csv(cls: Any, path: Path) -> Any:
     n_queries = int(q.max()) + 1
     # indptr, the per-query counts and the CSR copies GroundTruth makes: ~8 int64 per query.
     check_count(n_queries, 64, f"ground-truth CSV {str(path)!r} (query index {n_queries - 1})")
+    if n_expected is not None and n_queries != n_expected:
+        _refuse_csv_count(path, q, n_queries, n_expected)
     rows = np.repeat(q, np.frombuffer(spans, dtype=np.int64))
     order = np.argsort(rows, kind="stable")
     indptr = np.zeros(n_queries + 1, dtype=np.int64)
     np.cumsum(np.bincount(rows, minlength=n_queries), out=indptr[1:])
     return cls.from_csr(indptr, np.frombuffer(places, dtype=np.int64)[order])
+
+
+def _refuse_csv_count(path: Path, listed: np.ndarray, n_queries: int, n_expected: int) -> None:
+    """Refuse a ground-truth CSV whose query count (its highest query index + 1) is not the number of
+    query rows, naming the query rows it has no line for (or the indices past the last query row)."""
+    source = f"ground-truth CSV {str(path)!r}"
+    if n_queries > n_expected:
+        beyond = np.unique(listed[listed >= n_expected])
+        raise InvalidParameterError(
+            f"{source} lists {_few(beyond, 'query', 'queries')}, but there are only {n_expected} query rows "
+            f"(0..{n_expected - 1}); queries are the query descriptors' rows, numbered from 0: give the ground "
+            "truth of these descriptors.")
+    seen = np.zeros(n_expected, dtype=bool)
+    seen[listed] = True
+    missing = np.flatnonzero(~seen)
+    raise InvalidParameterError(
+        f"{source} has no line for {_few(missing, 'query', 'queries')} ({missing.size} of the {n_expected} query "
+        f"rows), so it reads as the ground truth of {n_queries} queries (its highest query index + 1). List every "
+        f"query row 0..{n_expected - 1}: a query with no positive takes a line with its index and an empty place "
+        f"field, e.g. '{int(missing[-1])},' (under either header, 'query,positive' or 'query,positives').")
+
+
+def _few(indices: np.ndarray, one: str, several: str, shown: int = 5) -> str:
+    """``query 3``, ``queries 3, 4, 7`` or ``queries 3, 4, 7, 8, 9 …``: the first few of sorted indices."""
+    head = ", ".join(str(int(i)) for i in indices[:shown])
+    return f"{one if indices.size == 1 else several} {head}{' …' if indices.size > shown else ''}"

@@ -76,6 +76,9 @@ def load_gardens_point_netvlad(path: str | os.PathLike) -> tuple[np.ndarray, np.
 
 def truth_description(gt: Any, source: str, rule: str | None = None) -> dict[str, str]:
     """``{"source", "rule"}`` of a ground truth: where it came from and which places count as correct."""
+    radius = getattr(gt, "radius", None)  # positions: the positives are those within a distance
+    if rule is None and radius is not None:
+        rule = f"positives within {radius:g} m (posDistThr)"
     if rule is None:
         rule = "one true place per query" if gt is None or gt.uses_tolerance else "positives listed per query"
     return {"source": source, "rule": rule}
@@ -124,7 +127,8 @@ def resolve_ground_truth(spec: str | None, *, n_queries: int, n_map: int, db: st
         return None, truth_description(None, "frame-aligned (query j is place j)")
     if spec != "utm":
         gt = GroundTruth.from_file(spec, n_queries=n_queries, n_map=n_map)
-        return gt, truth_description(gt, str(Path(spec).resolve()))
+        rule = None if gt.radius is None else f"positives within {gt.radius:g} m (posDistThr of the file)"
+        return gt, truth_description(gt, str(Path(spec).resolve()), rule)
     threshold = DEFAULT_POSITIVE_DIST_THRESHOLD if threshold is None else float(threshold)
     if not threshold > 0:
         raise InvalidParameterError(f"the positive distance threshold must be > 0 metres; got {threshold:g}.")
