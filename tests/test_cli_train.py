@@ -76,7 +76,7 @@ def test_a_fit_without_bars_of_its_own_shows_the_time_elapsed_on_a_terminal() ->
     import io
     import time
 
-    from btel.cli._outputs import elapsed_ticker
+    from btel.core.progress import elapsed_ticker
 
     shown = io.StringIO()
     with elapsed_ticker("fitting auto on 10000 × 16384", True, file=shown):

@@ -327,6 +327,32 @@ def test_vlad_encode_normalisation() -> None:
     assert np.array_equal(vlad_encode(np.empty((0, 3), np.float32), centroids), np.zeros(12, np.float32))
 
 
+def test_densevlad_shows_an_elapsed_time_while_its_pca_runs(monkeypatch) -> None:
+    """The PCA over the map's VLAD vectors ran a silent minute on Nordland (3,576 × 16,384) between two
+    bars: it now runs under the elapsed-time line, on a terminal and with progress on only."""
+    import contextlib
+    import io
+
+    from btel.descriptors import densevlad
+
+    shown: list[tuple[str, bool]] = []
+
+    @contextlib.contextmanager
+    def ticker(desc: str, enabled: bool, file=None):  # noqa: ANN001, ANN202
+        shown.append((desc, enabled))
+        yield
+
+    monkeypatch.setattr(densevlad, "elapsed_ticker", ticker)
+    terminal = io.StringIO()
+    terminal.isatty = lambda: True  # type: ignore[method-assign]
+    monkeypatch.setattr(densevlad.sys, "stderr", terminal)
+    images = [_textured(10 + i) for i in range(6)]
+    for progress in (True, False):
+        DenseVLADDescriptor(n_clusters=8, n_components=4, **_FAST).fit(images, progress=progress)
+    assert shown == [("densevlad: PCA-whitening 6 VLAD vectors (1024 → 4 dims)", True),
+                     ("densevlad: PCA-whitening 6 VLAD vectors (1024 → 4 dims)", False)]
+
+
 def test_densevlad_without_pca_and_with_capped_pca() -> None:
     images = [_textured(10 + i) for i in range(6)]
     raw = DenseVLADDescriptor(n_clusters=8, n_components=None, **_FAST).fit(images, progress=False)

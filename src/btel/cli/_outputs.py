@@ -6,13 +6,8 @@ holds (so a user sees what would have been lost) and how to go on.
 
 from __future__ import annotations
 
-import contextlib
 import json
-import sys
-import threading
-from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import click
 
@@ -110,38 +105,3 @@ def check_output_suffix(path: str | Path, option: str, writes: str, suffixes: tu
     raise click.UsageError(f"{option} {path} {named}, but this command writes {writes} "
                            f"({' or '.join(suffixes)}); name it e.g. {path.with_suffix(suffixes[0])}.")
 
-
-@contextlib.contextmanager
-def elapsed_ticker(desc: str, enabled: bool, file: Any = None) -> Iterator[None]:
-    """A line on stderr with the time elapsed, refreshed twice a second, while a step that shows no
-    progress of its own runs (a fit of a large map can take minutes); removed when the step ends.
-
-    Parameters
-    ----------
-    desc : str
-        What is running, e.g. ``"fitting auto on 10000 × 16384"``.
-    enabled : bool
-        False: nothing is shown (not a terminal, ``--no-progress``, or the step has its own bar).
-    file : text stream, optional
-        Where the line goes (default ``sys.stderr``).
-    """
-    if not enabled:
-        yield
-        return
-    from tqdm import tqdm
-
-    bar = tqdm(total=None, desc=desc, bar_format="{desc} … {elapsed}", file=file or sys.stderr, leave=False)
-    stop = threading.Event()
-
-    def tick() -> None:
-        while not stop.wait(0.5):
-            bar.refresh()
-
-    ticker = threading.Thread(target=tick, daemon=True)
-    ticker.start()
-    try:
-        yield
-    finally:
-        stop.set()
-        ticker.join()
-        bar.close()

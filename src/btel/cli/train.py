@@ -11,7 +11,8 @@ import click
 from ..methods.roles import DEFAULT_METHOD
 from ._inputs import _load_map, calibration_input, check_calibration_options
 from ._options import _N_JOBS_HELP, _NO_PROGRESS_HELP, _PARAM_HELP, _check_budget, calibration_options
-from ._outputs import OTHER_FORMATS, check_output_suffix, elapsed_ticker, refuse_existing
+from ..core.progress import elapsed_ticker
+from ._outputs import OTHER_FORMATS, check_output_suffix, refuse_existing
 from ._params import ParamCommand, _naming, _param_value, _params_by_method
 from .info import _echo_storage
 

@@ -34,6 +34,7 @@ Choices and deviations from the paper, each deliberate:
 
 from __future__ import annotations
 
+import sys
 import warnings
 from functools import lru_cache
 from typing import Any, ClassVar
@@ -49,6 +50,7 @@ from sklearn.utils import check_random_state
 from ..core.validation import check_is_fitted, check_positive_int
 from ..exceptions import InvalidParameterError, NotEnoughPlacesError
 from ..core.limits import check_count
+from ..core.progress import elapsed_ticker
 from .base import DescriptorWarning, ImageDescriptor, register_descriptor, single_blas_thread
 
 __all__ = ["DenseVLADDescriptor", "dense_rootsift", "vlad_encode", "SIFT_DIM"]
@@ -369,7 +371,9 @@ class DenseVLADDescriptor(ImageDescriptor):
                 for i, grey in enumerate(iter_grey(items, progress=progress, desc="densevlad: PCA")):
                     raw[i] = self._encode(grey)
         cap = min(int(self.n_components), n_images - 1, n_clusters * SIFT_DIM)
-        pca = PCA(n_components=cap, whiten=True, random_state=rng).fit(raw)
+        with elapsed_ticker(f"densevlad: PCA-whitening {n_images} VLAD vectors ({raw.shape[1]} → {cap} dims)",
+                            enabled=bool(progress) and sys.stderr.isatty()):
+            pca = PCA(n_components=cap, whiten=True, random_state=rng).fit(raw)
         variance = pca.explained_variance_
         kept = int(np.count_nonzero(variance > max(variance[0] * _PCA_RTOL, _PCA_ATOL))) if variance.size else 0
         if kept == 0:
@@ -396,20 +400,13 @@ class DenseVLADDescriptor(ImageDescriptor):
     def _stored_arrays(self) -> dict[str, np.ndarray]:
         arrays = {"centroids": self.centroids_}
         if self.pca_components_ is not None:
-            arrays.update(
-                pca_mean=self.pca_mean_,
-                pca_components=self.pca_components_,
-                pca_explained_variance=self.pca_explained_variance_,
-            )
+            arrays.update(pca_mean=self.pca_mean_, pca_components=self.pca_components_,
+                          pca_explained_variance=self.pca_explained_variance_)
         return arrays
 
     def _fitted_state(self) -> dict[str, Any]:
-        return {
-            "dim": int(self.dim_),
-            "n_components": self.n_components_,
-            "n_local_descriptors": self.n_local_descriptors_,
-            "n_sampled_descriptors": self.n_sampled_descriptors_,
-        }
+        return {"dim": int(self.dim_), "n_components": self.n_components_,
+                "n_local_descriptors": self.n_local_descriptors_, "n_sampled_descriptors": self.n_sampled_descriptors_}
 
     def _restore(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
         self._validate_params()
