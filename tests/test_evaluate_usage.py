@@ -98,7 +98,7 @@ def test_positives_from_positions_keep_their_radius() -> None:
     utm = np.c_[np.arange(5) * 5.0, np.zeros(5)]
     gt = GroundTruth.from_utm(utm, utm + 1, 6.0)
     assert gt.radius == 6.0 and GroundTruth.from_positives([[0], [1]]).radius is None
-    assert truth_description(gt, "given in Python")["rule"] == "positives within 6 m (posDistThr)"
+    assert truth_description(gt, "given in Python")["rule"] == "positives within 6 m"
 
 
 # -- 4: --top-k and --tolerances beyond the map ------------------------------------------------------------------

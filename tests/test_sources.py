@@ -57,7 +57,7 @@ def test_resolve_ground_truth_says_where_it_came_from_and_its_rule(tmp_path: Pat
     assert gt.positives(0).tolist() == [0, 1, 2] and gt.positives(1).tolist() == [1, 2, 3]
     _, truth = resolve_ground_truth("utm", n_queries=2, n_map=4, db=db, queries=q, threshold=5)
     assert truth["rule"] == "positives within 5 m"
-    assert truth_description(gt, "x") == {"source": "x", "rule": "positives listed per query"}
+    assert truth_description(gt, "x") == {"source": "x", "rule": "positives within 25 m"}  # its radius kept
 
 
 @pytest.mark.parametrize("kwargs, message", [

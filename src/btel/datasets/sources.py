@@ -78,7 +78,7 @@ def truth_description(gt: Any, source: str, rule: str | None = None) -> dict[str
     """``{"source", "rule"}`` of a ground truth: where it came from and which places count as correct."""
     radius = getattr(gt, "radius", None)  # positions: the positives are those within a distance
     if rule is None and radius is not None:
-        rule = f"positives within {radius:g} m (posDistThr)"
+        rule = f"positives within {radius:g} m"
     if rule is None:
         rule = "one true place per query" if gt is None or gt.uses_tolerance else "positives listed per query"
     return {"source": source, "rule": rule}
