@@ -27,10 +27,11 @@ DEFAULT_MEMORY_LIMIT = 256 * 2**20
 #: Environment variable that raises (or lowers) the limit.
 ENV_MEMORY_LIMIT = "BTEL_MEMORY_LIMIT"
 
-#: Bytes per map place that answering one query may need (float64 scores plus the HMM decoder's
-#: forward vector and workspace): a model's N may be at most ``memory_limit() // BYTES_PER_PLACE``
-#: (8,388,608 places under the 256 MiB default).
-BYTES_PER_PLACE = 32
+#: Bytes per map place that answering one query may need: an HMM step holds five float64 vectors over
+#: the places (the query's scores, the belief, the emission, the moved belief, one workspace; 305 MiB
+#: at N = 8·10⁶ under tracemalloc). A model's N may be at most ``memory_limit() // BYTES_PER_PLACE``
+#: (6,710,886 places under the 256 MiB default).
+BYTES_PER_PLACE = 40
 
 _UNITS = {"": 1, "B": 1, "K": 2**10, "M": 2**20, "G": 2**30, "T": 2**40}
 

@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from ..core.limits import check_places
 from ..core.validation import check_is_fitted, check_positive_int
 from ..exceptions import InvalidParameterError
 
@@ -49,7 +50,8 @@ def _check_probability(value: Any, name: str, *, upper_open: bool = True) -> flo
     return float(value)
 
 
-def transition_kernel(vmin: int = 0, vmax: int = 2, backward: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+def transition_kernel(vmin: int = 0, vmax: int = 2, backward: float = 0.0,
+                      n_places: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Place offsets a step can make and their probabilities (before the teleport share).
 
     Parameters
@@ -58,23 +60,27 @@ def transition_kernel(vmin: int = 0, vmax: int = 2, backward: float = 0.0) -> tu
         Forward offsets vmin … vmax (0 ≤ vmin ≤ vmax), equally likely.
     backward : float in [0, 1)
         Probability of a backward offset −1 … −max(vmax, 1), equally likely.
+    n_places : int, optional
+        N: offsets of N places or more land nowhere on the route and are left out (their
+        probability is not given to the others), so a vmax far beyond N costs nothing.
 
     Returns
     -------
     offsets : ndarray of shape (V,), int64
-    weights : ndarray of shape (V,), float64, summing to 1
+    weights : ndarray of shape (V,), float64, summing to 1 (less when offsets were left out)
     """
     vmin = check_positive_int(vmin, "vmin", minimum=0)
     vmax = check_positive_int(vmax, "vmax", minimum=0)
     if vmax < vmin:
         raise InvalidParameterError(f"vmax must be ≥ vmin; got vmin={vmin}, vmax={vmax}.")
     backward = _check_probability(backward, "backward")
-    forward = np.arange(vmin, vmax + 1, dtype=np.int64)
-    weights = np.full(forward.size, (1.0 - backward) / forward.size)
+    reach = vmax if n_places is None else min(vmax, check_positive_int(n_places, "n_places") - 1)
+    forward = np.arange(vmin, reach + 1, dtype=np.int64)  # empty when vmin ≥ N
+    weights = np.full(forward.size, (1.0 - backward) / (vmax - vmin + 1))
     if backward > 0:
-        back = -np.arange(1, max(vmax, 1) + 1, dtype=np.int64)
+        back = -np.arange(1, min(max(vmax, 1), max(reach, 1)) + 1, dtype=np.int64)
         forward = np.concatenate([forward, back])
-        weights = np.concatenate([weights, np.full(back.size, backward / back.size)])
+        weights = np.concatenate([weights, np.full(back.size, backward / max(vmax, 1))])
     return forward, weights
 
 
@@ -116,6 +122,7 @@ class HMMDecoder:
         mode: str = "forward",
     ) -> None:
         self.n_places = check_positive_int(n_places, "n_places")
+        check_places(self.n_places, "the HMM decoder")
         if isinstance(temperature, bool) or not isinstance(temperature, numbers.Real) \
                 or not np.isfinite(temperature) or temperature <= 0:
             raise InvalidParameterError(f"temperature must be a positive number; got {temperature!r}.")
@@ -123,7 +130,7 @@ class HMMDecoder:
             raise InvalidParameterError(f"mode must be one of {MODES}; got {mode!r}.")
         self.temperature = float(temperature)
         self.teleport = _check_probability(teleport, "teleport")
-        self.offsets, self.weights = transition_kernel(vmin, vmax, backward)
+        self.offsets, self.weights = transition_kernel(vmin, vmax, backward, self.n_places)
         self.mode = mode
         # Max-product: the exact log transition probability of an offset move includes the
         # teleport share that also lands there.
@@ -157,45 +164,59 @@ class HMMDecoder:
         n = self.n_places
         viterbi = combine == "max"
         out = np.full(n, -np.inf) if viterbi else np.zeros(n)
+        work = np.empty(n)  # one workspace for every offset: N floats, not one temporary per offset
         weights = self._log_weights if viterbi else self.weights
         for o, w in zip(self.offsets.tolist(), weights.tolist()):
             if abs(o) >= n:  # a step longer than the route lands nowhere
                 continue
             dst = out[o:] if o >= 0 else out[: n + o]
             src = values[: n - o] if o >= 0 else values[-o:]
+            moved = work[: src.size]
             if viterbi:
-                np.maximum(dst, src + w, out=dst)
+                np.maximum(dst, np.add(src, w, out=moved), out=dst)
             else:
-                dst += w * src
+                dst += np.multiply(src, w, out=moved)
         return out
 
     def update(self, scores: Any) -> int:
         """Take one query's per-place scores (shape (N,), higher = better); return the place."""
         s = self._check_scores(scores)
-        log_e = (s - s.max()) / self.temperature
+        # Every step in place on N-float arrays (a map of millions of places: 8 MB a million each).
+        log_e = np.subtract(s, s.max())
+        log_e /= self.temperature
         if self.mode == "forward":
+            emission = np.exp(log_e, out=log_e)
             if self._belief is None:
-                prior = np.full(self.n_places, 1.0 / self.n_places)
+                post = emission * (1.0 / self.n_places)  # the uniform prior
             else:
-                moved = self._shifted(self._belief, "sum")
-                total = moved.sum()
-                moved = moved / total if total > 0 else np.full(self.n_places, 1.0 / self.n_places)
-                prior = (1.0 - self.teleport) * moved + self.teleport / self.n_places
-            post = prior * np.exp(log_e)
+                post = self._shifted(self._belief, "sum")
+                total = post.sum()
+                if total > 0:
+                    post /= total
+                else:
+                    post.fill(1.0 / self.n_places)
+                post *= 1.0 - self.teleport  # the prior: the moved belief plus the teleport share
+                post += self.teleport / self.n_places
+                post *= emission
             total = post.sum()
             # Every place impossible (no teleport, a belief that left the route): start afresh.
-            self._belief = post / total if total > 0 else np.exp(log_e) / np.exp(log_e).sum()
+            if total > 0:
+                post /= total
+            else:
+                post = np.divide(emission, emission.sum(), out=emission)
+            self._belief = post
         else:
             if self._belief is None:
                 delta = log_e
             else:
                 moved = self._shifted(self._belief, "max")
                 if self.teleport > 0:
-                    moved = np.maximum(moved, np.log(self.teleport / self.n_places) + self._belief.max())
-                delta = moved + log_e
+                    np.maximum(moved, np.log(self.teleport / self.n_places) + self._belief.max(), out=moved)
+                delta = np.add(moved, log_e, out=moved)
                 if not np.isfinite(delta.max()):
                     delta = log_e
-            self._belief = delta - delta.max()
+            delta -= delta.max()
+            self._belief = delta
         return int(np.argmax(self._belief))
 
 
@@ -251,8 +272,15 @@ def zscore_rows(scores: Any) -> np.ndarray:
     S = np.asarray(scores, dtype=np.float64)
     if S.ndim != 2:
         raise InvalidParameterError(f"scores must be 2-D (n_queries, N); got shape {S.shape}.")
+    return _zscore_in_place(S.copy())
+
+
+def _zscore_in_place(S: np.ndarray) -> np.ndarray:
+    """:func:`zscore_rows` of a float64 (n, N) array that may be overwritten (no second (n, N) array)."""
     std = S.std(axis=1, keepdims=True)
-    return (S - S.mean(axis=1, keepdims=True)) / np.where(std > 0, std, 1.0)
+    S -= S.mean(axis=1, keepdims=True)
+    S /= np.where(std > 0, std, 1.0)
+    return S
 
 
 def emission_scores(model: Any, Q: Any) -> np.ndarray:
@@ -285,7 +313,7 @@ def predict_sequence(model: Any, Q: Any, decoder: str = "hmm", **options: Any) -
         Qt = model._check_queries(Q)
         out = np.empty(Qt.shape[0], dtype=np.int64)
         for start, _, block in model._score_blocks(Qt):
-            for j, scores in enumerate(zscore_rows(block)):
+            for j, scores in enumerate(_zscore_in_place(np.asarray(block, dtype=np.float64))):
                 out[start + j] = decoder_.update(scores)
         return model._check_answers(out)
     raise InvalidParameterError(f"decoder must be 'hmm' or 'median'; got {decoder!r}.")

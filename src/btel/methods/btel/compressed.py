@@ -35,7 +35,7 @@ import numpy as np
 from .encoding import decode_constrained, decode_soft, n_bits_for
 from ...learning.training import Task
 
-__all__ = ["compressed_tasks", "compressed_n_classifiers", "compressed_code", "code_signs", "decode_margins",
+__all__ = ["compressed_tasks", "compressed_n_classifiers", "compressed_code", "code_signs", "code_scores", "decode_margins",
            "decode_code", "exemplar_weights", "DECODERS"]
 
 DECODERS = ("constrained", "soft")
@@ -151,11 +151,27 @@ def decode_code(margins: np.ndarray, n_places: int, code_copies: int, *, chunk_s
     -------
     ndarray of shape (n_queries,), int64 in [0, N)
     """
-    signs = code_signs(n_places, code_copies)
     m = np.asarray(margins, dtype=np.float32)
     out = np.empty(m.shape[0], dtype=np.int64)
-    for start in range(0, m.shape[0], chunk_size):
-        out[start : start + chunk_size] = np.argmax(m[start : start + chunk_size] @ signs.T, axis=1)
+    rows = max(1, min(chunk_size, (32 << 20) // (4 * n_places)))  # ≤ 32 MiB of scores at a time, whatever N
+    for start in range(0, m.shape[0], rows):
+        out[start : start + rows] = np.argmax(code_scores(m[start : start + rows], n_places, code_copies), axis=1)
+    return out
+
+
+def code_scores(margins: np.ndarray, n_places: int, code_copies: int) -> np.ndarray:
+    """``margins @ code_signs(N, code_copies).T``, shape (n_queries, N), in the margins' float dtype.
+
+    The signs are made for a block of places at a time (≤ 16 MiB), never the whole (N, K) matrix:
+    a model file claiming N = 8·10⁶ places would otherwise cost gigabytes per query.
+    """
+    m = np.asarray(margins)
+    out = np.empty((m.shape[0], int(n_places)), dtype=m.dtype)
+    step = max(1, (16 << 20) // (m.dtype.itemsize * max(1, m.shape[1])))
+    for start in range(0, int(n_places), step):
+        stop = min(int(n_places), start + step)
+        signs = (2.0 * _code_bits(np.arange(start, stop), n_places, code_copies) - 1.0).astype(m.dtype)
+        out[:, start:stop] = m @ signs.T
     return out
 
 

@@ -125,7 +125,8 @@ class TreeDecoding:
 
     def _place_scores(self, Q: np.ndarray) -> np.ndarray:
         """−cost of every place (tree flip cost + region deficit; a block's places share its cost)."""
-        scores = -self._code_costs(Q)
+        scores = self._code_costs(Q)
+        np.negative(scores, out=scores)  # in place: one (n, N) float64 array, not two
         if self.block_size_ > 1:  # every place scores what its block scores
             scores = scores[:, np.arange(int(self.n_places_)) // self.block_size_]
         return scores

@@ -17,7 +17,7 @@ import numpy as np
 from ...core.validation import check_positive_int
 from ...exceptions import InvalidParameterError, NotEnoughPlacesError
 
-__all__ = ["n_bits_for", "encode", "decode", "decode_constrained", "decode_soft", "bit_codes"]
+__all__ = ["n_bits_for", "encode", "decode", "decode_constrained", "decode_soft", "bit_codes", "index_scores"]
 
 
 def n_bits_for(n_places: int) -> int:
@@ -145,9 +145,28 @@ def decode_soft(margins: np.ndarray, n_places: int, *, chunk_size: int = 4096) -
     indices : ndarray of shape (n_queries,), dtype int64
     """
     m, n = _check_margins(margins, n_places)
-    codes = bit_codes(n).astype(np.float32)
     out = np.empty(m.shape[0], dtype=np.int64)
-    for start in range(0, m.shape[0], chunk_size):
-        scores = m[start : start + chunk_size].astype(np.float32) @ codes.T
-        out[start : start + chunk_size] = np.argmax(scores, axis=1)
+    rows = max(1, min(chunk_size, (32 << 20) // (8 * n)))  # ≤ 32 MiB of scores at a time, whatever N
+    for start in range(0, m.shape[0], rows):
+        out[start : start + rows] = np.argmax(index_scores(m[start : start + rows], n), axis=1)
+    return out
+
+
+def index_scores(margins: np.ndarray, n_places: int) -> np.ndarray:
+    """``Σ_k m_k (2·bit_k(i) − 1)`` of every index i < N (MSB first), shape (n_queries, N), float64.
+
+    Built by doubling from the last bit (the indices with bit k set score the others' + 2·m_k), in
+    O(N) per query and no memory beyond the result: the (N, b) sign matrix a product would need is
+    8·b bytes a place (1.5 GB for a file that claims N = 8·10⁶).
+    """
+    m = np.asarray(margins, dtype=np.float64)
+    out = np.empty((m.shape[0], int(n_places)))
+    out[:, :1] = 0.0
+    size = 1
+    for k in range(m.shape[1] - 1, -1, -1):
+        grown = min(2 * size, out.shape[1])
+        column = m[:, k : k + 1]
+        out[:, size:grown] = out[:, : grown - size] + column  # bit k set
+        out[:, :size] -= column  # bit k clear
+        size = grown
     return out
