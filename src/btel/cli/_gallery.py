@@ -5,7 +5,7 @@
 from __future__ import annotations
 
 import csv
-import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -17,24 +17,103 @@ from ._errors import InputError
 GALLERY_ROWS = 8
 
 
-def _read_predictions(path: Path) -> dict[str, Any] | None:
-    """Top-1, a true place and correctness per query from a ``predictions_<method>.csv``."""
+#: Largest predictions CSV read (64 MiB, as metrics.json: a million queries' rows of ten candidates).
+_MAX_PREDICTIONS_BYTES = 64 << 20
+
+
+def _cell(text: str, low: int, high: int) -> int | None:
+    """The integer ``text`` if it is one in ``[low, high)``, else None."""
+    try:
+        value = int(text)
+    except ValueError:  # not a number, or more digits than int() reads
+        return None
+    return value if low <= value < high else None
+
+
+def _read_predictions(path: Path, n_queries: int, n_map: int) -> dict[str, Any] | None:
+    """Top-1, a true place and correctness per query from a ``predictions_<method>.csv`` of a run of
+    ``n_queries`` queries on ``n_map`` map images; None when it has no such columns or not ``n_queries``
+    rows (a run on other queries: no gallery for it).
+
+    Raises
+    ------
+    InputError
+        A row that btel never writes (cut short, a cell that is no integer), or a file that is no CSV,
+        not UTF-8, or larger than btel writes: the message names the file, the row and the fix.
+    """
+    import io
+
     import numpy as np
 
-    with open(path, newline="", encoding="utf-8") as fh:
-        reader = csv.DictReader(fh)
+    from ..core.limits import open_regular
+    from ..exceptions import DataNotFoundError
+
+    fix = "run `btel evaluate` again to write it, or remove it to draw the other methods' galleries"
+    columns: dict[str, list[int]] = {}
+    try:
+        with open_regular(path) as raw:  # a FIFO here would block `btel show` forever
+            data = raw.read(_MAX_PREDICTIONS_BYTES + 1)
+        if len(data) > _MAX_PREDICTIONS_BYTES:
+            raise InputError(f"{path} holds more than {_MAX_PREDICTIONS_BYTES >> 20} MiB, more than btel writes "
+                             f"for a run's predictions; {fix}.")
+        reader = csv.DictReader(io.StringIO(data.decode("utf-8"), newline=""))
         fields = reader.fieldnames or []
-        rows = list(reader)
-    if not rows or "prediction" not in fields:
+        true_field = "true" if "true" in fields else "positive" if "positive" in fields else None
+        if "prediction" not in fields or true_field is None:
+            return None
+        wanted = ["prediction", true_field, *(["correct"] if "correct" in fields else [])]
+        columns = {field: [] for field in wanted}
+        for row in reader:
+            if len(columns["prediction"]) == n_queries:  # more rows than queries: not this run's; read no further
+                return None
+            if None in row or None in row.values():  # a long row keeps its surplus under None, a short one None
+                raise InputError(f"{path}, line {reader.line_num}: the row has {'more' if None in row else 'fewer'} "
+                                 f"cells than the header's {len(fields)}, which btel never writes (the file was "
+                                 f"edited or damaged); {fix}.")
+            for field in wanted:
+                value = _cell(row[field], -1 if field != "correct" else 0, n_map if field != "correct" else 2)
+                if value is None:
+                    raise InputError(
+                        f"{path}, line {reader.line_num}: {field} is {row[field]!r:.40}, which btel never writes "
+                        f"(an integer from {-1 if field != 'correct' else 0} to {(n_map if field != 'correct' else 2) - 1}"
+                        f"): the file was edited or damaged; {fix}.")
+                columns[field].append(value)
+    except DataNotFoundError as exc:
+        raise InputError(f"{exc} {fix[0].upper()}{fix[1:]}.") from None
+    except (csv.Error, UnicodeDecodeError) as exc:
+        raise InputError(f"{path} is not a btel predictions CSV ({exc}); {fix}.") from None
+    pred = np.array(columns["prediction"], dtype=np.int64)
+    if pred.shape[0] != n_queries:
         return None
-    pred = np.array([int(r["prediction"]) for r in rows], dtype=np.int64)
-    true_field = "true" if "true" in fields else "positive" if "positive" in fields else None
-    if true_field is None:
-        return None
-    true = np.array([int(r[true_field]) for r in rows], dtype=np.int64)
-    correct = (np.array([int(r["correct"]) for r in rows], dtype=bool) if "correct" in fields else pred == true)
+    true = np.array(columns[true_field], dtype=np.int64)
+    correct = np.array(columns["correct"], dtype=bool) if "correct" in columns else pred == true
     return {"pred": pred, "true": true, "correct": correct,
             "label": "true place" if true_field == "true" else "a positive"}
+
+
+def _run_names(meta_path: Path) -> tuple[dict[str, Any], list[str]]:
+    """The ``extra`` metadata of the run ``metrics.json`` at ``meta_path`` and the names of its rows done."""
+    from ..evaluation.runfile import read_run_payload
+    from ..exceptions import BTELError
+
+    fix = "run `btel evaluate` again to write the run anew"
+    try:
+        run, results = read_run_payload(meta_path, fix)
+    except BTELError as exc:
+        raise InputError(str(exc)) from None
+    extra = run.get("extra") or {}
+    if not isinstance(extra, dict) or not all(isinstance(extra.get(k), (str, type(None))) for k in ("db", "queries")):
+        raise InputError(f"{meta_path}: run.extra must be an object whose db and queries are paths (or null), as "
+                         f"btel writes it (the file was edited or damaged); {fix}.")
+    names = []
+    for i, row in enumerate(results):
+        if not isinstance(row, dict) or not isinstance(row.get("name"), str) or not isinstance(
+                row.get("status", "ok"), str):
+            raise InputError(f"{meta_path}: results[{i}] must be an object whose name and status are strings, as "
+                             f"btel writes it (the file was edited or damaged); {fix}.")
+        if row.get("status", "ok") == "ok":
+            names.append(row["name"])
+    return extra, names
 
 
 def write_galleries(run: Path, *, n_rows: int = GALLERY_ROWS, overwrite: bool = True) -> list[Path]:
@@ -51,14 +130,9 @@ def write_galleries(run: Path, *, n_rows: int = GALLERY_ROWS, overwrite: bool = 
     from ..evaluation.gallery import plot_match_gallery
 
     meta_path = run / "metrics.json"
-    if not meta_path.is_file():
+    if not os.path.lexists(meta_path):  # a FIFO or folder there: refused by the reader, never waited on
         raise InputError(f"{run} has no metrics.json; give a run folder written by btel evaluate.")
-    try:
-        payload = json.loads(meta_path.read_text(encoding="utf-8"))
-        extra = payload["run"].get("extra") or {}
-        names = [r["name"] for r in payload["results"] if r.get("status", "ok") == "ok"]
-    except (ValueError, KeyError, TypeError, AttributeError) as exc:
-        raise InputError(f"{meta_path} is not a btel run's metrics ({exc}).") from None
+    extra, names = _run_names(meta_path)
     db, queries = extra.get("db"), extra.get("queries")
     q_images, db_images = row_images(queries), row_images(db)
     if q_images is None or db_images is None:
@@ -73,8 +147,8 @@ def write_galleries(run: Path, *, n_rows: int = GALLERY_ROWS, overwrite: bool = 
     written = []
     for name in names:
         predictions = run / f"predictions_{safe_file_name(name)}.csv"
-        read = _read_predictions(predictions) if predictions.is_file() else None
-        if read is None or read["pred"].shape[0] != len(q_images):
+        read = _read_predictions(predictions, len(q_images), len(db_images)) if os.path.lexists(predictions) else None
+        if read is None:
             continue
         target = run / f"gallery_{safe_file_name(name)}.png"
         if target.exists() and not overwrite:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
@@ -9,6 +10,7 @@ import click
 from click.core import ParameterSource
 
 from ..methods.roles import DEFAULT_METHOD
+from ._errors import InputError
 from ._inputs import (_load_matrix, calibrate_evaluation, check_evaluate_calibration, check_utm_options,
                       read_ground_truth, refuse_matrix_as_model)
 from ._jobs import _fit_jobs, _run_jobs
@@ -67,12 +69,15 @@ def _resumed_options(ctx: click.Context, given: dict[str, Any], extra: dict[str,
     """
     explicit = {name for name in _RECORDED if _given(ctx, name)}
     if "options" in extra:
+        if not isinstance(extra["options"], dict):
+            raise _damaged(run, "run.extra.options", extra["options"], "it must be an object of flag → value")
         recorded = {name: extra["options"][flag] for name, flag in _RECORDED.items() if flag in extra["options"]}
     elif "methods" not in explicit:
         raise click.UsageError(f"--resume: {run} was written by an older btel that did not record its options; "
                                "give --methods again (and every other option of the interrupted run).")
     else:
         recorded = {name: extra[name] for name in ("db", "queries", "budget", "query_order") if name in extra}
+    recorded = {name: _recorded_value(ctx, run, name, value) for name, value in recorded.items()}
     differ = [name for name in _RECORDED if name in explicit and name in recorded and recorded[name] != given[name]]
     if differ:
         flags = [_RECORDED[name] for name in differ]
@@ -83,6 +88,49 @@ def _resumed_options(ctx: click.Context, given: dict[str, Any], extra: dict[str,
         raise click.UsageError(f"--resume: this run was started with {was}; got {got}. Start a new run with --out, "
                                f"or drop {drop} to go on with the recorded {'one' if len(differ) == 1 else 'ones'}.")
     return {**given, **recorded}
+
+
+def _damaged(run: str, field: str, value: Any, why: str) -> InputError:
+    """The error for a field of RUN/metrics.json that btel never writes so (exit 2, naming file, field and fix)."""
+    return InputError(f"{Path(run) / 'metrics.json'}: {field} holds {json.dumps(value, default=repr)[:80]}, "
+                      f"which btel evaluate never writes ({why}): the file was edited or damaged. Run the "
+                      "evaluation again without --resume (btel evaluate … --out NEW_RUN).")
+
+
+def _recorded_value(ctx: click.Context, run: str, name: str, value: Any) -> Any:
+    """A recorded option's value, checked as its flag checks it on the command line: the JSON type
+    ``_canonical`` writes, then the flag's own click type (choices, ranges) or parser (lists) — a
+    hand-edited or damaged metrics.json is refused here, not as a traceback or a failed row later."""
+    param = next(p for p in ctx.command.params if p.name == name)
+    flag = _RECORDED[name]
+
+    def refuse(why: str) -> InputError:
+        return _damaged(run, f"option {flag}", value, why)
+
+    if value is None and param.default is None and not param.multiple:
+        return None  # an option left at its default None is recorded as null
+    try:
+        if name in ("ks_text", "tolerances"):  # recorded as the sorted list of ints _int_list made
+            if not isinstance(value, list) or not all(type(v) is int for v in value):
+                raise refuse("it must be a list of integers")
+            return _int_list(",".join(map(str, value)), flag, minimum=1 if name == "ks_text" else 0)
+        if param.multiple:
+            if name == "budget" and value == [None]:  # no --budget: recorded as [null]
+                return value
+            if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+                raise refuse("it must be a list of strings")
+            texts = [param.type.convert(v, param, ctx) for v in value]
+            return (_split(",".join(texts)) if name == "methods" else _budgets(",".join(texts))
+                    if name == "budget" else texts)
+        # One JSON type per click type (a bool is no int, "3" no number): then the flag's own checks.
+        kind, what = {"integer": (int, "an integer"), "integer range": (int, "an integer"),
+                      "float": ((int, float), "a number"), "boolean": (bool, "true or false")}.get(
+            param.type.name, (str, "a string"))
+        if not isinstance(value, kind) or (kind is not bool and isinstance(value, bool)):
+            raise refuse(f"it must be {what}")
+        return param.type.convert(value, param, ctx)
+    except (click.BadParameter, click.UsageError) as exc:
+        raise refuse(exc.format_message().rstrip(".")) from None
 
 
 def _given(ctx: click.Context, name: str) -> bool:
@@ -103,7 +151,9 @@ def _read_resumed(ctx: click.Context, given: dict[str, Any],
         raise click.UsageError(f"--resume: {exc}") from None
     if meta.get("complete"):
         return None
-    extra = meta.get("extra") if isinstance(meta.get("extra"), dict) else {}
+    extra = meta.get("extra", {})
+    if not isinstance(extra, dict):  # else it would read as an older btel's run, asking for --methods
+        raise _damaged(run, "run.extra", extra, "it must be an object")
     recorded = extra.get("inputs")
     return _resumed_options(ctx, given, extra, run), rows, recorded if isinstance(recorded, dict) else None
 

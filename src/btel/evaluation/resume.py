@@ -93,18 +93,20 @@ def read_unfinished_run(out_dir: str | os.PathLike) -> tuple[dict[str, Any], lis
     DataNotFoundError
         No ``metrics.json`` in ``out_dir``.
     InvalidParameterError
-        ``metrics.json`` is not a btel run (unreadable, or rows without their fields).
+        ``metrics.json`` is not a btel run (too large, not JSON, nested too deep, or rows without their
+        fields); the message names the file and the fix.
     """
-    import json
+    from .runfile import read_run_payload
 
     path = Path(out_dir) / "metrics.json"
-    if not path.is_file():
+    if not os.path.lexists(path):  # a FIFO or folder there is refused by the reader, never waited on
         raise DataNotFoundError(f"{str(out_dir)!r} has no metrics.json; it is not a run folder to resume.")
+    fix = "run the evaluation again without --resume (into a new --out folder)"
+    run, results = read_run_payload(path, fix)
     try:
-        payload = json.loads(path.read_text(encoding="utf-8"))
-        return dict(payload["run"]), [EvaluationResult.from_dict(r) for r in payload["results"]]
-    except (ValueError, KeyError, TypeError) as exc:
-        raise InvalidParameterError(f"{str(path)!r} is not a btel run's metrics ({exc}).") from exc
+        return run, [EvaluationResult.from_dict(r) for r in results]
+    except InvalidParameterError as exc:
+        raise InvalidParameterError(f"{str(path)!r} is not a btel run's metrics ({exc}); {fix}.") from exc
 
 
 def check_finished_rows(run: str | os.PathLike, rows: Sequence[EvaluationResult], jobs: Sequence[Any],

@@ -163,12 +163,12 @@ def check_run_folder(out_dir: str | os.PathLike, overwrite: bool = False) -> Non
 
 def _previous_run_files(out_dir: Path) -> list[Path] | None:
     """The files the btel run recorded in ``out_dir/metrics.json`` wrote (None: no btel run there)."""
-    try:
-        payload = json.loads((out_dir / "metrics.json").read_text(encoding="utf-8"))
-        names = [safe_file_name(str(r["name"])) for r in payload["results"]]
-        if not isinstance(payload["run"], dict):
-            return None
-    except (OSError, ValueError, KeyError, TypeError):
+    from .runfile import read_run_payload
+    from ..exceptions import BTELError
+
+    try:  # bounded and refusing FIFOs: a hostile metrics.json makes the folder "no btel run", not a hang
+        names = [safe_file_name(str(r["name"])) for r in read_run_payload(out_dir / "metrics.json")[1]]
+    except (OSError, BTELError, KeyError, TypeError):
         return None
     fixed = [p for pattern in _RUN_FILE_PATTERNS if "*" not in pattern or pattern.startswith(("recall_vs_", "."))
              for p in out_dir.glob(pattern)]
