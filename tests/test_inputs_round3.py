@@ -103,3 +103,22 @@ def test_btel_report_on_an_evaluate_run_says_its_tables_are_already_there(small,
     assert f"is a `btel evaluate` run: its tables (metrics.json, the CSV files) and plots are already in that folder" \
         in " ".join(result.output.split())
     assert not (tmp_path / "docs").exists()
+
+
+def test_a_saved_descriptor_asking_for_huge_rows_is_refused_from_its_shapes(tmp_path: Path) -> None:
+    """594 bytes asking for 48,000 HOG orientations took 4.9 GB over 30 small images (80 MB an image, a
+    256-row batch buffer filled as it went); now the rows' bytes are checked before an image is read."""
+    import cv2
+
+    from btel.descriptors.hog import HOGDescriptor
+
+    HOGDescriptor(orientations=48_000).save(tmp_path / "hog_big.btel.npz")
+    folder = tmp_path / "imgs"
+    folder.mkdir()
+    for i in range(8):  # 8 × 80 MB: over the 256 MiB default
+        cv2.imwrite(str(folder / f"{i}.png"), np.full((32, 64), 20 * i, np.uint8))
+    result = _invoke("extract", folder, "-o", tmp_path / "x.npy", "--descriptor", tmp_path / "hog_big.btel.npz")
+    assert result.exit_code == 2, result.output
+    assert "8 hog descriptors of 20160000 values would need" in result.output and "BTEL_MEMORY_LIMIT" in result.output
+    assert not (tmp_path / "x.npy").exists()
+    assert _invoke("extract", folder, "-o", tmp_path / "ok.npy", "--descriptor", "hog").exit_code == 0

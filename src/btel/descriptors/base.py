@@ -32,6 +32,7 @@ from sklearn.base import BaseEstimator
 from ..core.validation import check_is_fitted, check_positive_int
 from ..exceptions import InvalidParameterError, ModelFileError
 from ..core.modelfile import load_arrays, save_arrays
+from ..core.limits import check_bytes, check_count, memory_limit
 from ..core.threads import one_blas_thread
 from .images import ImageInput, as_image_list, iter_grey
 
@@ -214,8 +215,14 @@ class ImageDescriptor(BaseEstimator):
         else:
             self._validate_params()
         n = len(items)
+        # The widths come from the parameters, which a saved descriptor file sets: 594 bytes asking for
+        # 48,000 HOG orientations meant 80 MB an image. Refused from the shapes, before any image is read.
+        check_count(float(n) * self.output_dim, 4, f"{n} {self.name} descriptors of {self.output_dim} values")
+        row = 4.0 * self._raw_dim()
+        check_bytes(row, f"one {self.name} descriptor of {self._raw_dim()} values before projection")
+        batch = max(1, min(n, self._batch_size, int(memory_limit() // 4 // row)))
         out = np.empty((n, self.output_dim), dtype=np.float32)
-        raw = np.empty((min(n, self._batch_size), self._raw_dim()), dtype=np.float32)
+        raw = np.empty((batch, self._raw_dim()), dtype=np.float32)
         sizes: Counter = Counter()
         greys = self._watch_sizes(iter_grey(items, progress=progress, desc=self.name), sizes)
         for start in range(0, n, raw.shape[0]):
