@@ -204,3 +204,24 @@ def test_a_long_or_control_character_name_is_shown_escaped_and_short(tmp_path: P
     with pytest.raises(InvalidDescriptorsError) as info:
         load_hloc_global(tmp_path / "name.h5")
     assert "\n" not in str(info.value) and "'a\\nbxxx" in str(info.value) and len(str(info.value)) < 400
+
+
+def test_a_file_of_many_empty_groups_is_walked_holding_names_not_objects(tmp_path: Path) -> None:
+    """10⁶ empty groups (162 MB) took 2.16 GB: every group waited on the stack as an open h5py object and
+    every object was remembered. Groups now wait by name; only objects with several names are kept."""
+    import tracemalloc
+
+    import h5py
+
+    path = tmp_path / "groups.h5"
+    with h5py.File(path, "w", libver="latest") as fh:
+        for i in range(20_000):
+            fh.create_group(f"g{i}")
+        for i in range(3):
+            fh.create_dataset(f"img{i}.jpg/global_descriptor", data=np.full(16, i, np.float32))
+    tracemalloc.start()
+    X, names = load_hloc_global(path)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert names == ["img0.jpg", "img1.jpg", "img2.jpg"] and X.shape == (3, 16)
+    assert peak < 8 * 2**20  # 14 MiB before (≈ 700 B a group), 3 MiB now

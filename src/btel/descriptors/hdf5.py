@@ -111,11 +111,14 @@ def _walk(fh: Any, prefix: str | None, source: str, where: list[str]) -> dict[st
     import h5py
 
     selected: dict[str, Any] = {}
+    # Only objects with more than one hard link can be reached twice: only they are remembered, and
+    # groups wait on the stack by name, not as open objects (a file of 10⁶ empty groups held 2 GB).
     seen: dict[tuple[Any, int], str] = {_identity(fh): "/"}
-    stack: list[tuple[str, Any, int]] = [("", fh, 0)]
+    stack: list[tuple[str, int]] = [("", 0)]
     visited = 0
     while stack:
-        base, group, depth = stack.pop()
+        base, depth = stack.pop()
+        group = fh[base] if base else fh
         for key in group.keys():
             item = where[0] = f"{base}{key}"
             visited += 1
@@ -128,20 +131,22 @@ def _walk(fh: Any, prefix: str | None, source: str, where: list[str]) -> dict[st
                 raise InvalidDescriptorsError(
                     f"{source}: {_shown(item)} is {kind}; btel follows no links (hloc files have none).")
             obj = group[key]
-            identity = _identity(obj)
+            info = h5py.h5o.get_info(obj.id)
+            identity = (obj.id.fileno, int(info.addr))
             if identity in seen:
                 first = seen[identity]
                 cycle = " (a link cycle)" if first == "/" or item.startswith(first + "/") else ""
                 raise InvalidDescriptorsError(
                     f"{source}: {_shown(item)} links to {_shown(first)}, already reached{cycle}; hloc files "
                     "are trees, every group and dataset under one name.")
-            seen[identity] = item
+            if info.rc > 1:
+                seen[identity] = item
             if isinstance(obj, h5py.Group):
                 if depth >= _MAX_DEPTH:
                     raise InvalidDescriptorsError(
                         f"{source}: {_shown(item)} nests groups more than {_MAX_DEPTH} deep; not hloc "
                         "features.")
-                stack.append((item + "/", obj, depth + 1))
+                stack.append((item + "/", depth + 1))
             elif isinstance(obj, h5py.Dataset) and key == HLOC_DATASET:
                 image = base[:-1]
                 if prefix is None or image.startswith(prefix):
