@@ -6,7 +6,6 @@ holds (so a user sees what would have been lost) and how to go on.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import click
@@ -23,9 +22,10 @@ def describe_file(path: Path) -> str:
 
             array = np.load(path, mmap_mode="r", allow_pickle=False)
             what = f"a {' × '.join(map(str, array.shape))} {array.dtype} matrix, {size:,d} B"
-            sidecar = Path(str(path) + ".json")
-            if sidecar.is_file():
-                key = json.loads(sidecar.read_text())
+            from ..descriptors.npy_header import read_sidecar
+
+            key = read_sidecar(path)  # bounded: a regular file of at most MAX_SIDECAR_BYTES
+            if isinstance(key, dict):
                 images = key.get("images") or []
                 what += f"; {key.get('descriptor', '?')} descriptors of {len(images)} images"
                 if images:

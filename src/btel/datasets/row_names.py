@@ -7,7 +7,6 @@ let predictions, retrieval pairs and galleries speak of images, not row numbers.
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
@@ -17,10 +16,12 @@ _SIDECAR_ERRORS = (OSError, ValueError, AttributeError, TypeError, IndexError, K
 
 
 def _sidecar(path: str | os.PathLike) -> dict | None:
-    try:
-        key = json.loads(Path(str(path) + ".json").read_text(encoding="utf-8"))
-    except _SIDECAR_ERRORS:
-        return None
+    """The record ``btel extract`` wrote beside ``path`` when it is a JSON object, else None (no record, or
+    JSON of another shape: no names). One that cannot be read (not a regular file, too large, not JSON) is
+    an error, as for every reader of it (:func:`btel.descriptors.npy_header.read_sidecar`)."""
+    from ..descriptors.npy_header import read_sidecar
+
+    key = read_sidecar(path)
     return key if isinstance(key, dict) else None
 
 
@@ -29,6 +30,12 @@ def row_names(path: str | os.PathLike) -> list[str] | None:
 
     ``.npy`` written by ``btel extract``: the images in its sidecar ``PATH.json``; hloc ``.h5``
     (``FILE.h5:PREFIX`` too): the group names, in the rows' order.
+
+    Raises
+    ------
+    InvalidDescriptorsError
+        The sidecar exists but cannot be read (:func:`btel.descriptors.npy_header.read_sidecar`): an error,
+        not names silently dropped.
     """
     from ..descriptors.npy import HDF5_SUFFIXES, load_hloc_global, split_prefix
 
@@ -51,6 +58,8 @@ def row_images(path: str | os.PathLike | None) -> list[Path] | None:
     ------
     InvalidParameterError
         A recorded name is not a plain file name inside the folder (``../x``, a control character).
+    InvalidDescriptorsError
+        The sidecar exists but cannot be read (see :func:`row_names`).
     """
     from .vpr_names import check_image_names
 

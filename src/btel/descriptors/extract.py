@@ -15,6 +15,7 @@ from ..core.validation import check_is_fitted
 from ..exceptions import InvalidParameterError, NotFittedError
 from .base import ImageDescriptor, get_descriptor, registered
 from .images import ImageInput
+from .npy_header import read_sidecar
 
 __all__ = ["extract_descriptors"]
 
@@ -174,11 +175,8 @@ def extract_cached(
     key = extraction_key(paths, model, fit_on)
     output = Path(output)
     sidecar = Path(str(output) + ".json")
-    if not force and output.is_file() and sidecar.is_file():
-        try:
-            cached = json.loads(sidecar.read_text())
-        except (OSError, json.JSONDecodeError):
-            cached = None
+    if not force and output.is_file():
+        cached = read_sidecar(output)  # an unreadable record is refused (read_sidecar), not recomputed over
         if same_extraction(cached, key):
             if cached != key:  # written before the folder was recorded: record it now
                 with atomic_output(sidecar, text=True) as fh:
@@ -203,9 +201,9 @@ def is_extraction_of(output: str | os.PathLike, images: str | os.PathLike, model
     sidecar says so): reusing or recomputing it replaces nothing of the user's."""
     from .images import list_images
 
+    cached = read_sidecar(output)  # outside the try: an unreadable record is refused, not taken for "no"
     try:
-        cached = json.loads(Path(str(output) + ".json").read_text())
-        return same_extraction(cached, extraction_key(list_images(images), model, fit_on))
+        return cached is not None and same_extraction(cached, extraction_key(list_images(images), model, fit_on))
     except (OSError, ValueError):
         return False
 
@@ -217,9 +215,8 @@ def extraction_difference(output: str | os.PathLike, images: str | os.PathLike, 
     these images) or nothing differs."""
     from .images import list_images
 
-    try:
-        cached = json.loads(Path(str(output) + ".json").read_text())
-    except (OSError, ValueError):
+    cached = read_sidecar(output)
+    if cached is None:
         return None
     key = extraction_key(list_images(images), model, fit_on)
     if not isinstance(cached, dict) or cached.get("folder") not in (None, key["folder"]):
@@ -247,7 +244,7 @@ def extract_delta_cached(images: str | os.PathLike, output: str | os.PathLike, m
                          window: int, *, fit_on: Any = None, progress: bool = True, force: bool = False,
                          overwrite: bool = False) -> tuple[np.ndarray, np.ndarray, Path]:
     """Delta descriptors over ``window`` frames into ``output`` (.npy); the plain descriptors they come
-    from are cached beside it (``<stem>.plain.npy``, :func:`extract_cached`).
+    from are cached beside it (``<stem>.plain.npy``, :func:`btel.descriptors.extract.extract_cached`).
 
     Returns
     -------

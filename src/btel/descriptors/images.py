@@ -73,6 +73,9 @@ ImageInput = Any
 
 #: Image formats :func:`read_image` decodes (Pillow's names): those whose header Pillow reads.
 DECODED_FORMATS: tuple[str, ...] = ("PNG", "JPEG", "BMP", "TIFF", "PPM", "WEBP")
+#: Most start-of-scan markers (0xFFDA) a JPEG may hold: ten times libjpeg's progressive script (10 scans, 6 grey).
+#: Each scan is a decoder pass over every block: 20,000 empty scans in 200 KB took minutes to decode.
+MAX_JPEG_SCANS = 100
 
 
 def _natural_key(path: Path) -> tuple:
@@ -198,6 +201,10 @@ def _check_header(data: bytes, path: Path, grey: bool) -> int:
             check_bytes(decode_bytes(width, height, channels, grey=grey, sample_bytes=header["sample_bytes"],
                                      tiff=header["format"] == "TIFF"),
                         f"image {name!r} ({width}×{height}, {channels} channel{plural}, decoded)")
+            # Scan data stuff each 0xFF byte (0xFF00): only markers count (metadata bytes rarely). One pass, in memory.
+            if header["format"] == "JPEG" and (scans := data.count(b"\xff\xda")) > MAX_JPEG_SCANS:
+                raise DataNotFoundError(f"{name!r} is a JPEG of {scans} scans, more than the {MAX_JPEG_SCANS} btel "
+                                        "decodes (a camera writes 1 to 10). Re-save it as a PNG or a baseline JPEG.")
             if header["format"] == "PNG":
                 header["image"].verify()  # every chunk inside the file, with a good checksum, up to IEND
     except (Image.DecompressionBombError, Image.DecompressionBombWarning) as exc:

@@ -5,24 +5,31 @@ header lies is reported by numpy as "mmap length is greater than file size", or 
 check as an allocation of many GiB, which sends the user after the wrong problem. An object dtype
 (a pickle inside the ``.npy``) is reported by numpy's memory map as "Array can't be memory-mapped".
 :func:`check_npy_header` names these before any read: only the header is parsed (numpy's own
-parser, which evaluates no code), nothing is unpickled.
+parser, which evaluates no code), nothing is unpickled. :func:`read_sidecar` reads the JSON record
+``btel extract`` writes beside an ``.npy`` (its images), bounded and from a regular file only.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import os
+import re
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..core.limits import format_size
-from ..exceptions import InvalidDescriptorsError
+from ..core.limits import format_size, open_regular
+from ..exceptions import DataNotFoundError, InvalidDescriptorsError
 
-__all__ = ["npy_header", "check_npy_header", "refuse_text_matrix"]
+__all__ = ["npy_header", "check_npy_header", "refuse_text_matrix", "read_sidecar", "MAX_SIDECAR_BYTES"]
 
 _MAGIC = b"\x93NUMPY"
+#: A cell of a text matrix that is a number (else the first line is a header). The fraction's digits
+#: follow a point only: ``\d+\.?\d*`` could split a run of digits in every way, quadratic backtracking
+#: on ``1111…1x`` (a 64 KiB first line took minutes).
+_NUMBER = re.compile(r"\s*[-+]?(\d+(?:\.\d*)?|\.\d+)([eE][-+]?\d+)?\s*|\s*[-+]?(nan|inf)\s*", re.IGNORECASE)
 
 
 def npy_header(path: str | os.PathLike) -> tuple[tuple[int, ...], np.dtype, int, int] | None:
@@ -88,8 +95,6 @@ def check_npy_header(path: str | os.PathLike, what: str, *, objects: bool = Fals
 def refuse_text_matrix(path: str | os.PathLike, what: str) -> None:
     """A text matrix (numpy.savetxt, a CSV export, whatever its suffix) refused with the one command that
     converts it, its delimiter and header line read from the file's first lines."""
-    import re
-
     file = Path(path)
     if not file.is_file():
         return
@@ -116,10 +121,9 @@ def refuse_text_matrix(path: str | os.PathLike, what: str) -> None:
     fixes = ([".replace(',', '.')"] if semicolon and "," in lines[-1] else []) + (
         [".replace('\\u2212', '-')"] if "\u2212" in text else [])
     delimiter = ("';'" if semicolon else "','" if "," in lines[-1] else "'\\t'" if "\t" in lines[-1] else None)
-    number = re.compile(r"\s*[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?\s*|\s*[-+]?(nan|inf)\s*", re.IGNORECASE)
     cells = [c.replace(",", ".").replace("\u2212", "-") if fixes else c
              for c in re.split(r"[;\t ]+" if semicolon else r"[,\t ]+", lines[0].strip()) if c]
-    skip = 0 if all(number.fullmatch(c) for c in cells) else 1
+    skip = 0 if all(_NUMBER.fullmatch(c) for c in cells) else 1
     target = file.with_name(file.stem + (".float32.npy" if file.suffix.lower() == ".npy" else ".npy"))
     options = ((f", delimiter={delimiter}" if delimiter else "") + (f", skiprows={skip}" if skip else "")
                + (f", converters=lambda s: float(s{''.join(fixes)})" if fixes else ""))
@@ -127,3 +131,53 @@ def refuse_text_matrix(path: str | os.PathLike, what: str) -> None:
         f"{what} {str(file)!r} is a text matrix, not a .npy file; btel reads .npy, .npz, hloc .h5 and folders of "
         f".npy shards. Convert it once: python -c \"import numpy as np; np.save({str(target)!r}, "
         f"np.loadtxt({str(file)!r}{options}, dtype=np.float32, ndmin=2))\"")
+
+
+#: Largest ``PATH.json`` record read beside a descriptor ``.npy`` (64 MiB): it holds one
+#: ``[name, size, mtime]`` entry of about 80 bytes per image, room for 800,000 images (Pitts250k's map
+#: has 254,000); a larger file is no record of btel's, and reading it whole would cost its size in memory.
+MAX_SIDECAR_BYTES = 64 << 20
+
+
+def read_sidecar(matrix: str | os.PathLike) -> Any:
+    """The JSON record ``btel extract`` wrote beside the descriptor matrix ``matrix`` (``matrix + ".json"``:
+    its images and how they were described), or None when there is none.
+
+    A record that exists but cannot be read is an **error** (never a warning with the names dropped),
+    for every reader: the image names of :func:`btel.datasets.row_names.row_names` and the cache checks
+    of :mod:`btel.descriptors.extract`. Skipping it would silently write row numbers where names were
+    expected, or recompute over a file btel did not vouch for. It is opened only as a regular file (a
+    FIFO would block, a device such as ``/dev/zero`` never ends).
+
+    Raises
+    ------
+    InvalidDescriptorsError
+        The record is not a regular file, holds more than :data:`MAX_SIDECAR_BYTES`, or is not UTF-8
+        JSON (or nests too deeply to parse); the message names it and the fix (delete it).
+    """
+    sidecar = Path(str(matrix) + ".json")
+    if not os.path.lexists(sidecar):
+        return None
+
+    def refuse(why: str) -> InvalidDescriptorsError:
+        return InvalidDescriptorsError(
+            f"{str(sidecar)!r}, the record of the images beside the descriptor matrix {str(matrix)!r}, {why}. Delete "
+            "it: without it the rows have no image names, and `btel extract` writes it anew with the matrix.")
+
+    try:
+        with open_regular(sidecar) as fh:
+            data = fh.read(MAX_SIDECAR_BYTES + 1)  # one byte more than allowed: a larger file is caught
+    except DataNotFoundError as exc:  # open_regular: os.open failed (its cause), or not a regular file
+        cause = exc.__cause__
+        raise refuse(f"cannot be opened ({cause.strerror})" if isinstance(cause, OSError)
+                     else "is not a regular file (a FIFO, device, socket or folder)") from None
+    except OSError as exc:  # a read error
+        raise refuse(f"cannot be read ({exc.strerror or exc})") from None
+    if len(data) > MAX_SIDECAR_BYTES:
+        raise refuse(f"holds more than {format_size(MAX_SIDECAR_BYTES)}, far more than a list of image names")
+    try:
+        return json.loads(data.decode("utf-8"))
+    except RecursionError:  # '[' * 100000: json recurses once per level
+        raise refuse("is not a JSON record (it nests too deeply)") from None
+    except ValueError as exc:  # UnicodeDecodeError, JSONDecodeError, an integer of more than 4300 digits
+        raise refuse(f"is not a JSON record ({type(exc).__name__}: {str(exc)[:100]})") from None

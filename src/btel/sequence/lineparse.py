@@ -37,7 +37,9 @@ __all__ = ["parse_descriptor_line", "parse_lines", "parse_strict", "max_line_byt
 _SEPARATORS = re.compile(r"[,\s]+")
 #: A finite decimal number: optional sign, digits with an optional point (or a point and digits),
 #: optional exponent. ASCII only: no ``1_0``, no other scripts' digits, no hex, no nan/inf words.
-_DECIMAL = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?\Z", re.ASCII)
+#: Each character has one way to match (the fraction's digits only after a point): ``[0-9]+\.?[0-9]*``
+#: split a run of digits in every possible way, quadratic backtracking on ``1111…1x`` (a 1 MiB line hung).
+_DECIMAL = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?\Z", re.ASCII)
 _NOT_FINITE = re.compile(r"[+-]?(?:nan|inf|infinity)\Z", re.IGNORECASE)
 #: A byte of each JSON value that is not a number (true/false/null, strings, arrays, objects): a line
 #: holding one goes to the strict parser (memchr scans: far cheaper than checking every byte).
