@@ -1,4 +1,4 @@
-"""Issue 34's hostile files for the readers, each run as a user would, with its time and peak memory.
+"""Issue 34's hostile files for the readers (and round 3's), each run as a user would, with its time and peak memory.
 
 Every case crafts the issue's file (or the finding made while fixing it) and runs one command in
 a fresh process: ``btel train``, ``btel extract``, ``btel evaluate`` or the Python call named. It
@@ -10,7 +10,8 @@ stderr. The target (issue 34, "Done when"): ≤ 60 s, < 1 GiB, one line, no trac
     python benchmarks/bench_hostile_readers.py --src ../main/src --name bench_hostile_readers_before
 
 Writes ``benchmarks/results/bench_hostile_readers.json``. Cases that never end are killed at
-``--timeout`` seconds (default 90) and reported as such.
+``--timeout`` seconds (default 90) and reported as such. Round 3's cases (``--only "round 3"``) run with
+their address space capped at 6 GiB, so that a case that would take the machine's memory fails alone.
 """
 
 from __future__ import annotations
@@ -42,12 +43,14 @@ API = ("import sys\nfrom btel.exceptions import BTELError\ntry:\n    {call}\nexc
 #: forked from this script, grown by the crafting, would carry its memory in ru_maxrss past exec.
 #: os.wait4 gives the case's peak resident memory, its children's included.
 SPAWNER = r"""
-import json, os, signal, subprocess, sys, threading, time
+import json, os, resource, signal, subprocess, sys, threading, time
 for line in sys.stdin:
     job = json.loads(line)
     start = time.perf_counter()
+    cap = job.get("max_bytes")
+    limit = (lambda: resource.setrlimit(resource.RLIMIT_AS, (cap, cap))) if cap else None
     proc = subprocess.Popen(job["command"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=job["env"],
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=limit)
     err = []
     reader = threading.Thread(target=lambda: err.append(proc.stderr.read()), daemon=True)
     reader.start()
@@ -180,14 +183,121 @@ def craft(folder: Path) -> list[dict[str, Any]]:
             [*BTEL, "evaluate", "--db", f"{path}:db/", "--queries", f"{path}:query/", "--methods",
              "bruteforce", "--no-reference", "--pairs", str(pairs), "--k", "3", "--no-progress", "--out",
              str(folder / f"run_{name}")], pairs)
+    cases += craft_round3(folder, rng)
     for case in cases:
         case["file_bytes"] = os.stat(case.pop("file")).st_blocks * 512  # on disk (the sparse files are holes)
     return cases
 
 
-def run(spawner: subprocess.Popen, command: list[str], timeout: float, env: dict[str, str]) -> dict[str, Any]:
+def craft_round3(folder: Path, rng: np.random.Generator) -> list[dict[str, Any]]:
+    """The hostile inputs of round 3 (issue 35/37's session of 2026-11-28): sizes a file claims, regexes
+    that backtrack, decoders that loop, run folders edited by hand."""
+    import cv2
+    import h5py
+
+    from btel.core.modelfile import load_arrays, save_arrays
+    from btel.descriptors.hog import HOGDescriptor
+
+    out: list[dict[str, Any]] = []
+
+    def add(case: str, file: Path, command: list[str]) -> None:
+        out.append({"case": f"round 3: {case}", "file": file, "command": command, "pairs": None,
+                    "max_bytes": 6 * 2**30})
+
+    root = folder / "round3"
+    root.mkdir()
+    db, q, model = root / "db.npy", root / "q.npy", root / "m.btel.npz"
+    np.save(db, rng.normal(size=(200, 64)).astype("f4"))
+    np.save(q, rng.normal(size=(200, 64)).astype("f4"))
+    subprocess.run([*BTEL, "train", str(db), "-o", str(model), "--method", "btel-c", "--budget", "5KB"],
+                   check=True, capture_output=True)
+    add("--hmm-speed 10⁹ on a 200-place model: btel localize --hmm", model,
+        [*BTEL, "localize", str(model), str(q), "-o", str(root / "p1.csv"), "--hmm", "--hmm-speed", "1000000000"])
+    arrays, header = load_arrays(model)
+    header = {k: v for k, v in header.items() if k not in ("format", "format_version", "saved_by")}
+    header["state"]["n_places"] = 8_000_000
+    big = root / "bigN.btel.npz"
+    save_arrays(big, {"weights": rng.normal(size=(23, 64)).astype("f4"),
+                      "bias": rng.normal(size=23).astype("f4")}, header)
+    np.save(root / "q10.npy", np.load(q)[:10])
+    add("a 1 KB model claiming 8·10⁶ places: btel localize --hmm (10 queries)", big,
+        [*BTEL, "localize", str(big), str(root / "q10.npy"), "-o", str(root / "p2.csv"), "--hmm"])
+    images = root / "im30"
+    images.mkdir()
+    for i in range(30):
+        cv2.imwrite(str(images / f"{i:02d}.png"), rng.integers(0, 255, (32, 64), dtype=np.uint8))
+    HOGDescriptor(orientations=48_000).save(root / "hog_big.btel.npz")
+    add("a 600 B HOG asking 48,000 orientations: btel extract (30 images)", root / "hog_big.btel.npz",
+        [*BTEL, "extract", str(images), "-o", str(root / "im30.npy"), "--descriptor", str(root / "hog_big.btel.npz"),
+         "--no-progress"])
+    groups = root / "groups.h5"
+    with h5py.File(groups, "w", libver="latest") as fh:
+        for i in range(200_000):
+            fh.create_group(f"g{i}")
+        for i in range(5):
+            _descriptor(fh, f"img{i}.jpg", rng)
+    add("an .h5 of 200,000 empty groups: btel train", groups,
+        [*BTEL, "train", str(groups), "-o", str(root / "g.btel.npz"), "--method", "btel-c", "--budget", "5KB"])
+    digits = root / "digits.txt"
+    digits.write_text("1" * 30_000 + "x\n")
+    add("a line of 30,000 digits and an x: btel localize --stream", digits,
+        [*BTEL, "localize", str(model), "--stream", "--input", str(digits)])
+    cell = root / "cell.npy"
+    cell.write_text("1" * 30_000 + "x\n")
+    add("a text 'npy' of one 30,000-digit cell: btel train", cell,
+        [*BTEL, "train", str(cell), "-o", str(root / "c.btel.npz"), "--method", "btel-c", "--budget", "5KB"])
+    runs, docs = root / "runs", root / "docs"
+    (runs / "accuracy").mkdir(parents=True)
+    (runs / "accuracy" / "results.json").write_text('{"rows": [], "run": {}}')
+    docs.mkdir()
+    (docs / "results.md").write_text("<!-- a:start -->" * 20_000)
+    add("a results.md of 20,000 unclosed markers: btel report", docs / "results.md",
+        [*BTEL, "report", "--runs", str(runs), "--docs", str(docs), "--overwrite"])
+    jpegs = root / "jpg"
+    jpegs.mkdir()
+    (jpegs / "a.jpg").write_bytes(_jpeg_of_empty_scans(2_000))
+    add("a progressive 8000×8000 JPEG of 2,000 empty scans: btel extract", jpegs / "a.jpg",
+        [*BTEL, "extract", str(jpegs), "-o", str(root / "j.npy"), "--no-progress"])
+    run = root / "run"
+    subprocess.run([*BTEL, "evaluate", "--db", str(db), "--queries", str(q), "--methods", "btel-c", "--budget", "5KB",
+                    "--no-reference", "--no-progress", "--out", str(run)], check=True, capture_output=True)
+    metrics = json.loads((run / "metrics.json").read_text())
+    metrics["run"]["complete"] = False
+    metrics["run"]["extra"]["options"]["--budget"] = 5
+    (run / "metrics.json").write_text(json.dumps(metrics))
+    add("metrics.json edited ('--budget': 5): btel evaluate --resume", run / "metrics.json",
+        [*BTEL, "evaluate", "--resume", str(run)])
+    nested = root / "nested"
+    nested.mkdir()
+    (nested / "metrics.json").write_text("[" * 100_000 + "]" * 100_000)
+    add("metrics.json nested 100,000 deep: btel evaluate --resume", nested / "metrics.json",
+        [*BTEL, "evaluate", "--resume", str(nested)])
+    return out
+
+
+def _jpeg_of_empty_scans(scans: int) -> bytes:
+    """A progressive 8000×8000 grey JPEG whose first start-of-scan header repeats ``scans`` times with no
+    data: libjpeg passes over all its blocks at every scan."""
+    import io
+
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.new("L", (8000, 8000), 128).save(buffer, "JPEG", progressive=True)
+    data, i, head = buffer.getvalue(), 2, []
+    while data[i + 1] != 0xDA:
+        length = struct.unpack(">H", data[i + 2 : i + 4])[0]
+        head.append(data[i : i + 2 + length])
+        i += 2 + length
+    sos = data[i : i + 2 + struct.unpack(">H", data[i + 2 : i + 4])[0]]
+    return data[:2] + b"".join(head) + sos * scans + b"\xff\xd9"
+
+
+def run(spawner: subprocess.Popen, command: list[str], timeout: float, env: dict[str, str],
+        max_bytes: int | None = None) -> dict[str, Any]:
     """Run ``command`` through ``spawner``: its exit status, wall time, peak RSS (children's too), stderr."""
-    spawner.stdin.write(json.dumps({"command": command, "timeout": timeout, "env": env}) + "\n")
+    spawner.stdin.write(json.dumps({"command": command, "timeout": timeout, "env": env, "max_bytes": max_bytes})
+                        + "\n")
     spawner.stdin.flush()
     done = json.loads(spawner.stdout.readline())
     status, seconds, text = done["status"], done["seconds"], done["stderr"]
@@ -219,7 +329,7 @@ def main() -> None:
             if args.only and args.only not in case["case"]:
                 continue
             result = {"case": case["case"], "file_bytes": case["file_bytes"],
-                      **run(spawner, case["command"], args.timeout, env)}
+                      **run(spawner, case["command"], args.timeout, env, case.get("max_bytes"))}
             ok = (not result["killed"] and result["seconds"] <= 60 and result["peak_rss_mib"] < 1024
                   and not result["traceback"] and not result["bare_memory_error"])
             if case["pairs"] is not None:  # exactly one pair (two fields) per line: 2 queries × top 3
