@@ -33,7 +33,7 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 from _common import write_results  # noqa: E402
-from fuzz_families import compressed_zeros  # noqa: E402
+from fuzz_families import compressed_zeros, jpeg_of_empty_scans  # noqa: E402
 
 BTEL = [sys.executable, "-m", "btel.cli"]
 #: A Python call of the library run as a user would: a btel error is its one line, anything else a traceback.
@@ -255,7 +255,7 @@ def craft_round3(folder: Path, rng: np.random.Generator) -> list[dict[str, Any]]
         [*BTEL, "report", "--runs", str(runs), "--docs", str(docs), "--overwrite"])
     jpegs = root / "jpg"
     jpegs.mkdir()
-    (jpegs / "a.jpg").write_bytes(_jpeg_of_empty_scans(2_000))
+    (jpegs / "a.jpg").write_bytes(jpeg_of_empty_scans(2_000, size=8000))
     add("a progressive 8000×8000 JPEG of 2,000 empty scans: btel extract", jpegs / "a.jpg",
         [*BTEL, "extract", str(jpegs), "-o", str(root / "j.npy"), "--no-progress"])
     run = root / "run"
@@ -274,23 +274,6 @@ def craft_round3(folder: Path, rng: np.random.Generator) -> list[dict[str, Any]]
         [*BTEL, "evaluate", "--resume", str(nested)])
     return out
 
-
-def _jpeg_of_empty_scans(scans: int) -> bytes:
-    """A progressive 8000×8000 grey JPEG whose first start-of-scan header repeats ``scans`` times with no
-    data: libjpeg passes over all its blocks at every scan."""
-    import io
-
-    from PIL import Image
-
-    buffer = io.BytesIO()
-    Image.new("L", (8000, 8000), 128).save(buffer, "JPEG", progressive=True)
-    data, i, head = buffer.getvalue(), 2, []
-    while data[i + 1] != 0xDA:
-        length = struct.unpack(">H", data[i + 2 : i + 4])[0]
-        head.append(data[i : i + 2 + length])
-        i += 2 + length
-    sos = data[i : i + 2 + struct.unpack(">H", data[i + 2 : i + 4])[0]]
-    return data[:2] + b"".join(head) + sos * scans + b"\xff\xd9"
 
 
 def run(spawner: subprocess.Popen, command: list[str], timeout: float, env: dict[str, str],

@@ -188,6 +188,22 @@ def image_seeds() -> list[bytes]:
 _EXTREMES = [0, 1, 2, 255, 256, 4095, 30000, 65535, 65536, 2**24, 2**31 - 1, 2**31, 2**32 - 1]
 
 
+def jpeg_of_empty_scans(scans: int, size: int = 256) -> bytes:
+    """A progressive ``size``×``size`` grey JPEG whose first start-of-scan header repeats ``scans`` times
+    with no data: libjpeg passes over every block at every scan (hostile round 3's scan bomb)."""
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.new("L", (size, size), 128).save(buffer, "JPEG", progressive=True)
+    data, i, head = buffer.getvalue(), 2, []
+    while data[i + 1] != 0xDA:
+        length = struct.unpack(">H", data[i + 2 : i + 4])[0]
+        head.append(data[i : i + 2 + length])
+        i += 2 + length
+    sos = data[i : i + 2 + struct.unpack(">H", data[i + 2 : i + 4])[0]]
+    return data[:2] + b"".join(head) + sos * scans + b"\xff\xd9"
+
+
 def _png_edit(buf: bytearray, rng: random.Random) -> str:
     chunks, pos = [], 8
     while pos + 8 <= len(buf):

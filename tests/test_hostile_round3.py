@@ -8,12 +8,10 @@ than a duration. The rewritten regexes are compared with the old ones on every s
 
 from __future__ import annotations
 
-import io
+import importlib.util
 import itertools
-import json
 import os
 import re
-import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -34,6 +32,8 @@ from btel.exceptions import DataNotFoundError, InvalidDescriptorsError
 from btel.experiments import report
 from btel.methods import make_method
 from btel.sequence import lineparse
+
+FAMILIES_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "fuzz_families.py"
 
 #: The regexes as they were before round 3 (quadratic on a long run of digits, or of unclosed markers).
 OLD_DECIMAL = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?\Z", re.ASCII)
@@ -223,16 +223,11 @@ def test_localize_names_the_broken_record_and_the_fix(tmp_path: Path) -> None:
 # --- 5. progressive JPEG scan bomb ---------------------------------------------------------------
 
 def _jpeg_with_scans(scans: int, size: int = 256) -> bytes:
-    """A progressive JPEG whose first scan header is repeated ``scans`` times (empty scans)."""
-    buf = io.BytesIO()
-    Image.new("L", (size, size), 128).save(buf, "JPEG", progressive=True)
-    data, i, head = buf.getvalue(), 2, []
-    while data[i + 1] != 0xDA:
-        length = struct.unpack(">H", data[i + 2:i + 4])[0]
-        head.append(data[i:i + 2 + length])
-        i += 2 + length
-    sos = data[i:i + 2 + struct.unpack(">H", data[i + 2:i + 4])[0]]
-    return data[:2] + b"".join(head) + sos * scans + b"\xff\xd9"
+    """The benchmarks' crafter (``benchmarks/fuzz_families.py``), loaded as the fuzz tests load their harness."""
+    spec = importlib.util.spec_from_file_location("fuzz_families", FAMILIES_PATH)
+    families = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(families)
+    return families.jpeg_of_empty_scans(scans, size)
 
 
 def test_a_jpeg_of_too_many_scans_is_refused_before_decoding(tmp_path: Path) -> None:
