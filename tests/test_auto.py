@@ -407,3 +407,16 @@ def test_a_wide_or_long_map_is_probed_by_fewer_rows_and_reads_the_same() -> None
     for bad in (0, -3, 2.5, True):
         with pytest.raises(InvalidParameterError, match="probes must be a whole number"):
             index_order(walk, probes=bad)
+
+
+@pytest.mark.parametrize("n_rows", [2, 3])
+def test_index_order_of_too_few_places_says_so(n_rows: int) -> None:
+    """Two or three places hold no pair 3–8 places apart: the reason says there are too few places to
+    read an order, rather than quoting a route share of 1.00 beside 'independent places'."""
+    from btel.methods.auto import index_order
+
+    X = np.random.default_rng(0).standard_normal((n_rows, 16)).astype(np.float32)
+    order = index_order(X)
+    assert order.kind == "independent"
+    assert order.why.startswith(f"{n_rows} places: too few to read an order") and "route share" not in order.why
+    assert "too few to read an order" in make_method("auto", budget="4KB").fit(X).choice_["reason"]

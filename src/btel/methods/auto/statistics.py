@@ -266,6 +266,12 @@ def index_order(X: np.ndarray, places: np.ndarray | None = None, *, probes: int 
     elif isinstance(probes, bool) or not isinstance(probes, (int, np.integer)) or probes < 1:
         raise InvalidParameterError(f"probes must be a whole number ≥ 1 (or None: probe_rows), got {probes!r}.")
     share, continuity = _route_share(X, places, max_rows=probes), _route_continuity(X, places, max_rows=probes)
+    labels = np.arange(X.shape[0]) if places is None else places
+    if int(labels.max() - labels.min()) < CONTINUITY_GAPS[0]:
+        # No two places are far enough apart for the continuity (nor the share) to mean anything.
+        return IndexOrder("independent", share, continuity,
+                          f"{np.unique(labels).size} places: too few to read an order (the continuity compares "
+                          f"rows {CONTINUITY_GAPS[0]}–{CONTINUITY_GAPS[1]} places apart)")
     if share >= ROUTE_SHARE and continuity >= ROUTE_CONTINUITY:
         return IndexOrder("route", share, continuity, f"route share {share:.2f} ≥ {ROUTE_SHARE}, continuity "
                                                       f"{continuity:.2f} ≥ {ROUTE_CONTINUITY}")
