@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+import btel
+
 from btel.cli._errors import EXIT_BROKEN_PIPE
 
 
@@ -20,6 +22,8 @@ def test_a_reader_that_goes_away_ends_the_command_quietly(tmp_path: Path) -> Non
     _, stderr = process.communicate(timeout=120)
     assert process.returncode == EXIT_BROKEN_PIPE, stderr.decode()
     assert stderr.decode().strip() == ""
+    # The fit is not lost with the reader: the model was saved before the first line was printed.
+    assert np.array_equal(btel.load(tmp_path / "m.npz").predict(np.load(tmp_path / "db.npy")[:5]), np.arange(5))
 
 
 def test_the_same_command_with_its_reader_exits_0(tmp_path: Path) -> None:

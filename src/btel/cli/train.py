@@ -101,11 +101,13 @@ def train(db: str, output: str, overwrite: bool, method: str, budget: str | None
         with elapsed_ticker(f"fitting {method} on {X.shape[0]} × {X.shape[1]}",
                             enabled=not no_progress and not own_bars and sys.stderr.isatty()):
             seconds = timed_fit(model, X, **fit_params)
+    # Saved before anything is printed: a reader that goes away (`btel train … | head`) ends the command
+    # at the next write, and the fit must not be lost with it.
+    path = model.save(output, overwrite=overwrite)  # no --overwrite: a racing train's file is never replaced
     regions = f", r = {model.n_regions_} regions" if getattr(model, "n_regions_", 1) > 1 else ""
     click.echo(f"fitted {method}{regions} on {X.shape[0]} places × {X.shape[1]} dims "
                f"in {seconds:.1f} s")
     _echo_storage(model)
-    path = model.save(output, overwrite=overwrite)  # no --overwrite: a racing train's file is never replaced
     click.echo(f"model written to {path} ({path.stat().st_size:,d} B on disk)")
     if model.get_params().get("budget") is None:  # btel is about budgets: an unbudgeted model is said to be one
         click.echo("no --budget: the model is as large as the method needs; give --budget (e.g. --budget 64KB) "
