@@ -474,3 +474,23 @@ def test_a_descriptor_matrix_given_as_model_is_named_as_one(route_files, tmp_pat
     result = CliRunner().invoke(main, ["evaluate", "--model", str(tmp_path / "junk.npz"), "--queries", str(q),
                                        "--out", str(tmp_path / "r")])
     assert result.exit_code == 2 and "descriptor matrix" not in result.output
+
+
+def test_saved_models_of_one_file_name_are_told_apart_by_their_folders(route_files, tmp_path: Path) -> None:
+    """Two runs' ``lsh.npz`` (or a saved ``bruteforce.npz`` beside the fitted reference) are rows named by as much
+    of their folder path as tells them apart; the same file given twice is refused before the run folder exists."""
+    db, q = route_files
+    for folder, budget in (("a", "4KB"), ("b", "2KB")):
+        (tmp_path / folder).mkdir()
+        assert run("train", db, "-o", tmp_path / folder / "lsh.npz", "--method", "lsh", "--budget", budget).exit_code == 0
+    assert run("train", db, "-o", tmp_path / "a" / "bruteforce.npz", "--method", "bruteforce").exit_code == 0
+    result = run("evaluate", "--db", db, "--methods", "pq", "--budget", "4KB", "--model", tmp_path / "a" / "lsh.npz",
+                 "--model", tmp_path / "b" / "lsh.npz", "--model", tmp_path / "a" / "bruteforce.npz", "--queries", q,
+                 "--out", tmp_path / "run", "--no-progress")
+    assert result.exit_code == 0, result.output
+    names = [r["name"] for r in json.loads((tmp_path / "run" / "metrics.json").read_text())["results"]]
+    assert names[:3] == ["a/lsh", "b/lsh", "a/bruteforce"] and "bruteforce" in names[3:]
+    twice = CliRunner().invoke(main, ["evaluate", "--model", str(tmp_path / "a" / "lsh.npz"), "--model",
+                                      str(tmp_path / "a" / ".." / "a" / "lsh.npz"), "--queries", str(q), "--out",
+                                      str(tmp_path / "run2")])
+    assert twice.exit_code == 2 and "given twice" in twice.output and not (tmp_path / "run2").exists()

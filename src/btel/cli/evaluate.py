@@ -273,7 +273,7 @@ def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tupl
     Q = _load_matrix(queries, "query descriptors")
     X = _load_matrix(db, "map descriptors") if db is not None else None
     try:
-        saved = saved_jobs(o["model_paths"], Q.shape[1])
+        saved = saved_jobs(o["model_paths"], Q.shape[1], taken=[j.name for j in jobs])
     except ModelFileError:
         for path in o["model_paths"]:  # a descriptor matrix given as --model: say so, not "corrupt"
             refuse_matrix_as_model(path, "--model", "or give this matrix as --db to fit --methods on it")

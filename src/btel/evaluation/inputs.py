@@ -18,7 +18,7 @@ from typing import Any
 from ..core.storage import budget_of, format_bytes, parse_budget
 from ..exceptions import InvalidParameterError
 
-__all__ = ["Job", "make_jobs", "method_named", "RUNTIME_PARAMS", "saved_jobs", "common_map_size", "run_title",
+__all__ = ["Job", "make_jobs", "method_named", "RUNTIME_PARAMS", "saved_jobs", "saved_names", "common_map_size", "run_title",
            "takes_calibration", "calibrate_jobs"]
 
 #: Parameters set by runtime flags (progress bars, parallel fits): they change how a method runs,
@@ -188,24 +188,52 @@ def calibrate_jobs(jobs: Sequence[Job], calibration: tuple[Any, Any],
     return ignored
 
 
-def saved_jobs(paths: Sequence[str | os.PathLike], n_features: int) -> list[Job]:
-    """One ``fit=False`` job per saved model file (named by the file), checked against the queries' width.
+def saved_jobs(paths: Sequence[str | os.PathLike], n_features: int, taken: Sequence[str] = ()) -> list[Job]:
+    """One ``fit=False`` job per saved model file, checked against the queries' width.
+
+    A job is named by its file (``runs/a/lsh.npz`` → ``lsh``); where that name is taken — by another
+    file of the same name, or by a row in ``taken`` (the fitted rows) — by as much of its folder path
+    as tells it apart (``a/lsh`` beside ``b/lsh``).
 
     Raises
     ------
     InvalidParameterError
-        A model fitted on descriptors of another dimension.
+        A model fitted on descriptors of another dimension, or the same file given twice.
     """
     from ..methods.registry import load
 
+    names = saved_names(paths, taken)
     jobs = []
-    for path in paths:
+    for path, name in zip(paths, names):
         model = load(path)
         if model.n_features_in_ != n_features:
             raise InvalidParameterError(f"model {path} expects {model.n_features_in_}-D descriptors but the "
                                         f"queries have {n_features}.")
-        jobs.append(Job(Path(path).name.split(".")[0], model, fit=False))
+        jobs.append(Job(name, model, fit=False))
     return jobs
+
+
+def saved_names(paths: Sequence[str | os.PathLike], taken: Sequence[str] = ()) -> list[str]:
+    """The row name of each saved model file (:func:`saved_jobs`): its name without suffixes, with as
+    many of its folders in front as keep it apart from the other files' names and from ``taken``."""
+    full = [Path(os.path.abspath(p)) for p in paths]
+    twice = next((str(paths[i]) for i, p in enumerate(full) if p in full[:i]), None)
+    if twice is not None:
+        raise InvalidParameterError(f"the model file {twice} is given twice; give each --model once.")
+    stems = [p.name.split(".")[0] or p.name for p in full]
+    depth = [0] * len(full)
+
+    def name(i: int) -> str:
+        return "/".join([*full[i].parent.parts[len(full[i].parent.parts) - depth[i]:], stems[i]])
+
+    while True:
+        names = [name(i) for i in range(len(full))]
+        clash = [i for i, n in enumerate(names) if n in taken or names.count(n) > 1]
+        growable = [i for i in clash if depth[i] < len(full[i].parent.parts) - 1]
+        if not clash or not growable:
+            return names
+        for i in growable:
+            depth[i] += 1
 
 
 def common_map_size(X_map: Any, Q: Any, saved: Sequence[Job]) -> int:
