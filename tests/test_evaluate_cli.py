@@ -494,3 +494,19 @@ def test_saved_models_of_one_file_name_are_told_apart_by_their_folders(route_fil
                                       str(tmp_path / "a" / ".." / "a" / "lsh.npz"), "--queries", str(q), "--out",
                                       str(tmp_path / "run2")])
     assert twice.exit_code == 2 and "given twice" in twice.output and not (tmp_path / "run2").exists()
+
+
+def test_evaluate_reads_a_folder_of_shards_as_train_does(route_files, tmp_path: Path) -> None:
+    """``--db FOLDER`` of .npy shards: the same rows as the whole matrix (large-maps guide)."""
+    db, q = route_files
+    X = np.load(db)
+    (tmp_path / "shards").mkdir()
+    for i in range(4):
+        np.save(tmp_path / "shards" / f"shard_{i}.npy", X[i * 50:(i + 1) * 50])
+    recalls = []
+    for source, out in ((db, "whole"), (tmp_path / "shards", "sharded")):
+        result = run("evaluate", "--db", source, "--queries", q, "--methods", "lsh", "--budget", "2KB",
+                     "--out", tmp_path / out, "--no-progress")
+        assert result.exit_code == 0, result.output
+        recalls.append([(r["recall_curve"], r["recall_at_k"]) for r in json.loads((tmp_path / out / "metrics.json").read_text())["results"]])
+    assert recalls[0] == recalls[1]

@@ -11,7 +11,7 @@ from click.core import ParameterSource
 
 from ..methods.roles import DEFAULT_METHOD
 from ._errors import InputError
-from ._inputs import (_load_matrix, calibrate_evaluation, check_evaluate_calibration, check_utm_options,
+from ._inputs import (_load_map, _load_matrix, calibrate_evaluation, check_evaluate_calibration, check_utm_options,
                       read_ground_truth, refuse_matrix_as_model)
 from ._jobs import _fit_jobs, _run_jobs
 from ._options import (EXIT_SOME_ROWS_FAILED, _BUDGET_HELP, _DELTA_HELP, _N_JOBS_HELP, _NO_PROGRESS_HELP,
@@ -175,8 +175,11 @@ def _check_inputs_unchanged(run: str, recorded: dict[str, Any] | None, current: 
 
 
 @click.command(name="evaluate")
-@click.option("--db", **FILE, help="Map descriptors to fit --methods on: .npy, .npz[:KEY], .h5[:PREFIX].")
-@click.option("--model", "model_paths", multiple=True, **FILE, help="A saved model to evaluate (repeatable).")
+@click.option("--db", type=click.Path(), default=None,
+              help="Map descriptors to fit --methods on: .npy, .npz[:KEY], .h5[:PREFIX] or a folder of .npy shards.")
+@click.option("--model", "model_paths", multiple=True, **FILE,
+              help="A saved model to evaluate (repeatable); its row is named by the file (and by its folders where "
+                   "two files share a name).")
 @click.option("--queries", **FILE, help="Query descriptors (as --db); required unless --resume.")
 @click.option("--methods", multiple=True, default=(DEFAULT_METHOD,), show_default=True,
               help="Method names, comma-separated; repeatable, the lists are joined (--methods a,b --methods c "
@@ -271,7 +274,7 @@ def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tupl
     if resume_dir is not None:
         _check_inputs_unchanged(resume_dir, recorded_inputs, inputs)
     Q = _load_matrix(queries, "query descriptors")
-    X = _load_matrix(db, "map descriptors") if db is not None else None
+    X = None if db is None else _load_map(db) if Path(db).is_dir() else _load_matrix(db, "map descriptors")
     try:
         saved = saved_jobs(o["model_paths"], Q.shape[1], taken=[j.name for j in jobs])
     except ModelFileError:
