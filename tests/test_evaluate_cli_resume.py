@@ -94,8 +94,11 @@ def test_resuming_a_complete_run_fits_nothing(interrupted) -> None:
     assert run("evaluate", "--resume", out, "--no-progress").exit_code == 0
     calls.clear()
     before = (out / "metrics.json").read_text()
-    result = run("evaluate", "--resume", out, "--methods", "lsh")
+    result = run("evaluate", "--resume", out, "--methods", "pq,itq")  # the recorded options: nothing to do
     assert result.exit_code == 0 and "is a complete run: nothing to resume" in result.output
+    # Another option is refused as on an unfinished run: "nothing to resume" must not read as if it were applied.
+    result = run("evaluate", "--resume", out, "--methods", "lsh")
+    assert result.exit_code == 2 and "this run was started with --methods pq,itq; got lsh." in result.output
     assert calls == [] and (out / "metrics.json").read_text() == before
 
 

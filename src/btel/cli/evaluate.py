@@ -149,11 +149,14 @@ def _read_resumed(ctx: click.Context, given: dict[str, Any],
         meta, rows = read_unfinished_run(run)
     except (DataNotFoundError, InvalidParameterError) as exc:
         raise click.UsageError(f"--resume: {exc}") from None
-    if meta.get("complete"):
-        return None
     extra = meta.get("extra", {})
     if not isinstance(extra, dict):  # else it would read as an older btel's run, asking for --methods
         raise _damaged(run, "run.extra", extra, "it must be an object")
+    if meta.get("complete"):
+        # An option that differs from the run's is refused here too: "nothing to resume" must not read as if
+        # a new --budget had been applied.
+        _resumed_options(ctx, given, extra, run)
+        return None
     recorded = extra.get("inputs")
     return _resumed_options(ctx, given, extra, run), rows, recorded if isinstance(recorded, dict) else None
 
