@@ -298,23 +298,26 @@ def _rows(block: list[tuple[int, Any]], n_features: int | None,
     """
     limit = max_line_bytes()
     out: list[tuple[int, Any] | None] = [None] * len(block)
+    # Problems are reported in line order once the block is read: a line refused while reading (cut short,
+    # too long) must not be reported before an earlier line that the parser refuses.
+    problems: list[tuple[int, Any]] = []
     raws: list[bytes] = []
     where: list[int] = []
     for k, (number, item) in enumerate(block):
         if isinstance(item, np.ndarray) or item == RESET_LINE:  # a binary frame, or a frame count of 0
             out[k] = (number, item)
         elif isinstance(item, (LineTooLong, BadFrame, CutLine)):
-            _report(on_error, number, item)
+            problems.append((number, item))
         elif len(item) > limit + 1:
-            _report(on_error, number, LineTooLong(limit))
+            problems.append((number, LineTooLong(limit)))
         else:
             raw = item.encode("utf-8", "surrogatepass") if isinstance(item, str) else bytes(item)
             if raw.startswith(_BOM):
                 raw = raw[len(_BOM):]
             if b"\0" in raw:  # a float32 frame holds NUL bytes in its count; text never does
                 column = raw.index(b"\0") + 1
-                _report(on_error, number, f"binary data, not a line of text (a NUL byte at column {column}); "
-                                          "float32 frames are read with --binary.")
+                problems.append((number, f"binary data, not a line of text (a NUL byte at column {column}); "
+                                         "float32 frames are read with --binary."))
                 continue
             raws.append(raw)
             where.append(k)
@@ -330,8 +333,7 @@ def _rows(block: list[tuple[int, Any]], n_features: int | None,
             try:  # only lines the fast path refused need decoding
                 item = raw.decode("utf-8")
             except UnicodeDecodeError as exc:
-                _report(on_error, number,
-                        f"not UTF-8 text (byte 0x{raw[exc.start]:02x} at column {exc.start + 1}).")
+                problems.append((number, f"not UTF-8 text (byte 0x{raw[exc.start]:02x} at column {exc.start + 1})."))
                 continue
         text = item.strip().removeprefix("\ufeff").strip()
         if not text or text.startswith("#"):  # blank, or a comment (numpy.savetxt's header= and footer=)
@@ -342,7 +344,9 @@ def _rows(block: list[tuple[int, Any]], n_features: int | None,
         try:
             out[k] = (number, parse_strict(text, n_features))
         except InvalidDescriptorsError as exc:
-            _report(on_error, number, str(exc))
+            problems.append((number, str(exc)))
+    for number, what in sorted(problems, key=lambda problem: problem[0]):
+        _report(on_error, number, what)
     return [o for o in out if o is not None]
 
 
