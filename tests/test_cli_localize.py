@@ -66,8 +66,12 @@ def test_query_names_alone_and_a_db_that_does_not_match(tmp_path: Path) -> None:
     assert list(rows[0]) == ["query", "prediction", "query_name"] and [r["query_name"] for r in rows] == q_names
     # --db naming 5 images for a 20-place model: refused before writing, as an input error.
     result = _invoke("localize", model, f"{feats}:query/", "--db", f"{feats}:query/", "-o", tmp_path / "b.csv")
-    assert result.exit_code == 2 and "does not name one image per place of MODEL (20)" in result.output
+    assert result.exit_code == 2 and "names 5 images, but MODEL has 20 places" in result.output
     assert not (tmp_path / "b.csv").exists()
+    # A matrix of the right length without names: the missing names are the problem, not the count.
+    np.save(tmp_path / "map.npy", X)
+    result = _invoke("localize", model, f"{feats}:query/", "--db", tmp_path / "map.npy", "-o", tmp_path / "b.csv")
+    assert result.exit_code == 2 and "records no image names" in result.output and "PATH.json" in result.output
     np.save(tmp_path / "plain.npy", X[:5])  # no names recorded: numbers only, as before
     result = _invoke("localize", model, tmp_path / "plain.npy", "-o", tmp_path / "c.csv")
     assert result.exit_code == 0 and list(_rows(tmp_path / "c.csv")[0]) == ["query", "prediction"]

@@ -91,8 +91,13 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
     _check_top_k(top_k, model.n_places_, model_path)
     q_names, db_names = input_names(db, queries, model.n_places_, Q.shape[0])
     if db is not None and db_names is None:
-        raise InputError(f"--db {db} does not name one image per place of MODEL ({model.n_places_}); give "
-                         "the map MODEL was trained on (an hloc .h5, or btel extract's .npy with its .json).")
+        from ..datasets.row_names import row_names
+
+        recorded = row_names(db)
+        why = ("records no image names (a .npy names its images only with btel extract's PATH.json beside it)"
+               if recorded is None else f"names {len(recorded)} images, but MODEL has {model.n_places_} places")
+        raise InputError(f"--db {db} {why}; --db is there to name the predicted places: give the map MODEL was "
+                         "trained on as an hloc .h5, or as btel extract's .npy with its .json.")
     # A frame-by-frame model answers row blocks of the queries as it answers them all: the memory of a
     # query file larger than RAM's share is a block's, not the file's.
     by_frame = not hmm and not model.front_end_.uses_sequence and not model._sequence_context()
