@@ -112,6 +112,15 @@ def test_show_says_why_without_images(gardenspoint_netvlad: tuple[np.ndarray, np
     assert missing.exit_code == 2 and "no metrics.json" in missing.output
 
 
+def test_show_on_a_demo_run_says_it_has_no_images(tmp_path: Path) -> None:
+    """A run no input file of the user's made (btel demo): it is said to have no images, not that the
+    --db and --queries "not given" record none."""
+    runner = CliRunner()
+    assert runner.invoke(main, ["demo", "--places", "100", "--dim", "16", "--methods", "lsh", "--budget", "1KB", "--no-progress", "--out", str(tmp_path / "demo")]).exit_code == 0
+    shown = runner.invoke(main, ["show", str(tmp_path / "demo")])
+    assert shown.exit_code == 2 and "records no input files" in shown.output and "not given" not in shown.output
+
+
 @pytest.mark.realdata
 def test_positives_ground_truth_names_a_positive(gardenspoint_sample_dir: Path, tmp_path: Path) -> None:
     """UTM positives (VPR-methods-evaluation names): the predictions name a positive of each query and

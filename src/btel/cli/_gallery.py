@@ -134,6 +134,10 @@ def write_galleries(run: Path, *, n_rows: int = GALLERY_ROWS, overwrite: bool = 
         raise InputError(f"{run} has no metrics.json; give a run folder written by btel evaluate.")
     extra, names = _run_names(meta_path)
     db, queries = extra.get("db"), extra.get("queries")
+    if db is None and queries is None:
+        raise InputError(f"{run} records no input files: its descriptors were generated or loaded by btel itself "
+                         "(btel demo, btel experiment), so it has no images to show; the match gallery is drawn for "
+                         "a `btel evaluate` run on descriptors written by `btel extract` (they record their images).")
     q_images, db_images = row_images(queries), row_images(db)
     if q_images is None or db_images is None:
         missing = [f"{option} {path}" if path else f"{option} (not given)" for option, path, images
