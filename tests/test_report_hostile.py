@@ -21,6 +21,7 @@ from btel.cli import main
 from btel.core.modelfile import load_arrays, save_arrays
 from btel.exceptions import InvalidParameterError, ModelFileError
 from btel.experiments import report as report_module
+from btel.experiments import reportfiles
 from btel.experiments.report import write_report
 from btel.methods import make_method
 
@@ -80,7 +81,7 @@ def test_report_follows_a_symlink_to_a_regular_figure(runs) -> None:
 def test_report_reads_at_most_its_size_limits(runs, monkeypatch, what: str) -> None:
     runs_dir, docs, folder = runs
     monkeypatch.setattr(report_module, "MAX_FIGURE_BYTES", 64)
-    monkeypatch.setattr(report_module, "MAX_TEXT_BYTES", 64)
+    monkeypatch.setattr(reportfiles, "MAX_TEXT_BYTES", 64)
     if what == "figure":
         (folder / "fig.png").write_bytes(b"x" * 65)
     elif what == "results.json":

@@ -11,7 +11,8 @@ import click
 @click.option("--docs", "docs_dir", type=click.Path(file_okay=False), default="docs", show_default=True,
               help="Where results.md, results.json and figures/ go (the documentation site's folder).")
 @click.option("--overwrite", is_flag=True,
-              help="Replace a results.md or results.json that btel report did not write (kept otherwise).")
+              help="Replace a results.md or results.json that btel report did not write, or a page whose sections "
+                   "these runs would drop or downgrade to quick mode (both kept otherwise).")
 def report(runs_dir: str, docs_dir: str, overwrite: bool) -> None:
     """Write docs/results.md and docs/results.json (plus figures) from the latest `btel experiment` runs.
 
