@@ -233,3 +233,27 @@ def test_changed_inputs_compares_bytes_of_every_file(tmp_path: Path) -> None:
     np.save(tmp_path / "shards" / "shard_1.npy", np.zeros((1, 2)))  # a shard added to the folder
     (tmp_path / "gt.csv").write_text("query,positive\n0,2\n")
     assert changed_inputs(before, input_fingerprints(given)) == ["--db", "--ground-truth"]
+
+
+def test_inputs_are_fingerprinted_only_once_their_readers_accepted_them(files, tmp_path: Path, monkeypatch) -> None:
+    """A ground truth whose header claims 2.5·10⁹ places in a sparse file (4 KB on disk, 20 GB by its size) is
+    refused by its reader before any input is hashed (hashing it first took a minute; a larger claim, hours)."""
+    import btel.evaluation.resume as resume
+
+    hashed: list[str] = []
+    real = resume.fingerprint
+    monkeypatch.setattr(resume, "fingerprint", lambda text: (hashed.append(text), real(text))[1])
+    db, q = files
+    sparse = tmp_path / "sparse_gt.npy"
+    with open(sparse, "wb") as fh:
+        np.lib.format.write_array_header_1_0(fh, {"descr": "<i8", "fortran_order": False, "shape": (2_500_000_000,)})
+        fh.truncate(fh.tell() + 20_000_000_000)
+    result = run("evaluate", "--db", db, "--queries", q, "--ground-truth", sparse, "--methods", "lsh", "--budget",
+                 "2KB", "--out", tmp_path / "run", "--no-progress")
+    assert result.exit_code == 2 and hashed == []
+    result = run("evaluate", "--db", db, "--queries", q, "--methods", "lsh", "--budget", "2KB", "--out",
+                 tmp_path / "run", "--no-progress")
+    assert result.exit_code == 0, result.output
+    assert str(db) in hashed and str(q) in hashed
+    recorded = json.loads((tmp_path / "run" / "metrics.json").read_text())["run"]["extra"]["inputs"]
+    assert set(recorded) == {"--db", "--queries"}

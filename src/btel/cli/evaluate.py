@@ -271,11 +271,6 @@ def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tupl
     if resume_dir is None:
         check_run_folder(Path(out_dir), overwrite)
     out = Path(out_dir or resume_dir)
-    inputs = input_fingerprints({"--db": db, "--queries": queries, "--model": list(o["model_paths"]),
-                                 "--ground-truth": o["ground_truth"], "--calibrate": calibrate,
-                                 "--calibrate-truth": calibrate_truth})
-    if resume_dir is not None:
-        _check_inputs_unchanged(resume_dir, recorded_inputs, inputs)
     Q = _load_matrix(queries, "query descriptors")
     X = None if db is None else _load_map(db) if Path(db).is_dir() else _load_matrix(db, "map descriptors")
     try:
@@ -306,10 +301,17 @@ def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tupl
         _warn_unnamed_pairs(pairs[0], names, queries, db)
     extra = {"db": db, "models": o["model_paths"], "budget": budgets, "queries": queries,
              "query_order": o["query_order"], "options": {flag: o[name] for name, flag in _RECORDED.items()},
-             "inputs": inputs, "shapes": {"queries": list(Q.shape), "db": None if X is None else list(X.shape)}}
+             "shapes": {"queries": list(Q.shape), "db": None if X is None else list(X.shape)}}
     if calibrate:
         extra["calibration"] = calibrate_evaluation(saved + jobs, Q, db, calibrate, calibrate_truth,
                                                     calibrate_tolerance, n_map, threshold)
+    # Fingerprinted once every input has been read and checked: a file that lies about its size (a sparse
+    # .npy claiming terabytes, a /proc file) is refused by its reader in a moment, not hashed for hours first.
+    extra["inputs"] = input_fingerprints({"--db": db, "--queries": queries, "--model": list(o["model_paths"]),
+                                          "--ground-truth": o["ground_truth"], "--calibrate": calibrate,
+                                          "--calibrate-truth": calibrate_truth})
+    if resume_dir is not None:
+        _check_inputs_unchanged(resume_dir, recorded_inputs, extra["inputs"])
     finished = None
     if resume_dir is not None:
         from ..exceptions import InvalidParameterError
