@@ -12,8 +12,6 @@ from pathlib import Path
 
 __all__ = ["row_names", "row_images"]
 
-_SIDECAR_ERRORS = (OSError, ValueError, AttributeError, TypeError, IndexError, KeyError)
-
 
 def _sidecar(path: str | os.PathLike) -> dict | None:
     """The record ``btel extract`` wrote beside ``path`` when it is a JSON object, else None (no record, or
@@ -44,10 +42,25 @@ def row_names(path: str | os.PathLike) -> list[str] | None:
         return load_hloc_global(file, prefix)[1]
     if file.suffix.lower() != ".npy" or (key := _sidecar(file)) is None:
         return None
-    try:
-        return [str(entry[0]) for entry in key["images"]]
-    except _SIDECAR_ERRORS:
+    return _recorded_names(key, file)
+
+
+def _damaged(path: str | os.PathLike, what: str) -> Exception:
+    from ..exceptions import InvalidDescriptorsError
+
+    return InvalidDescriptorsError(f"{path}.json: {what}, not as btel extract writes it (the record was edited or "
+                                   f"damaged); extract the descriptors again, or delete {path}.json to use the "
+                                   "matrix without image names.")
+
+
+def _recorded_names(key: dict, path: str | os.PathLike) -> list[str] | None:
+    """The image names of a record (``"images"``: ``[[name, size, mtime], …]``); None when it lists none."""
+    images = key.get("images")
+    if images is None:
         return None
+    if not isinstance(images, list) or not all(isinstance(e, list) and e and isinstance(e[0], str) for e in images):
+        raise _damaged(path, '"images" is not a list of [name, size, time] entries')
+    return [entry[0] for entry in images]
 
 
 def row_images(path: str | os.PathLike | None) -> list[Path] | None:
@@ -64,12 +77,17 @@ def row_images(path: str | os.PathLike | None) -> list[Path] | None:
     from .vpr_names import check_image_names
 
     key = _sidecar(path) if path else None
-    if key is None or not key.get("folder"):
+    folder = None if key is None else key.get("folder")
+    if folder is None or folder == "":  # not recorded (records of before the folder was)
         return None
-    try:
-        names = [str(entry[0]) for entry in key["images"]]
-    except _SIDECAR_ERRORS:
+    if not isinstance(folder, str):
+        raise _damaged(path, '"folder" is not a path')
+    names = _recorded_names(key, path)
+    if names is None:
         return None
     check_image_names(names, f"{path}.json", file_name=True)  # images inside the folder, nowhere else
-    files = [Path(key["folder"]) / name for name in names]
-    return files if files and all(f.is_file() for f in files) else None
+    files = [Path(folder) / name for name in names]
+    try:
+        return files if files and all(f.is_file() for f in files) else None
+    except OSError as exc:  # a folder name too long for the system, say
+        raise _damaged(path, f'"folder" cannot be a folder here ({exc.strerror})') from None

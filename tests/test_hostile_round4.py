@@ -1,0 +1,59 @@
+"""Hostile inputs, round 4: records edited into other types, options at values that never end, numpy
+subclasses, files that read without end or fail to read, and archives whose directory lies about its size.
+Each case ends with one error naming the input and the fix (exit 2 from the CLI), in bounded time.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from btel.cli import main
+from btel.datasets.row_names import row_images, row_names
+from btel.descriptors.extract import extract_cached
+from btel.descriptors.hog import HOGDescriptor
+from btel.exceptions import InvalidDescriptorsError
+
+
+@pytest.fixture()
+def extracted(tmp_path: Path) -> tuple[Path, Path]:
+    """(image folder, db.npy written by extract_cached with its PATH.json record)."""
+    images = tmp_path / "imgs"
+    images.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(4):
+        cv2.imwrite(str(images / f"{i:02d}.png"), rng.integers(0, 255, (32, 64), dtype=np.uint8))
+    out = tmp_path / "db.npy"
+    extract_cached(images, out, HOGDescriptor(), progress=False)
+    return images, out
+
+
+@pytest.mark.parametrize("field, value", [("folder", 5), ("folder", ["a"]), ("folder", {}), ("folder", True),
+                                          ("folder", "/" + "a" * 5000), ("images", [{"name": "00.png"}]),
+                                          ("images", "00.png"), ("images", [[1, 2, 3]])])
+def test_a_record_edited_into_other_types_is_named_not_a_traceback(extracted, tmp_path: Path, field: str,
+                                                                   value: object) -> None:
+    """``"folder": 5`` gave a TypeError traceback from evaluate and show; image entries that were objects
+    dropped the names silently; a string of images gave one-letter names."""
+    _, out = extracted
+    sidecar = Path(str(out) + ".json")
+    record = json.loads(sidecar.read_text())
+    record[field] = value
+    sidecar.write_text(json.dumps(record))
+    with pytest.raises(InvalidDescriptorsError, match=r"db\.npy\.json: .*(edited or damaged)"):
+        row_images(out) if field == "folder" else row_names(out)
+    result = CliRunner().invoke(main, ["evaluate", "--db", str(out), "--queries", str(out),
+                                       "--methods", "lsh", "--budget", "1KB", "--no-progress", "--out",
+                                       str(tmp_path / "run")])
+    if field == "images":  # the names are read before the run: refused
+        assert result.exit_code == 2 and "edited or damaged" in result.output, result.output
+        return
+    # The folder is read for the gallery once the run is written: the run stands, the gallery is refused.
+    assert result.exit_code == 0 and "gallery could not be drawn" in result.output and "edited or damaged" in result.output
+    shown = CliRunner().invoke(main, ["show", str(tmp_path / "run")])
+    assert shown.exit_code == 2 and "edited or damaged" in shown.output and "Traceback" not in shown.output
