@@ -57,3 +57,26 @@ def test_a_record_edited_into_other_types_is_named_not_a_traceback(extracted, tm
     assert result.exit_code == 0 and "gallery could not be drawn" in result.output and "edited or damaged" in result.output
     shown = CliRunner().invoke(main, ["show", str(tmp_path / "run")])
     assert shown.exit_code == 2 and "edited or damaged" in shown.output and "Traceback" not in shown.output
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-1", "0"])
+def test_an_idle_timeout_that_never_ends_or_ends_at_once_is_a_usage_error(tmp_path: Path, value: str) -> None:
+    """``--follow --idle-timeout nan`` (or inf) followed the file forever; -1 stopped at once."""
+    from btel.methods import make_method
+
+    make_method("lsh", budget="1KB").fit(np.eye(8, dtype=np.float32)).save(tmp_path / "m.npz")
+    (tmp_path / "q.txt").write_text("1,0,0,0,0,0,0,0\n")
+    result = CliRunner().invoke(main, ["localize", str(tmp_path / "m.npz"), "--stream", "--input",
+                                       str(tmp_path / "q.txt"), "--follow", "--idle-timeout", value])
+    assert result.exit_code == 2 and "--idle-timeout must be a number of seconds above 0" in result.output
+
+
+@pytest.mark.parametrize("value", ["99999999999999999999", str((1 << 30) + 1)])
+def test_a_line_limit_beyond_a_gibibyte_is_named(monkeypatch, value: str) -> None:
+    """A 20-digit ``BTEL_MAX_LINE_BYTES`` ended the stream with a bare OverflowError from readline."""
+    from btel.exceptions import InvalidParameterError
+    from btel.sequence.lineparse import max_line_bytes
+
+    monkeypatch.setenv("BTEL_MAX_LINE_BYTES", value)
+    with pytest.raises(InvalidParameterError, match=r"BTEL_MAX_LINE_BYTES must be a number of bytes from 1 to .*Unset it"):
+        max_line_bytes()

@@ -284,7 +284,7 @@ def test_a_line_past_the_limit_is_dropped_unread_and_reported(monkeypatch) -> No
     monkeypatch.setenv("BTEL_MAX_LINE_BYTES", "100")
     assert max_line_bytes() == 100
     monkeypatch.setenv("BTEL_MAX_LINE_BYTES", "-3")
-    with pytest.raises(InvalidParameterError, match="BTEL_MAX_LINE_BYTES must be a positive number"):
+    with pytest.raises(InvalidParameterError, match="BTEL_MAX_LINE_BYTES must be a number of bytes from 1 to"):
         max_line_bytes()
 
 

@@ -47,6 +47,8 @@ _NOT_NUMBERS = (b"u", b"l", b'"', b"[", b"{")
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
 #: Default longest input line (bytes, newline excluded): 1 MiB, room for d ≈ 50,000 values.
 DEFAULT_MAX_LINE_BYTES = 1 << 20
+#: The largest value it may take (1 GiB: a line of some 40 million values; one line is held in memory whole).
+LARGEST_LINE_BYTES = 1 << 30
 #: Environment variable that sets the longest accepted line in bytes (default 1 MiB).
 MAX_LINE_ENV = "BTEL_MAX_LINE_BYTES"
 
@@ -54,7 +56,8 @@ MAX_LINE_ENV = "BTEL_MAX_LINE_BYTES"
 def max_line_bytes() -> int:
     """The longest input line accepted, in bytes: ``$BTEL_MAX_LINE_BYTES`` or 1 MiB.
 
-    Raises :class:`~btel.exceptions.InvalidParameterError` for a value that is not a positive integer.
+    Raises :class:`~btel.exceptions.InvalidParameterError` for a value that is not an integer from 1 to
+    :data:`LARGEST_LINE_BYTES`.
     """
     raw = os.environ.get(MAX_LINE_ENV)
     if raw is None or not raw.strip():
@@ -63,9 +66,9 @@ def max_line_bytes() -> int:
         value = int(raw.strip())
     except ValueError:
         value = 0
-    if value < 1:
-        raise InvalidParameterError(f"{MAX_LINE_ENV} must be a positive number of bytes; got {raw[:40]!r}. "
-                                    f"Unset it for the default ({DEFAULT_MAX_LINE_BYTES} bytes).")
+    if not 1 <= value <= LARGEST_LINE_BYTES:
+        raise InvalidParameterError(f"{MAX_LINE_ENV} must be a number of bytes from 1 to {LARGEST_LINE_BYTES} (1 GiB); "
+                                    f"got {raw[:40]!r}. Unset it for the default ({DEFAULT_MAX_LINE_BYTES} bytes).")
     return value
 
 
