@@ -80,3 +80,16 @@ def test_a_line_limit_beyond_a_gibibyte_is_named(monkeypatch, value: str) -> Non
     monkeypatch.setenv("BTEL_MAX_LINE_BYTES", value)
     with pytest.raises(InvalidParameterError, match=r"BTEL_MAX_LINE_BYTES must be a number of bytes from 1 to .*Unset it"):
         max_line_bytes()
+
+
+@pytest.mark.filterwarnings("ignore::PendingDeprecationWarning")  # numpy's own, on np.asmatrix
+@pytest.mark.parametrize("method", ["lsh", "btel-codes", "rabitq", "bruteforce", "pq"])
+def test_a_numpy_matrix_is_read_as_its_rows(method: str) -> None:
+    """``np.matrix`` kept its subclass through validation and failed inside numpy ('shapes not aligned')."""
+    from btel.methods import make_method
+
+    X = np.random.default_rng(0).standard_normal((300, 16)).astype(np.float32)
+    seed = {} if method == "bruteforce" else {"random_state": 0}
+    plain = make_method(method, budget="32KB", **seed).fit(X)
+    matrix = make_method(method, budget="32KB", **seed).fit(np.asmatrix(X))
+    np.testing.assert_array_equal(matrix.predict(np.asmatrix(X[:20])), plain.predict(X[:20]))

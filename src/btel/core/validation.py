@@ -58,14 +58,12 @@ def check_descriptors(
     DimensionMismatchError
         ``n_features`` is given and differs from ``X.shape[1]``.
     """
-    if isinstance(X, np.ndarray) and X.dtype == dtype and X.ndim == 2 and X.flags.c_contiguous:
-        # Fast path: already the result's dtype and layout, so there is nothing to convert. The
-        # shape and finiteness checks below still run. A memory-mapped map is returned as is.
-        arr = X
-        fast = True
+    if (type(X) is np.ndarray or type(X) is np.memmap) and X.dtype == dtype and X.ndim == 2 and X.flags.c_contiguous:
+        # Fast path: nothing to convert (shape and finiteness are still checked); a memory-mapped map stays
+        # mapped, another subclass (np.matrix: its `*` and rows mean other things) becomes an ndarray.
+        arr, fast = X, True
     else:
-        arr = _as_numeric_array(X, name)
-        fast = False
+        arr, fast = _as_numeric_array(X, name), False
     if arr.ndim != 2:
         hint = " Use X.reshape(1, -1) for a single descriptor." if arr.ndim == 1 else ""
         raise InvalidDescriptorsError(
