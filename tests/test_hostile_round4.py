@@ -93,3 +93,24 @@ def test_a_numpy_matrix_is_read_as_its_rows(method: str) -> None:
     plain = make_method(method, budget="32KB", **seed).fit(X)
     matrix = make_method(method, budget="32KB", **seed).fit(np.asmatrix(X))
     np.testing.assert_array_equal(matrix.predict(np.asmatrix(X[:20])), plain.predict(X[:20]))
+
+
+@pytest.mark.skipif(not Path("/proc/self/pagemap").exists(), reason="needs Linux /proc")
+@pytest.mark.parametrize("target, message", [("/proc/self/pagemap", "holds more than its size says"),
+                                             ("/proc/self/mem", "could not be read")])
+def test_an_image_that_reads_without_end_or_fails_to_read_is_named(tmp_path: Path, monkeypatch, target: str,
+                                                                  message: str) -> None:
+    """A kernel file says it holds 0 bytes: pagemap then reads on for gigabytes, mem fails with EIO. Both
+    gave a bare OSError (no file named) from btel extract."""
+    from btel.core.limits import read_regular
+    from btel.exceptions import BTELError
+
+    monkeypatch.setenv("BTEL_MEMORY_LIMIT", "4M")
+    folder = tmp_path / "imgs"
+    folder.mkdir()
+    cv2.imwrite(str(folder / "0.png"), np.zeros((32, 64), np.uint8))
+    (folder / "1.png").symlink_to(target)
+    with pytest.raises(BTELError, match=message):
+        read_regular(folder / "1.png", "image")
+    result = CliRunner().invoke(main, ["extract", str(folder), "-o", str(tmp_path / "d.npy"), "--no-progress"])
+    assert result.exit_code == 2 and "1.png" in result.output and message in result.output, result.output

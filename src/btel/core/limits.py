@@ -165,3 +165,35 @@ def open_regular(path: "os.PathLike[str] | str") -> Any:
     if hasattr(os, "set_blocking"):
         os.set_blocking(fd, True)
     return os.fdopen(fd, "rb")
+
+
+def read_regular(path: "os.PathLike[str] | str", what: str, *, expansion: float = 1.0) -> bytes:
+    """The bytes of a regular file, at most the memory limit (divided by ``expansion``, what parsing them
+    costs per byte) of them, however large the file says it is: a /proc file says 0 bytes and never ends.
+
+    Raises
+    ------
+    DataNotFoundError
+        Not a regular file, or it cannot be opened or read (the message names ``what`` and the reason).
+    ResourceLimitError
+        The file holds more than that.
+    """
+    from ..exceptions import DataNotFoundError
+
+    room = int(memory_limit() / expansion)
+    from ..exceptions import ResourceLimitError
+
+    with open_regular(path) as fh:
+        size = os.fstat(fh.fileno()).st_size
+        check_bytes(size * expansion, what)
+        try:
+            data = fh.read(room + 1)
+        except OSError as exc:  # an I/O error, or a kernel file that cannot be read as a stream
+            raise DataNotFoundError(f"{what} could not be read: {exc.strerror or exc}.") from None
+    if len(data) > room:
+        raise ResourceLimitError(
+            f"{what} holds more than its size says ({size} B): over {format_size(room)} were read, btel's memory "
+            f"limit for it. A file that grows while read, or a kernel file (/proc, /sys), is not an input; if the "
+            f"file is genuine, raise the limit with {ENV_MEMORY_LIMIT} (e.g. {ENV_MEMORY_LIMIT}=4G).")
+    return data
+

@@ -10,6 +10,7 @@ and turns every failure of numpy, scipy, zipfile and csv into a :class:`DataNotF
 from __future__ import annotations
 
 import csv
+import io
 import os
 import re
 from array import array as _IntBuffer
@@ -19,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..exceptions import BTELError, DataNotFoundError, InvalidDescriptorsError, InvalidParameterError
-from ..core.limits import check_bytes, check_count, check_numpy_file, open_regular
+from ..core.limits import check_bytes, check_count, check_numpy_file, open_regular, read_regular
 from ..descriptors.npy_header import check_npy_header
 
 __all__ = ["read_object_npy", "read_ground_truth", "check_some_positive"]
@@ -246,10 +247,9 @@ def _from_arrays(cls: Any, arrays: dict[str, np.ndarray], source: str,
 
 
 def _from_csv(cls: Any, path: Path, n_expected: int | None = None) -> Any:
-    with open_regular(path) as raw:
-        check_bytes(os.fstat(raw.fileno()).st_size * _CSV_EXPANSION, f"ground-truth CSV {str(path)!r}")
+    text = read_regular(path, f"ground-truth CSV {str(path)!r}", expansion=_CSV_EXPANSION).decode("utf-8-sig")
     queries, places, spans = _IntBuffer("q"), _IntBuffer("q"), _IntBuffer("q")
-    with open(path, newline="", encoding="utf-8-sig") as fh:
+    with io.StringIO(text, newline="") as fh:
         reader = csv.reader(fh)
         header = [h.strip().lower() for h in next(reader, [])]
         if len(header) < 2 or header[0] != "query" or header[1] not in ("positive", "positives"):

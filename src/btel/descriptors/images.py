@@ -253,7 +253,7 @@ def read_image(path: str | os.PathLike, *, grey: bool = False) -> np.ndarray:
         The file, or the memory its header says decoding needs (:func:`decode_bytes`), exceeds
         :mod:`btel.core.limits` (raise ``BTEL_MEMORY_LIMIT`` for genuinely large images).
     """
-    from ..core.limits import open_regular
+    from ..core.limits import read_regular
 
     path = Path(path)
     if not path.exists():
@@ -262,9 +262,7 @@ def read_image(path: str | os.PathLike, *, grey: bool = False) -> np.ndarray:
         raise DataNotFoundError(f"{str(path)!r} is a folder, not an image file.")
     # Read the bytes once (np.frombuffer + imdecode rather than cv2.imread: imread cannot open
     # non-ASCII paths on Windows and gives no reason when it fails).
-    with open_regular(path) as fh:
-        check_bytes(os.fstat(fh.fileno()).st_size, f"image file {str(path)!r}")
-        raw = fh.read()
+    raw = read_regular(path, f"image file {str(path)!r}")
     if not raw:
         raise DataNotFoundError(f"image file {str(path)!r} is empty (0 bytes). Remove or replace it.")
     pixels = _check_header(raw, path, grey)
