@@ -114,3 +114,46 @@ def test_an_image_that_reads_without_end_or_fails_to_read_is_named(tmp_path: Pat
         read_regular(folder / "1.png", "image")
     result = CliRunner().invoke(main, ["extract", str(folder), "-o", str(tmp_path / "d.npy"), "--no-progress"])
     assert result.exit_code == 2 and "1.png" in result.output and message in result.output, result.output
+
+
+def _archive_of(path: Path, members: int) -> Path:
+    import zipfile
+
+    with zipfile.ZipFile(path, "w") as archive:
+        for i in range(members):
+            archive.writestr(f"{i:07d}.npy", b"")
+    return path
+
+
+@pytest.mark.parametrize("role", ["model", "descriptors", "ground truth"])
+def test_an_archive_listing_too_many_members_is_refused_before_its_directory_is_parsed(tmp_path: Path, monkeypatch,
+                                                                                     role: str) -> None:
+    """10⁶ central-directory entries (57 MB) were parsed whole (18 s, 1.1 GB) before the member limit was
+    checked; and the limit was charged as bytes, so raising BTEL_MEMORY_LIMIT let the file through."""
+    import zipfile
+
+    from btel.core.limits import MAX_ZIP_MEMBERS
+    from btel.exceptions import BTELError
+
+    path = _archive_of(tmp_path / "many.npz", MAX_ZIP_MEMBERS + 1)
+    parsed: list[object] = []
+    real = zipfile.ZipFile
+    monkeypatch.setattr(zipfile, "ZipFile", lambda *a, **kw: (parsed.append(a), real(*a, **kw))[1])
+    monkeypatch.setenv("BTEL_MEMORY_LIMIT", "64G")  # a count, not bytes: the limit does not let it through
+    if role == "model":
+        from btel.methods import load
+
+        call = lambda: load(path)  # noqa: E731
+    elif role == "descriptors":
+        from btel.descriptors import load_descriptor_matrix
+
+        call = lambda: load_descriptor_matrix(path)  # noqa: E731
+    else:
+        from btel.datasets import GroundTruth
+
+        call = lambda: GroundTruth.from_file(path)  # noqa: E731
+    with pytest.raises(BTELError, match=f"lists {MAX_ZIP_MEMBERS + 1:,} archive members"):
+        call()
+    assert parsed == []
+    result = CliRunner().invoke(main, ["info", str(path)])
+    assert result.exit_code == 2 and "archive members" in result.output

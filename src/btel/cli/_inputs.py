@@ -115,6 +115,7 @@ def _matrix_in(path: str) -> tuple[tuple[int, int], str] | None:
 
     import numpy as np
 
+    from ..core.limits import check_zip_members
     from ..core.modelfile import HEADER_KEY
 
     readers = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
@@ -131,6 +132,8 @@ def _matrix_in(path: str) -> tuple[tuple[int, int], str] | None:
             if fh.read(6) == b"\x93NUMPY":
                 fh.seek(0)
                 return matrix(fh)
+        with open(path, "rb") as fh:
+            check_zip_members(fh, str(path))  # a diagnosis never parses a directory of 10⁶ entries
         with zipfile.ZipFile(path) as archive:
             names = [n for n in archive.namelist() if n.endswith(".npy")]
             if HEADER_KEY + ".npy" in names:  # a btel model, damaged: the load error says so

@@ -96,6 +96,43 @@ def check_places(n_places: int, what: str) -> None:
     check_bytes(float(n_places) * BYTES_PER_PLACE, f"{what} with N = {n_places} places (per query)")
 
 
+#: Most members an .npz may list (a model, descriptor or ground-truth archive holds a few arrays): the zip
+#: directory is parsed whole, some 1 KB of memory per entry, before any member can be checked.
+MAX_ZIP_MEMBERS = 1024
+
+
+def check_zip_members(fh: Any, what: str, most: int = MAX_ZIP_MEMBERS) -> None:
+    """Refuse a zip archive whose end record lists more than ``most`` entries, before its directory is parsed.
+
+    ``fh`` is a binary file positioned anywhere (it is left at 0). An archive without a readable end
+    record is left for the zip reader to report.
+
+    Raises
+    ------
+    ResourceLimitError
+        Too many entries listed.
+    """
+    import zipfile
+
+    try:  # the end record alone (22 bytes, or its zip64 form): zipfile's own reader of it
+        end = zipfile._EndRecData(fh)  # type: ignore[attr-defined]
+        listed = None if end is None else int(end[zipfile._ECD_ENTRIES_TOTAL])  # type: ignore[attr-defined]
+    except Exception:  # a private helper of zipfile: should it change, ZipFile's own parse is still bounded
+        listed = None
+    finally:
+        fh.seek(0)
+    refuse_zip_members(listed or 0, what, most)
+
+
+def refuse_zip_members(listed: int, what: str, most: int = MAX_ZIP_MEMBERS) -> None:
+    """:class:`ResourceLimitError` for an archive of more than ``most`` members (:func:`check_zip_members`)."""
+    from ..exceptions import ResourceLimitError
+
+    if listed > most:
+        raise ResourceLimitError(f"{what} lists {listed:,} archive members; btel reads .npz archives of at most "
+                                 f"{most} arrays (a model, descriptor or ground-truth file holds a few).")
+
+
 def check_numpy_file(path: "os.PathLike[str] | str", what: str) -> None:
     """Check what an ``.npy`` or ``.npz`` file declares against the limit before numpy reads it.
 
@@ -128,13 +165,14 @@ def check_numpy_file(path: "os.PathLike[str] | str", what: str) -> None:
         magic = fh.read(4)
         fh.seek(0)
         if magic.startswith(b"PK"):
+            check_zip_members(fh, what)
             try:
                 archive = zipfile.ZipFile(fh)
             except Exception:  # BadZipFile, NotImplementedError (odd versions)…: numpy's reader names it
                 return
             with archive:
                 infos = archive.infolist()  # read by ZipFile() already: no further parsing here
-                check_count(len(infos), 1024, f"{what} ({len(infos)} archive members)")
+                refuse_zip_members(len(infos), what)  # a directory longer than its end record said
                 total = float(sum(info.file_size for info in infos))
                 check_bytes(total, f"{what} (decompressed)")
                 total = 0.0
