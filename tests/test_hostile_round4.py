@@ -157,3 +157,29 @@ def test_an_archive_listing_too_many_members_is_refused_before_its_directory_is_
     assert parsed == []
     result = CliRunner().invoke(main, ["info", str(path)])
     assert result.exit_code == 2 and "archive members" in result.output
+
+
+def _tiled_tiff(path: Path, size: int, tile: int) -> Path:
+    """A greyscale TIFF of ``size``² pixels in ``tile``² tiles (one tile of four bytes: the header is what counts)."""
+    import struct
+
+    entries = [(256, 3, size), (257, 3, size), (258, 3, 8), (259, 3, 1), (262, 3, 1), (277, 3, 1),
+               (322, 4, tile), (323, 4, tile), (324, 4, 8 + 2 + 12 * 10 + 4), (325, 4, 4)]
+    ifd = struct.pack("<H", len(entries)) + b"".join(struct.pack("<HHII", tag, kind, 1, value)
+                                                      if kind == 4 else struct.pack("<HHIHH", tag, kind, 1, value, 0)
+                                                      for tag, kind, value in entries) + struct.pack("<I", 0)
+    path.write_bytes(b"II*\x00" + struct.pack("<I", 8) + ifd + b"\x00" * 4)
+    return path
+
+
+def test_a_tiff_tile_larger_than_its_image_is_counted_by_the_decode_bound(tmp_path: Path) -> None:
+    """A 16×16 TIFF in 16000×16000 tiles (995 KB) took 1.2 GB: OpenCV allocates a whole tile before libtiff checks it."""
+    from btel.descriptors.images import read_image
+    from btel.exceptions import ResourceLimitError
+
+    (tmp_path / "imgs").mkdir()
+    path = _tiled_tiff(tmp_path / "imgs" / "a.tif", 16, 16000)
+    with pytest.raises(ResourceLimitError, match=r"16×16 in 16000×16000 tiles"):
+        read_image(path)
+    result = CliRunner().invoke(main, ["extract", str(tmp_path / "imgs"), "-o", str(tmp_path / "d.npy"), "--no-progress"])
+    assert result.exit_code == 2 and "16000×16000 tiles" in result.output

@@ -154,8 +154,8 @@ def decode_bytes(width: int, height: int, channels: int, *, grey: bool, sample_b
 def image_header(data: bytes) -> dict[str, Any]:
     """What Pillow reads from an image file's header without decoding it.
 
-    Returns ``{"format", "width", "height", "channels", "sample_bytes", "animated", "image"}``
-    (``image`` is Pillow's lazily opened image). Raises what Pillow raises (see
+    Returns ``{"format", "width", "height", "tile", "channels", "sample_bytes", "animated", "image"}``
+    (``image`` is Pillow's lazily opened image; ``tile`` a TIFF's tile size, decoded whole, else (0, 0)). Raises what Pillow raises (see
     :func:`_check_header`), including ``DecompressionBombWarning`` past ``Image.MAX_IMAGE_PIXELS``
     when warnings are errors.
     """
@@ -167,7 +167,8 @@ def image_header(data: bytes) -> dict[str, Any]:
         sample_bytes = max(1, -(-max(bits if isinstance(bits, tuple) else (bits,)) // 8))
     else:
         sample_bytes = 2 if image.mode.startswith("I;16") else 4 if image.mode in ("I", "F") else 1
-    return {"format": image.format, "width": image.size[0], "height": image.size[1],
+    tile = (int(image.tag_v2.get(322, 0)), int(image.tag_v2.get(323, 0))) if image.format == "TIFF" else (0, 0)
+    return {"format": image.format, "width": image.size[0], "height": image.size[1], "tile": tile,
             "channels": len(image.getbands()), "sample_bytes": int(sample_bytes),
             "animated": bool(getattr(image, "is_animated", False)), "image": image}
 
@@ -197,10 +198,11 @@ def _check_header(data: bytes, path: Path, grey: bool) -> int:
             if header["format"] in ("PNG", "WEBP") and header["animated"]:
                 raise DataNotFoundError(f"{name!r} is an animated {header['format']}; btel reads still "
                                         "images. Give its frames as separate files.")
-            plural = "s" if channels > 1 else ""
-            check_bytes(decode_bytes(width, height, channels, grey=grey, sample_bytes=header["sample_bytes"],
-                                     tiff=header["format"] == "TIFF"),
-                        f"image {name!r} ({width}×{height}, {channels} channel{plural}, decoded)")
+            tile_w, tile_h = header["tile"]
+            size = f"{width}×{height}" + (f" in {tile_w}×{tile_h} tiles" if tile_w or tile_h else "")
+            check_bytes(decode_bytes(max(width, tile_w), max(height, tile_h), channels, grey=grey,
+                                     sample_bytes=header["sample_bytes"], tiff=header["format"] == "TIFF"),
+                        f"image {name!r} ({size}, {channels} channel{'s' * (channels > 1)}, decoded)")
             # Scan data stuff each 0xFF byte (0xFF00): only markers count (metadata bytes rarely). One pass, in memory.
             if header["format"] == "JPEG" and (scans := data.count(b"\xff\xda")) > MAX_JPEG_SCANS:
                 raise DataNotFoundError(f"{name!r} is a JPEG of {scans} scans, more than the {MAX_JPEG_SCANS} btel "
