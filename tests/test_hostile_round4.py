@@ -183,3 +183,22 @@ def test_a_tiff_tile_larger_than_its_image_is_counted_by_the_decode_bound(tmp_pa
         read_image(path)
     result = CliRunner().invoke(main, ["extract", str(tmp_path / "imgs"), "-o", str(tmp_path / "d.npy"), "--no-progress"])
     assert result.exit_code == 2 and "16000×16000 tiles" in result.output
+
+
+def test_shards_claiming_more_rows_than_the_disk_holds_are_refused_before_merging(tmp_path: Path) -> None:
+    """Two sparse shards (4 KB on disk each) claiming 2.5·10⁶ … rows were merged into a 2 GB file in /tmp with no
+    check of the room there; larger claims would fill the disk."""
+    import shutil
+
+    from btel.datasets import load_shards
+    from btel.exceptions import ResourceLimitError
+
+    rows = shutil.disk_usage(tmp_path).free // (4 * 100) + 1  # one row more than the disk holds
+    (tmp_path / "shards").mkdir()
+    for i in range(2):
+        with open(tmp_path / "shards" / f"s{i}.npy", "wb") as fh:
+            np.lib.format.write_array_header_1_0(fh, {"descr": "<f4", "fortran_order": False, "shape": (rows, 100)})
+            fh.truncate(fh.tell() + rows * 400)  # sparse: no disk used
+    with pytest.raises(ResourceLimitError, match=r"merged into one float32 map .* free"):
+        load_shards(tmp_path / "shards", tmp_dir=tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["shards"]  # nothing written

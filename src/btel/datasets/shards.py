@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..exceptions import DataNotFoundError, DimensionMismatchError, InvalidDescriptorsError
+from ..exceptions import DataNotFoundError, DimensionMismatchError, InvalidDescriptorsError, ResourceLimitError
 from .traverses import IMAGE_EXTENSIONS, natural_key
 
 __all__ = ["list_shards", "load_shards"]
@@ -116,11 +116,18 @@ def load_shards(
     shards = list_shards(folder)
     if len(shards) == 1:
         return load_descriptor_matrix(shards[0], mmap_mode="r")
-    # Shapes first, one shard mapped at a time: every open memory map holds a file descriptor, so
-    # thousands of shards mapped at once failed under `ulimit -n 1024`.
+    from ..descriptors.npy_header import check_npy_header, npy_header
+
+    # Shapes first, from the headers (the values are checked as they are merged: read once, not twice);
+    # a shard whose header is not a numeric matrix's is loaded for its reader to name what it is.
     shapes = []
     for path in shards:
-        part = load_descriptor_matrix(path, mmap_mode="r")
+        check_npy_header(path, "shard")
+        found = npy_header(path)
+        if found is not None and len(found[0]) == 2 and found[1].kind in "fiu":
+            shapes.append(found[0])
+            continue
+        part = load_descriptor_matrix(path, mmap_mode="r")  # one map open at a time: `ulimit -n` stays unhit
         shapes.append(part.shape)
         del part
     d = shapes[0][1]
@@ -131,6 +138,7 @@ def load_shards(
                 "every shard must hold descriptors of the same dimension."
             )
     n = sum(shape[0] for shape in shapes)
+    _check_room(Path(out).parent if out is not None else Path(tmp_dir or tempfile.gettempdir()), n, d, len(shards))
     if out is not None:
         target = Path(out)
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -166,3 +174,22 @@ def load_shards(
         except OSError:  # pragma: no cover - Windows cannot unlink a mapped file
             pass
     return X
+
+
+def _check_room(folder: Path, n: int, d: int, n_shards: int) -> None:
+    """Refuse to merge shards into a folder without room for the (n, d) float32 map (a disk filled up to the
+    last byte fails every other program on it too; sparse shards may claim terabytes)."""
+    import shutil
+
+    from ..core.limits import format_size
+
+    where = next((p for p in (folder, *folder.parents) if p.exists()), None)
+    if where is None:
+        return
+    need, free = 4 * n * d + 4096, shutil.disk_usage(where).free
+    if need > free:
+        raise ResourceLimitError(
+            f"the {n_shards} shards ({n} rows × {d} values) are merged into one float32 map of {format_size(need)} "
+            f"in {str(where)!r}, which has {format_size(free)} free; free space there, set TMPDIR to a folder with "
+            "room (or pass out= / tmp_dir= to load_shards), or check that the shards hold the rows they claim.")
+
