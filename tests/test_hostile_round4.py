@@ -202,3 +202,25 @@ def test_shards_claiming_more_rows_than_the_disk_holds_are_refused_before_mergin
     with pytest.raises(ResourceLimitError, match=r"merged into one float32 map .* free"):
         load_shards(tmp_path / "shards", tmp_dir=tmp_path)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["shards"]  # nothing written
+
+
+def test_a_csv_line_of_more_positives_than_csv_reads_in_one_field_names_the_fix(tmp_path: Path) -> None:
+    """30,000 positives on one line: csv's 131,072-character field limit surfaced as a bare csv.Error."""
+    from btel.datasets import GroundTruth
+    from btel.exceptions import DataNotFoundError
+
+    path = tmp_path / "gt.csv"
+    path.write_text("query,positives\n0," + " ".join(str(i) for i in range(30_000)) + "\n")
+    with pytest.raises(DataNotFoundError, match=r"gt\.csv' line 2: .*one pair per line instead"):
+        GroundTruth.from_file(path)
+    path.write_text("query,positive\n" + "".join(f"0,{i}\n" for i in range(30_000)))  # the fix it names
+    assert GroundTruth.from_file(path).positives(0).size == 30_000
+
+
+@pytest.mark.filterwarnings("error")
+def test_float16_place_indices_read_without_an_overflow_warning(tmp_path: Path) -> None:
+    """float16 ``query_places`` warned of an overflow (2⁶² compared in float16), refused under -W error."""
+    from btel.datasets import GroundTruth
+
+    np.savez(tmp_path / "gt.npz", query_places=np.arange(50, dtype=np.float16), n_map=np.int64(60))
+    assert GroundTruth.from_file(tmp_path / "gt.npz").query_places.tolist() == list(range(50))

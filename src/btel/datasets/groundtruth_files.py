@@ -261,21 +261,26 @@ def _from_csv(cls: Any, path: Path, n_expected: int | None = None) -> Any:
                 f"{str(path)!r} has header {header[:4]}: a ground-truth CSV has two columns, 'query,positive' "
                 "(one pair per line) or 'query,positives' (places separated by spaces or ';'); drop the "
                 f"column{'s' * (len(header) > 3)} after the second (ignored, it would lose places).")
-        for row in reader:
-            if not row or not any(cell.strip() for cell in row):
-                continue
-            if any(cell.strip() for cell in row[2:]):  # a place after a comma is a third column: never dropped
-                raise DataNotFoundError(
-                    f"{str(path)!r} line {reader.line_num}: {row[:4]} has {len(row)} fields; a ground-truth CSV "
-                    "has two (query, then its places separated by spaces or ';', not commas).")
-            cells = [row[0].strip(), *(row[1].replace(";", " ").split() if len(row) > 1 else [])]
-            if not all(_INDEX.fullmatch(c) for c in cells):
-                raise DataNotFoundError(
-                    f"{str(path)!r} line {reader.line_num}: {row[:4]} is not a query index and place indices "
-                    "(whole numbers 0 ≤ i < 10¹⁸ in ASCII digits).")
-            queries.append(int(cells[0]))
-            spans.append(len(cells) - 1)
-            places.extend(int(c) for c in cells[1:])
+        try:
+            for row in reader:
+                if not row or not any(cell.strip() for cell in row):
+                    continue
+                if any(cell.strip() for cell in row[2:]):  # a place after a comma is a third column: never dropped
+                    raise DataNotFoundError(
+                        f"{str(path)!r} line {reader.line_num}: {row[:4]} has {len(row)} fields; a ground-truth CSV "
+                        "has two (query, then its places separated by spaces or ';', not commas).")
+                cells = [row[0].strip(), *(row[1].replace(";", " ").split() if len(row) > 1 else [])]
+                if not all(_INDEX.fullmatch(c) for c in cells):
+                    raise DataNotFoundError(
+                        f"{str(path)!r} line {reader.line_num}: {row[:4]} is not a query index and place indices "
+                        "(whole numbers 0 ≤ i < 10¹⁸ in ASCII digits).")
+                queries.append(int(cells[0]))
+                spans.append(len(cells) - 1)
+                places.extend(int(c) for c in cells[1:])
+        except csv.Error as exc:  # a field past csv's limit (131,072 characters), a NUL in old Pythons
+            raise DataNotFoundError(
+                f"{str(path)!r} line {reader.line_num}: {exc}. A ground-truth CSV with many positives per query "
+                "can list one pair per line instead ('query,positive').") from None
     if not queries:
         raise DataNotFoundError(f"{str(path)!r} lists no query.")
     q = np.frombuffer(queries, dtype=np.int64)

@@ -30,7 +30,8 @@ def _as_int(arr: np.ndarray, name: str) -> np.ndarray:
             raise InvalidParameterError(f"{name} must hold whole numbers (place indices).")
     elif arr.size and arr.dtype.kind not in "iu":
         raise InvalidParameterError(f"{name} must hold integer place indices; got dtype {arr.dtype}.")
-    if arr.size and arr.dtype.kind in "uf" and (top := arr.max()) >= 2.0 ** 62:  # a cast wraps: 2⁶⁴−1 → −1
+    # A cast wraps (2⁶⁴−1 → −1); the top compared as a Python number (2⁶² overflows float16 and float32).
+    if arr.size and arr.dtype.kind in "uf" and (top := arr.max().item()) >= 2.0 ** 62:
         raise InvalidParameterError(f"{name} holds {int(top) if arr.dtype.kind == 'u' else f'{top:g}'}, not a "
                                     "place index of any map.")
     return arr.astype(np.int64)
