@@ -141,3 +141,8 @@ def test_a_record_gives_the_parameters_the_fit_chose() -> None:
         record = measure_record(method, route.map, route.queries, name=name)
         assert isinstance(record.params[key], int) and record.params[key] == method._fitted_state()[key]
         assert record.to_dict()["params"][key] == record.params[key]
+    # pca_dim, which pq's state calls dim: a 500-D map at 16 KB is projected to a few dimensions, and says so.
+    wide = np.random.default_rng(0).standard_normal((200, 500)).astype(np.float32)
+    method = make_method("pq", budget="16KB")
+    record = measure_record(method, wide, wide[:20], name="pq")
+    assert record.params["pca_dim"] == method.config_.dim < 500

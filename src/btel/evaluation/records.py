@@ -4,8 +4,7 @@
 and every experiment produce, what the tables and plots read and what the result files hold. It
 has two written forms:
 
-- :meth:`~EvaluationResult.to_dict` / :meth:`~EvaluationResult.from_dict` — the nested record of a
-  run folder's ``metrics.json``;
+- :meth:`~EvaluationResult.to_dict` / :meth:`~EvaluationResult.from_dict` — a run folder's ``metrics.json`` record;
 - :meth:`~EvaluationResult.to_row` / :meth:`~EvaluationResult.from_row` — the flat row of an
   experiment's ``results.json`` / ``results.csv`` (``method``, ``n_places``, ``nbytes``, ``recall@t``,
   ``R@K``, …, and its own cells, e.g. ``direction``, in :attr:`~EvaluationResult.labels`), read back
@@ -57,8 +56,9 @@ def _params_of(method: Any) -> dict[str, Any]:
         state = method._fitted_state() if callable(getattr(method, "_fitted_state", None)) else {}
     except (AttributeError, NotImplementedError):
         state = {}
-    return {str(k): jsonable(state[k] if v is None and isinstance(state.get(k), (bool, int, float, str)) else v)
-            for k, v in method.get_params(deep=False).items()}
+    named = getattr(method, "_STATE_OF_PARAM", {})  # pq's pca_dim is its state's dim
+    return {str(k): jsonable(c if v is None and isinstance(c := state.get(named.get(k, k)), (bool, int, float, str))
+                             else v) for k, v in method.get_params(deep=False).items()}
 
 
 def _choice_of(method: Any) -> dict[str, Any] | None:

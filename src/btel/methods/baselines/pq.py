@@ -155,6 +155,8 @@ class PQLocalizer(_RowLocalizer):
 
     label = "pq"
     _float32_distances = True  # a map of tiny rows is refused at fit (_common.MIN_NORM)
+    #: The fitted state's name of a parameter the planner fills in (run records report its chosen value).
+    _STATE_OF_PARAM = {"pca_dim": "dim"}
     _parameter_constraints = {
         "n_subquantizers": [None, Interval(int, 1, 1 << 16)],
         "nbits": [None, Interval(int, 1, 8)],
