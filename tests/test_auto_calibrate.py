@@ -336,3 +336,17 @@ def test_opq_is_a_candidate_up_to_its_width_bound_and_rabitq_at_every_width(d) -
     methods = {c["method"] for c in calibration_candidates(n_features=d)}
     assert "rabitq" in methods
     assert ("opq" in methods) == (d <= MAX_ROTATION_FEATURES)
+
+
+def test_a_ground_truth_no_candidate_beats_chance_on_is_warned_of() -> None:
+    """Queries 0, 2, 4, … labelled as places 0, 1, 2, … (the truth of another split) gave a table of
+    scores near 0 without a word; the right truth is not warned of."""
+    import warnings
+
+    route = synthetic_route(300, 32, seed=0)
+    queries = route.queries[::2]
+    with pytest.warns(UserWarning, match="random guesses reach by luck"):
+        make_method("auto", budget="4KB").fit(route.map, calibration=(queries, np.arange(150)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        make_method("auto", budget="4KB").fit(route.map, calibration=(queries, np.arange(0, 300, 2)))

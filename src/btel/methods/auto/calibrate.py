@@ -363,9 +363,7 @@ def choose_calibrated(
         ``{"method", "params", "label", "calibration": {…table…}}``.
     """
     labels = np.arange(X.shape[0]) if places is None else places
-    back = _subsample(
-        int(labels.max()) + 1, truth, tolerance, compared_rows(X.shape[1])
-    )  # kept places, in index order
+    back = _subsample(int(labels.max()) + 1, truth, tolerance, compared_rows(X.shape[1]))  # kept places, in order
     Xc, pc, sub_budget = X, places, budget
     if back is not None:  # the subsample's place i is the whole map's place back[i]
         mask = np.isin(labels, back)
@@ -374,19 +372,12 @@ def choose_calibrated(
     candidates = calibration_candidates(whiten, X.shape[1])
     key = (map_only["method"], sorted(map_only["params"].items()))
     if not any((c["method"], sorted(c["params"].items())) == key for c in candidates):
-        candidates.insert(
-            0,
-            {
-                "label": "map-only pick",
-                "method": map_only["method"],
-                "params": dict(map_only["params"]),
-                "seeded": map_only["method"] != "bruteforce",
-            },
-        )
-    table: list[dict[str, Any]] = []
-    correct: dict[str, np.ndarray] = {}
+        candidates.insert(0, {"label": "map-only pick", "method": map_only["method"], "params": dict(map_only["params"]),
+                              "seeded": map_only["method"] != "bruteforce"})
     from tqdm.auto import tqdm  # fit-only
 
+    table: list[dict[str, Any]] = []
+    correct: dict[str, np.ndarray] = {}
     bar = tqdm(total=sum(len(SEEDS) if c["seeded"] else 1 for c in candidates), desc="calibrating auto",
                unit="fit", disable=None if progress else True, leave=False)
     for cand in candidates:
@@ -411,15 +402,11 @@ def choose_calibrated(
         finally:
             bar.update(len(seeds) - len(runs))  # a refused candidate's fits count as done
         correct[cand["label"]] = np.mean(runs, axis=0)
-        table.append(
-            {
-                **entry,
-                "status": "ok",
-                "score": round(float(correct[cand["label"]].mean()), 4),
-                "fit_s": round(time.perf_counter() - start, 2),
-            }
-        )
+        table.append({**entry, "status": "ok", "score": round(float(correct[cand["label"]].mean()), 4),
+                      "fit_s": round(time.perf_counter() - start, 2)})
     bar.close()
+    _warn_if_no_better_than_chance(table, truth, back if back is not None else np.arange(int(labels.max()) + 1),
+                                   tolerance)
     pick = next(c["label"] for c in candidates if (c["method"], sorted(c["params"].items())) == key)
     chosen = decide(table, correct, pick)
     spec = next(c for c in candidates if c["label"] == chosen)
@@ -430,11 +417,8 @@ def choose_calibrated(
         "calibration": {
             "n_queries": int(Q.shape[0]),
             "tolerance": int(tolerance),
-            "correct_when": (
-                f"within {int(tolerance)} place{'s' if int(tolerance) != 1 else ''} of the true place"
-                if truth.kind == "places"
-                else "among the query's positives"
-            ),
+            "correct_when": (f"within {int(tolerance)} place{'s' if int(tolerance) != 1 else ''} of the true place"
+                             if truth.kind == "places" else "among the query's positives"),
             "seeds": list(SEEDS),
             "alpha": ALPHA,
             "test": TEST,
@@ -447,3 +431,19 @@ def choose_calibrated(
             "table": table,
         },
     }
+
+
+def _warn_if_no_better_than_chance(table: list[dict[str, Any]], truth: Any, places: np.ndarray, tolerance: int) -> None:
+    """Warn when no candidate beats what random guesses among the compared ``places`` reach by luck (the 99.9 %
+    binomial quantile): the ground truth is then likely not these queries' (another split's, order, numbering)."""
+    from scipy.stats import binom
+
+    scores = [row["score"] for row in table if row["status"] == "ok"]
+    guesses = places[np.random.default_rng(0).integers(0, places.size, (256, truth.n_queries))]
+    chance = float(np.mean([truth.is_correct(guess, tolerance).mean() for guess in guesses]))
+    luck = float(binom.ppf(0.999, truth.n_queries, chance)) / truth.n_queries
+    if scores and max(scores) <= luck:
+        warnings.warn(f"no calibration candidate localizes more than {max(scores):.1%} of the calibration queries, "
+                      f"which random guesses reach by luck (a guess is right {chance:.1%} of the time): check that "
+                      "the calibration ground truth is these queries' (their order, their numbering of places). "
+                      "The calibration table is kept as measured.", UserWarning, stacklevel=5)
