@@ -510,3 +510,16 @@ def test_evaluate_reads_a_folder_of_shards_as_train_does(route_files, tmp_path: 
         assert result.exit_code == 0, result.output
         recalls.append([(r["recall_curve"], r["recall_at_k"]) for r in json.loads((tmp_path / out / "metrics.json").read_text())["results"]])
     assert recalls[0] == recalls[1]
+
+
+def test_metrics_csv_says_what_each_auto_row_ran(route_files, tmp_path: Path) -> None:
+    """metrics.json recorded auto's choice; metrics.csv had only 'auto@16KB'."""
+    db, q = route_files
+    result = run("evaluate", "--db", db, "--queries", q, "--methods", "auto,pq", "--budget", "2KB,8KB", "--out",
+                 tmp_path / "run", "--no-progress")
+    assert result.exit_code == 0, result.output
+    rows = _csv_rows(tmp_path / "run" / "metrics.csv")
+    recorded = {r["name"]: r["chosen_method"] for r in json.loads((tmp_path / "run" / "metrics.json").read_text())["results"]}
+    assert {r["method"]: r["chosen_method"] for r in rows} == {k: v or "" for k, v in recorded.items()}
+    assert all(r["chosen_method"] for r in rows if r["method"].startswith("auto"))
+    assert not any(r["chosen_method"] for r in rows if not r["method"].startswith("auto"))

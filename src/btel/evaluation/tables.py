@@ -180,18 +180,19 @@ def _fmt(value: float | int | None) -> str:
 
 
 def metrics_csv_text(results: Sequence[EvaluationResult]) -> str:
-    """The ``metrics.csv`` of a run folder: one row per record, every recall@t and R@K any row has."""
+    """The ``metrics.csv`` of a run folder: one row per record, every recall@t and R@K any row has
+    (``chosen_method``: what an ``auto`` row ran; empty for the others)."""
     tolerances = sorted({t for r in results for t in r.recall})
     ks = sorted({k for r in results for k in (r.recall_at_k or {})})
-    header = ["method", "status", "reference", "uses_query_sequence", "budget", "n_map", "n_queries", "nbytes",
-              "budget_saturated", "fit_time_s", "query_time_s_per_query", "query_latency_s", "n_threads"]
+    header = ["method", "chosen_method", "status", "reference", "uses_query_sequence", "budget", "n_map", "n_queries",
+              "nbytes", "budget_saturated", "fit_time_s", "query_time_s_per_query", "query_latency_s", "n_threads"]
     header += [f"recall@{t}" for t in tolerances] + [f"R@{k}" for k in ks]
     header += ["auc_pr_vpr_bench", "auc_pr_vpr_tutorial", "recall@100%precision", "reason"]
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
     writer.writerow(header)
     for r in results:
-        row = [r.name, r.status, int(r.reference), int(r.uses_query_sequence), _fmt(r.budget), _fmt(r.n_map),
+        row = [r.name, r.chosen_method or "", r.status, int(r.reference), int(r.uses_query_sequence), _fmt(r.budget), _fmt(r.n_map),
                r.n_queries, _fmt(r.nbytes), int(r.budget_saturated), _fmt(r.fit_time_s), _fmt(r.query_time_s_per_query),
                _fmt(r.query_latency_s), _fmt(r.n_threads)]
         row += [_fmt(r.recall.get(t)) for t in tolerances]
