@@ -98,7 +98,8 @@ def format_table(results: Sequence[EvaluationResult], width: int = 0) -> str:
         notes.append(f"R@K: a correct place{within} among the top K ranked candidates")
     if has_pr:
         notes.append("AUC-PR, R@100%P: precision-recall of accepting each query's top-1 match by its score")
-        notes.append("AUC-PR:VB as VPR-Bench computes it (recall over correct top-1 matches); AUC-PR:VT and "
+        notes.append("AUC-PR:VB as VPR-Bench computes it (recall over correct top-1 matches only: a method right on "
+                     "few queries can still score high, so read it beside R@1); AUC-PR:VT and "
                      "R@100%P as VPR_Tutorial (recall over queries with a true place)")
     if any(r.reference for r in results):
         notes.append(f"{REFERENCE_MARK} reference (unbudgeted)")
