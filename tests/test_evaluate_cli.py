@@ -316,6 +316,12 @@ def test_plots_have_titles_byte_labels_and_a_fitting_tolerance_axis(tmp_path: Pa
     assert panels[0].get_lines()[0].get_color() == panels[1].get_lines()[0].get_color()
     series = [line.get_label() for line in seen["recall_vs_storage.png"].axes[0].get_lines()]
     assert series[:2] == ["pq", "nn (reference, unbudgeted)"]  # one line through both budgets
+    # A long title is wrapped between words, never inside one ("frame-" / "aligned" in the demo's plots).
+    long = "synthetic route (seed 0): N = 2000, d = 512; budget 64.0 KB; frame-aligned; " * 2
+    RunWriter(tmp_path / "long").finish(results, title=long)
+    titles = [t for fig in seen.values() for t in (fig._suptitle.get_text() if fig._suptitle else "",
+                                                     *(ax.get_title() for ax in fig.axes))]
+    assert any("\n" in t for t in titles) and not any("-\n" in t for t in titles)
 
 
 def test_failed_rows_in_the_table_say_why() -> None:

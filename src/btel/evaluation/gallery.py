@@ -140,7 +140,7 @@ def plot_match_gallery(
 
     # Wrapped to the figure's width (about 110 characters of 9-point text on 9 inches): one long line
     # was cut at both edges; the rows are laid out below the title's lines, not under them.
-    text = "\n".join(textwrap.fill(line, 110) for line in [*([title] if title else []),
+    text = "\n".join(textwrap.fill(line, 110, break_on_hyphens=False) for line in [*([title] if title else []),
                       f"top-1 over all {n} queries: {correct.mean():.0%}. Shown: {len(chosen)} of them, half right "
                       f"and half wrong where there are enough of each: {n_ok} correct (green), "
                       f"{len(chosen) - n_ok} wrong (red)"])

@@ -51,7 +51,7 @@ def _finish_recall_plot(fig: Figure, ax: Any, path: str | os.PathLike, *, xlabel
     if title:
         import textwrap
 
-        ax.set_title(textwrap.fill(title, 70), fontsize="medium")
+        ax.set_title(textwrap.fill(title, 70, break_on_hyphens=False), fontsize="medium")
     if credit:
         fig.text(0.99, 0.005, credit, ha="right", va="bottom", fontsize="xx-small", color="grey")
     _save(fig, path)

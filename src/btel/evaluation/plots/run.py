@@ -205,7 +205,7 @@ def _run_figure(results: Sequence[EvaluationResult], path: Path, *, kind: str, t
         ax.legend(fontsize="x-small", loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, frameon=False)
     axes[0].set_ylabel("recall@t" if kind == "tolerance" else "R@K")
     if title:
-        fig.suptitle(textwrap.fill(title, width=int(12 * width)), fontsize="medium")
+        fig.suptitle(textwrap.fill(title, width=int(12 * width), break_on_hyphens=False), fontsize="medium")
     _save(fig, path)
     return fig
 
@@ -332,7 +332,7 @@ def plot_precision_recall(results: Sequence[EvaluationResult], path: str | os.Pa
     if title:
         import textwrap
 
-        ax.set_title(textwrap.fill(title, width=int(14 * fig.get_figwidth())), fontsize="small")
+        ax.set_title(textwrap.fill(title, width=int(14 * fig.get_figwidth()), break_on_hyphens=False), fontsize="small")
     _save(fig, path)
     return fig
 

@@ -69,7 +69,7 @@ def _plot_rows(
         if title:
             import textwrap
 
-            ax.set_title(textwrap.fill(title, 70), fontsize="medium")
+            ax.set_title(textwrap.fill(title, 70, break_on_hyphens=False), fontsize="medium")
         _save(fig, path)
         return fig
     _finish_recall_plot(fig, ax, path, xlabel=xlabel, ylabel=ylabel or f"recall@{tolerance} (within {tolerance} frames)",
@@ -200,7 +200,7 @@ def plot_method_bars(
     if title:
         import textwrap
 
-        ax.set_title(textwrap.fill(title, 70), fontsize="medium")
+        ax.set_title(textwrap.fill(title, 70, break_on_hyphens=False), fontsize="medium")
     if credit:
         fig.text(0.99, 0.005, credit, ha="right", va="bottom", fontsize="xx-small", color="grey")
     fig.tight_layout()
