@@ -137,3 +137,22 @@ def nordland_hog(nordland_dir: Path) -> tuple[np.ndarray, np.ndarray]:
         out = [extract_cached(nordland_dir / s, cache / f"nordland64-{s}-hog.npy", "hog", progress=False)[0]
                for s in ("summer", "winter")]
     return out[0], out[1]
+
+
+@pytest.fixture()
+def extracted(tmp_path: Path) -> tuple[Path, Path]:
+    """(image folder of four 32×64 PNGs, side/db.npy written by extract_cached with its PATH.json record)."""
+    import cv2
+
+    from btel.descriptors.extract import extract_cached
+    from btel.descriptors.hog import HOGDescriptor
+
+    images = tmp_path / "imgs"
+    images.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(4):
+        cv2.imwrite(str(images / f"{i:02d}.png"), rng.integers(0, 255, (32, 64), dtype=np.uint8))
+    out = tmp_path / "side" / "db.npy"
+    extract_cached(images, out, HOGDescriptor(), progress=False)
+    return images, out
+

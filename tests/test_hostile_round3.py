@@ -16,7 +16,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -132,19 +131,6 @@ def test_report_reads_60000_unclosed_markers_at_once(tmp_path: Path) -> None:
 
 
 # --- 4. the record beside a descriptor .npy ------------------------------------------------------
-
-@pytest.fixture()
-def extracted(tmp_path: Path) -> tuple[Path, Path]:
-    """(image folder, db.npy written by extract_cached with its PATH.json record)."""
-    images = tmp_path / "imgs"
-    images.mkdir()
-    rng = np.random.default_rng(0)
-    for i in range(4):
-        cv2.imwrite(str(images / f"{i:02d}.png"), rng.integers(0, 255, (32, 64), dtype=np.uint8))
-    out = tmp_path / "side" / "db.npy"
-    extract_cached(images, out, HOGDescriptor(), progress=False)
-    return images, out
-
 
 def _break(sidecar: Path, kind: str) -> None:
     sidecar.unlink()

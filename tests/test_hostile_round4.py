@@ -15,22 +15,7 @@ from click.testing import CliRunner
 
 from btel.cli import main
 from btel.datasets.row_names import row_images, row_names
-from btel.descriptors.extract import extract_cached
-from btel.descriptors.hog import HOGDescriptor
 from btel.exceptions import InvalidDescriptorsError
-
-
-@pytest.fixture()
-def extracted(tmp_path: Path) -> tuple[Path, Path]:
-    """(image folder, db.npy written by extract_cached with its PATH.json record)."""
-    images = tmp_path / "imgs"
-    images.mkdir()
-    rng = np.random.default_rng(0)
-    for i in range(4):
-        cv2.imwrite(str(images / f"{i:02d}.png"), rng.integers(0, 255, (32, 64), dtype=np.uint8))
-    out = tmp_path / "db.npy"
-    extract_cached(images, out, HOGDescriptor(), progress=False)
-    return images, out
 
 
 @pytest.mark.parametrize("field, value", [("folder", 5), ("folder", ["a"]), ("folder", {}), ("folder", True),
