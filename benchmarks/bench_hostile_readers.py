@@ -1,4 +1,4 @@
-"""Issue 34's hostile files for the readers (and round 3's), each run as a user would, with its time and peak memory.
+"""Issue 34's hostile files for the readers (and rounds 3 and 4), each run as a user would, with its time and peak memory.
 
 Every case crafts the issue's file (or the finding made while fixing it) and runs one command in
 a fresh process: ``btel train``, ``btel extract``, ``btel evaluate`` or the Python call named. It
@@ -10,8 +10,8 @@ stderr. The target (issue 34, "Done when"): ≤ 60 s, < 1 GiB, one line, no trac
     python benchmarks/bench_hostile_readers.py --src ../main/src --name bench_hostile_readers_before
 
 Writes ``benchmarks/results/bench_hostile_readers.json``. Cases that never end are killed at
-``--timeout`` seconds (default 90) and reported as such. Round 3's cases (``--only "round 3"``) run with
-their address space capped at 6 GiB, so that a case that would take the machine's memory fails alone.
+``--timeout`` seconds (default 90) and reported as such. Rounds 3 and 4 (``--only "round 3"``, ``"round 4"``) run
+with their address space capped at 6 GiB, so that a case that would take the machine's memory fails alone.
 """
 
 from __future__ import annotations
@@ -184,6 +184,7 @@ def craft(folder: Path) -> list[dict[str, Any]]:
              "bruteforce", "--no-reference", "--pairs", str(pairs), "--k", "3", "--no-progress", "--out",
              str(folder / f"run_{name}")], pairs)
     cases += craft_round3(folder, rng)
+    cases += craft_round4(folder, rng)
     for case in cases:
         case["file_bytes"] = os.stat(case.pop("file")).st_blocks * 512  # on disk (the sparse files are holes)
     return cases
@@ -291,6 +292,72 @@ def run(spawner: subprocess.Popen, command: list[str], timeout: float, env: dict
             "peak_rss_mib": round(done["maxrss_kib"] / 1024, 1), "stderr_lines": len(lines),
             "traceback": "Traceback" in text, "bare_memory_error": "MemoryError" in text,
             "last_line": lines[-1][:300] if lines else ""}
+
+
+def _tiff_of_one_tile(size: int, tile: int) -> bytes:
+    """An RGBA TIFF of ``size``² pixels in ``tile``² tiles, its one tile a deflate stream of zeros."""
+    data = compressed_zeros(tile * tile * 4)
+    entries = [(256, 3, size), (257, 3, size), (259, 3, 8), (262, 3, 2), (277, 3, 4), (284, 3, 1),
+               (322, 4, tile), (323, 4, tile), (324, 4, 0), (325, 4, len(data)), (338, 3, 2)]
+    offset = 8 + 2 + 12 * (len(entries) + 1) + 4 + 8  # the header, the IFD with BitsPerSample, its 4 values
+    ifd = [struct.pack("<HHII", 258, 3, 4, offset - 8)]
+    for tag, kind, value in entries:
+        value = offset if tag == 324 else value
+        ifd.append(struct.pack("<HHII", tag, kind, 1, value) if kind == 4 else struct.pack("<HHIHH", tag, kind, 1, value, 0))
+    ifd.sort(key=lambda entry: struct.unpack("<H", entry[:2])[0])
+    body = struct.pack("<H", len(ifd)) + b"".join(ifd) + struct.pack("<I", 0) + struct.pack("<4H", 8, 8, 8, 8)
+    return b"II*\x00" + struct.pack("<I", 8) + body + data
+
+
+def craft_round4(folder: Path, rng: np.random.Generator) -> list[dict[str, Any]]:
+    """The hostile inputs of round 4 (issue 35/37's session of 2026-11-28, the second): sizes a file claims
+    before any reader saw it, zip directories, TIFF tiles, kernel files, options that never end."""
+    import zipfile
+
+    import cv2
+
+    out: list[dict[str, Any]] = []
+
+    def add(case: str, file: Path, command: list[str]) -> None:
+        out.append({"case": f"round 4: {case}", "file": file, "command": command, "pairs": None,
+                    "max_bytes": 6 * 2**30})
+
+    root = folder / "round4"
+    root.mkdir()
+    db, q = root / "db.npy", root / "q.npy"
+    np.save(db, rng.normal(size=(200, 64)).astype("f4"))
+    np.save(q, rng.normal(size=(50, 64)).astype("f4"))
+    sparse = root / "sparse_gt.npy"
+    with open(sparse, "wb") as fh:
+        np.lib.format.write_array_header_1_0(fh, {"descr": "<i8", "fortran_order": False, "shape": (2_500_000_000,)})
+        fh.truncate(fh.tell() + 20_000_000_000)
+    add("a ground truth claiming 2.5·10⁹ places (4 KB on disk, 20 GB by size): btel evaluate", sparse,
+        [*BTEL, "evaluate", "--db", str(db), "--queries", str(q), "--ground-truth", str(sparse), "--methods", "lsh",
+         "--budget", "2KB", "--out", str(root / "run_sparse")])
+    many = root / "many.npz"
+    with zipfile.ZipFile(many, "w") as archive:
+        for i in range(300_000):
+            archive.writestr(f"{i:07d}.npy", b"")
+    add("an .npz listing 300,000 members: btel info", many, [*BTEL, "info", str(many)])
+    tiles = root / "tiles"
+    tiles.mkdir()
+    (tiles / "a.tif").write_bytes(_tiff_of_one_tile(16, 16_000))
+    add("a 16×16 TIFF in 16000×16000 tiles: btel extract", tiles / "a.tif",
+        [*BTEL, "extract", str(tiles), "-o", str(root / "t.npy"), "--no-progress"])
+    if Path("/proc/self/mem").exists():
+        kernel = root / "kernel"
+        kernel.mkdir()
+        cv2.imwrite(str(kernel / "0.png"), np.zeros((32, 64), np.uint8))
+        (kernel / "1.png").symlink_to("/proc/self/mem")
+        add("an image that is a link to /proc/self/mem (EIO on read): btel extract", kernel / "0.png",
+            [*BTEL, "extract", str(kernel), "-o", str(root / "k.npy"), "--no-progress"])
+    model, lines = root / "m.btel.npz", root / "q.txt"
+    subprocess.run([*BTEL, "train", str(db), "-o", str(model), "--method", "lsh", "--budget", "2KB"], check=True,
+                   capture_output=True)
+    np.savetxt(lines, np.load(q)[:5])
+    add("--follow --idle-timeout nan: btel localize --stream", lines,
+        [*BTEL, "localize", str(model), "--stream", "--input", str(lines), "--follow", "--idle-timeout", "nan"])
+    return out
 
 
 def main() -> None:
