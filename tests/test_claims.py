@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import btel
 from btel.core import claims as _claims
 from btel.evaluation import evaluate
 from btel.experiments._common import ModelCache
@@ -190,7 +191,7 @@ def test_a_file_that_appears_while_saving_is_kept(tmp_path: Path, monkeypatch: p
     monkeypatch.setattr(modelfile.np, "savez", real_savez)
     with pytest.raises(OutputExistsError, match="already exists"):
         model.save(path, overwrite=False)
-    model.save(path)  # overwrite=True (the default) replaces it
+    model.save(path, overwrite=True)  # replaces anything (the default keeps a file btel did not write)
     assert path.read_bytes()[:2] == b"PK"
 
 
@@ -208,6 +209,25 @@ def test_publish_falls_back_to_an_exclusive_create_without_hard_links(tmp_path: 
         with _claims.atomic_output(tmp_path / "a.txt", overwrite=False, text=True) as fh:
             fh.write("second")
     assert (tmp_path / "a.txt").read_text() == "first" and len(list(tmp_path.iterdir())) == 1
+
+
+def test_a_save_by_default_replaces_btel_files_only(tmp_path: Path) -> None:
+    """``model.save("db.npy")`` replaced the user's descriptors (overwrite=True was the default)."""
+    from btel.exceptions import OutputExistsError
+
+    model, X = _fitted()
+    np.save(tmp_path / "db.npy", X)
+    (tmp_path / "notes.txt").write_text("mine")
+    for name in ("db.npy", "notes.txt"):
+        before = (tmp_path / name).read_bytes()
+        with pytest.raises(OutputExistsError, match="is not a btel file"):
+            model.save(tmp_path / name)
+        assert (tmp_path / name).read_bytes() == before
+    model.save(tmp_path / "m.btel.npz")
+    first = (tmp_path / "m.btel.npz").stat().st_mtime_ns
+    model.save(tmp_path / "m.btel.npz")  # a model saved again: replaced
+    assert (tmp_path / "m.btel.npz").stat().st_mtime_ns >= first
+    np.testing.assert_array_equal(btel.load(tmp_path / "m.btel.npz").predict(X[:5]), model.predict(X[:5]))
 
 
 def test_python_save_paths_take_overwrite(tmp_path: Path) -> None:

@@ -60,15 +60,17 @@ class ArraySpec:
 
 
 def save_arrays(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], header: Mapping[str, Any],
-                overwrite: bool = True) -> Path:
+                overwrite: bool | None = None) -> Path:
     """Write arrays plus a JSON header as an uncompressed ``.npz`` model file, atomically.
 
     ``header`` must be JSON-serialisable; the format name and version are added here. The file is
     written to a temporary file of a unique name in the same folder, flushed to disk and then
     published under ``path`` in one step (:func:`btel.core.claims.atomic_output`), so a reader only
     ever sees the old file or the whole new one, two saves to one path at once cannot mix their
-    bytes, and an interrupted or failed save removes its temporary file. With ``overwrite=False``
-    an existing ``path`` is never replaced, even one written by another process during this save.
+    bytes, and an interrupted or failed save removes its temporary file. ``overwrite=None`` (the
+    default) replaces an existing btel file (a model saved again) and keeps any other file (a
+    descriptor matrix, a text file: never lost to a mistyped name); ``True`` replaces anything;
+    ``False`` never replaces, not even a file another process writes during this save.
 
     Raises
     ------
@@ -76,7 +78,7 @@ def save_arrays(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], heade
         ``path`` is empty, an existing folder, or lies under a regular file; a reserved or
         non-numeric array.
     OutputExistsError
-        ``overwrite`` is False and ``path`` exists (or appeared while writing); nothing was replaced.
+        ``path`` exists and ``overwrite`` is False, or None and the file is not btel's; nothing was replaced.
     ModelFileError
         Writing failed (disk full, no permission…); nothing is left behind.
     """
@@ -84,7 +86,7 @@ def save_arrays(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], heade
         raise InvalidParameterError(f"the model path must be a string or a path; got {type(path).__name__}.")
     if isinstance(path, str) and not path.strip():
         raise InvalidParameterError("the model path is empty; give a file name such as 'map.btel.npz'.")
-    path = Path(path)
+    path = Path(path).expanduser()  # '~/m.btel.npz' is the home folder's, not a folder named '~'
     if path.is_dir():
         raise InvalidParameterError(f"{str(path)!r} is a folder; give a file name inside it, e.g. "
                                     f"{str(path / 'map.btel.npz')!r}.")
@@ -113,17 +115,33 @@ def save_arrays(path: str | os.PathLike, arrays: Mapping[str, np.ndarray], heade
                 raise InvalidParameterError(
                     f"cannot save to {str(path)!r}: {str(parent)!r} is a file, not a folder.")
             break
-    if not overwrite and path.exists():
+    if overwrite is None and os.path.lexists(path) and not _is_btel_file(path):
+        raise OutputExistsError(f"{str(path)!r} exists and is not a btel file (a model or descriptor btel saved); it "
+                                "was kept. Choose another name, or pass overwrite=True to replace it.")
+    if overwrite is False and path.exists():
         raise _taken_before(path)
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        with atomic_output(path, overwrite=overwrite) as fh:
+        with atomic_output(path, overwrite=overwrite is not False) as fh:
             np.savez(fh, **{HEADER_KEY: header_bytes}, **{k: np.asarray(v) for k, v in arrays.items()})
     except OutputExistsError:
         raise
     except OSError as exc:
-        raise ModelFileError(f"cannot save the model: {exc.strerror or exc}.") from exc
+        raise ModelFileError(f"cannot save the model to {str(path)!r}: {exc.strerror or exc}.") from exc
     return path
+
+
+def _is_btel_file(path: Path) -> bool:
+    """A regular file that is an .npz holding btel's header member (read from the zip directory only)."""
+    try:
+        with open_regular(path) as fh:
+            if fh.read(4) != b"PK\x03\x04":
+                return False
+            check_zip_members(fh, str(path), MAX_MEMBERS)
+            with zipfile.ZipFile(fh) as archive:
+                return HEADER_KEY + ".npy" in archive.namelist()
+    except Exception:  # noqa: BLE001 - unreadable, not a zip, too many members: not a file btel wrote
+        return False
 
 
 def _taken_before(path: Path) -> OutputExistsError:

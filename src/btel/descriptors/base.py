@@ -252,17 +252,18 @@ class ImageDescriptor(BaseEstimator):
             self.dim_ = self.output_dim
         return self.transform(items, progress=progress)
 
-    def save(self, path: str | os.PathLike, *, overwrite: bool = True) -> Path:
+    def save(self, path: str | os.PathLike, *, overwrite: bool | None = None) -> Path:
         """Save the parameters and fitted state: plain arrays plus a JSON header, no pickles.
 
-        Written atomically (:func:`btel.core.modelfile.save_arrays`); ``overwrite=False`` keeps an existing file.
+        Written atomically (:func:`btel.core.modelfile.save_arrays`): an existing btel file is replaced, any other
+        kept; ``overwrite=True`` replaces anything, ``False`` nothing.
 
         Raises
         ------
         NotFittedError
             A descriptor that learns state was not fitted.
         OutputExistsError
-            ``overwrite`` is False and ``path`` exists.
+            ``path`` exists and is kept (``overwrite`` False, or None and not a btel file).
         """
         if self.requires_fit:
             check_is_fitted(self, "dim_")

@@ -424,12 +424,12 @@ class PlaceLocalizer(ParamsMixin, ABC):
         """Total storage in bytes: the sum of :meth:`storage_breakdown`."""
         return int(sum(self.storage_breakdown().values()))
 
-    def save(self, path: Any, *, overwrite: bool = True) -> Any:
+    def save(self, path: Any, *, overwrite: bool | None = None) -> Any:
         """Save the fitted model: its stored arrays plus a JSON header (no pickles).
 
-        The file size exceeds :attr:`nbytes` only by the container overhead (a few KiB). Runtime
-        settings (``n_jobs``, backends, progress bars) are not model content and are not saved.
-        ``overwrite=False`` keeps any file there, even a racing save's (``OutputExistsError``).
+        The file exceeds :attr:`nbytes` by the container (a few KiB); runtime settings (``n_jobs``, progress)
+        are not saved. An existing btel file is replaced, any other kept (``OutputExistsError``);
+        ``overwrite=True`` replaces anything, ``False`` nothing, not even a racing save's file.
 
         Returns
         -------
