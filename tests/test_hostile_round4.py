@@ -209,3 +209,22 @@ def test_float16_place_indices_read_without_an_overflow_warning(tmp_path: Path) 
 
     np.savez(tmp_path / "gt.npz", query_places=np.arange(50, dtype=np.float16), n_map=np.int64(60))
     assert GroundTruth.from_file(tmp_path / "gt.npz").query_places.tolist() == list(range(50))
+
+
+def test_opq_nested_parameters_reach_the_default_quantiser() -> None:
+    """The docstring's own ``OPQLocalizer().set_params(pq__nbits=4)`` raised AttributeError on pq=None, and
+    ``make_method("opq", pq__nbits=4)`` was refused."""
+    from btel.exceptions import InvalidParameterError
+    from btel.methods import make_method
+    from btel.methods.baselines.opq import OPQLocalizer
+    from btel.methods.baselines.pq import PQLocalizer
+
+    assert OPQLocalizer().set_params(pq__nbits=4).pq.get_params()["nbits"] == 4
+    model = make_method("opq", budget="8KB", pq__nbits=4)
+    assert isinstance(model.pq, PQLocalizer) and model.pq.nbits == 4
+    X = np.random.default_rng(0).standard_normal((300, 32)).astype(np.float32)
+    assert model.fit(X).config_.nbits == 4
+    with pytest.raises(InvalidParameterError, match="has no parameter 'pq__bogus'"):
+        make_method("opq", pq__bogus=1)
+    with pytest.raises(InvalidParameterError, match="invalid parameter 'budget__x'|no parameters to set"):
+        OPQLocalizer().set_params(budget__x=1)

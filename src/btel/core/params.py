@@ -69,8 +69,25 @@ class ParamsMixin:
                 setattr(self, key, value)
                 valid[key] = value
         for key, sub_params in nested.items():
+            if valid[key] is None and key in self._nested_defaults:  # None stands for the default estimator
+                setattr(self, key, self._nested_defaults[key]())
+                valid[key] = getattr(self, key)
+            if not hasattr(valid[key], "set_params"):
+                raise InvalidParameterError(f"{type(self).__name__}'s {key} is {valid[key]!r}, which has no "
+                                            f"parameters to set; give {key}=<an estimator> instead.")
             valid[key].set_params(**sub_params)
         return self
+
+    #: Parameter → the estimator class that its None stands for (``opq``'s ``pq``): ``pq__nbits`` reaches it.
+    _nested_defaults: dict[str, Any] = {}
+
+    def _nested_param_names(self) -> set[str]:
+        """``name__parameter`` of every nested estimator, those a None parameter stands for included."""
+        names = set(self.get_params(deep=True))
+        for key, factory in self._nested_defaults.items():
+            if getattr(self, key) is None:
+                names |= {f"{key}__{sub}" for sub in factory().get_params(deep=True)}
+        return names
 
     def __repr__(self) -> str:
         """``Class(param=value, …)``: the parameters that differ from their defaults (as scikit-learn)."""

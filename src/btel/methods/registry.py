@@ -163,8 +163,8 @@ def make_method(name: str, **params: Any) -> PlaceLocalizer:
     if name not in _ENTRIES:
         raise InvalidParameterError(f"unknown method {name!r}; choose from {', '.join(_ENTRIES)}.")
     model = _factory(name)()
-    valid = model.get_params(deep=True)
-    unknown = sorted(set(params) - set(valid))
+    valid = model._nested_param_names()
+    unknown = sorted(set(params) - valid)
     if unknown:
         raise InvalidParameterError(
             f"{name} has no parameter {', '.join(repr(u) for u in unknown)}; it takes: {', '.join(sorted(valid))}."

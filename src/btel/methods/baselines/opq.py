@@ -48,7 +48,8 @@ class OPQLocalizer(_RowLocalizer):
     pq : PQLocalizer, optional
         The product quantiser's settings (``n_subquantizers``, ``nbits``, ``pca_dim``,
         ``random_state``); None: ``PQLocalizer()``. Its own budget and front end are not used.
-        Nested parameters follow scikit-learn: ``OPQLocalizer().set_params(pq__nbits=4)``.
+        Nested parameters follow scikit-learn: ``OPQLocalizer().set_params(pq__nbits=4)`` (or ``make_method("opq",
+        pq__nbits=4)``) sets them on the default ``PQLocalizer()``.
     n_iter : int
         Rounds of rotation learning (faiss ``OPQMatrix.niter``; faiss' default is 50).
     normalize, whiten, delta
@@ -76,6 +77,8 @@ class OPQLocalizer(_RowLocalizer):
         "n_iter": [Interval(int, 1, 10_000)],
         "n_jobs": N_JOBS,
     }
+
+    _nested_defaults = {"pq": PQLocalizer}
 
     def __init__(
         self,
