@@ -31,6 +31,8 @@ def test_budget_is_honoured_or_refused_with_the_minimum(name: str, budget: int, 
         return
     assert method.nbytes <= budget
     assert sum(method.storage_breakdown().values()) == method.nbytes
+    # Every method's summary says what it spends of the budget (it was '' for most): the figure, as printed.
+    assert f"{method.nbytes:,d} B" in method.summary() and f"{budget:,d} B" in method.summary()
     pred = method.predict(Q)
     assert pred.dtype == np.int64 and pred.shape == (200,)
     assert pred.min() >= 0 and pred.max() < 200

@@ -133,3 +133,16 @@ def check_within_budget(label: str, nbytes: int | None, budget: int | None) -> N
         raise BudgetExceededError(
             f"{label} stores {nbytes} B, over its budget of {budget} B: a bug in its budget fitting."
         )
+
+
+def spent_text(model: Any) -> str:
+    """``"6,496 B of a 8,000 B budget"`` (or ``"… B (no budget)"``): a fitted model's bytes against its budget."""
+    budget = budget_of(model)
+    return f"{model.nbytes:,d} B of a {budget:,d} B budget" if budget is not None else f"{model.nbytes:,d} B (no budget)"
+
+
+def summary_line(model: Any) -> str:
+    """A fitted model's default ``summary()``: its method, N and d, its bytes against its budget, its front end."""
+    return (f"{model.label}: N = {model.n_places_} places, d = {model.n_features_in_}; {spent_text(model)}; "
+            f"front end {model.front_end_.describe()}")
+

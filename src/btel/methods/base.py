@@ -36,7 +36,7 @@ from ..core.params import ParamsMixin
 from ..core.validation import Budget, check_descriptors, check_is_fitted, check_params, check_positive_int, map_places
 from ..exceptions import BudgetTooSmallError, InvalidAnswerError, InvalidDescriptorsError, InvalidParameterError, NotEnoughPlacesError
 from ..core.frontend import FRONT_END_CONSTRAINTS, FRONT_END_MEANINGS, FrontEnd, traverse_starts, with_front_end_parameters
-from ..core.storage import BUDGET_MEANING, budget_of, exact_bytes, parse_budget, storage_breakdown
+from ..core.storage import BUDGET_MEANING, budget_of, exact_bytes, parse_budget, storage_breakdown, summary_line
 from ..core.modelfile import ArraySpec, jsonable, save_arrays
 from ..sequence.querystream import QueryStream
 from ..core.topk import put_first, ties_by_place, top_k
@@ -256,8 +256,8 @@ class PlaceLocalizer(ParamsMixin, ABC):
         return False
 
     def summary(self) -> str:
-        """What fitting chose (planner values, the rule), in a line or a few; '' when nothing to add."""
-        return ""
+        """What fitting chose, in a line or a few (by default N, d, the bytes against the budget, the front end)."""
+        return summary_line(self)
 
     # -- inference --------------------------------------------------------------------------------
     @property

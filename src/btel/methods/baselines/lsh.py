@@ -46,7 +46,7 @@ import faiss
 import numpy as np
 
 from ...core.rows import mean_and_rms
-from ...core.storage import budget_of
+from ...core.storage import budget_of, spent_text
 from ...core.validation import N_JOBS, RANDOM_STATE, Interval, Options, read_state_int
 from ..base import ArraySpec
 from ...exceptions import BudgetTooSmallError, InvalidParameterError, ModelFileError
@@ -372,13 +372,13 @@ class LSHLocalizer(_RowLocalizer):
         return signscan.scores(self.codes_, self._project(Q))
 
     def summary(self) -> str:
-        """One line: bits per row, scoring, seed and the front end."""
+        """One line: bits per row, scoring, seed, the bytes against the budget and the front end."""
         centred = "centred" if self.mean_ is not None else "uncentred"
         unused = self.unused_budget()
         cap = (f"; budget saturated at {MAX_BITS_PER_DIMENSION}·d bits per row, {unused} B unused"
                if unused else "")
         return (f"lsh: {self.n_bits_} bits per row, {self.scoring} scoring, {self.projection} projection "
-                f"from seed {self.seed_} (0 B), {centred}; front end "
+                f"from seed {self.seed_} (0 B), {centred}; {spent_text(self)}; front end "
                 f"{self.front_end_.describe()}{cap}")
 
     def _model_arrays(self) -> dict[str, np.ndarray]:

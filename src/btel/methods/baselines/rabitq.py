@@ -47,6 +47,7 @@ from typing import Any
 import faiss
 import numpy as np
 
+from ...core.storage import spent_text
 from ...core.validation import N_JOBS, RANDOM_STATE, Interval, Options, read_state_int
 from ..base import ArraySpec
 from ...exceptions import BTELError, InvalidDescriptorsError, InvalidParameterError, ModelFileError
@@ -283,10 +284,10 @@ class RaBitQLocalizer(_RowLocalizer):
         return negated_distances(dist) if scores else None, rows.astype(np.int64, copy=False)
 
     def summary(self) -> str:
-        """One line: D, B, seed, factor width and the front end."""
+        """One line: D, B, seed, factor width, the bytes against the budget and the front end."""
         return (f"rabitq: {self.dim_} rotated dimensions × {self.nbits_} bit(s), {self.rotation} rotation from "
                 f"seed {self.seed_} (0 B), {self.factors_.dtype.name} factors, "
-                f"{f'{self.query_bits}-bit' if self.query_bits else 'float'} queries; "
+                f"{f'{self.query_bits}-bit' if self.query_bits else 'float'} queries; {spent_text(self)}; "
                 f"front end {self.front_end_.describe()}")
 
     # -- storage and files ---------------------------------------------------------------------
