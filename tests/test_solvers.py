@@ -136,3 +136,12 @@ def test_experiment_cache_reuses_a_model_its_budget_did_not_shape(route, tmp_pat
     fresh = ModelCache(tmp_path, min_fit_seconds=0.0)  # another process: from disk
     again, _, cached = fresh.fit("btel-c", {"budget": 500_000, "feature_ratio": 0.5}, X)
     assert cached and np.array_equal(again.hyperplanes_.weights, big.hyperplanes_.weights)
+
+
+def test_the_convergence_warning_suggests_newton_only_when_another_solver_stalled(route) -> None:
+    """With solver newton it said 'Raise max_iter or use solver='newton''."""
+    X = route.map
+    with pytest.warns(ConvergenceWarning) as caught:
+        BTELocalizer(budget="8KB", max_iter=1, solver="newton", progress=False).fit(X)
+    message = str(caught[0].message)
+    assert message.endswith("Raise max_iter.") and "use solver='newton'" not in message

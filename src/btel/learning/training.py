@@ -109,10 +109,12 @@ def convergence_warning(summary: FitSummary, owner: str, max_iter: int | None) -
         from sklearn.exceptions import ConvergenceWarning
 
         cap = "the solver's default cap" if max_iter is None else f"max_iter = {max_iter}"
+        # Newton is the one to switch to when another solver stalled; when it was Newton, more rounds are the fix.
+        fix = "Raise max_iter." if set(summary.solvers) <= {"newton"} else "Raise max_iter or use solver='newton'."
         warnings.warn(
             f"{owner}: {summary.n_unconverged} of {summary.n_classifiers} classifiers stopped at {cap} before "
-            f"converging (solver {'/'.join(summary.solvers)}); the model is usable but not at the optimum. Raise "
-            "max_iter or use solver='newton'.", ConvergenceWarning, stacklevel=3)
+            f"converging (solver {'/'.join(summary.solvers)}); the model is usable but not at the optimum. {fix}",
+            ConvergenceWarning, stacklevel=3)
 
 
 def _fit_group(X, rows, columns, labels, weights, stats, fit_kwargs):
