@@ -146,3 +146,17 @@ def test_a_record_gives_the_parameters_the_fit_chose() -> None:
     method = make_method("pq", budget="16KB")
     record = measure_record(method, wide, wide[:20], name="pq")
     assert record.params["pca_dim"] == method.config_.dim < 500
+
+
+def test_measure_takes_a_method_name_and_records_budgets_in_bytes() -> None:
+    """measure('lsh', …) raised AttributeError ('str' has no fit); a budget given as '8KB' was recorded as the
+    string; rows were named by class (every BTEL variant 'BTELocalizer')."""
+    from btel.datasets import synthetic_route
+    from btel.evaluation import measure as measure_record
+    from btel.methods import make_method
+
+    route = synthetic_route(200, 32, seed=0)
+    by_name = measure_record("lsh", route.map, route.queries, budget="4KB")
+    assert by_name.name == "lsh" and by_name.budget == 4000 and by_name.nbytes <= 4000
+    given = measure_record(make_method("pq", budget="4KB"), route.map, route.queries, budget="4KB")
+    assert given.name == "pq" and given.budget == 4000

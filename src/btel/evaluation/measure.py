@@ -27,7 +27,7 @@ from ..exceptions import InvalidAnswerError, InvalidParameterError
 from .metrics import (DEFAULT_KS, TruthLike, check_ground_truth, check_points, default_curve_max,
                       default_tolerances, precision_recall, recall_at_k, recall_at_tolerance, recall_curve,
                       thin_curve)
-from ..core.storage import budget_of
+from ..core.storage import budget_of, parse_budget
 from .records import EvaluationResult, _choice_of, _params_of, _storage_of
 from .timing import time_queries
 
@@ -73,15 +73,16 @@ def measure(
     labels: dict[str, Any] | None = None,
     fit_params: dict[str, Any] | None = None,
 ) -> EvaluationResult:
-    """Fit ``method`` on the map, localize the queries, and measure everything SPEC §9 asks for.
+    """Fit ``method`` on the map, localize the queries, and measure what a run reports: recall@t, R@K,
+    precision–recall, stored bytes, fit and query times.
 
     Parameters
     ----------
-    method : estimator
+    method : estimator or str
         A :class:`~btel.methods.base.PlaceLocalizer` or any object with ``fit(X)`` and ``predict(Q)``
-        returning place indices. Ranking (``rank(Q, k)``) is used when the method has ``rank``;
-        storage is read from ``nbytes`` /
-        ``storage_breakdown()`` when present.
+        returning place indices (it is fitted itself, not a copy), or a method name (``"pq"``: made
+        by :func:`~btel.methods.make_method` with ``budget``). Ranking (``rank(Q, k)``) is used when
+        the method has ``rank``; storage is read from ``nbytes`` / ``storage_breakdown()`` when present.
     X_map : array-like of shape (n_map, n_features)
         Map descriptors, row i = place i. May be None when ``fit=False`` and the method knows its
         number of places (``n_places_``).
@@ -98,13 +99,14 @@ def measure(
     k_tolerance : int, default 0
         Tolerance applied to R@K.
     name : str, optional
-        Name in reports; default the method's class name.
+        Name in reports; default the method's name (as given, or its ``label``: ``pq``, ``BTEL``).
     curve_max : int, optional
         The recall@t curve covers t = 0..curve_max; default :func:`default_curve_max`.
     fit : bool, default True
         False evaluates an already fitted method (``fit_time_s`` is then None).
-    budget : int, optional
-        The budget the method was given (recorded in the result only).
+    budget : int or str, optional
+        The budget the method was given (``"8KB"`` or bytes; recorded in the result as bytes), and the
+        budget of a method given by name.
     reference : bool, default False
         Mark the result as the unbudgeted reference row.
     timing_threads : int or None, default 1
@@ -129,6 +131,11 @@ def measure(
     -------
     EvaluationResult
     """
+    budget = None if budget is None else parse_budget(budget)
+    if isinstance(method, str):
+        from ..methods.registry import make_method
+
+        name, method = name or method, make_method(method, budget=budget)
     ks = tuple(ks)
     if ks:
         ks = check_points(ks, "ks", 1)
@@ -194,7 +201,7 @@ def measure(
 
     nbytes, breakdown = _storage_of(method)
     return EvaluationResult(
-        name=name if name is not None else type(method).__name__,
+        name=name if name is not None else getattr(method, "label", type(method).__name__),
         params=_params_of(method),
         n_map=int(n_map) if n_map is not None else None,
         n_queries=int(n_queries),
