@@ -85,8 +85,8 @@ class BTELocalizer(TreeDecoding, TreeModelFile, PlaceLocalizer):
     dtype : {'float32', 'float16'}
         Stored hyperplane dtype (biases stay float32).
     decode : {'constrained', 'soft'}
-        Bit margins → index: MSB-first constrained decode, or the soft decode over valid indices
-        (O(N·b) per query; compressed scheme only).
+        Bit margins → index: MSB-first constrained decode (``search``'s first candidate even where another place
+        scores higher), or the soft decode over valid indices, ranked by score (O(N·b) a query; compressed only).
     max_regions : int
         Largest r tried when ``n_regions='auto'``.
     kts_penalty : float
