@@ -190,6 +190,15 @@ def craft(folder: Path) -> list[dict[str, Any]]:
     return cases
 
 
+def _adder(out: list[dict[str, Any]], round_name: str) -> Any:
+    """``add(case, file, command)``: a case of ``round_name``, run with its address space capped at 6 GiB."""
+    def add(case: str, file: Path, command: list[str]) -> None:
+        out.append({"case": f"{round_name}: {case}", "file": file, "command": command, "pairs": None,
+                    "max_bytes": 6 * 2**30})
+
+    return add
+
+
 def craft_round3(folder: Path, rng: np.random.Generator) -> list[dict[str, Any]]:
     """The hostile inputs of round 3 (issue 35/37's session of 2026-11-28): sizes a file claims, regexes
     that backtrack, decoders that loop, run folders edited by hand."""
@@ -200,10 +209,7 @@ def craft_round3(folder: Path, rng: np.random.Generator) -> list[dict[str, Any]]
     from btel.descriptors.hog import HOGDescriptor
 
     out: list[dict[str, Any]] = []
-
-    def add(case: str, file: Path, command: list[str]) -> None:
-        out.append({"case": f"round 3: {case}", "file": file, "command": command, "pairs": None,
-                    "max_bytes": 6 * 2**30})
+    add = _adder(out, "round 3")
 
     root = folder / "round3"
     root.mkdir()
@@ -317,10 +323,7 @@ def craft_round4(folder: Path, rng: np.random.Generator) -> list[dict[str, Any]]
     import cv2
 
     out: list[dict[str, Any]] = []
-
-    def add(case: str, file: Path, command: list[str]) -> None:
-        out.append({"case": f"round 4: {case}", "file": file, "command": command, "pairs": None,
-                    "max_bytes": 6 * 2**30})
+    add = _adder(out, "round 4")
 
     root = folder / "round4"
     root.mkdir()
