@@ -214,24 +214,39 @@ def saved_jobs(paths: Sequence[str | os.PathLike], n_features: int, taken: Seque
 
 
 def saved_names(paths: Sequence[str | os.PathLike], taken: Sequence[str] = ()) -> list[str]:
-    """The row name of each saved model file (:func:`saved_jobs`): its name without suffixes, with as
-    many of its folders in front as keep it apart from the other files' names and from ``taken``."""
+    """The row name of each saved model file (:func:`saved_jobs`): its name without ``.npz`` (and
+    ``.btel``), with as many of its folders in front as keep it apart from the other files' names and
+    from ``taken``, as written and as a file name (``predictions_<name>.csv``).
+
+    Raises
+    ------
+    InvalidParameterError
+        The same file twice, or two files no folder tells apart as file names (``a/lsh`` and ``a-lsh``).
+    """
+    from .runs import safe_file_name
+
     full = [Path(os.path.abspath(p)) for p in paths]
     twice = next((str(paths[i]) for i, p in enumerate(full) if p in full[:i]), None)
     if twice is not None:
         raise InvalidParameterError(f"the model file {twice} is given twice; give each --model once.")
-    stems = [p.name.split(".")[0] or p.name for p in full]
+    stems = [p.name.removesuffix(".npz").removesuffix(".btel") or p.name for p in full]
     depth = [0] * len(full)
+    used = {safe_file_name(t) for t in taken}
 
     def name(i: int) -> str:
         return "/".join([*full[i].parent.parts[len(full[i].parent.parts) - depth[i]:], stems[i]])
 
     while True:
         names = [name(i) for i in range(len(full))]
-        clash = [i for i, n in enumerate(names) if n in taken or names.count(n) > 1]
+        safe = [safe_file_name(n) for n in names]
+        clash = [i for i, n in enumerate(safe) if n in used or safe.count(n) > 1]
         growable = [i for i in clash if depth[i] < len(full[i].parent.parts) - 1]
-        if not clash or not growable:
+        if not clash:
             return names
+        if not growable:
+            both = [str(paths[i]) for i in clash]
+            raise InvalidParameterError(f"the model files {', '.join(both)} would name the same row ({safe[clash[0]]}, "
+                                        "its file names in the run folder); rename one of them.")
         for i in growable:
             depth[i] += 1
 
