@@ -534,11 +534,12 @@ def test_metrics_csv_says_what_each_auto_row_ran(route_files, tmp_path: Path) ->
 
 
 def test_saved_model_names_keep_their_inner_dots_and_clash_as_file_names_up_front(route_files, tmp_path: Path) -> None:
-    """lsh.v1.npz and lsh.v2.npz were both 'lsh' (then refused as indistinct); a/lsh.npz beside a-lsh.npz ran every
-    model and failed at the end, when their predictions files were to share a name."""
+    """lsh.v1.npz and lsh.v2.npz were both 'lsh' (then refused as indistinct); a/lsh.npz and b/lsh.npz beside
+    a-lsh.npz ran every model and failed at the end, when two predictions files were to share a name."""
     db, q = route_files
     (tmp_path / "a").mkdir()
-    for name in ("lsh.v1.npz", "lsh.v2.npz", "a/lsh.npz", "a-lsh.npz"):
+    (tmp_path / "b").mkdir()
+    for name in ("lsh.v1.npz", "lsh.v2.npz", "a/lsh.npz", "b/lsh.npz", "a-lsh.npz"):
         assert run("train", db, "-o", tmp_path / name, "--method", "lsh", "--budget", "2KB").exit_code == 0
     result = run("evaluate", "--model", tmp_path / "lsh.v1.npz", "--model", tmp_path / "lsh.v2.npz", "--queries", q,
                  "--out", tmp_path / "run", "--no-progress")
@@ -546,5 +547,6 @@ def test_saved_model_names_keep_their_inner_dots_and_clash_as_file_names_up_fron
     assert [r["name"] for r in json.loads((tmp_path / "run" / "metrics.json").read_text())["results"]] == [
         "lsh.v1", "lsh.v2"]
     clash = CliRunner().invoke(main, ["evaluate", "--model", str(tmp_path / "a" / "lsh.npz"), "--model",
-                                      str(tmp_path / "a-lsh.npz"), "--queries", str(q), "--out", str(tmp_path / "run2")])
+                                      str(tmp_path / "b" / "lsh.npz"), "--model", str(tmp_path / "a-lsh.npz"),
+                                      "--queries", str(q), "--out", str(tmp_path / "run2")])
     assert clash.exit_code == 2 and "would name the same row" in clash.output and not (tmp_path / "run2").exists()
