@@ -227,6 +227,7 @@ def test_pq_summary_says_what_the_planner_chose_and_what_the_budget_left(data) -
     c = model.config_
     line = model.summary()
     assert line.startswith(f"pq: {c.n_subquantizers} sub-quantisers × {c.nbits} bits ({c.code_size} B a row) on ")
-    assert f"{model.nbytes:,d} B of a 16,000 B budget" in line and "\n" not in line
+    assert f"{model.nbytes:,d} B of the 16,000 B budget" in line and "\n" not in line
     assert ("PCA projection" in line) == (model.projection_ is not None)
-    assert "budget" not in PQLocalizer().fit(X).summary()  # unbudgeted: nothing to compare with
+    unbudgeted = PQLocalizer().fit(X)
+    assert f"{unbudgeted.nbytes:,d} B (no budget)" in unbudgeted.summary()  # its bytes, nothing to compare with

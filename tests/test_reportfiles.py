@@ -55,3 +55,17 @@ def test_full_runs_of_the_same_experiments_replace_the_page(published: Path, tmp
     write_report(tmp_path / "again", published)  # a quick section replaced by a full one
     with pytest.raises(OutputExistsError, match="drop the sections of regions"):
         write_report(tmp_path / "full", published)
+
+
+def test_a_reported_page_without_its_record_is_kept(published: Path, tmp_path: Path) -> None:
+    """A docs folder holding the report's results.md but not its results.json was replaced by a quick run's page;
+    a results.md of benchmark marker blocks only is still written into."""
+    (published / "results.json").unlink()
+    before = (published / "results.md").read_bytes()
+    _run(tmp_path / "quick", "accuracy", quick=True)
+    with pytest.raises(OutputExistsError, match="results.md without the results.json"):
+        write_report(tmp_path / "quick", published)
+    assert (published / "results.md").read_bytes() == before
+    (tmp_path / "fresh").mkdir()
+    (tmp_path / "fresh" / "results.md").write_text("<!-- scale:start -->\nSCALE\n<!-- scale:end -->\n")
+    assert "SCALE" in write_report(tmp_path / "quick", tmp_path / "fresh").read_text()

@@ -136,9 +136,9 @@ def check_within_budget(label: str, nbytes: int | None, budget: int | None) -> N
 
 
 def spent_text(model: Any) -> str:
-    """``"6,496 B of a 8,000 B budget"`` (or ``"… B (no budget)"``): a fitted model's bytes against its budget."""
+    """``"6,496 B of the 8,000 B budget"`` (or ``"… B (no budget)"``): a fitted model's bytes against its budget."""
     budget = budget_of(model)
-    return f"{model.nbytes:,d} B of a {budget:,d} B budget" if budget is not None else f"{model.nbytes:,d} B (no budget)"
+    return f"{model.nbytes:,d} B of the {budget:,d} B budget" if budget is not None else f"{model.nbytes:,d} B (no budget)"
 
 
 def summary_line(model: Any) -> str:

@@ -334,7 +334,7 @@ def write_report(runs_dir: str | Path = "runs/experiments", docs_dir: str | Path
                                     "Give --overwrite (overwrite=True) to replace it, or another --docs folder.")
     payloads = {name: _load_results(path, name) for name, path in found.items()}
     if not overwrite:
-        check_nothing_lost(json_path, payloads)
+        check_nothing_lost(json_path, payloads, _GENERATED)
     figures = docs_dir / "figures"
     figures.mkdir(parents=True, exist_ok=True)
     kept = _kept_sections(read_text(md_path)) if md_path.exists() else {}

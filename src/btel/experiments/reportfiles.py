@@ -85,7 +85,7 @@ def write_bytes(path: Path, data: bytes) -> None:
         fh.write(data)
 
 
-def check_nothing_lost(json_path: Path, payloads: Mapping[str, Mapping[str, Any]]) -> None:
+def check_nothing_lost(json_path: Path, payloads: Mapping[str, Mapping[str, Any]], generated: str = "") -> None:
     """Refuse a report that would drop or downgrade sections of the page recorded in ``json_path``.
 
     Parameters
@@ -95,6 +95,9 @@ def check_nothing_lost(json_path: Path, payloads: Mapping[str, Mapping[str, Any]
         does not exist or cannot be read as such (the caller has checked that btel report wrote it).
     payloads : mapping
         The new runs' results by experiment name, each with its ``run`` object (``quick`` a bool).
+    generated : str
+        The line that marks a results.md as a reported page: such a page without its results.json is
+        refused too (a results.md of marker blocks only, which benchmark scripts maintain, is not).
 
     Raises
     ------
@@ -103,6 +106,12 @@ def check_nothing_lost(json_path: Path, payloads: Mapping[str, Mapping[str, Any]
         the message names them, and the two ways on (``--docs`` elsewhere, or ``--overwrite``).
     """
     if not json_path.is_file():
+        page = json_path.parent / "results.md"  # a reported page without its record: what it holds is unknown
+        if generated and page.is_file() and generated in read_text(page):
+            raise OutputExistsError(
+                f"{str(json_path.parent)!r} holds a results.md without the results.json that records its sections, so "
+                "what this report would drop cannot be checked. Give --docs another folder, or --overwrite to replace "
+                "the page.")
         return
     try:
         old = json.loads(read_text(json_path))

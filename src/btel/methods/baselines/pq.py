@@ -39,7 +39,7 @@ from typing import Any, Iterator
 import faiss
 import numpy as np
 
-from ...core.storage import UNLIMITED_BUDGET, budget_of
+from ...core.storage import UNLIMITED_BUDGET, spent_text
 from ...core.validation import N_JOBS, RANDOM_STATE, Interval, check_positive_int, read_state_int
 from ..base import ArraySpec
 from ...exceptions import InvalidParameterError, ModelFileError, NotEnoughPlacesError
@@ -296,11 +296,9 @@ class PQLocalizer(_RowLocalizer):
         """One line: the planner's configuration, its projection, the bytes against the budget."""
         c, d = self.config_, int(self.front_end_.n_features_out(int(self.n_features_in_)))
         on = f"a PCA projection {d} → {c.dim} dims" if self.projection_ is not None else f"all {c.dim} dims"
-        budget = budget_of(self)
         # The planner's steps are coarse (sub-quantisers, bits, projection width): say what is left.
-        spent = f"; {self.nbytes:,d} B of a {budget:,d} B budget" if budget is not None else ""
-        return (f"pq: {c.n_subquantizers} sub-quantisers × {c.nbits} bits ({c.code_size} B a row) on {on}{spent}; "
-                f"front end {self.front_end_.describe()}")
+        return (f"pq: {c.n_subquantizers} sub-quantisers × {c.nbits} bits ({c.code_size} B a row) on {on}; "
+                f"{spent_text(self)}; front end {self.front_end_.describe()}")
 
     # -- fitting -------------------------------------------------------------------------------
     def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
