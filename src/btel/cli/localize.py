@@ -74,8 +74,8 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
             (follow and input_path is None, "--follow needs --input FILE (stdin waits for new lines anyway)."),
             (idle_timeout is not None and not follow, "--idle-timeout only applies with --follow."),
             (idle_timeout is not None and not 0 < idle_timeout < 1e9,  # nan and inf included: they never end
-             f"--idle-timeout must be a number of seconds above 0 (and finite); got {idle_timeout}. Leave it out "
-             "to run until Ctrl-C.")):
+             f"--idle-timeout must be a number of seconds above 0 and below 10⁹ (about 30 years); got {idle_timeout}. "
+             "Leave it out to run until Ctrl-C.")):
         if broken:
             raise click.UsageError(message)
     _check_window(window)

@@ -443,7 +443,8 @@ def _warn_if_no_better_than_chance(table: list[dict[str, Any]], truth: Any, plac
     chance = float(np.mean([truth.is_correct(guess, tolerance).mean() for guess in guesses]))
     luck = float(binom.ppf(0.999, truth.n_queries, chance)) / truth.n_queries
     if scores and max(scores) <= luck:
-        warnings.warn(f"no calibration candidate localizes more than {max(scores):.1%} of the calibration queries, "
-                      f"which random guesses reach by luck (a guess is right {chance:.1%} of the time): check that "
-                      "the calibration ground truth is these queries' (their order, their numbering of places). "
+        warnings.warn(f"no calibration candidate localizes more than {max(scores):.2%} of the calibration queries, "
+                      f"which random guesses reach by luck (a guess is right {chance:.2%} of the time): check that "
+                      "the calibration ground truth is these queries' (their order, their numbering of places); if it "
+                      "is, the budget is too small for this map or the queries too few to tell the candidates apart. "
                       "The calibration table is kept as measured.", UserWarning, stacklevel=5)
