@@ -257,3 +257,12 @@ def test_inputs_are_fingerprinted_only_once_their_readers_accepted_them(files, t
     assert str(db) in hashed and str(q) in hashed
     recorded = json.loads((tmp_path / "run" / "metrics.json").read_text())["run"]["extra"]["inputs"]
     assert set(recorded) == {"--db", "--queries"}
+
+
+def test_resume_compares_budgets_in_bytes(interrupted) -> None:
+    """``--resume RUN --budget 4000`` on a run started with 4KB was refused as another budget."""
+    out, calls = interrupted
+    result = run("evaluate", "--resume", out, "--budget", "4000", "--no-progress")
+    assert result.exit_code == 0, result.output
+    assert calls == ["itq"] and _rows(out) == [("pq", "ok", 4000), ("itq", "ok", 4000)]
+

@@ -55,6 +55,15 @@ def _canonical(o: dict[str, Any]) -> dict[str, Any]:
             "calibrate_truth": _path(o["calibrate_truth"])}
 
 
+def _compared(name: str, value: Any) -> Any:
+    """An option's value as a resume compares it: budgets in bytes (``64KB`` is ``64000``), the rest as written."""
+    if name != "budget" or not isinstance(value, list):
+        return value
+    from ..core.storage import parse_budget
+
+    return [None if b is None else parse_budget(b) for b in value]
+
+
 def _shown(value: Any) -> str:
     """An option's value as the command line writes it (``8KB,32KB``; ``none`` when not given)."""
     return "none" if value in (None, [None]) else ",".join(map(str, value)) if isinstance(value, list) else str(value)
@@ -78,7 +87,8 @@ def _resumed_options(ctx: click.Context, given: dict[str, Any], extra: dict[str,
     else:
         recorded = {name: extra[name] for name in ("db", "queries", "budget", "query_order") if name in extra}
     recorded = {name: _recorded_value(ctx, run, name, value) for name, value in recorded.items()}
-    differ = [name for name in _RECORDED if name in explicit and name in recorded and recorded[name] != given[name]]
+    differ = [name for name in _RECORDED if name in explicit and name in recorded
+              and _compared(name, recorded[name]) != _compared(name, given[name])]
     if differ:
         flags = [_RECORDED[name] for name in differ]
         was = ", ".join(f"{flag} {_shown(recorded[name])}" for flag, name in zip(flags, differ))
