@@ -156,3 +156,24 @@ def extracted(tmp_path: Path) -> tuple[Path, Path]:
     extract_cached(images, out, HOGDescriptor(), progress=False)
     return images, out
 
+
+@pytest.fixture()
+def bruteforce_files(tmp_path: Path):  # noqa: ANN201
+    """``make(n_places, dim, model_name)`` → (db.npy, q.npy, model): a random map, queries a little noise away,
+    and a brute-force model of the map trained by ``btel train`` (for the CLI's input-handling tests)."""
+    from click.testing import CliRunner
+
+    from btel.cli import main
+
+    def make(n_places: int, dim: int, model_name: str) -> tuple[Path, Path, Path]:
+        rng = np.random.default_rng(0)
+        X = rng.standard_normal((n_places, dim)).astype(np.float32)
+        db, q, model = tmp_path / "db.npy", tmp_path / "q.npy", tmp_path / model_name
+        np.save(db, X)
+        np.save(q, X + 0.01 * rng.standard_normal(X.shape).astype(np.float32))
+        trained = CliRunner().invoke(main, ["train", str(db), "-o", str(model), "--method", "bruteforce"])
+        assert trained.exit_code == 0, trained.output
+        return db, q, model
+
+    return make
+

@@ -95,15 +95,9 @@ def test_localize_names_from_btel_extract(gardenspoint_sample_dir: Path, tmp_pat
 
 # -- what a newcomer gets wrong, refused in the command line's words ------------------------------------------
 @pytest.fixture()
-def small_model(tmp_path: Path) -> tuple[Path, Path, Path]:
+def small_model(bruteforce_files) -> tuple[Path, Path, Path]:
     """A 60-place bruteforce model of 16-value descriptors, its map and a noisy copy as queries."""
-    rng = np.random.default_rng(0)
-    X = rng.standard_normal((60, 16)).astype(np.float32)
-    db, q, model = tmp_path / "db.npy", tmp_path / "q.npy", tmp_path / "m.npz"
-    np.save(db, X)
-    np.save(q, X + 0.01 * rng.standard_normal(X.shape).astype(np.float32))
-    assert _invoke("train", db, "-o", model, "--method", "bruteforce").exit_code == 0
-    return db, q, model
+    return bruteforce_files(60, 16, "m.npz")
 
 
 @pytest.mark.parametrize("name", ["p.npy", "p.tsv", "p"])

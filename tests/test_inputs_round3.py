@@ -21,15 +21,9 @@ def _invoke(*args: object):  # noqa: ANN202
 
 
 @pytest.fixture()
-def small(tmp_path: Path) -> tuple[Path, Path, Path]:
+def small(bruteforce_files) -> tuple[Path, Path, Path]:
     """A 40-place map of 12-value descriptors, noisy queries, and a brute-force model of the map."""
-    rng = np.random.default_rng(0)
-    X = rng.standard_normal((40, 12)).astype(np.float32)
-    db, q, model = tmp_path / "db.npy", tmp_path / "q.npy", tmp_path / "m.btel.npz"
-    np.save(db, X)
-    np.save(q, X + 0.01 * rng.standard_normal(X.shape).astype(np.float32))
-    assert _invoke("train", db, "-o", model, "--method", "bruteforce").exit_code == 0
-    return db, q, model
+    return bruteforce_files(40, 12, "m.btel.npz")
 
 
 def test_a_model_given_where_descriptors_go_is_named_with_where_it_goes(small, tmp_path: Path) -> None:
