@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 import btel
 
@@ -50,6 +51,30 @@ def test_an_evaluation_whose_reader_goes_away_still_writes_its_run_folder(tmp_pa
     assert process.stdout.readline().startswith(b"map: N = 300 places")
     process.stdout.close()  # as `| head -1` does
     _, stderr = process.communicate(timeout=180)
-    assert process.returncode == 0, stderr.decode()
+    assert process.returncode == EXIT_BROKEN_PIPE, stderr.decode()  # finished, then 141 as `btel train`
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert metrics["run"]["complete"] is True and [r["status"] for r in metrics["results"]] == ["ok"] * 4
+
+
+@pytest.mark.parametrize("command", ["evaluate", "demo"])
+def test_a_run_whose_reader_left_before_its_first_line_still_writes_its_folder(tmp_path: Path, command: str) -> None:
+    """`btel evaluate … | true`: the first line (the map's size) found the pipe closed; the folder is still
+    written, then the command exits 141 (it exited 141 at once, with no folder)."""
+    import json
+
+    from btel.datasets import synthetic_route
+
+    route = synthetic_route(300, 32, seed=0)
+    np.save(tmp_path / "db.npy", route.map)
+    np.save(tmp_path / "q.npy", route.queries)
+    args = (["evaluate", "--db", str(tmp_path / "db.npy"), "--queries", str(tmp_path / "q.npy")] if command == "evaluate"
+            else ["demo", "--places", "200", "--dim", "32"])
+    process = subprocess.Popen([sys.executable, "-m", "btel.cli", *args, "--methods", "pq", "--budget", "4KB",
+                                "--no-progress", "--out", str(tmp_path / "run")],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    process.stdout.close()
+    _, stderr = process.communicate(timeout=180)
+    assert process.returncode == EXIT_BROKEN_PIPE, stderr.decode()
+    assert "standard output was closed" in stderr.decode()
+    metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert metrics["run"]["complete"] is True and {r["status"] for r in metrics["results"]} == {"ok"}

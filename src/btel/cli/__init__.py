@@ -74,7 +74,7 @@ class _Group(click.Group):
         return self.commands.get(cmd_name)
 
     def invoke(self, ctx: click.Context) -> Any:
-        from ._errors import exit_for_interrupt, raise_terminated
+        from ._errors import STDOUT_CLOSED, exit_for_interrupt, raise_terminated
 
         if not os.environ.get("BTEL_DEBUG"):
             warnings.showwarning = _show_warning
@@ -84,7 +84,7 @@ class _Group(click.Group):
         except ValueError:
             pass
         try:
-            return super().invoke(ctx)
+            result = super().invoke(ctx)
         except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort):
             raise
         except KeyboardInterrupt as exc:
@@ -115,6 +115,9 @@ class _Group(click.Group):
         finally:
             if previous is not None:  # a caller's own handler (btel called in-process) is given back
                 signal.signal(signal.SIGTERM, previous)
+        if ctx.meta.get(STDOUT_CLOSED):  # a run that went on after its reader left: 141, as `btel train`
+            raise click.exceptions.Exit(EXIT_BROKEN_PIPE)
+        return result
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})

@@ -32,6 +32,10 @@ EXIT_TERMINATED = 143
 #: … when the reader of stdout went away (a closed pipe: ``btel … | head``): 128 + SIGPIPE, what a shell
 #: reports for a Unix tool that stopped the same way; nothing is printed.
 EXIT_BROKEN_PIPE = 141
+#: Key of ``click.Context.meta`` set when stdout's reader went away during a run (``_jobs._echo_while_running``):
+#: the command ends with :data:`EXIT_BROKEN_PIPE` once its run folder is written, as ``btel train`` does
+#: after saving its model.
+STDOUT_CLOSED = "btel.stdout_closed"
 #: A finished evaluate/demo run in which some row did not fit or failed: the run folder is written and each
 #: such row says why, but not every row was measured (docs/decisions/cli-exit-codes.md).
 EXIT_SOME_ROWS_FAILED = EXIT_FAILURE

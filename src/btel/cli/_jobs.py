@@ -14,6 +14,7 @@ from typing import Any
 
 import click
 
+from ._errors import STDOUT_CLOSED
 from ._options import _command_line
 from ._params import _params_by_method
 
@@ -51,18 +52,22 @@ def _run_jobs(jobs: list[Any], X: Any, Q: Any, *, out: Path, extra: dict[str, An
         for r in results:
             if r.name in targets and r.ok and r.ranked is not None:
                 n = write_pairs(targets[r.name], r.ranked, q_names, db_names, overwrite=options["overwrite"])
-                click.echo(f"pairs ({r.name}, top {r.ranked.shape[1]}): {n} lines in {targets[r.name]}")
+                _echo_while_running(f"pairs ({r.name}, top {r.ranked.shape[1]}): {n} lines in {targets[r.name]}")
     return any(not r.ok for r in results)
 
 
 def _echo_while_running(message: Any = None, err: bool = False, **kwargs: Any) -> None:
     """``click.echo`` that lets a run go on when the reader of stdout went away (``btel evaluate … | head``):
-    the run folder is what the command makes, so stdout is pointed at /dev/null and the run finishes."""
+    the run folder is what the command makes, so stdout is pointed at /dev/null, the run finishes, and
+    the command exits 141 afterwards (:data:`._errors.STDOUT_CLOSED`)."""
     try:
         click.echo(message, err=err, **kwargs)
     except BrokenPipeError:
         if err:
             raise
+        context = click.get_current_context(silent=True)
+        if context is not None:
+            context.meta[STDOUT_CLOSED] = True
         try:
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         except (AttributeError, ValueError, OSError):  # a stdout without a descriptor (a test runner's)

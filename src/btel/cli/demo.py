@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from ..methods.roles import DEMO_METHODS
-from ._jobs import _fit_jobs, _run_jobs
+from ._jobs import _echo_while_running, _fit_jobs, _run_jobs
 from ._params import ParamCommand
 from ._options import (EXIT_SOME_ROWS_FAILED, _BUDGET_HELP, _N_JOBS_HELP, _NO_PROGRESS_HELP, _PARAMS_HELP,
                        _REFERENCE_HELP, _TIMING_THREADS_HELP, _budget_text, _budgets, _runtime_shortcuts, _split)
@@ -51,7 +51,7 @@ def demo(ctx: click.Context, n_places: int, dim: int, budget: str, methods: str,
     from ..evaluation.runs import check_run_folder
 
     check_run_folder(out, overwrite)
-    click.echo(f"synthetic route: N = {n_places} places, d = {dim}, map + 1 query traverse (seed {seed})")
+    _echo_while_running(f"synthetic route: N = {n_places} places, d = {dim}, map + 1 query traverse (seed {seed})")
     title = (f"synthetic route (seed {seed}): N = {n_places}, d = {dim}; budget {_budget_text(budgets)}; "
              "frame-aligned")
     failed = _run_jobs(jobs, route.map, route.queries, ground_truth=None, out=out, overwrite=overwrite,

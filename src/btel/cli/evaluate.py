@@ -13,7 +13,7 @@ from ..methods.roles import DEFAULT_METHOD
 from ._errors import InputError
 from ._inputs import (_load_map, _load_matrix, calibrate_evaluation, check_evaluate_calibration, check_utm_options,
                       read_ground_truth, refuse_matrix_as_model)
-from ._jobs import _fit_jobs, _run_jobs
+from ._jobs import _echo_while_running, _fit_jobs, _run_jobs
 from ._options import (EXIT_SOME_ROWS_FAILED, _BUDGET_HELP, _DELTA_HELP, _N_JOBS_HELP, _NO_PROGRESS_HELP,
                        _ORDER_HELP, _PARAMS_HELP, _REFERENCE_HELP, _TIMING_THREADS_HELP, _budgets, _int_list,
                        _runtime_shortcuts, _split, calibration_options)
@@ -177,8 +177,8 @@ def _check_inputs_unchanged(run: str, recorded: dict[str, Any] | None, current: 
     from ..evaluation.resume import changed_inputs
 
     if recorded is None:
-        click.echo(f"note: {run} was started by a btel that did not fingerprint its inputs; that they are "
-                   "unchanged is not checked.", err=True)
+        _echo_while_running(f"note: {run} was started by a btel that did not fingerprint its inputs; that they are "
+                            "unchanged is not checked.", err=True)
         return
     changed = changed_inputs(recorded, current)
     if changed:
@@ -256,8 +256,8 @@ def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tupl
     if resume_dir is not None:
         resumed = _read_resumed(ctx, o, resume_dir)
         if resumed is None:
-            click.echo(f"{resume_dir} is a complete run: nothing to resume (no method is fitted). Start a new run "
-                       "with --out, or --out RUN --overwrite to run it again.")
+            _echo_while_running(f"{resume_dir} is a complete run: nothing to resume (no method is fitted). "
+                                "Start a new run with --out, or --out RUN --overwrite to run it again.")
             return
         o, rows, recorded_inputs = resumed
     db, queries, budgets, ks = o["db"], o["queries"], o["budget"], o["ks_text"]
@@ -301,8 +301,8 @@ def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tupl
                                "positives, which have no tolerance. Use --k (R@K) instead.")
     title = run_title(Path(db or queries).name.split(".")[0], n_map, Q.shape[0], budgets, truth,
                       saved=bool(saved), fitted=bool(jobs))
-    click.echo(f"map: N = {n_map} places; queries: {Q.shape[0]} × {Q.shape[1]}; "
-               f"ground truth: {truth['rule']} ({truth['source']})")
+    _echo_while_running(f"map: N = {n_map} places; queries: {Q.shape[0]} × {Q.shape[1]}; "
+                        f"ground truth: {truth['rule']} ({truth['source']})")
     from ._names import input_names, plan_pairs
     names = input_names(db, queries, n_map, Q.shape[0])
     pairs = plan_pairs(pairs_path, [j.name for j in saved + jobs], names, (Q.shape[0], n_map), queries, db,
@@ -327,7 +327,7 @@ def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tupl
         from ..exceptions import InvalidParameterError
 
         try:  # a safety net under the options' check: no done row is dropped or kept for another setting
-            finished = check_finished_rows(resume_dir, rows, saved + jobs, echo=click.echo)
+            finished = check_finished_rows(resume_dir, rows, saved + jobs, echo=_echo_while_running)
         except InvalidParameterError as exc:
             raise click.UsageError(f"--resume: {exc}") from None
     if _run_jobs(saved + jobs, X, Q, out=out, progress=not no_progress, extra=extra, pairs=pairs,
@@ -345,8 +345,8 @@ def _ks_for_map(ks: list[int], n_map: int, given: bool) -> list[int]:
         raise click.UsageError(f"--k {_shown(above)}: R@K needs K ≤ the map's N = {n_map} places; give --k values "
                                f"up to {n_map}.")
     if above:
-        click.echo(f"note: K = {_shown(above)} of the default --k left out: R@K needs K ≤ the map's N = {n_map} "
-                   "places.")
+        _echo_while_running(f"note: K = {_shown(above)} of the default --k left out: R@K needs K ≤ "
+                            f"the map's N = {n_map} places.")
     return [k for k in ks if k <= n_map]
 
 
@@ -402,8 +402,9 @@ def _warn_unnamed_pairs(files: dict[str, Path], names: tuple[list[str] | None, l
     if not unnamed:
         return
     shown = ", ".join(str(p) for p in list(files.values())[:3]) + (" …" if len(files) > 3 else "")
-    click.echo(f"Warning: --pairs: {' and '.join(unnamed)} record no image name per row, so {shown} will name "
-               "those images by row index (from 0), not by the image names hloc matches pairs by. Image names "
-               "come with descriptors written by `btel extract` (listed in FILE.npy.json beside FILE.npy) or hloc "
-               "global-feature .h5 files (FILE.h5[:PREFIX]); give those, or map the indices to your images.",
-               err=True)
+    _echo_while_running(f"Warning: --pairs: {' and '.join(unnamed)} record no image name per row, so {shown} "
+                        "will name those images by row index (from 0), not by the image names hloc matches pairs by. "
+                        "Image names come with descriptors written by `btel extract` (listed in FILE.npy.json beside "
+                        "FILE.npy) or hloc global-feature .h5 files (FILE.h5[:PREFIX]); give those, or map the indices "
+                        "to your images.",
+                        err=True)
