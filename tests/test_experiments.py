@@ -110,6 +110,33 @@ def test_cli_experiment_quick(nordland_dir: Path, quick_runs: Path, tmp_path: Pa
 
 
 @pytest.mark.realdata
+def test_an_experiment_run_again_is_refused_unless_overwrite(nordland_dir: Path, quick_runs: Path,
+                                                             tmp_path: Path) -> None:
+    """A second run into a folder holding results (a quick one over a full one, say) is refused before it
+    prints or runs; --overwrite replaces them. Before, it replaced them silently."""
+    from btel.exceptions import OutputExistsError
+
+    args = ["experiment", "feature-ratio", "--quick", "--data", str(nordland_dir), "--out", str(tmp_path),
+            "--cache", str(quick_runs / "cache")]
+    assert CliRunner().invoke(main, args).exit_code == 0
+    written = (tmp_path / "feature-ratio" / "results.json").read_bytes()
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 2 and "holds an earlier run (results.json)" in result.output
+    assert "--overwrite" in result.output and "…" not in result.output
+    assert (tmp_path / "feature-ratio" / "results.json").read_bytes() == written
+    # `all` is refused before its first experiment when any of its folders holds a run
+    result = CliRunner().invoke(main, [*args[:1], "all", *args[2:]])
+    assert result.exit_code == 2 and "feature-ratio" in result.output and "…" not in result.output
+    (tmp_path / "frontier").mkdir()
+    (tmp_path / "frontier" / "rows.jsonl").write_text("")
+    with pytest.raises(OutputExistsError, match="interrupted frontier: --resume takes it up"):
+        run_experiment("frontier", data_root=nordland_dir, out_dir=tmp_path, quick=True, progress=False)
+    result = CliRunner().invoke(main, [*args, "--overwrite"])
+    assert result.exit_code == 0, result.output
+    assert "BTE-C c=0.1" in result.output
+
+
+@pytest.mark.realdata
 def test_frontier_in_two_processes_writes_the_rows_of_one(nordland_dir: Path, quick_runs: Path, tmp_path: Path) -> None:
     """`--jobs 2` runs the maps in two processes: the same rows, in map order, each journalled once."""
     result = CliRunner().invoke(main, ["experiment", "frontier", "--quick", "--jobs", "2", "--data", str(nordland_dir),

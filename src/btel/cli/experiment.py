@@ -26,8 +26,9 @@ from ._options import _command_line
 @click.option("--resume", is_flag=True,
               help="frontier: take up an interrupted run in OUT/frontier/ — the rows of its rows.jsonl measured "
                    "by the same btel on the same data are kept, the others run.")
+@click.option("--overwrite", is_flag=True, help="Replace an earlier run's results in OUT/NAME/ (refused otherwise).")
 def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | None, quick: bool,
-               delta: int | None, jobs: int, resume: bool) -> None:
+               delta: int | None, jobs: int, resume: bool, overwrite: bool) -> None:
     """Run one of the paper's experiments on Nordland (or 'all').
 
     \b
@@ -37,7 +38,8 @@ def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | 
     Each writes results.csv, results.json and PNG plots into OUT/NAME/; `btel report` turns the
     latest runs into docs/results.md.
     """
-    from ..experiments import EXPERIMENTS, PARALLEL, RESUMABLE, check_request, describe_row, run_experiment
+    from ..experiments import (EXPERIMENTS, PARALLEL, RESUMABLE, check_output, check_request, describe_row,
+                               output_folder, run_experiment)
 
     names = list(EXPERIMENTS) if name == "all" else [name]
     # 'all' applies --jobs and --resume where they apply; one experiment named is refused them otherwise.
@@ -46,10 +48,12 @@ def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | 
                    "resume": resume if n in RESUMABLE or name != "all" else False} for n in names}
     for n in names:  # every refusal before the first line is printed or the first experiment runs
         check_request(n, **options[n])
+        check_output(output_folder(n, out_dir, options[n]["front_end"]), overwrite=overwrite,
+                     resume=options[n]["resume"])
     for n in names:
         click.echo(f"experiment {n}{' (quick)' if quick else ''} …")
         run = run_experiment(n, data_root=data_root, out_dir=out_dir, cache_dir=cache_dir, quick=quick,
-                             command=_command_line(), **options[n])
+                             command=_command_line(), overwrite=overwrite, **options[n])
         for row in run.rows:
             click.echo("  " + describe_row(row))
         click.echo(f"  written to {run.out_dir}")

@@ -37,7 +37,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from ..exceptions import InvalidParameterError
+from ..exceptions import InvalidParameterError, OutputExistsError
 from ..evaluation.runs import run_metadata
 from ..evaluation.tables import describe_row
 from ._common import QUICK_FRAMES, ExperimentRun, NordlandData, default_nordland_root, write_results
@@ -79,7 +79,7 @@ RESUMABLE = ("frontier",)
 def run_experiment(name: str, *, data_root: str | Path | None = None, out_dir: str | Path = "runs/experiments",
                    cache_dir: str | Path | None = None, quick: bool = False, progress: bool = True,
                    command: str | None = None, front_end: dict[str, Any] | None = None,
-                   jobs: int = 1, resume: bool = False) -> ExperimentRun:
+                   jobs: int = 1, resume: bool = False, overwrite: bool = False) -> ExperimentRun:
     """Run one experiment and write ``<out_dir>/<name>/results.{csv,json}`` and its plot(s).
 
     ``front_end`` (e.g. ``{"delta": 10}``) is given to every method of the paper's experiments (a)–(f)
@@ -87,11 +87,15 @@ def run_experiment(name: str, *, data_root: str | Path | None = None, out_dir: s
     or variants themselves (beyond, front-ends, codes) refuse it. ``jobs`` > 1 runs the independent
     parts of an experiment of :data:`PARALLEL` in that many processes (the others refuse it);
     ``resume`` takes up an interrupted run of an experiment of :data:`RESUMABLE` from its journal.
+    An earlier run's results in ``<out_dir>/<name>/`` are replaced only with ``overwrite``
+    (:func:`check_output`).
 
     Raises
     ------
     InvalidParameterError
         Unknown experiment name, or an option it does not take (:func:`check_request`).
+    OutputExistsError
+        ``<out_dir>/<name>/`` holds an earlier run and neither ``overwrite`` nor ``resume`` was given.
     DataNotFoundError
         Missing Nordland folders.
     BudgetExceededError
@@ -100,8 +104,8 @@ def run_experiment(name: str, *, data_root: str | Path | None = None, out_dir: s
     front_end = {k: v for k, v in (front_end or {}).items() if v is not None} or None
     check_request(name, front_end=front_end, jobs=jobs, resume=resume)
     root = Path(data_root) if data_root else default_nordland_root()
-    suffix = "".join(f"-{k}-{v}" for k, v in sorted((front_end or {}).items()))
-    out = Path(out_dir) / f"{name}{suffix}"
+    out = output_folder(name, out_dir, front_end)
+    check_output(out, overwrite=overwrite, resume=resume)
     data = NordlandData(root, Path(cache_dir) if cache_dir else Path(out_dir) / "cache", progress=progress,
                         max_frames=QUICK_FRAMES if quick else None, front_end=front_end)
     start = time.perf_counter()
@@ -121,6 +125,32 @@ def _descriptors(run: ExperimentRun) -> str:
     (the experiments on several data sets), else the paper's Nordland descriptors."""
     named = list(dict.fromkeys(str(d) for d in (r.to_row().get("descriptor") for r in run.rows) if d))
     return "per row: " + ", ".join(named) if named else "HOG 3780-D (SeqSLAM: 64×32 patch-normalised, 2048-D)"
+
+
+def output_folder(name: str, out_dir: str | Path, front_end: dict[str, Any] | None = None) -> Path:
+    """Where experiment ``name`` writes: ``<out_dir>/<name>[-delta-W]``."""
+    front_end = {k: v for k, v in (front_end or {}).items() if v is not None}
+    return Path(out_dir) / (name + "".join(f"-{k}-{v}" for k, v in sorted(front_end.items())))
+
+
+def check_output(out: Path, *, overwrite: bool = False, resume: bool = False) -> None:
+    """Refuse to replace an earlier run's results (``results.json``, or a frontier journal) in ``out``
+    unless ``overwrite``; ``resume`` takes up a journal instead. Touches nothing.
+
+    Raises
+    ------
+    OutputExistsError
+        ``out`` is a file, or holds ``results.json`` or ``rows.jsonl`` and neither flag is given.
+    """
+    if out.exists() and not out.is_dir():
+        raise OutputExistsError(f"{str(out)!r} exists and is a file; give another --out folder.")
+    if overwrite or resume:
+        return
+    earlier = [f for f in ("results.json", "rows.jsonl") if (out / f).exists()]
+    if earlier:
+        journal = " (an interrupted frontier: --resume takes it up)" if earlier == ["rows.jsonl"] else ""
+        raise OutputExistsError(f"{str(out)!r} holds an earlier run ({', '.join(earlier)}){journal}; give "
+                                "--overwrite (overwrite=True) to replace it, or another --out folder.")
 
 
 def check_request(name: str, *, front_end: dict[str, Any] | None = None, jobs: int = 1, resume: bool = False) -> None:
