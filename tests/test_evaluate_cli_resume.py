@@ -266,3 +266,28 @@ def test_resume_compares_budgets_in_bytes(interrupted) -> None:
     assert result.exit_code == 0, result.output
     assert calls == ["itq"] and _rows(out) == [("pq", "ok", 4000), ("itq", "ok", 4000)]
 
+
+
+def test_an_interrupted_demo_is_not_resumed_and_says_how_to_run_it_again(tmp_path: Path, monkeypatch) -> None:
+    """A demo regenerates its route: `evaluate --resume` on its folder names the demo command to run again
+    (it said the folder was written by an older btel); the folder records the demo's options."""
+    import btel.evaluation.batch as ev
+
+    real = ev.measure
+
+    def measure(method, *args, **kwargs):
+        if kwargs["name"] == "lsh":
+            raise KeyboardInterrupt
+        return real(method, *args, **kwargs)
+
+    monkeypatch.setattr(ev, "measure", measure)
+    out = tmp_path / "demo"
+    result = CliRunner().invoke(main, ["demo", "--places", "150", "--dim", "16", "--methods", "pq,lsh", "--budget",
+                                       "4KB", "--no-progress", "--out", str(out)])
+    assert result.exit_code == 130, result.output
+    extra = json.loads((out / "metrics.json").read_text())["run"]["extra"]
+    assert {k: extra[k] for k in ("places", "dim", "methods", "reference")} == {
+        "places": 150, "dim": 16, "methods": ["pq", "lsh"], "reference": True}
+    result = CliRunner().invoke(main, ["evaluate", "--resume", str(out)])
+    assert result.exit_code == 2 and "is a `btel demo` run" in result.output
+    assert f"btel demo --out {out} --overwrite" in result.output and "older btel" not in result.output

@@ -55,7 +55,8 @@ def demo(ctx: click.Context, n_places: int, dim: int, budget: str, methods: str,
     title = (f"synthetic route (seed {seed}): N = {n_places}, d = {dim}; budget {_budget_text(budgets)}; "
              "frame-aligned")
     failed = _run_jobs(jobs, route.map, route.queries, ground_truth=None, out=out, overwrite=overwrite,
-                       title=title, extra={"data": "synthetic_route", "seed": seed, "budget": budgets},
+                       title=title, extra={"data": "synthetic_route", "seed": seed, "places": n_places, "dim": dim,
+                              "budget": budgets, "methods": _split(methods), "reference": not no_reference},
                        progress=not no_progress, timing_threads=timing_threads or None)
     if failed:
         ctx.exit(EXIT_SOME_ROWS_FAILED)

@@ -162,6 +162,10 @@ def _read_resumed(ctx: click.Context, given: dict[str, Any],
     extra = meta.get("extra", {})
     if not isinstance(extra, dict):  # else it would read as an older btel's run, asking for --methods
         raise _damaged(run, "run.extra", extra, "it must be an object")
+    if extra.get("data") == "synthetic_route":  # its map is generated, not read: nothing to give --resume
+        raise click.UsageError(f"--resume: {run} is a `btel demo` run, which is not resumed (it regenerates its "
+                               f"route in seconds); run `btel demo --out {run} --overwrite` with the same options "
+                               "again.")
     if meta.get("complete"):
         # An option that differs from the run's is refused here too: "nothing to resume" must not read as if
         # a new --budget had been applied.
