@@ -366,6 +366,10 @@ def test_info_shows_what_fitting_chose_and_every_stored_array(small_pair, tmp_pa
     out = run("info", model).output
     assert "n_subquantizers=null (chosen: " in out and "nbits=null (chosen: " in out
     assert "chosen at fit: dim=16" in out
+    assert "pca_dim=null (chosen: 16)" in out  # its state calls it dim: shown as metrics.json records it
+    codes = tmp_path / "codes.npz"
+    assert run("train", db, "-o", codes, "--method", "btel-codes", "--budget", "8KB").exit_code == 0
+    assert "code=auto (chosen: " in run("info", codes).output  # a parameter given as 'auto' too
     assert "stored arrays:" in out and "frontend_whitening" in out and "64 × 16  float32         4,096 B" in out
     from btel import __version__
 

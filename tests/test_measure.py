@@ -129,8 +129,10 @@ def test_measure_on_gardens_point_equals_its_parts(gardenspoint_netvlad) -> None
     assert 0 < result.recall_at_k[1] <= result.recall_at_k[5]
 
 
-def test_a_record_gives_the_parameters_the_fit_chose() -> None:
-    """metrics.json said n_subquantizers=null for pq: what ran is what the budget planner chose."""
+def test_a_record_gives_the_parameters_as_given_and_what_the_fit_chose() -> None:
+    """metrics.json said n_subquantizers=null for pq: what ran is what the budget planner chose, and it is
+    kept apart from what was given (params as given, chosen_at_fit beside them); btel-codes' code='auto'
+    was recorded as "auto" though the fit used the periodic codes."""
     from btel.datasets import synthetic_route
     from btel.evaluation import measure as measure_record
     from btel.methods import make_method
@@ -139,13 +141,18 @@ def test_a_record_gives_the_parameters_the_fit_chose() -> None:
     for name, key in (("pq", "n_subquantizers"), ("lsh", "n_bits")):
         method = make_method(name, budget="8KB")
         record = measure_record(method, route.map, route.queries, name=name)
-        assert isinstance(record.params[key], int) and record.params[key] == method._fitted_state()[key]
-        assert record.to_dict()["params"][key] == record.params[key]
+        assert record.params[key] is None
+        assert isinstance(record.chosen_at_fit[key], int) and record.chosen_at_fit[key] == method._fitted_state()[key]
+        assert record.to_dict()["chosen_at_fit"][key] == record.chosen_at_fit[key]
+        assert type(record).from_dict(record.to_dict()).chosen_at_fit == record.chosen_at_fit
+    codes = measure_record(make_method("btel-codes", budget="8KB"), route.map, route.queries, name="codes")
+    assert codes.params["code"] == "auto" and codes.chosen_at_fit["code"] == "periodic"
+    assert codes.chosen_at_fit["n_features"] == 32  # its state calls it n_selected
     # pca_dim, which pq's state calls dim: a 500-D map at 16 KB is projected to a few dimensions, and says so.
     wide = np.random.default_rng(0).standard_normal((200, 500)).astype(np.float32)
     method = make_method("pq", budget="16KB")
     record = measure_record(method, wide, wide[:20], name="pq")
-    assert record.params["pca_dim"] == method.config_.dim < 500
+    assert record.chosen_at_fit["pca_dim"] == method.config_.dim < 500
 
 
 def test_measure_takes_a_method_name_and_records_budgets_in_bytes() -> None:

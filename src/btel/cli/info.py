@@ -62,6 +62,7 @@ def _registry_name(model: Any) -> str:
 @click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
 def info(model_path: str) -> None:
     """Show what a saved MODEL is: method, parameters, front end, and the bytes of every stored array."""
+    from ..core.params import chosen_at_fit
     from ._inputs import load_model
 
     model = load_model(model_path, "usage: btel info MODEL")
@@ -74,12 +75,13 @@ def info(model_path: str) -> None:
     params = model.get_params(deep=False)
     runtime = set(getattr(model, "_runtime_params", ()))
     shown = {k: v for k, v in sorted(params.items()) if k not in runtime and k not in ("normalize", "whiten", "delta")}
-    chosen = _chosen_at_fit(model)
+    picked = chosen_at_fit(model)  # the same values as a run's metrics.json records
     click.echo("parameters: " + ", ".join(
-        f"{k}={_param_text(v)}" + (f" (chosen: {_param_text(chosen[k])})" if v is None and k in chosen else "")
+        f"{k}={_param_text(v)}" + (f" (chosen: {_param_text(picked[k])})" if k in picked else "")
         for k, v in shown.items()))
-    if chosen:
-        click.echo("chosen at fit: " + ", ".join(f"{k}={_param_text(v)}" for k, v in chosen.items()))
+    state = _state_scalars(model)
+    if state:
+        click.echo("chosen at fit: " + ", ".join(f"{k}={_param_text(v)}" for k, v in state.items()))
     _echo_storage(model)
     _echo_arrays(model)
     click.echo(f"saved by: {_saved_by(model_path)}")
@@ -99,7 +101,7 @@ def _saved_by(path: str) -> str:
     return f"btel {version} on {date}"
 
 
-def _chosen_at_fit(model: Any) -> dict[str, Any]:
+def _state_scalars(model: Any) -> dict[str, Any]:
     """What fitting decided (the budget planner's choices, sizes): the model's saved state, scalars only."""
     state = model._fitted_state() if callable(getattr(model, "_fitted_state", None)) else {}
     out = {}

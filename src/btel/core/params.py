@@ -15,7 +15,7 @@ from typing import Any
 
 from ..exceptions import InvalidParameterError
 
-__all__ = ["ParamsMixin"]
+__all__ = ["ParamsMixin", "chosen_at_fit"]
 
 
 class ParamsMixin:
@@ -110,3 +110,29 @@ class ParamsMixin:
         from sklearn.base import BaseEstimator
 
         return BaseEstimator.__sklearn_tags__(self)
+
+
+def chosen_at_fit(estimator: Any) -> dict[str, Any]:
+    """The parameters left to the fit (given as None or ``"auto"``) → the value the fit chose.
+
+    Read from the fitted model's saved state (``_fitted_state``; a state key named otherwise is mapped
+    by the class's ``_STATE_OF_PARAM``, e.g. pq's ``pca_dim`` → ``dim``): pq's ``n_subquantizers``,
+    lsh's ``n_bits``, btel-codes' ``code``. A parameter whose choice the state does not hold is left
+    out; empty for an estimator that is not fitted or keeps no state. ``btel info`` and the run records
+    (``metrics.json``'s ``chosen_at_fit``) both show this.
+    """
+    fitted_state = getattr(estimator, "_fitted_state", None)
+    if not callable(fitted_state) or not callable(getattr(estimator, "get_params", None)):
+        return {}
+    try:  # a method that did not fit (a row that did not run) has chosen nothing
+        state = fitted_state()
+    except (AttributeError, NotImplementedError):
+        return {}
+    named = getattr(estimator, "_STATE_OF_PARAM", {})
+    out = {}
+    for key, given in estimator.get_params(deep=False).items():
+        chosen = state.get(named.get(key, key))
+        left_to_fit = given is None or (isinstance(given, str) and given == "auto")
+        if left_to_fit and isinstance(chosen, (bool, int, float, str)) and chosen != given:
+            out[key] = chosen
+    return out

@@ -27,6 +27,8 @@ from ..exceptions import InvalidAnswerError, InvalidParameterError
 from .metrics import (DEFAULT_KS, TruthLike, check_ground_truth, check_points, default_curve_max,
                       default_tolerances, precision_recall, recall_at_k, recall_at_tolerance, recall_curve,
                       thin_curve)
+from ..core.modelfile import jsonable
+from ..core.params import chosen_at_fit
 from ..core.storage import budget_of, parse_budget
 from .records import EvaluationResult, _choice_of, _params_of, _storage_of
 from .timing import time_queries
@@ -203,6 +205,7 @@ def measure(
     return EvaluationResult(
         name=name if name is not None else getattr(method, "label", type(method).__name__),
         params=_params_of(method),
+        chosen_at_fit=jsonable(chosen_at_fit(method)),
         n_map=int(n_map) if n_map is not None else None,
         n_queries=int(n_queries),
         recall=recall_at_tolerance(predictions, gt, tolerances) if tolerances else {},

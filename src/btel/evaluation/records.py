@@ -48,17 +48,11 @@ _RECALL_CELL, _RANKED_CELL = re.compile(r"recall@(\d+)$"), re.compile(r"R@(\d+)$
 
 
 def _params_of(method: Any) -> dict[str, Any]:
-    """The parameters the fitted model runs with: one left to the budget planner (None) is given the
-    value the fit chose (pq's ``n_subquantizers``, lsh's ``n_bits``), as ``btel info`` shows them."""
+    """The parameters as given (``get_params(deep=False)``, JSON-safe); what the fit chose for those left
+    to it is :func:`~btel.core.params.chosen_at_fit`."""
     if getattr(method, "get_params", None) is None:
         return {}
-    try:  # a method that did not fit (a row that did not run) has chosen nothing
-        state = method._fitted_state() if callable(getattr(method, "_fitted_state", None)) else {}
-    except (AttributeError, NotImplementedError):
-        state = {}
-    named = getattr(method, "_STATE_OF_PARAM", {})  # pq's pca_dim is its state's dim
-    return {str(k): jsonable(c if v is None and isinstance(c := state.get(named.get(k, k)), (bool, int, float, str))
-                             else v) for k, v in method.get_params(deep=False).items()}
+    return {str(k): jsonable(v) for k, v in method.get_params(deep=False).items()}
 
 
 def _choice_of(method: Any) -> dict[str, Any] | None:
@@ -96,7 +90,7 @@ _FLOATS = ("fit_time_s", "query_time_s_per_query", "rank_time_s_per_query", "que
            "auc_pr_vpr_bench", "auc_pr_vpr_tutorial", "recall_at_100_precision")
 _TEXTS = ("reason", "chosen_method", "series", "ground_truth_source", "positive_rule")
 _FLAGS = ("reference", "uses_query_sequence", "budget_saturated")
-_OBJECTS = ("params", "storage_breakdown", "settings", "choice")
+_OBJECTS = ("params", "chosen_at_fit", "storage_breakdown", "settings", "choice")
 
 
 def _number(value: Any, integer: bool = False) -> bool:
@@ -157,7 +151,10 @@ class EvaluationResult:
     name : str
         Method name (used in tables, legends and file names).
     params : dict
-        ``get_params(deep=False)`` made JSON-safe (empty when the method has none).
+        ``get_params(deep=False)`` made JSON-safe, as given (empty when the method has none).
+    chosen_at_fit : dict or None
+        The parameters given as None or ``"auto"`` → the value the fit chose
+        (:func:`~btel.core.params.chosen_at_fit`); None for a row that did not fit.
     n_map : int or None
         Map places (None only when a pre-fitted method without ``n_places_`` was evaluated).
     n_queries : int
@@ -246,6 +243,7 @@ class EvaluationResult:
 
     name: str
     params: dict[str, Any] = field(default_factory=dict)
+    chosen_at_fit: dict[str, Any] | None = None
     n_map: int | None = None
     n_queries: int = 0
     recall: dict[int, float] = field(default_factory=dict)
@@ -324,6 +322,7 @@ class EvaluationResult:
             _check_row(data)
             result = cls(
                 name=str(data["name"]), params=dict(data.get("params") or {}), n_map=data.get("n_map"),
+                chosen_at_fit=data.get("chosen_at_fit"),
                 n_queries=int(data["n_queries"]), recall={int(t): float(v) for t, v in (data.get("recall") or {}).items()},
                 recall_curve=np.asarray(data.get("recall_curve") or [], dtype=np.float64),
                 recall_at_k=(None if data.get("recall_at_k") is None
@@ -362,6 +361,7 @@ class EvaluationResult:
             "minimum_bytes": self.minimum_bytes,
             "budget_saturated": self.budget_saturated,
             "params": self.params,
+            "chosen_at_fit": self.chosen_at_fit,
             "n_map": self.n_map,
             "n_queries": self.n_queries,
             "recall": {int(t): float(r) for t, r in self.recall.items()},

@@ -322,6 +322,9 @@ class RYTHLocalizer(PlaceLocalizer):
     def _stored_arrays(self) -> dict[str, np.ndarray]:
         return self.hyperplanes_.arrays("")
 
+    #: The state key holding what the fit chose for a parameter of another name (``chosen_at_fit``).
+    _STATE_OF_PARAM = {"n_features": "n_selected"}
+
     def _fitted_state(self) -> dict[str, Any]:
         return {"n_selected": self.n_selected_, "periods": list(self.periods_)}
 

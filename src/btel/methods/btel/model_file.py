@@ -40,6 +40,9 @@ class TreeModelFile:
             arrays["region_starts"] = self.region_starts_.astype(starts_dtype(self.n_blocks_))
         return arrays
 
+    #: The state key holding what the fit chose for a parameter of another name (``chosen_at_fit``).
+    _STATE_OF_PARAM = {"n_features": "n_selected"}
+
     def _fitted_state(self) -> dict[str, Any]:
         return {"n_selected": self.n_selected_, "n_regions": self.n_regions_, "n_unconverged": self.n_unconverged_}
 

@@ -54,6 +54,9 @@ class CodeModelFile:
             arrays["columns"] = self.columns_
         return arrays
 
+    #: The state key holding what the fit chose for a parameter of another name (``chosen_at_fit``).
+    _STATE_OF_PARAM = {"n_features": "n_selected"}
+
     def _fitted_state(self) -> dict[str, Any]:
         return {"n_codes": self.n_codes_, "n_selected": self.n_selected_, "weight_bits": self.weight_bits_,
                 "code": self.code_, "code_reason": self.code_reason_, "code_seed": self.code_seed_,
