@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import csv
 import json
+import os
+import re
+import shutil
+import subprocess
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +58,7 @@ def test_write_run_files_and_recomputed_recall(tmp_path: Path) -> None:
     assert run["extra"] == {"data": "toy"}
     assert {"btel", "numpy", "scikit-learn", "faiss", "python"} <= set(run["versions"])
     assert run["date_utc"] and run["platform"]
+    assert run["updated_utc"] >= run["date_utc"] and run["seconds"] >= 0  # when it ended, and how long it took
     assert [r["name"] for r in metrics["results"]] == ["NN euclid", "NN noisier", "ahead"]
 
     for entry, result in zip(metrics["results"], results):
@@ -70,6 +75,12 @@ def test_write_run_files_and_recomputed_recall(tmp_path: Path) -> None:
     assert [r["method"] for r in rows] == ["NN euclid", "NN noisier", "ahead"]
     assert float(rows[0]["recall@5"]) == results[0].recall[5]
     assert [r["status"] for r in rows] == ["ok"] * 3
+    described = metrics["columns"]["metrics.csv"]  # every column of metrics.csv says what it is
+    assert all(c in described or re.sub(r"@\d+$", "@t", c) in described or re.sub(r"@\d+$", "@K", c) in described
+               for c in rows[0])
+    with open(report.predictions["NN euclid"], newline="") as fh:
+        header = {re.sub(r"^rank_\d+$", "rank_K", c) for c in next(csv.reader(fh))}
+        assert header <= set(metrics["columns"]["predictions_<method>.csv"]) and "rank_K" in header
     assert int(rows[0]["nbytes"]) == results[0].nbytes and rows[2]["nbytes"] == ""
     assert float(rows[1]["R@5"]) == results[1].recall_at_k[5] and rows[2]["R@5"] == ""  # no rank(): R@1 only
     with open(report.predictions["ahead"], newline="") as fh:
@@ -137,6 +148,15 @@ def test_run_metadata_and_recompute_errors(tmp_path: Path) -> None:
     meta = run_metadata(["btel", "demo", "--out", "a b"])
     assert meta["command"] == "btel demo --out 'a b'"
     assert meta["versions"]["btel"] and meta["cpu_count"]
+    # where it ran and with how many threads, and which source: a run that describes itself
+    assert meta["cwd"] == os.getcwd() and isinstance(meta["threads"]["libraries"], list)
+    assert any(lib["user_api"] == "blas" and lib["num_threads"] >= 1 for lib in meta["threads"]["libraries"])
+    checkout = Path(__file__).resolve().parents[1]
+    if (checkout / ".git").exists() and shutil.which("git"):  # an editable install from a clone (CI's)
+        head = subprocess.run(["git", "-C", str(checkout), "rev-parse", "HEAD"], capture_output=True, text=True)
+        assert meta["btel_commit"] == head.stdout.strip()
+    else:
+        assert meta["btel_commit"] is None
     with pytest.raises(DataNotFoundError, match="does not exist"):
         recompute_recall_from_csv(tmp_path / "missing.csv")
     (tmp_path / "other.csv").write_text("a,b\n1,2\n")

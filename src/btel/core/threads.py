@@ -232,3 +232,17 @@ def max_threads() -> int:
     except Exception:  # noqa: BLE001 - a description of the machine, never a reason to fail a run
         counts = []
     return max(counts, default=0) or (os.cpu_count() or 1)
+
+
+#: Environment variables that set the numerical libraries' thread pools (recorded by :func:`thread_settings`).
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS")
+
+
+def thread_settings() -> dict[str, Any]:
+    """The thread pools a run starts with: the variables of :data:`THREAD_VARIABLES` that are set, and
+    every loaded BLAS/OpenMP library with its version and threads (threadpoolctl's ``threadpool_info``)."""
+    from threadpoolctl import threadpool_info
+
+    libraries = [{k: info.get(k) for k in ("user_api", "internal_api", "version", "num_threads")}
+                 for info in threadpool_info()]
+    return {"environment": {k: os.environ[k] for k in THREAD_VARIABLES if k in os.environ}, "libraries": libraries}

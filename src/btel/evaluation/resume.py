@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -155,7 +156,8 @@ def resume_writer(out_dir: str | os.PathLike, finished: Sequence[EvaluationResul
     now = run_metadata(command)
     resumed = previous.get("resumed") if isinstance(previous.get("resumed"), list) else []
     writer.meta = {**now, **{k: v for k, v in previous.items() if k not in ("complete", "extra")},
-                   "resumed": [*resumed, {k: now[k] for k in ("command", "date_utc", "versions")}]}
+                   "resumed": [*resumed, {k: now[k] for k in ("command", "cwd", "date_utc", "btel_commit",
+                                                              "versions")}]}
     if extra:
         writer.meta["extra"] = jsonable(dict(extra))
     writer.metrics_json = writer.out_dir / "metrics.json"
@@ -164,4 +166,5 @@ def resume_writer(out_dir: str | os.PathLike, finished: Sequence[EvaluationResul
                           for r in finished if r.ok}
     writer.plots = []
     writer.query_names = writer.db_names = None
+    writer._started = time.monotonic()  # the run's "seconds" are then this resume's
     return writer

@@ -18,6 +18,7 @@ import platform
 import re
 import shlex
 import sys
+import time
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,7 +29,7 @@ import numpy as np
 from ..core.modelfile import jsonable
 from .metrics import DEFAULT_TOLERANCES, recall_at_tolerance
 from .records import EvaluationResult
-from .tables import calibration_markdown, metrics_csv_text, predictions_csv_text
+from .tables import RUN_COLUMNS, calibration_markdown, metrics_csv_text, predictions_csv_text
 from ..exceptions import DataNotFoundError, InvalidParameterError, OutputExistsError
 
 __all__ = ["RunReport", "RunWriter", "check_run_folder", "run_metadata", "write_run",
@@ -68,15 +69,48 @@ def _package_version(*names: str) -> str | None:
     return None
 
 
+def _source_commit() -> str | None:
+    """The git commit of btel's source when it runs from a git checkout (``pip install -e``), else None."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[3]
+    if not (root / ".git").exists():
+        return None
+    try:
+        done = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True,
+                              timeout=5, check=False)
+    except (OSError, subprocess.SubprocessError):  # no git on the machine, or it hung
+        return None
+    commit = done.stdout.strip()
+    return commit if done.returncode == 0 and re.fullmatch(r"[0-9a-f]{40,64}", commit) else None
+
+
+def _cpu_model() -> str | None:
+    """The processor's model name (Linux: /proc/cpuinfo), or None."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
+            for line in fh.read(1 << 16).splitlines():
+                if line.startswith("model name") and ":" in line:
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or None
+
+
 def run_metadata(command: str | Sequence[str] | None = None) -> dict[str, Any]:
-    """Where and how a run was made: command line, library versions, platform, UTC date."""
+    """Where and how a run was made: command line and working directory, btel's version and source
+    commit (a git checkout), library versions, platform, processor, thread pools, UTC date."""
+    from ..core.threads import thread_settings
+
     if command is None:
         command = shlex.join(sys.argv)
     elif not isinstance(command, str):
         command = shlex.join(str(c) for c in command)
     return {
         "command": command,
+        "cwd": os.getcwd(),
         "date_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "btel_commit": _source_commit(),
         "versions": {
             "btel": _package_version("btel"),
             "python": platform.python_version(),
@@ -88,7 +122,9 @@ def run_metadata(command: str | Sequence[str] | None = None) -> dict[str, Any]:
         },
         "platform": platform.platform(),
         "machine": platform.machine(),
+        "cpu": _cpu_model(),
         "cpu_count": os.cpu_count(),
+        "threads": thread_settings(),
     }
 
 
@@ -250,6 +286,7 @@ class RunWriter:
         self.out_dir = Path(out_dir)
         self._lock: Path | None = _prepare_out_dir(self.out_dir, overwrite)
         self.meta = run_metadata(command)
+        self._started = time.monotonic()
         if extra:
             self.meta["extra"] = jsonable(dict(extra))
         self.metrics_json = self.out_dir / "metrics.json"
@@ -268,7 +305,11 @@ class RunWriter:
                 f"method names {[r.name for r in results]} are not distinct once made file-safe ({safe}); "
                 "give each evaluate(...) call its own name=."
             )
-        payload = {"run": {**self.meta, "complete": bool(complete)}, "results": [r.to_dict() for r in results]}
+        now = _dt.datetime.now(_dt.timezone.utc)
+        timing = {"updated_utc": now.isoformat(timespec="seconds"),
+                  "seconds": round(time.monotonic() - self._started, 3)}  # this writer's; a resumed run's own part
+        payload = {"run": {**self.meta, **timing, "complete": bool(complete)}, "columns": RUN_COLUMNS,
+                   "results": [r.to_dict() for r in results]}
         _atomic_write_text(self.metrics_json, json.dumps(payload, indent=2, allow_nan=False, default=repr) + "\n")
         _atomic_write_text(self.metrics_csv, metrics_csv_text(results))
         for r, stem in zip(results, safe):

@@ -180,6 +180,40 @@ def _fmt(value: float | int | None) -> str:
     return repr(float(value)) if isinstance(value, float) else str(value)
 
 
+#: What each column of a run folder's CSV files means (written into its metrics.json as ``columns``).
+RUN_COLUMNS: dict[str, dict[str, str]] = {
+    "metrics.csv": {
+        "method": "the row's name: a method, a --model file's name, or name@budget in a budget sweep",
+        "chosen_method": "what an auto row ran (empty for the other rows)",
+        "status": "ok, or why the row has no figures: does not fit (the budget), failed, refused, not run",
+        "reference": "1 for the unbudgeted reference row (brute force)",
+        "uses_query_sequence": "1 when answers depend on the query sequence (SeqSLAM, a delta front end)",
+        "budget": "bytes the method was given (empty: unbudgeted)",
+        "n_map": "map places N", "n_queries": "query rows",
+        "nbytes": "bytes the fitted model stores, by btel's storage rule (docs/guide/concepts.md)",
+        "budget_saturated": "1 when the model is the largest its parameters allow: more budget gives the same model",
+        "fit_time_s": "wall-clock seconds of fit",
+        "query_time_s_per_query": "median seconds of predict on all queries at once, divided by their number",
+        "query_latency_s": "median seconds of one query answered alone",
+        "n_threads": "threads the numerical libraries could use while timing",
+        "recall@t": "share of queries whose top-1 place is within t frames (or places) of a true place",
+        "R@K": "share of queries with a true place among their top K candidates",
+        "auc_pr_vpr_bench": "area under precision-recall of accepting each top-1 by its score, as VPR-Bench "
+                            "computes it",
+        "auc_pr_vpr_tutorial": "the same area as VPR_Tutorial computes it (docs/decisions/auc-pr.md)",
+        "recall@100%precision": "share of queries accepted before the first wrong top-1, by score",
+        "reason": "the message behind a status other than ok",
+    },
+    "predictions_<method>.csv": {
+        "query": "query row, from 0", "prediction": "top-1 place (map row, from 0)",
+        "true": "the query's true place (one per query)", "positive": "one of the query's positives (-1: none)",
+        "correct": "1 when the top-1 is a true place", "rank_K": "the K-th ranked candidate",
+        "query_name, prediction_name, true_name / positive_name": "the image names of those rows, where the inputs "
+                                                                   "record them",
+    },
+}
+
+
 def metrics_csv_text(results: Sequence[EvaluationResult]) -> str:
     """The ``metrics.csv`` of a run folder: one row per record, every recall@t and R@K any row has
     (``chosen_method``: what an ``auto`` row ran; empty for the others)."""
