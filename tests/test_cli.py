@@ -88,6 +88,17 @@ def test_demo_runs_and_writes_a_run_folder(tmp_path: Path) -> None:
     assert (out / "recall_vs_tolerance.png").stat().st_size > 0
 
 
+def test_demo_joins_repeated_methods_and_budgets_as_evaluate_does(tmp_path: Path) -> None:
+    """`--methods pq --methods lsh --budget 4KB --budget 8KB` fitted lsh at 8KB only (the last of each)."""
+    out = tmp_path / "demo"
+    result = run("demo", "--places", "150", "--dim", "16", "--methods", "pq", "--methods", "lsh", "--budget", "4KB",
+                 "--budget", "8KB", "--no-reference", "--no-progress", "--out", out)
+    assert result.exit_code == 0, result.output
+    rows = json.loads((out / "metrics.json").read_text())["results"]
+    assert [(r["name"], r["budget"]) for r in rows] == [("pq@4KB", 4000), ("pq@8KB", 8000), ("lsh@4KB", 4000),
+                                                        ("lsh@8KB", 8000)]
+
+
 @pytest.mark.realdata
 def test_nordland_extract_train_localize_evaluate(nordland_dir: Path, tmp_path: Path) -> None:
     """extract → train → localize → evaluate on real Nordland frames (every 8th, to stay fast)."""

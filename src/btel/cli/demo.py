@@ -17,9 +17,10 @@ from ._options import (EXIT_SOME_ROWS_FAILED, _BUDGET_HELP, _N_JOBS_HELP, _NO_PR
 @click.command(cls=ParamCommand)
 @click.option("--places", "n_places", default=2000, show_default=True, help="Places on the synthetic route.")
 @click.option("--dim", default=512, show_default=True, help="Descriptor dimension.")
-@click.option("--budget", default="64KB", show_default=True, help=_BUDGET_HELP)
-@click.option("--methods", default=",".join(DEMO_METHODS), show_default=True,
-              help="Comma-separated method names (see `btel methods`).")
+@click.option("--budget", multiple=True, default=("64KB",), show_default=True,
+              help=_BUDGET_HELP + " Repeatable, the lists are joined.")
+@click.option("--methods", multiple=True, default=(",".join(DEMO_METHODS),), show_default=True,
+              help="Comma-separated method names (see `btel methods`); repeatable, the lists are joined.")
 @click.option("--no-reference", is_flag=True, help=_REFERENCE_HELP)
 @click.option("--seed", default=0, show_default=True, help="Random seed of the route.")
 @click.option("--param", "param_texts", multiple=True, metavar="[METHOD:]NAME=VALUE", help=_PARAMS_HELP)
@@ -30,7 +31,8 @@ from ._options import (EXIT_SOME_ROWS_FAILED, _BUDGET_HELP, _N_JOBS_HELP, _NO_PR
 @click.option("--n-jobs", type=int, default=None, help=_N_JOBS_HELP)
 @click.option("--timing-threads", type=click.IntRange(min=0), default=1, show_default=True, help=_TIMING_THREADS_HELP)
 @click.pass_context
-def demo(ctx: click.Context, n_places: int, dim: int, budget: str, methods: str, no_reference: bool, seed: int,
+def demo(ctx: click.Context, n_places: int, dim: int, budget: tuple[str, ...], methods: tuple[str, ...],
+         no_reference: bool, seed: int,
          param_texts: tuple[str, ...], out_dir: str | None, overwrite: bool, no_progress: bool,
          n_jobs: int | None, timing_threads: int) -> None:
     """Run the main job on the embedded default: a synthetic route, several methods, a table and a plot.
@@ -43,10 +45,11 @@ def demo(ctx: click.Context, n_places: int, dim: int, budget: str, methods: str,
     """
     from ..datasets import synthetic_route
 
-    budgets = _budgets(budget)
+    budgets = _budgets(",".join(budget))  # --budget 8KB --budget 16KB is 8KB,16KB (the last one alone before)
+    names = _split(",".join(methods))
     route = synthetic_route(n_places, dim, seed=seed)
     out = Path(out_dir) if out_dir else Path("runs") / time.strftime("demo-%Y%m%d-%H%M%S")
-    jobs = _fit_jobs(_split(methods), budgets, param_texts, reference=not no_reference,
+    jobs = _fit_jobs(names, budgets, param_texts, reference=not no_reference,
                      shortcuts=_runtime_shortcuts(no_progress, n_jobs))
     from ..evaluation.runs import check_run_folder
 
@@ -56,7 +59,7 @@ def demo(ctx: click.Context, n_places: int, dim: int, budget: str, methods: str,
              "frame-aligned")
     failed = _run_jobs(jobs, route.map, route.queries, ground_truth=None, out=out, overwrite=overwrite,
                        title=title, extra={"data": "synthetic_route", "seed": seed, "places": n_places, "dim": dim,
-                              "budget": budgets, "methods": _split(methods), "reference": not no_reference},
+                              "budget": budgets, "methods": names, "reference": not no_reference},
                        progress=not no_progress, timing_threads=timing_threads or None)
     if failed:
         ctx.exit(EXIT_SOME_ROWS_FAILED)
