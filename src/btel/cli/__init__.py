@@ -130,7 +130,8 @@ def main() -> None:
       btel extract IMAGES_DIR -o db.npy --descriptor hog
       btel train db.npy -o map.btel.npz --budget 500KB
       btel localize map.btel.npz queries.npy -o predictions.csv
-      btel evaluate --db db.npy --queries queries.npy --methods btel-c,btel-r,pq --budget 500KB --out runs/x
+      btel evaluate --db db.npy --queries queries.npy \\
+          --methods auto,btel-codes,lsh,pq --budget 64KB --out runs/x
     Try `btel demo` first: it needs no data.
     """
 

@@ -69,7 +69,7 @@ _BTEL = ".btel.localizer", "BTELocalizer"
 #: class and one line here.
 _ENTRIES: dict[str, _Entry] = {
     "btel-c": _Entry(*_BTEL, {"scheme": "compressed", "n_regions": 1},
-                     "BTE-C: one linear classifier per bit of the place index, O(log N) bytes (the paper)"),
+                     "BTE-C: one linear classifier per bit of the place index, O(d log N) bytes (the paper)"),
     "btel-f": _Entry(*_BTEL, {"scheme": "full", "n_regions": 1},
                      "BTE-F: one classifier per tree node, O(N) bytes (the paper's foil)"),
     "btel-r": _Entry(*_BTEL, {"scheme": "compressed", "n_regions": 20},

@@ -21,5 +21,5 @@ REFERENCE_METHOD = "bruteforce"
 #: all (Gardens Point night → day 0.530 vs 0.665), so both references are shown.
 WHITENED_REFERENCE: tuple[str, dict[str, str]] = ("bruteforce shrink", {"whiten": "shrink"})
 
-#: The methods ``btel demo`` compares when none are named (the paper's, output codes, PQ, the reference).
-DEMO_METHODS: tuple[str, ...] = ("btel-c", "btel-r", "btel-codes", "pq", "bruteforce")
+#: The methods ``btel demo`` compares when none are named (the default, the paper's, output codes, PQ, the reference).
+DEMO_METHODS: tuple[str, ...] = ("auto", "btel-c", "btel-r", "btel-codes", "pq", "bruteforce")

@@ -49,14 +49,14 @@ class BTELocalizer(TreeDecoding, TreeModelFile, PlaceLocalizer):
     """Binary tree encoding for visual localization (BTEL; Le, Hoang & Milford).
 
     Learns b = ceil(log2 N) linear classifiers that predict the bits of a place's index, so the
-    map costs O(log N) bytes instead of one code per image. Optionally the route is first split
+    map costs b·d' weights, O(d' log N) bytes, instead of one code per image. Optionally the route is first split
     into r regions (Kernel Temporal Segmentation) with a region classifier and one tree each.
 
     Parameters
     ----------
     scheme : {'compressed', 'full'}
-        'compressed' (BTE-C): one classifier per bit, O(log N) storage. 'full' (BTE-F): one per
-        internal tree node, O(N) storage (the paper's foil).
+        'compressed' (BTE-C): one classifier per bit, O(d log N) storage; 'full' (BTE-F): one per
+        internal tree node, O(N d) storage (the paper's foil).
     classifier : {'svm', 'logistic'}
         L2-regularised linear SVM with the squared hinge loss, or L2 logistic regression (the
         objectives of liblinear; :mod:`btel.learning.solvers`).
