@@ -83,6 +83,7 @@ def _raise_in(command: str, monkeypatch: pytest.MonkeyPatch, error: BaseExceptio
     import btel.cli.localize
     import btel.cli.train
     import btel.datasets
+    import btel.evaluation.runfile
     import btel.descriptors.extract
     import btel.experiments
     import btel.experiments.report
@@ -92,7 +93,7 @@ def _raise_in(command: str, monkeypatch: pytest.MonkeyPatch, error: BaseExceptio
               "evaluate": (btel.cli.evaluate, "_load_matrix"), "extract": (btel.descriptors.extract, "extract_cached"),
               "info": (btel, "load"), "methods": (btel.methods.registry, "make_method"),
               "experiment": (btel.experiments, "run_experiment"), "report": (btel.experiments.report, "write_report"),
-              "demo": (btel.datasets, "synthetic_route"), "show": (btel.cli._gallery, "write_galleries")}[command]
+              "demo": (btel.datasets, "synthetic_route"), "show": (btel.evaluation.runfile, "describe_run")}[command]
     if command == "localize":
         monkeypatch.setattr(btel, "load", lambda path: None)
     monkeypatch.setattr(*target, fail)

@@ -204,7 +204,7 @@ def test_show_refuses_a_row_name_that_is_no_string(image_run: Path, tmp_path: Pa
     payload = json.loads((run / "metrics.json").read_text())
     payload["results"][0]["name"] = 5
     (run / "metrics.json").write_text(json.dumps(payload))
-    _refused(invoke("show", run), f"{run / 'metrics.json'}: results[0]", "name and status are strings",
+    _refused(invoke("show", run), f"{run / 'metrics.json'}: results[0]", "field 'name' must be a string",
              "run `btel evaluate` again")
 
 

@@ -116,15 +116,22 @@ def _run_names(meta_path: Path) -> tuple[dict[str, Any], list[str]]:
     return extra, names
 
 
-def write_galleries(run: Path, *, n_rows: int = GALLERY_ROWS, overwrite: bool = True) -> list[Path]:
+class NoImagesError(InputError):
+    """The run's inputs record no images on disk, so it has no match gallery to draw."""
+
+
+def write_galleries(run: Path, *, n_rows: int = GALLERY_ROWS, overwrite: bool = True,
+                    kept: list[Path] | None = None) -> list[Path]:
     """Draw ``gallery_<method>.png`` in the run folder ``run`` for every method with predictions,
-    when the run's ``--db`` and ``--queries`` record their images. Returns the files written.
+    when the run's ``--db`` and ``--queries`` record their images. Returns the files written; a gallery
+    already there is replaced only with ``overwrite``, else appended to ``kept``.
 
     Raises
     ------
     InputError
-        ``run`` has no metrics.json, or the images of its inputs are not recorded / not on disk
-        (the message says which).
+        ``run`` has no metrics.json, or a file of it is damaged (the message names it).
+    NoImagesError
+        The images of its inputs are not recorded or not on disk (the message says which).
     """
     from ..datasets.row_names import row_images
     from ..evaluation.gallery import plot_match_gallery
@@ -135,14 +142,14 @@ def write_galleries(run: Path, *, n_rows: int = GALLERY_ROWS, overwrite: bool = 
     extra, names = _run_names(meta_path)
     db, queries = extra.get("db"), extra.get("queries")
     if db is None and queries is None:
-        raise InputError(f"{run} records no input files: its descriptors were generated or loaded by btel itself "
+        raise NoImagesError(f"{run} records no input files: its descriptors were generated or loaded by btel itself "
                          "(btel demo, btel experiment), so it has no images to show; the match gallery is drawn for "
                          "a `btel evaluate` run on descriptors written by `btel extract` (they record their images).")
     q_images, db_images = row_images(queries), row_images(db)
     if q_images is None or db_images is None:
         missing = [f"{option} {path}" if path else f"{option} (not given)" for option, path, images
                    in (("--db", db, db_images), ("--queries", queries, q_images)) if images is None]
-        raise InputError(
+        raise NoImagesError(
             f"the match gallery needs the images of the run's inputs, and {' and '.join(missing)} "
             f"{'records' if len(missing) == 1 else 'record'} none on disk (descriptors written by btel extract "
             "record their image folder in the .json beside them; a --model run has no --db images).")
@@ -156,7 +163,9 @@ def write_galleries(run: Path, *, n_rows: int = GALLERY_ROWS, overwrite: bool = 
             continue
         target = run / f"gallery_{safe_file_name(name)}.png"
         if target.exists() and not overwrite:
-            raise click.UsageError(f"{target} already exists; give --overwrite to draw it again.")
+            if kept is not None:
+                kept.append(target)
+            continue
         written.append(plot_match_gallery(q_images, db_images, read["pred"], read["true"], read["correct"], target,
                                           n_rows=n_rows, title=f"{name} — {run.name}",
                                           true_label=read["label"]))
@@ -184,14 +193,37 @@ def galleries_after_run(run: Path, extra: dict[str, Any]) -> None:
               help="Queries shown per gallery (failures and successes, spread over the query order).")
 @click.option("--overwrite", is_flag=True, help="Replace gallery_<method>.png files already in RUN.")
 def show_cmd(run: str, n_rows: int, overwrite: bool) -> None:
-    """Draw the match gallery of each method of the finished run folder RUN: gallery_<method>.png.
+    """Show what the run folder RUN records, and draw its match galleries.
 
-    Each row: a query image | its top-1 retrieved map image (green frame: correct, red: wrong) |
-    the true place's map image. Needs a run of descriptors written by `btel extract` from image
-    folders (their .json records the images) whose images are still on disk.
+    \b
+    Prints the command and where it ran, when, the btel and library versions, the machine and its
+    threads, every input with its fingerprint, the ground truth, the results table and what each fit
+    chose. Then, for a run whose descriptors were written by `btel extract` from image folders still
+    on disk, draws gallery_<method>.png: each row a query image | its top-1 retrieved map image (green
+    frame: correct, red: wrong) | the true place's map image. `btel evaluate` draws them after such a
+    run; a gallery already in RUN is kept unless --overwrite.
     """
-    written = write_galleries(Path(run), n_rows=n_rows, overwrite=overwrite)
-    if not written:
-        raise InputError(f"{run}: no method's predictions name a true place to show.")
+    from ..evaluation.runfile import describe_run
+    from ..evaluation.tables import terminal_width
+    from ..exceptions import BTELError
+
+    folder = Path(run)
+    if not os.path.lexists(folder / "metrics.json"):  # a FIFO or folder there: refused by the reader
+        raise InputError(f"{run} has no metrics.json; give a run folder written by btel evaluate or btel demo.")
+    try:
+        text = describe_run(folder, terminal_width())
+    except BTELError as exc:
+        raise InputError(str(exc)) from None
+    click.echo(text)
+    kept: list[Path] = []
+    try:
+        written = write_galleries(folder, n_rows=n_rows, overwrite=overwrite, kept=kept)
+    except NoImagesError as exc:
+        click.echo(f"no match gallery: {exc.message}")
+        return
     for path in written:
         click.echo(f"gallery: {path}")
+    for path in kept:
+        click.echo(f"gallery: {path} (kept; --overwrite draws it again)")
+    if not written and not kept:
+        click.echo("no match gallery: no method's predictions name a true place to show.")
