@@ -347,6 +347,21 @@ def test_evaluate_and_demo_params_for_every_method_or_one(small_pair, tmp_path: 
     assert not (tmp_path / "demo2").exists()
 
 
+def test_an_every_method_param_skips_the_reference_row_btel_added_where_it_lacks_it(small_pair, tmp_path: Path) -> None:
+    """`--methods lsh --param random_state=3` was refused: "bruteforce has no parameter 'random_state'", for the
+    reference row the user never named. Named, bruteforce still refuses it."""
+    db, q = small_pair
+    out = tmp_path / "run"
+    result = run("evaluate", "--db", db, "--queries", q, "--methods", "lsh", "--budget", "4KB", "--param",
+                 "random_state=3", "--no-progress", "--out", out)
+    assert result.exit_code == 0, result.output
+    params = {r["name"]: r["params"] for r in json.loads((out / "metrics.json").read_text())["results"]}
+    assert params["lsh"]["random_state"] == 3 and "random_state" not in params["bruteforce"]
+    result = run("evaluate", "--db", db, "--queries", q, "--methods", "lsh,bruteforce", "--budget", "4KB", "--param",
+                 "random_state=3", "--out", tmp_path / "run2")
+    assert result.exit_code == 2 and "bruteforce has no parameter 'random_state'" in result.output
+
+
 def test_methods_lists_parameters() -> None:
     result = run("methods", "--params")
     assert result.exit_code == 0

@@ -25,8 +25,8 @@ def _fit_jobs(names: list[str], budgets: list[str | None], param_texts: tuple[st
     from ..evaluation.inputs import make_jobs
     from ..methods.registry import REFERENCE_METHOD
 
-    checked = [*names, REFERENCE_METHOD] if reference and REFERENCE_METHOD not in names else names
-    params = _params_by_method(checked, param_texts, shortcuts=shortcuts)
+    added = (REFERENCE_METHOD,) if reference and REFERENCE_METHOD not in names else ()
+    params = _params_by_method([*names, *added], param_texts, shortcuts=shortcuts, added=added)
     return make_jobs(names, budgets, params, reference=reference)
 
 

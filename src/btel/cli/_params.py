@@ -55,13 +55,16 @@ def _check_value(method: str, name: str, value: Any, given: str) -> Any:
 
 
 def _params_by_method(methods: list[str], param_texts: tuple[str, ...], *,
-                      shortcuts: dict[str, tuple[str, Any]] | None = None) -> dict[str, dict[str, Any]]:
+                      shortcuts: dict[str, tuple[str, Any]] | None = None,
+                      added: tuple[str, ...] = ()) -> dict[str, dict[str, Any]]:
     """Each method's parameters, every name and value checked before anything is fitted.
 
     Layers, later ones overriding: ``shortcuts`` (parameter name → (option, value) of each named
     option given), ``--param NAME=VALUE`` (every method), ``--param METHOD:NAME=VALUE`` (that
     method). A shortcut and ``--param`` setting one name, a name given twice in one layer, a name a
-    method does not have, or a value its constraints refuse, is a usage error.
+    method does not have, or a value its constraints refuse, is a usage error — except that a method
+    the run ``added`` itself (the unbudgeted reference) takes an every-method ``--param`` only where it
+    has the parameter: the user never named it.
     """
     from ..evaluation.inputs import RUNTIME_PARAMS  # runtime flags: how a method runs, not what it computes
 
@@ -90,7 +93,8 @@ def _params_by_method(methods: list[str], param_texts: tuple[str, ...], *,
             if name not in valid and name not in RUNTIME_PARAMS:
                 raise click.UsageError(f"{option} sets parameter {name!r}, which {method} does not have; "
                                        f"{method} takes: {', '.join(valid)}.")
-        given = {**layers[""], **layers.get(method, {})}
+        every = {n: v for n, v in layers[""].items() if method not in added or n in valid}
+        given = {**every, **layers.get(method, {})}
         for name in given:
             if name not in valid:
                 hint = (f" (--param {name}=… applies to every method; write METHOD:{name}=… for one)"
