@@ -315,7 +315,7 @@ def test_cli_train_calibrate_on_the_gardens_point_sample_writes_the_table_and_no
     "args, message",
     [
         (["--method", "lsh", "--calibrate", "q.npy"], "Use --method auto"),
-        (["--calibrate-truth", "gt.npy"], "apply with --calibrate"),
+        (["--calibrate-truth", "gt.npy"], "--calibrate-truth applies with --calibrate QUERIES"),
     ],
 )
 def test_cli_train_refuses_calibration_options_without_auto_or_queries(args, message, tmp_path) -> None:

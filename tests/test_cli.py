@@ -414,3 +414,16 @@ def test_train_and_info_say_how_much_of_the_budget_the_model_uses(small_pair, tm
     assert run("train", db, "-o", spent, "--method", "lsh", "--budget", "2KB").exit_code == 0
     line = next(line for line in run("info", spent).output.splitlines() if line.strip().startswith("budget "))
     assert line.split()[:3] == ["budget", "2,000", "B"] and line.endswith("% used)")  # no cap reached
+
+
+def test_messages_name_what_is_missing_in_the_command_lines_words(small_pair, tmp_path: Path) -> None:
+    """`localize MODEL q.npy` without -o said "give QUERIES and -o/--output" though QUERIES was given;
+    `demo --places 0` named the library's n_places."""
+    db, q = small_pair
+    model = tmp_path / "m.npz"
+    assert run("train", db, "-o", model, "--method", "lsh", "--budget", "4KB").exit_code == 0
+    result = run("localize", model, q)
+    assert result.exit_code == 2 and "give -o/--output FILE (or use --stream)" in result.output
+    assert "QUERIES" not in result.output.splitlines()[-1]
+    result = run("demo", "--places", "1", "--out", tmp_path / "demo")
+    assert result.exit_code == 2 and "'--places'" in result.output and "n_places" not in result.output

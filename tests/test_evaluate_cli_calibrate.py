@@ -120,8 +120,8 @@ def test_calibration_ground_truth_utm_from_the_image_names(files, tmp_path: Path
 
 @pytest.mark.parametrize("args, message", [
     (["--model", "{model}", "--calibrate", "{q_even}"], "saved --model files are fitted already"),
-    (["--db", "{db}", "--calibrate-truth", "{t_even}"], "apply with --calibrate QUERIES"),
-    (["--db", "{db}", "--calibrate-tolerance", "1"], "apply with --calibrate QUERIES"),
+    (["--db", "{db}", "--calibrate-truth", "{t_even}"], "--calibrate-truth applies with --calibrate QUERIES"),
+    (["--db", "{db}", "--calibrate-tolerance", "1"], "--calibrate-tolerance applies with --calibrate QUERIES"),
     (["--db", "{db}", "--methods", "lsh,pq", "--calibrate", "{q_even}"], "Add auto to --methods"),
     (["--db", "{db}", "--methods", "auto", "--param", "auto:calibration_tolerance=2", "--calibrate",
       "{q_even}", "--calibrate-truth", "{t_even}", "--calibrate-tolerance", "1"], "set twice"),

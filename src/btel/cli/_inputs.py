@@ -177,7 +177,10 @@ def check_utm_options(ground_truth: str | None, calibrate_truth: str | None, db:
 
 def _check_calibration_flags(queries: str | None, truth: str | None, tolerance: int | None) -> None:
     if queries is None and (truth is not None or tolerance is not None):
-        raise click.UsageError("--calibrate-truth and --calibrate-tolerance apply with --calibrate QUERIES.")
+        given = " and ".join(f for f, v in (("--calibrate-truth", truth), ("--calibrate-tolerance", tolerance))
+                             if v is not None)
+        raise click.UsageError(f"{given} {'applies' if ' and ' not in given else 'apply'} with --calibrate QUERIES "
+                               "(the labelled queries it describes): give --calibrate too.")
 
 
 def check_calibration_options(method: str, queries: str | None, truth: str | None,

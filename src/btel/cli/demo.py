@@ -15,8 +15,9 @@ from ._options import (EXIT_SOME_ROWS_FAILED, _BUDGET_HELP, _N_JOBS_HELP, _NO_PR
 
 
 @click.command(cls=ParamCommand)
-@click.option("--places", "n_places", default=2000, show_default=True, help="Places on the synthetic route.")
-@click.option("--dim", default=512, show_default=True, help="Descriptor dimension.")
+@click.option("--places", "n_places", type=click.IntRange(min=2), default=2000, show_default=True,
+              help="Places on the synthetic route (at least 2).")
+@click.option("--dim", type=click.IntRange(min=1), default=512, show_default=True, help="Descriptor dimension.")
 @click.option("--budget", multiple=True, default=("64KB",), show_default=True,
               help=_BUDGET_HELP + " Repeatable, the lists are joined.")
 @click.option("--methods", multiple=True, default=(",".join(DEMO_METHODS),), show_default=True,

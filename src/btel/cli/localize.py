@@ -70,7 +70,9 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
             (stream and batch, "--stream reads stdin (or --input) and writes stdout; QUERIES, -o, --db and "
                                "--top-k are for batch localization."),
             (not stream and streaming, "--input, --follow, --idle-timeout and --binary need --stream."),
-            (not stream and None in (queries, output), "give QUERIES and -o/--output (or use --stream)."),
+            (not stream and None in (queries, output),
+             f"give {' and '.join(w for w, v in (('QUERIES', queries), ('-o/--output FILE', output)) if v is None)} "
+             "(or use --stream)."),
             (follow and input_path is None, "--follow needs --input FILE (stdin waits for new lines anyway)."),
             (idle_timeout is not None and not follow, "--idle-timeout only applies with --follow."),
             (idle_timeout is not None and not 0 < idle_timeout < 1e9,  # nan and inf included: they never end
