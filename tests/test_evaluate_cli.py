@@ -550,3 +550,18 @@ def test_saved_model_names_keep_their_inner_dots_and_clash_as_file_names_up_fron
                                       str(tmp_path / "b" / "lsh.npz"), "--model", str(tmp_path / "a-lsh.npz"),
                                       "--queries", str(q), "--out", str(tmp_path / "run2")])
     assert clash.exit_code == 2 and "would name the same row" in clash.output and not (tmp_path / "run2").exists()
+
+
+def test_an_evaluation_without_a_budget_says_so(tmp_path: Path) -> None:
+    """pq fitted unbudgeted (267 KB on a tester's map) with no word of it; train said so, evaluate did not."""
+    from btel.datasets import synthetic_route
+
+    route = synthetic_route(200, 16, seed=0)
+    np.save(tmp_path / "db.npy", route.map)
+    np.save(tmp_path / "q.npy", route.queries)
+    args = ["evaluate", "--db", str(tmp_path / "db.npy"), "--queries", str(tmp_path / "q.npy"), "--methods", "pq",
+            "--no-progress", "--no-reference"]
+    result = CliRunner().invoke(main, [*args, "--out", str(tmp_path / "a")])
+    assert result.exit_code == 0 and "note: no --budget: every method is as large as it needs" in result.output
+    result = CliRunner().invoke(main, [*args, "--budget", "4KB", "--out", str(tmp_path / "b")])
+    assert result.exit_code == 0 and "no --budget" not in result.output

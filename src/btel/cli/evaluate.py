@@ -201,7 +201,8 @@ def _check_inputs_unchanged(run: str, recorded: dict[str, Any] | None, current: 
 @click.option("--methods", multiple=True, default=(DEFAULT_METHOD,), show_default=True,
               help="Method names, comma-separated; repeatable, the lists are joined (--methods a,b --methods c "
                    "is a,b,c).")
-@click.option("--budget", multiple=True, help=_BUDGET_HELP + " Repeatable, the lists are joined.")
+@click.option("--budget", multiple=True, help=_BUDGET_HELP + " Repeatable, the lists are joined. Default: none, "
+              "every method as large as it needs.")
 @click.option("--no-reference", is_flag=True, help=_REFERENCE_HELP)
 @click.option("--param", "param_texts", multiple=True, metavar="[METHOD:]NAME=VALUE", help=_PARAMS_HELP)
 @click.option("--ground-truth", **FILE, help=_GT_HELP)
@@ -307,6 +308,9 @@ def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tupl
                       saved=bool(saved), fitted=bool(jobs))
     _echo_while_running(f"map: N = {n_map} places; queries: {Q.shape[0]} × {Q.shape[1]}; "
                         f"ground truth: {truth['rule']} ({truth['source']})")
+    if jobs and budgets == [None]:  # btel is about budgets: an unbudgeted comparison is said to be one
+        _echo_while_running("note: no --budget: every method is as large as it needs (pq, lsh, … at their "
+                            "defaults); give --budget (e.g. --budget 64KB) to compare under a byte budget.")
     from ._names import input_names, plan_pairs
     names = input_names(db, queries, n_map, Q.shape[0])
     pairs = plan_pairs(pairs_path, [j.name for j in saved + jobs], names, (Q.shape[0], n_map), queries, db,
