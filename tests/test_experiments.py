@@ -507,3 +507,18 @@ def test_frontier_legend_has_a_panel_of_its_own_with_auto_first(tmp_path, monkey
         assert len(keys) == 1 and not keys[0].has_data() and not keys[0].axison
         labels = [t.get_text() for t in keys[0].get_legend().get_texts()]
         assert labels[0] == "auto" and set(labels[:-1]) == methods and labels[-1].startswith("ring")
+
+
+def test_experiment_takes_no_progress_as_the_other_commands_do(tmp_path: Path, monkeypatch) -> None:
+    """`btel experiment --no-progress` was no option (run_experiment's progress was not reachable)."""
+    import btel.experiments
+
+    seen = {}
+
+    def record(name, **kwargs):
+        seen.update(kwargs)
+        raise DataNotFoundError("stop here")
+
+    monkeypatch.setattr(btel.experiments, "run_experiment", record)
+    result = CliRunner().invoke(main, ["experiment", "regions", "--quick", "--no-progress", "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "stop here" in result.output and seen["progress"] is False

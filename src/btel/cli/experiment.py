@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from ._options import _command_line
+from ._options import _NO_PROGRESS_HELP, _command_line
 
 
 @click.command()
@@ -27,8 +27,9 @@ from ._options import _command_line
               help="frontier: take up an interrupted run in OUT/frontier/ — the rows of its rows.jsonl measured "
                    "by the same btel on the same data are kept, the others run.")
 @click.option("--overwrite", is_flag=True, help="Replace an earlier run's results in OUT/NAME/ (refused otherwise).")
+@click.option("--no-progress", is_flag=True, help=_NO_PROGRESS_HELP)
 def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | None, quick: bool,
-               delta: int | None, jobs: int, resume: bool, overwrite: bool) -> None:
+               delta: int | None, jobs: int, resume: bool, overwrite: bool, no_progress: bool) -> None:
     """Run one of the paper's experiments on Nordland (or 'all').
 
     \b
@@ -53,7 +54,8 @@ def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | 
     for n in names:
         click.echo(f"experiment {n}{' (quick)' if quick else ''} …")
         run = run_experiment(n, data_root=data_root, out_dir=out_dir, cache_dir=cache_dir, quick=quick,
-                             command=_command_line(), overwrite=overwrite, **options[n])
+                             command=_command_line(), overwrite=overwrite, progress=not no_progress,
+                             **options[n])
         for row in run.rows:
             click.echo("  " + describe_row(row))
         click.echo(f"  written to {run.out_dir}")
