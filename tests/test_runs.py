@@ -173,3 +173,12 @@ def test_run_folder_of_nordland_pixels(nordland_pixels: tuple[np.ndarray, np.nda
     recomputed = recompute_recall_from_csv(report.predictions["pixel NN"])
     assert {int(t): v for t, v in metrics["results"][0]["recall"].items()} == recomputed
     assert recomputed[10] > 3 * 21 / summer[::4].shape[0]  # far above chance: frames are aligned
+
+
+def test_an_experiment_rows_csv_writes_structured_cells_as_json() -> None:
+    """results.csv held a front end as Python's repr ("{'normalize': 'l2', 'whiten': None}")."""
+    from btel.evaluation.tables import rows_csv_text
+
+    row = EvaluationResult.from_row({"method": "lsh", "status": "ok", "front_end": {"normalize": "l2", "whiten": None}})
+    cells = next(csv.DictReader(rows_csv_text([row]).splitlines()))
+    assert json.loads(cells["front_end"]) == {"normalize": "l2", "whiten": None}

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import shutil
 import sys
 import textwrap
@@ -17,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from .records import STATUS_DOES_NOT_FIT, EvaluationResult
+from ..core.modelfile import jsonable
 from ..core.storage import format_bytes
 
 __all__ = ["format_table", "terminal_width", "format_calibration", "calibration_markdown", "describe_row", "metrics_csv_text",
@@ -286,7 +288,9 @@ def predictions_csv_text(r: EvaluationResult, query_names: Sequence[str] | None 
 def rows_csv_text(records: Sequence[EvaluationResult]) -> str:
     """An experiment's ``results.csv``: the flat rows (:meth:`~btel.evaluation.records.EvaluationResult.to_row`),
     one column per cell any row has, in order of first appearance."""
-    rows = [r.to_row() for r in records]
+    # A cell holding a dict or list (a front end, options) is written as JSON, not as Python's repr.
+    rows = [{k: json.dumps(jsonable(v)) if isinstance(v, (dict, list, tuple)) else v for k, v in r.to_row().items()}
+            for r in records]
     columns: list[str] = []
     for row in rows:
         columns.extend(k for k in row if k not in columns)
