@@ -522,3 +522,19 @@ def test_experiment_takes_no_progress_as_the_other_commands_do(tmp_path: Path, m
     monkeypatch.setattr(btel.experiments, "run_experiment", record)
     result = CliRunner().invoke(main, ["experiment", "regions", "--quick", "--no-progress", "--out", str(tmp_path)])
     assert result.exit_code == 2 and "stop here" in result.output and seen["progress"] is False
+
+
+def test_the_overview_draws_two_maps_from_the_frontier_rows(tmp_path: Path) -> None:
+    """The README's figure: auto's picks spelled out, only the maps it names; none from a quick run's rows."""
+    from btel.experiments.frontier_overview import _picks, plot_overview
+
+    rows = [{"dataset": "gardens-point", "key": "recall@2", "status": "ok", "method": m, "budget": b, "nbytes": b,
+             "value": v, "chose_method": "btel-codes" if b < 64000 else "lsh",
+             "chose_params": {"center": b >= 64000}}
+            for m, v in (("auto", 0.5), ("lsh", 0.4), ("pq", 0.3)) for b in (1000, 16000, 64000, 1000000)]
+    assert _picks([r for r in rows if r["method"] == "auto"]) == (
+        "auto's pick: btel-codes 1 KB–16 KB, lsh (centred rows) 64 KB–1 MB")
+    path = plot_overview(rows, tmp_path / "o.png")
+    assert path is not None and path.stat().st_size > 10_000
+    assert plot_overview([{**r, "dataset": "synthetic route"} for r in rows], tmp_path / "q.png") is None
+    assert not (tmp_path / "q.png").exists()

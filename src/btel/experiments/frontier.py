@@ -56,6 +56,7 @@ from ..datasets.sources import gardens_point_path, load_gardens_point_netvlad
 from ..core.claims import atomic_output
 from ..exceptions import OutputExistsError
 from ._common import SEASONS, ExperimentRun, FittedRow, NordlandData, does_not_fit_cells, fit_and_predict
+from .frontier_overview import OVERVIEW_FILE, plot_overview
 from .frontier_journal import inputs_digest, journal_bar, journal_line, journalled_rows
 from .frontier_verdicts import SEEDS, auto_vs_oracle, paired_difference, report_lines, row_of_choice
 from ..methods.registry import make_method
@@ -330,7 +331,8 @@ def _plots(rows: list[dict[str, Any]], out: Path) -> list[Path]:
         fig.tight_layout()
         fig.savefig(out / fname)
         written.append(out / fname)
-    return written
+    overview = plot_overview(rows, out / OVERVIEW_FILE)  # the README's figure: two maps, six rows
+    return written + ([overview] if overview is not None else [])
 
 
 def exp_frontier(data: NordlandData, out: Path, quick: bool, jobs: int = 1, resume: bool = False) -> ExperimentRun:
