@@ -46,12 +46,12 @@ def test_rule_takes_the_most_code_bits_that_fit(always_project, budget):
     chosen = model.choose_config(n_rows, d, budget, always_project=always_project)
     chosen_bytes = planned(chosen)
     assert chosen_bytes <= budget
-    fitting = [c for c in model.candidates(n_rows, d) if planned(c) <= budget]
+    fitting = [c for c in model.candidates(n_rows, d, budget) if planned(c) <= budget]
     assert chosen in fitting
     assert chosen.code_bits == max(c.code_bits for c in fitting)
     ties = [c for c in fitting if c.code_bits == chosen.code_bits]
     assert chosen_bytes == min(planned(c) for c in ties)
-    for c in model.candidates(n_rows, d):
+    for c in model.candidates(n_rows, d, budget):
         assert c.dim % c.n_subquantizers == 0 and (1 << c.nbits) <= n_rows
         assert c.dim == d or c.dim <= n_rows
 
@@ -69,13 +69,25 @@ def test_rule_is_deterministic_and_monotone_in_budget():
     assert pq.choose_config(400, 48, 30_000) == pq.choose_config(400, 48, 30_000)
 
 
-def test_budget_error_names_the_smallest_configuration():
+@pytest.mark.parametrize("budget", [100, 500])
+def test_budget_error_names_the_smallest_configuration(budget):
     with pytest.raises(BudgetTooSmallError) as info:
-        PQLocalizer().choose_config(400, 48, 500)
+        PQLocalizer().choose_config(400, 48, budget)
     minimum = info.value.minimum
     pq = PQLocalizer()
-    assert minimum == min(pq.planned_bytes(400, 48, config=c) for c in pq.candidates(400, 48))
-    assert f"{minimum} B" in str(info.value) and "p = " in str(info.value)
+    everything = pq.candidates(400, 48, 10 ** 9)  # every p: the minimum is that of all configurations
+    assert minimum == min(pq.planned_bytes(400, 48, config=c) for c in everything) == 400 + 16 * 4 + 48 * 4
+    assert f"{minimum} B" in str(info.value) and "p = 1" in str(info.value)
+    assert pq.choose_config(400, 48, minimum) == PQConfig(1, 1, 4)
+
+
+def test_wide_descriptors_spend_the_budget_beyond_powers_of_two():
+    """d = 8192, N = 2000, 256 KB: the d×p projection is most of the bytes; p was a power of two (4), leaving
+    44 % of the budget unspent at 32 code bits; every p whose projection fits is now a candidate."""
+    pq = PQLocalizer()
+    config = pq.choose_config(2000, 8192, 256_000)
+    assert config == PQConfig(7, 7, 8) and config.code_bits == 56
+    assert 0.95 * 256_000 <= pq.planned_bytes(2000, 8192, config=config) <= 256_000
 
 
 def test_defaults_without_budget():

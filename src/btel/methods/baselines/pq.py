@@ -15,8 +15,8 @@ Storage (SPEC §7), at stored dtype:
 
 Budget rule (deterministic): enumerate every configuration (p, M, nbits) with
 
-- p ∈ {d (no projection)} ∪ {2, 4, 8, … < d, ≤ number of map rows} (PCA needs as many rows as
-  components);
+- p ∈ {d (no projection)} ∪ {1, 2, 4, 8, … < d} ∪ {every p whose d×p projection alone fits the
+  budget}, each ≤ the number of map rows (PCA needs as many rows as components);
 - M dividing p;
 - nbits ∈ {8, 4} with 2^nbits ≤ number of map rows (k-means needs a point per centroid);
 
@@ -221,10 +221,15 @@ class PQLocalizer(_RowLocalizer):
                 )
         return dim, m, nbits
 
-    def candidates(self, n_rows: int, n_features: int) -> Iterator[PQConfig]:
+    def candidates(self, n_rows: int, n_features: int, budget: int | None = None) -> Iterator[PQConfig]:
         """Every configuration the budget rule considers, given the explicit parameters."""
         dim, m, nbits = self._check_explicit(n_rows, n_features)
-        dims = [dim] if dim is not None else [n_features] + _powers_of_two_below(n_features, n_rows)
+        # Every p whose d×p projection alone fits the budget, beside the powers of two: on wide descriptors the
+        # projection takes most of the bytes, and the powers of two left up to half of the budget unspent.
+        # p = 1 always: the cheapest configuration, which a budget too small is told it needs.
+        fitting = range(1, min(n_features - 1, n_rows, max(1, (budget or 0) // (4 * n_features))) + 1)
+        dims = [dim] if dim is not None else sorted({n_features, *_powers_of_two_below(n_features, n_rows),
+                                                     *fitting}, reverse=True)
         bits = [nbits] if nbits is not None else [b for b in AUTO_NBITS if (1 << b) <= n_rows]
         for p in dims:
             for b in bits:
@@ -266,7 +271,7 @@ class PQLocalizer(_RowLocalizer):
             return self._default_config(n_rows, n_features)
         options = [
             (c, self.planned_bytes(n_rows, n_features, config=c, always_project=always_project) + extra_bytes)
-            for c in self.candidates(n_rows, n_features)
+            for c in self.candidates(n_rows, n_features, budget)
         ]
         if not options:
             raise InvalidParameterError(
