@@ -143,6 +143,10 @@ def test_a_wrong_count_with_a_bad_token_names_the_token() -> None:
         parse_descriptor_line("1;2;3", 3)
     with pytest.raises(InvalidDescriptorsError, match=r"expected 3 values, got 2\.$"):
         parse_descriptor_line("1 2", 3)
+    # np.savetxt of one 1-D query writes one value per line: the message says how to write a row per line
+    with pytest.raises(InvalidDescriptorsError, match=r"expected 3 values, got 1 \(a line holds one whole "
+                                                      r"descriptor.*write q\[None\]"):
+        parse_descriptor_line("0.25", 3)
 
 
 @pytest.mark.parametrize("token", [b"nan", b"-inf", b"1e39", b"0x1p-3", b"1_000", "\u0661".encode(), b"true"])

@@ -157,6 +157,9 @@ def _count_hint(line: str, tokens: list[str]) -> str:
                 "not a bare \\r)")
     bad = next((t for t in tokens if not _DECIMAL.match(t)), None)
     if bad is None:
+        if len(tokens) == 1:  # np.savetxt of one 1-D descriptor writes one value per line
+            return (" (a line holds one whole descriptor: np.savetxt(f, Q) of a 2-D Q writes one per line; for a "
+                    "single descriptor q write q[None])")
         return ""
     return (f"; {bad[:40]!r} is not a number (values are ASCII decimals separated by commas or "
             "whitespace)")
