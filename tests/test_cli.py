@@ -391,8 +391,8 @@ def test_info_shows_what_fitting_chose_and_every_stored_array(small_pair, tmp_pa
     assert run("train", db, "-o", model, "--method", "pq", "--budget", "20KB", "--whiten", "16").exit_code == 0
     out = run("info", model).output
     assert "n_subquantizers=null (chosen: " in out and "nbits=null (chosen: " in out
-    assert "chosen at fit: dim=16" in out
-    assert "pca_dim=null (chosen: 16)" in out  # its state calls it dim: shown as metrics.json records it
+    assert "chosen at fit: dim=11" in out  # 11 × 8 bits of the 16 whitened dims: the most code bits in 20 KB
+    assert "pca_dim=null (chosen: 11)" in out  # its state calls it dim: shown as metrics.json records it
     codes = tmp_path / "codes.npz"
     assert run("train", db, "-o", codes, "--method", "btel-codes", "--budget", "8KB").exit_code == 0
     assert "code=auto (chosen: " in run("info", codes).output  # a parameter given as 'auto' too
