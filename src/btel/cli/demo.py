@@ -25,7 +25,7 @@ from ._options import (EXIT_SOME_ROWS_FAILED, _BUDGET_HELP, _N_JOBS_HELP, _NO_PR
 @click.option("--no-reference", is_flag=True, help=_REFERENCE_HELP)
 @click.option("--seed", default=0, show_default=True, help="Random seed of the route.")
 @click.option("--param", "param_texts", multiple=True, metavar="[METHOD:]NAME=VALUE", help=_PARAMS_HELP)
-@click.option("-o", "--out", "out_dir", type=click.Path(file_okay=False), default=None,
+@click.option("-o", "--out", "--output", "out_dir", type=click.Path(file_okay=False), default=None,
               help="Run folder for metrics.json, CSV and plots (default: runs/demo-<time>).")
 @click.option("--overwrite", is_flag=True, help="Replace the run files in an existing run folder.")
 @click.option("--no-progress", is_flag=True, help=_NO_PROGRESS_HELP)

@@ -216,7 +216,7 @@ def _check_inputs_unchanged(run: str, recorded: dict[str, Any] | None, current: 
                    "at most the map's number of places (a default K above it is left out, with a note).")
 @click.option("--query-order", type=click.Choice(["route", "independent"]), default="route",
               show_default=True, help=_ORDER_HELP)
-@click.option("-o", "--out", "out_dir", **FOLDER, default=None, help="Run folder (unless --resume).")
+@click.option("-o", "--out", "--output", "out_dir", **FOLDER, default=None, help="Run folder (unless --resume).")
 @click.option("--overwrite", is_flag=True, help="Replace the run files in an existing run folder.")
 @click.option("--resume", "resume_dir", **FOLDER, default=None, metavar="RUN",
               help="Go on with the interrupted run RUN with the inputs and options it recorded (give none, or "

@@ -12,7 +12,8 @@ from ._options import _NO_PROGRESS_HELP, _command_line
 @click.option("--data", "data_root", type=click.Path(file_okay=False), default=None,
               help="Folder with summer/ and winter/ (default $BTEL_SHARED_DATA/nordland64, else "
                    "../shared/data/nordland64).")
-@click.option("-o", "--out", "out_dir", type=click.Path(file_okay=False), default="runs/experiments", show_default=True,
+@click.option("-o", "--out", "--output", "out_dir", type=click.Path(file_okay=False), default="runs/experiments",
+              show_default=True,
               help="Runs folder; results go to OUT/NAME/.")
 @click.option("--cache", "cache_dir", type=click.Path(file_okay=False), default=None,
               help="Descriptor cache (default OUT/cache).")

@@ -22,7 +22,8 @@ _DESCRIPTOR_PARAMS_HELP = ("hog: orientations, pixels_per_cell, cells_per_block,
 
 @click.command(cls=ParamCommand)
 @click.argument("images_dir", type=click.Path(file_okay=False))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Descriptor matrix to write (.npy).")
+@click.option("-o", "--output", "--out", "output", required=True, type=click.Path(dir_okay=False),
+              help="Descriptor matrix to write (.npy).")
 @click.option("--descriptor", default="hog", show_default=True,
               help="hog | patchnorm | densevlad, or a descriptor file saved with --save-descriptor.")
 @click.option("--size", default=None, metavar="WxH",

@@ -16,7 +16,7 @@ from ._outputs import check_output_suffix, refuse_existing
 @click.command()
 @click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
 @click.argument("queries", required=False, type=click.Path(dir_okay=False))
-@click.option("-o", "--output", type=click.Path(dir_okay=False),
+@click.option("-o", "--output", "--out", "output", type=click.Path(dir_okay=False),
               help="Predictions CSV to write (.csv or .txt; not with --stream).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing OUTPUT predictions file.")
 @click.option("--db", type=click.Path(dir_okay=False), default=None,

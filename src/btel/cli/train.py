@@ -37,7 +37,7 @@ def _aliases(command: Callable[..., Any]) -> Callable[..., Any]:
 
 @click.command(cls=ParamCommand)
 @click.argument("db", type=click.Path())
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+@click.option("-o", "--output", "--out", "output", required=True, type=click.Path(dir_okay=False),
               help="Model file to write (.npz).")
 @click.option("--overwrite", is_flag=True, help="Replace an existing OUTPUT model file.")
 @click.option("--method", default=DEFAULT_METHOD, show_default=True, help="Method name (see `btel methods`).")
