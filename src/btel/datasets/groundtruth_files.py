@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from ..exceptions import BTELError, DataNotFoundError, InvalidDescriptorsError, InvalidParameterError
+from ..exceptions import BTELError, DataNotFoundError, InvalidDescriptorsError, InvalidParameterError, ResourceLimitError
 from ..core.limits import check_bytes, check_count, check_numpy_file, open_regular, read_regular
 from ..descriptors.npy_header import check_npy_header
 
@@ -78,6 +78,8 @@ def read_object_npy(path: str | os.PathLike) -> np.ndarray:
         stored_shape, items = parse_object_array(payload)
     except DataNotFoundError as exc:
         raise DataNotFoundError(f"{str(path)!r}: {exc}") from None
+    except ResourceLimitError as exc:  # the file's name in the limit's message too
+        raise ResourceLimitError(f"{str(path)!r}: {exc}") from None
     if stored_shape != tuple(shape):
         raise DataNotFoundError(f"{str(path)!r}: the pickled payload is not the object array its header announces.")
     out = np.empty(len(items), dtype=object)

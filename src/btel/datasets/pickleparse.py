@@ -39,6 +39,9 @@ _KNOWN = _RECONSTRUCT | _SCALAR | _FROMBUFFER | _NDARRAY | _DTYPE | _ENCODE | _B
 #: dtypes an integer-array item may have (plus whole-valued floats); "O" only for the outer array.
 _DTYPE_SPEC = re.compile(r"[iu][1248]|f[48]|O[48]")
 _MAX_DEPTH = 64  # nesting of tuples/lists on the stack (numpy's pickles need 4)
+#: Bytes charged per Python object the walk holds (a stack entry, a memo entry, a list item): 1-byte opcodes
+#: such as MEMOIZE or EMPTY_LIST each add an object of ~60–100 B, so a 60 MB file once held 5.4 GB.
+_BYTES_PER_OBJECT = 100
 
 
 class _Refused(Exception):
@@ -211,8 +214,13 @@ def _parse(payload: bytes) -> tuple[tuple[int, ...], list[np.ndarray]]:
     budget = [0]
     protocol = None
     result: Any = None
+    held, checked = 0, 0  # objects created (never decreased: a bound on what the walk can hold)
     for op, arg, pos in pickletools.genops(payload):
         name = op.name
+        held += 1
+        if held - checked >= 4096:  # every object, counted in strides: the check is a function call
+            check_count(held, _BYTES_PER_OBJECT, "VPR-Bench ground truth (the objects its pickle builds)")
+            checked = held
         if protocol is None:
             if name != "PROTO" or not 2 <= arg <= 5:
                 raise _Refused("not a pickle of protocol 2 to 5")
