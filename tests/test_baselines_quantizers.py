@@ -243,3 +243,20 @@ def test_pq_summary_says_what_the_planner_chose_and_what_the_budget_left(data) -
     assert ("PCA projection" in line) == (model.projection_ is not None)
     unbudgeted = PQLocalizer().fit(X)
     assert f"{unbudgeted.nbytes:,d} B (no budget)" in unbudgeted.summary()  # its bytes, nothing to compare with
+
+
+def test_opq_never_asks_faiss_for_a_rotation_wider_than_the_map_has_rows():
+    """faiss' OPQMatrix.train corrupts its heap on fewer rows than dimensions (`btel train` of 200 × 500
+    Gardens Point rows with opq at --budget 1e300 ended in SIGSEGV or SIGABRT). p is now ≤ N."""
+    from btel.exceptions import InvalidParameterError
+    from btel.methods.baselines.opq import OPQLocalizer
+
+    X = np.random.default_rng(0).standard_normal((40, 60)).astype(np.float32)
+    big = OPQLocalizer(budget=10**12, n_iter=2)
+    config = big._choose_config(big._quantiser(), 40, 60, 10**12, 0)
+    assert config.dim <= 40
+    assert OPQLocalizer()._choose_config(OPQLocalizer()._quantiser(), 40, 60, None, 0).dim <= 40
+    model = OPQLocalizer(budget=10**12, n_iter=2).fit(X)
+    assert model.config_.dim <= 40 and model.predict(X[:5]).tolist() == list(range(5))
+    with pytest.raises(InvalidParameterError, match="p must be ≤ N = 40"):
+        OPQLocalizer(pq=PQLocalizer(pca_dim=50)).fit(X)

@@ -30,6 +30,7 @@ import numpy as np
 from ...core.storage import UNLIMITED_BUDGET
 from ...core.validation import N_JOBS, Instance, Interval
 from ..base import ArraySpec
+from ...exceptions import InvalidParameterError
 from ...core.frontend import FrontEnd
 from ._common import _RowLocalizer, quiet_faiss
 from .pq import PQConfig, PQLocalizer, check_finite, pca_projection, pq_specs, read_config
@@ -105,8 +106,15 @@ class OPQLocalizer(_RowLocalizer):
 
     def _choose_config(self, pq: PQLocalizer, n_rows: int, n_features: int, budget: int | None,
                        reserved: int) -> PQConfig:
-        """The contained quantiser's planner with the d × p rotation counted at every p."""
-        return pq.choose_config(n_rows, n_features, budget, reserved, method_name="OPQ", always_project=True)
+        """The contained quantiser's planner with the d × p rotation counted at every p, and p ≤ N: faiss'
+        ``OPQMatrix.train`` corrupts its heap on fewer rows than dimensions (a crash, or minutes of work,
+        from 201 rows of 200 dims up)."""
+        if pq.pca_dim is not None and pq.pca_dim > n_rows:
+            raise InvalidParameterError(
+                f"OPQ learns its p × p rotation from the map's rows, so p must be ≤ N = {n_rows}; got "
+                f"pca_dim={pq.pca_dim}. Give pca_dim ≤ {n_rows} (or leave it to the budget).")
+        return pq.choose_config(n_rows, n_features, budget, reserved, method_name="OPQ", always_project=True,
+                                max_dim=n_rows)
 
     def _check_plan(self, n_rows: int, n_features_out: int, budget: int | None, reserved: int) -> None:
         self._choose_config(self._quantiser(), n_rows, n_features_out, budget, reserved)

@@ -221,8 +221,10 @@ class PQLocalizer(_RowLocalizer):
                 )
         return dim, m, nbits
 
-    def candidates(self, n_rows: int, n_features: int, budget: int | None = None) -> Iterator[PQConfig]:
-        """Every configuration the budget rule considers, given the explicit parameters."""
+    def candidates(self, n_rows: int, n_features: int, budget: int | None = None,
+                   max_dim: int | None = None) -> Iterator[PQConfig]:
+        """Every configuration the budget rule considers, given the explicit parameters (``max_dim``: the
+        largest code dimension p allowed, OPQ's number of map rows)."""
         dim, m, nbits = self._check_explicit(n_rows, n_features)
         # Every p whose d×p projection alone fits the budget, beside the powers of two: on wide descriptors the
         # projection takes most of the bytes, and the powers of two left up to half of the budget unspent.
@@ -232,18 +234,21 @@ class PQLocalizer(_RowLocalizer):
                                                      *fitting}, reverse=True)
         bits = [nbits] if nbits is not None else [b for b in AUTO_NBITS if (1 << b) <= n_rows]
         for p in dims:
+            if max_dim is not None and p > max_dim:
+                continue
             for b in bits:
                 for mm in ([m] if m is not None else _divisors(p)):
                     if mm <= p and p % mm == 0:
                         yield PQConfig(p, mm, b)
 
-    def _default_config(self, n_rows: int, n_features: int) -> PQConfig:
+    def _default_config(self, n_rows: int, n_features: int, max_dim: int | None = None) -> PQConfig:
         dim, m, nbits = self._check_explicit(n_rows, n_features)
         if dim is None:
-            if n_features <= DEFAULT_MAX_DIM:
+            if n_features <= min(DEFAULT_MAX_DIM, max_dim or n_features):
                 dim = n_features
             else:
-                dim = max(_powers_of_two_below(n_features, min(DEFAULT_MAX_DIM, n_rows)), default=n_features)
+                dim = max(_powers_of_two_below(n_features, min(DEFAULT_MAX_DIM, n_rows, max_dim or n_rows)),
+                          default=n_features)
         if nbits is None:
             nbits = 8 if n_rows >= 256 else 4
         if m is None:
@@ -256,10 +261,12 @@ class PQLocalizer(_RowLocalizer):
         return PQConfig(dim, m, nbits)
 
     def choose_config(self, n_rows: int, n_features: int, budget: int | None, extra_bytes: int = 0, *,
-                      method_name: str = "PQ", always_project: bool = False) -> PQConfig:
+                      method_name: str = "PQ", always_project: bool = False,
+                      max_dim: int | None = None) -> PQConfig:
         """The configuration ``fit`` uses (see the module docstring for the rule).
 
-        ``always_project`` counts a d×p matrix for every p (OPQ's rotation).
+        ``always_project`` counts a d×p matrix for every p (OPQ's rotation); ``max_dim`` caps p (OPQ's
+        rotation is learnt from the map's rows, at most one dimension per row).
         """
         if self.nbits is None and n_rows < (1 << min(AUTO_NBITS)):
             raise NotEnoughPlacesError(
@@ -268,10 +275,10 @@ class PQLocalizer(_RowLocalizer):
                 "command line --param nbits=2) or use the bruteforce method."
             )
         if budget is None:
-            return self._default_config(n_rows, n_features)
+            return self._default_config(n_rows, n_features, max_dim)
         options = [
             (c, self.planned_bytes(n_rows, n_features, config=c, always_project=always_project) + extra_bytes)
-            for c in self.candidates(n_rows, n_features, budget)
+            for c in self.candidates(n_rows, n_features, budget, max_dim)
         ]
         if not options:
             raise InvalidParameterError(
