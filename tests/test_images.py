@@ -162,6 +162,20 @@ def test_opencv_pixel_cap_is_set_from_the_limit_when_btel_loads_opencv(tmp_path:
     assert out.stdout.split() == ["4096", "refused"], out.stderr
 
 
+@pytest.mark.parametrize("value", ["abc", "-1", "1e6", ""])
+def test_a_pixel_cap_opencv_cannot_parse_is_refused_before_opencv_aborts(value: str, tmp_path: Path) -> None:
+    """OPENCV_IO_MAX_IMAGE_PIXELS=abc made `btel extract` die with SIGABRT (std::stoull in OpenCV)."""
+    ok, png = cv2.imencode(".png", np.zeros((16, 16), np.uint8))
+    (tmp_path / "images").mkdir()
+    (tmp_path / "images" / "a.png").write_bytes(png.tobytes())
+    env = {**os.environ, "OPENCV_IO_MAX_IMAGE_PIXELS": value}
+    out = subprocess.run([sys.executable, "-m", "btel.cli", "extract", str(tmp_path / "images"), "-o",
+                          str(tmp_path / "x.npy"), "--descriptor", "hog"], env=env, capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 2, out.stderr
+    assert f"OPENCV_IO_MAX_IMAGE_PIXELS={value!r} is not a whole number of pixels" in out.stderr
+
+
 @pytest.mark.realdata
 def test_real_frames_read_as_before(nordland_dir: Path, gardenspoint_sample_dir: Path) -> None:
     """The header check changes no pixel: the real frames decode exactly as OpenCV alone decodes them."""

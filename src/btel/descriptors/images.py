@@ -38,9 +38,14 @@ OPENCV_PIXEL_CAP = "OPENCV_IO_MAX_IMAGE_PIXELS"
 
 def _cap_opencv_pixels() -> None:
     """Set OpenCV's pixel cap from btel's memory limit (at least 2 bytes per decoded pixel) unless
-    OpenCV is loaded already or the user set the cap: a backstop behind :func:`read_image`'s check."""
-    if "cv2" in sys.modules or OPENCV_PIXEL_CAP in os.environ:
+    OpenCV is loaded already or the user set the cap: a backstop behind :func:`read_image`'s check.
+    A cap the user set must be a whole number: OpenCV parses it with ``std::stoull`` and aborts the process."""
+    given = os.environ.get(OPENCV_PIXEL_CAP)
+    if "cv2" in sys.modules or (given is not None and given.strip().isascii() and given.strip().isdigit()):
         return
+    if given is not None:
+        raise InvalidParameterError(f"{OPENCV_PIXEL_CAP}={given[:40]!r} is not a whole number of pixels, and OpenCV "
+                                    "aborts on it; give a number or unset it (btel then sets it from BTEL_MEMORY_LIMIT).")
     try:
         os.environ[OPENCV_PIXEL_CAP] = str(max(1, memory_limit() // 2))
     except InvalidParameterError:  # a malformed BTEL_MEMORY_LIMIT is reported where the limit is used
@@ -50,20 +55,8 @@ def _cap_opencv_pixels() -> None:
 _cap_opencv_pixels()
 import cv2  # noqa: E402 - after its pixel cap is set
 
-__all__ = [
-    "IMAGE_EXTENSIONS",
-    "DECODED_FORMATS",
-    "decode_bytes",
-    "image_header",
-    "ImageInput",
-    "list_images",
-    "not_images",
-    "read_image",
-    "to_grey",
-    "as_image_list",
-    "iter_grey",
-    "resize_grey",
-]
+__all__ = ["IMAGE_EXTENSIONS", "DECODED_FORMATS", "decode_bytes", "image_header", "ImageInput", "list_images",
+           "not_images", "read_image", "to_grey", "as_image_list", "iter_grey", "resize_grey"]
 
 #: File name endings :func:`list_images` picks up (compared case-insensitively).
 IMAGE_EXTENSIONS: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".ppm", ".pgm", ".webp")
@@ -283,8 +276,8 @@ def read_image(path: str | os.PathLike, *, grey: bool = False) -> np.ndarray:
         raise DataNotFoundError(
             f"OpenCV cannot decode {str(path)!r} as an image (corrupt, truncated or unsupported "
             "format). Remove or replace that file." if not over_cap else
-            f"OpenCV refused {str(path)!r}: its {pixels} pixels exceed {OPENCV_PIXEL_CAP}={cap}, set from "
-            "BTEL_MEMORY_LIMIT when OpenCV was loaded; set both before starting Python for larger images.")
+            f"OpenCV refused {str(path)!r}: its {pixels} pixels exceed {OPENCV_PIXEL_CAP}={cap} (yours, or set from "
+            "BTEL_MEMORY_LIMIT when OpenCV was loaded); raise it before starting Python for larger images.")
     if image.shape[0] * image.shape[1] != pixels:  # the header Pillow read is not the image OpenCV decoded
         raise DataNotFoundError(f"{str(path)!r}: the image data do not match its header "
                                 f"({image.shape[1]}×{image.shape[0]} decoded, {pixels} pixels declared).")
