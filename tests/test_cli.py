@@ -427,3 +427,16 @@ def test_messages_name_what_is_missing_in_the_command_lines_words(small_pair, tm
     assert "QUERIES" not in result.output.splitlines()[-1]
     result = run("demo", "--places", "1", "--out", tmp_path / "demo")
     assert result.exit_code == 2 and "'--places'" in result.output and "n_places" not in result.output
+
+
+def test_a_malformed_memory_limit_is_named_as_itself_by_every_command(small_pair, tmp_path: Path) -> None:
+    """BTEL_MEMORY_LIMIT=abc: `btel info` blamed the model file ("inconsistent with a … model"), `btel train`
+    went on silently."""
+    db, _ = small_pair
+    model = tmp_path / "m.npz"
+    assert run("train", db, "-o", model, "--method", "lsh", "--budget", "4KB").exit_code == 0
+    for args in (["info", model], ["train", db, "-o", tmp_path / "m2.npz", "--method", "lsh", "--budget", "4KB"]):
+        result = CliRunner().invoke(main, [str(a) for a in args], env={"BTEL_MEMORY_LIMIT": "abc"})
+        assert result.exit_code == 2 and "BTEL_MEMORY_LIMIT='abc' is not a size" in result.output
+        assert "inconsistent" not in result.output
+    assert not (tmp_path / "m2.npz").exists()

@@ -84,6 +84,9 @@ class _Group(click.Group):
         except ValueError:
             pass
         try:
+            from ..core.limits import memory_limit
+
+            memory_limit()  # a malformed BTEL_MEMORY_LIMIT is named as itself, not as a fault of some input
             result = super().invoke(ctx)
         except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort):
             raise
