@@ -82,10 +82,19 @@ def test_parse_budget_refuses_the_spelling_of_bits(budget: str, bytes_spelling: 
         parse_budget(budget)
 
 
-@pytest.mark.parametrize("budget", [0, -1, 0.0, float("inf"), float("nan"), "0KB"])
+@pytest.mark.parametrize("budget", [0, -1, 0.0, float("nan"), "0KB"])
 def test_parse_budget_rejects_non_positive_budgets(budget) -> None:
     with pytest.raises(InvalidParameterError, match="budget must be a positive number of bytes"):
         parse_budget(budget)
+
+
+@pytest.mark.parametrize("budget", [float("inf"), 10 ** 400, 10 ** 30, np.uint64(2 ** 63 + 5), "1e300", "1e400KB"])
+def test_parse_budget_refuses_more_bytes_than_any_model_stores(budget) -> None:
+    """10**400 raised OverflowError; 10**30 gave a model that saved and then failed to load ("corrupt header: an
+    integer of 31 digits"); np.uint64(2**63 + 5) was rounded through float."""
+    with pytest.raises(InvalidParameterError, match="more bytes than any model stores"):
+        parse_budget(budget)
+    assert parse_budget(2 ** 62) == 2 ** 62 and parse_budget(np.uint64(2 ** 62 - 3)) == 2 ** 62 - 3
 
 
 @pytest.mark.parametrize("budget", [True, [500], {"b": 1}, b"500KB"])

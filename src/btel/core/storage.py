@@ -54,8 +54,8 @@ def parse_budget(budget: int | float | str | None) -> int | None:
         return None
     if isinstance(budget, bool):
         raise InvalidParameterError(f"budget must be a number of bytes or a string like '500KB'; got {budget!r}.")
-    if isinstance(budget, (int, np.integer)):
-        value = float(budget)
+    if isinstance(budget, (int, np.integer)):  # exact: through float, 10**400 overflowed and 2**63 + 5 was rounded
+        value = int(budget)
     elif isinstance(budget, (float, np.floating)):
         value = float(budget)
     elif isinstance(budget, str):
@@ -76,8 +76,13 @@ def parse_budget(budget: int | float | str | None) -> int | None:
         value = float(match.group(1)) * _UNITS[unit]
     else:
         raise InvalidParameterError(f"budget must be a number of bytes or a string like '500KB'; got {budget!r}.")
-    if not np.isfinite(value) or value <= 0:
+    if not value > 0:  # NaN included
         raise InvalidParameterError(f"budget must be a positive number of bytes; got {budget!r}.")
+    if value > UNLIMITED_BUDGET:  # a model file records its budget: every budget reads back as written
+        text = str(budget)
+        shown = text if len(text) <= 24 else f"of {len(text)} digits" if isinstance(value, int) else text[:24] + "…"
+        raise InvalidParameterError(f"budget {shown} is more bytes than any model stores (at most 2^62 B, 4.6 EB); "
+                                    "leave the budget out (None; on the command line, no --budget) for none.")
     return int(value)
 
 
