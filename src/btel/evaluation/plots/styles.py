@@ -42,13 +42,15 @@ class Style:
         return out
 
 
-#: The fixed style of every registered method (the BTEL family shares a colour, as do PQ and OPQ).
+#: The fixed style of every registered method. The paper's single tree (BTE-C, BTE-F) and its regions
+#: (btel-r, btel-auto) have colours of their own: a demo draws BTE-C and btel-r side by side, and in one
+#: colour they were told apart by marker alone. PQ and OPQ share one.
 METHOD_STYLES: dict[str, Style] = {
     "bruteforce": Style("black", "o", "-"),
     "btel-c": Style("C0", "o", "-"),
     "btel-f": Style("C0", "s", "--"),
-    "btel-r": Style("C0", "^", "-."),
-    "btel-auto": Style("C0", "D", ":"),
+    "btel-r": Style("C8", "^", "-"),
+    "btel-auto": Style("C8", "D", ":"),
     "btel-codes": Style("C9", "P", "-"),
     "ryth": Style("C5", ">", "-"),
     "pq": Style("C1", "s", "-"),
