@@ -1,6 +1,6 @@
 """Storage accounting: the one storage rule, byte budgets, and their units.
 
-The storage rule (SPEC §7), for every method in btel: **a model's storage is the sum of
+The storage rule (docs/guide/concepts.md), for every method in btel: **a model's storage is the sum of
 ``ndarray.nbytes`` over the arrays that inference reads, at their stored dtype.** A model file
 (:mod:`btel.core.modelfile`) holds exactly those arrays plus a small JSON header, so ``file size −
 reported bytes`` is only the container overhead (a few hundred bytes per array; checked ≤ 4 KiB in

@@ -5,7 +5,7 @@ prediction vector and row j of a ranking. Map places are indices into the map's 
 
 Two kinds of ground truth, one :class:`GroundTruth` class:
 
-``"places"`` (the default, SPEC §9)
+``"places"`` (the default, the paper's protocol)
     Each query has one true place ``query_places[j]`` — for frame-aligned traverses simply
     ``j``. A prediction is correct at tolerance t iff ``|pred − true| ≤ t`` (frames).
 ``"positives"``
@@ -162,7 +162,7 @@ class GroundTruth:
 
     @classmethod
     def frame_aligned(cls, n_queries: int, *, n_map: int | None = None) -> "GroundTruth":
-        """Frame-aligned traverses: the true place of query j is j (SPEC §9)."""
+        """Frame-aligned traverses: the true place of query j is j (the paper's protocol)."""
         n = check_positive_int(n_queries, "n_queries")
         return cls(query_places=np.arange(n, dtype=np.int64), n_map=n_map)
 

@@ -1,6 +1,6 @@
 """HOG: histograms of oriented gradients on a small grey thumbnail (scikit-image).
 
-Defaults reproduce the descriptor of SPEC §10: the grey image resized to 64×32 pixels, 9
+Defaults reproduce the paper's Nordland descriptor: the grey image resized to 64×32 pixels, 9
 orientations, 4×4-pixel cells, 2×2-cell blocks, L2-Hys block normalisation. On a 64×32 frame that
 is 15×7 block positions × 2×2 cells × 9 bins = 3780 values.
 """

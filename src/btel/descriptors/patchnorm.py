@@ -4,7 +4,7 @@ The grey image is resized to 64×32 pixels and cut into non-overlapping 8×8 pat
 is shifted to zero mean and scaled to unit standard deviation, which removes local brightness
 and contrast (day/night, seasons) and keeps local structure. 64×32 pixels → 2048 values.
 
-OpenSeqSLAM stores ``127 + round(z)`` as uint8 (SPEC §8 counts N×2048 bytes for SeqSLAM); this
+OpenSeqSLAM stores ``127 + round(z)`` as uint8 (btel's storage rule counts N×2048 bytes for SeqSLAM); this
 module returns the float z-scores and leaves any quantisation to the caller.
 """
 

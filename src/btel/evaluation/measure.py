@@ -1,4 +1,4 @@
-"""The one way btel measures a method (SPEC §9): fit it (or take it fitted), localize, time, score.
+"""The one way btel measures a method: fit it (or take it fitted), localize, time, score.
 
 :func:`measure` fits a method on the map (timed by :func:`timed_fit`), localizes the queries (timed
 by :func:`btel.evaluation.timing.time_queries`) and returns one

@@ -1,4 +1,4 @@
-"""Metrics as plain functions of arrays (SPEC §9): recall at a tolerance, R@K, precision–recall.
+"""Metrics as plain functions of arrays: recall at a tolerance, R@K, precision–recall (docs/guide/concepts.md).
 
 Queries are rows: query j is row j of the predictions and of a ranking. Ground truth defaults to
 frame-aligned traverses (the true place of query j is j); pass a
@@ -53,9 +53,9 @@ __all__ = [
     "VPR_TUTORIAL_THRESHOLDS",
 ]
 
-#: Tolerances (frames) at which recall is reported (SPEC §9).
+#: Tolerances (frames) at which recall is reported (the evaluation protocol of docs/guide/concepts.md).
 DEFAULT_TOLERANCES: tuple[int, ...] = (0, 1, 2, 5, 10, 20)
-#: K values for R@K (SPEC §9).
+#: K values for R@K (the evaluation protocol of docs/guide/concepts.md).
 DEFAULT_KS: tuple[int, ...] = (1, 5, 10, 20)
 #: K values printed by default (R@20 stays in the files when asked for with ``ks``).
 TABLE_KS: tuple[int, ...] = (1, 5, 10)

@@ -167,7 +167,7 @@ class EvaluationResult:
     recall_at_k : dict of int to float or None
         R@K: K → share of queries with a correct place among the top K ranked candidates.
     nbytes : int or None
-        Storage (SPEC §7); None when the method does not report it (plain scikit-learn objects).
+        Storage (the storage rule, docs/guide/concepts.md); None when the method does not report it.
     storage_breakdown : dict of str to int or None
         Part → bytes.
     fit_time_s : float or None

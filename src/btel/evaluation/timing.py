@@ -1,4 +1,4 @@
-"""How long a fitted method takes to answer queries, measured so that runs agree (SPEC §9).
+"""How long a fitted method takes to answer queries, measured so that runs agree.
 
 :func:`time_queries` warms up, repeats, takes medians and limits the numerical libraries' threads;
 :func:`btel.evaluation.evaluate` reports what it measures.

@@ -1,7 +1,7 @@
-"""The paper's experiments on real Nordland frames, under one storage budget for every method (SPEC §9).
+"""The paper's experiments on real Nordland frames, under one storage budget for every method.
 
 Data: ``nordland64/{summer,winter}`` (3576 frame-aligned 64×32 frames, every 10th frame of the
-videos). Descriptors: HOG (3780-D, SPEC §10) for every method except SeqSLAM, which works on its
+videos). Descriptors: HOG (3780-D, the paper's Nordland setting) for every method except SeqSLAM, which works on its
 own front end, 64×32 patch-normalised thumbnails (2048-D); both are extracted once and cached.
 Ground truth is frame-aligned; tolerance is in frames (one frame ≈ 200 m here).
 

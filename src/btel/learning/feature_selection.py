@@ -1,4 +1,4 @@
-"""Supervised feature selection by between-cluster sum of squares (SPEC §4).
+"""Supervised feature selection by between-cluster sum of squares (the paper's feature selection).
 
 For a classifier whose labels split the training points into clusters S_1..S_r, column j scores
 ``BCSS_j = TSS_j − WCSS_j = Σ_k n_k (μ_kj − μ_j)²`` (for two clusters ``n0·n1/N·(μ0_j − μ1_j)²``).

@@ -1,4 +1,4 @@
-"""Linear classifiers on selected, standardised columns, with the scaling folded in (SPEC §3).
+"""Linear classifiers on selected, standardised columns, with the scaling folded in (the paper's training schemes).
 
 Descriptors are standardised with training statistics (μ, σ) before a classifier is trained,
 and the scaling is folded into the hyperplane so it costs no storage:

@@ -64,7 +64,7 @@ def one_vs_rest_tasks(
 ) -> list[Task]:
     """A multiclass linear classifier as binary tasks sharing one column selection.
 
-    The d' columns are chosen once with the n_classes-cluster BCSS (SPEC §4); two classes give one
+    The d' columns are chosen once with the n_classes-cluster BCSS (the paper's feature selection); two classes give one
     hyperplane (positive = class 1), more give one-vs-rest hyperplanes in class order — the
     problems liblinear's one-vs-rest would solve, split so that they run in parallel.
 

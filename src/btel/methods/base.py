@@ -409,7 +409,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
 
     # -- storage and files --------------------------------------------------------------------------
     def storage_breakdown(self) -> dict[str, int]:
-        """Bytes of each stored array that inference reads (SPEC §7), front end included.
+        """Bytes of each stored array that inference reads (the storage rule), front end included.
 
         Returns
         -------

@@ -1,4 +1,4 @@
-"""RYTH (Yu, Jacobson & Milford 2018): place index by its residues modulo co-prime periods (SPEC §8).
+"""RYTH (Yu, Jacobson & Milford 2018): place index by its residues modulo co-prime periods (the paper's baselines).
 
 K pairwise co-prime periods p_k near N^(1/K) with Π p_k ≥ N. Classifier k is a multiclass linear
 classifier (one-vs-rest linear SVM) whose label is ``i mod p_k``, on its own d' columns. Decoding:

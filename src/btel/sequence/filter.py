@@ -1,4 +1,4 @@
-"""The paper's sequence filter (SPEC §6): inference only, O(a) memory, no stored bytes.
+"""The paper's sequence filter: inference only, O(a) memory, no stored bytes.
 
 Window a. The filter keeps the last 2a outputs. A new prediction i is compared with the median m
 of that history; if ``|i − m| > a + 1`` it is replaced by ``m + a + 1`` (the paper's rule, which

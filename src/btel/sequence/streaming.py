@@ -3,7 +3,7 @@
 This is what a robot runs: a camera pipeline writes each frame's global descriptor as a line of
 numbers (separated by commas and/or whitespace, as ``numpy.savetxt`` writes them) to a pipe or an
 append-only file, and every line is localized as soon as it is complete, with the paper's sequence
-filter (SPEC §6) applied across the stream. The model's front end runs online too
+filter applied across the stream. The model's front end runs online too
 (:class:`btel.sequence.querystream.QueryStream`): with delta descriptors it keeps the last 2w frames and
 answers from the first frame on. A line ``reset`` starts a new traverse: the filter, the HMM and
 the delta history forget the past. A malformed line — a wrong number of values, something that is
@@ -86,7 +86,7 @@ def localize_stream(
         answered: a last line without its newline (the producer may have stopped in the middle of
         it) is reported through ``on_error``, not answered.
     window : int, optional
-        Sequence-filter window a (SPEC §6); None: raw predictions.
+        Sequence-filter window a (the paper's notation); None: raw predictions.
     on_error : callable, optional
         Called as ``on_error(number, message)`` for each malformed line or frame (which is skipped).
         Default: ignore.

@@ -1,7 +1,7 @@
-"""The baselines BTEL is compared with (SPEC §8), each a :class:`btel.methods.base.PlaceLocalizer`.
+"""The baselines BTEL is compared with, each a :class:`btel.methods.base.PlaceLocalizer`.
 
-Every baseline takes ``budget`` (bytes or ``"500KB"``), counts its storage by the one rule of
-SPEC §7 and ranks candidate places (``rank(Q, k)``). RYTH lives in :mod:`btel.methods.ryth`.
+Every baseline takes ``budget`` (bytes or ``"500KB"``), counts its storage by the one storage rule
+(docs/guide/concepts.md) and ranks candidate places (``rank(Q, k)``). RYTH lives in :mod:`btel.methods.ryth`.
 
 ========== ============================ ==========================================================
 name       class                        storage

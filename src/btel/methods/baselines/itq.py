@@ -1,4 +1,4 @@
-"""Iterative quantisation (Gong & Lazebnik 2011): binary codes searched by Hamming distance (SPEC §8).
+"""Iterative quantisation (Gong & Lazebnik 2011): binary codes searched by Hamming distance (the paper's baselines).
 
 Fit: centre the map descriptors, project them on their top b principal directions, then learn an
 orthogonal b×b rotation that minimises the quantisation error to the binary hypercube (faiss

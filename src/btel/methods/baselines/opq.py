@@ -1,4 +1,4 @@
-"""Optimised product quantisation (Ge et al. 2014) with faiss, under a storage budget (SPEC §8).
+"""Optimised product quantisation (Ge et al. 2014) with faiss, under a storage budget (the paper's baselines).
 
 OPQ learns an orthogonal rotation that balances the variance across the M sub-spaces before
 product quantisation (faiss ``OPQMatrix``, alternating PQ training and a Procrustes update; its

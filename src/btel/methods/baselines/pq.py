@@ -1,11 +1,11 @@
-"""Product quantisation (Jégou et al. 2011) with faiss, under a storage budget (SPEC §8).
+"""Product quantisation (Jégou et al. 2011) with faiss, under a storage budget (the paper's baselines).
 
 Each map descriptor, optionally projected to p dimensions, is cut into M sub-vectors of p/M
 dimensions; each sub-vector is replaced by the index of its nearest centroid in a 2^nbits-entry
 codebook learned by k-means. A query is compared with every code by asymmetric distance
 computation (faiss ``IndexPQ``: an exact linear scan over the codes; the query stays in float).
 
-Storage (SPEC §7), at stored dtype:
+Storage (the storage rule of docs/guide/concepts.md), at stored dtype:
 
 - codes: ``n_rows × ceil(M·nbits/8)`` bytes (faiss ``sa_code_size()`` per row);
 - codebooks: ``M × 2^nbits × (p/M)`` float32 = ``2^nbits · p · 4`` bytes;
@@ -23,7 +23,7 @@ Budget rule (deterministic): enumerate every configuration (p, M, nbits) with
 keep those whose bytes fit, and take the one with the most code bits per row (M·nbits); ties go
 to fewer bytes, then larger p, then larger nbits. Explicit ``pca_dim``, ``n_subquantizers`` or
 ``nbits`` pin that part of the configuration and the rule chooses the rest. On raw 3780-D HOG of
-3576 Nordland frames, 500 KB selects no PCA, M = 140, nbits = 4: 492 240 B (SPEC §10).
+3576 Nordland frames, 500 KB selects no PCA, M = 140, nbits = 4: 492 240 B (the Nordland figures of docs/results.md).
 
 Without a budget: p = d when d ≤ 256, else PCA to the largest power of two ≤ min(256, rows);
 nbits = 8 (4 when there are fewer than 256 map rows); M = the largest divisor of p that is ≤ 32.

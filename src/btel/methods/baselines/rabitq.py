@@ -17,7 +17,7 @@ authors' library's default rotator): exactly orthogonal, O(d log d) per row, not
 — the Q of a QR factorisation of a d×D Gaussian matrix, O(d·D²) at every fit and load (model files
 that record no rotation used it). Evidence: ``docs/decisions/rabitq.md``.
 
-Storage (the one rule, SPEC §7): the rotation is regenerated from the seed (0 bytes, as LSH's
+Storage (the one storage rule of docs/guide/concepts.md): the rotation is regenerated from the seed (0 bytes, as LSH's
 projection and btel-codes' codewords); everything learned is counted at its stored width:
 
 - ``signs``: n_rows × ⌈D/8⌉ bytes; ``ex_codes`` (B > 1): n_rows × ⌈D(B−1)/8⌉ bytes;

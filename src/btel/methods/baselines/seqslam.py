@@ -1,4 +1,4 @@
-"""SeqSLAM (Milford & Wyeth 2012) with OpenSeqSLAM's parameters (SPEC §8).
+"""SeqSLAM (Milford & Wyeth 2012) with OpenSeqSLAM's parameters (the paper's baselines).
 
 Orientation: **queries are rows** here as everywhere in btel, so a difference matrix ``D`` has
 shape (n_queries, n_map) and ``D[j, i]`` compares query j with map row i.

@@ -1,4 +1,4 @@
-"""BTEL (SPEC §2–§6): b ≈ log2 N linear classifiers predict the bits of a place's index.
+"""BTEL (Le, Hoang & Milford): b ≈ log2 N linear classifiers predict the bits of a place's index.
 
 =================== ===========================================================================
 module              what

@@ -1,4 +1,4 @@
-"""Compressed training, BTE-C (SPEC §3): b independent bit classifiers over all N places.
+"""Compressed training, BTE-C (the paper's training schemes): b independent bit classifiers over all N places.
 
 Classifier k is trained on every descriptor with label bit k of h(place) (MSB first), on its own
 d' columns (:func:`btel.learning.feature_selection.select_features`). The b fits are independent and run in

@@ -1,4 +1,4 @@
-"""Binary tree codes of place indices (SPEC §2).
+"""Binary tree codes of place indices (the paper's binary tree encoding).
 
 Place i has the b-bit code h(i), most significant bit first: ``bits[:, 0]`` is the MSB and level
 l of the tree splits on ``bits[:, l]``. N is usually not a power of two, so decoding must never

@@ -1,4 +1,4 @@
-"""Full training, BTE-F (SPEC §3): one classifier per internal tree node.
+"""Full training, BTE-F (the paper's training schemes): one classifier per internal tree node.
 
 Nodes are numbered in heap order (root 0, children 2j+1 and 2j+2). Node j at level l with prefix p
 covers the places whose top l bits equal p and is trained on them with label bit l+1 (0-based:

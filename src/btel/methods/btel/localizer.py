@@ -1,4 +1,4 @@
-"""The BTEL estimator (SPEC §2–§7): regions, one binary tree per region, under a byte budget.
+"""The BTEL estimator (Le, Hoang & Milford): regions, one binary tree per region, under a byte budget.
 
 The ideas live in their own modules — the codes (:mod:`btel.methods.btel.compressed`,
 :mod:`btel.methods.btel.full`, :mod:`btel.methods.btel.encoding`), inference and ranking over bit

@@ -1,7 +1,7 @@
 """Ranked output of BTEL: the K most likely places from the bit margins, best first (R@K).
 
 A query's bit margins ``m`` (shape (b,), positive = bit 1) score every code i by the soft score
-``S(i) = Σ_k m_k·(2·bit_k(i) − 1)`` (SPEC §2). The hard code (every bit at the sign of its margin)
+``S(i) = Σ_k m_k·(2·bit_k(i) − 1)`` (the paper's encoding). The hard code (every bit at the sign of its margin)
 scores ``Σ_k |m_k|``, and flipping bit k costs ``2|m_k|``, so
 
     S(i) = Σ_k |m_k| − cost(i),   cost(i) = Σ_{k flipped in i} 2|m_k|.
@@ -15,7 +15,7 @@ parent, so the pops come out in non-decreasing cost. Codes ≥ N are skipped. Pe
 O((K + s)·log(K + s)) with s ≤ 2^b − N invalid codes skipped, against O(N·b) for sorting every
 soft score (:func:`soft_scores`, the brute-force reference the tests compare with).
 
-With regions (SPEC §5) a place i in region k has the cost
+With regions (the paper's regions) a place i in region k has the cost
 
     cost(i) = flip cost of its local code in region k's tree + α·(s_max − s_k),
 

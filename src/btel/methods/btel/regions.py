@@ -1,4 +1,4 @@
-"""BTEL's regions (SPEC §5): where the route is split (KTS) and which region a query is in.
+"""BTEL's regions (the paper's regions): where the route is split (KTS) and which region a query is in.
 
 The route is split into r contiguous regions by Kernel Temporal Segmentation
 (:mod:`btel.methods.btel.segmentation`), r fixed or chosen by the KTS penalty (lowered while no model fits the

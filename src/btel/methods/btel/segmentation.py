@@ -1,10 +1,10 @@
-"""Splitting a traverse into contiguous regions: Kernel Temporal Segmentation (SPEC §5).
+"""Splitting a traverse into contiguous regions: Kernel Temporal Segmentation (the paper's regions).
 
 KTS (Potapov et al. 2014) with a linear kernel on L2-normalised descriptors minimises the
 within-segment scatter over r−1 change points by dynamic programming; ``ruptures.KernelCPD
 (kernel="linear")`` solves exactly that problem, and one call yields the optimal segmentations
 for every count up to the maximum. Descriptors are reduced to at most 128 dimensions by PCA first
-(allowed by SPEC §5): the DP costs O(n²·r) kernel evaluations and the reduction keeps them cheap.
+(a speed-up, not the paper's): the DP costs O(n²·r) kernel evaluations and the reduction keeps them cheap.
 
 Automatic r uses the KTS penalty over the DP costs V_m (m change points, n frames):
 ``cost_m = V_m/n + v·m/(2n)·(log(n/m) + 1)`` — not ruptures' ``pen=`` (which is a plain
@@ -51,7 +51,7 @@ __all__ = [
     "DEFAULT_MAX_POINTS",
 ]
 
-#: Shortest region KTS may produce (SPEC §5); a region needs ≥ 2 places for a 1-bit code.
+#: Shortest region KTS may produce (the paper's regions); a region needs ≥ 2 places for a 1-bit code.
 MIN_REGION_LENGTH = 2
 
 #: Longest sequence segmented by the exact DP; longer routes take the block path.
