@@ -232,12 +232,19 @@ def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tupl
                  budget: tuple[str, ...], param_texts: tuple[str, ...], pairs_path: str | None,
                  out_dir: str | None, overwrite: bool, resume_dir: str | None, no_progress: bool,
                  n_jobs: int | None, **options: Any) -> None:
-    """Localize QUERIES with each method; write metrics.json, metrics.csv, predictions and plots to --out.
+    """Localize the --queries with each method; write metrics.json, metrics.csv, predictions and plots to --out.
+
+    \b
+    Example:
+      btel evaluate --db db.npy --queries q.npy --methods auto,lsh,pq --budget 16KB,64KB --out runs/x
+      btel evaluate --model a.npz --model b.npz --queries q.npy --ground-truth gt.npy --out runs/y
 
     Methods are fitted on --db (--methods, --budget, --param) or loaded from --model files; all is checked
     before any fit, and a method that does not fit (or fails) becomes a row with its reason. Exit: 0 all
-    ran; 1 some did not, or a failure; 2 usage or input; 130 Ctrl-C. With --calibrate, the methods whose
-    fit takes labelled queries (auto) choose on them; metrics.json and calibration.md hold their table.
+    ran; 1 some did not, or a failure; 2 usage or input; 130 Ctrl-C, 143 SIGTERM (the finished rows kept:
+    --resume goes on); 141 when the reader of its output went away (after the run folder is written).
+    With --calibrate, the methods whose fit takes labelled queries (auto) choose on them; metrics.json and
+    calibration.md hold their table.
 
     --resume RUN needs no other option: the run folder records its inputs and every option that shapes
     its rows; an option given beside it that differs from the recorded one is refused (a run never mixes
