@@ -264,3 +264,20 @@ def test_a_csv_omitting_queries_names_them_and_how_to_list_a_query_without_posit
     (tmp_path / "past.csv").write_text("query,positive\n0,0\n250,5\n")
     with pytest.raises(InvalidParameterError, match="lists query 250, but there are only 200 query rows"):
         GroundTruth.from_file(tmp_path / "past.csv", n_queries=200)
+
+
+def test_bad_positions_are_named_as_positions_of_their_file(tmp_path) -> None:
+    """A 1-D utmDb was told to reshape "a single descriptor"; a NaN position to "repair those rows before
+    fitting"; neither message named the file."""
+    import numpy as np
+    import pytest
+
+    from btel.datasets import GroundTruth
+    from btel.exceptions import InvalidParameterError
+
+    np.savez(tmp_path / "flat.npz", utmDb=np.arange(5.0), utmQ=np.zeros((2, 2)), posDistThr=25)
+    np.savez(tmp_path / "nan.npz", utmDb=np.array([[0.0, 0.0], [np.nan, 1.0]]), utmQ=np.zeros((2, 2)), posDistThr=25)
+    with pytest.raises(InvalidParameterError, match=r"flat.npz': utmDb must hold one position per row.*shape \(5,\)"):
+        GroundTruth.from_file(tmp_path / "flat.npz")
+    with pytest.raises(InvalidParameterError, match=r"nan.npz': utmDb holds no finite position at row\(s\) \[1\]"):
+        GroundTruth.from_file(tmp_path / "nan.npz")

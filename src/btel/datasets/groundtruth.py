@@ -35,7 +35,7 @@ import scipy.sparse as sp
 
 from ..core.claims import atomic_output
 from ..core.validation import check_descriptors, check_positive_int
-from ..exceptions import DataNotFoundError, DimensionMismatchError, InvalidParameterError
+from ..exceptions import BTELError, DataNotFoundError, DimensionMismatchError, InvalidParameterError
 from .groundtruth_files import read_object_npy
 from .placeindex import _as_int, check_predictions
 from .positions import positives_within
@@ -47,6 +47,23 @@ logger = logging.getLogger(__name__)
 
 def _check_tolerance(tolerance: Any) -> int:
     return check_positive_int(tolerance, "tolerance", minimum=0)
+
+
+def _positions(values: Any, name: str) -> np.ndarray:
+    """A (n, coordinates) float64 array of positions, or the error in the words of positions (not descriptors)."""
+    try:
+        array = check_descriptors(values, name=name, dtype=np.float64)
+    except BTELError as exc:
+        arr = np.asarray(values) if isinstance(values, np.ndarray) else None
+        if arr is not None and arr.ndim != 2:
+            raise InvalidParameterError(f"{name} must hold one position per row (n × coordinates, e.g. UTM easting "
+                                        f"and northing); got shape {arr.shape}.") from None
+        if arr is not None and arr.dtype.kind in "fc" and arr.size and not np.isfinite(arr).all():
+            rows = np.flatnonzero(~np.isfinite(arr).all(axis=1))
+            raise InvalidParameterError(f"{name} holds no finite position at row(s) {rows[:5].tolist()}"
+                                        f"{' …' if rows.size > 5 else ''}: every place and query needs one.") from None
+        raise type(exc)(str(exc).replace("descriptor", "position")) from None
+    return array
 
 
 class GroundTruth:
@@ -208,8 +225,7 @@ class GroundTruth:
         ResourceLimitError
             More pairs or distance computations than the memory limit allows.
         """
-        db = check_descriptors(utm_db, name="utmDb", dtype=np.float64)
-        q = check_descriptors(utm_q, name="utmQ", dtype=np.float64)
+        db, q = _positions(utm_db, "utmDb"), _positions(utm_q, "utmQ")
         if q.shape[1] != db.shape[1]:
             raise DimensionMismatchError(
                 f"utmQ has {q.shape[1]} coordinates per row but utmDb has {db.shape[1]}; "

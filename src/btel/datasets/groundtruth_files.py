@@ -19,7 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from ..exceptions import BTELError, DataNotFoundError, InvalidDescriptorsError, InvalidParameterError, ResourceLimitError
+from ..exceptions import (BTELError, DataNotFoundError, DimensionMismatchError, InvalidDescriptorsError,
+                          InvalidParameterError, ResourceLimitError)
 from ..core.limits import check_bytes, check_count, check_numpy_file, open_regular, read_regular
 from ..descriptors.npy_header import check_npy_header
 
@@ -237,7 +238,10 @@ def _from_arrays(cls: Any, arrays: dict[str, np.ndarray], source: str,
     if all(k in arrays for k in _UTM_KEYS):
         _check_counts(source, expected, queries=("utmQ", _rows(arrays["utmQ"])),
                       map_places=("utmDb", _rows(arrays["utmDb"])))
-        return cls.from_utm(arrays["utmDb"], arrays["utmQ"], _scalar(arrays["posDistThr"], "posDistThr", source))
+        try:
+            return cls.from_utm(arrays["utmDb"], arrays["utmQ"], _scalar(arrays["posDistThr"], "posDistThr", source))
+        except (InvalidDescriptorsError, InvalidParameterError, DimensionMismatchError) as exc:
+            raise type(exc)(f"{source}: {exc}") from None  # which file holds the bad positions
     if "query_places" in arrays:
         _check_counts(source, expected, queries=("query_places", _rows(arrays["query_places"])),
                       map_places=("n_map", n_map))
