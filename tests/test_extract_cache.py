@@ -76,9 +76,11 @@ def test_extract_says_what_in_the_folder_it_does_not_read(tmp_path: Path) -> Non
     (images / "notes.txt").write_text("route notes")
     (images / "nested").mkdir()
     (images / ".DS_Store").write_bytes(b"")  # hidden: not worth a word
+    (images / "loop.jpg").symlink_to(images / "loop.jpg")  # an image's name on no regular file: says so
     result = CliRunner().invoke(main, ["extract", str(images), "-o", str(tmp_path / "d.npy"), "--no-progress"])
     assert result.exit_code == 0, result.output
-    assert "2 entries of" in result.output and "are not images btel reads (nested/, notes.txt)" in result.output
+    assert "3 entries of" in result.output
+    assert "are not images btel reads (loop.jpg (not a regular file), nested/, notes.txt)" in result.output
     assert np.load(tmp_path / "d.npy").shape[0] == 3
 
 

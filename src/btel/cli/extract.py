@@ -81,7 +81,8 @@ def extract(images_dir: str, output: str, descriptor: str, size: str | None, par
         many = len(skipped) != 1
         click.echo(f"Warning: {len(skipped)} entr{'ies' if many else 'y'} of {images_dir} "
                    f"{'are not images' if many else 'is not an image'} btel reads ({', '.join(skipped[:5])}"
-                   f"{', …' if len(skipped) > 5 else ''}); images end in {', '.join(IMAGE_EXTENSIONS)}.", err=True)
+                   f"{', …' if len(skipped) > 5 else ''}); images are regular files ending in {', '.join(IMAGE_EXTENSIONS)}.",
+                   err=True)
     params: dict[str, Any] = {}
     for text in param_texts:
         name, eq, raw = text.partition("=")

@@ -124,8 +124,10 @@ def list_images(folder: str | os.PathLike) -> list[Path]:
 
 def not_images(folder: str | os.PathLike) -> list[str]:
     """Names of what :func:`list_images` leaves out of ``folder`` (other files, sub-folders; hidden
-    entries aside), sorted: what a user may have expected to be read."""
-    return sorted(p.name + ("/" if p.is_dir() else "") for p in Path(folder).iterdir()
+    entries aside), sorted: what a user may have expected to be read. An image's name on what is no regular
+    file (a FIFO, a device, a broken or looping link) says so."""
+    return sorted(p.name + ("/" if p.is_dir() else " (not a regular file)" if p.suffix.lower() in IMAGE_EXTENSIONS
+                            else "") for p in Path(folder).iterdir()
                   if not p.name.startswith(".") and not (p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS))
 
 
