@@ -368,3 +368,15 @@ def test_real_map_scaled_past_float32_is_named(gardenspoint_netvlad) -> None:
         make_method("auto", budget="16KB").fit(db.astype(np.float64) * 1e-300)
     with pytest.raises(InvalidDescriptorsError, match="every value of Q is zero in float32"):
         make_method("bruteforce").fit(db).predict(db.astype(np.float64) * 1e-300)
+
+
+def test_masked_values_are_refused_not_silently_unmasked() -> None:
+    """predict(np.ma.masked_array(...)) answered from the hidden values under the mask."""
+    from btel.core.validation import check_descriptors
+    from btel.exceptions import InvalidDescriptorsError
+
+    X = np.ma.masked_array(np.ones((3, 4), dtype=np.float32), mask=False)
+    assert check_descriptors(X).shape == (3, 4)  # nothing masked: the values are the data
+    X.mask[1, 2] = True
+    with pytest.raises(InvalidDescriptorsError, match="X has masked values; fill them"):
+        check_descriptors(X)

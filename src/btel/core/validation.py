@@ -137,9 +137,10 @@ def raise_if_non_finite(arr: np.ndarray, name: str, *, row_offset: int = 0) -> N
 def _as_numeric_array(X: Any, name: str) -> np.ndarray:
     """``np.asarray(X)`` with the errors of :func:`check_descriptors` for what is not real numbers."""
     if hasattr(X, "toarray") and not isinstance(X, np.ndarray):
-        raise InvalidDescriptorsError(
-            f"{name} is a sparse matrix; btel needs dense descriptors. Convert it with {name}.toarray()."
-        )
+        raise InvalidDescriptorsError(f"{name} is a sparse matrix; btel needs dense descriptors. Convert it with "
+                                      f"{name}.toarray().")
+    if isinstance(X, np.ma.MaskedArray) and np.ma.getmaskarray(X).any():  # np.asarray would drop the mask unseen
+        raise InvalidDescriptorsError(f"{name} has masked values; fill them ({name}.filled(...)) or drop those rows.")
     try:
         arr = np.asarray(X)
     except Exception as exc:  # ragged lists and the like
