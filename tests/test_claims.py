@@ -365,7 +365,7 @@ def _check_run_folder_is_whole(run: Path) -> list[str]:
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX process limits")
-@pytest.mark.parametrize("limit", [3_000, 7_000, 28_000])  # fails at metrics.json, the first plot, the last
+@pytest.mark.parametrize("limit", [3_000, 12_000, 28_000])  # fails at metrics.json, the first plot, the last
 def test_a_full_disk_during_evaluate_keeps_whole_files_only(tmp_path: Path, limit: int) -> None:
     """Past the limit a write fails (EFBIG): the command ends in one line, and the run folder holds only
     files written whole (the rows finished before the failure), no temporary and no claim."""
@@ -376,11 +376,11 @@ def test_a_full_disk_during_evaluate_keeps_whole_files_only(tmp_path: Path, limi
     assert "Traceback" not in result.stderr and result.stderr.strip().splitlines()[-1].startswith("Error: ")
     assert "could not write" in result.stderr, result.stderr
     names = _check_run_folder_is_whole(tmp_path / "run")
-    if limit == 3_000:  # the first metrics.json (4.5 KB) already fails
+    if limit == 3_000:  # the first metrics.json (9 KB: it records the machine, threads and columns) already fails
         assert names == [], names
     else:  # the rows are on disk; the plots (26–30 KB each) fail at the first or a later one
         assert {"metrics.json", "metrics.csv", "predictions_bruteforce.csv"} <= set(names), names
-        assert limit > 7_000 or not [n for n in names if n.endswith(".png")], names
+        assert limit > 12_000 or not [n for n in names if n.endswith(".png")], names
 
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX umask")

@@ -475,7 +475,7 @@ def test_frontier_panels_label_no_minor_ticks_so_labels_never_run_together(tmp_p
     real = Figure.savefig
     monkeypatch.setattr(Figure, "savefig", lambda fig, *a, **k: (drawn.append(fig), real(fig, *a, **k))[1])
     frontier._plots(rows, tmp_path)
-    assert len(drawn) == 2
+    assert len(drawn) == 3  # recall vs bytes, vs bytes per place, and the overview of two maps
     for fig in drawn:
         fig.canvas.draw()
         for ax in fig.axes:
@@ -500,7 +500,7 @@ def test_frontier_legend_has_a_panel_of_its_own_with_auto_first(tmp_path, monkey
     monkeypatch.setattr(Figure, "savefig", lambda fig, *a, **k: (drawn.append(fig), real(fig, *a, **k))[1])
     frontier._plots(rows, tmp_path)
     methods = {r["method"] for r in rows if r.get("status") == "ok"}
-    for fig in drawn:
+    for fig in drawn[:2]:  # the full figures (the overview's few rows share a legend below its panels)
         maps = [ax for ax in fig.axes if ax.has_data()]
         keys = [ax for ax in fig.axes if ax.get_legend() is not None]
         assert len(maps) == len({r["dataset"] for r in rows}) and all(ax.get_legend() is None for ax in maps)
