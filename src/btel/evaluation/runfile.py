@@ -100,7 +100,10 @@ def describe_run(path: str | os.PathLike, width: int = 0) -> str:
             raise InvalidParameterError(f"{metrics}: results[{i}] is {exc} The file was edited or damaged: run "
                                         "`btel evaluate` again to write the run anew.") from None
     done = sum(r.ok for r in results)
-    state = "complete" if run.get("complete") is True else "incomplete (interrupted: `btel evaluate --resume` goes on)"
+    extra = run.get("extra") if isinstance(run.get("extra"), dict) else {}
+    resumable = extra.get("data") != "synthetic_route"  # a demo is run again, not resumed
+    state = "complete" if run.get("complete") is True else (
+        "incomplete (interrupted" + (": `btel evaluate --resume` goes on)" if resumable else ")"))
     lines = [f"run: {os.fspath(path)}, {state}; {done} of {len(results)} rows measured",
              f"command: {_text(run.get('command'))}" + (f"  (in {_text(run['cwd'])})" if run.get("cwd") else "")]
     when = [f"started {_text(run.get('date_utc'))}"]
@@ -116,7 +119,6 @@ def describe_run(path: str | os.PathLike, width: int = 0) -> str:
              for lib in threads.get("libraries") or [] if isinstance(lib, dict)]
     lines.append(f"machine: {_text(run.get('cpu') or run.get('machine'))}, {_text(run.get('cpu_count'))} cores"
                  + (f"; threads: {', '.join(pools)}" if pools else ""))
-    extra = run.get("extra") if isinstance(run.get("extra"), dict) else {}
     inputs = extra.get("inputs") if isinstance(extra.get("inputs"), dict) else {}
     for option, entry in inputs.items():
         for item in entry if isinstance(entry, list) else [entry]:
