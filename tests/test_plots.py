@@ -285,3 +285,12 @@ def test_precision_recall_figure_agrees_with_recall_at_full_precision(tmp_path: 
     tied = fig.axes[0].get_lines()[0]
     assert len(tied.get_xdata()) == 1 and tied.get_marker() not in (None, "", "None")  # one visible point
     assert tied.get_ydata()[0] == pytest.approx(correct.mean())
+
+
+def test_the_paper_s_tree_and_its_regions_have_colours_of_their_own() -> None:
+    """A demo draws BTE-C and btel-r side by side; in one colour they were told apart by marker alone."""
+    from btel.evaluation.plots.styles import method_styles
+
+    styles = method_styles(["auto → lsh", "btel-c", "btel-r", "btel-codes", "pq", "bruteforce"])
+    colours = [styles[n].color for n in ("btel-c", "btel-r", "btel-codes", "pq", "bruteforce")]
+    assert len(set(colours)) == len(colours)
