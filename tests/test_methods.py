@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from btel import load
+from btel.core.fingerprint import map_fingerprint
 from btel.exceptions import BudgetTooSmallError, InvalidParameterError
 from btel.methods import METHODS, make_method
 
@@ -52,6 +53,8 @@ def test_save_load_and_ranking(name: str, route, tmp_path) -> None:
     again = load(path)
     np.testing.assert_array_equal(again.predict(Q), method.predict(Q))
     assert path.stat().st_size - method.nbytes <= 4096
+    # The file records which rows the places index (btel info shows it), and the digest is of those rows.
+    assert again.map_fingerprint_ == method.map_fingerprint_ == map_fingerprint(X)
     if True:  # every method ranks
         ranked = method.rank(Q, 5)
         assert ranked.shape == (200, 5)

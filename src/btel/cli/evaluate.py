@@ -250,7 +250,7 @@ def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tupl
     its rows; an option given beside it that differs from the recorded one is refused (a run never mixes
     rows of two settings). Resuming a complete run says so and exits 0 without fitting anything.
     """
-    from ..evaluation.inputs import common_map_size, run_title, saved_jobs
+    from ..evaluation.inputs import common_map_size, fitted_on_other_rows, run_title, saved_jobs
     from ..evaluation.resume import check_finished_rows, input_fingerprints
     from ..evaluation.runs import check_run_folder
     from ..exceptions import ModelFileError
@@ -302,6 +302,8 @@ def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tupl
             refuse_matrix_as_model(path, "--model", "or give this matrix as --db to fit --methods on it")
         raise
     n_map = common_map_size(X, Q, saved)
+    for note in fitted_on_other_rows(X, saved):
+        _echo_while_running(f"note: {note}; were --db and the --model files made from the same map?")
     ks = _ks_for_map(ks, n_map, _given(ctx, "ks_text"))
     _check_tolerances(o["tolerances"], n_map)
     threshold = o["positive_dist_threshold"]

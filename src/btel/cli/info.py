@@ -62,13 +62,15 @@ def _registry_name(model: Any) -> str:
 @click.argument("model_path", metavar="MODEL", type=click.Path(dir_okay=False))
 def info(model_path: str) -> None:
     """Show what a saved MODEL is: method, parameters, front end, and the bytes of every stored array."""
+    from ..core.fingerprint import describe_fingerprint
     from ..core.params import chosen_at_fit
     from ._inputs import load_model
 
     model = load_model(model_path, "usage: btel info MODEL")
     name = _registry_name(model)
     click.echo(f"method: {name}" + (f" — {type(model).__name__}" if name in _method_names() else ""))
-    click.echo(f"map: N = {model.n_places_} places, d = {model.n_features_in_}")
+    click.echo(f"map: N = {model.n_places_} places, d = {model.n_features_in_}; fitted on "
+               f"{describe_fingerprint(getattr(model, 'map_fingerprint_', None))}")
     front = model.front_end_
     click.echo(f"front end: normalize={front.normalize}, whiten={front.whiten}, delta={front.delta}"
                f"{'  (uses the query sequence)' if model.uses_query_sequence else ''}")

@@ -272,6 +272,20 @@ def common_map_size(X_map: Any, Q: Any, saved: Sequence[Job]) -> int:
     return sizes.pop()
 
 
+def fitted_on_other_rows(X_map: Any, saved: Sequence[Job]) -> list[str]:
+    """A note for each saved model whose recorded map (:mod:`btel.core.fingerprint`) is not ``X_map``'s rows:
+    its place indices refer to another map (other descriptors of the same images, another extraction)."""
+    from ..core.fingerprint import map_fingerprint
+
+    if X_map is None:
+        return []
+    recorded = [(job, getattr(job.method, "map_fingerprint_", None)) for job in saved]
+    digest = map_fingerprint(X_map)["sha256"] if any(fp is not None for _, fp in recorded) else None
+    return [f"model {job.name} was fitted on other map rows (sha256 {fp['sha256'][:12]}…) than these "
+            f"(sha256 {digest[:12]}…): its places index that map" for job, fp in recorded
+            if fp is not None and fp["sha256"] != digest]
+
+
 def run_title(dataset: str, n_map: int, n_queries: int, budgets: Sequence[Any], truth: dict[str, str], *,
               saved: bool = False, fitted: bool = True) -> str:
     """The plots' title: data set, sizes, budgets, ground truth (source and rule)."""

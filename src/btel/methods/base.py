@@ -37,6 +37,7 @@ from ..core.validation import Budget, check_descriptors, check_is_fitted, check_
 from ..exceptions import BudgetTooSmallError, InvalidAnswerError, InvalidDescriptorsError, InvalidParameterError, NotEnoughPlacesError
 from ..core.frontend import FRONT_END_CONSTRAINTS, FRONT_END_MEANINGS, FrontEnd, traverse_starts, with_front_end_parameters
 from ..core.storage import BUDGET_MEANING, budget_of, exact_bytes, parse_budget, storage_breakdown, summary_line
+from ..core.fingerprint import map_fingerprint
 from ..core.modelfile import ArraySpec, jsonable, save_arrays
 from ..sequence.querystream import QueryStream
 from ..core.topk import put_first, ties_by_place, top_k
@@ -48,9 +49,8 @@ __all__ = ["PlaceLocalizer", "ArraySpec", "QueryStream", "top_k", "put_first"]
 _SCORE_BLOCK_VALUES = 1 << 22
 #: Batches of at least this many queries are predicted with one BLAS thread (below, no threads start).
 _ONE_BLAS_THREAD_FROM = 512
-#: Batches of at least this many queries are predicted in row chunks on every core (linear methods).
-_PARALLEL_PREDICT_FROM = 8192
-_PREDICT_CHUNK_ROWS = 4096
+#: Batches of at least this many queries are predicted in row chunks (of the second) on every core (linear methods).
+_PARALLEL_PREDICT_FROM, _PREDICT_CHUNK_ROWS = 8192, 4096
 
 
 class PlaceLocalizer(ParamsMixin, ABC):
@@ -80,10 +80,9 @@ class PlaceLocalizer(ParamsMixin, ABC):
     #: False when ``_predict`` fills runtime caches that threads must not share: no row chunks then.
     _predict_in_threads: ClassVar[bool] = True
 
-    #: The front end's three parameters and their defaults (:mod:`btel.core.frontend`), declared here once
-    #: for every method: each subclass's ``__init__`` gets them as keyword-only parameters (so
-    #: ``get_params``, ``clone`` and model files see them) and their constraints. A method whose
-    #: defaults differ overrides this mapping (SeqSLAM does not normalise).
+    #: The front end's three parameters and their defaults (:mod:`btel.core.frontend`), declared once for every
+    #: method: each subclass's ``__init__`` gets them as keyword-only parameters (seen by ``get_params``, ``clone``
+    #: and model files) and their constraints. A method whose defaults differ overrides it (SeqSLAM: no L2).
     front_end_defaults: ClassVar[dict[str, Any]] = {"normalize": "l2", "whiten": None, "delta": None}
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
@@ -200,6 +199,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
         check_params(self)
         X = check_descriptors(X, name="X", distinct_rows=True)
         labels, n_places = map_places(places, X.shape[0])
+        self.map_fingerprint_ = map_fingerprint(X)  # which rows the places index (the model file records it)
         if X.shape[0] < self._min_rows:
             raise NotEnoughPlacesError(
                 f"{self.label} needs at least {self._min_rows} map descriptors; got {X.shape[0]}."
@@ -268,8 +268,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
     def _check_queries(self, Q: Any) -> np.ndarray:
         """Validated queries (float32, 2-D, finite, the fitted dimension) through the front end."""
         check_is_fitted(self, self._fitted_marker)
-        front = self.front_end_
-        # A normalising front end checks NaN/inf in its own pass over Q (the row norms): one read.
+        front = self.front_end_  # a normalising front end checks NaN/inf in its own pass over Q (the row norms)
         Q = check_descriptors(Q, name="Q", n_features=self.n_features_in_, check_finite=not front.checks_finite)
         return front.transform(Q, check_finite=True, lazy=self._linear_in_queries)
 
@@ -441,7 +440,8 @@ class PlaceLocalizer(ParamsMixin, ABC):
                  # JSON has no NaN: a loaded model's unknown fit time is saved as null.
                  "fit_time": float(self.fit_time_) if np.isfinite(self.fit_time_) else None,
                  "front_end": self.front_end_.to_header(), **self._fitted_state()}
-        header = {"model": type(self).__name__, "params": params, "state": state}
+        header = {"model": type(self).__name__, "params": params, "state": state,
+                  "map": getattr(self, "map_fingerprint_", None)}
         return save_arrays(path, {**self.front_end_.arrays(), **self._stored_arrays()}, header, overwrite)
 
     def __sklearn_tags__(self) -> Any:

@@ -32,6 +32,7 @@ from .baselines import _BASELINE_CLASSES
 from ..exceptions import BTELError, InvalidParameterError, ModelFileError, ResourceLimitError
 from ..core.frontend import FrontEnd
 from ..core.limits import check_places
+from ..core.fingerprint import read_fingerprint
 from ..core.modelfile import load_arrays
 
 if TYPE_CHECKING:  # pragma: no cover - imported on first use (_model_class)
@@ -203,6 +204,7 @@ def load(path: str | os.PathLike) -> PlaceLocalizer:
         model = cls(**_params_from_file(cls, params))
         check_params(model)
         _restore(model, arrays, state)
+        model.map_fingerprint_ = read_fingerprint(header.get("map"))
     except ModelFileError as exc:
         raise ModelFileError(f"{where}: {exc}") from exc
     except ResourceLimitError as exc:  # N beyond the memory-tied ceiling: still a ModelFileError
