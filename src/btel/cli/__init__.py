@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import importlib
 import os
-import signal
 import sys
 import warnings
 from typing import TYPE_CHECKING, Any
@@ -74,20 +73,18 @@ class _Group(click.Group):
         return self.commands.get(cmd_name)
 
     def invoke(self, ctx: click.Context) -> Any:
-        from ._errors import STDOUT_CLOSED, exit_for_interrupt, raise_terminated
+        from ._errors import STDOUT_CLOSED, exit_for_interrupt
+        from ._signals import ending_on_signals
 
         if not os.environ.get("BTEL_DEBUG"):
             warnings.showwarning = _show_warning
-        previous = None
-        try:  # SIGTERM (timeout, SLURM, docker stop) ends a command as Ctrl-C does; only the main thread may
-            previous = signal.signal(signal.SIGTERM, raise_terminated)
-        except ValueError:
-            pass
         try:
             from ..core.limits import memory_limit
 
             memory_limit()  # a malformed BTEL_MEMORY_LIMIT is named as itself, not as a fault of some input
-            result = super().invoke(ctx)
+            # SIGTERM (timeout, SLURM, docker stop) ends a command as Ctrl-C does, even inside a long C call.
+            with ending_on_signals():
+                result = super().invoke(ctx)
         except (click.ClickException, click.exceptions.Exit, click.exceptions.Abort):
             raise
         except KeyboardInterrupt as exc:
@@ -115,9 +112,6 @@ class _Group(click.Group):
             error = (InputError if exit_status(exc) == EXIT_USAGE else click.ClickException)(
                 message.splitlines()[0] if len(message) > 2000 else message)
             raise error from exc
-        finally:
-            if previous is not None:  # a caller's own handler (btel called in-process) is given back
-                signal.signal(signal.SIGTERM, previous)
         if ctx.meta.get(STDOUT_CLOSED):  # a run that went on after its reader left: 141, as `btel train`
             raise click.exceptions.Exit(EXIT_BROKEN_PIPE)
         return result

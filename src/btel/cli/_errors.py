@@ -114,7 +114,3 @@ def exit_for_interrupt(exc: KeyboardInterrupt) -> int:
     """130 for Ctrl-C, 143 for SIGTERM."""
     return EXIT_TERMINATED if isinstance(exc, Terminated) else EXIT_INTERRUPTED
 
-
-def raise_terminated(signum: int, frame: object) -> None:
-    """The command line's SIGTERM handler (installed by :mod:`btel.cli` in the main thread)."""
-    raise Terminated()
