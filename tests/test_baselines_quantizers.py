@@ -113,8 +113,10 @@ def test_explicit_parameters_are_honoured_and_validated(data):
         PQLocalizer(pca_dim=64).fit(X)
     with pytest.raises(InvalidParameterError, match="nbits must be None or an integer ≥ 1 and ≤ 8; got 9"):
         PQLocalizer(nbits=9).fit(X)
-    with pytest.raises(NotEnoughPlacesError, match="at least 16"):
-        PQLocalizer().fit(X[:10])
+    # A map of under 16 rows gets the most bits with a row per centroid (3 for 10 rows), not an error.
+    tiny = PQLocalizer(n_jobs=1).fit(X[:10])
+    assert tiny.config_.nbits == 3 and PQLocalizer(budget="2KB", n_jobs=1).fit(X[:10]).config_.nbits == 3
+    assert np.mean(tiny.predict(X[:10]) == np.arange(10)) >= 0.9
     # An explicit configuration that does not fit the budget: the error names its size.
     with pytest.raises(BudgetTooSmallError):
         PQLocalizer(budget=1_000, n_subquantizers=48, nbits=8, pca_dim=48).fit(X)

@@ -152,3 +152,41 @@ def test_site_reads_rst_roles_tables_and_doctests_as_markdown() -> None:
     assert markdown("Pick one::\n\n    code\n") == "Pick one:\n\n    code"
     assert markdown("text\n>>> import btel\n>>> btel.load\nafter") == \
         "text\n```python\n>>> import btel\n>>> btel.load\n```\nafter"
+
+
+#: How the README and the site's home name each row of `btel demo` in "What you should see".
+DEMO_ROWS = {"brute force": "bruteforce", "`auto`": "auto", "PQ": "pq", "the output codes": "btel-codes",
+             "BTEL with regions": "btel-r", "BTE-C": "btel-c"}
+
+
+def demo_figures(page: Path) -> dict[str, float]:
+    """Row → recall@0 from a page's sentence "What you should see: brute force and `auto` at recall@0 1.000, PQ
+    0.93, … and BTE-C 0.05"."""
+    text = " ".join(page.read_text(encoding="utf-8").split())
+    said = re.search(r"should see: (.*?) —", text)
+    assert said is not None, f"{page.name} no longer says what the demo should show"
+    figures: dict[str, float] = {}
+    for names, value in re.findall(r"([^0-9]+?) (\d\.\d+)", said.group(1).replace(" at recall@0", "")):
+        for name in names.strip(" ,").removeprefix("and ").split(" and "):
+            figures[DEMO_ROWS[name.strip()]] = float(value)
+    return figures
+
+
+@pytest.mark.slow
+def test_the_demo_shows_what_the_readme_says_it_shows(tmp_path: Path) -> None:
+    """The README's figures for `btel demo` (its default route, methods and budget) are those a run prints,
+    to the two decimals given (±0.015: another BLAS may move a query or two)."""
+    import json
+
+    from click.testing import CliRunner
+
+    from btel.cli import main
+
+    pages = {page.name: demo_figures(page) for page in (ROOT / "README.md", ROOT / "docs" / "index.md")}
+    assert pages["README.md"] == pages["index.md"] and len(pages["README.md"]) == len(DEMO_ROWS)
+    result = CliRunner().invoke(main, ["demo", "--no-progress", "--out", str(tmp_path / "demo")])
+    assert result.exit_code == 0, result.output
+    rows = json.loads((tmp_path / "demo" / "metrics.json").read_text())["results"]
+    measured = {row["name"]: row["recall"]["0"] for row in rows}
+    for name, said in pages["README.md"].items():
+        assert abs(measured[name] - said) <= 0.015, f"the README says {name} {said}; the demo gives {measured[name]:.3f}"

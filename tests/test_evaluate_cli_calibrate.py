@@ -209,3 +209,42 @@ def test_gardens_point_calibrated_on_even_night_queries_evaluated_on_the_odd(gar
     # nothing of the calibration queries is kept: no array file, no list as long as the calibration set
     assert not list(out.glob("*.np*"))
     assert not any(len(x) >= 100 for x in _leaves(auto["choice"]))
+
+
+def test_a_calibrated_train_logged_to_a_file_says_how_far_it_got(files, tmp_path: Path, monkeypatch) -> None:
+    """stderr no terminal (a log, a batch job): a 7-minute calibration printed one line, then nothing until done."""
+    from btel.core import progress
+
+    monkeypatch.setattr(progress, "LINE_EVERY_SECONDS", 0.0)  # a line per fit: every one of them is seen
+    result = run("train", files["db"], "-o", tmp_path / "m.npz", "--method", "auto", "--budget", "800B",
+                 "--calibrate", files["q_even"], "--calibrate-truth", files["t_even"], "--calibrate-tolerance", "1")
+    assert result.exit_code == 0, result.output
+    lines = [line for line in result.stderr.splitlines() if line.startswith("calibrating auto: ")]
+    counts = [tuple(map(int, line.split()[2].split("/"))) for line in lines]
+    total = counts[-1][1]
+    assert total > 3 and [done for done, _ in counts] == list(range(1, total + 1))
+    assert "(now " in lines[0] and lines[-1].startswith(f"calibrating auto: {total}/{total} fits done, 0:")
+    # --no-progress: none of them
+    quiet = run("train", files["db"], "-o", tmp_path / "q.npz", "--method", "auto", "--budget", "800B", "--no-progress",
+                "--calibrate", files["q_even"], "--calibrate-truth", files["t_even"], "--calibrate-tolerance", "1")
+    assert quiet.exit_code == 0 and "calibrating auto: " not in quiet.stderr
+
+
+def test_line_progress_speaks_at_most_every_so_often_and_once_at_the_end() -> None:
+    import io
+
+    from btel.core.progress import LineProgress
+
+    out = io.StringIO()
+    bar = LineProgress(5, "working", "step", every=3600.0, file=out)
+    for _ in range(5):
+        bar.update(1)
+    bar.close()
+    assert out.getvalue() == ""  # fast work: nothing to say
+    bar = LineProgress(3, "working", "step", every=0.0, file=out)
+    bar.set_postfix_str("pq")
+    bar.update(1)
+    bar.update(2)
+    bar.close()
+    assert out.getvalue().splitlines() == ["working: 1/3 steps done (now pq), 0:00 elapsed",
+                                           "working: 3/3 steps done, 0:00 elapsed"]

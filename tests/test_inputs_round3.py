@@ -46,6 +46,18 @@ def test_btel_info_names_a_descriptor_matrix_instead_of_calling_it_corrupt(small
     assert _invoke("info", model).exit_code == 0
 
 
+def test_the_train_command_suggested_for_an_npz_of_several_arrays_names_one_and_runs(small, tmp_path: Path) -> None:
+    """For an .npz holding a map and queries, `btel info` suggested `btel train FILE.npz -o model.npz`, which
+    then failed asking for FILE.npz:KEY."""
+    db, q, _ = small
+    both = tmp_path / "both.npz"
+    np.savez(both, hlrTrain=np.load(db), hlrTest=np.load(q))
+    result = _invoke("info", both)
+    assert result.exit_code == 2
+    assert f"btel train {both}:hlrTrain -o model.npz (it holds hlrTrain, hlrTest" in result.output
+    assert _invoke("train", f"{both}:hlrTrain", "-o", tmp_path / "model.npz").exit_code == 0
+
+
 def test_the_json_record_beside_an_extracted_matrix_points_to_the_matrix(small, tmp_path: Path) -> None:
     db, _, _ = small
     record = db.with_name(db.name + ".json")

@@ -101,16 +101,20 @@ def refuse_matrix_as_model(path: str, option: str, usage: str) -> None:
     found = _matrix_in(path)
     if found is None:
         return
-    (rows, columns), dtype = found
+    (rows, columns), dtype, keys = found
+    # An .npz of several arrays is read as PATH:KEY (the map's array); name them so the command runs as given.
+    source = f"{path}:{keys[0]}" if len(keys) > 1 else path
+    among = f" (it holds {', '.join(keys[:6])}: give the map's after the colon)" if len(keys) > 1 else ""
     raise click.UsageError(
         f"{option} {path} looks like a descriptor matrix ({rows} × {columns} {dtype}), not a model. {option} is "
         f"the .npz written by `btel train` ({usage}); to make one from these map descriptors: "
-        f"btel train {path} -o model.npz.")
+        f"btel train {source} -o model.npz{among}.")
 
 
-def _matrix_in(path: str) -> tuple[tuple[int, int], str] | None:
-    """Shape and dtype of the 2-D numeric array in a .npy file, or in an .npz without btel's model header;
-    None for anything else. Only headers are read (the file may be a large map)."""
+def _matrix_in(path: str) -> tuple[tuple[int, int], str, list[str]] | None:
+    """Shape and dtype of the (first) 2-D numeric array in a .npy file, or in an .npz without btel's model
+    header, and the .npz's array names (empty for a .npy); None for anything else. Only headers are read
+    (the file may be a large map)."""
     import zipfile
 
     import numpy as np
@@ -131,7 +135,8 @@ def _matrix_in(path: str) -> tuple[tuple[int, int], str] | None:
         with open(path, "rb") as fh:
             if fh.read(6) == b"\x93NUMPY":
                 fh.seek(0)
-                return matrix(fh)
+                found = matrix(fh)
+                return None if found is None else (*found, [])
         with open(path, "rb") as fh:
             check_zip_members(fh, str(path))  # a diagnosis never parses a directory of 10⁶ entries
         with zipfile.ZipFile(path) as archive:
@@ -142,7 +147,7 @@ def _matrix_in(path: str) -> tuple[tuple[int, int], str] | None:
                 with archive.open(name) as member:
                     found = matrix(member)
                 if found is not None:
-                    return found
+                    return (*found, [n.removesuffix(".npy") for n in names])
     except Exception:  # noqa: BLE001 - a diagnosis is best effort; the load error stands otherwise
         return None
     return None

@@ -1,14 +1,16 @@
-"""A line on stderr with the elapsed time while a step that shows no progress of its own runs."""
+"""Progress on stderr: a bar on a terminal, a line now and then in a log, the time elapsed for a step
+that shows no progress of its own."""
 
 from __future__ import annotations
 
 import contextlib
 import sys
 import threading
+import time
 from collections.abc import Iterator
 from typing import Any
 
-__all__ = ["elapsed_ticker"]
+__all__ = ["elapsed_ticker", "progress_bar", "LineProgress"]
 
 
 @contextlib.contextmanager
@@ -45,3 +47,48 @@ def elapsed_ticker(desc: str, enabled: bool, file: Any = None) -> Iterator[None]
         stop.set()
         ticker.join()
         bar.close()
+
+
+#: Seconds between two progress lines in a log (:class:`LineProgress`).
+LINE_EVERY_SECONDS = 10.0
+
+
+class LineProgress:
+    """Where stderr is no terminal (a log file, a pipe, a batch job): a line ``desc: done/total units (postfix),
+    elapsed`` at most every ``every`` seconds and one at the end, with tqdm's ``update``, ``set_postfix_str``
+    and ``close`` — a long step in a log is not silent for minutes, nor one line per step."""
+
+    def __init__(self, total: int, desc: str, unit: str, every: float | None = None, file: Any = None) -> None:
+        self.total, self.desc, self.unit = total, desc, unit
+        self.every = LINE_EVERY_SECONDS if every is None else every
+        self.file = file or sys.stderr
+        self.done, self.postfix, self.shown = 0, "", 0
+        self.start = self.last = time.monotonic()
+
+    def update(self, n: int = 1) -> None:
+        self.done += n
+        if n and time.monotonic() - self.last >= self.every:
+            self._line()
+
+    def set_postfix_str(self, text: str) -> None:
+        self.postfix = text
+
+    def close(self) -> None:
+        if self.shown and self.shown != self.done:  # the last state, once anything was said
+            self._line()
+
+    def _line(self) -> None:
+        self.last, self.shown = time.monotonic(), self.done
+        elapsed = int(self.last - self.start)
+        print(f"{self.desc}: {self.done}/{self.total} {self.unit}s done"
+              + (f" (now {self.postfix})" if self.postfix and self.done < self.total else "")
+              + f", {elapsed // 60}:{elapsed % 60:02d} elapsed", file=self.file, flush=True)
+
+
+def progress_bar(total: int, desc: str, unit: str, enabled: bool) -> Any:
+    """tqdm's bar on a terminal (or a notebook); :class:`LineProgress` where stderr is none; nothing when not
+    ``enabled``. Either takes ``update``, ``set_postfix_str`` and ``close``."""
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=total, desc=desc, unit=unit, disable=None if enabled else True, leave=False)
+    return LineProgress(total, desc, unit) if enabled and bar.disable else bar

@@ -374,12 +374,11 @@ def choose_calibrated(
     if not any((c["method"], sorted(c["params"].items())) == key for c in candidates):
         candidates.insert(0, {"label": "map-only pick", "method": map_only["method"], "params": dict(map_only["params"]),
                               "seeded": map_only["method"] != "bruteforce"})
-    from tqdm.auto import tqdm  # fit-only
+    from ...core.progress import progress_bar  # a bar on a terminal, a line every 10 s in a log
 
     table: list[dict[str, Any]] = []
     correct: dict[str, np.ndarray] = {}
-    bar = tqdm(total=sum(len(SEEDS) if c["seeded"] else 1 for c in candidates), desc="calibrating auto",
-               unit="fit", disable=None if progress else True, leave=False)
+    bar = progress_bar(sum(len(SEEDS) if c["seeded"] else 1 for c in candidates), "calibrating auto", "fit", progress)
     for cand in candidates:
         entry = {"candidate": cand["label"], "method": cand["method"], "params": cand["params"]}
         start = time.perf_counter()

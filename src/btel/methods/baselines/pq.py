@@ -18,7 +18,8 @@ Budget rule (deterministic): enumerate every configuration (p, M, nbits) with
 - p ∈ {d (no projection)} ∪ {1, 2, 4, 8, … < d} ∪ {every p whose d×p projection alone fits the
   budget}, each ≤ the number of map rows (PCA needs as many rows as components);
 - M dividing p;
-- nbits ∈ {8, 4} with 2^nbits ≤ number of map rows (k-means needs a point per centroid);
+- nbits ∈ {8, 4} with 2^nbits ≤ number of map rows (k-means needs a point per centroid); on a map
+  of fewer than 16 rows, the largest nbits with 2^nbits ≤ its rows (3 bits for 8–15 rows);
 
 keep those whose bytes fit, and take the one with the most code bits per row (M·nbits); ties go
 to fewer bytes, then larger p, then larger nbits. Explicit ``pca_dim``, ``n_subquantizers`` or
@@ -26,9 +27,8 @@ to fewer bytes, then larger p, then larger nbits. Explicit ``pca_dim``, ``n_subq
 3576 Nordland frames, 500 KB selects no PCA, M = 140, nbits = 4: 492 240 B (the Nordland figures of docs/results.md).
 
 Without a budget: p = d when d ≤ 256, else PCA to the largest power of two ≤ min(256, rows);
-nbits = 8 (4 when there are fewer than 256 map rows); M = the largest divisor of p that is ≤ 32.
-Fewer than 16 map rows: no automatic configuration exists (NotEnoughPlacesError); pass a smaller
-``nbits`` explicitly or use :class:`~btel.methods.baselines.BruteForceNN`.
+nbits = 8 (4 when there are fewer than 256 map rows; below 16 rows as above); M = the largest
+divisor of p that is ≤ 32.
 """
 
 from __future__ import annotations
@@ -42,13 +42,21 @@ import numpy as np
 from ...core.storage import UNLIMITED_BUDGET, spent_text
 from ...core.validation import N_JOBS, RANDOM_STATE, Interval, check_positive_int, read_state_int
 from ..base import ArraySpec
-from ...exceptions import InvalidParameterError, ModelFileError, NotEnoughPlacesError
+from ...exceptions import InvalidParameterError, ModelFileError
 from ._common import _RowLocalizer, check_model_values, index_search, negated_distances, quiet_faiss, raise_budget_too_small
 
 __all__ = ["PQConfig", "PQLocalizer", "pca_projection"]
 
 #: Sub-quantiser sizes the budget rule considers (bits per sub-quantiser).
 AUTO_NBITS: tuple[int, ...] = (8, 4)
+
+
+def auto_nbits(n_rows: int) -> list[int]:
+    """The bits per sub-quantiser the planner considers for a map of ``n_rows`` rows, most first: those of
+    :data:`AUTO_NBITS` with a map row per centroid, else (fewer than 16 rows) the most bits with one."""
+    return [b for b in AUTO_NBITS if (1 << b) <= n_rows] or [max(1, n_rows.bit_length() - 1)]
+
+
 #: Without a budget, descriptors wider than this are reduced by PCA.
 DEFAULT_MAX_DIM = 256
 #: Without a budget, the number of sub-quantisers is the largest divisor of p up to this.
@@ -232,7 +240,7 @@ class PQLocalizer(_RowLocalizer):
         fitting = range(1, min(n_features - 1, n_rows, max(1, (budget or 0) // (4 * n_features))) + 1)
         dims = [dim] if dim is not None else sorted({n_features, *_powers_of_two_below(n_features, n_rows),
                                                      *fitting}, reverse=True)
-        bits = [nbits] if nbits is not None else [b for b in AUTO_NBITS if (1 << b) <= n_rows]
+        bits = [nbits] if nbits is not None else auto_nbits(n_rows)
         for p in dims:
             if max_dim is not None and p > max_dim:
                 continue
@@ -250,7 +258,7 @@ class PQLocalizer(_RowLocalizer):
                 dim = max(_powers_of_two_below(n_features, min(DEFAULT_MAX_DIM, n_rows, max_dim or n_rows)),
                           default=n_features)
         if nbits is None:
-            nbits = 8 if n_rows >= 256 else 4
+            nbits = auto_nbits(n_rows)[0]
         if m is None:
             m = max(q for q in _divisors(dim) if q <= DEFAULT_MAX_SUBQUANTIZERS)
         if dim % m:
@@ -268,12 +276,6 @@ class PQLocalizer(_RowLocalizer):
         ``always_project`` counts a d×p matrix for every p (OPQ's rotation); ``max_dim`` caps p (OPQ's
         rotation is learnt from the map's rows, at most one dimension per row).
         """
-        if self.nbits is None and n_rows < (1 << min(AUTO_NBITS)):
-            raise NotEnoughPlacesError(
-                f"{method_name} needs at least {1 << min(AUTO_NBITS)} map descriptors to train "
-                f"{min(AUTO_NBITS)}-bit sub-quantisers; got {n_rows}. Pass a smaller nbits (nbits=2; on the "
-                "command line --param nbits=2) or use the bruteforce method."
-            )
         if budget is None:
             return self._default_config(n_rows, n_features, max_dim)
         options = [
