@@ -294,3 +294,26 @@ def test_the_paper_s_tree_and_its_regions_have_colours_of_their_own() -> None:
     styles = method_styles(["auto → lsh", "btel-c", "btel-r", "btel-codes", "pq", "bruteforce"])
     colours = [styles[n].color for n in ("btel-c", "btel-r", "btel-codes", "pq", "bruteforce")]
     assert len(set(colours)) == len(colours)
+
+
+def test_a_run_whose_rows_lie_near_zero_gets_a_recall_axis_to_fit_them(tmp_path: Path) -> None:
+    """Nordland at 16 KB (recall@10 ≈ 0.05, brute force 0.47) was drawn in the bottom tenth of a 0–1 axis."""
+    from btel.evaluation.plots import plot_precision_recall, plot_recall_at_k, plot_recall_vs_storage
+    from btel.evaluation.plots._figure import recall_axis_top
+
+    assert [recall_axis_top(v) for v in (0.0, 0.05, 0.09, 0.465, 0.55, 0.59, 0.6, 1.0)] == \
+        [0.1, 0.1, 0.1, 0.6, 0.6, 0.7, 1.02, 1.02]
+    n = 400
+    near = np.arange(n)
+    near[40:] = (near[40:] + 200) % n  # right within 40 frames on a tenth of the queries, wrong elsewhere
+    low = _result("low", near, 10_000)
+    fig = plot_recall_vs_tolerance([low], tmp_path / "tol.png")
+    top = fig.axes[0].get_ylim()[1]
+    assert max(low.recall_curve) < top <= max(low.recall_curve) + 0.1 and top < 0.5
+    assert plot_recall_vs_storage([low], tmp_path / "storage.png", tolerance=10).axes[0].get_ylim()[1] == top
+    low.recall_at_k = {1: 0.05, 5: 0.08}
+    assert plot_recall_at_k([low], tmp_path / "k.png").axes[0].get_ylim()[1] == 0.1
+    low.pr_curve = {"precision": [1.0, 0.5], "recall": [0.01, 0.1]}
+    assert plot_precision_recall([low], tmp_path / "pr.png").axes[0].get_xlim()[1] == 0.2
+    good = _result("good", np.arange(n), 10_000)  # recall 1: the whole axis, as before
+    assert plot_recall_vs_tolerance([low, good], tmp_path / "both.png").axes[0].get_ylim()[1] == 1.02

@@ -40,12 +40,23 @@ def _save(fig: Figure, path: str | os.PathLike) -> None:
         fig.savefig(fh, format="png", bbox_inches="tight")  # a legend outside the axes is kept whole
 
 
+def recall_axis_top(highest: float) -> float:
+    """Top of a recall axis whose highest value is ``highest``: the whole [0, 1] once a value reaches 0.6,
+    else the tenth above it with room for a marker (0.1 at least), so that a run whose rows all lie near 0
+    (a small budget on a hard map) is not drawn flat along the bottom of the axis."""
+    if not np.isfinite(highest) or highest >= 0.6:
+        return 1.02
+    return float(max(0.1, np.ceil(highest * 10.8 + 1e-9) / 10))
+
+
 def _finish_recall_plot(fig: Figure, ax: Any, path: str | os.PathLike, *, xlabel: str, ylabel: str = "recall",
-                        title: str | None = None, credit: str | None = None, legend_size: str = "small") -> None:
-    """Labels, the [0, 1] recall axis, grid, legend, title and credit line; then save."""
+                        title: str | None = None, credit: str | None = None, legend_size: str = "small",
+                        top: float = 1.02) -> None:
+    """Labels, the recall axis from 0 to ``top`` (:func:`recall_axis_top`), grid, legend, title and credit
+    line; then save."""
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
-    ax.set_ylim(0.0, 1.02)
+    ax.set_ylim(0.0, top)
     ax.grid(True, which="both", alpha=0.3)  # minor lines only show on log axes
     ax.legend(fontsize=legend_size)
     if title:

@@ -15,7 +15,7 @@ from matplotlib.ticker import MaxNLocator
 from ...exceptions import InvalidParameterError
 from ..records import EvaluationResult
 from ...core.storage import format_bytes
-from ._figure import _DPI, _FIGSIZE, _finish_recall_plot, _new_figure, _save
+from ._figure import _DPI, _FIGSIZE, _finish_recall_plot, _new_figure, _save, recall_axis_top
 from .styles import auto_label, method_styles
 from .sweeps import plot_recall_vs_storage
 
@@ -50,7 +50,7 @@ def plot_recall_vs_tolerance(
     if not results:
         raise InvalidParameterError("nothing to plot: results is empty.")
     fig, ax = _new_figure()
-    right = 0
+    right, highest = 0, 0.0
     styles = method_styles([_series(r) for r in results])
     for r in results:
         name = str(r.name)
@@ -71,10 +71,11 @@ def plot_recall_vs_tolerance(
             keep = x <= max_tolerance
             x, y = x[keep], y[keep]
         right = max(right, int(x.max()) if x.size else 0)
+        highest = max(highest, float(np.nanmax(y)) if y.size else 0.0)
         ax.plot(x, y, drawstyle=drawstyle, label=label, markevery=every, **styles[_series(r)].kwargs())
     ax.set_xlabel("tolerance t (frames)")
     ax.set_ylabel("recall@t")
-    ax.set_ylim(0.0, 1.02)
+    ax.set_ylim(0.0, recall_axis_top(highest))
     # The axis ends where the curves end (twice the largest reported tolerance), not at a fixed 80.
     ax.set_xlim(0, max(right, 1))
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # frames: no 2.5 or 7.5
@@ -129,7 +130,8 @@ def plot_recall_at_k(results: Sequence[EvaluationResult], path: str | os.PathLik
                 **styles[_series(r)].kwargs())
     ax.set_xticks(ks)
     ax.set_xlim(0.5, ks[-1] + 0.5)
-    _finish_recall_plot(fig, ax, path, xlabel="K (ranked candidates)", ylabel="R@K", title=title)
+    _finish_recall_plot(fig, ax, path, xlabel="K (ranked candidates)", ylabel="R@K", title=title,
+                        top=recall_axis_top(max(v for _, pts in series for _, v in pts)))
     return fig
 
 
@@ -167,6 +169,10 @@ def _run_figure(results: Sequence[EvaluationResult], path: Path, *, kind: str, t
     fig = Figure(figsize=(width, 4.0 + 0.2 * rows_of_legend), dpi=_DPI)
     FigureCanvasAgg(fig)
     axes = fig.subplots(1, len(panels), sharey=True, squeeze=False)[0]
+    # One recall axis for every panel (shared), as tall as the highest value of any of them needs.
+    values = [v for r in results for v in (r.recall_curve if kind == "tolerance" and r.recall_curve is not None
+                                           else (r.recall_at_k or {}).values() if kind != "tolerance" else [])]
+    top = recall_axis_top(max((float(v) for v in values), default=1.0))
     for ax, (budget, members) in zip(axes, panels):
         right = 1
         for r in members:
@@ -198,7 +204,7 @@ def _run_figure(results: Sequence[EvaluationResult], path: Path, *, kind: str, t
             ax.set_xticks(ks)  # R@K exists only at the K that were measured
             ax.set_xlim(0.5, right + 0.5)
             ax.set_xlabel("K (ranked candidates)")
-        ax.set_ylim(0.0, 1.02)
+        ax.set_ylim(0.0, top)
         ax.grid(True, alpha=0.3)
         if len(panels) > 1:
             ax.set_title(f"budget {format_bytes(budget)}" if budget is not None else "no budget", fontsize="small")
@@ -317,7 +323,8 @@ def plot_precision_recall(results: Sequence[EvaluationResult], path: str | os.Pa
         start = min((i * max(1, every // len(series))) % every, recall.size - 1)
         ax.plot(recall, precision, markevery=(start, every) if recall.size > 2 * n_marks else None,
                 label=label, **{"markersize": 5, **styles[_series(r)].kwargs()})
-    ax.set_xlim(0.0, 1.0)
+    # Recall ends at the share of queries whose top-1 is right: the axis ends just past the longest curve.
+    ax.set_xlim(0.0, min(1.0, recall_axis_top(max(float(np.max(r.pr_curve["recall"])) for r in series))))
     ax.set_ylim(0.0, 1.02)
     ax.grid(True, alpha=0.3)
     ax.set_xlabel("recall (correct accepted top-1 matches / queries with a true place)")

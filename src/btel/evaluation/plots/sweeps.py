@@ -12,7 +12,7 @@ from matplotlib.figure import Figure
 from ...exceptions import InvalidParameterError
 from ...methods.roles import REFERENCE_METHOD
 from ..records import EvaluationResult
-from ._figure import _FIGSIZE, _bytes_axis, _finish_recall_plot, _new_figure, _recall_at, _save
+from ._figure import _FIGSIZE, _bytes_axis, _finish_recall_plot, _new_figure, _recall_at, _save, recall_axis_top
 from .styles import method_styles
 
 __all__ = ["plot_recall_vs_storage", "plot_recall_vs_n", "plot_curves", "plot_parameter_sweep", "plot_method_bars",
@@ -52,6 +52,7 @@ def _plot_rows(
     for i, budget in enumerate(sorted(set(budgets))):
         ax.axvline(budget, color="grey", linestyle=":", linewidth=1, label="budget" if i == 0 else None)
     xs = [p[0] for points in series.values() for p in points] + list(budgets)
+    top = recall_axis_top(max(p[1] for points in series.values() for p in points))
     if bytes_axis:
         _bytes_axis(ax, xs)
     else:
@@ -63,7 +64,7 @@ def _plot_rows(
         fig.set_size_inches(_FIGSIZE[0] + 2.4, _FIGSIZE[1])
         ax.set_xlabel(xlabel)
         ax.set_ylabel(ylabel or f"recall@{tolerance} (within {tolerance} frames)")
-        ax.set_ylim(0.0, 1.02)
+        ax.set_ylim(0.0, top)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize="x-small", loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
         if title:
@@ -73,7 +74,7 @@ def _plot_rows(
         _save(fig, path)
         return fig
     _finish_recall_plot(fig, ax, path, xlabel=xlabel, ylabel=ylabel or f"recall@{tolerance} (within {tolerance} frames)",
-                        title=title)
+                        title=title, top=top)
     return fig
 
 
