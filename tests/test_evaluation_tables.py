@@ -60,3 +60,32 @@ def test_the_predictions_csv_of_a_ground_truth_without_any_positive_marks_every_
     lines = predictions_csv_text(result).splitlines()
     assert lines[0].startswith("query,prediction,positive,correct")
     assert [line.split(",")[2:4] for line in lines[1:]] == [["-1", "0"]] * 3
+
+
+def test_precision_recall_areas_of_a_row_with_one_score_for_every_query_are_marked() -> None:
+    """BTE-C can score every query's top-1 alike (its decoded index carries no confidence): its AUC-PR:VB
+    read 0.500 beside R@1 0.001, the highest area of the table, with nothing to say it means nothing."""
+    from btel.evaluation.tables import ONE_SCORE_MARK
+
+    class OneScore:  # a method whose search gives every query's best place the same score
+        def __init__(self, inner) -> None:
+            self.inner = inner
+
+        def __getattr__(self, name):
+            return getattr(self.inner, name)
+
+        def search(self, Q, k=10):
+            scores, places = self.inner.search(Q, k)
+            return np.zeros_like(scores), places
+
+    r = synthetic_route(300, 32, seed=0)
+    flat = ev.evaluate(OneScore(make_method("lsh", budget="2KB").fit(r.map)), r.map, r.queries, name="flat",
+                       fit=False, tolerances=(0, 2))
+    ranked = ev.evaluate(make_method("lsh", budget="2KB"), r.map, r.queries, name="ranked", tolerances=(0, 2))
+    assert len(flat.pr_curve["recall"]) == 1 and len(ranked.pr_curve["recall"]) > 1
+    text = format_table([flat, ranked])
+    flat_line = next(line for line in text.splitlines() if line.startswith("flat"))
+    ranked_line = next(line for line in text.splitlines() if line.startswith("ranked"))
+    assert flat_line.count(ONE_SCORE_MARK) == 3 and ONE_SCORE_MARK not in ranked_line
+    assert f"{ONE_SCORE_MARK} every query's top-1 has the same score" in text
+    assert ONE_SCORE_MARK not in format_table([ranked])  # no mark, no legend line

@@ -23,11 +23,13 @@ from ..core.storage import format_bytes
 
 __all__ = ["format_table", "terminal_width", "format_calibration", "calibration_markdown", "describe_row", "metrics_csv_text",
            "predictions_csv_text", "rows_csv_text", "SEQUENCE_MARK", "REFERENCE_MARK", "SATURATED_MARK",
-           "PR_TABLE_NAMES"]
+           "ONE_SCORE_MARK", "PR_TABLE_NAMES"]
 
 SEQUENCE_MARK = "†"
 REFERENCE_MARK = "*"
 SATURATED_MARK = "‡"
+#: Beside the precision-recall cells of a row whose scores are one value for every query.
+ONE_SCORE_MARK = "°"
 #: The precision–recall columns of the console table: AUC-PR by VPR-Bench and by VPR_Tutorial, R@100%P.
 PR_TABLE_NAMES = ("AUC-PR:VB", "AUC-PR:VT", "R@100%P")
 
@@ -40,7 +42,8 @@ def format_table(results: Sequence[EvaluationResult], width: int = 0) -> str:
     row has (frame-aligned ground truth only) and R@K for every K. Rows that did not run show
     their status and reason. ``†`` marks methods that use the query sequence (not comparable
     with single-frame methods), ``*`` the unbudgeted reference, ``‡`` a model that cannot use the rest
-    of its budget; a legend line says so.
+    of its budget, ``°`` precision-recall areas of a row whose top-1 scores are all equal; a legend line
+    says so.
 
     ``width`` (characters, e.g. :func:`terminal_width`): a table wider than it is printed in blocks
     of columns that fit, each led by the method column, and the legend wrapped; 0: one block however
@@ -69,14 +72,16 @@ def format_table(results: Sequence[EvaluationResult], width: int = 0) -> str:
         size = (format_bytes(r.nbytes) if r.nbytes is not None else "?") + (
             (SATURATED_MARK if r.budget_saturated else " ") if saturated_rows else "")
         fit = f"{r.fit_time_s:.1f}" if r.fit_time_s is not None else "-"
-        values = [r.recall.get(t) for t in tolerances] + [(r.recall_at_k or {}).get(k) for k in ks]
+        cells = [f"{v:.3f}" if v is not None else "-"
+                 for v in [r.recall.get(t) for t in tolerances] + [(r.recall_at_k or {}).get(k) for k in ks]]
         if has_pr:
-            values += [r.auc_pr_vpr_bench, r.auc_pr_vpr_tutorial, r.recall_at_100_precision]
+            mark = ONE_SCORE_MARK if _one_score(r) else ""
+            cells += [f"{v:.3f}{mark}" if v is not None else "-"
+                      for v in (r.auc_pr_vpr_bench, r.auc_pr_vpr_tutorial, r.recall_at_100_precision)]
         query = f"{r.query_time_s_per_query * 1e6:.1f}" if r.query_time_s_per_query is not None else "-"
         latency = f"{r.query_latency_s * 1e6:.1f}" if r.query_latency_s is not None else "-"
         threads = str(r.n_threads) if r.n_threads is not None else "-"
-        rows.append((label, [r.status, size, fit, query, latency, threads]
-                     + [f"{v:.3f}" if v is not None else "-" for v in values]))
+        rows.append((label, [r.status, size, fit, query, latency, threads] + cells))
     lines: list[str] = []
     for block in _column_blocks(columns, label_width, width):
         header = f"{'method':<{label_width}} " + " ".join(_cell(name, w) for name, w in (columns[i] for i in block))
@@ -103,6 +108,9 @@ def format_table(results: Sequence[EvaluationResult], width: int = 0) -> str:
         notes.append("AUC-PR:VB as VPR-Bench computes it (recall over correct top-1 matches only: a method right on "
                      "few queries can still score high, so read it beside R@1); AUC-PR:VT and "
                      "R@100%P as VPR_Tutorial (recall over queries with a true place)")
+    if has_pr and any(r.ok and _one_score(r) for r in results):
+        notes.append(f"{ONE_SCORE_MARK} every query's top-1 has the same score: the precision-recall curve is one "
+                     "point, so these areas say nothing about how well the scores rank the matches")
     if any(r.reference for r in results):
         notes.append(f"{REFERENCE_MARK} reference (unbudgeted)")
     if saturated_rows:
@@ -113,6 +121,11 @@ def format_table(results: Sequence[EvaluationResult], width: int = 0) -> str:
     wrap = textwrap.TextWrapper(width, initial_indent="  ", subsequent_indent="    ", break_on_hyphens=False)
     lines += [wrap.fill(n) if width else f"  {n}" for n in notes]
     return "\n".join(lines)
+
+
+def _one_score(r: EvaluationResult) -> bool:
+    """The row's precision-recall curve has one point: the same score for every query's top-1 match."""
+    return bool(r.pr_curve) and len(r.pr_curve.get("recall") or ()) == 1
 
 
 def terminal_width() -> int:
