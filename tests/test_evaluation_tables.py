@@ -63,8 +63,8 @@ def test_the_predictions_csv_of_a_ground_truth_without_any_positive_marks_every_
 
 
 def test_precision_recall_areas_of_a_row_with_one_score_for_every_query_are_marked() -> None:
-    """BTE-C can score every query's top-1 alike (its decoded index carries no confidence): its AUC-PR:VB
-    read 0.500 beside R@1 0.001, the highest area of the table, with nothing to say it means nothing."""
+    """A method whose scores carry no confidence (every query's top-1 scored alike) gets an AUC-PR:VB of one
+    threshold, which can be the highest area of a table beside a tiny R@1; the table says so."""
     from btel.evaluation.tables import ONE_SCORE_MARK
 
     class OneScore:  # a method whose search gives every query's best place the same score
