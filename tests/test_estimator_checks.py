@@ -39,15 +39,12 @@ EXTRA: dict[str, dict[str, str]] = {
     "ryth": {c: "K = 3 co-prime periods (2, 3, 5) need N ≥ 5 places in every residue class; the check's maps "
                 "have 2–3" for c in TOO_SMALL},
     "itq": {c: "8-bit codes need d ≥ 8 and 8 rows; the check's descriptors have 2–4 columns" for c in TOO_SMALL},
-    "pq": {c: "4-bit sub-quantisers need 16 map rows; the check gives 10–15" for c in
-           ("check_n_features_in_after_fitting", "check_estimators_nan_inf")},
     "seqslam": {
         "check_methods_sample_order_invariance": "SeqSLAM answers a query from the queries before it (a sequence "
                                                  "method): reordering the queries changes the answers",
         "check_methods_subset_invariance": "SeqSLAM answers a query from the queries before it (a sequence method)",
     },
 }
-EXTRA["opq"] = EXTRA["pq"]
 
 
 def _estimators():

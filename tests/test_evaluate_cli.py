@@ -102,7 +102,7 @@ def test_preflight_agrees_with_fit_for_every_method() -> None:
         if found is not None:
             assert found.status == "failed" and found.reason == " ".join(error.split()), name
             refused += 1
-    assert refused >= 3  # btel-r (20 regions), pq and opq (16 rows) at least
+    assert refused >= 1  # btel-r (20 regions) at least; pq and opq take 3-bit sub-quantisers on 10 rows
 
 
 def test_a_failing_method_is_a_row_and_ctrl_c_keeps_finished_rows(tmp_path: Path) -> None:
