@@ -73,6 +73,15 @@ def nordland_pixels(nordland_dir: Path) -> tuple[np.ndarray, np.ndarray]:
     return _read_grey_pixels(nordland_dir / "summer", 1), _read_grey_pixels(nordland_dir / "winter", 1)
 
 
+@pytest.fixture(autouse=True)
+def _an_idle_machine(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every test sees an idle machine: a run prints a note when the load average exceeds the cores, and a
+    test's output must not depend on what else this machine runs (tests/test_runs.py checks the note)."""
+    import btel.evaluation.runs as runs
+
+    monkeypatch.setattr(runs, "load_average", lambda: [0.0, 0.0, 0.0])
+
+
 # --- CI guard: a real-data test that was skipped under CI fails the run -----------------------
 _skipped_realdata: list[str] = []
 

@@ -182,3 +182,29 @@ def test_an_experiment_rows_csv_writes_structured_cells_as_json() -> None:
     row = EvaluationResult.from_row({"method": "lsh", "status": "ok", "front_end": {"normalize": "l2", "whiten": None}})
     cells = next(csv.DictReader(rows_csv_text([row]).splitlines()))
     assert json.loads(cells["front_end"]) == {"normalize": "l2", "whiten": None}
+
+
+def test_a_run_on_a_busy_machine_says_so_and_records_the_load(tmp_path, monkeypatch) -> None:
+    """Fit times of one method varied 10× between two runs under load, and nothing in the output said why."""
+    import json as _json
+
+    from click.testing import CliRunner
+
+    import btel.evaluation.runs as runs
+    from btel.cli import main
+
+    monkeypatch.setattr(runs, "load_average", lambda: [9.5, 7.0, 4.0])
+    monkeypatch.setattr("os.cpu_count", lambda: 2)
+    out = tmp_path / "busy"
+    result = CliRunner().invoke(main, ["demo", "--places", "120", "--dim", "16", "--methods", "lsh", "--budget", "1KB",
+                                       "--no-reference", "--no-progress", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "note: the machine is busy (load average 9.5 on 2 cores)" in result.output
+    run = _json.loads((out / "metrics.json").read_text())["run"]
+    assert run["load_average"] == [9.5, 7.0, 4.0] and run["load_average_updated"] == [9.5, 7.0, 4.0]
+    shown = CliRunner().invoke(main, ["show", str(out)])
+    assert "load average 9.50 at the start, 9.50 at the last write" in shown.output
+    monkeypatch.setattr(runs, "load_average", lambda: [1.5, 1.0, 1.0])  # below the cores: no note
+    quiet = CliRunner().invoke(main, ["demo", "--places", "120", "--dim", "16", "--methods", "lsh", "--budget", "1KB",
+                                      "--no-reference", "--no-progress", "--out", str(tmp_path / "idle")])
+    assert quiet.exit_code == 0 and "machine is busy" not in quiet.output

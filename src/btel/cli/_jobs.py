@@ -35,8 +35,13 @@ def _run_jobs(jobs: list[Any], X: Any, Q: Any, *, out: Path, extra: dict[str, An
     """:func:`btel.evaluation.run_methods` with the command line's echo (Ctrl-C: exit 130), then the
     galleries and ``--pairs`` files. True when some row did not run."""
     from ..evaluation.batch import run_methods
+    from ..evaluation.runs import load_average
     from ._gallery import galleries_after_run
 
+    load, cores = load_average(), os.cpu_count() or 1
+    if load is not None and load[0] > cores:  # fit and query times then run slow, and vary from run to run
+        _echo_while_running(f"note: the machine is busy (load average {load[0]:.1f} on {cores} cores): fit and "
+                            "query times of this run are slower than on an idle machine; metrics.json records the load.")
     try:
         results = run_methods(jobs, X, Q, out=out, extra=extra, progress=progress, command=_command_line(),
                               echo=_echo_while_running, **options)

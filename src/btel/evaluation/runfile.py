@@ -117,8 +117,12 @@ def describe_run(path: str | os.PathLike, width: int = 0) -> str:
     threads = run.get("threads") if isinstance(run.get("threads"), dict) else {}
     pools = [f"{_text(lib.get('internal_api'), 20)} {_text(lib.get('num_threads'), 8)}"
              for lib in threads.get("libraries") or [] if isinstance(lib, dict)]
+    loads = [f"{load[0]:.2f} {when}" for key, when in (("load_average", "at the start"),
+                                                       ("load_average_updated", "at the last write"))
+             if isinstance(load := run.get(key), list) and load and isinstance(load[0], (int, float))]
     lines.append(f"machine: {_text(run.get('cpu') or run.get('machine'))}, {_text(run.get('cpu_count'))} cores"
-                 + (f"; threads: {', '.join(pools)}" if pools else ""))
+                 + (f"; threads: {', '.join(pools)}" if pools else "")
+                 + (f"; load average {', '.join(loads)}" if loads else ""))
     inputs = extra.get("inputs") if isinstance(extra.get("inputs"), dict) else {}
     for option, entry in inputs.items():
         for item in entry if isinstance(entry, list) else [entry]:

@@ -125,7 +125,17 @@ def run_metadata(command: str | Sequence[str] | None = None) -> dict[str, Any]:
         "cpu": _cpu_model(),
         "cpu_count": os.cpu_count(),
         "threads": thread_settings(),
+        "load_average": load_average(),
     }
+
+
+def load_average() -> list[float] | None:
+    """The machine's load average over 1, 5 and 15 minutes (None where the system has none): beside the
+    core count it says whether a run's times are those of an idle machine."""
+    try:
+        return [round(v, 2) for v in os.getloadavg()]
+    except (AttributeError, OSError):
+        return None
 
 
 def safe_file_name(name: str) -> str:
@@ -306,7 +316,7 @@ class RunWriter:
                 "give each evaluate(...) call its own name=."
             )
         now = _dt.datetime.now(_dt.timezone.utc)
-        timing = {"updated_utc": now.isoformat(timespec="seconds"),
+        timing = {"updated_utc": now.isoformat(timespec="seconds"), "load_average_updated": load_average(),
                   "seconds": round(time.monotonic() - self._started, 3)}  # this writer's; a resumed run's own part
         payload = {"run": {**self.meta, **timing, "complete": bool(complete)}, "columns": RUN_COLUMNS,
                    "results": [r.to_dict() for r in results]}
