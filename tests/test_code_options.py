@@ -72,6 +72,9 @@ def test_exemplar_weights_count_same_block_neighbours():
     np.testing.assert_array_equal(w[:, 2], 2)  # blocks of two: exactly one neighbour within ±2
     assert w[0, 0] == 3 and w[7, 0] == 3 and w[3, 0] == 5  # boundary rows weigh less
     assert np.all((w >= 1) & (w <= 5))
+    # A radius past the route's ends weighs every row as radius N − 1 does (a radius of 10¹¹ looped 10¹¹ times).
+    np.testing.assert_array_equal(exemplar_weights(np.arange(16), 16, 1, radius=10**11),
+                                  exemplar_weights(np.arange(16), 16, 1, radius=15))
 
 
 # -- tolerance-aware codes -----------------------------------------------------------------------

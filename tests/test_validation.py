@@ -270,6 +270,8 @@ def test_nbytes_before_fit() -> None:
         ({"C": 0}, "C must be None or a number > 0"),
         ({"C": -1.0}, "C must be None or a number > 0"),
         ({"C": "big"}, "C must be None or a number > 0"),
+        # C = 1e308 wrote an all-zero model (overflow) and 1e100 never ended under liblinear: C ≤ 1e10.
+        ({"C": 1e308}, r"C must be None or a number > 0 and ≤ 1e\+10"),
         ({"sparsity": 0}, "sparsity must be a number > 0"),
         ({"sparsity": None}, "sparsity must be a number > 0"),
         ({"max_regions": 0}, "max_regions must be an integer"),

@@ -375,6 +375,7 @@ RANDOM_STATE = [None, Interval(int, 0, 2**31 - 1)]
 #: joblib / faiss worker counts: None, −1 (every core) or a positive integer.
 N_JOBS = [None, Interval(int, -1, -1), Interval(int, 1, 4096)]
 BOOLEAN = [Options(True, False)]
+MAX_C = 1e10  # the largest C: far past any effect on L2-normalised rows; from ~1e100 the solvers overflow or never end
 
 
 def _describe(constraint: Any) -> str:

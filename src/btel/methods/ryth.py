@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from ..core.validation import N_JOBS, RANDOM_STATE, DType, Interval, Options, check_positive_int, read_state_int
+from ..core.validation import MAX_C, N_JOBS, RANDOM_STATE, DType, Interval, Options, check_positive_int, read_state_int
 from .base import ArraySpec, PlaceLocalizer
 from ..exceptions import BudgetTooSmallError, ModelFileError, NotEnoughPlacesError
 from ..learning.feature_selection import column_index_dtype
@@ -120,7 +120,7 @@ class RYTHLocalizer(PlaceLocalizer):
         "n_periods": [Interval(int, 1, 16)],
         "classifier": [Options(*CLASSIFIERS)],
         "solver": [Options(*SOLVERS)],
-        "C": [None, Interval(float, 0, None, closed="neither")],
+        "C": [None, Interval(float, 0, MAX_C, closed="right")],
         "feature_ratio": [None, Interval(float, 0, 1, closed="right")],
         "n_features": [None, Interval(int, 1, None)],
         "sparsity": [Interval(float, 0, None, closed="neither")],

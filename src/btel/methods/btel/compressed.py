@@ -114,7 +114,8 @@ def exemplar_weights(places: np.ndarray, n_places: int, code_copies: int, radius
     low = (b - 1 - levels)[None, :]
     own = (p + shifts[None, :]) >> low
     weights = np.zeros((p.shape[0], levels.size))
-    for delta in range(-int(radius), int(radius) + 1):
+    reach = min(int(radius), n_places - 1)  # offsets past the route's ends add nothing: never loop past them
+    for delta in range(-reach, reach + 1):
         q = p + delta
         inside = (q >= 0) & (q < n_places)
         weights += inside & (((q + shifts[None, :]) >> low) == own)

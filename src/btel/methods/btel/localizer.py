@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ...core.validation import BOOLEAN, N_JOBS, RANDOM_STATE, DType, Interval, Options, String, check_positive_int
+from ...core.validation import BOOLEAN, MAX_C, N_JOBS, RANDOM_STATE, DType, Interval, Options, String, check_positive_int
 from ..base import PlaceLocalizer
 from ...exceptions import InvalidParameterError
 from ...learning.distributed import BACKENDS
@@ -186,7 +186,7 @@ class BTELocalizer(TreeDecoding, TreeModelFile, PlaceLocalizer):
         "scheme": [Options(*SCHEMES)],
         "classifier": [Options(*CLASSIFIERS)],
         "solver": [Options(*SOLVERS)],
-        "C": [None, Interval(float, 0, None, closed="neither")],
+        "C": [None, Interval(float, 0, MAX_C, closed="right")],
         "feature_ratio": [None, Interval(float, 0, 1, closed="right")],
         "n_features": [None, Interval(int, 1, None)],
         "sparsity": [Interval(float, 0, None, closed="neither")],

@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from ...core.validation import N_JOBS, RANDOM_STATE, Interval, Options, String
+from ...core.validation import MAX_C, N_JOBS, RANDOM_STATE, Interval, Options, String
 from ..base import PlaceLocalizer
 from ...exceptions import BudgetTooSmallError, InvalidDescriptorsError, InvalidParameterError
 from ...learning.distributed import BACKENDS
@@ -149,7 +149,7 @@ class CodeLocalizer(CodeModelFile, CodeSearch, PlaceLocalizer):
         "weight_bits": [None, Options(*WEIGHT_BITS)],
         "solver": [Options(*SOLVERS)],
         "alpha": [None, Interval(float, 0, None, closed="neither")],
-        "C": [Interval(float, 0, None, closed="neither")],
+        "C": [Interval(float, 0, MAX_C, closed="right")],
         "max_iter": [Interval(int, 1, None)],
         "decode": [Options(*DECODES)],
         "coarse_block": [None, Interval(int, 1, None)],
