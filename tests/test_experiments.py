@@ -538,3 +538,29 @@ def test_the_overview_draws_two_maps_from_the_frontier_rows(tmp_path: Path) -> N
     assert path is not None and path.stat().st_size > 10_000
     assert plot_overview([{**r, "dataset": "synthetic route"} for r in rows], tmp_path / "q.png") is None
     assert not (tmp_path / "q.png").exists()
+
+
+def test_a_cached_model_swapped_or_damaged_on_disk_is_refitted_not_used(tmp_path: Path) -> None:
+    """A model file copied over an entry of an experiment's cache was used: its rows were labelled as the
+    cached method's, on the map it was not fitted on; a damaged entry ended the run with exit 2."""
+    from btel.experiments._common import ModelCache
+    from btel.methods import make_method
+
+    rng = np.random.default_rng(0)
+    X, other = (rng.normal(size=(60, 8)).astype(np.float32) for _ in range(2))
+    params = {"budget": 2_000}
+    first = ModelCache(tmp_path / "cache", min_fit_seconds=0.0)
+    model, _, cached = first.fit("pq", params, X)
+    assert not cached
+    key = ModelCache.key("pq", params, X)
+    entry = tmp_path / "cache" / f"{key}.btel.npz"
+    assert ModelCache(tmp_path / "cache").fit("pq", params, X)[2]  # a fresh process reads it back
+    # Another method, or the same method fitted on other rows, in the entry's place: refitted.
+    for foreign in (make_method("lsh", budget=2_000).fit(X), make_method("pq", budget=2_000).fit(other)):
+        foreign.save(entry, overwrite=True)
+        again, _, cached = ModelCache(tmp_path / "cache", min_fit_seconds=0.0).fit("pq", params, X)
+        assert not cached and type(again) is type(model)
+        np.testing.assert_array_equal(again.predict(X), model.predict(X))
+    entry.write_bytes(b"garbage")  # damaged: refitted and written anew, not refused as "not a btel file"
+    again, _, cached = ModelCache(tmp_path / "cache", min_fit_seconds=0.0).fit("pq", params, X)
+    assert not cached and ModelCache(tmp_path / "cache").fit("pq", params, X)[2]

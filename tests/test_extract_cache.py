@@ -88,3 +88,30 @@ def test_a_descriptor_file_that_is_not_there_is_named_as_a_missing_file(tmp_path
     images = _folder(tmp_path / "imgs", 0, n=2)
     result = _invoke("extract", images, "-o", tmp_path / "d.npy", "--descriptor", tmp_path / "dv.npz")
     assert result.exit_code == 2 and "no such file" in result.output and "unknown descriptor" not in result.output
+
+
+def test_a_matrix_replaced_or_damaged_since_its_extraction_is_no_cache(tmp_path: Path) -> None:
+    """`btel extract` said "up to date" over other data of the same shape written to OUTPUT, and a truncated
+    cached matrix in an experiment's cache ended the run (exit 2) instead of being extracted again."""
+    import json
+
+    from btel.descriptors.extract import extract_cached
+
+    images, out = _folder(tmp_path / "imgs", seed=1), tmp_path / "ex.npy"
+    assert _invoke("extract", images, "-o", out, "--no-progress").exit_code == 0
+    record = json.loads(Path(str(out) + ".json").read_text())
+    assert record["output"]["bytes"] == out.stat().st_size  # the record vouches for these bytes
+    assert "up to date" in _invoke("extract", images, "-o", out, "--no-progress").output
+    original = np.load(out)
+    np.save(out, np.random.default_rng(0).standard_normal(original.shape).astype(np.float32))
+    result = _invoke("extract", images, "-o", out, "--no-progress")
+    assert result.exit_code == 2 and "ex.npy itself (other bytes than the extraction wrote)" in result.output
+    assert not np.array_equal(np.load(out), original)  # the user's data stays until --overwrite
+    # A cache btel owns (an experiment's): a damaged matrix is extracted again, with or without its bytes recorded.
+    for legacy in (False, True):
+        with open(out, "r+b") as fh:
+            fh.truncate(200)
+        if legacy:  # a record from before btel kept the matrix's bytes
+            Path(str(out) + ".json").write_text(json.dumps({k: v for k, v in record.items() if k != "output"}))
+        X, reused = extract_cached(images, out, "hog", progress=False)
+        assert not reused and np.array_equal(X, original) and np.array_equal(np.load(out), original)

@@ -135,12 +135,35 @@ def _file_stamps(paths: list[Path]) -> list[list[Any]]:
 
 def same_extraction(cached: Any, key: dict[str, Any]) -> bool:
     """The sidecar ``cached`` records the extraction ``key``; a sidecar written before the image
-    folder was recorded (no ``"folder"``) still matches on everything else."""
+    folder was recorded (no ``"folder"``) still matches on everything else. The record's ``"output"``
+    (the matrix file it vouches for) is checked by :func:`output_unchanged`."""
     if not isinstance(cached, dict):
         return False
+    cached = {k: v for k, v in cached.items() if k != "output"}
     if "folder" not in cached:
         return cached == {k: v for k, v in key.items() if k != "folder"}
     return cached == key
+
+
+def _output_record(output: Path) -> dict[str, Any]:
+    """Size and SHA-256 of a written matrix file: what its record vouches for."""
+    digest = hashlib.sha256()
+    with open(output, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return {"bytes": output.stat().st_size, "sha256": digest.hexdigest()}
+
+
+def output_unchanged(cached: Any, output: str | os.PathLike) -> bool:
+    """The matrix file holds the bytes its record was written for (a record from before btel kept them:
+    True). A file replaced by other data of the same shape, or truncated, is then no cache of anything."""
+    recorded = cached.get("output") if isinstance(cached, dict) else None
+    if not isinstance(recorded, dict):
+        return True
+    try:
+        return Path(output).stat().st_size == recorded.get("bytes") and _output_record(Path(output)) == recorded
+    except OSError:
+        return False
 
 
 def extract_cached(
@@ -177,13 +200,17 @@ def extract_cached(
     sidecar = Path(str(output) + ".json")
     if not force and output.is_file():
         cached = read_sidecar(output)  # an unreadable record is refused (read_sidecar), not recomputed over
-        if same_extraction(cached, key):
-            if cached != key:  # written before the folder was recorded: record it now
+        if same_extraction(cached, key) and output_unchanged(cached, output):
+            if "output" not in cached or "folder" not in cached:  # an older record: complete it now
                 with atomic_output(sidecar, text=True) as fh:
-                    fh.write(json.dumps(key, indent=1))
+                    fh.write(json.dumps({**key, "output": _output_record(output)}, indent=1))
+            from ..exceptions import BTELError
             from .npy import load_descriptor_matrix
 
-            return load_descriptor_matrix(output), True  # checked like any input: the file may have changed
+            try:
+                return load_descriptor_matrix(output), True  # checked like any input: the file may have changed
+            except (BTELError, OSError, ValueError):  # damaged since (truncated…): extracted again below
+                pass
     X = extract_descriptors(paths, model, fit_on=fit_on, progress=progress)
     output.parent.mkdir(parents=True, exist_ok=True)
     # Unique temporaries: two runs filling the same cache at once (two experiments started together)
@@ -191,7 +218,7 @@ def extract_cached(
     with atomic_output(output, overwrite=overwrite) as fh:
         np.save(fh, X)
     with atomic_output(sidecar, text=True) as fh:
-        fh.write(json.dumps(key, indent=1))
+        fh.write(json.dumps({**key, "output": _output_record(output)}, indent=1))
     return X, False
 
 
@@ -203,7 +230,8 @@ def is_extraction_of(output: str | os.PathLike, images: str | os.PathLike, model
 
     cached = read_sidecar(output)  # outside the try: an unreadable record is refused, not taken for "no"
     try:
-        return cached is not None and same_extraction(cached, extraction_key(list_images(images), model, fit_on))
+        return (cached is not None and same_extraction(cached, extraction_key(list_images(images), model, fit_on))
+                and output_unchanged(cached, output))
     except (OSError, ValueError):
         return False
 
@@ -237,6 +265,8 @@ def extraction_difference(output: str | os.PathLike, images: str | os.PathLike, 
         parts.append("the images it was fitted on")
     if cached.get("fitted_sha1") != key.get("fitted_sha1"):
         parts.append("the descriptor file's fitted arrays")
+    if not output_unchanged(cached, output):
+        parts.append(f"{Path(output).name} itself (other bytes than the extraction wrote)")
     return "; ".join(parts) or None
 
 

@@ -135,7 +135,10 @@ class ModelCache:
         with lock:
             yield
 
-    def get(self, key: str) -> tuple[Any, float] | None:
+    def get(self, key: str, name: str | None = None, X: np.ndarray | None = None) -> tuple[Any, float] | None:
+        """The model cached under ``key``; one read from disk must be a ``name`` model fitted on ``X``'s rows
+        (its file records them: :mod:`btel.core.fingerprint`), else it is refitted (a file edited or
+        swapped in the cache folder would otherwise label another model's results)."""
         if not self.enabled:
             return None
         if key in self._memory:
@@ -143,11 +146,16 @@ class ModelCache:
         if self.folder is not None:
             model_path, meta_path = self.folder / f"{key}.btel.npz", self.folder / f"{key}.json"
             if model_path.is_file() and meta_path.is_file():
-                from ..methods.registry import load
+                from ..core.fingerprint import same_map
+                from ..methods.registry import load, make_method
 
                 try:
                     model, fit_s = load(model_path), float(json.loads(meta_path.read_text())["fit_s"])
                 except Exception:  # a damaged cache file is refitted, never trusted
+                    return None
+                if name is not None and type(model) is not type(make_method(name)):
+                    return None
+                if X is not None and not same_map(getattr(model, "map_fingerprint_", None), X):
                     return None
                 self._memory[key] = (model, fit_s)
                 return model, fit_s
@@ -161,7 +169,7 @@ class ModelCache:
             self.folder.mkdir(parents=True, exist_ok=True)
             # model.save writes a temporary of a unique name and renames it (concurrent puts of one
             # key cannot collide: the last rename wins); the metadata goes the same way.
-            model.save(self.folder / f"{key}.btel.npz")
+            model.save(self.folder / f"{key}.btel.npz", overwrite=True)  # the cache's own file, even if damaged
             fd, tmp = tempfile.mkstemp(dir=self.folder, prefix=f".{key}.json.", suffix=".tmp")
             try:
                 with os.fdopen(fd, "w", encoding="utf-8") as fh:
@@ -188,13 +196,13 @@ class ModelCache:
             + "-saturated"
         # Budgets of one configuration wait for each other: the second may reuse the first.
         with self._locked(alias or key):
-            hit = self.get(key)
+            hit = self.get(key, name, X)
             if hit is not None:
                 return hit[0], hit[1], True
             if alias is not None and self.enabled:
                 target = self._aliases.get(alias) or self._read_alias(alias)
                 if target is not None and target[1] <= parse_budget(budget):
-                    hit = self.get(target[0])
+                    hit = self.get(target[0], name, X)
                     if hit is not None:
                         return hit[0], hit[1], True
             model = make_method(name, **params)
