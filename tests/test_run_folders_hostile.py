@@ -222,3 +222,17 @@ def test_show_refuses_a_metrics_file_larger_than_any_run_writes(image_run: Path,
     with open(run / "metrics.json", "r+b") as fh:
         fh.truncate(MAX_RUN_JSON_BYTES + 10)
     _refused(invoke("show", run), str(run / "metrics.json"), "more than 64 MiB")
+
+
+@pytest.mark.parametrize("libraries", [-1, 1.5, True, "openblas", {"a": 1}])
+def test_btel_show_reads_a_run_whose_thread_libraries_are_no_list(finished_run: Path, tmp_path: Path,
+                                                                  libraries: Any) -> None:
+    """`run.threads.libraries` edited to a number raised TypeError with a traceback (exit 1)."""
+    run = tmp_path / "run"
+    shutil.copytree(finished_run, run)
+    data = json.loads((run / "metrics.json").read_text())
+    data["run"]["threads"]["libraries"] = libraries
+    (run / "metrics.json").write_text(json.dumps(data))
+    result = invoke("show", run)
+    assert result.exit_code == 0, result.output
+    assert "Traceback" not in result.output and "machine:" in result.output

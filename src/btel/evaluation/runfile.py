@@ -115,8 +115,9 @@ def describe_run(path: str | os.PathLike, width: int = 0) -> str:
     lines.append("software: " + ", ".join(f"{k} {_text(v, 40)}" for k, v in versions.items() if v)
                  + (f"; btel source commit {_text(commit, 64)}" if commit else ""))
     threads = run.get("threads") if isinstance(run.get("threads"), dict) else {}
+    libraries = threads.get("libraries")
     pools = [f"{_text(lib.get('internal_api'), 20)} {_text(lib.get('num_threads'), 8)}"
-             for lib in threads.get("libraries") or [] if isinstance(lib, dict)]
+             for lib in (libraries if isinstance(libraries, list) else []) if isinstance(lib, dict)]
     loads = [f"{load[0]:.2f} {when}" for key, when in (("load_average", "at the start"),
                                                        ("load_average_updated", "at the last write"))
              if isinstance(load := run.get(key), list) and load and isinstance(load[0], (int, float))]
