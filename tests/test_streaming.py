@@ -475,3 +475,32 @@ def test_gardens_point_savetxt_and_frames_stream_like_batch(gardenspoint_netvlad
         result = CliRunner().invoke(main, ["localize", str(path), "--stream", *flags], catch_exceptions=False)
         assert result.exit_code == 0, result.stderr
         np.testing.assert_array_equal([int(v) for v in result.stdout.split()], model.predict(X_query))
+
+
+def test_a_followed_file_that_is_truncated_is_read_again_from_its_start(tmp_path) -> None:
+    """As `tail -f`: a followed file emptied and rewritten by its producer was read on from the old offset,
+    so the new lines were never answered, without a word."""
+    import threading
+    import time
+    import warnings as _warnings
+
+    from btel.sequence.streamread import read_lines
+
+    path = tmp_path / "frames.txt"
+    path.write_bytes(b"1,2\n3,4\n5,6\n")
+
+    def rewrite() -> None:
+        time.sleep(0.6)
+        with open(path, "r+b") as fh:  # new content over the old, then cut: never shorter than 4 bytes
+            fh.write(b"7,8\n")
+            fh.truncate(4)
+
+    writer = threading.Thread(target=rewrite)
+    with open(path, "rb") as fh, _warnings.catch_warnings(record=True) as caught:
+        _warnings.simplefilter("always")
+        writer.start()
+        lines = list(read_lines(fh, follow=True, poll_interval=0.05, idle_timeout=1.5))
+    writer.join()
+    assert lines == [b"1,2\n", b"3,4\n", b"5,6\n", b"7,8\n"]
+    assert [str(w.message) for w in caught] == [
+        f"{path} was truncated (it holds 4 bytes; 12 were read): reading it again from its start"]

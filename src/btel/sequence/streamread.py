@@ -23,6 +23,7 @@ import os
 import select
 import stat
 import time
+import warnings
 from typing import Any, BinaryIO, Iterator
 
 import numpy as np
@@ -136,11 +137,28 @@ def read_lines(stream: Any, *, follow: bool = False, poll_interval: float = 0.1,
             continue
         if not follow or (idle_timeout is not None and time.monotonic() - last_data >= idle_timeout):
             break
+        if _truncated(stream):  # as `tail -f` does: say so, and read the file again from its start
+            size, read = os.fstat(stream.fileno()).st_size, stream.tell()
+            warnings.warn(f"{getattr(stream, 'name', 'the input')} was truncated (it holds {size} bytes; {read} were "
+                          "read): reading it again from its start", stacklevel=2)
+            stream.seek(0)
+            pending, skipping = None, False
+            continue
         time.sleep(poll_interval)
     if skipping:
         yield LineTooLong(limit)
     elif pending and pending.strip():
         yield CutLine()  # the last line lacks its newline: cut short, or not, cannot be told
+
+
+def _truncated(stream: Any) -> bool:
+    """A followed binary file now shorter than what was read of it (rewritten or emptied by its producer)."""
+    if hasattr(stream, "encoding"):  # a text stream's tell() is an opaque cookie, not a byte offset
+        return False
+    try:
+        return os.fstat(stream.fileno()).st_size < stream.tell()
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 def chunk_lines(stream: BinaryIO, *, max_line: int | None = None) -> Iterator[Any]:
