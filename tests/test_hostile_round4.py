@@ -228,3 +228,27 @@ def test_opq_nested_parameters_reach_the_default_quantiser() -> None:
         make_method("opq", pq__bogus=1)
     with pytest.raises(InvalidParameterError, match="invalid parameter 'budget__x'|no parameters to set"):
         OPQLocalizer().set_params(budget__x=1)
+
+
+def test_a_map_of_scaled_copies_of_one_row_is_refused_as_one_descriptor(tmp_path) -> None:
+    """Scaled copies of one vector (or a width-1 map of positive values) passed the distinct-rows check on the raw
+    rows, then became one descriptor under the L2 front end: every query got one place, exit 0."""
+    import btel
+    from btel.exceptions import InvalidDescriptorsError
+
+    v = np.random.default_rng(0).standard_normal(64).astype(np.float32)
+    scaled = v[None] * np.linspace(1, 5, 200, dtype=np.float32)[:, None]
+    width_one = np.random.default_rng(1).uniform(1, 2, (50, 1)).astype(np.float32)
+    for X in (scaled, width_one):
+        for name in ("auto", "bruteforce", "lsh", "btel-codes"):
+            with pytest.raises(InvalidDescriptorsError, match="points the same way"):
+                btel.make_method(name).fit(X)
+        # Lengths are what differs: with normalize='none' they are places again.
+        btel.make_method("bruteforce", normalize="none").fit(X)
+    mixed = scaled.copy()
+    mixed[-1] = -mixed[-1]  # one row the other way: two directions, a map (however poor)
+    btel.make_method("bruteforce").fit(mixed)
+    np.save(tmp_path / "scaled.npy", scaled)
+    result = CliRunner().invoke(main, ["train", str(tmp_path / "scaled.npy"), "-o", str(tmp_path / "m.npz")])
+    assert result.exit_code == 2 and "every row of the map points the same way" in result.output
+    assert "--param normalize=none" in result.output

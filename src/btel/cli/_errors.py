@@ -81,6 +81,8 @@ CLI_WORDS: tuple[tuple[str, str], ...] = (
     (r"\bn_regions='auto'", "--regions auto"),
     (r"Pass overwrite=True \(CLI: --overwrite\)", "Give --overwrite"),
     (r"pass overwrite=True \(CLI: --overwrite\)", "give --overwrite"),
+    (r"every row of X points", "every row of the map points"),
+    (r"fit with normalize='none'", "fit with --param normalize=none"),
 )
 
 

@@ -42,7 +42,7 @@ import numpy as np
 from .validation import Interval, Options
 from ..exceptions import InvalidParameterError, ModelFileError
 from .rows import (HUGE_NORM, NORMALIZATIONS, TINY_SQUARED_NORM, ScaledRows, delta_descriptors, normalize_rows,
-                   one_row_squares, row_norms, traverse_starts, warn_blank_rows)
+                   one_row_squares, refuse_one_direction, row_norms, traverse_starts, warn_blank_rows)
 
 __all__ = ["FrontEnd", "FrontEndStream", "ScaledRows", "delta_descriptors", "normalize_rows", "row_norms",
            "traverse_starts",
@@ -143,6 +143,7 @@ class FrontEnd:
         a plain L2 normalisation comes back as :class:`ScaledRows` (the map and one scale per row: no
         normalised copy of a map that may be most of memory).
         """
+        refuse_one_direction(X, self.normalize)  # scaled copies of one row: one descriptor once normalised
         if lazy and self.plain_l2:
             return self.transform(X, starts, lazy=True)  # nothing to learn
         Z = self._frames(X, starts)

@@ -267,3 +267,35 @@ def _delta_one(X: np.ndarray, w: int) -> np.ndarray:
         before = csum[end - w] - csum[end - 2 * w]
         out[:, c0 : c0 + step] = (last - before) / w
     return out
+
+
+def refuse_one_direction(X: np.ndarray, normalize: str, name: str = "X") -> None:
+    """Refuse a map whose rows all point one way (positive multiples of one row): after the L2 or power
+    normalisation every method applies, all its places are then one descriptor and nothing tells them apart.
+
+    Read in blocks, stopping at the first block holding a row of another direction (at once on real maps).
+
+    Raises
+    ------
+    InvalidDescriptorsError
+        Every row has a length and all point the same way (cosine to the first row ≥ 1 − 10⁻⁶).
+    """
+    from ..exceptions import InvalidDescriptorsError
+
+    if normalize == "none" or X.shape[0] < 2:
+        return
+    first = np.asarray(X[0], dtype=np.float64)
+    length = float(np.linalg.norm(first))
+    if not length > 0:
+        return  # a zero row stays zero: it differs from every row that has a length
+    first /= length
+    step = max(1, (1 << 20) // max(X.shape[1], 1))
+    for start in range(0, X.shape[0], step):
+        block = np.asarray(X[start:start + step], dtype=np.float64)
+        norms = np.linalg.norm(block, axis=1)
+        if not (norms > 0).all() or ((block @ first) < (1 - 1e-6) * norms).any():
+            return
+    raise InvalidDescriptorsError(
+        f"every row of {name} points the same way (the {X.shape[0]} rows differ only in length): after the "
+        f"normalisation (normalize={normalize!r}) all places are one descriptor, so nothing tells them apart. "
+        "Check how the descriptors were made, or fit with normalize='none' if their lengths are what differs.")
