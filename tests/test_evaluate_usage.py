@@ -175,3 +175,16 @@ def test_delta_with_independent_queries_is_a_usage_error(route_files, tmp_path: 
         in error
     assert "query sequence" in error and "--query-order route" in error and "fitting" not in result.output
     assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize("flag", [["--delta", "150"], ["--param", "delta=150"]])
+def test_a_delta_window_longer_than_the_traverses_is_a_usage_error_before_any_fit(route_files, tmp_path: Path,
+                                                                                   flag: list[str]) -> None:
+    """Every row failed with NotEnoughPlacesError and the command exited 1, although nothing could have run."""
+    db, q = route_files
+    out = tmp_path / "run"
+    result = run("evaluate", "--db", db, "--queries", q, "--methods", "lsh", "--no-progress", "--out", out, *flag)
+    assert result.exit_code == 2 and not out.exists()
+    given = "--delta 150" if flag[0] == "--delta" else "--param delta=150"  # named as the user gave it
+    n = np.load(db).shape[0]
+    assert f"{given} needs traverses of at least 2 × 150 = 300 frames; the map has {n}" in _error(result)

@@ -302,6 +302,7 @@ def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tupl
             refuse_matrix_as_model(path, "--model", "or give this matrix as --db to fit --methods on it")
         raise
     n_map = common_map_size(X, Q, saved)
+    _check_delta_window(o, n_map, Q.shape[0])
     for note in fitted_on_other_rows(X, saved):
         _echo_while_running(f"note: {note}; were --db and the --model files made from the same map?")
     ks = _ks_for_map(ks, n_map, _given(ctx, "ks_text"))
@@ -388,6 +389,17 @@ def _check_option_pairs(o: dict[str, Any]) -> None:
             "sequence (the mean of the last W frames minus the W before), which independent queries do not "
             f"have, so every row would be refused. Drop {flag}, or give --query-order route if the query rows "
             "are consecutive frames of one traverse.")
+
+
+def _check_delta_window(o: dict[str, Any], n_map: int, n_queries: int) -> None:
+    """A delta window the map or the queries are too short for, refused before any fit (each row would fail)."""
+    delta = o["delta"] if o["delta"] is not None else _every_method_param(o["param_texts"], "delta")
+    shortest = min(n_map, n_queries)
+    if isinstance(delta, int) and not isinstance(delta, bool) and delta >= 1 and shortest < 2 * delta:
+        which = "map" if n_map <= n_queries else "query traverse"
+        flag = "--delta " if o["delta"] is not None else "--param delta="
+        raise click.UsageError(f"{flag}{delta} needs traverses of at least 2 × {delta} = {2 * delta} frames; the "
+                               f"{which} has {shortest}. Give {flag}{max(shortest // 2, 1)} or less.")
 
 
 def _every_method_param(param_texts: list[str], name: str) -> Any:
