@@ -87,3 +87,25 @@ def test_a_fit_without_bars_of_its_own_shows_the_time_elapsed_on_a_terminal() ->
     with elapsed_ticker("fitting", False, file=silent):
         pass
     assert silent.getvalue() == ""
+
+
+def test_an_output_that_is_one_of_the_inputs_is_refused_even_with_overwrite(tmp_path: Path) -> None:
+    """`btel train dbz.npz -o dbz.npz --overwrite` replaced the map descriptors with the model."""
+    from click.testing import CliRunner
+
+    from btel.cli import main
+    from btel.datasets import synthetic_route
+
+    r = synthetic_route(100, 16, seed=0)
+    both = tmp_path / "dbz.npz"
+    np.savez(both, map=r.map, q=r.queries)
+    before = both.read_bytes()
+    runner = CliRunner()
+    result = runner.invoke(main, ["train", f"{both}:map", "-o", str(both), "--overwrite"])
+    assert result.exit_code == 2 and f"-o {both} is also the input DB" in result.output
+    assert both.read_bytes() == before
+    # The calibration queries are inputs too; another name is written as before.
+    result = runner.invoke(main, ["train", f"{both}:map", "-o", str(both), "--overwrite", "--calibrate", f"{both}:q",
+                                  "--calibrate-truth", str(tmp_path / "none.npy")])
+    assert result.exit_code == 2 and both.read_bytes() == before
+    assert runner.invoke(main, ["train", f"{both}:map", "-o", str(tmp_path / "m.npz")]).exit_code == 0

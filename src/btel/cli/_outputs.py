@@ -45,8 +45,9 @@ def describe_file(path: Path) -> str:
     return what
 
 
-def refuse_existing(path: str | Path, option: str, overwrite: bool) -> None:
-    """Raise a usage error when ``path`` exists and ``overwrite`` is not set.
+def refuse_existing(path: str | Path, option: str, overwrite: bool,
+                    inputs: dict[str, str | None] | None = None) -> None:
+    """Raise a usage error when ``path`` exists and ``overwrite`` is not set, or is one of the command's inputs.
 
     Parameters
     ----------
@@ -56,8 +57,12 @@ def refuse_existing(path: str | Path, option: str, overwrite: bool) -> None:
         The option that named it (``-o``, ``--pairs``), for the message.
     overwrite : bool
         ``--overwrite`` given: replacing is intended.
+    inputs : dict, optional
+        The command's input files by the argument that names them (``{"DB": "db.npz:map"}``): the output may
+        be none of them, ``--overwrite`` or not (``btel train db.npz -o db.npz --overwrite`` replaced the map).
     """
     from ..core.claims import refuse_special_target
+    from ..descriptors.npy import split_prefix
     from ..exceptions import OutputExistsError
 
     path = Path(path)
@@ -65,6 +70,15 @@ def refuse_existing(path: str | Path, option: str, overwrite: bool) -> None:
         refuse_special_target(path)
     except OutputExistsError as exc:
         raise click.UsageError(f"{option} {exc}") from None
+    for name, given in (inputs or {}).items():
+        source = None if given is None else Path(given) if Path(given).exists() else split_prefix(given)[0]
+        try:
+            same = source is not None and path.exists() and source.is_file() and path.samefile(source)
+        except OSError:
+            same = False
+        if same:
+            raise click.UsageError(f"{option} {path} is also the input {name}: writing it would destroy that input. "
+                                   "Give another file name.")
     if overwrite or not path.exists():
         return
     if path.is_dir():

@@ -86,7 +86,7 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
         return _localize_stream(load_model(model_path), input_path, follow, idle_timeout, window, hmm, binary,
                                 hmm_options)
     check_output_suffix(output, "-o", "a predictions CSV", (".csv", ".txt"))
-    refuse_existing(output, "-o", overwrite)
+    refuse_existing(output, "-o", overwrite, {"MODEL": model_path, "QUERIES": queries, "--db": db})
     model = load_model(model_path)
     Q = _load_matrix(queries, "query descriptors", mmap=True)  # a float32 .npy is read as it is used
     if Q.shape[1] != model.n_features_in_:  # the library would name its variable (Q), not the file

@@ -82,7 +82,7 @@ def train(db: str, output: str, overwrite: bool, method: str, budget: str | None
     params = _params_by_method([method], param_texts, shortcuts=shortcuts)[method]
     # A model is read by its content, so any name works (map.btel is in use) but one of another format's.
     check_output_suffix(output, "-o", "a model file", (".npz",), refused=OTHER_FORMATS)
-    refuse_existing(output, "-o", overwrite)
+    refuse_existing(output, "-o", overwrite, {"DB": db, "--calibrate": calibrate, "--calibrate-truth": calibrate_truth})
     X = _load_map(db)
     fit_params: dict[str, Any] = {}
     if calibrate:

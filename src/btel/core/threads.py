@@ -20,7 +20,7 @@ from typing import Any, Iterator
 from ..exceptions import InvalidParameterError
 
 __all__ = ["SINGLE_QUERY_MAX", "GEMV_ONE_THREAD_BELOW", "blas_threads", "blas_threads_for_vector", "one_blas_thread", "faiss_threads",
-           "faiss_module", "search_threads", "limit_threads", "check_n_jobs"]
+           "faiss_module", "search_threads", "limit_threads", "check_n_jobs", "load_average"]
 
 #: Searches of fewer queries than this run faiss on one thread unless ``n_jobs`` says otherwise.
 SINGLE_QUERY_MAX = 20
@@ -246,3 +246,12 @@ def thread_settings() -> dict[str, Any]:
     libraries = [{k: info.get(k) for k in ("user_api", "internal_api", "version", "num_threads")}
                  for info in threadpool_info()]
     return {"environment": {k: os.environ[k] for k in THREAD_VARIABLES if k in os.environ}, "libraries": libraries}
+
+
+def load_average() -> list[float] | None:
+    """The machine's load average over 1, 5 and 15 minutes (None where the system has none): beside the
+    core count it says whether a run's times are those of an idle machine."""
+    try:
+        return [round(v, 2) for v in os.getloadavg()]
+    except (AttributeError, OSError):
+        return None

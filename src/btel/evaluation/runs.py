@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from ..core.modelfile import jsonable
+from ..core.threads import load_average  # a run records the machine's load (tests patch it here)
 from .metrics import DEFAULT_TOLERANCES, recall_at_tolerance
 from .records import EvaluationResult
 from .tables import RUN_COLUMNS, calibration_markdown, metrics_csv_text, predictions_csv_text
@@ -127,15 +128,6 @@ def run_metadata(command: str | Sequence[str] | None = None) -> dict[str, Any]:
         "threads": thread_settings(),
         "load_average": load_average(),
     }
-
-
-def load_average() -> list[float] | None:
-    """The machine's load average over 1, 5 and 15 minutes (None where the system has none): beside the
-    core count it says whether a run's times are those of an idle machine."""
-    try:
-        return [round(v, 2) for v in os.getloadavg()]
-    except (AttributeError, OSError):
-        return None
 
 
 def safe_file_name(name: str) -> str:
