@@ -263,7 +263,7 @@ def test_parse_rejects_values_that_are_not_finite_float32_decimals(line: str, me
             parse_descriptor_line(form, 3)
 
 
-@pytest.mark.parametrize("line", ["+1,.5,5.", "1,,2,3", "1e2, -2E-1 ,3", b"1,2,3\r\n", "01 2 3"])
+@pytest.mark.parametrize("line", ["+1,.5,5.", "1  2,3", "1e2, -2E-1 ,3", b"1,2,3\r\n", "01 2 3"])
 def test_fast_and_strict_parsers_agree_on_good_lines(line) -> None:
     values = parse_descriptor_line(line)
     text = line.decode() if isinstance(line, bytes) else line
@@ -504,3 +504,17 @@ def test_a_followed_file_that_is_truncated_is_read_again_from_its_start(tmp_path
     assert lines == [b"1,2\n", b"3,4\n", b"5,6\n", b"7,8\n"]
     assert [str(w.message) for w in caught] == [
         f"{path} was truncated (it holds 4 bytes; 12 were read): reading it again from its start"]
+
+
+@pytest.mark.parametrize(("line", "column"), [("1,,2,3", 2), (",1,2,3", 1), ("1,2,3,", 4), ("1, ,2,3", 2),
+                                              ("1 2,,3", 3)])
+def test_an_empty_value_between_commas_is_a_malformed_line_not_a_skipped_separator(line: str, column: int) -> None:
+    """`1,,2,3` read as three values: a line missing one value and holding one extra passed for a whole row."""
+    with pytest.raises(InvalidDescriptorsError, match=f"value {column} is empty"):
+        parse_descriptor_line(line, None)
+    np.testing.assert_array_equal(parse_descriptor_line("1, 2,3", 3), [[1, 2, 3]])  # spaces after commas: fine
+    errors: list[tuple[int, str]] = []
+    model = BTELocalizer(progress=False).fit(synthetic_route(40, 4, seed=0).map)
+    out = list(localize_stream(model, io.BytesIO(f"1,2,3,4\n{line},4\n1,2,3,4\n".encode()),
+                               on_error=lambda n, m: errors.append((n, m))))
+    assert [n for n, _ in out] == [1, 3] and [n for n, _ in errors] == [2]

@@ -3,7 +3,7 @@
 A value is a finite ASCII decimal (``-1``, ``0.25``, ``.5``, ``3e-4``) whose float32 value is
 finite, and the squared norm of a line must not overflow float32 (the front end's L2 normalisation
 computes it). Anything else — ``1_0``, digits of other scripts, hex, ``nan``/``inf``, ``3.5e38``,
-the wrong number of values — makes the line malformed (:class:`~btel.exceptions.InvalidDescriptorsError`
+an empty value (``1,,2``, a leading or trailing comma), the wrong number of values — makes the line malformed (:class:`~btel.exceptions.InvalidDescriptorsError`
 naming the value).
 
 **Fast path.** A line of JSON numbers separated by one kind of separator — commas
@@ -12,7 +12,7 @@ is read by orjson from the raw bytes, spaces turned into commas; a block of such
 array with one vectorised range check (:func:`parse_lines`). A line holding none of the bytes of
 JSON's other values (``u`` and ``l`` of ``true``/``false``/``null``, quotes, brackets) parses as
 JSON only if it is such numbers, so no value can slip through as something else. Any other line
-(``+1``, ``5.``, mixed or repeated separators, a bad value) goes through the strict parser, token by
+(``+1``, ``5.``, mixed separators, repeated whitespace, a bad value) goes through the strict parser, token by
 token, which also names the offending value.
 
 **Limits.** A line holds at most ``$BTEL_MAX_LINE_BYTES`` bytes (default 1 MiB, newline excluded;
@@ -40,6 +40,8 @@ _SEPARATORS = re.compile(r"[,\s]+")
 #: Each character has one way to match (the fraction's digits only after a point): ``[0-9]+\.?[0-9]*``
 #: split a run of digits in every possible way, quadratic backtracking on ``1111…1x`` (a 1 MiB line hung).
 _DECIMAL = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?\Z", re.ASCII)
+#: An empty field: a comma at the start, or at the end, or followed by another with only whitespace between.
+_EMPTY_FIELD = re.compile(r"^\s*,|,\s*,|,\s*$")
 _NOT_FINITE = re.compile(r"[+-]?(?:nan|inf|infinity)\Z", re.IGNORECASE)
 #: A byte of each JSON value that is not a number (true/false/null, strings, arrays, objects): a line
 #: holding one goes to the strict parser (memchr scans: far cheaper than checking every byte).
@@ -172,6 +174,13 @@ def parse_strict(line: str | bytes, n_features: int | None) -> np.ndarray:
     tokens = [t for t in _SEPARATORS.split(line.strip()) if t]
     if not tokens:
         raise InvalidDescriptorsError("empty line (expected one descriptor).")
+    # A comma with no value before it (",,", a leading or trailing comma) is a missing value, not a separator
+    # to skip: skipped, a line missing one value and holding one extra would pass for a whole row.
+    empty = _EMPTY_FIELD.search(line.strip())
+    if empty is not None:
+        column = 1 + sum(1 for t in _SEPARATORS.split(line.strip()[:empty.start() + 1]) if t)
+        raise InvalidDescriptorsError(f"value {column} is empty (two commas with nothing between them, or a comma "
+                                      "at the start or end of the line); write every value of the descriptor.")
     if n_features is not None and len(tokens) != n_features:
         raise InvalidDescriptorsError(f"expected {n_features} values, got {len(tokens)}{_count_hint(line, tokens)}.")
     for column, token in enumerate(tokens):
