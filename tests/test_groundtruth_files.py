@@ -21,6 +21,9 @@ def test_csv_with_a_huge_query_index_is_refused_before_allocating(tmp_path: Path
     (tmp_path / "big.csv").write_text("query,positive\n1000000000000,1\n")  # 31 bytes (MemoryError before)
     with pytest.raises(ResourceLimitError, match="BTEL_MEMORY_LIMIT"):
         GroundTruth.from_file(tmp_path / "big.csv")
+    # With the query count known (evaluate's queries), the index past the last query is the problem named.
+    with pytest.raises(InvalidParameterError, match=r"lists query 1000000000000, but there are only 200 query rows"):
+        GroundTruth.from_file(tmp_path / "big.csv", n_queries=200)
     (tmp_path / "huge.csv").write_text("query,positive\n" + "9" * 5000 + ",1\n")
     with pytest.raises(DataNotFoundError, match="line 2"):
         GroundTruth.from_file(tmp_path / "huge.csv")

@@ -291,6 +291,8 @@ def _from_csv(cls: Any, path: Path, n_expected: int | None = None) -> Any:
         raise DataNotFoundError(f"{str(path)!r} lists no query.")
     q = np.frombuffer(queries, dtype=np.int64)
     n_queries = int(q.max()) + 1
+    if n_expected is not None and n_queries > n_expected:  # a query past the last one: say so, not "memory"
+        _refuse_csv_count(path, q, n_queries, n_expected)
     # indptr, the per-query counts and the CSR copies GroundTruth makes: ~8 int64 per query.
     check_count(n_queries, 64, f"ground-truth CSV {str(path)!r} (query index {n_queries - 1})")
     if n_expected is not None and n_queries != n_expected:
