@@ -124,3 +124,23 @@ def test_real_descriptors_in_every_layout_map_to_the_same_matrix(gardenspoint_ne
     mapped = load_descriptor_matrix(tmp_path / "f32.npy", mmap_mode="r")
     assert isinstance(mapped, np.memmap) or isinstance(mapped.base, np.memmap)
     np.testing.assert_array_equal(mapped, X)
+
+
+def test_a_negative_shape_and_an_npz_of_many_arrays_get_short_plain_messages(tmp_path) -> None:
+    """A header announcing shape (-1, 64) was "more than the -256 B its shape announces"; an .npz of 1,000 arrays
+    listed all 1,000 names in one message."""
+    import io
+
+    from btel.descriptors.npy import load_descriptor_matrix
+    from btel.exceptions import BTELError
+
+    buf = io.BytesIO()
+    np.save(buf, np.zeros((2, 64), dtype=np.float32))
+    (tmp_path / "neg.npy").write_bytes(buf.getvalue().replace(b"'shape': (2, 64)", b"'shape': (-1, 64)"))
+    with pytest.raises(BTELError, match=r"announcing a negative size, shape \(-1, 64\)"):
+        load_descriptor_matrix(tmp_path / "neg.npy")
+    np.savez(tmp_path / "many.npz", **{f"a{i}": np.zeros((2, 2), dtype=np.float32) for i in range(1000)})
+    with pytest.raises(BTELError) as caught:
+        load_descriptor_matrix(tmp_path / "many.npz")
+    assert "holds 1000 arrays (a0, a1, a2, a3, a4, a5, a6, a7, …); choose one" in str(caught.value)
+    assert len(str(caught.value)) < 300

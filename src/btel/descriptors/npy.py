@@ -236,7 +236,8 @@ def load_descriptor_matrix(
             if key is None:
                 if len(names) != 1:
                     raise InvalidParameterError(
-                        f"{str(path)!r} holds {len(names)} arrays ({', '.join(names)}); choose one: {path}:{names[0]} "
+                        f"{str(path)!r} holds {len(names)} arrays ({', '.join(names[:8])}{', …' * (len(names) > 8)}); "
+                        f"choose one: {path}:{names[0]} "
                         f"on the command line, key={names[0]!r} in Python."
                     )
                 key = names[0]

@@ -79,6 +79,10 @@ def check_npy_header(path: str | os.PathLike, what: str, *, objects: bool = Fals
             f"{what} {str(path)!r} holds Python objects (an object array, stored as a pickle); btel never "
             "unpickles files because that can run code. Save the descriptors as a numeric array: "
             "np.save(path, X.astype('float32')).")
+    if any(n < 0 for n in shape):  # a hand-made header; numpy itself refuses to read it
+        raise InvalidDescriptorsError(
+            f"{what} {str(path)!r} has a header announcing a negative size, shape {shape}: it was not written by "
+            "numpy (or was edited). Write the file again (np.save(path, X)).")
     if declared > held:
         raise InvalidDescriptorsError(
             f"{what} {str(path)!r} is cut short: its header announces an array of shape {shape} and dtype {dtype} "
