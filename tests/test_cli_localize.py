@@ -199,3 +199,29 @@ def test_a_query_file_over_the_memory_limit_is_answered_in_row_blocks(tmp_path: 
     model = load(tmp_path / "m.npz")
     np.testing.assert_array_equal([int(r["prediction"]) for r in rows], model.predict(Q))
     np.testing.assert_array_equal([[int(r[f"rank_{k}"]) for k in (1, 2, 3)] for r in rows], model.rank(Q, 3))
+
+
+def test_localize_and_evaluate_write_one_predictions_layout(tmp_path: Path) -> None:
+    """`btel localize` had a CSV writer of its own (names before ranks, \\r\\n lines); evaluate's put ranks first."""
+    import csv
+
+    from btel.datasets import synthetic_route
+
+    r = synthetic_route(80, 16, seed=1)
+    np.save(tmp_path / "db.npy", r.map)
+    np.save(tmp_path / "q.npy", r.queries)
+    runner = CliRunner()
+    assert runner.invoke(main, ["train", str(tmp_path / "db.npy"), "--method", "bruteforce",
+                                "-o", str(tmp_path / "m.npz")]).exit_code == 0
+    result = runner.invoke(main, ["localize", str(tmp_path / "m.npz"), str(tmp_path / "q.npy"), "--top-k", "3",
+                                  "-o", str(tmp_path / "p.csv")])
+    assert result.exit_code == 0, result.output
+    result = runner.invoke(main, ["evaluate", "--model", str(tmp_path / "m.npz"), "--queries", str(tmp_path / "q.npy"),
+                                  "--k", "1,3", "--no-progress", "--out", str(tmp_path / "run")])
+    assert result.exit_code == 0, result.output
+    mine = list(csv.DictReader(open(tmp_path / "p.csv", newline="")))
+    theirs = list(csv.DictReader(open(tmp_path / "run" / "predictions_m.csv", newline="")))
+    assert list(mine[0]) == ["query", "prediction", "rank_1", "rank_2", "rank_3"]
+    assert list(theirs[0])[:2] == ["query", "prediction"] and list(theirs[0])[-3:] == ["rank_1", "rank_2", "rank_3"]
+    assert [{k: row[k] for k in mine[0]} for row in theirs] == mine
+    assert b"\r\n" not in (tmp_path / "p.csv").read_bytes()

@@ -93,20 +93,13 @@ def write_pairs(path: Path, ranked: np.ndarray, query_names: Sequence[str], db_n
 def write_predictions(path: str | Path, predictions: np.ndarray, ranked: np.ndarray | None,
                       query_names: Sequence[str] | None, db_names: Sequence[str] | None, *,
                       overwrite: bool) -> None:
-    """``btel localize``'s CSV: ``query,prediction`` per query, then ``query_name`` and
-    ``prediction_name`` when the names are known, then ``rank_1 … rank_K`` with a ranking.
+    """``btel localize``'s CSV, the layout of ``btel evaluate``'s (:func:`btel.datasets.predictions.predictions_csv`):
+    ``query,prediction``, the image names when known, then ``rank_1 … rank_K`` with a ranking.
     Written whole or not at all; ``overwrite=False`` keeps a file another process wrote meanwhile."""
-    import csv
-
     from ..core.claims import atomic_output
+    from ..datasets.predictions import predictions_csv
 
-    head = ["query", "prediction", *(["query_name"] if query_names else []),
-            *(["prediction_name"] if db_names else []),
-            *([f"rank_{j + 1}" for j in range(ranked.shape[1])] if ranked is not None else [])]
+    text = predictions_csv(predictions, ranked=ranked, query_names=query_names or None, db_names=db_names or None)
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     with atomic_output(path, overwrite=overwrite, text=True) as fh:
-        writer = csv.writer(fh)
-        writer.writerow(head)
-        for i, p in enumerate(predictions.tolist()):
-            writer.writerow([i, p, *([query_names[i]] if query_names else []), *([db_names[p]] if db_names else []),
-                             *(ranked[i].tolist() if ranked is not None else [])])
+        fh.write(text)

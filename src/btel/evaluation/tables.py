@@ -15,8 +15,6 @@ import textwrap
 from collections.abc import Sequence
 from typing import Any
 
-import numpy as np
-
 from .records import STATUS_DOES_NOT_FIT, EvaluationResult
 from ..core.modelfile import jsonable
 from ..core.storage import format_bytes
@@ -255,47 +253,13 @@ def metrics_csv_text(results: Sequence[EvaluationResult]) -> str:
 
 def predictions_csv_text(r: EvaluationResult, query_names: Sequence[str] | None = None,
                          db_names: Sequence[str] | None = None) -> str:
-    """The ``predictions_<method>.csv`` of the row ``r``.
+    """The ``predictions_<method>.csv`` of the row ``r``: :func:`btel.datasets.predictions.predictions_csv` of its predictions, its
+    ground truth and its ranking (when it ranked more than one candidate)."""
+    from ..datasets.predictions import predictions_csv
 
-    Columns: ``query,prediction``; ``true`` (one true place per query) or ``positive`` (one of the
-    query's positives, -1 for none) and ``correct`` (0/1, the top-1 is a true place) when the
-    ground truth is known; ``rank_1…rank_K`` when the method ranked more than one candidate; and,
-    when the inputs name their rows (``btel extract``'s .json, hloc .h5), ``query_name``,
-    ``prediction_name`` and ``true_name`` / ``positive_name``. Row numbers always stay.
-    """
-    n = r.n_queries
-    columns: list[tuple[str, Sequence[Any]]] = [("query", np.arange(n)), ("prediction", r.predictions)]
-    gt = r.ground_truth
-    reference = None
-    if gt is not None and gt.kind == "places":
-        reference = ("true", np.asarray(gt.query_places))
-    elif gt is not None:
-        first = np.full(n, -1, dtype=np.int64) if gt.indices.size == 0 else \
-            np.where(np.diff(gt.indptr) > 0, gt.indices[np.minimum(gt.indptr[:-1], gt.indices.size - 1)], -1)
-        reference = ("positive", first)
-    if reference is not None:
-        columns.append(reference)
-        columns.append(("correct", gt.is_correct(r.predictions).astype(np.int64)))
-    if r.ranked is not None and r.ranked.shape[1] > 1:
-        columns += [(f"rank_{j + 1}", r.ranked[:, j]) for j in range(r.ranked.shape[1])]
-    if query_names is not None and len(query_names) == n:
-        from ..datasets.vpr_names import check_image_names
-
-        check_image_names(query_names, "query names")  # one CSV row per line
-        if db_names is not None:
-            check_image_names(db_names, "map names")
-        columns.append(("query_name", list(query_names)))
-        if db_names is not None:
-            named = np.asarray(list(db_names) + [""], dtype=object)  # -1 (no place) → ""
-            columns.append(("prediction_name", named[np.asarray(r.predictions)]))
-            if reference is not None:
-                columns.append((f"{reference[0]}_name", named[reference[1]]))
-    buffer = io.StringIO()
-    out = csv.writer(buffer, lineterminator="\n")
-    out.writerow([name for name, _ in columns])
-    for i in range(n):
-        out.writerow([int(v[i]) if isinstance(v, np.ndarray) and v.dtype.kind in "iub" else v[i] for _, v in columns])
-    return buffer.getvalue()
+    ranked = r.ranked if r.ranked is not None and r.ranked.shape[1] > 1 else None
+    return predictions_csv(r.predictions, ranked=ranked, ground_truth=r.ground_truth, query_names=query_names,
+                           db_names=db_names)
 
 
 def rows_csv_text(records: Sequence[EvaluationResult]) -> str:
