@@ -248,3 +248,21 @@ def test_line_progress_speaks_at_most_every_so_often_and_once_at_the_end() -> No
     bar.close()
     assert out.getvalue().splitlines() == ["working: 1/3 steps done (now pq), 0:00 elapsed",
                                            "working: 3/3 steps done, 0:00 elapsed"]
+
+
+def test_the_calibration_table_shows_each_candidates_answer_time(files, tmp_path: Path) -> None:
+    """The calibrated pick on Nordland at 1 MB (PQ) answered in 4,262 µs a query against the map-only LSH's 303,
+    and the table gave no speed to weigh beside the scores."""
+    from btel import load
+
+    result = run("train", files["db"], "-o", tmp_path / "m.npz", "--method", "auto", "--budget", "800B",
+                 "--no-progress", "--calibrate", files["q_even"], "--calibrate-truth", files["t_even"],
+                 "--calibrate-tolerance", "1")
+    assert result.exit_code == 0, result.output
+    table = load(tmp_path / "m.npz").choice_["calibration"]["table"]
+    timed = [e for e in table if e["status"] == "ok"]
+    assert timed and all(e["query_us"] > 0 for e in timed)
+    shown = run("info", tmp_path / "m.npz").output
+    assert "µs/q" in shown and "µs/q: its mean answer" in shown
+    row = next(line for line in shown.splitlines() if line.strip().startswith(timed[0]["candidate"]))
+    assert f"{timed[0]['query_us']:.1f}" in row

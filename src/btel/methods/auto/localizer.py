@@ -24,7 +24,8 @@ CALIBRATION_COLUMNS = (
     "  less often (over the seeds); p (adj.): one-sided p-value of 'beats the pick', adjusted over every candidate\n"
     "  (max-T); conf.: 1 − p (a switch needs {need:g}); n for {ref:g} / n for diff: calibration queries that would\n"
     "  certify a lead of {ref:g} / of the observed diff (power 0.8; blank for a candidate behind the pick, or one that\n"
-    "  disagrees with it on too few queries to hold such a lead); fit s: its fits' seconds.")
+    "  disagrees with it on too few queries to hold such a lead); fit s: its fits' seconds; µs/q: its mean answer\n"
+    "  time per calibration query on the compared map rows (speed to weigh beside accuracy; not used to choose).")
 
 
 def _verdict(c: dict[str, Any], rows: list[dict[str, Any]]) -> str:
@@ -57,11 +58,11 @@ def calibration_table(calibration: dict[str, Any] | None) -> str:
     ref = c.get("reference_difference", 0.05)
     reference = "n for " + format(ref, "g")
     lines = [head, f"  {'candidate':<28} {'score':>6} {'diff':>7} {'W/L':>7} {'p (adj.)':>8} {'conf.':>6} "
-                   f"{reference:>10} {'n for diff':>10} {'fit s':>6}  note"]
+                   f"{reference:>10} {'n for diff':>10} {'fit s':>6} {'µs/q':>7}  note"]
     for e in rows:
         if e.get("status") != "ok":
             lines.append(f"  {str(e.get('candidate')):<28} {'—':>6} {'':>7} {'':>7} {'':>8} {'':>6} {'':>10} {'':>10} "
-                         f"{'':>6}  {e.get('status')}" + (f", needs ≥ {e['needs']}" if e.get("needs") else ""))
+                         f"{'':>6} {'':>7}  {e.get('status')}" + (f", needs ≥ {e['needs']}" if e.get("needs") else ""))
             continue
         diff = "" if "difference" not in e else f"{e['difference']:+.3f}"
         wl = "" if "wins" not in e else f"{e['wins']}/{e.get('losses')}"
@@ -71,10 +72,11 @@ def calibration_table(calibration: dict[str, Any] | None) -> str:
         need_obs = ("" if e.get("queries_needed_observed") is None or (e.get("difference") or 0) <= 0
                     else str(e["queries_needed_observed"]))
         fit_s = "" if e.get("fit_s") is None else f"{e['fit_s']:.1f}"
+        query_us = "" if e.get("query_us") is None else f"{e['query_us']:.1f}"  # absent in files before btel timed it
         role = e.get("role", "")
         role = "map-only pick, kept" if role == "chosen" and e.get("candidate") == c.get("map_only") else role
         lines.append(f"  {str(e.get('candidate')):<28} {e.get('score', float('nan')):>6.3f} {diff:>7} {wl:>7} {p:>8} "
-                     f"{conf:>6} {need:>10} {need_obs:>10} {fit_s:>6}  {role}".rstrip())
+                     f"{conf:>6} {need:>10} {need_obs:>10} {fit_s:>6} {query_us:>7}  {role}".rstrip())
     lines.append("  " + _verdict(c, rows))
     lines.append(CALIBRATION_COLUMNS.format(need=1 - c.get("alpha", 0.05), ref=ref))
     return "\n".join(lines)
@@ -91,8 +93,8 @@ def check_saved_choice(choice: dict[str, Any]) -> None:
     ``params`` must be an object, ``reason`` a string, ``refused`` a list of strings (each may be
     absent); ``calibration`` absent, null or an object whose ``alpha`` (in (0, 1)) and
     ``reference_difference`` are finite numbers where present, and whose ``table`` is a list of
-    objects with finite ``score``, ``difference``, ``p_adjusted``, ``confidence`` (and ``fit_s`` or
-    null) where present.
+    objects with finite ``score``, ``difference``, ``p_adjusted``, ``confidence`` (and ``fit_s``,
+    ``query_us`` or null) where present.
 
     Raises
     ------
@@ -121,8 +123,8 @@ def check_saved_choice(choice: dict[str, Any]) -> None:
     if not isinstance(table, list) or not all(isinstance(e, dict) for e in table):
         raise bad("calibration.table", "a list of objects")
     for i, e in enumerate(table):
-        for key in ("score", "difference", "p_adjusted", "confidence", "fit_s"):
-            if key in e and not (_finite(e[key]) or (key == "fit_s" and e[key] is None)):
+        for key in ("score", "difference", "p_adjusted", "confidence", "fit_s", "query_us"):
+            if key in e and not (_finite(e[key]) or (key in ("fit_s", "query_us") and e[key] is None)):
                 raise bad(f"calibration.table[{i}].{key}", "a finite number")
 
 
