@@ -212,3 +212,12 @@ def test_calibration_given_to_a_method_other_than_auto_says_which_method_takes_i
     X, Q = route
     with pytest.raises(InvalidParameterError, match=r"lsh's fit takes X and places only, not calibration; .*'auto'"):
         make_method("lsh", budget="4KB").fit(X, calibration=(Q[:5], np.arange(5)))
+
+
+@pytest.mark.parametrize("name", list(METHODS))
+def test_search_scores_hold_no_negative_zero(name: str, route) -> None:
+    """BTE-C scored most Nordland queries -0.0 (a negated zero distance), printed "-0." by numpy."""
+    X, Q = route
+    params = {"progress": False} if "progress" in make_method(name).get_params() else {}
+    scores, _ = make_method(name, **params).fit(X).search(Q, 3)
+    assert not np.any((scores == 0) & np.signbit(scores))

@@ -294,7 +294,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
         Q = self._check_queries(Q)
         scores, places = ties_by_place(*self._search(Q, self._check_k(k)))  # places[:, 0] is predict's
         self._check_answers(places, scores)
-        return scores, places
+        return scores + 0.0, places  # + 0.0: a negated zero distance is 0, not −0 (printed "-0.")
 
     def predict(self, Q: Any) -> np.ndarray:
         """Place index of each query.
