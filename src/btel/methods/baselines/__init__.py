@@ -6,7 +6,7 @@ Every baseline takes ``budget`` (bytes or ``"500KB"``), counts its storage by th
 ========== ============================ ==========================================================
 name       class                        storage
 ========== ============================ ==========================================================
-bruteforce :class:`BruteForceNN`        N×d float32; exact L2
+bruteforce :class:`BruteForceNN`        N×d float32; exact cosine (L2 with normalize='none')
 pq         :class:`PQLocalizer`         codes + codebooks (+ d×p PCA); most code bits that fit
 opq        :class:`OPQLocalizer`        codes + codebooks + d×p rotation
 itq        :class:`ITQLocalizer`        binary codes + d×b projection + mean; Hamming distance

@@ -1,4 +1,4 @@
-"""Brute-force nearest neighbour: every map descriptor at float32, exact L2 search (the paper's baselines).
+"""Brute-force nearest neighbour: every map descriptor at float32, exact search (the paper's baselines).
 
 The upper reference of every comparison: storage grows linearly in N (N×d×4 bytes) and a query
 costs N distance computations. The search is exact, by faiss, built at fit time and when a model
