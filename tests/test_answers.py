@@ -231,3 +231,43 @@ def test_gardens_point_scaled_by_1e_minus_38_is_localized_as_well(method: str, g
     plain = btel.make_method(method).fit(X).predict(Q)
     assert _recall(plain) > 0.1  # Gardens Point day → night: well above chance (0.025 at ±2 of 200)
     assert _recall(scaled) >= _recall(plain) - 0.05, (method, _recall(scaled), _recall(plain))
+
+
+def test_top_k_keeps_the_lowest_columns_of_a_tie_at_the_kth_score() -> None:
+    """argpartition kept an arbitrary k of the columns tied at the k-th score, so LSH's search of a blank query
+    ranked [280 281 282] in a batch of 10 and [0 1 2] in a batch of 5, while predict said 0."""
+    from btel.core.topk import top_k
+
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        scores = rng.integers(0, 3, size=(rng.integers(1, 6), rng.integers(2, 40))).astype(np.float64)
+        k = int(rng.integers(1, scores.shape[1] + 1))
+        values, columns = top_k(scores, k)
+        expected = np.stack([np.lexsort((np.arange(scores.shape[1]), -row))[:k] for row in scores])
+        np.testing.assert_array_equal(columns, expected)
+        np.testing.assert_array_equal(values, np.take_along_axis(scores, expected, axis=1))
+
+
+@pytest.mark.parametrize("name", ["lsh", "bruteforce", "pq", "btel-codes"])
+def test_search_predict_and_the_stream_agree_on_ties_whatever_the_batch(name: str) -> None:
+    """A blank query ties every place; duplicated map rows tie their places. search(Q)[1][:, 0] is predict(Q),
+    for any batch size, and the stream ranks as the batch does (it gave tied places in reverse order)."""
+    import warnings
+
+    import btel
+    from btel.datasets import synthetic_route
+
+    r = synthetic_route(n_places=300, dim=64, seed=2)
+    X = r.map.copy()
+    X[200] = X[10]
+    X[250] = X[10]
+    model = btel.make_method(name, budget=None if name == "bruteforce" else "16KB").fit(X)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the blank query's warning
+        for n in (5, 10, 40):
+            B = np.concatenate([X[[10]], np.zeros((1, 64), np.float32), r.queries[: n - 2]])
+            _, places = model.search(B, 3)
+            np.testing.assert_array_equal(places[:, 0], model.predict(B))
+            stream = model.stream()
+            for row, expected in zip(B[:3], places[:3]):
+                np.testing.assert_array_equal(stream.search(row, 3)[1], expected)

@@ -23,6 +23,12 @@ def top_k(scores: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
             return values.astype(np.float64), best.astype(np.int64)
     if k < n_cols:
         part = np.argpartition(-scores, k - 1, axis=1)[:, :k]
+        # argpartition keeps an arbitrary k of the columns tied at the k-th score: where more tie than fit, the
+        # row is ranked whole by (score, column), so the lowest tied columns are kept (as argmax and k = 1 do).
+        kth = np.take_along_axis(scores, part, axis=1).min(axis=1)
+        crowded = np.flatnonzero(np.count_nonzero(scores >= kth[:, None], axis=1) > k)
+        for i in crowded:
+            part[i] = np.lexsort((np.arange(n_cols), -scores[i]))[:k]
     else:
         part = np.broadcast_to(np.arange(n_cols), scores.shape).copy()
     values = np.take_along_axis(scores, part, axis=1)

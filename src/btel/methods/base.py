@@ -72,8 +72,7 @@ class PlaceLocalizer(ParamsMixin, ABC):
     _fitted_marker: ClassVar[str] = "n_places_"
     #: Fewest map rows the method can index.
     _min_rows: ClassVar[int] = 2
-    #: True when the method reads transformed queries only through products ``Q @ W`` and row selections:
-    #: it then takes :class:`btel.core.frontend.ScaledRows` (no normalised copy of a batch).
+    #: True when queries are read only by ``Q @ W`` and row selections: they come as frontend.ScaledRows (no copy).
     _linear_in_queries: ClassVar[bool] = False
     #: True when ``_fit`` reads the map only by row selections and ``np.asarray`` of row blocks: it takes ScaledRows.
     _fit_reads_row_blocks: ClassVar[bool] = False
@@ -289,7 +288,8 @@ class PlaceLocalizer(ParamsMixin, ABC):
         scores : ndarray of shape (n_queries, min(k, N)), float64
             The method's score of each candidate (higher = more likely; e.g. −distance).
         places : ndarray of shape (n_queries, min(k, N)), int64
-            Distinct places in [0, N), best first. ``places[:, 0]`` is :meth:`predict`.
+            Distinct places in [0, N), best first; ``places[:, 0]`` is :meth:`predict`, and where that is a decode
+            (BTEL's, RYTH's) it comes first with its own score, which can be below the next place's.
         """
         Q = self._check_queries(Q)
         scores, places = ties_by_place(*self._search(Q, self._check_k(k)))  # places[:, 0] is predict's
