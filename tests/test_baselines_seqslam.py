@@ -145,3 +145,18 @@ def test_invalid_parameters_and_matrices():
     # The score is undefined when no map row lies outside the exclusion window.
     _, score = seqslam_match(np.random.default_rng(0).random((4, 6)), ds=2, window=10)
     assert np.isnan(score).all()
+
+
+def test_the_stream_gives_seqslams_batch_places_row_by_row_and_scores_up_to_an_offset() -> None:
+    """As the query stream's docstring states: OpenSeqSLAM's contrast enhancement shifts the difference matrix by
+    its minimum over the frames scored together, so streamed scores differ from a batch's by an offset."""
+    from btel.datasets import synthetic_route
+
+    r = synthetic_route(n_places=120, dim=32, seed=2)
+    model = SeqSLAM().fit(r.map)
+    scores, places = model.search(r.queries, 3)
+    stream = model.stream()
+    streamed = [stream.search(q, 3) for q in r.queries]
+    np.testing.assert_array_equal(np.array([p for _, p in streamed]), places)
+    gaps = np.array([s for s, _ in streamed]) - scores
+    np.testing.assert_allclose(gaps - gaps[:, :1], 0, atol=1e-4)  # one offset per row: the ranking is the same

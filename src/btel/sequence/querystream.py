@@ -20,7 +20,10 @@ class QueryStream:
     Keeps what answering the next frame needs from the frames before it: the front end's delta
     history (the last 2w frames) and a sequence method's context (SeqSLAM's last ds − 1 frames).
     ``search(x)`` on each frame of a traverse gives what ``model.search(Q)`` gives on the whole
-    traverse, row by row. :meth:`reset` starts a new traverse (the robot was moved, a new run).
+    traverse, row by row — places always; scores too, except SeqSLAM's: OpenSeqSLAM's contrast
+    enhancement shifts the whole difference matrix by its minimum, so its scores carry an offset that
+    depends on the frames scored together (the batch, or the last ds frames). :meth:`reset` starts a
+    new traverse (the robot was moved, a new run).
     """
 
     def __init__(self, model: Any) -> None:  # a fitted btel.methods.base.PlaceLocalizer (below it here)
