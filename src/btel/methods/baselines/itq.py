@@ -23,7 +23,7 @@ from typing import Any
 import faiss
 import numpy as np
 
-from ...core.storage import UNLIMITED_BUDGET
+from ...core.storage import UNLIMITED_BUDGET, spent_text
 from ...core.validation import N_JOBS, RANDOM_STATE, Interval, check_positive_int, read_state_int
 from ..base import ArraySpec
 from ...exceptions import InvalidParameterError, ModelFileError, NotEnoughPlacesError
@@ -180,6 +180,11 @@ class ITQLocalizer(_RowLocalizer):
 
     def _n_rows(self) -> int:
         return int(self.codes_.shape[0])
+
+    def summary(self) -> str:
+        """One line: the code bits a row, the projection, the bytes against the budget and the front end."""
+        return (f"itq: {self.code_bits_} bits a row (a learnt {self.projection_.shape[0]} × {self.code_bits_} projection, "
+                f"Hamming distance); {spent_text(self)}; front end {self.front_end_.describe()}")
 
     def _restore_model(self, arrays: dict[str, np.ndarray], state: dict[str, Any]) -> None:
         check_finite(arrays, ("projection", "mean"), "ITQ")
