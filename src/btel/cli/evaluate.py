@@ -380,10 +380,8 @@ def _check_option_pairs(o: dict[str, Any]) -> None:
             "that many metres of the UTM positions in the image names): --positive-dist-threshold applies to it "
             f"(and --calibrate-truth utm) only, and {given}. Drop --positive-dist-threshold, or give "
             "--ground-truth utm.")
-    delta = o["delta"] if o["delta"] is not None else _every_method_param(o["param_texts"], "delta")
+    delta, flag, given = _delta_given(o)
     if delta is not None and o["query_order"] == "independent":
-        flag, given = ("--delta", f"--delta {delta}") if o["delta"] is not None else ("--param delta",
-                                                                                       f"--param delta={delta}")
         raise click.UsageError(
             f"{given} with --query-order independent: delta descriptors are computed over the query "
             "sequence (the mean of the last W frames minus the W before), which independent queries do not "
@@ -391,15 +389,24 @@ def _check_option_pairs(o: dict[str, Any]) -> None:
             "are consecutive frames of one traverse.")
 
 
+def _delta_given(o: dict[str, Any]) -> tuple[Any, str, str]:
+    """The delta window asked for (``--delta W`` or an every-method ``--param delta=W``; None if neither), the
+    option that gave it and how it was written (``--delta 3`` / ``--param delta=3``)."""
+    if o["delta"] is not None:
+        return o["delta"], "--delta", f"--delta {o['delta']}"
+    delta = _every_method_param(o["param_texts"], "delta")
+    return delta, "--param delta", f"--param delta={delta}"
+
+
 def _check_delta_window(o: dict[str, Any], n_map: int, n_queries: int) -> None:
     """A delta window the map or the queries are too short for, refused before any fit (each row would fail)."""
-    delta = o["delta"] if o["delta"] is not None else _every_method_param(o["param_texts"], "delta")
+    delta, flag, given = _delta_given(o)
     shortest = min(n_map, n_queries)
     if isinstance(delta, int) and not isinstance(delta, bool) and delta >= 1 and shortest < 2 * delta:
         which = "map" if n_map <= n_queries else "query traverse"
-        flag = "--delta " if o["delta"] is not None else "--param delta="
-        raise click.UsageError(f"{flag}{delta} needs traverses of at least 2 × {delta} = {2 * delta} frames; the "
-                               f"{which} has {shortest}. Give {flag}{max(shortest // 2, 1)} or less.")
+        fix = f"{flag}{' ' if flag == '--delta' else '='}{max(shortest // 2, 1)}"
+        raise click.UsageError(f"{given} needs traverses of at least 2 × {delta} = {2 * delta} frames; the "
+                               f"{which} has {shortest}. Give {fix} or less.")
 
 
 def _every_method_param(param_texts: list[str], name: str) -> Any:

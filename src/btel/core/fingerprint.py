@@ -20,11 +20,29 @@ import numpy as np
 
 from ..exceptions import ModelFileError
 
-__all__ = ["map_fingerprint", "read_fingerprint", "describe_fingerprint", "same_map"]
+__all__ = ["map_fingerprint", "read_fingerprint", "describe_fingerprint", "same_map", "feed_file", "file_record"]
 
 #: Bytes of rows converted and digested at a time (a memory-mapped map is read once, never copied whole).
 _BLOCK_BYTES = 16 << 20
 _HEX64 = re.compile(r"[0-9a-f]{64}\Z")
+_FILE_CHUNK = 1 << 20
+
+
+def feed_file(path: Any, digest: Any) -> int:
+    """Feed a regular file's bytes to ``digest`` (a hashlib object), a MiB at a time; its size in bytes."""
+    size = 0
+    with open(path, "rb") as fh:
+        while chunk := fh.read(_FILE_CHUNK):
+            digest.update(chunk)
+            size += len(chunk)
+    return size
+
+
+def file_record(path: Any) -> dict[str, Any]:
+    """``{"bytes", "sha256"}`` of a file: what a record that vouches for the file keeps."""
+    digest = hashlib.sha256()
+    size = feed_file(path, digest)
+    return {"bytes": size, "sha256": digest.hexdigest()}
 
 
 def map_fingerprint(X: Any) -> dict[str, Any]:

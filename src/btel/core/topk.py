@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["top_k", "put_first", "ties_by_place"]
+__all__ = ["top_k", "put_first", "ties_by_place", "as_answered"]
 
 
 def top_k(scores: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -81,3 +81,10 @@ def ties_by_place(scores: np.ndarray, places: np.ndarray) -> tuple[np.ndarray, n
         return scores, places
     order = np.lexsort((places, -scores), axis=1)
     return np.take_along_axis(scores, order, axis=1), np.take_along_axis(places, order, axis=1)
+
+
+def as_answered(scores: np.ndarray, places: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A method's raw ``(scores, places)`` as ``search`` returns them, in a batch or a stream: ties in place
+    order (:func:`ties_by_place`) and no −0 score (a negated zero distance is 0; numpy prints −0 as "-0.")."""
+    scores, places = ties_by_place(scores, places)
+    return scores + 0.0, places

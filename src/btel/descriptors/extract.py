@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from ..core.claims import atomic_output
+from ..core.fingerprint import file_record
 from ..core.validation import check_is_fitted
 from ..exceptions import InvalidParameterError, NotFittedError
 from .base import ImageDescriptor, get_descriptor, registered
@@ -145,15 +146,6 @@ def same_extraction(cached: Any, key: dict[str, Any]) -> bool:
     return cached == key
 
 
-def _output_record(output: Path) -> dict[str, Any]:
-    """Size and SHA-256 of a written matrix file: what its record vouches for."""
-    digest = hashlib.sha256()
-    with open(output, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return {"bytes": output.stat().st_size, "sha256": digest.hexdigest()}
-
-
 def output_unchanged(cached: Any, output: str | os.PathLike) -> bool:
     """The matrix file holds the bytes its record was written for (a record from before btel kept them:
     True). A file replaced by other data of the same shape, or truncated, is then no cache of anything."""
@@ -161,7 +153,7 @@ def output_unchanged(cached: Any, output: str | os.PathLike) -> bool:
     if not isinstance(recorded, dict):
         return True
     try:
-        return Path(output).stat().st_size == recorded.get("bytes") and _output_record(Path(output)) == recorded
+        return Path(output).stat().st_size == recorded.get("bytes") and file_record(Path(output)) == recorded
     except OSError:
         return False
 
@@ -203,7 +195,7 @@ def extract_cached(
         if same_extraction(cached, key) and output_unchanged(cached, output):
             if "output" not in cached or "folder" not in cached:  # an older record: complete it now
                 with atomic_output(sidecar, text=True) as fh:
-                    fh.write(json.dumps({**key, "output": _output_record(output)}, indent=1))
+                    fh.write(json.dumps({**key, "output": file_record(output)}, indent=1))
             from ..exceptions import BTELError
             from .npy import load_descriptor_matrix
 
@@ -218,7 +210,7 @@ def extract_cached(
     with atomic_output(output, overwrite=overwrite) as fh:
         np.save(fh, X)
     with atomic_output(sidecar, text=True) as fh:
-        fh.write(json.dumps({**key, "output": _output_record(output)}, indent=1))
+        fh.write(json.dumps({**key, "output": file_record(output)}, indent=1))
     return X, False
 
 

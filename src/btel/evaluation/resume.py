@@ -19,22 +19,11 @@ from typing import Any
 
 from .records import EvaluationResult
 from .runs import _LOCK_NAME, RunWriter, run_metadata, safe_file_name
+from ..core.fingerprint import feed_file
 from ..core.modelfile import jsonable
 from ..exceptions import DataNotFoundError, InvalidParameterError
 
 __all__ = ["read_unfinished_run", "check_finished_rows", "resume_writer", "input_fingerprints", "changed_inputs"]
-
-_CHUNK = 1 << 20
-
-
-def _file_digest(path: Path, digest: Any) -> int:
-    """Feed a regular file's bytes to ``digest``; its size."""
-    size = 0
-    with open(path, "rb") as fh:
-        while chunk := fh.read(_CHUNK):
-            digest.update(chunk)
-            size += len(chunk)
-    return size
 
 
 def fingerprint(text: str) -> dict[str, Any] | None:
@@ -52,9 +41,9 @@ def fingerprint(text: str) -> dict[str, Any] | None:
             size = 0
             for entry in sorted(p for p in path.iterdir() if not p.name.startswith(".") and p.is_file()):
                 digest.update(entry.name.encode("utf-8", "surrogateescape") + b"\0")
-                size += _file_digest(entry, digest)
+                size += feed_file(entry, digest)
         elif path.is_file():
-            size = _file_digest(path, digest)
+            size = feed_file(path, digest)
         else:
             return None
     except OSError:

@@ -40,7 +40,7 @@ from ..core.storage import BUDGET_MEANING, budget_of, exact_bytes, parse_budget,
 from ..core.fingerprint import map_fingerprint
 from ..core.modelfile import ArraySpec, jsonable, save_arrays
 from ..sequence.querystream import QueryStream
-from ..core.topk import put_first, ties_by_place, top_k
+from ..core.topk import as_answered, put_first, top_k
 from ..core.threads import one_blas_thread, predict_pool, predict_threads
 
 __all__ = ["PlaceLocalizer", "ArraySpec", "QueryStream", "top_k", "put_first"]
@@ -292,9 +292,9 @@ class PlaceLocalizer(ParamsMixin, ABC):
             (BTEL's, RYTH's) it comes first with its own score, which can be below the next place's.
         """
         Q = self._check_queries(Q)
-        scores, places = ties_by_place(*self._search(Q, self._check_k(k)))  # places[:, 0] is predict's
+        scores, places = as_answered(*self._search(Q, self._check_k(k)))  # places[:, 0] is predict's
         self._check_answers(places, scores)
-        return scores + 0.0, places  # + 0.0: a negated zero distance is 0, not −0 (printed "-0.")
+        return scores, places
 
     def predict(self, Q: Any) -> np.ndarray:
         """Place index of each query.

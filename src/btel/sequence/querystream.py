@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from ..core.rows import warn_blank_rows
-from ..core.topk import ties_by_place
+from ..core.topk import as_answered
 from ..core.validation import check_descriptors
 from ..exceptions import InvalidParameterError
 
@@ -50,9 +50,9 @@ class QueryStream:
 
     def search(self, x: Any, k: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """(scores, places) of the k best places for the next frame, shapes (k,), best first."""
-        scores, places = ties_by_place(*self.model._search(self._rows(x), self.model._check_k(k)))
+        scores, places = as_answered(*self.model._search(self._rows(x), self.model._check_k(k)))  # as search
         self.model._check_answers(places[-1:], scores[-1:])
-        return scores[-1] + 0.0, places[-1]  # as model.search: tied places in place order, no −0
+        return scores[-1], places[-1]
 
     def predict(self, x: Any) -> int:
         """The place of the next frame (the best of :meth:`search`), as ``model.predict`` gives it row by row."""
