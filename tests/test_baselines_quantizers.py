@@ -262,3 +262,32 @@ def test_opq_never_asks_faiss_for_a_rotation_wider_than_the_map_has_rows():
     assert model.config_.dim <= 40 and model.predict(X[:5]).tolist() == list(range(5))
     with pytest.raises(InvalidParameterError, match="p must be ≤ N = 40"):
         OPQLocalizer(pq=PQLocalizer(pca_dim=50)).fit(X)
+
+
+@pytest.mark.parametrize("cls", [PQLocalizer, OPQLocalizer], ids=["pq", "opq"])
+def test_batch_search_bounds_the_look_up_tables(data, cls, monkeypatch):
+    # faiss builds every query's M × 2^nbits distance table at once: a batch is searched in chunks whose
+    # tables fit SEARCH_SCRATCH_BYTES, with the answers of one whole batch.
+    import btel.methods.baselines._common as common
+
+    X, Q = data
+    model = cls(budget=20_000).fit(X)
+    whole_scores, whole_places = model.search(Q, k=5)
+    per_query = model._search_bytes_per_query()
+    assert per_query == (
+        (model.pq_ if cls is OPQLocalizer else model).config_.n_subquantizers
+        * (1 << (model.pq_ if cls is OPQLocalizer else model).config_.nbits) * 4)
+    calls = []
+    original = type(model)._search_rows
+
+    def counted(self, Qc, k, scores=True):
+        calls.append(Qc.shape[0])
+        return original(self, Qc, k, scores)
+
+    monkeypatch.setattr(common, "SEARCH_SCRATCH_BYTES", 7 * per_query)
+    monkeypatch.setattr(type(model), "_search_rows", counted)
+    scores, places = model.search(Q, k=5)
+    assert calls == [7] * (Q.shape[0] // 7) + [Q.shape[0] % 7]
+    np.testing.assert_array_equal(places, whole_places)
+    np.testing.assert_allclose(scores, whole_scores, rtol=1e-6)
+    np.testing.assert_array_equal(model.predict(Q), whole_places[:, 0])

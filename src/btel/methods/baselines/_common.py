@@ -113,6 +113,8 @@ MAX_NORM = 1e18
 #: (the mirror of MAX_NORM): squared lengths below 1e-36 near float32's smallest normal number
 #: (1.2e-38), below which squared distances keep fewer bits, then none — every place looks alike.
 MIN_NORM = 1e-18
+#: Scratch memory a batch search may take at once (64 MB): larger batches are searched in row chunks.
+SEARCH_SCRATCH_BYTES = 1 << 26
 
 
 def index_search(index: Any, x: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -254,6 +256,10 @@ class _RowLocalizer(PlaceLocalizer):
     #: :data:`MIN_NORM` (sign codes and SeqSLAM's byte codes do not depend on the map's scale).
     _float32_distances: ClassVar[bool] = False
 
+    def _search_bytes_per_query(self) -> int:
+        """Scratch memory one query takes inside the index's batch search (0: negligible)."""
+        return 0
+
     # -- to implement ------------------------------------------------------------------------
     @abstractmethod
     def _fit_rows(self, X: np.ndarray, budget: int | None, reserved: int) -> None:
@@ -353,7 +359,13 @@ class _RowLocalizer(PlaceLocalizer):
             check_magnitude(Q, "Q")
         # Single queries on one faiss thread unless n_jobs says otherwise (btel.core.threads).
         with faiss_threads(search_threads(self.n_jobs, Q.shape[0])):
-            values, rows = self._search_rows(Q, k, scores)
+            step = max(1, SEARCH_SCRATCH_BYTES // max(1, self._search_bytes_per_query()))
+            if Q.shape[0] <= step:
+                values, rows = self._search_rows(Q, k, scores)
+            else:  # the index's per-query scratch (PQ's look-up tables) grows with the batch: bound it
+                parts = [self._search_rows(Q[start : start + step], k, scores) for start in range(0, Q.shape[0], step)]
+                values = None if not scores else np.concatenate([p[0] for p in parts])
+                rows = np.concatenate([p[1] for p in parts])
         n_rows = self._n_rows()
         # faiss answers −1 when no distance is finite (overflow, a corrupt index): never a place.
         if not (rows.size == 1 and 0 <= rows.item(0) < n_rows):  # one valid answer: no array passes

@@ -166,6 +166,9 @@ class OPQLocalizer(_RowLocalizer):
     def _projected(self, Q: np.ndarray) -> np.ndarray:
         return Q @ self.projection_  # float32 @ float32: C-contiguous float32, what faiss reads as is
 
+    def _search_bytes_per_query(self) -> int:
+        return self.pq_._search_bytes_per_query()
+
     def _search_rows(self, Q: np.ndarray, k: int,
                      scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
         return self.pq_._search_rows(self._projected(Q), k, scores)

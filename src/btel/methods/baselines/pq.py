@@ -356,6 +356,10 @@ class PQLocalizer(_RowLocalizer):
         # float32 @ float32 is a C-contiguous float32 array: what faiss reads as is.
         return Q if self.projection_ is None else Q @ self.projection_
 
+    def _search_bytes_per_query(self) -> int:
+        # faiss' IndexPQ search builds every query's M × 2^nbits float32 distance table at once.
+        return self.config_.n_subquantizers * (1 << self.config_.nbits) * 4
+
     def _search_rows(self, Q: np.ndarray, k: int,
                      scores: bool = True) -> tuple[np.ndarray | None, np.ndarray]:
         dist, rows = index_search(self._index, self._projected(Q), k)  # faiss' labels are int64
