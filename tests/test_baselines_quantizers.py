@@ -291,3 +291,21 @@ def test_batch_search_bounds_the_look_up_tables(data, cls, monkeypatch):
     np.testing.assert_array_equal(places, whole_places)
     np.testing.assert_allclose(scores, whole_scores, rtol=1e-6)
     np.testing.assert_array_equal(model.predict(Q), whole_places[:, 0])
+
+
+@pytest.mark.parametrize("cls", [PQLocalizer, OPQLocalizer], ids=["pq", "opq"])
+def test_codes_too_short_to_tell_the_rows_apart_are_warned_about(cls):
+    # 400 rows of d = 512 at 3 KB: the projection takes the budget and leaves codes of < log2 400 bits.
+    import warnings
+
+    from btel.exceptions import CollidingCodesWarning
+
+    X = np.random.default_rng(0).normal(size=(400, 512)).astype(np.float32)
+    with pytest.warns(CollidingCodesWarning, match=r"at most \d+ distinct codes for 400 map rows"):
+        small = cls(budget=3_000).fit(X)
+    config = (small.pq_ if cls is OPQLocalizer else small).config_
+    assert 2 ** config.code_bits < 400
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", CollidingCodesWarning)
+        large = cls(budget=200_000).fit(X)
+    assert 2 ** (large.pq_ if cls is OPQLocalizer else large).config_.code_bits >= 400

@@ -30,6 +30,7 @@ __all__ = [
     "ResourceLimitError",
     "InvalidAnswerError",
     "OutputExistsError",
+    "CollidingCodesWarning",
 ]
 
 
@@ -103,6 +104,11 @@ class InvalidAnswerError(BTELError, ValueError):
 class OutputExistsError(BTELError, FileExistsError):
     """An output file or run folder exists (or another writer took it first) and replacing it was not
     asked for (``overwrite=False``; on the command line, no ``--overwrite``): nothing was replaced."""
+
+
+class CollidingCodesWarning(UserWarning):
+    """The budget leaves a quantiser codes of fewer than log2 N bits: map rows must share codes. A warning,
+    not an error (the model fits the budget); filter it by this class where such fits are expected."""
 
 
 _NOT_FITTED_LOCK = threading.Lock()

@@ -33,7 +33,7 @@ from ..base import ArraySpec
 from ...exceptions import InvalidParameterError
 from ...core.frontend import FrontEnd
 from ._common import _RowLocalizer, quiet_faiss
-from .pq import PQConfig, PQLocalizer, check_finite, pca_projection, pq_specs, read_config
+from .pq import PQConfig, PQLocalizer, check_finite, pca_projection, pq_specs, read_config, warn_if_codes_collide
 
 __all__ = ["OPQLocalizer"]
 
@@ -135,6 +135,7 @@ class OPQLocalizer(_RowLocalizer):
                       normalize="none", whiten=None, delta=None, n_jobs=self.n_jobs)
         self.pq_ = pq.fit(Y)
         self.projection_ = projection
+        warn_if_codes_collide("opq", config, X.shape[0], X.shape[1], budget)
 
     def _learn_projection(self, X: np.ndarray, config: PQConfig, random_state: int | None) -> np.ndarray:
         pca = None if config.dim == X.shape[1] else pca_projection(X, config.dim, random_state)

@@ -42,7 +42,7 @@ import numpy as np
 from ...core.storage import UNLIMITED_BUDGET, spent_text
 from ...core.validation import N_JOBS, RANDOM_STATE, Interval, check_positive_int, read_state_int
 from ..base import ArraySpec
-from ...exceptions import InvalidParameterError, ModelFileError
+from ...exceptions import CollidingCodesWarning, InvalidParameterError, ModelFileError
 from ._common import _RowLocalizer, check_model_values, index_search, negated_distances, quiet_faiss, raise_budget_too_small
 
 __all__ = ["PQConfig", "PQLocalizer", "pca_projection"]
@@ -333,6 +333,7 @@ class PQLocalizer(_RowLocalizer):
         self.codes_ = faiss.vector_to_array(index.codes).reshape(n_rows, index.sa_code_size())
         self.config_ = config
         self._index = index
+        warn_if_codes_collide("pq", config, n_rows, n_features, budget)
 
     def _build_index(self) -> faiss.IndexPQ:
         c = self.config_
@@ -398,6 +399,20 @@ class PQLocalizer(_RowLocalizer):
         self.config_, self.codes_, self.codebooks_, self.projection_ = config, codes, codebooks, projection
         self._index = self._build_index()
         return self
+
+
+def warn_if_codes_collide(method: str, config: PQConfig, n_rows: int, n_features: int, budget: int | None) -> None:
+    """Warn when the budget leaves codes of fewer than log2 N bits: at most 2^bits distinct codes, so rows share
+    them whatever the quantiser learns (typically a projection to a few dimensions taking the budget)."""
+    if budget is None or (1 << min(config.code_bits, 62)) >= n_rows:
+        return
+    import warnings
+
+    projection = f"; the projection {n_features} → {config.dim} dims" if config.dim != n_features else ""
+    warnings.warn(
+        f"{method} at {budget:,} B: codes of {config.code_bits} bits (at most {1 << config.code_bits:,} distinct "
+        f"codes for {n_rows:,} map rows{projection}), so many places share a code. Use `lsh` or `auto`, or a larger "
+        "budget.", CollidingCodesWarning, stacklevel=2)
 
 
 def read_config(state: dict[str, Any], d: int) -> PQConfig:
