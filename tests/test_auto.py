@@ -420,3 +420,28 @@ def test_index_order_of_too_few_places_says_so(n_rows: int) -> None:
     assert order.kind == "independent"
     assert order.why.startswith(f"{n_rows} places: too few to read an order") and "route share" not in order.why
     assert "too few to read an order" in make_method("auto", budget="4KB").fit(X).choice_["reason"]
+
+
+def test_an_ordered_map_of_many_places_per_dimension_gets_codes_only_below_the_bound() -> None:
+    """Past CODES_PLACES_PER_DIMENSION places per dimension the codes' linear classifiers cannot learn the
+    short-period columns: step 2 then gives them the map only below the birthday bound itself
+    (benchmarks/studies/auto_rule_codes_capacity.py). The same bits per row on 2,000 places of d = 64 (31 per
+    dimension) keep the codes; on 2,100 (33 per dimension) LSH, which is far ahead there."""
+    from btel.methods.auto import CODES_PLACES_PER_DIMENSION
+
+    for n, expected in ((2000, "btel-codes"), (2100, "lsh")):
+        route = synthetic_route(n, 64, seed=5)
+        budget = int(n * 1.5 * collision_bits(n) / 8)  # LSH between 1 and 2 × the bound
+        first = choose_method(route.map, None, n, budget)[0]
+        assert collision_bits(n) < first["lsh_effective_bits"] < ORDER_BITS_FACTOR * collision_bits(n)
+        assert first["method"] == expected, first["reason"]
+        assert (n > CODES_PLACES_PER_DIMENSION * 64) == (expected == "lsh")
+    below = choose_method(route.map, None, 2100, int(2100 * 0.8 * collision_bits(2100) / 8))[0]
+    assert below["method"] == "btel-codes" and "the bound itself" in below["reason"]
+    # On a map of 125 places per dimension the codes locate a query only coarsely.
+    route = synthetic_route(4000, 32, seed=5)
+    budget, truth = int(4000 * 1.5 * collision_bits(4000) / 8), np.arange(0, 4000, 8)
+    chosen = btel.make_method("auto", budget=budget).fit(route.map)
+    recall = {name: np.mean(np.abs(btel.make_method(name, budget=budget, random_state=0).fit(route.map)
+                                   .predict(route.queries[truth]) - truth) <= 2) for name in ("lsh", "btel-codes")}
+    assert chosen.choice_["method"] == "lsh" and recall["lsh"] > recall["btel-codes"] + 0.2, recall

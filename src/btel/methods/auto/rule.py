@@ -5,7 +5,9 @@ descriptor width, the rule reads the map's index order (:mod:`~btel.methods.auto
 
 1. **Route** (route share ≥ 0.5 and route continuity ≥ 0.75) → ``btel-codes``, periodic codes.
 2. **Ordered map** (continuity ≥ 0.6) where LSH's codes would carry fewer than
-   :data:`ORDER_BITS_FACTOR` × 2·log2 N effective bits per row (the birthday bound) → the same codes.
+   :data:`ORDER_BITS_FACTOR` × 2·log2 N effective bits per row (the birthday bound) → the same codes;
+   on maps of more than :data:`CODES_PLACES_PER_DIMENSION` places per dimension only below the bound
+   itself (a linear classifier on d features cannot learn the short-period columns of so many places).
 3. **The exact search fits** (no budget, or N·d float32 values within it) → brute force.
 4. **Otherwise** → ``lsh`` (asymmetric scoring, the budget filled up to 16·d bits per row).
 
@@ -20,8 +22,8 @@ transform carries over from the map's condition to the queries' cannot be read f
 labelled queries, calibrate (:mod:`btel.methods.auto.calibrate`) — every front-end variant is among
 the calibrated candidates.
 
-Thresholds: the three of the index order, :data:`ORDER_BITS_FACTOR`, P against d and the cone
-ratio; PQ, OPQ and RaBitQ are calibrated candidates, not map-only ones. The mechanisms, the maps
+Thresholds: the three of the index order, :data:`ORDER_BITS_FACTOR` and
+:data:`CODES_PLACES_PER_DIMENSION`, P against d and the cone ratio; PQ, OPQ and RaBitQ are calibrated candidates, not map-only ones. The mechanisms, the maps
 made to test them and the figures: ``docs/decisions/auto-rule.md``.
 
 A choice that does not fit the budget falls back to the next candidate (plain ``lsh``, then
@@ -37,10 +39,12 @@ import numpy as np
 from ...core.storage import format_bytes
 from .statistics import CONTINUITY_GAPS, ROUTE_WINDOW, collision_bits, index_order, map_cone_ratio
 
-__all__ = ["ORDER_BITS_FACTOR", "choose_method", "front_end_variant"]
+__all__ = ["CODES_PLACES_PER_DIMENSION", "ORDER_BITS_FACTOR", "choose_method", "front_end_variant"]
 
 #: An ordered map gets output codes while LSH's effective bits per row are below this × 2·log2 N.
 ORDER_BITS_FACTOR = 2.0
+#: Beyond this many map places per descriptor dimension an ordered map gets the codes only below the bound itself.
+CODES_PLACES_PER_DIMENSION = 32
 
 
 def front_end_variant(n_rows: int, d: int, budget: int | None, cone: float, kind: str) -> tuple[str, str]:
@@ -108,12 +112,15 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
         centred = variant == "centre"
         effective = LSHLocalizer(center=centred).effective_bits(n_rows, d, budget, cone)
         stats["lsh_effective_bits"] = round(effective, 1)
-        few = ORDER_BITS_FACTOR * collision_bits(n_rows)
+        many = n_places > CODES_PLACES_PER_DIMENSION * d  # the codes' classifiers cannot resolve them all
+        factor = 1.0 if many else ORDER_BITS_FACTOR
+        few = factor * collision_bits(n_rows)
         if effective < few:
             how = "centred" if centred else "uncentred"
+            crowd = f" (N > {CODES_PLACES_PER_DIMENSION}·d: the bound itself)" if many else ""
             why = (f"ordered map ({order.why}); LSH would carry ≈ {effective:.1f} effective bits per row "
-                   f"(P = {bits:.0f}, cone ratio {cone:.2f}, {how}) < {ORDER_BITS_FACTOR:g} × 2·log2 N = "
-                   f"{few:.1f}: periodic output codes filling the budget")
+                   f"(P = {bits:.0f}, cone ratio {cone:.2f}, {how}) < {factor:g} × 2·log2 N = "
+                   f"{few:.1f}{crowd}: periodic output codes filling the budget")
             out.append({**codes, "reason": why})
     if not out:
         kind = {"route": "route", "ordered": "ordered map", "independent": "independent places"}[order.kind]
@@ -139,6 +146,8 @@ _TERMS = (
     ("d = ", "d = descriptor width"),
     ("cone ratio", "cone ratio = length of the mean unit row (near 1: the rows point one way)"),
     ("effective bits", "effective bits = what LSH's P sign bits are worth on these rows"),
+    ("the bound itself", f"N > {CODES_PLACES_PER_DIMENSION}·d = more places than the codes' linear classifiers on d "
+                         "features can tell apart finely"),
 )
 
 
