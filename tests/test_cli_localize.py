@@ -225,3 +225,36 @@ def test_localize_and_evaluate_write_one_predictions_layout(tmp_path: Path) -> N
     assert list(theirs[0])[:2] == ["query", "prediction"] and list(theirs[0])[-3:] == ["rank_1", "rank_2", "rank_3"]
     assert [{k: row[k] for k in mine[0]} for row in theirs] == mine
     assert b"\r\n" not in (tmp_path / "p.csv").read_bytes()
+
+
+def test_a_slow_batch_shows_its_progress_and_answers_as_one_block(tmp_path: Path, monkeypatch) -> None:
+    """`btel localize` of 500 queries on an 8192-sub-quantiser PQ was silent for 15 s: a batch whose rest
+    would take more than _QUIET_SECONDS (here 0) is answered in timed blocks under a bar (a line in a log,
+    here every 0 s); the predictions and rankings are those of one call. --no-progress: no line."""
+    from btel.cli import localize as localize_cli
+    from btel.core import progress
+    from btel.datasets import synthetic_route
+
+    route = synthetic_route(300, 32, seed=3)
+    model = load(_fit_and_save(route.map, tmp_path / "m.btel.npz"))
+    np.save(tmp_path / "q.npy", route.queries)
+    monkeypatch.setattr(localize_cli, "_QUIET_SECONDS", 0.0)
+    monkeypatch.setattr(localize_cli, "_BLOCK_SECONDS", 0.0)  # blocks of one row
+    monkeypatch.setattr(progress, "LINE_EVERY_SECONDS", 0.0)
+    shown = _invoke("localize", tmp_path / "m.btel.npz", tmp_path / "q.npy", "-o", tmp_path / "p.csv", "--top-k", 3)
+    assert shown.exit_code == 0, shown.output
+    assert "localizing: 300/300 queries done" in shown.stderr and "ranking: 300/300 queries done" in shown.stderr
+    rows = _rows(tmp_path / "p.csv")
+    np.testing.assert_array_equal([int(r["prediction"]) for r in rows], model.predict(route.queries))
+    np.testing.assert_array_equal([[int(r[f"rank_{k}"]) for k in (1, 2, 3)] for r in rows],
+                                  model.rank(route.queries, 3))
+    quiet = _invoke("localize", tmp_path / "m.btel.npz", tmp_path / "q.npy", "-o", tmp_path / "p2.csv",
+                    "--no-progress")
+    assert quiet.exit_code == 0 and "queries done" not in quiet.stderr
+
+
+def _fit_and_save(X: np.ndarray, path: Path) -> Path:
+    import btel
+
+    btel.make_method("lsh", budget=4_000, random_state=0).fit(X).save(path)
+    return path

@@ -72,13 +72,17 @@ def test_a_model_trained_without_a_budget_says_so(db: Path, tmp_path: Path) -> N
 
 def test_a_fit_without_bars_of_its_own_shows_the_time_elapsed_on_a_terminal() -> None:
     """auto fitted a 10⁴ × 16,384 map for a minute without a word: the elapsed time is shown, then
-    cleared; off a terminal (or with --no-progress) nothing is written."""
+    cleared; with --no-progress nothing is written (off a terminal: the next test)."""
     import io
     import time
 
     from btel.core.progress import elapsed_ticker
 
-    shown = io.StringIO()
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    shown = Terminal()
     with elapsed_ticker("fitting auto on 10000 × 16384", True, file=shown):
         time.sleep(1.2)
     frames = shown.getvalue().split("\r")
@@ -109,3 +113,25 @@ def test_an_output_that_is_one_of_the_inputs_is_refused_even_with_overwrite(tmp_
                                   "--calibrate-truth", str(tmp_path / "none.npy")])
     assert result.exit_code == 2 and both.read_bytes() == before
     assert runner.invoke(main, ["train", f"{both}:map", "-o", str(tmp_path / "m.npz")]).exit_code == 0
+
+
+def test_a_fit_in_a_log_says_the_time_elapsed_now_and_then(monkeypatch) -> None:
+    """A 33 s PQ fit of a wide map wrote nothing to a log: off a terminal the ticker writes a line every
+    LINE_EVERY_SECONDS (here shortened), and none for a fit shorter than that."""
+    import io
+    import time
+
+    from btel.core import progress
+
+    monkeypatch.setattr(progress, "LINE_EVERY_SECONDS", 0.2)
+    log = io.StringIO()
+    with progress.elapsed_ticker("fitting pq on 500 × 8192", True, file=log):
+        time.sleep(0.5)
+    lines = log.getvalue().splitlines()
+    assert len(lines) >= 2 and all(line == "fitting pq on 500 × 8192: 0:00 elapsed" for line in lines)
+    assert "\r" not in log.getvalue()
+    quick = io.StringIO()
+    monkeypatch.setattr(progress, "LINE_EVERY_SECONDS", 10.0)
+    with progress.elapsed_ticker("fitting", True, file=quick):
+        pass
+    assert quick.getvalue() == ""

@@ -46,9 +46,13 @@ from ._outputs import check_output_suffix, refuse_existing
 @click.option("--follow", is_flag=True, help="With --stream --input: keep reading as the file grows (like tail -f).")
 @click.option("--idle-timeout", type=float, default=None,
               help="With --follow: stop after this many seconds without a new line (default: run until Ctrl-C).")
+@click.option("--no-progress", is_flag=True,
+              help="Batch: no progress bar (shown when the queries take more than a few seconds; in a log, a line "
+                   "every 10 s).")
 def localize(model_path: str, queries: str | None, output: str | None, overwrite: bool, db: str | None,
              window: int | None, stream: bool, binary: bool, input_path: str | None, hmm: bool,
-             hmm_speed: int | None, top_k: int | None, follow: bool, idle_timeout: float | None) -> None:
+             hmm_speed: int | None, top_k: int | None, follow: bool, idle_timeout: float | None,
+             no_progress: bool) -> None:
     """Predict the place of every query with a saved MODEL.
 
     \b
@@ -107,12 +111,14 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
     # query file larger than RAM's share is a block's, not the file's.
     by_frame = not hmm and not model.front_end_.uses_sequence and not model._sequence_context()
     predictions = (model.predict_sequence(Q, "hmm", **hmm_options) if hmm else
-                   _in_row_blocks(model.predict, Q) if by_frame else model.predict(Q))
+                   _in_row_blocks(model.predict, Q, None if no_progress else "localizing") if by_frame
+                   else model.predict(Q))
     if window is not None:
         from ..sequence.filter import filter_sequence
 
         predictions = filter_sequence(predictions, window, n_places=model.n_places_)
-    ranked = (None if top_k is None else _in_row_blocks(lambda B: model.rank(B, top_k), Q) if by_frame
+    ranked = (None if top_k is None else
+              _in_row_blocks(lambda B: model.rank(B, top_k), Q, None if no_progress else "ranking") if by_frame
               else model.rank(Q, top_k))
     write_predictions(output, predictions, ranked, q_names, db_names, overwrite=overwrite)
     named = {(True, True): " with query and map image names", (True, False): " with query image names",
@@ -125,14 +131,47 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
 _QUERY_BLOCK_BYTES = 64 << 20
 
 
-def _in_row_blocks(answer: Any, Q: Any) -> Any:
-    """``answer(Q)`` computed on row blocks of ``Q`` of at most :data:`_QUERY_BLOCK_BYTES` and stacked."""
+#: Queries answered first to time a batch; a batch whose rest would take longer than the second (seconds)
+#: is answered in blocks of about the third (seconds) under a progress bar.
+_PROBE_ROWS, _QUIET_SECONDS, _BLOCK_SECONDS = 16, 3.0, 0.5
+
+
+def _in_row_blocks(answer: Any, Q: Any, progress: str | None = None) -> Any:
+    """``answer(Q)`` computed on row blocks of ``Q`` of at most :data:`_QUERY_BLOCK_BYTES` and stacked.
+
+    With ``progress`` (the bar's label), the first :data:`_PROBE_ROWS` rows are timed: when the rest would
+    take longer than :data:`_QUIET_SECONDS`, blocks of about :data:`_BLOCK_SECONDS` each advance a bar on a
+    terminal (a line every 10 s in a log), so a slow method's minutes of queries are not silent.
+    """
+    import time
+
     import numpy as np
 
     rows = max(1, _QUERY_BLOCK_BYTES // max(1, 4 * Q.shape[1]))
-    if Q.shape[0] <= rows:
-        return answer(Q)
-    return np.concatenate([answer(np.ascontiguousarray(Q[a:a + rows])) for a in range(0, Q.shape[0], rows)])
+    n = Q.shape[0]
+    if progress is None or n <= 2 * _PROBE_ROWS:
+        if n <= rows:
+            return answer(Q)
+        return np.concatenate([answer(np.ascontiguousarray(Q[a:a + rows])) for a in range(0, n, rows)])
+    start = time.perf_counter()
+    parts = [answer(np.ascontiguousarray(Q[:_PROBE_ROWS]))]
+    per_row = (time.perf_counter() - start) / _PROBE_ROWS
+    bar = None
+    if per_row * (n - _PROBE_ROWS) > _QUIET_SECONDS:
+        from ..core.progress import progress_bar
+
+        rows = max(1, min(rows, int(_BLOCK_SECONDS / max(per_row, 1e-9))))
+        bar = progress_bar(n, progress, "query", True)
+        bar.update(_PROBE_ROWS)
+    try:
+        for a in range(_PROBE_ROWS, n, rows):
+            parts.append(answer(np.ascontiguousarray(Q[a:a + rows])))
+            if bar is not None:
+                bar.update(min(rows, n - a))
+    finally:
+        if bar is not None:
+            bar.close()
+    return np.concatenate(parts)
 
 
 def _check_top_k(top_k: int | None, n_places: int, model_path: str) -> None:

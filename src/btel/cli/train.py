@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Callable
 from typing import Any
 
@@ -95,11 +94,11 @@ def train(db: str, output: str, overwrite: bool, method: str, budget: str | None
     with _naming(method):
         model = make_method(method, **params)
         # A method with bars of its own (BTEL's fits, auto's calibration) shows them; any other fit shows
-        # the time elapsed on a terminal, so a minute-long fit of a wide map is not silent.
+        # the time elapsed (on a terminal; a line every 10 s in a log), so a minute-long fit is not silent.
         own_bars = bool(model.get_params().get("progress")) and (
             bool(calibrate) or not getattr(model, "_bars_only_when_calibrating", False))
         with elapsed_ticker(f"fitting {method} on {X.shape[0]} × {X.shape[1]}",
-                            enabled=not no_progress and not own_bars and sys.stderr.isatty()):
+                            enabled=not no_progress and not own_bars):
             seconds = timed_fit(model, X, **fit_params)
     # Saved before anything is printed: a reader that goes away (`btel train … | head`) ends the command
     # at the next write, and the fit must not be lost with it.

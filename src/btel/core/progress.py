@@ -17,6 +17,7 @@ __all__ = ["elapsed_ticker", "progress_bar", "LineProgress"]
 def elapsed_ticker(desc: str, enabled: bool, file: Any = None) -> Iterator[None]:
     """A line on stderr with the time elapsed, refreshed twice a second, while a step that shows no
     progress of its own runs (a fit of a large map can take minutes); removed when the step ends.
+    Where stderr is no terminal (a log), a line every :data:`LINE_EVERY_SECONDS` instead.
 
     Parameters
     ----------
@@ -30,13 +31,17 @@ def elapsed_ticker(desc: str, enabled: bool, file: Any = None) -> Iterator[None]
     if not enabled:
         yield
         return
-    from tqdm import tqdm
+    stream = file or sys.stderr
+    if not getattr(stream, "isatty", lambda: False)():  # a log: a line every LINE_EVERY_SECONDS, no bar
+        bar, period = _ElapsedLines(desc, stream), LINE_EVERY_SECONDS
+    else:
+        from tqdm import tqdm
 
-    bar = tqdm(total=None, desc=desc, bar_format="{desc} … {elapsed}", file=file or sys.stderr, leave=False)
+        bar, period = tqdm(total=None, desc=desc, bar_format="{desc} … {elapsed}", file=stream, leave=False), 0.5
     stop = threading.Event()
 
     def tick() -> None:
-        while not stop.wait(0.5):
+        while not stop.wait(period):
             bar.refresh()
 
     ticker = threading.Thread(target=tick, daemon=True)
@@ -51,6 +56,20 @@ def elapsed_ticker(desc: str, enabled: bool, file: Any = None) -> Iterator[None]
 
 #: Seconds between two progress lines in a log (:class:`LineProgress`).
 LINE_EVERY_SECONDS = 10.0
+
+
+class _ElapsedLines:
+    """:func:`elapsed_ticker` in a log: ``desc: 0:20 elapsed`` on each refresh, nothing on close."""
+
+    def __init__(self, desc: str, file: Any) -> None:
+        self.desc, self.file, self.start = desc, file, time.monotonic()
+
+    def refresh(self) -> None:
+        elapsed = int(time.monotonic() - self.start)
+        print(f"{self.desc}: {elapsed // 60}:{elapsed % 60:02d} elapsed", file=self.file, flush=True)
+
+    def close(self) -> None:
+        pass
 
 
 class LineProgress:
@@ -80,7 +99,8 @@ class LineProgress:
     def _line(self) -> None:
         self.last, self.shown = time.monotonic(), self.done
         elapsed = int(self.last - self.start)
-        print(f"{self.desc}: {self.done}/{self.total} {self.unit}s done"
+        units = self.unit[:-1] + "ies" if self.unit.endswith("y") else self.unit + "s"
+        print(f"{self.desc}: {self.done}/{self.total} {units} done"
               + (f" (now {self.postfix})" if self.postfix and self.done < self.total else "")
               + f", {elapsed // 60}:{elapsed % 60:02d} elapsed", file=self.file, flush=True)
 
