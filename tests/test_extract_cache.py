@@ -115,3 +115,33 @@ def test_a_matrix_replaced_or_damaged_since_its_extraction_is_no_cache(tmp_path:
             Path(str(out) + ".json").write_text(json.dumps({k: v for k, v in record.items() if k != "output"}))
         X, reused = extract_cached(images, out, "hog", progress=False)
         assert not reused and np.array_equal(X, original) and np.array_equal(np.load(out), original)
+
+
+def test_files_of_the_users_beside_the_output_are_never_replaced_without_overwrite(tmp_path: Path) -> None:
+    """`btel extract … -o new.npy` replaced the user's new.npy.json (its record's path) without a word, and
+    --delta replaced X.plain.npy and X.plain.npy.json (its cache of the plain descriptors). Each is refused
+    before anything is written; --overwrite replaces a file, never a folder; btel's own cache is reused."""
+    images = _folder(tmp_path / "imgs", 0)
+    notes = tmp_path / "new.npy.json"
+    notes.write_text('{"my": "notes"}')
+    refused = _invoke("extract", images, "-o", tmp_path / "new.npy", "--descriptor", "patchnorm")
+    assert refused.exit_code != 0 and "new.npy.json" in refused.output and "--overwrite" in refused.output
+    assert notes.read_text() == '{"my": "notes"}' and not (tmp_path / "new.npy").exists()
+    plain = tmp_path / "d.plain.npy"
+    plain.write_text("precious")
+    refused = _invoke("extract", images, "-o", tmp_path / "d.npy", "--delta", 2, "--descriptor", "patchnorm")
+    assert refused.exit_code != 0 and "d.plain.npy" in refused.output
+    assert plain.read_text() == "precious" and not (tmp_path / "d.npy").exists()
+    record = tmp_path / "e.plain.npy.json"
+    record.write_text("precious")
+    refused = _invoke("extract", images, "-o", tmp_path / "e.npy", "--delta", 2, "--descriptor", "patchnorm")
+    assert refused.exit_code != 0 and record.read_text() == "precious" and not (tmp_path / "e.plain.npy").exists()
+    (tmp_path / "f.npy.json").mkdir()
+    refused = _invoke("extract", images, "-o", tmp_path / "f.npy", "--descriptor", "patchnorm", "--overwrite")
+    assert refused.exit_code != 0 and "folder" in refused.output and not (tmp_path / "f.npy").exists()
+    for _ in range(2):  # btel's own cache of the plain descriptors: written, then reused without --overwrite
+        done = _invoke("extract", images, "-o", tmp_path / "g.npy", "--delta", 2, "--descriptor", "patchnorm")
+        assert done.exit_code == 0, done.output
+        (tmp_path / "g.npy").unlink()
+    replaced = _invoke("extract", images, "-o", tmp_path / "new.npy", "--descriptor", "patchnorm", "--overwrite")
+    assert replaced.exit_code == 0 and '"descriptor"' in notes.read_text()

@@ -190,6 +190,7 @@ def extract_cached(
     key = extraction_key(paths, model, fit_on)
     output = Path(output)
     sidecar = Path(str(output) + ".json")
+    refuse_foreign_record(output, overwrite)
     if not force and output.is_file():
         cached = read_sidecar(output)  # an unreadable record is refused (read_sidecar), not recomputed over
         if same_extraction(cached, key) and output_unchanged(cached, output):
@@ -212,6 +213,54 @@ def extract_cached(
     with atomic_output(sidecar, text=True) as fh:
         fh.write(json.dumps({**key, "output": file_record(output)}, indent=1))
     return X, False
+
+
+def _is_record(cached: Any) -> bool:
+    """A JSON value that ``btel extract`` wrote beside a matrix (:func:`extraction_key`'s keys)."""
+    return isinstance(cached, dict) and {"descriptor", "images"} <= cached.keys()
+
+
+def refuse_foreign_record(output: str | os.PathLike, overwrite: bool) -> None:
+    """Refuse to write ``output``'s record (``output + ".json"``) over a file that is not one.
+
+    An extraction writes its record beside the matrix; a file of the user's at that path (notes, another
+    tool's JSON) would be replaced without a word. Without ``overwrite`` anything there but a record of
+    btel's is refused; a folder or special file there is refused always (a record cannot replace it, and
+    finding out after the matrix was written would leave the matrix behind).
+
+    Raises
+    ------
+    OutputExistsError
+    """
+    from ..exceptions import BTELError, OutputExistsError
+
+    sidecar = Path(str(output) + ".json")
+    if not os.path.lexists(sidecar):
+        return
+    special = sidecar.is_symlink() or not sidecar.is_file()
+    if not special and overwrite:
+        return
+    try:
+        ours = not special and _is_record(read_sidecar(output))
+    except BTELError:  # not a record btel can read: not one of btel's
+        ours = False
+    if not ours:
+        kind = "a folder or special file" if special else "a file that is not btel extract's record of a matrix"
+        raise OutputExistsError(
+            f"{str(sidecar)!r} is {kind}; extracting to {str(output)!r} writes the record of its images there. "
+            f"Move it away, or give another -o{'' if special else ' (or --overwrite to replace it)'}.")
+
+
+def written_by_extract(output: str | os.PathLike) -> bool:
+    """True when ``output`` is a matrix that ``btel extract`` wrote (its record beside it vouches for its bytes):
+    replacing it loses nothing of the user's."""
+    from ..exceptions import BTELError
+
+    try:
+        cached = read_sidecar(output)
+        return Path(output).is_file() and _is_record(cached) and output_unchanged(cached, output)
+    except (BTELError, OSError):
+        return False
 
 
 def is_extraction_of(output: str | os.PathLike, images: str | os.PathLike, model: ImageDescriptor,
@@ -279,9 +328,17 @@ def extract_delta_cached(images: str | os.PathLike, output: str | os.PathLike, m
     """
     from ..core.frontend import delta_descriptors
 
+    from ..exceptions import OutputExistsError
+
     output = Path(output)
     plain = output.with_name(output.stem + ".plain.npy")
-    X, _ = extract_cached(images, plain, model, fit_on=fit_on, progress=progress, force=force)
+    ours = written_by_extract(plain)  # btel's own cache of the plain descriptors: reused or replaced freely
+    if os.path.lexists(plain) and not ours and not overwrite:
+        raise OutputExistsError(
+            f"{str(plain)!r} exists and is not a matrix btel extract wrote; extracting to {str(output)!r} with "
+            "--delta keeps the plain descriptors there. Move it away, give another -o, or --overwrite to replace it.")
+    X, _ = extract_cached(images, plain, model, fit_on=fit_on, progress=progress, force=force,
+                          overwrite=overwrite or ours)
     D = delta_descriptors(X, window)
     output.parent.mkdir(parents=True, exist_ok=True)
     with atomic_output(output, overwrite=overwrite) as fh:  # whole or not at all; a racing file is kept
