@@ -25,6 +25,15 @@ def _load_matrix(path: str, what: str, *, mmap: bool = False) -> np.ndarray:
         raise InvalidDescriptorsError(f"{what}: {exc}") from None
 
 
+def declared_rows(path: str) -> int | None:
+    """The rows a ``.npy`` file's header announces (None for any other input): checked against what they
+    would cost before the file is read, since reading checks every value (hours for a sparse 10¹⁰-row file)."""
+    from ..descriptors.npy_header import npy_header
+
+    header = npy_header(path) if Path(path).suffix.lower() == ".npy" else None
+    return header[0][0] if header is not None and len(header[0]) == 2 else None
+
+
 def _is_whole_h5(path: str) -> bool:
     from ..descriptors.npy import HDF5_SUFFIXES, split_prefix
 

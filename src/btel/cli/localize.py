@@ -8,7 +8,7 @@ from typing import Any
 import click
 
 from ._errors import InputError
-from ._inputs import _load_matrix, load_model
+from ._inputs import _load_matrix, declared_rows, load_model
 from ._names import input_names, write_predictions
 from ._outputs import check_output_suffix, refuse_existing
 
@@ -92,12 +92,16 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
     check_output_suffix(output, "-o", "a predictions CSV", (".csv", ".txt"))
     refuse_existing(output, "-o", overwrite, {"MODEL": model_path, "QUERIES": queries, "--db": db})
     model = load_model(model_path)
+    declared = declared_rows(queries)
+    if declared is not None:  # before the file is read (reading checks every value)
+        _check_answers_fit(declared, top_k, queries)
     Q = _load_matrix(queries, "query descriptors", mmap=True)  # a float32 .npy is read as it is used
     if Q.shape[1] != model.n_features_in_:  # the library would name its variable (Q), not the file
         raise InputError(f"queries {queries} have {Q.shape[1]} values per row, but MODEL was fitted on "
                          f"{model.n_features_in_}-value descriptors; extract the queries with the same "
                          "descriptor (and settings) as the map.")
     _check_top_k(top_k, model.n_places_, model_path)
+    _check_answers_fit(Q.shape[0], top_k, queries)
     q_names, db_names = input_names(db, queries, model.n_places_, Q.shape[0])
     if db is not None and db_names is None:
         from ..datasets.row_names import row_names
@@ -172,6 +176,14 @@ def _in_row_blocks(answer: Any, Q: Any, progress: str | None = None) -> Any:
         if bar is not None:
             bar.close()
     return np.concatenate(parts)
+
+
+def _check_answers_fit(n_queries: int, top_k: int | None, queries: str) -> None:
+    """The answers are held whole (an (n, 1 + K) int64 table) until the CSV is written: refused past the memory
+    limit (:mod:`btel.core.limits`) before any query is answered."""
+    from ..core.limits import check_count
+
+    check_count(n_queries, 8 * (1 + (top_k or 0)), f"the answers to the {n_queries:,} queries of {queries}")
 
 
 def _check_top_k(top_k: int | None, n_places: int, model_path: str) -> None:

@@ -8,7 +8,7 @@ from typing import Any
 import click
 
 from ..methods.roles import DEFAULT_METHOD
-from ._inputs import _load_map, calibration_input, check_calibration_options
+from ._inputs import _load_map, calibration_input, check_calibration_options, declared_rows
 from ._options import _N_JOBS_HELP, _NO_PROGRESS_HELP, _PARAM_HELP, _check_budget, calibration_options
 from ..core.progress import elapsed_ticker
 from ._outputs import OTHER_FORMATS, check_output_suffix, refuse_existing
@@ -82,7 +82,13 @@ def train(db: str, output: str, overwrite: bool, method: str, budget: str | None
     # A model is read by its content, so any name works (map.btel is in use) but one of another format's.
     check_output_suffix(output, "-o", "a model file", (".npz",), refused=OTHER_FORMATS)
     refuse_existing(output, "-o", overwrite, {"DB": db, "--calibrate": calibrate, "--calibrate-truth": calibrate_truth})
+    from ..core.limits import check_places
+
+    # A model of more places than answering a query may hold could not be loaded: refused before the map
+    # is read (reading checks every value: hours for a sparse 10⁹-row file), and after (other formats).
+    check_places(declared_rows(db) or 0, f"a model of DB {db}")
     X = _load_map(db)
+    check_places(X.shape[0], f"a model of DB {db}")
     fit_params: dict[str, Any] = {}
     if calibrate:
         Q, truth, said = calibration_input(db, calibrate, calibrate_truth, X.shape[0], positive_dist_threshold)
