@@ -192,6 +192,11 @@ def test_opq_nested_quantiser_runtime_settings_are_not_restored(files, queries, 
         # A streamed query kept 2w copies of the first frame: 16 GB of references for w = 10⁹.
         ("btel-c", lambda h: h["state"]["front_end"].update(delta=10**9), "delta must be"),
         ("btel-c", set_state("n_places", 2**33), "n_places = 8589934592 is not an integer"),
+        # `btel info` divided by a budget of 0.5 (read as 0 B), and showed "800000% used" for "1B".
+        ("bruteforce", set_param("budget", 0.5), "less than one byte"),
+        ("bruteforce", set_param("budget", "1e-300KB"), "less than one byte"),
+        ("bruteforce", set_param("budget", "1B"), r"arrays take [\d,]+ B, over the budget of 1 B"),
+        ("pq", set_param("budget", 100), r"arrays take [\d,]+ B, over the budget of 100 B"),
     ],
 )
 def test_header_values_are_checked_before_anything_is_computed(name, edit, message, files, tmp_path) -> None:

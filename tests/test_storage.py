@@ -371,3 +371,14 @@ def test_exact_bytes_adds_the_bytes_only_when_the_rounded_size_is_not_exact(n: i
     from btel.core.storage import exact_bytes
 
     assert exact_bytes(n) == text
+
+
+@pytest.mark.parametrize("budget", ["0.5B", 0.5, "1e-300KB", "0.0009KB"])
+def test_parse_budget_refuses_less_than_one_byte(budget) -> None:
+    """'0.5B' was floored to 0 B and passed the positivity check ("the whitening matrix alone needs 0 B")."""
+    with pytest.raises(InvalidParameterError, match="less than one byte"):
+        parse_budget(budget)
+
+
+def test_parse_budget_rounds_a_fraction_of_a_byte_down() -> None:
+    assert parse_budget("1.5B") == 1 and parse_budget("0.5KB") == 500 and parse_budget(1.9) == 1

@@ -43,7 +43,8 @@ def parse_budget(budget: int | float | str | None) -> int | None:
     Decimal units as in the paper (``KB`` = 1000 B, ``MB`` = 10^6 B); binary units are
     spelled ``KiB``/``MiB``. Case-insensitive, spaces allowed: ``"500KB"``, ``"2 MB"``,
     ``"64KiB"``, ``"500kb"``, ``1_000_000`` — except ``Kb``/``Mb``/``Gb`` (a capital prefix and a
-    small b), the usual spelling of bits, which is refused. A budget must be positive.
+    small b), the usual spelling of bits, which is refused. A budget must be at least one byte; a
+    fraction of a byte is rounded down (``"1.5B"`` is 1 B, ``"0.5KB"`` 500 B).
 
     Returns
     -------
@@ -78,6 +79,9 @@ def parse_budget(budget: int | float | str | None) -> int | None:
         raise InvalidParameterError(f"budget must be a number of bytes or a string like '500KB'; got {budget!r}.")
     if not value > 0:  # NaN included
         raise InvalidParameterError(f"budget must be a positive number of bytes; got {budget!r}.")
+    if value < 1:  # stored bytes are whole: it would be read as 0 B
+        raise InvalidParameterError(f"budget {budget!r} is less than one byte; give a whole number of bytes or a "
+                                    "size such as '500KB'.")
     if value > UNLIMITED_BUDGET:  # a model file records its budget: every budget reads back as written
         text = str(budget)
         shown = text if len(text) <= 24 else f"of {len(text)} digits" if isinstance(value, int) else text[:24] + "…"
