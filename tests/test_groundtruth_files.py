@@ -284,3 +284,19 @@ def test_bad_positions_are_named_as_positions_of_their_file(tmp_path) -> None:
         GroundTruth.from_file(tmp_path / "flat.npz")
     with pytest.raises(InvalidParameterError, match=r"nan.npz': utmDb holds no finite position at row\(s\) \[1\]"):
         GroundTruth.from_file(tmp_path / "nan.npz")
+
+
+def test_positives_that_make_most_of_the_map_correct_are_warned_about(tmp_path: Path) -> None:
+    """A radius of 10⁹ m made every place correct and random queries scored R@1 = 1.000 without a word."""
+    import warnings
+
+    xy = np.stack([np.arange(50) * 10.0, np.zeros(50)], axis=1)
+    path = tmp_path / "gt.npz"
+    np.savez(path, utmDb=xy, utmQ=xy[:20], posDistThr=1e9)
+    with pytest.warns(UserWarning, match=r"makes on average 100% of the 50 map places correct"):
+        GroundTruth.from_file(path, n_queries=20, n_map=50)
+    np.savez(path, utmDb=xy, utmQ=xy[:20], posDistThr=25.0)  # two or three neighbours each: no warning
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        gt = GroundTruth.from_file(path, n_queries=20, n_map=50)
+    assert 1 <= np.diff(gt.indptr).min() and np.diff(gt.indptr).max() <= 5

@@ -137,12 +137,24 @@ def read_ground_truth(cls: Any, path: str | os.PathLike, *, n_queries: int | Non
 
 def check_some_positive(gt: Any, source: str) -> None:
     """Refuse explicit positives in which no query has any: every query would count as wrong, and
-    no metric would say anything about the method."""
-    if gt.kind == "positives" and gt.n_queries and gt.n_without_positives == gt.n_queries:
+    no metric would say anything about the method. Warn when they make more than half the map correct
+    for the average query: a guess would then score that well (a radius in the wrong unit, say)."""
+    if gt.kind != "positives" or not gt.n_queries:
+        return
+    if gt.n_without_positives == gt.n_queries:
         raise InvalidParameterError(
             f"{source} gives none of its {gt.n_queries} queries a positive map place, so every query would "
             "count as wrong whatever the method; check that it is the ground truth of these descriptors "
             "(places numbered from 0) and, for positions, the radius.")
+    n_map = gt.n_map if gt.n_map else int(gt.indices.max()) + 1
+    chance = float(np.mean(np.diff(gt.indptr))) / n_map
+    if chance > 0.5:
+        import warnings
+
+        warnings.warn(
+            f"{source} makes on average {chance:.0%} of the {n_map} map places correct for a query, so a random "
+            "guess scores about that recall@1 whatever the method; check that it is the ground truth of these "
+            "descriptors and, for positions, the radius (metres, as the positions).", UserWarning, stacklevel=2)
 
 
 def _read(cls: Any, path: Path, expected: dict[str, int | None]) -> Any:
