@@ -6,6 +6,7 @@ and ``btel --help`` loads them all.
 
 from __future__ import annotations
 
+import os
 import shlex
 import sys
 from typing import Any
@@ -27,6 +28,17 @@ _NO_PROGRESS_HELP = ("No progress bars (btel's own and those of the methods with
 _TIMING_THREADS_HELP = ("BLAS/OpenMP threads while localizing and timing the queries (the table's 'threads'). Default 1: "
                         "on a shared machine multi-threaded calls spin against other processes and identical runs "
                         "differ by 2-100x; 0 leaves the libraries' own thread count.")
+
+
+def timing_threads_option(ctx: click.Context, param: click.Parameter, value: int) -> int:
+    """``--timing-threads``, refused above the machine's cores (the table would record threads never run)."""
+    cores = os.cpu_count() or 1
+    if value > cores:
+        raise click.BadParameter(f"{value} threads, but this machine has {cores} cores; give 0 (the libraries' "
+                                 f"own count) to {cores}.", ctx=ctx, param=param)
+    return value
+
+
 _BUDGET_HELP = ("Byte budget of every method but the brute-force reference, e.g. 500KB (KB = 1000 B, KiB = 1024 B); "
                 "several, comma-separated (100KB,500KB), give one row per method and budget.")
 _REFERENCE_HELP = ("Brute force (exact nearest neighbour over every map descriptor) is the unbudgeted reference: it is "

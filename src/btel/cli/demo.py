@@ -10,7 +10,8 @@ import click
 from ..methods.roles import DEMO_METHODS
 from ._jobs import _echo_while_running, _fit_jobs, _run_jobs
 from ._params import ParamCommand
-from ._options import (EXIT_SOME_ROWS_FAILED, _BUDGET_HELP, _N_JOBS_HELP, _NO_PROGRESS_HELP, _PARAMS_HELP,
+from ._options import (timing_threads_option,
+                       EXIT_SOME_ROWS_FAILED, _BUDGET_HELP, _N_JOBS_HELP, _NO_PROGRESS_HELP, _PARAMS_HELP,
                        _REFERENCE_HELP, _TIMING_THREADS_HELP, _budget_text, _budgets, _runtime_shortcuts, _split)
 
 
@@ -23,14 +24,15 @@ from ._options import (EXIT_SOME_ROWS_FAILED, _BUDGET_HELP, _N_JOBS_HELP, _NO_PR
 @click.option("--methods", multiple=True, default=(",".join(DEMO_METHODS),), show_default=True,
               help="Comma-separated method names (see `btel methods`); repeatable, the lists are joined.")
 @click.option("--no-reference", is_flag=True, help=_REFERENCE_HELP)
-@click.option("--seed", default=0, show_default=True, help="Random seed of the route.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Random seed of the route.")
 @click.option("--param", "param_texts", multiple=True, metavar="[METHOD:]NAME=VALUE", help=_PARAMS_HELP)
 @click.option("-o", "--out", "--output", "out_dir", type=click.Path(file_okay=False), default=None,
               help="Run folder for metrics.json, CSV and plots (default: runs/demo-<time>).")
 @click.option("--overwrite", is_flag=True, help="Replace the run files in an existing run folder.")
 @click.option("--no-progress", is_flag=True, help=_NO_PROGRESS_HELP)
 @click.option("--n-jobs", type=int, default=None, help=_N_JOBS_HELP)
-@click.option("--timing-threads", type=click.IntRange(min=0), default=1, show_default=True, help=_TIMING_THREADS_HELP)
+@click.option("--timing-threads", type=click.IntRange(min=0), default=1, show_default=True, help=_TIMING_THREADS_HELP,
+              callback=timing_threads_option)
 @click.pass_context
 def demo(ctx: click.Context, n_places: int, dim: int, budget: tuple[str, ...], methods: tuple[str, ...],
          no_reference: bool, seed: int,
@@ -48,6 +50,7 @@ def demo(ctx: click.Context, n_places: int, dim: int, budget: tuple[str, ...], m
 
     budgets = _budgets(",".join(budget))  # --budget 8KB --budget 16KB is 8KB,16KB (the last one alone before)
     names = _split(",".join(methods))
+    _check_route_fits(n_places, dim)
     route = synthetic_route(n_places, dim, seed=seed)
     out = Path(out_dir) if out_dir else Path("runs") / time.strftime("demo-%Y%m%d-%H%M%S")
     jobs = _fit_jobs(names, budgets, param_texts, reference=not no_reference,
@@ -64,3 +67,19 @@ def demo(ctx: click.Context, n_places: int, dim: int, budget: tuple[str, ...], m
                        progress=not no_progress, timing_threads=timing_threads or None)
     if failed:
         ctx.exit(EXIT_SOME_ROWS_FAILED)
+
+
+def _check_route_fits(n_places: int, dim: int) -> None:
+    """--places × --dim refused when generating the route would need more than the machine's memory (its float64
+    map and query traverses and their noise: about 4 arrays of N × d)."""
+    import os
+
+    need = 4 * 8 * n_places * dim
+    try:
+        memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):  # not a POSIX system: the allocation says it itself
+        return
+    if need > memory:
+        raise click.UsageError(f"--places {n_places} × --dim {dim}: generating the route needs about "
+                               f"{need / 1e9:,.1f} GB and this machine has {memory / 1e9:.1f} GB; choose fewer places "
+                               "or a smaller dimension.")

@@ -14,7 +14,8 @@ from ._errors import InputError
 from ._inputs import (_load_map, _load_matrix, calibrate_evaluation, check_evaluate_calibration, check_utm_options,
                       read_ground_truth, refuse_matrix_as_model)
 from ._jobs import _echo_while_running, _fit_jobs, _run_jobs
-from ._options import (EXIT_SOME_ROWS_FAILED, _BUDGET_HELP, _DELTA_HELP, _N_JOBS_HELP, _NO_PROGRESS_HELP,
+from ._options import (timing_threads_option,
+                       EXIT_SOME_ROWS_FAILED, _BUDGET_HELP, _DELTA_HELP, _N_JOBS_HELP, _NO_PROGRESS_HELP,
                        _ORDER_HELP, _PARAMS_HELP, _REFERENCE_HELP, _TIMING_THREADS_HELP, _budgets, _int_list,
                        _runtime_shortcuts, _split, calibration_options)
 
@@ -225,7 +226,7 @@ def _check_inputs_unchanged(run: str, recorded: dict[str, Any] | None, current: 
 @click.option("--no-progress", is_flag=True, help=_NO_PROGRESS_HELP)
 @click.option("--n-jobs", type=int, default=None, help=_N_JOBS_HELP)
 @click.option("--timing-threads", type=click.IntRange(min=0), default=1, show_default=True,
-              help=_TIMING_THREADS_HELP)
+              help=_TIMING_THREADS_HELP, callback=timing_threads_option)
 @calibration_options
 @click.pass_context
 def evaluate_cmd(ctx: click.Context, model_paths: tuple[str, ...], methods: tuple[str, ...],

@@ -43,6 +43,9 @@ def experiment(name: str, data_root: str | None, out_dir: str, cache_dir: str | 
     from ..experiments import (EXPERIMENTS, PARALLEL, RESUMABLE, check_output, check_request, describe_row,
                                output_folder, run_experiment)
 
+    from ..experiments._common import experiment_jobs
+
+    experiment_jobs()  # a malformed BTEL_EXPERIMENT_JOBS is named before any work, not after the first fits
     names = list(EXPERIMENTS) if name == "all" else [name]
     # 'all' applies --jobs and --resume where they apply; one experiment named is refused them otherwise.
     options = {n: {"front_end": {"delta": delta} if delta else None,

@@ -155,12 +155,7 @@ class FrontEnd:
         elif self.whiten is not None:
             from sklearn.decomposition import PCA
 
-            n, d = Z.shape
-            if self.whiten > min(d, n - 1):
-                raise InvalidParameterError(
-                    f"whiten = {self.whiten} needs at least {self.whiten + 1} map rows and descriptors of at least "
-                    f"{self.whiten} dimensions; got {n} rows of {d}. Use whiten ≤ {max(min(d, n - 1), 1)}."
-                )
+            self._check_whiten_rank(*Z.shape)
             pca = PCA(n_components=int(self.whiten), whiten=True, random_state=0).fit(Z)
             std = np.sqrt(np.maximum(pca.explained_variance_, 1e-12))
             self.mean_ = pca.mean_.astype(np.float32)
@@ -259,12 +254,22 @@ class FrontEnd:
 
     def planned_bytes(self, n_rows: int | None, n_features: int) -> int:
         """Bytes the fitted front end will store for ``n_rows`` map rows of d = ``n_features`` (known
-        before fitting; the rows matter to shrinkage whitening only)."""
+        before fitting; the rows matter to shrinkage whitening only). A whitening rank the shape cannot
+        give is refused here, before any budget arithmetic sized by it."""
         if self.whiten == "shrink":
             from .shrink import shrink_bytes, shrink_rank
 
             return shrink_bytes(n_features, shrink_rank(n_features, n_rows, self.budget))
+        if self.whiten is not None and n_rows is not None:
+            self._check_whiten_rank(int(n_rows), int(n_features))
         return 0 if self.whiten is None else int(n_features) * (int(self.whiten) + 1) * 4
+
+    def _check_whiten_rank(self, n: int, d: int) -> None:
+        if self.whiten > min(d, n - 1):
+            raise InvalidParameterError(
+                f"whiten = {self.whiten} needs at least {self.whiten + 1} map rows and descriptors of at least "
+                f"{self.whiten} dimensions; got {n} rows of {d}. Use whiten ≤ {max(min(d, n - 1), 1)}."
+            )
 
     def n_features_out(self, n_features: int) -> int:
         return int(n_features) if self.whiten in (None, "shrink") else int(self.whiten)

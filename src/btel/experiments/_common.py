@@ -70,8 +70,15 @@ class ExperimentRun:
 
 def experiment_jobs() -> int:
     """Threads for an experiment's independent fits: ``BTEL_EXPERIMENT_JOBS``, default every core."""
-    value = os.environ.get("BTEL_EXPERIMENT_JOBS")
-    return max(1, int(value)) if value else max(1, os.cpu_count() or 1)
+    value = os.environ.get("BTEL_EXPERIMENT_JOBS", "").strip()
+    if not value:
+        return max(1, os.cpu_count() or 1)
+    if not value.isdigit() or not 1 <= int(value) <= 4096:
+        from ..exceptions import InvalidParameterError
+
+        raise InvalidParameterError(f"BTEL_EXPERIMENT_JOBS={value[:40]!r} is not a number of threads; give a whole "
+                                    f"number from 1 to 4096 (this machine has {os.cpu_count()} cores), or unset it.")
+    return int(value)
 
 
 def data_fingerprint(X: np.ndarray) -> str:

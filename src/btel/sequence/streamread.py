@@ -54,7 +54,14 @@ class CutLine:
     a producer that stopped mid-line leaves a line that may still hold the right number of values
     (``…e-0`` of ``…e-01``), so it cannot be told from a whole one."""
 
+    def __init__(self, carriage_returns: bool = False) -> None:
+        self.carriage_returns = carriage_returns
+
     def message(self) -> str:
+        if self.carriage_returns:  # classic Mac line ends: the whole input reads as one line
+            return ("the input ended inside this line (no newline after it), and it holds carriage returns: its "
+                    "lines end in CR alone (old Mac text), which is not a line end here; convert them "
+                    "(`tr '\\r' '\\n' < IN > OUT`) or write lines ending in LF or CRLF.")
         return ("the input ended inside this line (no newline after it): a line cut short can look whole, so "
                 "it is not answered; end every line with a newline (numpy.savetxt does).")
 
@@ -148,7 +155,7 @@ def read_lines(stream: Any, *, follow: bool = False, poll_interval: float = 0.1,
     if skipping:
         yield LineTooLong(limit)
     elif pending and pending.strip():
-        yield CutLine()  # the last line lacks its newline: cut short, or not, cannot be told
+        yield CutLine(b"\r" in pending)  # the last line lacks its newline: cut short, or not, cannot be told
 
 
 def _truncated(stream: Any) -> bool:
@@ -203,7 +210,7 @@ def chunk_lines(stream: BinaryIO, *, max_line: int | None = None) -> Iterator[An
     if skipping:
         yield LineTooLong(limit)
     elif buf.strip():
-        yield CutLine()
+        yield CutLine(b"\r" in buf)
 
 
 def _count_hint(head: bytes, n_features: int) -> str:
