@@ -31,7 +31,8 @@ def declared_rows(path: str) -> int | None:
     from ..descriptors.npy_header import npy_header
 
     header = npy_header(path) if Path(path).suffix.lower() == ".npy" else None
-    return header[0][0] if header is not None and len(header[0]) == 2 else None
+    # A file shorter than its header says is named as cut short by the reader, whatever its rows.
+    return header[0][0] if header is not None and len(header[0]) == 2 and header[3] >= header[2] else None
 
 
 def _is_whole_h5(path: str) -> bool:

@@ -225,30 +225,29 @@ def refuse_foreign_record(output: str | os.PathLike, overwrite: bool) -> None:
 
     An extraction writes its record beside the matrix; a file of the user's at that path (notes, another
     tool's JSON) would be replaced without a word. Without ``overwrite`` anything there but a record of
-    btel's is refused; a folder or special file there is refused always (a record cannot replace it, and
-    finding out after the matrix was written would leave the matrix behind).
+    btel's is refused; a folder, link or special file there always is (by :func:`read_sidecar`, which
+    names it): a record cannot replace it, and finding out after the matrix was written left the matrix.
 
     Raises
     ------
-    OutputExistsError
+    OutputExistsError, InvalidDescriptorsError
     """
     from ..exceptions import BTELError, OutputExistsError
 
     sidecar = Path(str(output) + ".json")
     if not os.path.lexists(sidecar):
         return
-    special = sidecar.is_symlink() or not sidecar.is_file()
-    if not special and overwrite:
-        return
     try:
-        ours = not special and _is_record(read_sidecar(output))
-    except BTELError:  # not a record btel can read: not one of btel's
-        ours = False
-    if not ours:
-        kind = "a folder or special file" if special else "a file that is not btel extract's record of a matrix"
-        raise OutputExistsError(
-            f"{str(sidecar)!r} is {kind}; extracting to {str(output)!r} writes the record of its images there. "
-            f"Move it away, or give another -o{'' if special else ' (or --overwrite to replace it)'}.")
+        cached = read_sidecar(output)
+    except BTELError:
+        if sidecar.is_symlink() or not sidecar.is_file():
+            raise
+        cached = None  # a regular file btel cannot read as a record: the user's
+    if overwrite or _is_record(cached):
+        return
+    raise OutputExistsError(
+        f"{str(sidecar)!r} is a file that is not btel extract's record of a matrix; extracting to {str(output)!r} "
+        "writes the record of its images there. Move it away, give another -o, or --overwrite to replace it.")
 
 
 def written_by_extract(output: str | os.PathLike) -> bool:

@@ -155,7 +155,8 @@ def read_lines(stream: Any, *, follow: bool = False, poll_interval: float = 0.1,
     if skipping:
         yield LineTooLong(limit)
     elif pending and pending.strip():
-        yield CutLine(b"\r" in pending)  # the last line lacks its newline: cut short, or not, cannot be told
+        # the last line lacks its newline: cut short, or not, cannot be told
+        yield CutLine(("\r" if isinstance(pending, str) else b"\r") in pending)
 
 
 def _truncated(stream: Any) -> bool:
@@ -210,7 +211,7 @@ def chunk_lines(stream: BinaryIO, *, max_line: int | None = None) -> Iterator[An
     if skipping:
         yield LineTooLong(limit)
     elif buf.strip():
-        yield CutLine(b"\r" in buf)
+        yield CutLine(("\r" if isinstance(buf, str) else b"\r") in buf)
 
 
 def _count_hint(head: bytes, n_features: int) -> str:
