@@ -63,8 +63,9 @@ def natural_key(name: str) -> tuple[Any, ...]:
     """Sort key that orders digit runs by value: ``img2 < img10`` (case-insensitive); names equal as numbers
     (``shard_1``, ``shard_01``) then by the name itself, so the order never depends on the file system's."""
     parts = _DIGITS.split(name)
-    # Alternate (text, number) so that tuples always compare like with like.
-    return tuple(int(p) if i % 2 else p.lower() for i, p in enumerate(parts)) + (name,)
+    # Alternate (text, number) so that tuples always compare like with like; the name in a slot of its own
+    # (appended to the parts, it would meet a number: `day` against `day2`).
+    return tuple(int(p) if i % 2 else p.lower() for i, p in enumerate(parts)), name
 
 
 def _is_image(path: Path) -> bool:

@@ -41,8 +41,9 @@ _GZIP_GROWTH = 2 * 1032
 _MAX_CHUNKS = 65_536  # per dataset (a global descriptor needs one)
 
 
-def _natural_key(name: str) -> list:
-    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
+def _natural_key(name: str) -> tuple:
+    # Digit runs by value (img2 < img10); names equal as numbers (img1, img01) by the name itself.
+    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)], name
 
 
 def _shown(item: str) -> str:

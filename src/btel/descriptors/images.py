@@ -74,8 +74,10 @@ MAX_JPEG_SCANS = 100
 def _natural_key(path: Path) -> tuple:
     # "2.jpg" before "10.jpg": digit runs compare as numbers. re.split with a capture group puts
     # text at even and numbers at odd positions, so equal positions always hold equal types.
+    # The name breaks ties (img1, img01) in a slot of its own: appended to the parts it would meet a
+    # number (img against img2).
     parts = re.split(r"(\d+)", path.name.lower())
-    return tuple(int(p) if i % 2 else p for i, p in enumerate(parts)) + (path.name,)
+    return tuple(int(p) if i % 2 else p for i, p in enumerate(parts)), path.name
 
 
 def list_images(folder: str | os.PathLike) -> list[Path]:
