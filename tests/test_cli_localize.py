@@ -239,7 +239,8 @@ def test_a_slow_batch_shows_its_progress_and_answers_as_one_block(tmp_path: Path
     model = load(_fit_and_save(route.map, tmp_path / "m.btel.npz"))
     np.save(tmp_path / "q.npy", route.queries)
     monkeypatch.setattr(localize_cli, "_QUIET_SECONDS", 0.0)
-    monkeypatch.setattr(localize_cli, "_BLOCK_SECONDS", 0.0)  # blocks of one row
+    monkeypatch.setattr(localize_cli, "_BLOCK_SECONDS", 0.0)  # blocks of 7 rows: the 64-row probe, then 34 blocks
+    monkeypatch.setattr(localize_cli, "_MIN_BLOCK_ROWS", 7)
     monkeypatch.setattr(progress, "LINE_EVERY_SECONDS", 0.0)
     shown = _invoke("localize", tmp_path / "m.btel.npz", tmp_path / "q.npy", "-o", tmp_path / "p.csv", "--top-k", 3)
     assert shown.exit_code == 0, shown.output
@@ -261,11 +262,16 @@ def _fit_and_save(X: np.ndarray, path: Path) -> Path:
 
 
 def test_a_query_file_declaring_more_answers_than_memory_holds_is_refused_before_it_is_read(
-        small_model, tmp_path: Path) -> None:
+        small_model, tmp_path: Path, monkeypatch) -> None:
     """A sparse .npy of 10¹⁰ × 64 queries made `btel localize` check values for minutes while its resident
     memory grew to 20 GB (and `btel train` on 10⁹ × 4096 rows alike): the header's row count is checked
-    first — the answers table for localize, the model's places for train. Sparse files: no disk used."""
+    first — the answers table against the machine's memory (here said to be 100 MB) for localize, the
+    model's places against the memory limit for train. Sparse files: no disk used."""
     import time
+
+    from btel.core import limits
+
+    monkeypatch.setattr(limits, "physical_memory", lambda: 100_000_000)
 
     def sparse(path: Path, rows: int) -> Path:
         with open(path, "wb") as fh:
@@ -273,12 +279,19 @@ def test_a_query_file_declaring_more_answers_than_memory_holds_is_refused_before
             fh.truncate(fh.tell() + 4 * rows)  # as long as the header says: not a file cut short
         return path
 
-    model = next(p for p in small_model if p.name == "m.npz")
+    model = small_model[2]
     start = time.perf_counter()
     refused = _invoke("localize", model, sparse(tmp_path / "q.npy", 40_000_000), "-o", tmp_path / "p.csv")
     assert refused.exit_code != 0 and "40,000,000 queries" in refused.output
-    assert "BTEL_MEMORY_LIMIT" in refused.output and not (tmp_path / "p.csv").exists()
+    assert "this machine has 95.4 MiB" in refused.output and not (tmp_path / "p.csv").exists()
     refused = _invoke("train", sparse(tmp_path / "db.npy", 10_000_000), "-o", tmp_path / "m.btel.npz",
                       "--method", "lsh", "--budget", "1MB")
     assert refused.exit_code != 0 and "N = 10000000 places" in refused.output
     assert time.perf_counter() - start < 30  # bounded: nothing was read past the header
+
+
+def test_top_k_is_checked_before_the_answers_it_would_size(small_model, tmp_path: Path) -> None:
+    """--top-k 10¹¹ on a 60-place model was refused as 218 TiB of answers, not as a rank beyond the map."""
+    _, queries, model = small_model
+    refused = _invoke("localize", model, queries, "-o", tmp_path / "p.csv", "--top-k", 10**11)
+    assert refused.exit_code == 2 and "give --top-k between 1 and 60" in refused.output

@@ -72,14 +72,7 @@ def demo(ctx: click.Context, n_places: int, dim: int, budget: tuple[str, ...], m
 def _check_route_fits(n_places: int, dim: int) -> None:
     """--places × --dim refused when generating the route would need more than the machine's memory (its float64
     map and query traverses and their noise: about 4 arrays of N × d)."""
-    import os
+    from ..core.limits import check_fits_machine
 
-    need = 4 * 8 * n_places * dim
-    try:
-        memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (AttributeError, ValueError, OSError):  # not a POSIX system: the allocation says it itself
-        return
-    if need > memory:
-        raise click.UsageError(f"--places {n_places} × --dim {dim}: generating the route needs about "
-                               f"{need / 1e9:,.1f} GB and this machine has {memory / 1e9:.1f} GB; choose fewer places "
-                               "or a smaller dimension.")
+    check_fits_machine(32.0 * n_places * dim, f"a synthetic route of --places {n_places} × --dim {dim}",
+                       "choose fewer places or a smaller dimension.")

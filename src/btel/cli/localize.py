@@ -92,6 +92,7 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
     check_output_suffix(output, "-o", "a predictions CSV", (".csv", ".txt"))
     refuse_existing(output, "-o", overwrite, {"MODEL": model_path, "QUERIES": queries, "--db": db})
     model = load_model(model_path)
+    _check_top_k(top_k, model.n_places_, model_path)
     declared = declared_rows(queries)
     if declared is not None:  # before the file is read (reading checks every value)
         _check_answers_fit(declared, top_k, queries)
@@ -100,7 +101,6 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
         raise InputError(f"queries {queries} have {Q.shape[1]} values per row, but MODEL was fitted on "
                          f"{model.n_features_in_}-value descriptors; extract the queries with the same "
                          "descriptor (and settings) as the map.")
-    _check_top_k(top_k, model.n_places_, model_path)
     _check_answers_fit(Q.shape[0], top_k, queries)
     q_names, db_names = input_names(db, queries, model.n_places_, Q.shape[0])
     if db is not None and db_names is None:
@@ -135,17 +135,19 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
 _QUERY_BLOCK_BYTES = 64 << 20
 
 
-#: Queries answered first to time a batch; a batch whose rest would take longer than the second (seconds)
-#: is answered in blocks of about the third (seconds) under a progress bar.
-_PROBE_ROWS, _QUIET_SECONDS, _BLOCK_SECONDS = 16, 3.0, 0.5
+#: Queries answered first to time a batch (more than the methods' single-query paths take, so the probe
+#: runs as the batch does); a batch whose rest would take longer than _QUIET_SECONDS is answered in blocks
+#: of about _BLOCK_SECONDS, at least _MIN_BLOCK_ROWS (a block rescans the map), under a progress bar.
+_PROBE_ROWS, _QUIET_SECONDS, _BLOCK_SECONDS, _MIN_BLOCK_ROWS = 64, 3.0, 1.0, 256
 
 
 def _in_row_blocks(answer: Any, Q: Any, progress: str | None = None) -> Any:
     """``answer(Q)`` computed on row blocks of ``Q`` of at most :data:`_QUERY_BLOCK_BYTES` and stacked.
 
     With ``progress`` (the bar's label), the first :data:`_PROBE_ROWS` rows are timed: when the rest would
-    take longer than :data:`_QUIET_SECONDS`, blocks of about :data:`_BLOCK_SECONDS` each advance a bar on a
-    terminal (a line every 10 s in a log), so a slow method's minutes of queries are not silent.
+    take longer than :data:`_QUIET_SECONDS`, blocks of about :data:`_BLOCK_SECONDS` (at least
+    :data:`_MIN_BLOCK_ROWS` rows) each advance a bar on a terminal (a line every 10 s in a log), so a slow
+    method's minutes of queries are not silent.
     """
     import time
 
@@ -164,7 +166,7 @@ def _in_row_blocks(answer: Any, Q: Any, progress: str | None = None) -> Any:
     if per_row * (n - _PROBE_ROWS) > _QUIET_SECONDS:
         from ..core.progress import progress_bar
 
-        rows = max(1, min(rows, int(_BLOCK_SECONDS / max(per_row, 1e-9))))
+        rows = max(1, min(rows, max(_MIN_BLOCK_ROWS, int(_BLOCK_SECONDS / max(per_row, 1e-9)))))
         bar = progress_bar(n, progress, "query", True)
         bar.update(_PROBE_ROWS)
     try:
@@ -179,11 +181,12 @@ def _in_row_blocks(answer: Any, Q: Any, progress: str | None = None) -> Any:
 
 
 def _check_answers_fit(n_queries: int, top_k: int | None, queries: str) -> None:
-    """The answers are held whole (an (n, 1 + K) int64 table) until the CSV is written: refused past the memory
-    limit (:mod:`btel.core.limits`) before any query is answered."""
-    from ..core.limits import check_count
+    """The answers are held whole (an (n, 1 + K) int64 table) until the CSV is written: refused, before any
+    query is answered, when that table needs more than the machine's memory."""
+    from ..core.limits import check_fits_machine
 
-    check_count(n_queries, 8 * (1 + (top_k or 0)), f"the answers to the {n_queries:,} queries of {queries}")
+    check_fits_machine(8.0 * n_queries * (1 + (top_k or 0)), f"the answers to the {n_queries:,} queries of {queries}",
+                       "split the queries into several files.")
 
 
 def _check_top_k(top_k: int | None, n_places: int, model_path: str) -> None:

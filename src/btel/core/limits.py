@@ -19,6 +19,7 @@ from typing import Any
 from ..exceptions import ResourceLimitError
 
 __all__ = ["DEFAULT_MEMORY_LIMIT", "ENV_MEMORY_LIMIT", "memory_limit", "check_bytes", "check_count",
+           "check_fits_machine", "physical_memory",
            "format_size", "check_numpy_file", "open_regular",
            "BYTES_PER_PLACE", "check_places"]
 
@@ -83,6 +84,23 @@ def check_bytes(n_bytes: float, what: str) -> None:
         raise ResourceLimitError(
             f"{what} would need {format_size(n_bytes)}, over btel's memory limit of {format_size(limit)}; "
             f"if the input is genuine, raise the limit with {ENV_MEMORY_LIMIT} (e.g. {ENV_MEMORY_LIMIT}=4G).")
+
+
+def physical_memory() -> int | None:
+    """Bytes of memory this machine has (None where the system does not say)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def check_fits_machine(n_bytes: float, what: str, fix: str) -> None:
+    """Raise :class:`ResourceLimitError` when work the user asked for (not a file's claim: that is
+    :func:`check_bytes`) would need more bytes than the machine has; ``fix`` says what to ask instead."""
+    memory = physical_memory()
+    if memory is not None and not n_bytes <= memory:
+        raise ResourceLimitError(f"{what} would need {format_size(n_bytes)} and this machine has "
+                                 f"{format_size(memory)}; {fix}")
 
 
 def check_count(count: float, itemsize: int, what: str) -> None:
