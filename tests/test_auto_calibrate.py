@@ -350,3 +350,22 @@ def test_a_ground_truth_no_candidate_beats_chance_on_is_warned_of() -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         make_method("auto", budget="4KB").fit(route.map, calibration=(queries, np.arange(0, 300, 2)))
+
+
+def test_calibration_candidates_fit_without_warnings_about_their_own_codes() -> None:
+    """A PQ candidate at 3 KB on 300 rows of d = 256 gets codes of fewer than log2 N bits: fitted directly it
+    warns (CollidingCodesWarning); as one of calibration's candidates it is scored without a word, by an
+    attribute of the candidate rather than a process-wide warnings filter (threaded fits share those)."""
+    import warnings
+
+    from btel.exceptions import CollidingCodesWarning
+
+    route = synthetic_route(300, 256, seed=1)
+    with pytest.warns(CollidingCodesWarning):
+        btel.make_method("pq", budget=3000).fit(route.map)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", CollidingCodesWarning)
+        model = btel.make_method("auto", budget=3000, calibration_tolerance=2).fit(
+            route.map, calibration=(route.queries[::3], np.arange(0, 300, 3)))
+    pq = [e for e in model.choice_["calibration"]["table"] if e["candidate"] == "pq"]
+    assert pq and pq[0]["status"] == "ok" and "score" in pq[0], pq

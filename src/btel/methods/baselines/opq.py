@@ -135,7 +135,8 @@ class OPQLocalizer(_RowLocalizer):
                       normalize="none", whiten=None, delta=None, n_jobs=self.n_jobs)
         self.pq_ = pq.fit(Y)
         self.projection_ = projection
-        warn_if_codes_collide("opq", config, X.shape[0], X.shape[1], budget)
+        if getattr(self, "_warn_colliding_codes", True):
+            warn_if_codes_collide("opq", config, X.shape[0], X.shape[1], budget)
 
     def _learn_projection(self, X: np.ndarray, config: PQConfig, random_state: int | None) -> np.ndarray:
         pca = None if config.dim == X.shape[1] else pca_projection(X, config.dim, random_state)

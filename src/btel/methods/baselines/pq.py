@@ -333,7 +333,8 @@ class PQLocalizer(_RowLocalizer):
         self.codes_ = faiss.vector_to_array(index.codes).reshape(n_rows, index.sa_code_size())
         self.config_ = config
         self._index = index
-        warn_if_codes_collide("pq", config, n_rows, n_features, budget)
+        if getattr(self, "_warn_colliding_codes", True):
+            warn_if_codes_collide("pq", config, n_rows, n_features, budget)
 
     def _build_index(self) -> faiss.IndexPQ:
         c = self.config_
@@ -403,7 +404,9 @@ class PQLocalizer(_RowLocalizer):
 
 def warn_if_codes_collide(method: str, config: PQConfig, n_rows: int, n_features: int, budget: int | None) -> None:
     """Warn when the budget leaves codes of fewer than log2 N bits: at most 2^bits distinct codes, so rows share
-    them whatever the quantiser learns (typically a projection to a few dimensions taking the budget)."""
+    them whatever the quantiser learns (typically a projection to a few dimensions taking the budget). A
+    model whose ``_warn_colliding_codes`` is False (a calibration candidate) is not warned about by its fit:
+    an attribute, not a warnings filter, which is process-wide and unsafe in threaded fits."""
     if budget is None or (1 << min(config.code_bits, 62)) >= n_rows:
         return
     import warnings
