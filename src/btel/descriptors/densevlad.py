@@ -34,7 +34,6 @@ Choices and deviations from the paper, each deliberate:
 
 from __future__ import annotations
 
-import sys
 import warnings
 from functools import lru_cache
 from typing import Any, ClassVar
@@ -372,7 +371,7 @@ class DenseVLADDescriptor(ImageDescriptor):
                     raw[i] = self._encode(grey)
         cap = min(int(self.n_components), n_images - 1, n_clusters * SIFT_DIM)
         with elapsed_ticker(f"densevlad: PCA-whitening {n_images} VLAD vectors ({raw.shape[1]} → {cap} dims)",
-                            enabled=bool(progress) and sys.stderr.isatty()):
+                            enabled=bool(progress)):
             pca = PCA(n_components=cap, whiten=True, random_state=rng).fit(raw)
         variance = pca.explained_variance_
         kept = int(np.count_nonzero(variance > max(variance[0] * _PCA_RTOL, _PCA_ATOL))) if variance.size else 0

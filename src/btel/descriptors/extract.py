@@ -224,9 +224,10 @@ def refuse_foreign_record(output: str | os.PathLike, overwrite: bool) -> None:
     """Refuse to write ``output``'s record (``output + ".json"``) over a file that is not one.
 
     An extraction writes its record beside the matrix; a file of the user's at that path (notes, another
-    tool's JSON) would be replaced without a word. Without ``overwrite`` anything there but a record of
-    btel's is refused; a folder, link or special file there always is (by :func:`read_sidecar`, which
-    names it): a record cannot replace it, and finding out after the matrix was written left the matrix.
+    tool's JSON) would be replaced without a word. Without ``overwrite`` anything there but a regular file
+    holding a record of btel's is refused (a link too: writing would replace the link); a folder or special
+    file there always is (by :func:`read_sidecar`, which names it): a record cannot replace it, and finding
+    out after the matrix was written left the matrix behind.
 
     Raises
     ------
@@ -243,8 +244,12 @@ def refuse_foreign_record(output: str | os.PathLike, overwrite: bool) -> None:
         if sidecar.is_symlink() or not sidecar.is_file():
             raise
         cached = None  # a regular file btel cannot read as a record: the user's
-    if overwrite or _is_record(cached):
+    if overwrite or (_is_record(cached) and not sidecar.is_symlink()):
         return
+    if sidecar.is_symlink():
+        raise OutputExistsError(
+            f"{str(sidecar)!r} is a link; extracting to {str(output)!r} writes the record of its images there, "
+            "which would replace the link. Move it away, give another -o, or --overwrite to replace it.")
     raise OutputExistsError(
         f"{str(sidecar)!r} is a file that is not btel extract's record of a matrix; extracting to {str(output)!r} "
         "writes the record of its images there. Move it away, give another -o, or --overwrite to replace it.")
@@ -334,8 +339,9 @@ def extract_delta_cached(images: str | os.PathLike, output: str | os.PathLike, m
     ours = written_by_extract(plain)  # btel's own cache of the plain descriptors: reused or replaced freely
     if os.path.lexists(plain) and not ours and not overwrite:
         raise OutputExistsError(
-            f"{str(plain)!r} exists and is not a matrix btel extract wrote; extracting to {str(output)!r} with "
-            "--delta keeps the plain descriptors there. Move it away, give another -o, or --overwrite to replace it.")
+            f"{str(plain)!r} exists without btel extract's record of it beside it ({plain.name}.json), so it may "
+            f"be another program's; extracting to {str(output)!r} with --delta keeps the plain descriptors there. "
+            "Move it away, give another -o, or --overwrite to replace it.")
     X, _ = extract_cached(images, plain, model, fit_on=fit_on, progress=progress, force=force,
                           overwrite=overwrite or ours)
     D = delta_descriptors(X, window)

@@ -73,7 +73,7 @@ def experiment_jobs() -> int:
     value = os.environ.get("BTEL_EXPERIMENT_JOBS", "").strip()
     if not value:
         return max(1, os.cpu_count() or 1)
-    if not value.isdigit() or not 1 <= int(value) <= 4096:
+    if not (value.isascii() and value.isdigit()) or not 1 <= int(value) <= 4096:
         from ..exceptions import InvalidParameterError
 
         raise InvalidParameterError(f"BTEL_EXPERIMENT_JOBS={value[:40]!r} is not a number of threads; give a whole "

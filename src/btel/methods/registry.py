@@ -33,7 +33,7 @@ from ..exceptions import BTELError, InvalidParameterError, ModelFileError, Resou
 from ..core.frontend import FrontEnd
 from ..core.limits import check_places
 from ..core.fingerprint import read_fingerprint
-from ..core.storage import parse_budget
+from ..core.storage import budget_of
 from ..core.modelfile import load_arrays
 
 if TYPE_CHECKING:  # pragma: no cover - imported on first use (_model_class)
@@ -206,7 +206,7 @@ def load(path: str | os.PathLike) -> PlaceLocalizer:
         check_params(model)
         _restore(model, arrays, state)
         model.map_fingerprint_ = read_fingerprint(header.get("map"))
-        budget = parse_budget(getattr(model, "budget", None))
+        budget = budget_of(model)
         if budget is not None and model.nbytes > budget:  # a fit never stores more than its budget
             raise ModelFileError(f"its arrays take {model.nbytes:,} B, over the budget of {budget:,} B its header "
                                  "records; the file is corrupt or was edited.")

@@ -66,6 +66,12 @@ class CutLine:
                 "it is not answered; end every line with a newline (numpy.savetxt does).")
 
 
+def _inner_cr(text: str | bytes) -> bool:
+    """A carriage return inside the text (not only closing it, as a CRLF line whose LF is missing ends)."""
+    cr, ends = ("\r", "\r\n") if isinstance(text, str) else (b"\r", b"\r\n")
+    return cr in text.rstrip(ends)
+
+
 def is_pipe(stream: Any) -> bool:
     """True for a binary stream on a pipe, socket or terminal that can be polled (POSIX select)."""
     try:
@@ -156,7 +162,7 @@ def read_lines(stream: Any, *, follow: bool = False, poll_interval: float = 0.1,
         yield LineTooLong(limit)
     elif pending and pending.strip():
         # the last line lacks its newline: cut short, or not, cannot be told
-        yield CutLine(("\r" if isinstance(pending, str) else b"\r") in pending)
+        yield CutLine(_inner_cr(pending))
 
 
 def _truncated(stream: Any) -> bool:
@@ -211,7 +217,7 @@ def chunk_lines(stream: BinaryIO, *, max_line: int | None = None) -> Iterator[An
     if skipping:
         yield LineTooLong(limit)
     elif buf.strip():
-        yield CutLine(("\r" if isinstance(buf, str) else b"\r") in buf)
+        yield CutLine(_inner_cr(buf))
 
 
 def _count_hint(head: bytes, n_features: int) -> str:

@@ -117,7 +117,8 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
         few = factor * collision_bits(n_rows)
         if effective < few:
             how = "centred" if centred else "uncentred"
-            crowd = f" (N > {CODES_PLACES_PER_DIMENSION}·d: the bound itself)" if many else ""
+            crowd = (f" (N = {n_places} places > {CODES_PLACES_PER_DIMENSION}·d: the bound itself)" if many
+                     else "")
             why = (f"ordered map ({order.why}); LSH would carry ≈ {effective:.1f} effective bits per row "
                    f"(P = {bits:.0f}, cone ratio {cone:.2f}, {how}) < {factor:g} × 2·log2 N = "
                    f"{few:.1f}{crowd}: periodic output codes filling the budget")
