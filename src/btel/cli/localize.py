@@ -92,7 +92,8 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
     check_output_suffix(output, "-o", "a predictions CSV", (".csv", ".txt"))
     refuse_existing(output, "-o", overwrite, {"MODEL": model_path, "QUERIES": queries, "--db": db})
     model = load_model(model_path)
-    _check_top_k(top_k, model.n_places_, model_path)
+    if top_k is not None:  # before the answers it sizes are weighed
+        _check_top_k(top_k, model.n_places_, model_path)
     declared = declared_rows(queries)
     if declared is not None:  # before the file is read (reading checks every value)
         _check_answers_fit(declared, top_k, queries)
