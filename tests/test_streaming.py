@@ -145,7 +145,7 @@ def test_cli_stream_skips_malformed_lines_and_goes_on(route, model_path: Path) -
     feed.append("\n")  # blank lines are ignored
     result = CliRunner().invoke(main, ["localize", str(model_path), "--stream", "--sequence-filter", "4"],
                                 input="".join(feed), catch_exceptions=False)
-    assert result.exit_code == 0, result.stderr
+    assert result.exit_code == 1, result.stderr  # a line skipped: exit 1 (not every input answered)
     got = [int(v) for v in result.stdout.split()]
     np.testing.assert_array_equal(got, filter_sequence(model.predict(Q), 4, n_places=model.n_places_))
     errors = result.stderr.strip().splitlines()
@@ -193,7 +193,7 @@ def test_subprocess_answers_each_line_before_the_next_arrives(route, model_path:
             answers.append(int(proc.stdout.readline()))
         proc.stdin.close()
         stderr = proc.stderr.read()
-        assert proc.wait(timeout=30) == 0
+        assert proc.wait(timeout=30) == 1  # "oops" was skipped: not every line answered
     finally:
         proc.kill()
     np.testing.assert_array_equal(answers, model.predict(Q))
@@ -294,7 +294,7 @@ def test_cli_stream_reports_an_overlong_line_and_goes_on(route, model_path: Path
     feed = lines[0] + "1," * 3000 + "1\n" + lines[1] + lines[2]
     result = CliRunner().invoke(main, ["localize", str(model_path), "--stream"], input=feed,
                                 env={"BTEL_MAX_LINE_BYTES": "4096"}, catch_exceptions=False)
-    assert result.exit_code == 0, result.stderr
+    assert result.exit_code == 1, result.stderr  # a line skipped: exit 1 (not every input answered)
     np.testing.assert_array_equal([int(v) for v in result.stdout.split()], model.predict(route.queries[:3]))
     assert "error: line 2: line longer than 4096 bytes" in result.stderr
     assert "BTEL_MAX_LINE_BYTES" in result.stderr
@@ -379,7 +379,7 @@ def test_a_pipe_backlog_is_answered_in_blocks_with_the_same_answers(route, model
     lines[400] = "reset\n"
     proc = _btel("localize", str(model_path), "--stream", "--sequence-filter", "3", stdin=subprocess.PIPE)
     out, err = proc.communicate("".join(lines), timeout=120)
-    assert proc.returncode == 0, err
+    assert proc.returncode == 1, err  # a line skipped: exit 1 (not every input answered)
     keep = [i for i in range(600) if i not in (7, 400)]
     expected = np.concatenate([filter_sequence(model.predict(Q[[i for i in keep if i < 400]]), 3,
                                                n_places=model.n_places_),
@@ -436,7 +436,7 @@ def test_binary_frames_equal_text_lines_and_report_wrong_frames(route, model_pat
             + frames(Q[30:]))
     args = ["localize", str(model_path), "--stream", "--binary", "--sequence-filter", "3"]
     result = CliRunner().invoke(main, args, input=data, catch_exceptions=False)
-    assert result.exit_code == 0, result.stderr
+    assert result.exit_code == 1, result.stderr  # a line skipped: exit 1 (not every input answered)
     expected = np.concatenate([filter_sequence(model.predict(Q[:30]), 3, n_places=model.n_places_),
                                filter_sequence(model.predict(Q[30:]), 3, n_places=model.n_places_)])
     np.testing.assert_array_equal([int(v) for v in result.stdout.split()], expected)

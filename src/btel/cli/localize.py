@@ -63,8 +63,9 @@ def localize(model_path: str, queries: str | None, output: str | None, overwrite
             camera | btel localize MODEL --stream --binary   (float32 frames, see --binary)
     In stream mode each line of input is one descriptor; each output line is the place index of the
     next well-formed input line. A malformed line (wrong count, not a number, NaN) gets a one-line
-    error naming its line number on stderr, produces no output line, and the stream goes on. Blank
-    lines and # comments are skipped; a last line without its newline is reported, not answered.
+    error naming its line number on stderr, produces no output line, and the stream goes on (the command
+    then exits 1: not every line was answered). Blank lines and # comments are skipped; a last line
+    without its newline is reported, not answered.
     """
     batch = (queries, output, db, top_k) != (None,) * 4
     streaming = (input_path, idle_timeout) != (None, None) or follow or binary
@@ -257,3 +258,7 @@ def _localize_stream(model: Any, input_path: str | None, follow: bool, idle_time
             source.close()
         if n_bad:
             click.echo(f"{n_out} predictions; {n_bad} malformed {unit}(s) skipped", err=True)
+    if n_bad:  # as a run with a row not measured (docs/decisions/cli-exit-codes.md): not every input answered
+        from ._errors import EXIT_SOME_ROWS_FAILED
+
+        raise click.exceptions.Exit(EXIT_SOME_ROWS_FAILED)
