@@ -436,6 +436,10 @@ def test_an_ordered_map_of_many_places_per_dimension_gets_codes_only_below_the_b
         assert collision_bits(n) < first["lsh_effective_bits"] < ORDER_BITS_FACTOR * collision_bits(n)
         assert first["method"] == expected, first["reason"]
         assert (n > CODES_PLACES_PER_DIMENSION * 64) == (expected == "lsh")
+    # Whitened to 32 dimensions by the user, the codes' classifiers see 32 features: 2,000 places are too many.
+    route2000 = synthetic_route(2000, 64, seed=5)
+    whitened = choose_method(route2000.map, None, 2000, int(2000 * 1.5 * collision_bits(2000) / 8), whiten=32)[0]
+    assert whitened["method"] == "lsh", whitened["reason"]
     below = choose_method(route.map, None, 2100, int(2100 * 0.8 * collision_bits(2100) / 8))[0]
     assert below["method"] == "btel-codes" and "the bound itself" in below["reason"]
     # On a map of 125 places per dimension the codes locate a query only coarsely.

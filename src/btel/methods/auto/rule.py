@@ -112,7 +112,9 @@ def choose_method(X: np.ndarray, places: np.ndarray | None, n_places: int, budge
         centred = variant == "centre"
         effective = LSHLocalizer(center=centred).effective_bits(n_rows, d, budget, cone)
         stats["lsh_effective_bits"] = round(effective, 1)
-        many = n_places > CODES_PLACES_PER_DIMENSION * d  # the codes' classifiers cannot resolve them all
+        # The codes' classifiers cannot resolve them all; they see the user's whitening rank, if one is given.
+        seen = int(whiten) if isinstance(whiten, (int, np.integer)) and not isinstance(whiten, bool) else d
+        many = n_places > CODES_PLACES_PER_DIMENSION * seen
         factor = 1.0 if many else ORDER_BITS_FACTOR
         few = factor * collision_bits(n_rows)
         if effective < few:
