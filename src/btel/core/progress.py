@@ -58,6 +58,12 @@ def elapsed_ticker(desc: str, enabled: bool, file: Any = None) -> Iterator[None]
 LINE_EVERY_SECONDS = 10.0
 
 
+def _clock(seconds: float) -> str:
+    """``m:ss`` of whole seconds, as the log lines show time elapsed."""
+    whole = int(seconds)
+    return f"{whole // 60}:{whole % 60:02d}"
+
+
 class _ElapsedLines:
     """:func:`elapsed_ticker` in a log: ``desc: 0:20 elapsed`` on each refresh, nothing on close."""
 
@@ -65,8 +71,7 @@ class _ElapsedLines:
         self.desc, self.file, self.start = desc, file, time.monotonic()
 
     def refresh(self) -> None:
-        elapsed = int(time.monotonic() - self.start)
-        print(f"{self.desc}: {elapsed // 60}:{elapsed % 60:02d} elapsed", file=self.file, flush=True)
+        print(f"{self.desc}: {_clock(time.monotonic() - self.start)} elapsed", file=self.file, flush=True)
 
     def close(self) -> None:
         pass
@@ -98,11 +103,10 @@ class LineProgress:
 
     def _line(self) -> None:
         self.last, self.shown = time.monotonic(), self.done
-        elapsed = int(self.last - self.start)
         units = self.unit[:-1] + "ies" if self.unit.endswith("y") else self.unit + "s"
         print(f"{self.desc}: {self.done}/{self.total} {units} done"
               + (f" (now {self.postfix})" if self.postfix and self.done < self.total else "")
-              + f", {elapsed // 60}:{elapsed % 60:02d} elapsed", file=self.file, flush=True)
+              + f", {_clock(self.last - self.start)} elapsed", file=self.file, flush=True)
 
 
 def progress_bar(total: int, desc: str, unit: str, enabled: bool) -> Any:

@@ -238,21 +238,19 @@ def refuse_foreign_record(output: str | os.PathLike, overwrite: bool) -> None:
     sidecar = Path(str(output) + ".json")
     if not os.path.lexists(sidecar):
         return
+    link = sidecar.is_symlink()
     try:
         cached = read_sidecar(output)
     except BTELError:
-        if sidecar.is_symlink() or not sidecar.is_file():
+        if link or not sidecar.is_file():
             raise
         cached = None  # a regular file btel cannot read as a record: the user's
-    if overwrite or (_is_record(cached) and not sidecar.is_symlink()):
+    if overwrite or (_is_record(cached) and not link):
         return
-    if sidecar.is_symlink():
-        raise OutputExistsError(
-            f"{str(sidecar)!r} is a link; extracting to {str(output)!r} writes the record of its images there, "
-            "which would replace the link. Move it away, give another -o, or --overwrite to replace it.")
+    what = "a link, which writing would replace" if link else "a file that is not btel extract's record of a matrix"
     raise OutputExistsError(
-        f"{str(sidecar)!r} is a file that is not btel extract's record of a matrix; extracting to {str(output)!r} "
-        "writes the record of its images there. Move it away, give another -o, or --overwrite to replace it.")
+        f"{str(sidecar)!r} is {what}; extracting to {str(output)!r} writes the record of its images there. "
+        "Move it away, give another -o, or --overwrite to replace it.")
 
 
 def written_by_extract(output: str | os.PathLike) -> bool:
@@ -331,7 +329,6 @@ def extract_delta_cached(images: str | os.PathLike, output: str | os.PathLike, m
         Where they are cached.
     """
     from ..core.frontend import delta_descriptors
-
     from ..exceptions import OutputExistsError
 
     output = Path(output)
